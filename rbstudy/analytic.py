@@ -1,0 +1,166 @@
+"""Exact references: closed forms where they exist, DOP853 at 1e-13 where they do not.
+
+`reference_solution(scene, times)` returns the reference for a scene on an output grid and
+says which one it used (``Reference.name``):
+
+- ``symmetric_top``: force-free (moment-free) body with two equal principal inertias, any
+  initial data (physics.md s3): ``R(t) = Rot(L/|L|, |L| t/I1) R0 Rot(e3, -W t)``,
+  ``w(t) = R(t)^T L / I1 - W e3`` with ``W = w3 (I3 - I1) / I1``, in the frame whose third
+  axis is the symmetry axis.
+- ``axial_moment``: a body spinning about a principal axis ``k`` under a constant body moment
+  along that axis: ``w_k = w_k0 + M_k t / I_k``, ``R = R0 Rot(e_k, w_k0 t + M_k t^2 / (2 I_k))``.
+- the centre of mass under constant space forces and uniform gravity follows the parabola
+  ``x0 + v0 t + a t^2 / 2`` whatever the rotation does.
+- ``dop853``: everything else (asymmetric bodies, body-fixed forces, space moments), scipy's
+  DOP853 at rtol = atol = 1e-13.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from rbstudy.simulate import simulate
+
+__all__ = ["Reference", "reference_solution", "symmetric_top", "axial_moment",
+           "precession_frequency_exact", "closed_form_name"]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
+    position and velocity (T, 3); ``name`` says where it comes from."""
+
+    name: str
+    quaternion: np.ndarray
+    omega_body: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+
+    @property
+    def exact(self):
+        return self.name != "dop853"
+
+
+def _cyclic_frame(axis):
+    """Cyclic relabelling that makes ``axis`` the third one: (perm, C) with ``C[:, j] = e_perm[j]``."""
+    perm = ((axis + 1) % 3, (axis + 2) % 3, axis)
+    return perm, np.eye(3)[:, perm]
+
+
+def symmetric_top(inertia, quaternion0, omega0, times):
+    """Closed-form free motion of a symmetric body (two equal principal inertias).
+
+    Parameters
+    ----------
+    inertia : (3,) principal inertias, two of them equal.
+    quaternion0 : (4,) initial orientation (scalar-last, body to space).
+    omega0 : (3,) initial body angular velocity (rad/s).
+    times : (T,) s.
+
+    Returns
+    -------
+    quaternion : (T, 4); omega_body : (T, 3).
+    """
+    inertia = np.asarray(inertia, dtype=float)
+    i1, i2, i3 = inertia
+    axis = 2 if i1 == i2 else 0 if i2 == i3 else 1 if i1 == i3 else None
+    if axis is None:
+        raise ValueError(f"not a symmetric body: {inertia}")
+    perm, frame = _cyclic_frame(axis)
+    c_rot = Rotation.from_matrix(frame)
+    inertia_p = inertia[list(perm)]
+    omega0_p = frame.T @ np.asarray(omega0, dtype=float)
+    r0 = Rotation.from_quat(quaternion0) * c_rot
+    momentum = r0.apply(inertia_p * omega0_p)
+    size = np.linalg.norm(momentum)
+    times = np.asarray(times, dtype=float)
+    body_rate = omega0_p[2] * (inertia_p[2] - inertia_p[0]) / inertia_p[0]
+    direction = momentum / size if size > 0 else np.array([0.0, 0.0, 1.0])
+    precession = Rotation.from_rotvec(np.outer(size * times / inertia_p[0], direction))
+    spin_back = Rotation.from_rotvec(np.outer(-body_rate * times, [0.0, 0.0, 1.0]))
+    r_t = precession * r0 * spin_back
+    omega_p = r_t.inv().apply(momentum) / inertia_p[0] - body_rate * np.array([0.0, 0.0, 1.0])
+    return (r_t * c_rot.inv()).as_quat(), omega_p @ frame.T
+
+
+def axial_moment(inertia, quaternion0, omega0, moment_body, times):
+    """Spin about principal axis ``k`` under a constant body moment along it (closed form).
+
+    Requires ``omega0`` and ``moment_body`` (3,) to have non-zero entries only at the same
+    axis ``k``. Returns quaternion (T, 4) and omega_body (T, 3).
+    """
+    k = _axial_index(omega0, moment_body)
+    if k is None:
+        raise ValueError("omega0 and the moment must both lie along one principal axis")
+    times = np.asarray(times, dtype=float)
+    rate = moment_body[k] / inertia[k]
+    angle = omega0[k] * times + 0.5 * rate * times ** 2
+    turn = np.zeros((times.size, 3))
+    turn[:, k] = angle
+    omega = np.zeros((times.size, 3))
+    omega[:, k] = omega0[k] + rate * times
+    return (Rotation.from_quat(quaternion0) * Rotation.from_rotvec(turn)).as_quat(), omega
+
+
+def _axial_index(omega0, moment_body):
+    support = [k for k in range(3) if omega0[k] != 0.0 or moment_body[k] != 0.0]
+    return support[0] if len(support) == 1 else None
+
+
+def closed_form_name(scene):
+    """Name of the closed form that applies to the scene's rotation, or None."""
+    loads = scene.loads
+    if any(loads.force_body):
+        return None  # the force turns with the body: translation and rotation couple
+    if loads.moment_free and scene.body.symmetry_axis is not None:
+        return "symmetric_top"
+    if not any(loads.moment_space) and _axial_index(scene.omega_body, loads.moment_body) is not None:
+        return "axial_moment"
+    return None
+
+
+def precession_frequency_exact(scene):
+    """Body-frame precession frequency ``W = w_s (I_s - I_t) / I_t`` (rad/s) of a free symmetric
+    body about its symmetry axis ``s`` (``I_t`` the transverse inertia), or None."""
+    axis = scene.body.symmetry_axis
+    if axis is None or not scene.loads.moment_free:
+        return None
+    transverse = scene.body.inertia[(axis + 1) % 3]
+    return scene.omega_body[axis] * (scene.body.inertia[axis] - transverse) / transverse
+
+
+def _parabola(scene, times):
+    loads = scene.loads
+    acceleration = (np.asarray(loads.force_space) / scene.body.mass + np.asarray(loads.gravity))
+    t = np.asarray(times, dtype=float)[:, None]
+    position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t ** 2
+    velocity = np.asarray(scene.velocity) + acceleration * t
+    return position, velocity
+
+
+def reference_solution(scene, times, output_interval=None):
+    """The best available reference for ``scene`` at ``times`` (T,), a `Reference`.
+
+    ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when DOP853 is needed
+    (``output_interval`` = d, default ``times[1] - times[0]``).
+    """
+    times = np.asarray(times, dtype=float)
+    name = closed_form_name(scene)
+    if name is not None:
+        if name == "symmetric_top":
+            quaternion, omega = symmetric_top(scene.body.inertia, scene.quaternion,
+                                              scene.omega_body, times)
+        else:
+            quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
+                                             scene.omega_body, scene.loads.moment_body, times)
+        position, velocity = _parabola(scene, times)
+        return Reference(name, quaternion, omega, position, velocity)
+    interval = output_interval if output_interval is not None else times[1] - times[0]
+    duration = times[-1]
+    run = simulate([scene.with_changes(duration=duration)], "dop853", interval, interval)
+    if run.status[0] != 0 or not math.isclose(run.time[-1], duration):
+        raise RuntimeError("the DOP853 reference failed for this scene")
+    return Reference("dop853", run.quaternion[0], run.omega_body[0], run.position[0],
+                     run.velocity[0])

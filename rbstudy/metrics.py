@@ -1,0 +1,109 @@
+"""Error measures (physics.md section 6), vectorised over any leading axes.
+
+Array arguments carry the time axis ``T`` second to last for vectors: ``(..., T, 3)`` or
+``(..., T, 4)``; scalars per time are ``(..., T)``.
+"""
+
+import numpy as np
+
+__all__ = [
+    "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
+    "momentum_error", "phase_rate", "observed_order", "quat_to_matrix",
+]
+
+
+def _quat_mul(a, b):
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ], axis=-1)
+
+
+def quat_to_matrix(q):
+    """Rotation matrices (..., 3, 3) of scalar-last unit quaternions (..., 4)."""
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=-2)
+
+
+def orientation_error(q, q_ref):
+    """Geodesic angle (rad) between orientations: ``2 atan2(|v|, |s|)`` of ``q_ref^-1 q``.
+
+    q, q_ref : (..., 4) scalar-last. Returns (...). Accurate at small angles (no acos).
+    """
+    conj = np.asarray(q_ref) * np.array([-1.0, -1.0, -1.0, 1.0])
+    rel = _quat_mul(conj, np.asarray(q))
+    return 2.0 * np.arctan2(np.linalg.norm(rel[..., :3], axis=-1), np.abs(rel[..., 3]))
+
+
+def omega_error(w, w_ref):
+    """``|w - w_ref| / |w_ref|`` for (..., 3) angular velocities; returns (...)."""
+    return np.linalg.norm(np.asarray(w) - w_ref, axis=-1) / np.linalg.norm(w_ref, axis=-1)
+
+
+def node_positions(q, position, offsets):
+    """Space positions (..., N, 3) of nodes with body offsets ``offsets`` (N, 3).
+
+    q : (..., 4); position : (..., 3) centre of mass.
+    """
+    rotated = np.einsum("...ij,nj->...ni", quat_to_matrix(q), offsets)
+    return rotated + np.asarray(position)[..., None, :]
+
+
+def node_error(x, x_ref):
+    """``|x - x_ref|`` (m) for node positions (..., 3); returns (...)."""
+    return np.linalg.norm(np.asarray(x) - x_ref, axis=-1)
+
+
+def energy_error(w, inertia):
+    """Signed relative rotational energy error ``(T(t) - T(0)) / T(0)``; w (..., T, 3) -> (..., T)."""
+    energy = 0.5 * np.sum(np.asarray(inertia) * np.asarray(w) ** 2, axis=-1)
+    return energy / energy[..., :1] - 1.0
+
+
+def momentum_error(q, w, inertia):
+    """``|L(t) - L(0)| / |L(0)|`` of the space angular momentum ``L = R I w``.
+
+    q (..., T, 4), w (..., T, 3), inertia (3,) or broadcastable (..., 1, 3); returns (..., T).
+    """
+    space = np.einsum("...ij,...j->...i", quat_to_matrix(q), np.asarray(inertia) * w)
+    return np.linalg.norm(space - space[..., :1, :], axis=-1) / np.linalg.norm(
+        space[..., :1, :], axis=-1)
+
+
+def phase_rate(a, b, time):
+    """Least-squares slope (rad/s) of the unwrapped phase of ``a + i b`` against ``time``.
+
+    a, b : (..., T); time : (T,). The precession frequency of a symmetric top is
+    ``phase_rate(w1, w2, t)`` (body frame); its period seen in space is ``2 pi / rate`` of
+    the space ``w_x, w_y``. NaN where any sample is non-finite.
+    """
+    phase = np.unwrap(np.arctan2(b, a), axis=-1)
+    t = np.asarray(time, dtype=float)
+    centred = t - t.mean()
+    slope = np.sum((phase - phase.mean(axis=-1, keepdims=True)) * centred, axis=-1) / np.sum(
+        centred ** 2)
+    return np.where(np.all(np.isfinite(phase), axis=-1), slope, np.nan)
+
+
+def observed_order(dts, errors, floor=1e-12, ceiling=1e-1):
+    """Observed convergence order: least-squares slope of log(error) against log(dt).
+
+    Only points in the asymptotic range are used: errors above ``floor`` (round-off) and
+    below ``ceiling`` (not yet asymptotic, or unstable), finite. Returns ``(order, used)``
+    with ``used`` a boolean mask; order is NaN with fewer than two usable points.
+    """
+    dts = np.asarray(dts, dtype=float)
+    errors = np.asarray(errors, dtype=float)
+    used = np.isfinite(errors) & (errors > floor) & (errors < ceiling)
+    if used.sum() < 2:
+        return float("nan"), used
+    slope = np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)[0]
+    return float(slope), used

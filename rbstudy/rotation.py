@@ -1,0 +1,219 @@
+"""Scalar kernels for 3-vectors, 3x3 solves and unit quaternions, on tuples of floats.
+
+Everything here works on tuples so that numba keeps the values in registers: no array is
+allocated on the hot path of a step. Quaternions are scalar-last ``(x, y, z, w)`` as in
+`scipy.spatial.transform.Rotation`; ``q`` maps body to space, and the body-frame kinematics is
+``dq/dt = 1/2 q * (omega, 0)`` (physics.md section 1).
+"""
+
+import math
+
+from rbstudy._jit import jit
+
+__all__ = [
+    "read3", "write3", "read4", "write4",
+    "add", "sub", "scale", "axpy", "axpy4", "dot", "dot4", "cross", "norm",
+    "skew_matmul", "solve3",
+    "quat_mul", "quat_conj", "quat_normalize", "quat_rotate", "quat_rotate_inverse",
+    "quat_exp", "quat_cayley", "quat_axis_angle", "quat_times_axis",
+]
+
+# Below this rotation angle (rad) the exponential map uses its Taylor series: the series
+# error is below angle^4/3840 ~ 1e-22 there, while sin(x)/x would lose digits.
+SMALL_ANGLE = 1e-4
+
+
+@jit
+def read3(a, i):
+    """Three consecutive entries ``a[i:i+3]`` of a 1-D array as a tuple."""
+    return (a[i], a[i + 1], a[i + 2])
+
+
+@jit
+def write3(a, i, v):
+    """Store the 3-tuple ``v`` into ``a[i:i+3]`` (mutates ``a``)."""
+    a[i] = v[0]
+    a[i + 1] = v[1]
+    a[i + 2] = v[2]
+
+
+@jit
+def read4(a, i):
+    """Four consecutive entries ``a[i:i+4]`` of a 1-D array as a tuple."""
+    return (a[i], a[i + 1], a[i + 2], a[i + 3])
+
+
+@jit
+def write4(a, i, v):
+    """Store the 4-tuple ``v`` into ``a[i:i+4]`` (mutates ``a``)."""
+    a[i] = v[0]
+    a[i + 1] = v[1]
+    a[i + 2] = v[2]
+    a[i + 3] = v[3]
+
+
+@jit
+def add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+@jit
+def sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@jit
+def scale(s, a):
+    return (s * a[0], s * a[1], s * a[2])
+
+
+@jit
+def axpy(s, a, b):
+    """``s * a + b`` for 3-tuples."""
+    return (s * a[0] + b[0], s * a[1] + b[1], s * a[2] + b[2])
+
+
+@jit
+def axpy4(s, a, b):
+    """``s * a + b`` for 4-tuples (quaternions)."""
+    return (s * a[0] + b[0], s * a[1] + b[1], s * a[2] + b[2], s * a[3] + b[3])
+
+
+@jit
+def dot4(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+
+
+@jit
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@jit
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@jit
+def norm(a):
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+@jit
+def skew_matmul(a, d):
+    """The 3x3 matrix ``[a]x diag(d)`` as three row tuples (used in Newton Jacobians)."""
+    return (
+        (0.0, -a[2] * d[1], a[1] * d[2]),
+        (a[2] * d[0], 0.0, -a[0] * d[2]),
+        (-a[1] * d[0], a[0] * d[1], 0.0),
+    )
+
+
+@jit
+def solve3(m, r):
+    """Solve ``m x = r`` for a 3x3 matrix given as three row tuples (Cramer's rule).
+
+    Cramer's rule is exact enough here: the Newton matrices of the implicit schemes are
+    ``c * 1 + O(h |omega|)`` and far from singular in the range where Newton converges; a
+    singular matrix yields inf/nan, which the caller turns into a status code.
+    """
+    (a, b, c), (d, e, f), (g, h, i) = m
+    c0 = e * i - f * h
+    c1 = f * g - d * i
+    c2 = d * h - e * g
+    det = a * c0 + b * c1 + c * c2
+    inv = 1.0 / det
+    x0 = (r[0] * c0 + b * (f * r[2] - r[1] * i) + c * (r[1] * h - e * r[2])) * inv
+    x1 = (a * (r[1] * i - f * r[2]) + r[0] * c1 + c * (d * r[2] - r[1] * g)) * inv
+    x2 = (a * (e * r[2] - r[1] * h) + b * (r[1] * g - d * r[2]) + r[0] * c2) * inv
+    return (x0, x1, x2)
+
+
+@jit
+def quat_mul(a, b):
+    """Hamilton product ``a * b`` of scalar-last quaternions."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
+
+
+@jit
+def quat_conj(q):
+    return (-q[0], -q[1], -q[2], q[3])
+
+
+@jit
+def quat_normalize(q):
+    s = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
+
+
+@jit
+def quat_rotate(q, v):
+    """``R(q) v``: a body-frame vector expressed in space."""
+    x, y, z, w = q
+    u = (x, y, z)
+    t = scale(2.0, cross(u, v))
+    return add(add(v, scale(w, t)), cross(u, t))
+
+
+@jit
+def quat_rotate_inverse(q, v):
+    """``R(q)^T v``: a space vector expressed in the body frame."""
+    return quat_rotate(quat_conj(q), v)
+
+
+@jit
+def quat_exp(v):
+    """Unit quaternion of the rotation vector ``v`` (angle |v| about v/|v|): exp([v]x)."""
+    angle = norm(v)
+    half = 0.5 * angle
+    if angle < SMALL_ANGLE:
+        # sin(half)/angle = 1/2 - angle^2/48 + ...; cos(half) = 1 - angle^2/8 + angle^4/384
+        s = 0.5 - angle * angle / 48.0
+        c = 1.0 - angle * angle / 8.0 + angle ** 4 / 384.0
+    else:
+        s = math.sin(half) / angle
+        c = math.cos(half)
+    return (s * v[0], s * v[1], s * v[2], c)
+
+
+@jit
+def quat_cayley(v):
+    """Unit quaternion of the Cayley map ``cay([v]x) = (1 - [v]x/2)^-1 (1 + [v]x/2)``.
+
+    cay([v]x) is the rotation by ``2 atan(|v|/2)`` about ``v``, whose quaternion is
+    proportional to ``(v/2, 1)``.
+    """
+    return quat_normalize((0.5 * v[0], 0.5 * v[1], 0.5 * v[2], 1.0))
+
+
+@jit
+def quat_axis_angle(k, angle):
+    """Unit quaternion of the rotation by ``angle`` about coordinate axis ``k`` (0, 1, 2)."""
+    s = math.sin(0.5 * angle)
+    c = math.cos(0.5 * angle)
+    if k == 0:
+        return (s, 0.0, 0.0, c)
+    if k == 1:
+        return (0.0, s, 0.0, c)
+    return (0.0, 0.0, s, c)
+
+
+@jit
+def quat_times_axis(q, k):
+    """``q * (e_k, 0)``: right multiplication by a pure unit quaternion along axis ``k``.
+
+    This is NO_SQUISH's permutation matrix ``P_k`` (Miller et al. 2002) in scalar-last form.
+    """
+    x, y, z, w = q
+    if k == 0:
+        return (w, z, -y, -x)
+    if k == 1:
+        return (-z, w, x, -y)
+    return (y, -x, w, -z)

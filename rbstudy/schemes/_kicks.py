@@ -1,0 +1,28 @@
+"""Half kicks shared by the symmetric splitting schemes (midpoint, splitting).
+
+Loads enter these schemes by Strang splitting: a kick of length d applies the loads at the
+current orientation, ``m += d M_b``, ``v += d F / mass``; the free flow in between moves the
+frame and the centre of mass. The composition kick(h/2) free(h) kick(h/2) is symmetric, so a
+second-order free step stays second order under loads.
+"""
+
+from rbstudy import state as S
+from rbstudy._jit import jit
+from rbstudy.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.rotation import axpy, read3, read4, write3
+
+
+@jit
+def kick_inplace(y, p, d):
+    """Apply the loads for a time ``d`` to the velocities of state row ``y`` (N_STATE,)."""
+    q = read4(y, S.QUATERNION)
+    inertia_ = inertia(p)
+    m = to_momentum(read3(y, S.OMEGA), inertia_)
+    write3(y, S.OMEGA, to_omega(axpy(d, body_moment(q, p), m), inertia_))
+    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p), read3(y, S.VELOCITY)))
+
+
+@jit
+def drift_inplace(y, d):
+    """Move the centre of mass for a time ``d`` at its current velocity."""
+    write3(y, S.POSITION, axpy(d, read3(y, S.VELOCITY), read3(y, S.POSITION)))

@@ -1,0 +1,59 @@
+"""`euler`: explicit (forward) Euler on the body angular momentum and the frame.
+
+Update, with ``m = I w``, ``M_b`` the body moment and ``F`` the space force (physics.md s5):
+
+    m+ = m + h (m x w + M_b)
+    q+ = q * exp(h w / 2)         i.e. R+ = R exp(h [w]x), renormalised
+    x+ = x + h v,    v+ = v + h F / mass
+
+Order 1, explicit. Keeps no invariant: for the free body ``|m|^2`` grows by
+``h^2 |m x w|^2`` every step and the energy grows too, so the error grows without bound.
+Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. VII.
+"""
+
+import numpy as np
+
+from rbstudy import state as S
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy.dynamics import body_moment, inertia, momentum_rates, space_force, to_momentum, to_omega
+from rbstudy.rotation import axpy, quat_exp, quat_mul, quat_normalize, read3, read4, scale, write3, write4
+from rbstudy.schemes._registry import Scheme
+
+N_WORK = 0
+
+
+@jit
+def step_inplace(y, p, opt, h, work):
+    q = read4(y, S.QUATERNION)
+    w = read3(y, S.OMEGA)
+    v = read3(y, S.VELOCITY)
+    inertia_ = inertia(p)
+    m = to_momentum(w, inertia_)
+    m_next = axpy(h, momentum_rates(m, w, body_moment(q, p)), m)
+    acceleration = scale(1.0 / p[S.MASS], space_force(q, p))
+    write3(y, S.POSITION, axpy(h, v, read3(y, S.POSITION)))
+    write3(y, S.VELOCITY, axpy(h, acceleration, v))
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp(scale(h, w)))))
+    write3(y, S.OMEGA, to_omega(m_next, inertia_))
+    return OK, 0
+
+
+@jit
+def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                       samples, diag):
+    for b in range(start, stop):
+        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
+                               params, options, h, n_steps, every, drift_bound, samples, diag)
+
+
+SCHEME = Scheme(
+    name="euler",
+    summary="explicit Euler on (m, R); energy and |L| grow every step",
+    order=1,
+    implicit=False,
+    keeps=(),
+    handles_loads=True,
+    run_bodies_inplace=run_bodies_inplace,
+    reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
+)

@@ -1,0 +1,61 @@
+"""`leapfrog`: the explicit central difference of OpenRadioss rigid bodies.
+
+Velocities live at half steps; the stored ``v`` and ``w`` are ``v(n-1/2)`` and ``w(n-1/2)``
+(the initial velocities are taken as those at ``-1/2``, as an explicit code starts).
+With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` (physics.md s4):
+
+    alpha_i   = (M_i - (I_k - I_j) w_j w_k) / I_i     with w = w(n-1/2): lagged gyroscopic term
+    w(n+1/2)  = w(n-1/2) + h alpha
+    v(n+1/2)  = v(n-1/2) + h F / mass
+    x(n+1)    = x(n) + h v(n+1/2)
+    R(n+1)    = R(n) Rot(w(n+1/2), h |w(n+1/2)|)    exact rotation (Rodrigues), as a quaternion
+
+Order 1, explicit: the ``w`` update is forward Euler on Euler's equations. Keeps nothing: for
+an asymmetric free body ``|m|^2`` grows by ``h^2 |m x w|^2`` each step, so there is no stable
+time step for the gyroscopic term; OpenRadioss itself flags ``(h |w|)^2 > 1``.
+Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (seed radioss_rigid_body_theory.txt).
+"""
+
+import numpy as np
+
+from rbstudy import state as S
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
+from rbstudy.rotation import axpy, quat_exp, quat_mul, quat_normalize, read3, read4, scale, write3, write4
+from rbstudy.schemes._registry import Scheme
+
+N_WORK = 0
+
+
+@jit
+def step_inplace(y, p, opt, h, work):
+    q = read4(y, S.QUATERNION)
+    w_half = axpy(h, euler_rates(read3(y, S.OMEGA), inertia(p), body_moment(q, p)),
+                  read3(y, S.OMEGA))
+    v_half = axpy(h / p[S.MASS], space_force(q, p), read3(y, S.VELOCITY))
+    write3(y, S.OMEGA, w_half)
+    write3(y, S.VELOCITY, v_half)
+    write3(y, S.POSITION, axpy(h, v_half, read3(y, S.POSITION)))
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp(scale(h, w_half)))))
+    return OK, 0
+
+
+@jit
+def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                       samples, diag):
+    for b in range(start, stop):
+        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
+                               params, options, h, n_steps, every, drift_bound, samples, diag)
+
+
+SCHEME = Scheme(
+    name="leapfrog",
+    summary="OpenRadioss central difference: lagged gyroscopic term, Rodrigues frame update",
+    order=1,
+    implicit=False,
+    keeps=(),
+    handles_loads=True,
+    run_bodies_inplace=run_bodies_inplace,
+    reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
+)
