@@ -14,7 +14,7 @@ Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. 
 import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import jit
+from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, init_nothing, integrate_body_inplace
 from rbstudy.dynamics import body_moment, inertia, momentum_rates, space_force, to_momentum, to_omega
 from rbstudy.rotation import axpy, quat_exp, quat_mul, quat_normalize, read3, read4, scale, write3, write4
@@ -39,7 +39,7 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@jit
+@entry_jit
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, diag):
     for b in range(start, stop):

@@ -13,7 +13,7 @@ integration of rotational motion".
 import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import jit
+from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, init_nothing, integrate_body_inplace
 from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.rotation import axpy, axpy4, quat_mul, quat_normalize, read3, read4, scale, write3, write4
@@ -47,7 +47,7 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@jit
+@entry_jit
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, diag):
     for b in range(start, stop):

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import jit
+from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, init_nothing, integrate_body_inplace
 from rbstudy.dynamics import inertia, to_momentum, to_omega
 from rbstudy.rotation import quat_axis_angle, quat_mul, quat_normalize, read3, read4, write3, write4
@@ -63,7 +63,7 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@jit
+@entry_jit
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, diag):
     for b in range(start, stop):

@@ -1,0 +1,57 @@
+"""Shared scenes and helpers for the physics tests."""
+
+import math
+
+import numpy as np
+import pytest
+
+from rbstudy.analytic import reference_solution
+from rbstudy.metrics import orientation_error
+from rbstudy.scenes import scene_from_mapping
+from rbstudy.schemes import SCHEMES
+from rbstudy.simulate import simulate
+
+# Schemes with a fixed step, whose order in dt is observable (dop853 chooses its own steps).
+FIXED_STEP = [name for name, scheme in SCHEMES.items() if not scheme.adaptive]
+
+# Errors at or below this are round-off (the references are good to ~1e-13), never fitted.
+ROUND_OFF_FLOOR = 1e-11
+
+
+def abaqus_mapping(**body):
+    """The Abaqus force-free top of physics.md s2: I = (1, 1, 2), A = 0.25, w3 = 2 pi."""
+    return {
+        "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0], **body},
+        "initial": {"angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
+                    "orientation": {"momentum_axis": [0.0, 0.0, 1.0]}},
+        "nodes": {"2": [1.0, 0.0, 0.0], "3": [0.0, 1.0, 0.0], "4": [0.0, 0.0, 1.0]},
+        "duration": 2.0,
+    }
+
+
+@pytest.fixture(scope="session")
+def abaqus_scene():
+    return scene_from_mapping(abaqus_mapping(), source="test")
+
+
+@pytest.fixture(scope="session")
+def asymmetric_scene():
+    """I = (1, 2, 3) tumbling about no principal axis, from a general orientation."""
+    return scene_from_mapping({
+        "body": {"inertia": [1.0, 2.0, 3.0]},
+        "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]},
+                    "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}},
+        "duration": 4.0,
+    }, source="test")
+
+
+def final_orientation_errors(scene, scheme, dts, interval, options=None):
+    """Orientation error at the end of the run for each dt, against the scene's reference."""
+    errors = []
+    reference = None
+    for dt in dts:
+        run = simulate([scene], scheme, dt, interval, options)
+        if reference is None:
+            reference = reference_solution(scene, run.time)
+        errors.append(orientation_error(run.quaternion[0, -1], reference.quaternion[-1]))
+    return np.array(errors)
