@@ -17,10 +17,11 @@ batch and calls it with the scheme's own kernels; `run_batch` spreads chunks of 
 threads (the kernels release the GIL). Two numba facts shape this (numba 0.6x, measured):
 a compiled function is cached to disk only when its signature holds no function objects, and
 a function that receives a kernel as an argument is cached only if it neither allocates nor
-assigns array slices; and even then the entry point that passes the kernels is not cached. So
-each scheme names its kernels in its own small entry point, compiled once per process
-(1-2 s), while the kernels and this generic loop (element-wise writes, no allocation) are
-cached. Moving the loop over bodies into a `prange` made compilation ~4 s per scheme.
+assigns array slices; even then, caching a function whose signature holds kernels corrupts
+numba's cache index across processes ("underlying object has vanished"). So this generic
+loop and each scheme's small entry point are compiled once per process (0.6-1 s a scheme,
+docs/performance.md), never cached, while the kernels they call are cached. The loop writes
+element by element and allocates nothing, and the entry point allocates the body's arrays.
 Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
 threads at once and let the caller choose the number of cores.
 
@@ -40,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import jit
+from rbstudy._jit import entry_jit, jit
 from rbstudy.dynamics import is_moment_free, momentum_squared, rotational_energy
 from rbstudy.rotation import read3
 
@@ -87,7 +88,7 @@ def _relative_drift(value, initial):
     return abs(value - initial)
 
 
-@jit
+@entry_jit
 def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, every,
                            drift_bound, samples, diag):
     """Integrate body ``b`` of a batch from state ``y``; write its samples and diagnostics.
@@ -189,7 +190,7 @@ def _chunks(n_bodies, threads):
     """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core."""
     pieces = min(n_bodies, threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
     edges = np.linspace(0, n_bodies, pieces + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
 def default_threads():

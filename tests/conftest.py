@@ -1,9 +1,11 @@
 """Shared scenes and helpers for the physics tests."""
 
 import math
+import pathlib
 
 import numpy as np
 import pytest
+import yaml
 
 from rbstudy.analytic import reference_solution
 from rbstudy.metrics import orientation_error
@@ -29,9 +31,18 @@ def abaqus_mapping(**body):
     }
 
 
+CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+
+
 @pytest.fixture(scope="session")
-def abaqus_scene():
-    return scene_from_mapping(abaqus_mapping(), source="test")
+def abaqus_config():
+    """The bundled benchmark config, as users run it."""
+    return yaml.safe_load((CONFIGS / "abaqus_top.yaml").read_text())
+
+
+@pytest.fixture(scope="session")
+def abaqus_scene(abaqus_config):
+    return scene_from_mapping(abaqus_config["scene"], source="configs/abaqus_top.yaml")
 
 
 @pytest.fixture(scope="session")

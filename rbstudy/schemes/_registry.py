@@ -1,7 +1,8 @@
 """What a scheme is, as the rest of rbstudy sees it: capabilities, options, compiled entry."""
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -107,9 +108,13 @@ class Scheme:
         return row
 
     def ensure_compiled(self):
-        """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run."""
+        """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run.
+
+        A Python entry point (dop853) is warmed up the same way, which compiles its
+        right-hand side; that costs a millisecond per call.
+        """
         kernel = self.run_bodies_inplace
-        if not hasattr(kernel, "signatures") or kernel.signatures:
+        if getattr(kernel, "signatures", None):
             return
         state0 = np.zeros((1, S.N_STATE))
         state0[0, S.QUATERNION + 3] = 1.0

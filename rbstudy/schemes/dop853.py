@@ -13,7 +13,6 @@ This is the one scheme of the numerics layer that imports scipy; it does no I/O.
 Reference: Hairer, Norsett & Wanner, Solving ODEs I (1993), II.10; scipy.integrate.solve_ivp.
 """
 
-import math
 
 import numpy as np
 from scipy.integrate import solve_ivp

@@ -36,8 +36,23 @@ from rbstudy import state as S
 from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import NOT_CONVERGED, OK, integrate_body_inplace
 from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
-from rbstudy.rotation import (add, axpy, cross, norm, quat_exp, quat_mul, quat_normalize, read3,
-                              read4, scale, skew_matmul, solve3, sub, write3, write4)
+from rbstudy.rotation import (
+    add,
+    axpy,
+    cross,
+    norm,
+    quat_exp,
+    quat_mul,
+    quat_normalize,
+    read3,
+    read4,
+    scale,
+    skew_matmul,
+    solve3,
+    sub,
+    write3,
+    write4,
+)
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
 from rbstudy.schemes._registry import Option, Scheme
 

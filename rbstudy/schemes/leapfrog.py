@@ -22,7 +22,17 @@ from rbstudy import state as S
 from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, init_nothing, integrate_body_inplace
 from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
-from rbstudy.rotation import axpy, quat_exp, quat_mul, quat_normalize, read3, read4, scale, write3, write4
+from rbstudy.rotation import (
+    axpy,
+    quat_exp,
+    quat_mul,
+    quat_normalize,
+    read3,
+    read4,
+    scale,
+    write3,
+    write4,
+)
 from rbstudy.schemes._registry import Scheme
 
 N_WORK = 0

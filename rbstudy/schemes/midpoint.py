@@ -24,8 +24,22 @@ from rbstudy import state as S
 from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import NOT_CONVERGED, OK, init_nothing, integrate_body_inplace
 from rbstudy.dynamics import inertia, to_momentum, to_omega
-from rbstudy.rotation import (axpy, cross, norm, quat_cayley, quat_mul, quat_normalize, read3,
-                              read4, scale, skew_matmul, solve3, sub, write3, write4)
+from rbstudy.rotation import (
+    axpy,
+    cross,
+    norm,
+    quat_cayley,
+    quat_mul,
+    quat_normalize,
+    read3,
+    read4,
+    scale,
+    skew_matmul,
+    solve3,
+    sub,
+    write3,
+    write4,
+)
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
 from rbstudy.schemes._registry import Scheme

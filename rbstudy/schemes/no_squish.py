@@ -25,11 +25,20 @@ import numpy as np
 from rbstudy import state as S
 from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, integrate_body_inplace
-from rbstudy.dynamics import body_moment, inertia, to_momentum, to_omega
-from rbstudy.rotation import (axpy, axpy4, dot4, quat_mul, read3, read4, scale, write3, write4,
-                              quat_times_axis)
+from rbstudy.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.rotation import (
+    axpy,
+    axpy4,
+    dot4,
+    quat_mul,
+    quat_times_axis,
+    read3,
+    read4,
+    scale,
+    write3,
+    write4,
+)
 from rbstudy.schemes._kicks import drift_inplace
-from rbstudy.dynamics import space_force
 from rbstudy.schemes._registry import AXIS_ORDER, Scheme
 
 # work: conjugate momentum P (4)

@@ -19,9 +19,27 @@ import numpy as np
 from rbstudy import state as S
 from rbstudy._jit import entry_jit, jit
 from rbstudy.driver import OK, init_nothing, integrate_body_inplace
-from rbstudy.dynamics import body_moment, inertia, momentum_rates, space_force, to_momentum, to_omega
-from rbstudy.rotation import (add, axpy, cross, quat_exp, quat_mul, quat_normalize, read3, read4,
-                              scale, write3, write4)
+from rbstudy.dynamics import (
+    body_moment,
+    inertia,
+    momentum_rates,
+    space_force,
+    to_momentum,
+    to_omega,
+)
+from rbstudy.rotation import (
+    add,
+    axpy,
+    cross,
+    quat_exp,
+    quat_mul,
+    quat_normalize,
+    read3,
+    read4,
+    scale,
+    write3,
+    write4,
+)
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes._rk import rk4_sum3
 

@@ -1,0 +1,5 @@
+import sys
+
+from rbstudy.cli import main
+
+sys.exit(main())

@@ -1,0 +1,98 @@
+"""Scenes: parsing, frames, and one-line errors naming source, key path, value and fix."""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import abaqus_mapping
+from scipy.spatial.transform import Rotation
+
+from rbstudy.errors import SceneError
+from rbstudy.scenes import scene_from_mapping
+
+
+def fails(mapping, message):
+    with pytest.raises(SceneError) as info:
+        scene_from_mapping(mapping, source="top.yaml")
+    text = str(info.value)
+    assert "\n" not in text
+    assert text.startswith("top.yaml: ")
+    assert message in text, text
+
+
+def test_non_positive_inertia_is_rejected():
+    fails({"body": {"inertia": [1.0, -1.0, 1.0]}},
+          "scene.body.inertia[1]: must be > 0 kg m^2, got -1.0")
+    fails({"body": {"inertia": [1.0, 0, 1.0]}}, "scene.body.inertia[1]: must be > 0")
+
+
+def test_non_finite_values_are_rejected():
+    fails({"body": {"inertia": [1.0, 1.0, float("nan")]}},
+          "scene.body.inertia[2]: must be finite, got nan")
+    fails({"body": {"inertia": [1, 1, 1]}, "initial": {"velocity": [0, float("inf"), 0]}},
+          "scene.initial.velocity[1]: must be finite")
+
+
+def test_triangle_inequality_unless_flagged():
+    fails({"body": {"inertia": [1.0, 1.0, 2.5]}},
+          "violates the triangle inequality I1 + I2 >= I3 (and cyclic): no rigid body has it; "
+          "set allow_unphysical: true")
+    scene = scene_from_mapping({"body": {"inertia": [1.0, 1.0, 2.5], "allow_unphysical": True}})
+    assert not scene.body.physical and scene.body.allow_unphysical
+
+
+def test_flat_disk_at_the_edge_is_physical():
+    assert scene_from_mapping(abaqus_mapping()).body.physical
+
+
+def test_unknown_keys_and_wrong_types_are_named():
+    fails({"body": {"inertia": [1, 1, 1], "mas": 2}},
+          "scene.body.mas: unknown key; valid keys here: mass, inertia, allow_unphysical")
+    fails({"body": {"inertia": [1, 1, 1], "mass": "heavy"}},
+          "scene.body.mass: expected a number, got 'heavy'")
+    fails({"body": {"inertia": [1, 1]}}, "scene.body.inertia: expected a list of 3 numbers")
+    fails({"body": {"inertia": [1, 1, 1]}, "duration": 0}, "scene.duration: must be > 0, got 0")
+
+
+def test_momentum_axis_needs_body_angular_velocity():
+    mapping = abaqus_mapping()
+    mapping["initial"]["angular_velocity"] = {"space": [0, 0, 1]}
+    fails(mapping, "scene.initial.orientation.momentum_axis: needs the angular velocity in body")
+
+
+def test_momentum_axis_puts_l_on_the_axis():
+    for axis in ([0, 0, 1], [1, 2, -0.5], [0, 0, -1]):
+        mapping = abaqus_mapping()
+        mapping["initial"]["orientation"] = {"momentum_axis": axis}
+        scene = scene_from_mapping(mapping)
+        momentum = Rotation.from_quat(scene.quaternion).apply(
+            np.array(scene.body.inertia) * scene.omega_body)
+        direction = np.array(axis) / np.linalg.norm(axis)
+        assert np.allclose(momentum / np.linalg.norm(momentum), direction, atol=1e-14)
+
+
+def test_inertia_tensor_is_diagonalised_and_vectors_follow():
+    turn = Rotation.from_rotvec([0.3, 0.4, -0.2])
+    principal = np.diag([1.0, 2.0, 2.5])
+    tensor = turn.as_matrix() @ principal @ turn.as_matrix().T
+    omega_input = np.array([0.3, -1.0, 2.0])
+    scene = scene_from_mapping({
+        "body": {"inertia": tensor.tolist()},
+        "initial": {"angular_velocity": {"body": omega_input.tolist()}},
+        "nodes": {"tip": [1.0, 0.0, 0.0]}})
+    assert np.allclose(scene.body.inertia, [1.0, 2.0, 2.5])
+    # same physics in both frames: energy, and the node seen from space
+    energy_input = 0.5 * omega_input @ tensor @ omega_input
+    energy = 0.5 * np.sum(np.array(scene.body.inertia) * np.array(scene.omega_body) ** 2)
+    assert math.isclose(energy, energy_input, rel_tol=1e-13)
+    node_space = Rotation.from_quat(scene.quaternion).apply(scene.nodes[0])
+    assert np.allclose(node_space, [1.0, 0.0, 0.0], atol=1e-14)
+
+
+def test_space_angular_velocity_is_turned_into_the_body():
+    scene = scene_from_mapping({
+        "body": {"inertia": [1, 2, 3]},
+        "initial": {"angular_velocity": {"space": [0.0, 0.0, 2.0]},
+                    "orientation": {"euler_zxz_deg": [10, 30, 50]}}})
+    space = Rotation.from_quat(scene.quaternion).apply(scene.omega_body)
+    assert np.allclose(space, [0.0, 0.0, 2.0], atol=1e-14)
