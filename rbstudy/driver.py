@@ -11,17 +11,16 @@ with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (N_PARAM,), 
 scheme options (N_OPTION,), and ``work`` a scratch/carry array (n_work,) that lives for the
 whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugate momentum).
 
-`integrate_body_inplace` below runs one body through all its steps. Each scheme file ends
-with a three-line ``run_bodies_inplace(start, stop, ...)`` that loops over its rows of the
-batch and calls it with the scheme's own kernels; `run_batch` spreads chunks of rows over
-threads (the kernels release the GIL). Two numba facts shape this (numba 0.6x, measured):
-a compiled function is cached to disk only when its signature holds no function objects, and
+`integrate_body_inplace` below runs one body through all its steps; `make_entry` compiles,
+for one scheme, the loop over a range of batch rows that calls it with the scheme's kernels;
+`run_batch` spreads chunks of rows over threads (the kernels release the GIL).
+Two numba facts shape this (numba 0.6x, measured): a compiled function is cached to disk only when its signature holds no function objects, and
 a function that receives a kernel as an argument is cached only if it neither allocates nor
 assigns array slices; even then, caching a function whose signature holds kernels corrupts
 numba's cache index across processes ("underlying object has vanished"). So this generic
-loop and each scheme's small entry point are compiled once per process (0.6-1 s a scheme,
+loop and each scheme's entry point are compiled once per process (0.6-2.5 s a scheme,
 docs/performance.md), never cached, while the kernels they call are cached. The loop writes
-element by element and allocates nothing, and the entry point allocates the body's arrays.
+element by element and allocates nothing; the entry point allocates the body's arrays.
 Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
 threads at once and let the caller choose the number of cores.
 
@@ -47,7 +46,7 @@ from rbstudy.rotation import read3
 
 __all__ = [
     "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "DRIFT_BOUND",
-    "BatchOutput", "init_nothing", "integrate_body_inplace", "run_batch", "n_samples",
+    "BatchOutput", "init_nothing", "integrate_body_inplace", "make_entry", "run_batch", "n_samples",
     "default_threads",
 ]
 
@@ -154,6 +153,20 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     diag[b, _ITERATIONS] = iterations
     diag[b, _MAX_ENERGY] = max_energy if check_invariants else math.nan
     diag[b, _MAX_MOMENTUM] = max_momentum if check_invariants else math.nan
+
+
+def make_entry(step, init, n_work):
+    """The compiled entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
+    options, h, n_steps, every, drift_bound, samples, diag)`` integrates rows [start, stop)."""
+
+    @entry_jit
+    def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every,
+                           drift_bound, samples, diag):
+        for b in range(start, stop):
+            integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
+                                   options, h, n_steps, every, drift_bound, samples, diag)
+
+    return run_bodies_inplace
 
 
 @dataclass(frozen=True)

@@ -11,11 +11,10 @@ Order 1, explicit. Keeps no invariant: for the free body ``|m|^2`` grows by
 Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. VII.
 """
 
-import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, make_entry
 from rbstudy.dynamics import (
     body_moment,
     inertia,
@@ -56,14 +55,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="euler",
     summary="explicit Euler on (m, R); energy and |L| grow every step",
@@ -71,6 +62,6 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
 )

@@ -30,11 +30,9 @@ Taylor, Earthq. Eng. Struct. Dyn. 5 (1977) 283.
 
 import math
 
-import numpy as np
-
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import NOT_CONVERGED, OK, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import NOT_CONVERGED, OK, make_entry
 from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
 from rbstudy.rotation import (
     add,
@@ -151,14 +149,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, iterations
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_inplace, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="hht",
     summary="Newmark/HHT-alpha on SO(3), material form (Abaqus implicit dynamics)",
@@ -166,7 +156,7 @@ SCHEME = Scheme(
     implicit=True,
     keeps=(),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
     options=(ALPHA,),
 )

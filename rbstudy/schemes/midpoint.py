@@ -18,11 +18,9 @@ Reference: Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105.
 
 import math
 
-import numpy as np
-
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import NOT_CONVERGED, OK, init_nothing, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import NOT_CONVERGED, OK, init_nothing, make_entry
 from rbstudy.dynamics import inertia, to_momentum, to_omega
 from rbstudy.rotation import (
     axpy,
@@ -88,14 +86,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, iterations
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="midpoint",
     summary="implicit midpoint on m with Cayley frame update; energy and L kept exactly",
@@ -103,6 +93,6 @@ SCHEME = Scheme(
     implicit=True,
     keeps=("energy", "momentum"),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
 )

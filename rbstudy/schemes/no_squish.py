@@ -20,11 +20,9 @@ Reference: Miller, Eleftheriou, Pattnaik, Ndirango, Newns & Martyna, J. Chem. Ph
 
 import math
 
-import numpy as np
-
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import OK, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import OK, make_entry
 from rbstudy.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
 from rbstudy.rotation import (
     axpy,
@@ -104,14 +102,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_inplace, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="no_squish",
     summary="NO_SQUISH: DLM splitting on quaternion + conjugate momentum (LAMMPS form)",
@@ -119,7 +109,7 @@ SCHEME = Scheme(
     implicit=False,
     keeps=("momentum",),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=(AXIS_ORDER,),
 )

@@ -10,11 +10,10 @@ Reference: Fukushima, AJ 135 (2008) 2298, "Simple, regular, and efficient numeri
 integration of rotational motion".
 """
 
-import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, make_entry
 from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.rotation import (
     axpy,
@@ -57,14 +56,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="rk4",
     summary="classical Runge-Kutta 4 on (q, w), quaternion renormalised each step",
@@ -72,6 +63,6 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
 )

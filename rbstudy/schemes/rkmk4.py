@@ -14,11 +14,10 @@ Reference: Munthe-Kaas, BIT 38 (1998) 92; Iserles, Munthe-Kaas, Norsett & Zanna,
 Numerica 9 (2000) 215.
 """
 
-import numpy as np
 
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, make_entry
 from rbstudy.dynamics import (
     body_moment,
     inertia,
@@ -76,14 +75,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="rkmk4",
     summary="Runge-Kutta-Munthe-Kaas 4: RK4 in the Lie algebra, frame exactly on SO(3)",
@@ -91,6 +82,6 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
 )

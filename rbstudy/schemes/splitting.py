@@ -18,11 +18,9 @@ Comput. Phys. 189 (2003) 527.
 
 import math
 
-import numpy as np
-
 from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.driver import OK, init_nothing, integrate_body_inplace
+from rbstudy._jit import jit
+from rbstudy.driver import OK, init_nothing, make_entry
 from rbstudy.dynamics import inertia, to_momentum, to_omega
 from rbstudy.rotation import quat_axis_angle, quat_mul, quat_normalize, read3, read4, write3, write4
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
@@ -63,14 +61,6 @@ def step_inplace(y, p, opt, h, work):
     return OK, 0
 
 
-@entry_jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    for b in range(start, stop):
-        integrate_body_inplace(step_inplace, init_nothing, b, state0[b].copy(), np.zeros(N_WORK),
-                               params, options, h, n_steps, every, drift_bound, samples, diag)
-
-
 SCHEME = Scheme(
     name="splitting",
     summary="DLM symplectic splitting into exact axis rotations; |L| and L kept exactly",
@@ -78,7 +68,7 @@ SCHEME = Scheme(
     implicit=False,
     keeps=("momentum",),
     handles_loads=True,
-    run_bodies_inplace=run_bodies_inplace,
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
     options=(AXIS_ORDER,),
 )
