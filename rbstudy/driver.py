@@ -14,10 +14,9 @@ whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugat
 `integrate_body_inplace` below runs one body through all its steps; `make_entry` compiles,
 for one scheme, the loop over a range of batch rows that calls it with the scheme's kernels;
 `run_batch` spreads chunks of rows over threads (the kernels release the GIL).
-Two numba facts shape this (numba 0.6x, measured): a compiled function is cached to disk only when its signature holds no function objects, and
-a function that receives a kernel as an argument is cached only if it neither allocates nor
-assigns array slices; even then, caching a function whose signature holds kernels corrupts
-numba's cache index across processes ("underlying object has vanished"). So this generic
+Numba (0.68, measured) cannot safely cache a function whose signature holds kernels: its
+cache index keeps references to them and a later process fails ("underlying object has
+vanished"). So this generic
 loop and each scheme's entry point are compiled once per process (0.6-2.5 s a scheme,
 docs/performance.md), never cached, while the kernels they call are cached. The loop writes
 element by element and allocates nothing; the entry point allocates the body's arrays.
