@@ -18,7 +18,7 @@ import numpy as np
 
 from rbstudy.driver import default_threads, run_batch
 from rbstudy.scenes import scene_from_mapping
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import SCHEMES, get_scheme
 
 __all__ = ["run_bench", "abaqus_top_scene"]
 
@@ -52,6 +52,7 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
 
 def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo=print):
     """Measure and print the figures; returns them as a list of dicts."""
+    chosen = [get_scheme(name) for name in schemes or SCHEMES]  # unknown names fail first
     scene = abaqus_top_scene()
     cores = default_threads()
     rows = []
@@ -61,8 +62,8 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
     for size in batch_sizes:
         header += f" {f'B={size} 1 core':>14s} {f'B={size} {cores} cores':>14s}"
     echo(header)
-    for name in schemes or SCHEMES:
-        scheme = SCHEMES[name]
+    for scheme in chosen:
+        name = scheme.name
         start = time.perf_counter()
         scheme.ensure_compiled()
         compile_seconds = time.perf_counter() - start

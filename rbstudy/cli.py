@@ -94,14 +94,6 @@ def build_parser():
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    if getattr(args, "schemes", None):
-        from rbstudy.schemes import get_scheme
-        try:
-            for name in args.schemes:
-                get_scheme(name)
-        except RbstudyError as error:
-            print(f"rbstudy: error: {error}", file=sys.stderr)
-            return 2
     try:
         return args.run(args)
     except RbstudyError as error:

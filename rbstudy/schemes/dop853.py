@@ -20,7 +20,7 @@ from scipy.integrate import solve_ivp
 from rbstudy import state as S
 from rbstudy._jit import jit
 from rbstudy.driver import OK, UNSTABLE
-from rbstudy.dynamics import is_moment_free, momentum_squared, rotational_energy
+from rbstudy.dynamics import is_moment_free
 from rbstudy.rotation import read3, read4, write3, write4
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes.rk4 import rates
@@ -43,12 +43,15 @@ def derivative(t, y, p):
 
 
 def _first_drift(samples, p, drift_bound):
-    """Index of the first sample whose energy or |L| drift exceeds the bound, else None."""
-    inertia_ = tuple(p[S.INERTIA:S.INERTIA + 3])
-    energy = np.array([rotational_energy(tuple(w), inertia_) for w in samples[:, S.OMEGA:S.OMEGA + 3]])
-    momentum = np.sqrt([momentum_squared(tuple(w), inertia_) for w in samples[:, S.OMEGA:S.OMEGA + 3]])
-    drift = np.maximum(np.abs(energy / energy[0] - 1.0) if energy[0] > 0 else np.abs(energy),
-                       np.abs(momentum / momentum[0] - 1.0) if momentum[0] > 0 else momentum)
+    """Index of the first sample whose energy or |L| drift exceeds the bound (else None), and
+    the drift at every sample. samples : (T, N_STATE); p : (N_PARAM,)."""
+    inertia_ = p[S.INERTIA:S.INERTIA + 3]
+    w = samples[:, S.OMEGA:S.OMEGA + 3]
+    energy = 0.5 * np.sum(inertia_ * w * w, axis=1)
+    momentum = np.linalg.norm(inertia_ * w, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        drift = np.maximum(np.abs(energy - energy[0]) / (energy[0] if energy[0] > 0 else 1.0),
+                           np.abs(momentum - momentum[0]) / (momentum[0] if momentum[0] > 0 else 1.0))
     bad = np.flatnonzero(~(drift <= drift_bound))
     return (int(bad[0]) if bad.size else None), drift
 

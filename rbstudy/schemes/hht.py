@@ -102,9 +102,10 @@ def step_inplace(y, p, opt, h, work):
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
-    r_old = residual(a_old, w, inertia_, body_moment(q, p))
+    moment_old = body_moment(q, p)
+    r_old = residual(a_old, w, inertia_, moment_old)
     scale_ = norm(to_momentum(w, inertia_)) * norm(w) + norm(to_momentum(a_old, inertia_)) \
-        + norm(body_moment(q, p)) + 1e-300
+        + norm(moment_old) + 1e-300
     a_new = a_old
     converged = False
     iterations = 0
