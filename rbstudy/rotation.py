@@ -15,7 +15,7 @@ __all__ = [
     "add", "sub", "scale", "axpy", "axpy4", "dot", "dot4", "cross", "norm",
     "skew_matmul", "solve3",
     "quat_mul", "quat_conj", "quat_normalize", "quat_rotate", "quat_rotate_inverse",
-    "quat_exp", "quat_cayley", "quat_axis_angle", "quat_times_axis",
+    "quat_exp", "quat_cayley", "quat_mul_axis_rotation", "quat_times_axis",
 ]
 
 # Below this rotation angle (rad) the exponential map uses its Taylor series: the series
@@ -194,15 +194,18 @@ def quat_cayley(v):
 
 
 @jit
-def quat_axis_angle(k, angle):
-    """Unit quaternion of the rotation by ``angle`` about coordinate axis ``k`` (0, 1, 2)."""
-    s = math.sin(0.5 * angle)
-    c = math.cos(0.5 * angle)
+def quat_mul_axis_rotation(q, k, s, c):
+    """``q * (s e_k, c)``: compose ``q`` with a rotation about coordinate axis ``k`` (0, 1, 2).
+
+    ``s`` and ``c`` are the sine and cosine of half the rotation angle. Written out because the
+    right factor has two non-zero entries: a quarter of a full `quat_mul`.
+    """
+    x, y, z, w = q
     if k == 0:
-        return (s, 0.0, 0.0, c)
+        return (x * c + w * s, y * c + z * s, z * c - y * s, w * c - x * s)
     if k == 1:
-        return (0.0, s, 0.0, c)
-    return (0.0, 0.0, s, c)
+        return (x * c - z * s, y * c + w * s, z * c + x * s, w * c - y * s)
+    return (x * c + y * s, y * c - x * s, z * c + w * s, w * c - z * s)
 
 
 @jit

@@ -51,10 +51,13 @@ def test_quat_times_axis_is_right_product_with_pure_axis(k):
 
 
 @pytest.mark.parametrize("k", [0, 1, 2])
-def test_axis_angle_quaternion(k):
+def test_axis_rotation_composes_like_scipy(k):
+    q = random_quaternion()
     rotvec = np.zeros(3)
     rotvec[k] = 0.7
-    assert np.allclose(r.quat_axis_angle(k, 0.7), Rotation.from_rotvec(rotvec).as_quat())
+    expected = (Rotation.from_quat(q) * Rotation.from_rotvec(rotvec)).as_quat()
+    got = r.quat_mul_axis_rotation(q, k, np.sin(0.35), np.cos(0.35))
+    assert np.allclose(got, expected, rtol=0, atol=1e-15) or np.allclose(got, -expected, rtol=0, atol=1e-15)
 
 
 def test_solve3_matches_numpy():

@@ -22,7 +22,7 @@ from rbstudy import state as S
 from rbstudy._jit import jit
 from rbstudy.driver import OK, init_nothing, make_entry
 from rbstudy.dynamics import inertia, to_momentum, to_omega
-from rbstudy.rotation import quat_axis_angle, quat_mul, quat_normalize, read3, read4, write3, write4
+from rbstudy.rotation import quat_mul_axis_rotation, quat_normalize, read3, read4, write3, write4
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._registry import AXIS_ORDER, Scheme
 
@@ -31,10 +31,15 @@ N_WORK = 0
 
 @jit
 def axis_flow(q, m, inertia_, k, d):
-    """Exact flow of ``T_k`` for time ``d``: rotate the frame about body axis ``k``."""
-    theta = d * m[k] / inertia_[k]
-    c, s = math.cos(theta), math.sin(theta)
-    q_next = quat_mul(q, quat_axis_angle(k, theta))
+    """Exact flow of ``T_k`` for time ``d``: rotate the frame about body axis ``k``.
+
+    One sine-cosine pair per flow: the momentum's rotation by ``theta`` takes its cosine and
+    sine from the quaternion's half angle by the double-angle formulas.
+    """
+    half = 0.5 * d * m[k] / inertia_[k]
+    sh, ch = math.sin(half), math.cos(half)
+    c, s = 1.0 - 2.0 * sh * sh, 2.0 * sh * ch
+    q_next = quat_mul_axis_rotation(q, k, sh, ch)
     if k == 0:
         return q_next, (m[0], c * m[1] + s * m[2], c * m[2] - s * m[1])
     if k == 1:
