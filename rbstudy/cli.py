@@ -1,7 +1,7 @@
 """Command line: ``rbstudy sweep | validate | schemes | bench``.
 
-``sweep`` runs each study config's case and writes ``OUT/<study>/<study>.nc``; in this version
-a study is one case (the sweep block, plots and reports arrive with issues 3 and 4).
+``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
+per-scheme summary; ``validate`` checks configs without running anything.
 
 Expected failures (`RbstudyError`) print one line and exit 2; bugs print a traceback.
 """
@@ -33,6 +33,14 @@ def _bench(args):
     return 0
 
 
+def _describe(study):
+    archive, peak = study.memory_estimate()
+    axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
+    return (f"{study.name}: {len(study.cases)} cases ({axes}) in {len(study.batches)} batches, "
+            f"{study.n_times} output times; archive ~{archive / 2 ** 20:.1f} MiB, "
+            f"peak memory ~{peak / 2 ** 20:.0f} MiB")
+
+
 def _validate(args):
     from rbstudy.config import load_study
     failures = 0
@@ -43,33 +51,26 @@ def _validate(args):
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1
             continue
-        print(f"{path}: ok ({study.name}: {study.scheme}, dt = {study.dt:g} s)")
+        print(f"{path}: ok: {_describe(study)}")
     return 2 if failures else 0
 
 
 def _sweep(args):
-    import pathlib
-
-    from rbstudy.analytic import reference_solution
     from rbstudy.config import load_study
-    from rbstudy.simulate import simulate
-    from rbstudy.store import case_dataset, write_atomic
+    from rbstudy.execute import run_study
+    from rbstudy.store import open_results
+    from rbstudy.summary import format_table, scheme_rows
+    if args.workers is not None and args.workers < 1:
+        raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     for study in studies:
-        run = simulate([study.scene], study.scheme, study.dt, study.output_interval,
-                       study.options)
-        reference = reference_solution(study.scene, run.time, study.output_interval)
-        dataset = case_dataset(study, run, reference)
-        target = pathlib.Path(args.out) / study.name / f"{study.name}.nc"
-        write_atomic(dataset, target)
-        print(f"{study.name}: {study.scheme} dt = {study.dt:g} s, {run.n_steps[0]} steps, "
-              f"{run.iterations[0]} Newton iterations, status {run.status_names[0]}")
-        print(f"  final orientation error {float(dataset.final_orientation_error):.3e} rad "
-              f"(reference: {reference.name})")
-        if "precession_frequency" in dataset:
-            print(f"  precession frequency {float(dataset.precession_frequency):.4f} rad/s, "
-                  f"exact {float(dataset.precession_frequency_exact):.4f}")
-        print(f"  wrote {target}")
+        if not args.quiet:
+            print(_describe(study))
+        done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
+                         force=args.force, quiet=args.quiet)
+        print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+              f"{done.wall_seconds:.1f} s; wrote {done.path}")
+        print(format_table(scheme_rows(open_results(done.path))))
     return 0
 
 
@@ -80,6 +81,13 @@ def build_parser():
     sweep = commands.add_parser("sweep", help="run study configs and archive the results")
     sweep.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
     sweep.add_argument("--out", default="results", help="results root (default: results/)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on a running dask.distributed scheduler (tcp://host:8786)")
+    sweep.add_argument("--workers", type=int, metavar="N",
+                       help="start a local dask.distributed cluster of N worker processes")
+    sweep.add_argument("--force", action="store_true",
+                       help="recompute every batch, even those already stored")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs without running")
     validate.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
@@ -99,6 +107,10 @@ def main(argv=None):
     except RbstudyError as error:
         print(f"rbstudy: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("\nrbstudy: interrupted; finished batches are kept: rerun the same command to "
+              "resume", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -1,38 +1,87 @@
 """Study configs: YAML -> a validated, frozen `StudyConfig`, or a one-line `ConfigError`.
 
-This first version reads a single-case study (name, title, scene, output, run); the sweep
-block arrives with the sweep pipeline (issue 3). Every error names the file, the key path,
-the value and the fix.
+A study holds a name, a title, a scene (`rbstudy.scenes`), the output spec, the run (scheme,
+scheme options, dt) and a sweep (`rbstudy.sweep`). Loading expands the sweep and builds every
+case's scene, so every error surfaces before any work starts, naming the file, the key path,
+the value and the fix. docs/config.md documents every key.
 """
 
+import math
+import os
 import pathlib
 from dataclasses import dataclass
 
 import yaml
 
 from rbstudy.errors import ConfigError, RbstudyError
-from rbstudy.scenes import Scene, scene_from_mapping
-from rbstudy.schemes import get_scheme
 from rbstudy.simulate import steps_per
+from rbstudy.sweep import expand, parse_sweep, plan_batches
+from rbstudy.variables import VARIABLES, scene_features, selected
 
-__all__ = ["StudyConfig", "load_study"]
+__all__ = ["StudyConfig", "load_study", "MEMORY_FRACTION", "BATCH_MAX_CASES", "BATCH_MAX_BYTES"]
 
-_TOP_KEYS = ("name", "title", "scene", "output", "run")
+_TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
+
+# A batch holds at most this many cases, and at most this many bytes of sampled states: enough
+# bodies to amortise a task's overhead, few enough that several batches run at once and a kill
+# loses little work.
+BATCH_MAX_CASES = 512
+BATCH_MAX_BYTES = 256 * 2 ** 20
+# A sweep whose working set (the batches running at once) needs more than this share of the
+# machine's memory is refused by `validate`.
+MEMORY_FRACTION = 0.5
+# Sampled state per time: rbstudy.state.N_STATE floats (kept here as the pipeline's estimate).
+_STATE_FLOATS = 13
+_FLOAT_BYTES = 8
 
 
 @dataclass(frozen=True)
 class StudyConfig:
-    """A validated study: where it came from, its scene, output grid and run settings."""
+    """A validated study.
+
+    base : the ``scene`` and ``run`` mappings as written. dimensions : the swept
+    `rbstudy.sweep.Dimension`s (empty for one case). cases : every `rbstudy.sweep.Case`, in C
+    order of the dimensions. variables : the stored variable names. batches : the
+    `rbstudy.sweep.Batch`es. n_times : output samples per case.
+    """
 
     path: str
     text: str
     name: str
     title: str
-    scene: Scene
+    base: dict
     output_interval: float
-    scheme: str
-    options: dict
-    dt: float
+    duration: float
+    dimensions: tuple
+    cases: tuple
+    variables: tuple
+    batches: tuple
+
+    @property
+    def n_times(self):
+        return steps_per(self.duration, self.output_interval) + 1
+
+    @property
+    def shape(self):
+        return tuple(d.size for d in self.dimensions)
+
+    @property
+    def node_names(self):
+        return self.cases[0].scene.node_names
+
+    def bytes_per_case(self):
+        """Bytes one case occupies in the archive (float64 everywhere)."""
+        sizes = {"time": self.n_times, "axis": 3, "component": 4, "node": len(self.node_names)}
+        return sum(_FLOAT_BYTES * math.prod(sizes[d] for d in VARIABLES[name].dims)
+                   for name in self.variables)
+
+    def memory_estimate(self, workers=None):
+        """(archive bytes, peak working bytes): the consolidated dataset on disk, and the
+        batches running at once (sampled states, derived variables and references) in memory."""
+        per_case = self.bytes_per_case() + _STATE_FLOATS * _FLOAT_BYTES * self.n_times
+        largest = max(len(batch.cases) for batch in self.batches)
+        running = min(len(self.batches), workers or os.cpu_count() or 1)
+        return self.bytes_per_case() * len(self.cases), 3 * per_case * largest * running
 
 
 def _fail(path, key, message):
@@ -41,7 +90,8 @@ def _fail(path, key, message):
 
 def _mapping(path, value, key, allowed):
     if not isinstance(value, dict):
-        _fail(path, key, f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
+        _fail(path, key or "(top level)",
+              f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
     for name in value:
         if name not in allowed:
             _fail(path, f"{key}.{name}" if key else name,
@@ -55,20 +105,42 @@ def _positive(path, value, key):
     return float(value)
 
 
-def load_study(path):
-    """Read and validate the study config at ``path``; nothing is run or written."""
-    path = str(path)
+def _read_yaml(path):
     try:
         text = pathlib.Path(path).read_text()
     except OSError as error:
         raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from None
     try:
-        data = yaml.safe_load(text)
+        return text, yaml.safe_load(text)
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f"line {where.line + 1}: " if where else ""
         raise ConfigError(f"{path}: {line}malformed YAML: {getattr(error, 'problem', error)}") \
             from None
+
+
+def _variables(path, requested, cases):
+    """The variables every case defines, narrowed to ``output.variables`` when given."""
+    available = selected(set.intersection(*(scene_features(case.scene) for case in cases)))
+    if requested is None:
+        return tuple(available)
+    if not isinstance(requested, list) or not requested:
+        _fail(path, "output.variables", f"expected a non-empty list of names, got {requested!r}")
+    for i, name in enumerate(requested):
+        if name not in VARIABLES:
+            _fail(path, f"output.variables[{i}]",
+                  f"unknown variable {name!r}; valid: {', '.join(VARIABLES)}")
+        if name not in available:
+            needs = ", ".join(sorted(VARIABLES[name].needs))
+            _fail(path, f"output.variables[{i}]",
+                  f"{name} needs {needs}, which not every case of this study has; remove it")
+    return tuple(name for name in available if name in requested)
+
+
+def load_study(path):
+    """Read and validate the study config at ``path``; nothing is run or written."""
+    path = str(path)
+    text, data = _read_yaml(path)
     data = _mapping(path, data, "", _TOP_KEYS)
     for key in ("name", "scene", "run"):
         if key not in data:
@@ -76,30 +148,49 @@ def load_study(path):
     name = data["name"]
     if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
         _fail(path, "name", f"use letters, digits, '-' and '_' only (it names a folder), got {name!r}")
-    try:
-        scene = scene_from_mapping(data["scene"], source=path)
-    except RbstudyError as error:
-        raise ConfigError(str(error)) from None
     run = _mapping(path, data["run"], "run", ("scheme", "options", "dt"))
-    if "scheme" not in run or "dt" not in run:
-        _fail(path, "run", "needs scheme and dt")
+    dimensions = parse_sweep(path, data.get("sweep"))
+    swept = {axis.target for d in dimensions for axis in d.axes}
+    for key in ("scheme", "dt"):
+        if key not in run and key not in swept:
+            _fail(path, f"run.{key}", "missing (give it here or sweep it)")
+    output = _mapping(path, data.get("output") or {}, "output", ("interval", "variables"))
+    if "interval" in output:
+        interval = _positive(path, output["interval"], "output.interval")
+    elif isinstance(run.get("dt"), (int, float)) and "dt" not in swept:
+        interval = _positive(path, run["dt"], "run.dt")
+    else:
+        _fail(path, "output.interval", "missing: with dt swept, give the output interval (s)")
+    scene_spec = data["scene"]
+    if not isinstance(scene_spec, dict):
+        _fail(path, "scene", f"expected a mapping, got {scene_spec!r}")
+    base = {"scene": scene_spec, "run": dict(run)}
+    cases = expand(path, base, dimensions, interval)
+    duration = cases[0].scene.duration
     try:
-        scheme = get_scheme(run["scheme"])
-        options = dict(run.get("options") or {})
-        scheme.option_row(options)
-    except RbstudyError as error:
-        raise ConfigError(f"{path}: run: {error}") from None
-    dt = _positive(path, run["dt"], "run.dt")
-    output = _mapping(path, data.get("output", {}), "output", ("interval",))
-    interval = _positive(path, output.get("interval", dt), "output.interval")
-    try:
-        steps_per(interval, dt, "output interval")
-    except RbstudyError as error:
-        _fail(path, "run.dt", str(error))
-    try:
-        steps_per(scene.duration, interval, "duration")
+        steps_per(duration, interval, "duration")
     except RbstudyError as error:
         _fail(path, "output.interval", str(error).replace("dt =", "interval ="))
-    return StudyConfig(path=path, text=text, name=name, title=str(data.get("title", name)),
-                       scene=scene, output_interval=interval, scheme=scheme.name,
-                       options=options, dt=dt)
+    variables = _variables(path, output.get("variables"), cases)
+    study = StudyConfig(path=path, text=text, name=name, title=str(data.get("title", name)),
+                        base=base, output_interval=interval, duration=duration,
+                        dimensions=dimensions, cases=cases, variables=variables, batches=())
+    per_case = study.bytes_per_case() + _STATE_FLOATS * _FLOAT_BYTES * study.n_times
+    max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // per_case))
+    batches = plan_batches(cases, interval, variables, max_cases)
+    study = StudyConfig(**{**study.__dict__, "batches": batches})
+    _check_memory(path, study)
+    return study
+
+
+def _physical_memory():
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def _check_memory(path, study):
+    _, peak = study.memory_estimate()
+    limit = MEMORY_FRACTION * _physical_memory()
+    if peak > limit:
+        _fail(path, "sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
+                             f"{limit / 2 ** 20:,.0f} MiB, half of this machine's); sweep fewer "
+                             "values, a shorter duration or a longer output.interval")

@@ -63,7 +63,8 @@ class Simulation:
         return [STATUS_NAMES[code] for code in self.status]
 
 
-def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound=DRIFT_BOUND):
+def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound=DRIFT_BOUND,
+             threads=None):
     """Integrate ``scenes`` (all of the same duration) with ``scheme`` at step ``dt``.
 
     Parameters
@@ -73,6 +74,7 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
     dt : time step (s); output_interval : sampling interval (s), default ``dt``.
     options : scheme options, one mapping for all scenes or a sequence of one per scene.
     drift_bound : relative energy/|L| drift flagged as a blow-up.
+    threads : threads to spread the bodies over (default: all cores).
     """
     scenes = list(scenes)
     durations = {scene.duration for scene in scenes}
@@ -89,7 +91,7 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
         rows = np.array([chosen.option_row(o) for o in options])
     out = run_batch(chosen, np.array([s.state_row() for s in scenes]),
                     np.array([s.param_row() for s in scenes]), rows, dt, n_steps, every,
-                    drift_bound)
+                    drift_bound, threads=threads)
     samples = out.samples
     n_times = samples.shape[1]
     return Simulation(

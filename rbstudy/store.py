@@ -1,51 +1,49 @@
-"""Results on disk: CF-1.11 netCDF datasets built from the variable table, written atomically.
+"""Results on disk: part files per batch and the consolidated CF-1.11 dataset of a study.
 
-This first version stores one case per study (no swept dimensions yet); the dimension and
-variable names are the public contract of issue 3: ``time``, ``node``, ``axis`` (x, y, z),
-``component`` (x, y, z, w), and the variables of `rbstudy.variables`.
+Layout (design.md): ``<root>/<study>/study.yaml`` (the resolved config),
+``parts/<batch-id>.nc`` (one finished batch, dimension ``case``) and ``<study>.nc`` (every
+case on the study's grid). Every file is written under a temporary name in the same folder and
+renamed, so a reader, or a rerun after a kill, never sees half a file.
+
+The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
+memory stays bounded by the largest part whatever the size of the study. Its dimensions are
+the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y, z) and
+``component`` (x, y, z, w); every attribute comes from `rbstudy.variables`.
 """
 
 import datetime
+import math
 import os
 import pathlib
 import platform
 import sys
 import tempfile
+import threading
+from contextlib import contextmanager
+from dataclasses import dataclass
 from importlib import metadata
 
+import netCDF4
 import numpy as np
 import xarray as xr
-from scipy.spatial.transform import Rotation
+import yaml
 
-from rbstudy.analytic import precession_frequency_exact
 from rbstudy.errors import RbstudyError
-from rbstudy.metrics import (
-    energy_error,
-    momentum_error,
-    node_positions,
-    omega_error,
-    orientation_error,
-    phase_rate,
-)
-from rbstudy.variables import STATUS_FLAGS, VARIABLES, selected
+from rbstudy.variables import COORDINATES, VARIABLES, variable_attrs
 
-__all__ = ["case_dataset", "write_atomic", "scene_features"]
+__all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_atomic", "write_text_atomic",
+           "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
+           "open_results"]
 
-_DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "matplotlib", "PyYAML")
-
-
-def scene_features(scene):
-    """The features of `rbstudy.variables` that ``scene`` has."""
-    features = {"reference"}
-    if len(scene.nodes):
-        features.add("nodes")
-    if scene.translates:
-        features.add("translation")
-    if scene.loads.moment_free:
-        features.add("moment_free")
-        if scene.body.symmetry_axis is not None:
-            features.add("symmetric")
-    return features
+_DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
+                 "matplotlib", "PyYAML")
+# mkstemp creates files readable by their owner only; results are meant to be shared.
+_FILE_MODE = 0o644
+# The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
+# the process. Every netCDF access of this process goes through this lock (parts are written
+# by the tasks of the threaded scheduler).
+HDF5_LOCK = threading.RLock()
+_LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 
 
 def _versions():
@@ -58,90 +56,125 @@ def _versions():
     return found
 
 
-def case_dataset(study, run, reference):
-    """The dataset of one case: ``run`` a one-body `Simulation`, ``reference`` a `Reference`."""
-    scene = study.scene
-    inertia = np.array(scene.body.inertia)
-    quaternion, omega = run.quaternion[0], run.omega_body[0]
-    finite = np.all(np.isfinite(quaternion), axis=-1)
-    omega_space = np.full_like(omega, np.nan)
-    omega_space[finite] = Rotation.from_quat(quaternion[finite]).apply(omega[finite])
-    values = {
-        "omega_body": omega,
-        "omega_space": omega_space,
-        "quaternion": quaternion,
-        "position": run.position[0],
-        "energy_error": energy_error(omega, inertia),
-        "momentum_error": momentum_error(quaternion, omega, inertia),
-        "orientation_error": orientation_error(quaternion, reference.quaternion),
-        "omega_error": omega_error(omega, reference.omega_body),
-        "status": run.status[0],
-        "failure_time": run.failure_time[0],
-        "n_steps": run.n_steps[0],
-        "iterations": run.iterations[0],
-        "run_time": run.kernel_seconds,
-        "max_energy_error": run.max_energy_drift[0],
-        "max_momentum_error": run.max_momentum_drift[0],
-    }
-    values["final_orientation_error"] = values["orientation_error"][-1]
-    if len(scene.nodes):
-        safe = np.where(finite[:, None], quaternion, [0.0, 0.0, 0.0, 1.0])
-        nodes = node_positions(safe, run.position[0], scene.nodes)
-        nodes[~finite] = np.nan
-        nodes_ref = node_positions(reference.quaternion, reference.position, scene.nodes)
-        values["node_displacement"] = nodes - nodes[:1]
-        values["node_error"] = np.linalg.norm(nodes - nodes_ref, axis=-1)
-    exact = precession_frequency_exact(scene)
-    if exact is not None:
-        axis = scene.body.symmetry_axis
-        a, b = omega[:, (axis + 1) % 3], omega[:, (axis + 2) % 3]
-        measured = float(phase_rate(a, b, run.time))
-        values.update(precession_frequency=measured, precession_frequency_exact=exact,
-                      precession_frequency_error=measured - exact)
+def utc_now():
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
-    names = selected(scene_features(scene))
-    data_vars = {}
-    for name in names:
-        variable = VARIABLES[name]
-        attrs = {"units": variable.units, "long_name": variable.long_name}
-        if variable.standard_name:
-            attrs["standard_name"] = variable.standard_name
-        if name == "status":
-            attrs = {"long_name": variable.long_name, **STATUS_FLAGS}
-        if variable.needs & {"reference"}:
-            attrs["reference"] = reference.name
-        data_vars[name] = (variable.dims, np.asarray(values[name]), attrs)
-    coords = {
-        "time": ("time", run.time, {"units": "s", "long_name": "time", "standard_name": "time",
-                                    "axis": "T"}),
-        "axis": ("axis", np.array(["x", "y", "z"]), {"long_name": "vector component"}),
-        "component": ("component", np.array(["x", "y", "z", "w"]),
-                      {"long_name": "quaternion component, scalar last"}),
-    }
-    if len(scene.nodes):
-        coords["node"] = ("node", np.array(scene.node_names), {"long_name": "node name"})
-    now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+def global_attrs(study, command=None, started=None):
+    """The global attributes: CF conventions, provenance and the config text."""
     versions = _versions()
-    attrs = {
+    command = command or " ".join(["rbstudy"] + sys.argv[1:])
+    history = f"{started or utc_now()} {command} (started)\n{utc_now()} {command} (finished)"
+    return {
         "Conventions": "CF-1.11",
         "title": study.title,
+        "institution": "rbstudy user",
         "source": f"rbstudy {versions['rbstudy']}",
-        "history": f"{now} {' '.join(sys.argv) or 'rbstudy'}",
+        "history": history,
+        "comment": "Rigid-body integrator study; errors are measured against the reference "
+                   "named per case by the variable `reference`.",
         "study": study.name,
-        "scheme": study.scheme,
-        "dt": study.dt,
-        "reference": reference.name,
-        "physical_body": int(scene.body.physical),
         "config": study.text,
+        "config_path": study.path,
         "platform": platform.platform(),
+        "python": sys.version.split()[0],
         "versions": "; ".join(f"{k} {v}" for k, v in versions.items()),
     }
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
 
 
-def write_atomic(dataset, path):
-    """Write ``dataset`` to ``path`` through a temporary file in the same folder, then rename,
-    so that a reader never sees a half-written file."""
+def resolved_config(study):
+    """The study as YAML with every sweep expanded into explicit values (``study.yaml``)."""
+    resolved = {
+        "name": study.name,
+        "title": study.title,
+        **study.base,
+        "output": {"interval": study.output_interval, "variables": list(study.variables)},
+        "sweep": {d.name: {axis.target: list(axis.values) for axis in d.axes}
+                  for d in study.dimensions},
+        "cases": len(study.cases),
+        "batches": [batch.id for batch in study.batches],
+    }
+    return yaml.safe_dump(resolved, sort_keys=False)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What a part file needs to know of its study (small: it travels with every task)."""
+
+    study: str
+    variables: tuple
+    n_times: int
+    output_interval: float
+    node_names: tuple
+
+    @classmethod
+    def of(cls, study):
+        return cls(study.name, study.variables, study.n_times, study.output_interval,
+                   study.node_names)
+
+
+def _fixed_coords(layout):
+    """time, axis, component and node coordinates as (values, attrs)."""
+    coords = {"time": (np.arange(layout.n_times) * layout.output_interval, {})}
+    coords.update({name: (np.array(labels), {}) for name, labels in _LABELS.items()})
+    if layout.node_names:
+        coords["node"] = (np.array(layout.node_names), {})
+    for name, (_, attrs) in coords.items():
+        units, long_name = COORDINATES[name]
+        attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
+    coords["time"][1].update(standard_name="time", axis="T", calendar="standard",
+                             comment="the epoch stands for t = 0 of the run")
+    return coords
+
+
+def _coordinate_values(axis):
+    if all(isinstance(v, str) for v in axis.values):
+        return np.array(axis.values, dtype=object)
+    return np.array([float(v) for v in axis.values])
+
+
+def grid_coordinates(study):
+    """The coordinates of the swept dimensions: name -> (dims, values, attrs).
+
+    A product dimension's coordinate is its axis; a zipped dimension gets an index coordinate
+    and one auxiliary coordinate per axis. ``scheme`` and ``dt``, when not swept, are scalar
+    coordinates, so that every dataset names both.
+    """
+    coords = {}
+    swept = {axis.target for dim in study.dimensions for axis in dim.axes}
+    for name in ("scheme", "dt"):
+        if name not in swept:
+            value = getattr(study.cases[0], name)
+            units, long_name = COORDINATES[name]
+            coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
+                            {"long_name": long_name} | ({"units": units} if units else {}))
+    for dim in study.dimensions:
+        if len(dim.axes) > 1:
+            coords[dim.name] = ((dim.name,), np.arange(dim.size),
+                                {"long_name": "index along the zipped axes "
+                                              + ", ".join(a.coordinate for a in dim.axes)})
+        for axis in dim.axes:
+            attrs = {"long_name": COORDINATES.get(axis.target, (None, axis.target))[1],
+                     "sweep_path": axis.target}
+            if axis.units:
+                attrs["units"] = axis.units
+            coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
+    return coords
+
+
+def part_dataset(layout, batch, values):
+    """The part file of ``batch``: its variables ``values`` (case first) along dim ``case``,
+    whose coordinate is each case's position in the study (C order of the grid)."""
+    data_vars = {name: (("case",) + VARIABLES[name].dims, values[name], variable_attrs(name))
+                 for name in layout.variables}
+    coords = {name: (name, v, a) for name, (v, a) in _fixed_coords(layout).items()}
+    coords["case"] = ("case", np.array(batch.cases), {"long_name": "case number in the study"})
+    return xr.Dataset(data_vars, coords=coords, attrs={"study": layout.study, "batch": batch.id})
+
+
+@contextmanager
+def _temporary_beside(path):
+    """A temporary path in ``path``'s folder, renamed to ``path`` on success, removed on failure."""
     path = pathlib.Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -152,8 +185,110 @@ def write_atomic(dataset, path):
         raise RbstudyError(f"{path.parent}: cannot write results there ({error.strerror}); "
                            "choose another folder with --out") from None
     try:
-        dataset.to_netcdf(temporary)
+        yield temporary
+        os.chmod(temporary, _FILE_MODE)
         os.replace(temporary, path)
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def open_results(path):
+    """Open a results or part file with ``time`` in seconds from the start of the run."""
+    with HDF5_LOCK:
+        return xr.open_dataset(path, decode_times=False).load()
+
+
+def write_atomic(dataset, path):
+    """Write ``dataset`` to ``path`` through a temporary file, then rename."""
+    with _temporary_beside(path) as temporary, HDF5_LOCK:
+        dataset.to_netcdf(temporary)
+
+
+def write_text_atomic(text, path):
+    with _temporary_beside(path) as temporary:
+        pathlib.Path(temporary).write_text(text)
+
+
+def _create(nc, name, dims, values=None, attrs=None, dtype=None):
+    """A netCDF variable; coordinates get ``values``, data variables a NaN fill (floats)."""
+    if values is not None:
+        dtype = str if values.dtype == object else values.dtype
+    fill = np.nan if values is None and np.dtype(dtype).kind == "f" else None
+    variable = nc.createVariable(name, dtype, dims, fill_value=fill)
+    if attrs:
+        variable.setncatts({k: (np.array(v, dtype=np.int8) if k == "flag_values" else v)
+                            for k, v in attrs.items()})
+    if values is not None:
+        variable[...] = values
+    return variable
+
+
+def consolidate(study, parts, target, attrs):
+    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part."""
+    shape = study.shape
+    grid = grid_coordinates(study)
+    # Auxiliary coordinates (zipped axes, unswept scheme and dt) that CF readers attach to
+    # every data variable.
+    auxiliary = " ".join(name for name, (dims, _, _) in grid.items()
+                         if dims != (name,))
+    with _temporary_beside(target) as temporary, HDF5_LOCK:
+        with netCDF4.Dataset(temporary, "w", format="NETCDF4") as nc:
+            nc.setncatts(attrs)
+            for dim in study.dimensions:
+                nc.createDimension(dim.name, dim.size)
+            fixed = _fixed_coords(Layout.of(study))
+            for name, (values, _) in fixed.items():
+                nc.createDimension(name, len(values))
+            for name, (dims, values, coord_attrs) in grid.items():
+                _create(nc, name, dims, values, coord_attrs)
+            for name, (values, coord_attrs) in fixed.items():
+                _create(nc, name, (name,), values.astype(object) if values.dtype.kind == "U"
+                        else values, coord_attrs)
+            grid_dims = tuple(d.name for d in study.dimensions)
+            targets = {}
+            for name in study.variables:
+                variable_attrs_ = variable_attrs(name)
+                if auxiliary:
+                    variable_attrs_["coordinates"] = auxiliary
+                kind = {"status": "i1", "reference": "i1", "n_steps": "i8",
+                        "iterations": "i8"}.get(name, "f8")
+                targets[name] = _create(nc, name, grid_dims + VARIABLES[name].dims,
+                                        attrs=variable_attrs_, dtype=kind)
+            for batch in study.batches:
+                part = open_results(parts[batch.id])
+                _write_part(targets, part, shape)
+
+
+def _block(cases, shape):
+    """Orthogonal indices (one per dimension) when ``cases`` (flat, C order) fill the outer
+    product of their coordinates in order, else None. Batches usually do (a fixed scheme
+    and dt, every value of the other axes), and one slab write replaces a write per case."""
+    where = np.unravel_index(cases, shape)
+    axes = [np.unique(w) for w in where]
+    if math.prod(len(a) for a in axes) != len(cases):
+        return None
+    grid = np.ravel_multi_index(np.meshgrid(*axes, indexing="ij"), shape).ravel()
+    if not np.array_equal(grid, cases):
+        return None
+    return tuple(slice(a[0], a[-1] + 1) if len(a) == a[-1] - a[0] + 1 else a.tolist()
+                 for a in axes), tuple(len(a) for a in axes)
+
+
+def _write_part(targets, part, shape):
+    """Copy one part's cases into the consolidated variables ``targets``."""
+    cases = part["case"].values
+    if not shape:  # a one-case study
+        for name, variable in targets.items():
+            variable[...] = part[name].values[0]
+        return
+    block = _block(cases, shape)
+    for name, variable in targets.items():
+        values = part[name].values
+        if block is not None:
+            index, sizes = block
+            variable[index] = values.reshape(sizes + values.shape[1:])
+            continue
+        where = np.unravel_index(cases, shape)
+        for c in range(len(cases)):
+            variable[tuple(int(w[c]) for w in where)] = values[c]

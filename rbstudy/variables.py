@@ -14,7 +14,8 @@ left out instead of filled with NaN:
 
 from dataclasses import dataclass
 
-__all__ = ["Variable", "VARIABLES", "STATUS_FLAGS", "selected"]
+__all__ = ["Variable", "VARIABLES", "STATUS_FLAGS", "REFERENCE_FLAGS", "COORDINATES", "TIME_UNITS",
+           "coordinate_units", "variable_attrs", "scene_features", "selected"]
 
 
 @dataclass(frozen=True)
@@ -65,22 +66,83 @@ VARIABLES = {v.name: v for v in (
     _v("max_momentum_error", (), "1", "largest relative |L| drift over every step", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
+    _v("reference", (), "1", "reference solution the errors are measured against", "reference"),
 )}
 
-# CF flags of `status` (values match rbstudy.driver's codes).
+# CF flags of `status` (values match rbstudy.driver's codes) and of `reference` (names match
+# rbstudy.analytic's `Reference.name`).
 STATUS_FLAGS = {"flag_values": [0, 1, 2], "flag_meanings": "ok unstable not_converged"}
+REFERENCE_FLAGS = {"flag_values": [0, 1, 2],
+                   "flag_meanings": "symmetric_top axial_moment dop853"}
+_FLAGS = {"status": STATUS_FLAGS, "reference": REFERENCE_FLAGS}
+
+# CF-1.11 requires a reference epoch on a time coordinate. The epoch stands for t = 0 of the
+# run, not a calendar date: open results with ``decode_times=False`` (as
+# `rbstudy.store.open_results` does) to read seconds.
+TIME_UNITS = "seconds since 1970-01-01 00:00:00"
+
+# Coordinates: the output grid and the named sweep axes. (units, long_name); units None for
+# labels.
+COORDINATES = {
+    "time": (TIME_UNITS, "simulated time since the start of the run"),
+    "axis": (None, "vector component"),
+    "component": (None, "quaternion component, scalar last"),
+    "node": (None, "node name"),
+    "scheme": (None, "integration scheme"),
+    "dt": ("s", "time step"),
+    "inertia_ratio": ("1", "inertia ratio I3 / I1 of the symmetric body"),
+    "spin": ("rad s-1", "initial angular speed |w|"),
+    "tilt": ("degree", "initial angle between w and the body symmetry axis 3"),
+}
+
+# Units of a value swept by dotted path, found from the last key of the path that is listed
+# here (``scene.initial.angular_velocity.body.2`` -> ``body`` under ``angular_velocity``).
+_KEY_UNITS = {
+    "mass": "kg", "inertia": "kg m2", "angular_velocity": "rad s-1", "position": "m",
+    "velocity": "m s-1", "euler_zxz_deg": "degree", "phi_deg": "degree", "quaternion": "1",
+    "rotation_vector": "rad", "momentum_axis": "1", "nodes": "m", "force_space": "N",
+    "force_body": "N", "moment_space": "N m", "moment_body": "N m", "gravity": "m s-2",
+    "alpha": "1", "axis_order": None,
+}
 
 
-def selected(features, requested=None):
-    """Names of the variables a scene with ``features`` defines, in table order.
+def coordinate_units(target):
+    """Units of the values of a sweep axis (short name or dotted path), None if a label."""
+    if target in COORDINATES:
+        return COORDINATES[target][0]
+    for key in reversed(target.split(".")):
+        if key in _KEY_UNITS:
+            return _KEY_UNITS[key]
+    return None
 
-    ``requested`` (optional) narrows the choice; asking for a variable the scene cannot
-    define raises ``KeyError`` naming it.
-    """
-    available = [name for name, v in VARIABLES.items() if v.needs <= set(features)]
-    if requested is None:
-        return available
-    missing = [name for name in requested if name not in available]
-    if missing:
-        raise KeyError(", ".join(missing))
-    return [name for name in available if name in requested]
+
+def variable_attrs(name, reference_names=()):
+    """The CF attributes of output variable ``name``, all from the table above."""
+    variable = VARIABLES[name]
+    if name in _FLAGS:
+        return {"long_name": variable.long_name, **_FLAGS[name]}
+    attrs = {"units": variable.units, "long_name": variable.long_name}
+    if variable.standard_name:
+        attrs["standard_name"] = variable.standard_name
+    if "reference" in variable.needs and reference_names:
+        attrs["comment"] = f"reference: {', '.join(reference_names)} (see variable reference)"
+    return attrs
+
+
+def scene_features(scene):
+    """The features (see the module docstring) that a `rbstudy.scenes.Scene` has."""
+    features = {"reference"}
+    if len(scene.nodes):
+        features.add("nodes")
+    if scene.translates:
+        features.add("translation")
+    if scene.loads.moment_free:
+        features.add("moment_free")
+        if scene.body.symmetry_axis is not None:
+            features.add("symmetric")
+    return features
+
+
+def selected(features):
+    """Names of the variables a scene with ``features`` defines, in table order."""
+    return [name for name, v in VARIABLES.items() if v.needs <= set(features)]

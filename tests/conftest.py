@@ -66,3 +66,18 @@ def final_orientation_errors(scene, scheme, dts, interval, options=None):
             reference = reference_solution(scene, run.time)
         errors.append(orientation_error(run.quaternion[0, -1], reference.quaternion[-1]))
     return np.array(errors)
+
+
+def write_study(folder, name="study", sweep=None, run=None, scene=None, output=None):
+    """Write a study YAML into ``folder`` (the Abaqus top, 0.5 s, by default); returns its path."""
+    study = {
+        "name": name,
+        "scene": scene or {**abaqus_mapping(), "duration": 0.5},
+        "output": output or {"interval": 0.01},
+        "run": run or {"scheme": "rk4", "dt": 0.01},
+    }
+    if sweep is not None:
+        study["sweep"] = sweep
+    path = pathlib.Path(folder) / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(study, sort_keys=False))
+    return path

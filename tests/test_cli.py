@@ -1,29 +1,33 @@
 """The command line: sweep writes a CF dataset; bad configs give one line, exit 2, no file."""
 
-import math
-
 import pytest
-import xarray as xr
+import yaml
+from conftest import write_study
 
 from rbstudy.cli import main
 
 
-def test_sweep_writes_the_abaqus_dataset(tmp_path, capsys):
-    assert main(["sweep", "configs/abaqus_top.yaml", "--out", str(tmp_path)]) == 0
-    path = tmp_path / "abaqus_top" / "abaqus_top.nc"
-    assert [p.name for p in path.parent.iterdir()] == ["abaqus_top.nc"]  # no temporary left
-    with xr.open_dataset(path) as ds:
-        assert ds.attrs["Conventions"] == "CF-1.11" and ds.attrs["reference"] == "symmetric_top"
-        assert dict(ds.sizes) == {"time": 201, "axis": 3, "component": 4, "node": 3}
-        assert "position" not in ds  # the top does not translate: absent, not NaN
-        assert ds.omega_body.attrs["units"] == "rad s-1"
-        assert ds.status.attrs["flag_meanings"] == "ok unstable not_converged"
-        assert int(ds.status) == 0 and int(ds.iterations) == 200
-        assert math.isclose(float(ds.precession_frequency_exact), 2 * math.pi)
-        assert abs(float(ds.precession_frequency_error)) < 1e-2
-        # node 4 sits on the symmetry axis, which nutates by 2 theta0 at most
-        assert float(ds.node_displacement.sel(node="4").max()) < 0.05
-    assert "precession frequency 6.281" in capsys.readouterr().out
+def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
+    config = write_study(tmp_path, name="small", sweep={"scheme": ["rk4", "hht"],
+                                                        "dt": [0.01, 0.005, 0.0025]})
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out")]) == 0
+    folder = tmp_path / "out" / "small"
+    assert sorted(p.name for p in folder.iterdir()) == [".lock", "parts", "small.nc",
+                                                        "study.yaml"]
+    assert len(list((folder / "parts").iterdir())) == 6  # one per scheme and dt, no temporaries
+    resolved = yaml.safe_load((folder / "study.yaml").read_text())
+    assert resolved["sweep"]["dt"] == {"dt": [0.01, 0.005, 0.0025]} and resolved["cases"] == 6
+    out = capsys.readouterr().out
+    assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[-2:]}
+    assert rows["rk4"][1] == "4.00" and rows["hht"][1] == "2.00" and rows["hht"][-1] == "yes"
+
+
+def test_validate_reports_cases_batches_and_memory(capsys):
+    assert main(["validate", "configs/abaqus_top.yaml"]) == 0
+    out = capsys.readouterr().out
+    assert "192 cases (scheme 8 x dt 6 x inertia_ratio 4) in 48 batches" in out
+    assert "archive ~7.7 MiB" in out and "peak memory" in out
 
 
 @pytest.mark.parametrize("text, message", [
@@ -35,6 +39,9 @@ def test_sweep_writes_the_abaqus_dataset(tmp_path, capsys):
      "bad.yaml: scene.body.inertia: [1.0, 1.0, 3.0] violates the triangle inequality"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.1}\nsweeps: 1\n",
      "bad.yaml: sweeps: unknown key"),
+    ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.1}\n"
+     "output: {interval: 0.1}\nsweep: {dt: [0.1, 0.03]}\n",
+     "bad.yaml: sweep (dt[1] = 0.03): dt = 0.03 s does not divide"),
     ("name: x\nscene: [1, 2\n", "bad.yaml: line 3: malformed YAML"),
 ])
 def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, text, message):

@@ -10,8 +10,8 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 
 LAYERS = {
     "numerics": {"_jit", "state", "rotation", "dynamics", "driver", "schemes", "errors"},
-    "physics": {"scenes", "assembly", "analytic", "metrics", "variables", "simulate"},
-    "pipeline": {"config", "sweep", "execute", "store", "plots", "report", "bench"},
+    "physics": {"scenes", "assembly", "analytic", "metrics", "variables", "simulate", "outputs"},
+    "pipeline": {"config", "sweep", "execute", "store", "summary", "plots", "report", "bench"},
     "cli": {"cli", "__main__"},
 }
 RANK = {layer: i for i, layer in enumerate(LAYERS)}

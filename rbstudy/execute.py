@@ -1,0 +1,271 @@
+"""Execution: a study's batches -> dask tasks -> part files -> the consolidated dataset.
+
+One dask task per batch runs the compiled driver on all its cases and returns their outputs
+(small: decimated samples only); a second task writes them as the batch's part file. The
+references (closed form or DOP853) are tasks of their own, one per distinct scene, shared by
+every batch that needs them. The default scheduler is dask's local threaded one (the kernels
+release the GIL); ``scheduler`` connects to a running ``dask.distributed`` cluster and
+``workers`` starts a `LocalCluster` (workers must see the results folder).
+
+A study folder is locked while a sweep writes it; a rerun skips the batches whose part exists,
+so a killed sweep resumes where it stopped.
+"""
+
+import contextlib
+import fcntl
+import logging
+import os
+import pathlib
+import sys
+import time
+from dataclasses import dataclass
+
+import dask
+import numpy as np
+
+from rbstudy.analytic import reference_solution
+from rbstudy.errors import RbstudyError
+from rbstudy.outputs import batch_outputs
+from rbstudy.simulate import simulate
+from rbstudy.store import (
+    Layout,
+    consolidate,
+    global_attrs,
+    part_dataset,
+    resolved_config,
+    utc_now,
+    write_atomic,
+    write_text_atomic,
+)
+from rbstudy.sweep import canonical_id
+
+__all__ = ["run_study", "StudyRun", "compute_batch", "compute_reference", "Progress"]
+
+# Seconds between two redraws of the progress bar.
+_REDRAW_SECONDS = 0.2
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """Everything a worker needs to run one batch (no study object: tasks stay small)."""
+
+    scheme: str
+    dt: float
+    output_interval: float
+    scenes: tuple
+    options: tuple
+    variables: tuple
+
+
+@dataclass(frozen=True)
+class StudyRun:
+    """What a sweep did: the dataset path, batches computed and reused, wall time (s)."""
+
+    path: pathlib.Path
+    computed: int
+    reused: int
+    cases: int
+    wall_seconds: float
+
+
+def compute_reference(scene, n_times, output_interval):
+    """The reference of one scene on the output grid of ``n_times`` samples (a dask task)."""
+    return reference_solution(scene, np.arange(n_times) * output_interval, output_interval)
+
+
+def compute_batch(job, references, threads):
+    """Run one batch and return its outputs, name -> array with the case axis first.
+
+    ``run_time`` per case is the kernel's wall time times the threads it used, divided among
+    the cases: core-seconds per case, comparable whatever the scheduler.
+    """
+    run = simulate(job.scenes, job.scheme, job.dt, job.output_interval, list(job.options),
+                   threads=threads)
+    used = min(threads, len(job.scenes))
+    per_case = run.kernel_seconds * used / len(job.scenes)
+    return batch_outputs(job.scenes, run, references, job.variables,
+                         [per_case] * len(job.scenes))
+
+
+def store_part(values, layout, batch, path):
+    """Write one batch's part file atomically (a dask task); returns the batch id."""
+    write_atomic(part_dataset(layout, batch, values), path)
+    return batch.id
+
+
+class Progress:
+    """Cases done / total, elapsed and remaining time, redrawn in place on a terminal."""
+
+    def __init__(self, total, label, enabled, stream=sys.stderr):
+        self.total, self.label, self.enabled, self.stream = total, label, enabled, stream
+        self.done = 0
+        self.start = time.perf_counter()
+        self._drawn = 0.0
+
+    def advance(self, cases):
+        self.done += cases
+        now = time.perf_counter()
+        if self.enabled and (now - self._drawn > _REDRAW_SECONDS or self.done == self.total):
+            self._drawn = now
+            elapsed = now - self.start
+            remaining = elapsed / self.done * (self.total - self.done) if self.done else 0.0
+            width = 30
+            filled = int(width * self.done / max(self.total, 1))
+            self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
+                              f"{self.done}/{self.total} cases, elapsed {elapsed:5.1f} s, "
+                              f"remaining {remaining:5.1f} s")
+            if self.done == self.total:
+                self.stream.write("\n")
+            self.stream.flush()
+
+
+def progress_wanted(quiet):
+    """A bar only on a terminal, never in CI or with --quiet."""
+    return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
+
+
+@contextlib.contextmanager
+def study_lock(folder):
+    """Hold ``folder/.lock`` for the sweep; a second sweep of the same study refuses clearly.
+
+    The lock is an advisory ``flock``: the system releases it when the process dies, so a
+    killed sweep never leaves a stale lock.
+    """
+    path = folder / ".lock"
+    handle = open(path, "a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or "unknown"
+        handle.close()
+        raise RbstudyError(f"{folder}: another rbstudy sweep is writing this study (pid "
+                           f"{holder}); wait for it to finish or use another --out") from None
+    try:
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        yield
+    finally:
+        handle.close()
+
+
+def _prepare(root, study):
+    folder = pathlib.Path(root) / study.name
+    try:
+        (folder / "parts").mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise RbstudyError(f"{folder}: cannot write results there ({error.strerror}); choose "
+                           "another folder with --out") from None
+    return folder
+
+
+def _graph(study, pending, parts_dir, threads):
+    """Delayed store tasks of the ``pending`` batches; references computed once per scene.
+
+    Arguments are wrapped as opaque leaves (``traverse=False``): dask would otherwise walk
+    every scene and number of every job looking for collections.
+    """
+    layout = dask.delayed(Layout.of(study), traverse=False)
+    references = {}
+    tasks = []
+    for batch in pending:
+        cases = [study.cases[i] for i in batch.cases]
+        refs = []
+        for case in cases:
+            key = canonical_id(case.spec["scene"])
+            if key not in references:
+                references[key] = dask.delayed(compute_reference, pure=True)(
+                    dask.delayed(case.scene, traverse=False), study.n_times,
+                    study.output_interval, dask_key_name=f"reference-{key}")
+            refs.append(references[key])
+        job = BatchJob(batch.scheme, batch.dt, study.output_interval,
+                       tuple(case.scene for case in cases),
+                       tuple(case.options for case in cases), study.variables)
+        values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False), refs, threads,
+                                             dask_key_name=f"batch-{batch.id}")
+        tasks.append(dask.delayed(store_part)(values, layout,
+                                              dask.delayed(batch, traverse=False),
+                                              str(parts_dir / f"{batch.id}.nc"),
+                                              dask_key_name=f"store-{batch.id}"))
+    return tasks
+
+
+def _run_local(tasks, sizes, progress, workers):
+    from dask.callbacks import Callback
+
+    class _Advance(Callback):
+        def _posttask(self, key, result, dsk, state, worker_id):
+            if isinstance(key, str) and key.startswith("store-"):
+                progress.advance(sizes[key])
+
+    with _Advance():
+        dask.compute(*tasks, scheduler="threads", num_workers=workers)
+
+
+def _run_distributed(tasks, sizes, progress, scheduler, workers):
+    from distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if scheduler:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="10s"))
+            except (OSError, TimeoutError) as error:
+                raise RbstudyError(f"--scheduler {scheduler}: cannot connect ({error}); start "
+                                   "the cluster first or drop --scheduler") from None
+        else:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True,
+                dashboard_address=None, silence_logs=logging.ERROR))
+            client = stack.enter_context(Client(cluster))
+        futures = client.compute(tasks)
+        for future in as_completed(futures):
+            progress.advance(sizes[f"store-{future.result()}"])
+
+
+def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False):
+    """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
+
+    Parameters
+    ----------
+    study : `rbstudy.config.StudyConfig`.
+    root : results root folder.
+    scheduler : address of a running dask.distributed scheduler, or None.
+    workers : start a LocalCluster of this many single-threaded worker processes, or None.
+    force : recompute every batch even when its part exists.
+    quiet : no progress bar.
+    """
+    started_clock = time.perf_counter()
+    started = utc_now()
+    folder = _prepare(root, study)
+    parts_dir = folder / "parts"
+    with study_lock(folder):
+        for stale in parts_dir.glob(".*.tmp"):  # left by a killed sweep; the lock is ours
+            stale.unlink()
+        write_text_atomic(resolved_config(study), folder / "study.yaml")
+        parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
+        if force:
+            for path in parts.values():
+                path.unlink(missing_ok=True)
+        pending = [batch for batch in study.batches if not parts[batch.id].exists()]
+        cores = os.cpu_count() or 1
+        distributed = scheduler is not None or workers is not None
+        threads = 1 if distributed else max(1, cores // max(1, len(pending)))
+        tasks = _graph(study, pending, parts_dir, threads)
+        sizes = {f"store-{batch.id}": len(batch.cases) for batch in pending}
+        progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
+        if tasks:
+            if distributed:
+                _run_distributed(tasks, sizes, progress, scheduler, workers)
+            else:
+                _run_local(tasks, sizes, progress, cores)
+        target = folder / f"{study.name}.nc"
+        consolidate(study, parts, target, global_attrs(study, started=started))
+        current = {path.name for path in parts.values()}
+        for old in parts_dir.glob("*.nc"):
+            if old.name not in current:  # from an earlier version of the config
+                old.unlink()
+    return StudyRun(path=target, computed=len(pending),
+                    reused=len(study.batches) - len(pending), cases=len(study.cases),
+                    wall_seconds=time.perf_counter() - started_clock)

@@ -1,0 +1,203 @@
+"""The sweep pipeline end to end: the default study's dataset contract and CF compliance,
+agreement with direct runs, resume after kill -9, --force, changed configs, the lock, and the
+same numbers on a two-worker LocalCluster."""
+
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import CONFIGS, abaqus_mapping, write_study
+
+from rbstudy.cli import main
+from rbstudy.config import load_study
+from rbstudy.errors import RbstudyError
+from rbstudy.execute import Progress, run_study, study_lock
+from rbstudy.schemes import SCHEMES
+from rbstudy.simulate import simulate
+from rbstudy.store import open_results
+from rbstudy.summary import scheme_rows
+
+# Timings differ between runs; everything else must not.
+TIMINGS = ["run_time"]
+
+
+@pytest.fixture(scope="module")
+def abaqus_results(tmp_path_factory):
+    root = tmp_path_factory.mktemp("results")
+    run_study(load_study(CONFIGS / "abaqus_top.yaml"), root, quiet=True)
+    return root / "abaqus_top" / "abaqus_top.nc"
+
+
+def test_default_study_follows_the_dataset_contract(abaqus_results):
+    ds = open_results(abaqus_results)
+    fixed = [name for name, s in SCHEMES.items() if not s.adaptive]
+    assert list(ds.sizes) == ["scheme", "dt", "inertia_ratio", "time", "axis", "component",
+                              "node"]
+    assert list(ds.scheme.values) == fixed
+    assert np.allclose(ds.dt, [0.01 / 2 ** k for k in range(6)])
+    assert list(ds.inertia_ratio.values) == [0.1, 0.5, 1.5, 2.0]
+    assert ds.omega_body.dims == ("scheme", "dt", "inertia_ratio", "time", "axis")
+    assert ds.node_displacement.dims[-2:] == ("node", "axis")
+    for name in ("omega_space", "quaternion", "energy_error", "momentum_error",
+                 "orientation_error", "omega_error", "node_error", "precession_frequency",
+                 "precession_frequency_exact", "precession_frequency_error", "status",
+                 "failure_time", "n_steps", "iterations", "run_time", "max_energy_error",
+                 "max_momentum_error", "final_orientation_error"):
+        assert name in ds, name
+    assert "position" not in ds  # the top does not translate: absent, not NaN
+    assert ds.status.attrs["flag_meanings"] == "ok unstable not_converged"
+    assert (ds.status == 0).all() and (ds.run_time > 0).all()
+    # the benchmark case itself: 200 increments, one Newton iteration each
+    bench = ds.sel(scheme="hht", dt=0.01, inertia_ratio=2.0)
+    assert int(bench.n_steps) == 200 and int(bench.iterations) == 200
+    assert math.isclose(float(bench.precession_frequency_exact), 2 * math.pi)
+    assert abs(float(bench.precession_frequency_error)) < 3e-3
+    # precession W = w3 (I3 - I1) / I1 follows the inertia ratio
+    assert np.allclose(ds.precession_frequency_exact.sel(scheme="rk4", dt=0.01),
+                       2 * math.pi * (ds.inertia_ratio - 1.0))
+
+
+def test_default_study_is_cf_compliant(abaqus_results, tmp_path):
+    checker = shutil.which("compliance-checker") or os.path.join(
+        os.path.dirname(sys.executable), "compliance-checker")
+    report = tmp_path / "cf.json"
+    subprocess.run([checker, "--test=cf:1.11", "-f", "json", "-o", str(report),
+                    str(abaqus_results)], capture_output=True, check=False)
+    result = json.loads(report.read_text())["cf:1.11"]
+    failures = [p for p in result["high_priorities"] if p["msgs"]]
+    assert result["high_count"] == 0, failures
+
+
+def test_summary_orders_match_each_scheme(abaqus_results):
+    for row in scheme_rows(open_results(abaqus_results)):
+        nominal = SCHEMES[row["scheme"]].order
+        low, high = row["order"]
+        assert abs(low - nominal) < 0.25 and abs(high - nominal) < 0.25, row
+
+
+def test_stored_case_equals_a_direct_run(abaqus_results):
+    study = load_study(CONFIGS / "abaqus_top.yaml")
+    case = next(c for c in study.cases if c.scheme == "rkmk4" and c.dt == 0.0025
+                and c.scene.body.inertia[2] == 0.5)
+    direct = simulate([case.scene], "rkmk4", 0.0025, 0.01)
+    stored = open_results(abaqus_results).sel(scheme="rkmk4", dt=0.0025, inertia_ratio=0.5)
+    assert np.array_equal(stored.quaternion.values, direct.quaternion[0])
+    assert np.array_equal(stored.omega_body.values, direct.omega_body[0])
+
+
+def _small_study(folder, **changes):
+    return write_study(folder, name="small", sweep={
+        "scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0],
+        **changes})
+
+
+def _assert_same_numbers(path_a, path_b):
+    a, b = open_results(path_a), open_results(path_b)
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
+                                b.drop_vars(TIMINGS).drop_attrs())
+
+
+def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tmp_path):
+    config = _small_study(tmp_path)
+    out = tmp_path / "out"
+    first = run_study(load_study(config), out, quiet=True)
+    assert (first.computed, first.reused) == (4, 0)
+    parts = sorted((out / "small" / "parts").iterdir())
+    again = run_study(load_study(config), out, quiet=True)
+    assert (again.computed, again.reused) == (0, 4)
+    assert sorted((out / "small" / "parts").iterdir()) == parts
+    forced = run_study(load_study(config), out, force=True, quiet=True)
+    assert (forced.computed, forced.reused) == (4, 0)
+    changed = run_study(load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out,
+                        quiet=True)
+    assert changed.computed == 4  # no batch of the old config is reused...
+    assert not set(parts) & set((out / "small" / "parts").iterdir())  # ...or left behind
+    ds = open_results(changed.path)
+    assert list(ds.inertia_ratio.values) == [0.5, 1.5]
+    w3 = ds.omega_body.isel(time=0).sel(scheme="euler", dt=0.01, axis="z")
+    assert np.allclose(ds.precession_frequency_exact.sel(scheme="euler", dt=0.01),
+                       w3 * (ds.inertia_ratio - 1.0), rtol=1e-14)
+
+
+def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
+    config = _small_study(tmp_path)
+    folder = tmp_path / "out" / "small"
+    folder.mkdir(parents=True)
+    with study_lock(folder):
+        assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "another rbstudy sweep is writing this study" in error and "\n" not in error
+    assert not (folder / "small.nc").exists()
+
+
+def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
+    sweep = {"scheme": ["rkmk4"], "dt": [0.01 / k for k in range(1, 11)],
+             "inertia_ratio": {"linspace": [0.2, 2.0, 40]}}
+    config = write_study(tmp_path, name="long", sweep=sweep,
+                         scene={**abaqus_mapping(), "duration": 40.0})
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out),
+               "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    parts = out / "long" / "parts"
+    deadline = time.monotonic() + 120
+    while not (parts.exists() and list(parts.glob("*.nc"))) and process.poll() is None:
+        assert time.monotonic() < deadline, "no part written in 120 s"
+        time.sleep(0.01)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    finished = len(list(parts.glob("*.nc")))
+    assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
+    assert not (out / "long" / "long.nc").exists()
+    resumed = run_study(load_study(config), out, quiet=True)
+    assert resumed.reused == finished and resumed.computed == 10 - finished
+    assert not list(parts.glob(".*.tmp"))  # a half-written part of the killed run is gone
+    clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
+    _assert_same_numbers(resumed.path, clean.path)
+
+
+def test_two_worker_local_cluster_gives_the_same_numbers(tmp_path):
+    config = _small_study(tmp_path)
+    threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
+    cluster = run_study(load_study(config), tmp_path / "cluster", workers=2, quiet=True)
+    _assert_same_numbers(threaded.path, cluster.path)
+
+
+def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
+    config = write_study(tmp_path, name="blowup", scene={
+        "body": {"inertia": [1.0, 2.0, 3.0]},
+        "initial": {"angular_velocity": {"body": [0.1, 10.0, 0.1]}}, "duration": 2.0},
+        output={"interval": 0.1}, run={"scheme": "euler", "dt": 0.1},
+        sweep={"scheme": ["euler", "midpoint"], "dt": [0.1, 0.01]})
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    ds = open_results(tmp_path / "out" / "blowup" / "blowup.nc")
+    euler = ds.sel(scheme="euler", dt=0.1)
+    assert int(euler.status) == 1 and 0 < float(euler.failure_time) <= 2.0
+    assert int(ds.status.sel(scheme="midpoint", dt=0.01)) == 0
+    assert "no: 1/2 unstable" in capsys.readouterr().out
+    assert ds.reference.attrs["flag_meanings"].split()[int(euler.reference)] == "dop853"
+
+
+def test_progress_shows_cases_elapsed_and_remaining(tmp_path):
+    with open(tmp_path / "bar", "w") as stream:
+        bar = Progress(10, "study", enabled=True, stream=stream)
+        bar.advance(4)
+        bar.advance(6)
+    text = (tmp_path / "bar").read_text()
+    assert "10/10 cases" in text and "elapsed" in text and "remaining" in text
+    assert text.endswith("\n")
+
+
+def test_unwritable_results_folder_is_one_line(tmp_path):
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    with pytest.raises(RbstudyError, match="cannot write results there"):
+        run_study(load_study(_small_study(tmp_path)), blocked, quiet=True)

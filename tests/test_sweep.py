@@ -1,0 +1,122 @@
+"""Study configs and sweeps: values, product and zip, short names, dotted paths, batch ids,
+and one-line errors for every bad input."""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import write_study
+from scipy.spatial.transform import Rotation
+
+from rbstudy import config
+from rbstudy.config import load_study
+from rbstudy.errors import ConfigError
+from rbstudy.schemes import SCHEMES
+
+
+def test_value_forms_expand_as_documented(tmp_path):
+    study = load_study(write_study(tmp_path, sweep={
+        "dt": {"halving": 0.01, "count": 4},
+        "scene.body.mass": {"linspace": [1.0, 2.0, 3]},
+        "spin": {"logspace": [1.0, 100.0, 3]},
+    }))
+    values = {d.name: d.axes[0].values for d in study.dimensions}
+    assert values["dt"] == (0.01, 0.005, 0.0025, 0.00125)
+    assert np.allclose(values["body_mass"], [1.0, 1.5, 2.0])
+    assert np.allclose(values["spin"], [1.0, 10.0, 100.0])
+    assert study.shape == (4, 3, 3) and len(study.cases) == 36
+    case = study.cases[-1]  # C order: the last case takes the last value of every axis
+    assert case.index == (3, 2, 2) and case.dt == 0.00125 and case.scene.body.mass == 2.0
+    assert math.isclose(np.linalg.norm(case.scene.omega_body), 100.0)
+
+
+def test_all_means_every_fixed_step_scheme(tmp_path):
+    study = load_study(write_study(tmp_path, sweep={"scheme": "all"}))
+    assert study.dimensions[0].axes[0].values == tuple(
+        name for name, s in SCHEMES.items() if not s.adaptive)
+    assert "dop853" not in study.dimensions[0].axes[0].values
+
+
+def test_zipped_axes_share_one_dimension(tmp_path):
+    study = load_study(write_study(tmp_path, sweep={
+        "dt": [0.01, 0.005], "zip": {"spin_tilt": {"spin": [1.0, 2.0, 4.0],
+                                                  "tilt": [0.0, 30.0, 60.0]}}}))
+    assert [d.name for d in study.dimensions] == ["dt", "spin_tilt"] and study.shape == (2, 3)
+    for case in study.cases:
+        spin, tilt = (1.0, 2.0, 4.0)[case.index[1]], (0.0, 30.0, 60.0)[case.index[1]]
+        w = np.array(case.scene.omega_body)
+        assert math.isclose(np.linalg.norm(w), spin, rel_tol=1e-14)
+        assert math.isclose(math.degrees(math.atan2(math.hypot(w[0], w[1]), w[2])), tilt,
+                            abs_tol=1e-12)
+
+
+def test_inertia_ratio_keeps_the_momentum_on_global_z(tmp_path):
+    study = load_study(write_study(tmp_path, sweep={"inertia_ratio": [0.1, 0.5, 1.5, 2.0]}))
+    for case, ratio in zip(study.cases, (0.1, 0.5, 1.5, 2.0), strict=True):
+        assert case.scene.body.inertia == (1.0, 1.0, ratio)
+        momentum = Rotation.from_quat(case.scene.quaternion).apply(
+            np.array(case.scene.body.inertia) * case.scene.omega_body)
+        assert np.allclose(momentum / np.linalg.norm(momentum), [0, 0, 1], atol=1e-14)
+
+
+def test_scheme_options_apply_to_the_schemes_that_have_them(tmp_path):
+    study = load_study(write_study(tmp_path, run={"scheme": "hht", "dt": 0.01},
+                                   sweep={"scheme": ["rk4", "hht"],
+                                          "run.options.alpha": [0.0, -0.1]}))
+    assert [d.name for d in study.dimensions] == ["scheme", "alpha"]
+    options = {(c.scheme, c.index[1]): c.options for c in study.cases}
+    assert options[("hht", 1)] == {"alpha": -0.1} and options[("rk4", 1)] == {}
+
+
+def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
+    sweep = {"scheme": ["rk4", "euler"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]}
+    first = load_study(write_study(tmp_path, sweep=sweep))
+    assert len(first.batches) == 4
+    for batch in first.batches:
+        assert {(first.cases[i].scheme, first.cases[i].dt) for i in batch.cases} == {
+            (batch.scheme, batch.dt)}
+    again = load_study(write_study(tmp_path / "..", name="study", sweep={
+        **sweep, "inertia_ratio": [0.5, 2]}))  # 2 and 2.0 are the same case
+    assert [b.id for b in again.batches] == [b.id for b in first.batches]
+    changed = load_study(write_study(tmp_path, sweep={**sweep, "inertia_ratio": [0.5, 1.9]}))
+    assert not {b.id for b in changed.batches} & {b.id for b in first.batches}
+
+
+@pytest.mark.parametrize("sweep, message", [
+    ({"speed": [1.0]}, "sweep.speed: unknown sweep axis 'speed'; use a short name"),
+    ({"dt": []}, "sweep.dt: empty sweep: give at least one value"),
+    ({"dt": [0.01, 0.003]}, "sweep (dt[1] = 0.003): dt = 0.003 s does not divide the output "
+                            "interval 0.01 s"),
+    ({"inertia_ratio": [2.0, 3.0]}, "sweep (inertia_ratio[1] = 3.0): scene.body.inertia: "
+                                    "[1.0, 1.0, 3.0] violates the triangle inequality"),
+    ({"scheme": ["rk4", "rk5"]}, "sweep (scheme[1] = 'rk5'): unknown scheme 'rk5'; valid "
+                                 "schemes: dop853, euler"),
+    ({"zip": {"pair": {"spin": [1.0], "tilt": [1.0, 2.0]}}},
+     "sweep.zip.pair: zipped axes need equal lengths"),
+    ({"scene.duration": [1.0, 2.0]}, "sweep.scene.duration: scene.duration cannot be swept"),
+    ({"dt": {"halving": 0.01}}, "sweep.dt: expected a list of values"),
+    ({"run.options.alpha": [0.0]}, "run.options: alpha is an option of none of the study's "
+                                   "schemes (rk4)"),
+    ({"scene.body.mass": [1.0, -1.0]}, "sweep (body_mass[1] = -1.0): scene.body.mass: must "
+                                       "be > 0"),
+])
+def test_bad_sweeps_name_file_key_value_and_fix(tmp_path, sweep, message):
+    path = write_study(tmp_path, sweep=sweep)
+    with pytest.raises(ConfigError) as error:
+        load_study(path)
+    assert str(error.value).startswith(f"{path}: ") and message in str(error.value), error.value
+
+
+def test_unknown_output_variable_and_one_a_scene_lacks(tmp_path):
+    with pytest.raises(ConfigError, match=r"output.variables\[1\]: unknown variable 'omega'"):
+        load_study(write_study(tmp_path, output={"interval": 0.01,
+                                                 "variables": ["quaternion", "omega"]}))
+    with pytest.raises(ConfigError, match=r"output.variables\[0\]: position needs translation"):
+        load_study(write_study(tmp_path, output={"interval": 0.01, "variables": ["position"]}))
+
+
+def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeypatch):
+    monkeypatch.setattr(config, "_physical_memory", lambda: 2 ** 16)  # a 64 KiB machine
+    with pytest.raises(ConfigError, match=r"sweep: needs about [\d,]+ MiB of memory at once "
+                                          r"\(limit 0 MiB"):
+        load_study(write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}}))
