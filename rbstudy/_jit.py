@@ -3,17 +3,44 @@
 `jit` compiles a kernel and caches it to disk, so that a second process starts without
 compiling it. `entry_jit` is for functions that take kernels as arguments (the generic
 driver loop) or pass them (each scheme's batch entry point): numba cannot cache those
-safely, so they compile once per process, under a second per scheme (docs/performance.md). Kernels
-release the GIL (`nogil`): `rbstudy.driver` runs chunks of a batch on several threads.
+(it counts a kernel passed as a value as a "dynamic global"), so they compile once per
+process, under a second per scheme (docs/performance.md). Kernels release the GIL (`nogil`):
+`rbstudy.driver` runs chunks of a batch on several threads.
 `error_model="numpy"` makes a division by zero give inf/nan instead of raising: numerical
 failure must become a status code, never an exception (design.md, numerics layer).
 `fastmath` stays off: batch results must be bit-identical to single-case results, and the
 energy-conserving schemes rely on IEEE semantics.
+
+The cache lives in a folder named after a hash of this package's sources. numba checks only
+the timestamp of the file that defines a cached function, not of the files whose kernels it
+inlines: after an edit of `rotation.py` alone, a cached scheme step would still run the old
+rotation code. A new source tree gets a new, empty cache instead. ``NUMBA_CACHE_DIR``, when
+set, is respected as it is.
 """
+
+import hashlib
+import os
+import pathlib
 
 import numba
 
-__all__ = ["jit", "entry_jit"]
+__all__ = ["jit", "entry_jit", "cache_dir"]
+
+_PACKAGE = pathlib.Path(__file__).resolve().parent
+
+
+def cache_dir():
+    """``$XDG_CACHE_HOME/rbstudy/numba-<hash of the package sources>`` (~/.cache by default)."""
+    digest = hashlib.sha256()
+    for path in sorted(_PACKAGE.rglob("*.py")):
+        digest.update(path.relative_to(_PACKAGE).as_posix().encode())
+        digest.update(path.read_bytes())
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "rbstudy", f"numba-{digest.hexdigest()[:16]}")
+
+
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    numba.config.CACHE_DIR = cache_dir()
 
 _COMMON = dict(error_model="numpy", nogil=True)
 

@@ -21,9 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from rbstudy.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 from rbstudy.simulate import simulate
 
-__all__ = ["Reference", "reference_solution", "symmetric_top", "axial_moment",
+__all__ = ["Reference", "reference_solution", "reference_solutions", "symmetric_top", "axial_moment",
            "precession_frequency_exact", "closed_form_name"]
 
 
@@ -43,46 +44,45 @@ class Reference:
         return self.name != "dop853"
 
 
-def _cyclic_frame(axis):
-    """Cyclic relabelling that makes ``axis`` the third one: (perm, C) with ``C[:, j] = e_perm[j]``."""
-    perm = ((axis + 1) % 3, (axis + 2) % 3, axis)
-    return perm, np.eye(3)[:, perm]
-
-
 def symmetric_top(inertia, quaternion0, omega0, times):
-    """Closed-form free motion of a symmetric body (two equal principal inertias).
+    """Closed-form free motion of symmetric bodies (two equal principal inertias each).
+
+    With ``s`` the symmetry axis, ``I_t`` the transverse and ``I_s`` the axial inertia,
+    ``L = R0 I w0`` and ``W = w_s (I_s - I_t) / I_t``:
+    ``R(t) = Rot(L/|L|, |L| t / I_t) R0 Rot(e_s, -W t)`` and ``w(t) = R(t)^T L / I_t - W e_s``
+    (``I^-1 m = m / I_t - W e_s`` for a symmetric inertia). Vectorised over bodies.
 
     Parameters
     ----------
-    inertia : (3,) principal inertias, two of them equal.
-    quaternion0 : (4,) initial orientation (scalar-last, body to space).
-    omega0 : (3,) initial body angular velocity (rad/s).
+    inertia : (..., 3) principal inertias, two of them equal per body.
+    quaternion0 : (..., 4) initial orientation (scalar-last, body to space).
+    omega0 : (..., 3) initial body angular velocity (rad/s).
     times : (T,) s.
 
     Returns
     -------
-    quaternion : (T, 4); omega_body : (T, 3).
+    quaternion : (..., T, 4); omega_body : (..., T, 3).
     """
     inertia = np.asarray(inertia, dtype=float)
-    i1, i2, i3 = inertia
-    axis = 2 if i1 == i2 else 0 if i2 == i3 else 1 if i1 == i3 else None
-    if axis is None:
+    omega0 = np.asarray(omega0, dtype=float)
+    quaternion0 = np.asarray(quaternion0, dtype=float)
+    i1, i2, i3 = np.moveaxis(inertia, -1, 0)
+    axis = np.where(i1 == i2, 2, np.where(i2 == i3, 0, np.where(i1 == i3, 1, -1)))
+    if np.any(axis < 0):
         raise ValueError(f"not a symmetric body: {inertia}")
-    perm, frame = _cyclic_frame(axis)
-    c_rot = Rotation.from_matrix(frame)
-    inertia_p = inertia[list(perm)]
-    omega0_p = frame.T @ np.asarray(omega0, dtype=float)
-    r0 = Rotation.from_quat(quaternion0) * c_rot
-    momentum = r0.apply(inertia_p * omega0_p)
-    size = np.linalg.norm(momentum)
-    times = np.asarray(times, dtype=float)
-    body_rate = omega0_p[2] * (inertia_p[2] - inertia_p[0]) / inertia_p[0]
-    direction = momentum / size if size > 0 else np.array([0.0, 0.0, 1.0])
-    precession = Rotation.from_rotvec(np.outer(size * times / inertia_p[0], direction))
-    spin_back = Rotation.from_rotvec(np.outer(-body_rate * times, [0.0, 0.0, 1.0]))
-    r_t = precession * r0 * spin_back
-    omega_p = r_t.inv().apply(momentum) / inertia_p[0] - body_rate * np.array([0.0, 0.0, 1.0])
-    return (r_t * c_rot.inv()).as_quat(), omega_p @ frame.T
+    pick = axis[..., None]
+    transverse = np.take_along_axis(inertia, (pick + 1) % 3, axis=-1)[..., 0]
+    rate = (np.take_along_axis(omega0, pick, axis=-1)[..., 0]
+            * (np.take_along_axis(inertia, pick, axis=-1)[..., 0] - transverse) / transverse)
+    e_s = np.eye(3)[axis]  # (..., 3)
+    momentum = np.einsum("...ij,...j->...i", quat_to_matrix(quaternion0), inertia * omega0)
+    t = np.asarray(times, dtype=float)[:, None]  # (T, 1)
+    precession = quat_from_rotvec((momentum / transverse[..., None])[..., None, :] * t)
+    spin_back = quat_from_rotvec(-(rate[..., None] * e_s)[..., None, :] * t)
+    quaternion = quat_mul(quat_mul(precession, quaternion0[..., None, :]), spin_back)
+    omega = (np.einsum("...tji,...j->...ti", quat_to_matrix(quaternion), momentum)
+             / transverse[..., None, None] - (rate[..., None] * e_s)[..., None, :])
+    return quaternion, omega
 
 
 def axial_moment(inertia, quaternion0, omega0, moment_body, times):
@@ -138,6 +138,22 @@ def _parabola(scene, times):
     position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t ** 2
     velocity = np.asarray(scene.velocity) + acceleration * t
     return position, velocity
+
+
+def reference_solutions(scenes, times, output_interval=None):
+    """`reference_solution` of each of ``scenes``, the symmetric tops in one vectorised call."""
+    times = np.asarray(times, dtype=float)
+    tops = [i for i, scene in enumerate(scenes) if closed_form_name(scene) == "symmetric_top"]
+    found = {}
+    if tops:
+        quaternion, omega = symmetric_top(
+            [scenes[i].body.inertia for i in tops], [scenes[i].quaternion for i in tops],
+            [scenes[i].omega_body for i in tops], times)
+        for k, i in enumerate(tops):
+            found[i] = Reference("symmetric_top", quaternion[k], omega[k],
+                                 *_parabola(scenes[i], times))
+    return [found[i] if i in found else reference_solution(scene, times, output_interval)
+            for i, scene in enumerate(scenes)]
 
 
 def reference_solution(scene, times, output_interval=None):

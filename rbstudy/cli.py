@@ -59,7 +59,7 @@ def _sweep(args):
     from rbstudy.config import load_study
     from rbstudy.execute import run_study
     from rbstudy.store import open_results
-    from rbstudy.summary import format_table, scheme_rows
+    from rbstudy.summary import SUMMARY_VARIABLES, format_table, scheme_rows
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
@@ -70,7 +70,7 @@ def _sweep(args):
                          force=args.force, quiet=args.quiet)
         print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
               f"{done.wall_seconds:.1f} s; wrote {done.path}")
-        print(format_table(scheme_rows(open_results(done.path))))
+        print(format_table(scheme_rows(open_results(done.path, SUMMARY_VARIABLES))))
     return 0
 
 

@@ -2,8 +2,8 @@
 
 One dask task per batch runs the compiled driver on all its cases and returns their outputs
 (small: decimated samples only); a second task writes them as the batch's part file. The
-references (closed form or DOP853) are tasks of their own, one per distinct scene, shared by
-every batch that needs them. The default scheduler is dask's local threaded one (the kernels
+references (closed form or DOP853) are tasks of their own, one per chunk of distinct scenes,
+shared by every batch that needs them. The default scheduler is dask's local threaded one (the kernels
 release the GIL); ``scheduler`` connects to a running ``dask.distributed`` cluster and
 ``workers`` starts a `LocalCluster` (workers must see the results folder).
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import dask
 import numpy as np
 
-from rbstudy.analytic import reference_solution
+from rbstudy.analytic import reference_solutions
 from rbstudy.errors import RbstudyError
 from rbstudy.outputs import batch_outputs
 from rbstudy.simulate import simulate
@@ -39,7 +39,7 @@ from rbstudy.store import (
 )
 from rbstudy.sweep import canonical_id
 
-__all__ = ["run_study", "StudyRun", "compute_batch", "compute_reference", "Progress"]
+__all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Progress"]
 
 # Seconds between two redraws of the progress bar.
 _REDRAW_SECONDS = 0.2
@@ -55,6 +55,7 @@ class BatchJob:
     scenes: tuple
     options: tuple
     variables: tuple
+    references: tuple  # per case: (chunk, position) in the reference chunks it is given
 
 
 @dataclass(frozen=True)
@@ -68,17 +69,21 @@ class StudyRun:
     wall_seconds: float
 
 
-def compute_reference(scene, n_times, output_interval):
-    """The reference of one scene on the output grid of ``n_times`` samples (a dask task)."""
-    return reference_solution(scene, np.arange(n_times) * output_interval, output_interval)
+def compute_references(scenes, n_times, output_interval):
+    """The references of ``scenes`` on the output grid of ``n_times`` samples (a dask task)."""
+    times = np.arange(n_times) * output_interval
+    return reference_solutions(scenes, times, output_interval)
 
 
-def compute_batch(job, references, threads):
+def compute_batch(job, reference_chunks, threads):
     """Run one batch and return its outputs, name -> array with the case axis first.
 
-    ``run_time`` per case is the kernel's wall time times the threads it used, divided among
-    the cases: core-seconds per case, comparable whatever the scheduler.
+    ``reference_chunks`` are the results of the reference tasks the batch needs; each case
+    finds its own at ``job.references`` (chunk, position). ``run_time`` per case is the
+    kernel's wall time times the threads it used, divided among the cases: core-seconds per
+    case, comparable whatever the scheduler.
     """
+    references = [reference_chunks[chunk][position] for chunk, position in job.references]
     run = simulate(job.scenes, job.scheme, job.dt, job.output_interval, list(job.options),
                    threads=threads)
     used = min(threads, len(job.scenes))
@@ -161,29 +166,53 @@ def _prepare(root, study):
     return folder
 
 
+def _reference_chunks(study, pending):
+    """The distinct scenes of the ``pending`` batches in chunks of at most a batch's size, and
+    where each case's reference sits: case number -> (chunk, position).
+
+    Chunks follow the batches' order, so a study of distinct scenes gets one chunk per batch
+    and dask (which runs depth first) holds few references at a time; a study of few scenes
+    gets one chunk that every batch shares.
+    """
+    size = max(len(batch.cases) for batch in study.batches)
+    chunks, seen, where = [], {}, {}
+    for batch in pending:
+        for number in batch.cases:
+            key = canonical_id(study.cases[number].spec["scene"])
+            if key not in seen:
+                if not chunks or len(chunks[-1]) == size:
+                    chunks.append([])
+                seen[key] = (len(chunks) - 1, len(chunks[-1]))
+                chunks[-1].append(study.cases[number].scene)
+            where[number] = seen[key]
+    return chunks, where
+
+
 def _graph(study, pending, parts_dir, threads):
-    """Delayed store tasks of the ``pending`` batches; references computed once per scene.
+    """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
+    distinct scenes (references do not depend on the scheme or dt, so batches share them).
 
     Arguments are wrapped as opaque leaves (``traverse=False``): dask would otherwise walk
     every scene and number of every job looking for collections.
     """
     layout = dask.delayed(Layout.of(study), traverse=False)
-    references = {}
+    chunks, where = _reference_chunks(study, pending)
+    reference_tasks = [
+        dask.delayed(compute_references)(dask.delayed(tuple(scenes), traverse=False),
+                                         study.n_times, study.output_interval,
+                                         dask_key_name=f"references-{study.name}-{k}")
+        for k, scenes in enumerate(chunks)]
     tasks = []
     for batch in pending:
         cases = [study.cases[i] for i in batch.cases]
-        refs = []
-        for case in cases:
-            key = canonical_id(case.spec["scene"])
-            if key not in references:
-                references[key] = dask.delayed(compute_reference, pure=True)(
-                    dask.delayed(case.scene, traverse=False), study.n_times,
-                    study.output_interval, dask_key_name=f"reference-{key}")
-            refs.append(references[key])
+        needed = sorted({where[i][0] for i in batch.cases})
+        local = {chunk: k for k, chunk in enumerate(needed)}
+        positions = tuple((local[where[i][0]], where[i][1]) for i in batch.cases)
         job = BatchJob(batch.scheme, batch.dt, study.output_interval,
                        tuple(case.scene for case in cases),
-                       tuple(case.options for case in cases), study.variables)
-        values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False), refs, threads,
+                       tuple(case.options for case in cases), study.variables, positions)
+        values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False),
+                                             [reference_tasks[k] for k in needed], threads,
                                              dask_key_name=f"batch-{batch.id}")
         tasks.append(dask.delayed(store_part)(values, layout,
                                               dask.delayed(batch, traverse=False),

@@ -6,31 +6,12 @@ Array arguments carry the time axis ``T`` second to last for vectors: ``(..., T,
 
 import numpy as np
 
+from rbstudy.quaternions import quat_mul, quat_to_matrix
+
 __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
-    "momentum_error", "phase_rate", "observed_order", "quat_to_matrix",
+    "momentum_error", "phase_rate", "observed_order",
 ]
-
-
-def _quat_mul(a, b):
-    ax, ay, az, aw = np.moveaxis(a, -1, 0)
-    bx, by, bz, bw = np.moveaxis(b, -1, 0)
-    return np.stack([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ], axis=-1)
-
-
-def quat_to_matrix(q):
-    """Rotation matrices (..., 3, 3) of scalar-last unit quaternions (..., 4)."""
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
 
 
 def orientation_error(q, q_ref):
@@ -39,7 +20,7 @@ def orientation_error(q, q_ref):
     q, q_ref : (..., 4) scalar-last. Returns (...). Accurate at small angles (no acos).
     """
     conj = np.asarray(q_ref) * np.array([-1.0, -1.0, -1.0, 1.0])
-    rel = _quat_mul(conj, np.asarray(q))
+    rel = quat_mul(conj, np.asarray(q))
     return 2.0 * np.arctan2(np.linalg.norm(rel[..., :3], axis=-1), np.abs(rel[..., 3]))
 
 
@@ -49,11 +30,12 @@ def omega_error(w, w_ref):
 
 
 def node_positions(q, position, offsets):
-    """Space positions (..., N, 3) of nodes with body offsets ``offsets`` (N, 3).
+    """Space positions (..., T, N, 3) of nodes with body offsets ``offsets``.
 
-    q : (..., 4); position : (..., 3) centre of mass.
+    q : (..., T, 4); position : (..., T, 3) centre of mass; offsets : (N, 3) or (..., N, 3),
+    one set per leading index.
     """
-    rotated = np.einsum("...ij,nj->...ni", quat_to_matrix(q), offsets)
+    rotated = np.einsum("...tij,...nj->...tni", quat_to_matrix(q), offsets)
     return rotated + np.asarray(position)[..., None, :]
 
 

@@ -15,8 +15,8 @@ from rbstudy.metrics import (
     omega_error,
     orientation_error,
     phase_rate,
-    quat_to_matrix,
 )
+from rbstudy.quaternions import quat_to_matrix
 from rbstudy.variables import REFERENCE_FLAGS
 
 __all__ = ["batch_outputs", "REFERENCE_CODES"]
@@ -26,11 +26,13 @@ REFERENCE_CODES = {name: code for code, name in zip(REFERENCE_FLAGS["flag_values
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 
-def _precession(scene, omega, time):
-    """(measured, exact) body-frame precession frequency of one case, rad/s."""
-    axis = scene.body.symmetry_axis
-    a, b = omega[:, (axis + 1) % 3], omega[:, (axis + 2) % 3]
-    return float(phase_rate(a, b, time)), precession_frequency_exact(scene)
+def _transverse(omega, scenes):
+    """The two transverse components (B, T) each of the body rates ``omega`` (B, T, 3) of
+    symmetric bodies, in cyclic order after each body's symmetry axis."""
+    axes = np.array([scene.body.symmetry_axis for scene in scenes])[:, None, None]
+    first = np.take_along_axis(omega, (axes + 1) % 3, axis=2)[..., 0]
+    second = np.take_along_axis(omega, (axes + 2) % 3, axis=2)[..., 0]
+    return first, second
 
 
 def batch_outputs(scenes, run, references, names, run_time):
@@ -79,18 +81,19 @@ def batch_outputs(scenes, run, references, names, run_time):
         values["reference"] = np.array([REFERENCE_CODES[ref.name] for ref in references],
                                        dtype=np.int8)
     if names & {"node_displacement", "node_error"}:
-        nodes = np.array([node_positions(safe_q[b], run.position[b], scene.nodes)
-                          for b, scene in enumerate(scenes)])  # (B, T, N, 3)
+        offsets = np.array([scene.nodes for scene in scenes])  # (B, N, 3)
+        nodes = node_positions(safe_q, run.position, offsets)  # (B, T, N, 3)
         nodes[~finite] = np.nan
         values["node_displacement"] = nodes - nodes[:, :1]
         if "node_error" in names:
-            exact = np.array([node_positions(ref.quaternion, ref.position, scene.nodes)
-                              for ref, scene in zip(references, scenes, strict=True)])
+            exact = node_positions(np.array([ref.quaternion for ref in references]),
+                                   np.array([ref.position for ref in references]), offsets)
             values["node_error"] = np.linalg.norm(nodes - exact, axis=-1)
     if names & {"precession_frequency", "precession_frequency_exact",
                 "precession_frequency_error"}:
-        pairs = np.array([_precession(scene, w[b], run.time) for b, scene in enumerate(scenes)])
-        values["precession_frequency"] = pairs[:, 0]
-        values["precession_frequency_exact"] = pairs[:, 1]
-        values["precession_frequency_error"] = pairs[:, 0] - pairs[:, 1]
+        measured = phase_rate(*_transverse(w, scenes), run.time)
+        exact = np.array([precession_frequency_exact(scene) for scene in scenes])
+        values["precession_frequency"] = measured
+        values["precession_frequency_exact"] = exact
+        values["precession_frequency_error"] = measured - exact
     return {name: values[name] for name in names}

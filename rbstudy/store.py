@@ -193,10 +193,15 @@ def _temporary_beside(path):
             os.remove(temporary)
 
 
-def open_results(path):
-    """Open a results or part file with ``time`` in seconds from the start of the run."""
+def open_results(path, variables=None):
+    """Load a results or part file, ``time`` in seconds from the start of the run.
+
+    ``variables`` (optional) loads only those data variables (and the coordinates): the
+    summary of a large study needs its per-case scalars, not its trajectories.
+    """
+    skip = None if variables is None else [name for name in VARIABLES if name not in variables]
     with HDF5_LOCK:
-        return xr.open_dataset(path, decode_times=False).load()
+        return xr.open_dataset(path, decode_times=False, drop_variables=skip).load()
 
 
 def write_atomic(dataset, path):

@@ -9,9 +9,12 @@ import numpy as np
 
 from rbstudy.metrics import observed_order
 
-__all__ = ["scheme_rows", "format_table", "ORDER_FLOOR", "ORDER_CEILING", "ERROR_MEASURE"]
+__all__ = ["scheme_rows", "format_table", "ORDER_FLOOR", "ORDER_CEILING", "ERROR_MEASURE",
+           "SUMMARY_VARIABLES"]
 
 ERROR_MEASURE = "final_orientation_error"
+# What `scheme_rows` reads: per-case scalars only.
+SUMMARY_VARIABLES = ("status", "run_time", "n_steps", ERROR_MEASURE)
 # The order fit skips errors at round-off (an orientation error of 1e-11 rad after a few
 # hundred steps is the sum of per-step rounding) and errors too large to be asymptotic
 # (0.1 rad: the error expansion no longer holds, or the run went unstable).
@@ -42,8 +45,7 @@ def _orders(errors):
 def scheme_rows(ds):
     """One dict per scheme: order (min, max) or None, the dt fitted, error at the largest dt,
     nanoseconds per body-step, unstable and total case counts."""
-    schemes = [str(s) for s in ds["scheme"].values] if "scheme" in ds.coords else \
-        [str(ds.attrs.get("scheme", "-"))]
+    schemes = [str(s) for s in np.atleast_1d(ds["scheme"].values)]
     rows = []
     for scheme in schemes:
         row = {"scheme": scheme, "order": None, "fit_dt": (), "error": None}

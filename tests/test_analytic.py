@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy.analytic import axial_moment, reference_solution, symmetric_top
+from rbstudy.analytic import axial_moment, reference_solution, reference_solutions, symmetric_top
 from rbstudy.metrics import omega_error, orientation_error
 from rbstudy.scenes import Body, Loads, Scene
 from rbstudy.simulate import simulate
@@ -53,3 +53,17 @@ def test_reference_records_which_solution_was_used():
     assert fallback.name == "dop853" and not fallback.exact
     pushed = symmetric.with_changes(loads=Loads(force_body=(1.0, 0.0, 0.0)), duration=1.0)
     assert reference_solution(pushed, times).name == "dop853"
+
+
+def test_references_of_a_batch_equal_those_of_each_scene():
+    scenes = [random_symmetric_scene(axis=k % 3) for k in range(6)]
+    scenes.append(Scene(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
+                        quaternion=(0.0, 0.0, 0.0, 1.0), omega_body=(0.3, 1.0, 0.2),
+                        duration=1.0))
+    times = np.arange(11) * 0.1
+    together = reference_solutions(scenes, times, 0.1)
+    assert [r.name for r in together] == ["symmetric_top"] * 6 + ["dop853"]
+    for scene, batch in zip(scenes, together, strict=True):
+        alone = reference_solution(scene, times, 0.1)
+        assert np.max(orientation_error(batch.quaternion, alone.quaternion)) < 1e-14
+        assert np.allclose(batch.omega_body, alone.omega_body, rtol=0, atol=1e-14)

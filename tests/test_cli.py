@@ -5,6 +5,7 @@ import yaml
 from conftest import write_study
 
 from rbstudy.cli import main
+from rbstudy.store import open_results
 
 
 def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
@@ -21,6 +22,16 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()[-2:]}
     assert rows["rk4"][1] == "4.00" and rows["hht"][1] == "2.00" and rows["hht"][-1] == "yes"
+
+
+def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
+    config = write_study(tmp_path, name="one", run={"scheme": "splitting", "dt": 0.005})
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    ds = open_results(tmp_path / "out" / "one" / "one.nc")
+    assert str(ds.scheme.values) == "splitting" and float(ds.dt) == 0.005
+    assert ds.omega_body.dims == ("time", "axis") and int(ds.n_steps) == 100
+    last = capsys.readouterr().out.splitlines()[-1].split()
+    assert last[0] == "splitting" and last[-1] == "yes"
 
 
 def test_validate_reports_cases_batches_and_memory(capsys):

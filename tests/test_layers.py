@@ -10,7 +10,8 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 
 LAYERS = {
     "numerics": {"_jit", "state", "rotation", "dynamics", "driver", "schemes", "errors"},
-    "physics": {"scenes", "assembly", "analytic", "metrics", "variables", "simulate", "outputs"},
+    "physics": {"scenes", "assembly", "analytic", "metrics", "variables", "simulate", "outputs",
+                "quaternions"},
     "pipeline": {"config", "sweep", "execute", "store", "summary", "plots", "report", "bench"},
     "cli": {"cli", "__main__"},
 }

@@ -1,0 +1,91 @@
+"""Print the sweep figures of docs/performance.md: the default study cold and warm, and how
+wall time, the share outside the kernels and peak memory grow from 100 to 10,000 cases.
+
+Usage: python pipelines/bench_sweep.py [--sizes 100 1000 10000]
+
+Every measurement runs `rbstudy sweep` in a fresh process (so that compilation and peak
+memory are those a user sees) into a fresh results folder, with `--quiet`:
+
+- wall: the process's wall time, imports and compilation included;
+- kernel: the summed ``run_time`` of the dataset (core-seconds in the compiled driver);
+- outside: ``1 - kernel / (wall x cores)``, the share of the machine's time not spent in
+  kernels (compilation, references, outputs, files, scheduling);
+- peak RSS: the process's maximum resident set size.
+
+"Cold" points numba at an empty cache directory; "warm" reuses the cache filled by the cold
+run. The scaling studies sweep ``inertia_ratio`` over N values with one scheme and one dt.
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import yaml
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DEFAULT = ROOT / "configs" / "abaqus_top.yaml"
+
+# The child process: run one sweep and report wall time, kernel core-seconds and peak RSS.
+_CHILD = """
+import json, resource, sys, time
+start = time.perf_counter()
+from rbstudy.cli import main
+code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet"])
+wall = time.perf_counter() - start
+from rbstudy.store import open_results
+import pathlib
+dataset = open_results(next(pathlib.Path(sys.argv[2]).glob("*/*.nc")), ["run_time", "status"])
+print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.sum()),
+                  "cases": int(dataset.status.size),
+                  "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+"""
+
+
+def measure(config, env=None):
+    with tempfile.TemporaryDirectory() as out:
+        done = subprocess.run([sys.executable, "-c", _CHILD, str(config), out],
+                              capture_output=True, text=True, env=env, check=False)
+    if done.returncode:
+        sys.exit(f"{config}: the sweep failed:\n{done.stderr}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def scaling_config(folder, cases):
+    study = yaml.safe_load(DEFAULT.read_text())
+    study.update(name=f"scale{cases}", run={"scheme": "leapfrog", "dt": 0.001})
+    study["sweep"] = {"inertia_ratio": {"linspace": [0.1, 2.0, cases]}}
+    path = pathlib.Path(folder) / f"scale{cases}.yaml"
+    path.write_text(yaml.safe_dump(study))
+    return path
+
+
+def line(label, figures):
+    cores = os.cpu_count() or 1
+    outside = 1.0 - figures["kernel"] / (figures["wall"] * cores)
+    return (f"{label:28s} {figures['cases']:7d} {figures['wall']:9.2f} {figures['kernel']:11.3f} "
+            f"{100 * outside:8.1f}% {figures['rss'] / 2 ** 20:9.0f}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
+    args = parser.parse_args()
+    print(f"rbstudy sweep figures, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}")
+    print(f"{'study':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} {'outside':>9s} "
+          f"{'peak MiB':>9s}")
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as configs:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        print(line("abaqus_top (numba cold)", measure(DEFAULT, env)), flush=True)
+        print(line("abaqus_top (numba warm)", measure(DEFAULT, env)), flush=True)
+        for cases in args.sizes:
+            figures = measure(scaling_config(configs, cases), env)
+            print(line("leapfrog, dt 1e-3, 2 s", figures), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,42 @@
+"""Quaternion algebra on numpy arrays, vectorised over any leading axes (physics layer).
+
+Scalar-last ``(x, y, z, w)`` like `scipy.spatial.transform.Rotation`. The numba kernels of
+`rbstudy.rotation` work on one body's tuples; these work on whole trajectories and batches.
+"""
+
+import numpy as np
+
+__all__ = ["quat_mul", "quat_to_matrix", "quat_from_rotvec"]
+
+
+def quat_mul(a, b):
+    """Hamilton products ``a * b`` of (..., 4) arrays (broadcast)."""
+    ax, ay, az, aw = np.moveaxis(np.asarray(a), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b), -1, 0)
+    return np.stack([
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    ], axis=-1)
+
+
+def quat_to_matrix(q):
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
+    x, y, z, w = np.moveaxis(np.asarray(q), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=-2)
+
+
+def quat_from_rotvec(v):
+    """Unit quaternions (..., 4) of rotation vectors (..., 3): ``(sin(a/2) v/a, cos(a/2))``.
+
+    ``sin(a/2) / a`` is written as ``sinc`` so that a zero rotation needs no special case.
+    """
+    v = np.asarray(v, dtype=float)
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    scale = 0.5 * np.sinc(angle / (2.0 * np.pi))  # sin(a/2) / a
+    return np.concatenate([v * scale, np.cos(0.5 * angle)], axis=-1)
