@@ -26,6 +26,7 @@ import numpy as np
 from rbstudy.analytic import reference_solutions
 from rbstudy.errors import RbstudyError
 from rbstudy.outputs import batch_outputs
+from rbstudy.schemes import get_scheme
 from rbstudy.simulate import simulate
 from rbstudy.store import (
     Layout,
@@ -43,6 +44,8 @@ __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Prog
 
 # Seconds between two redraws of the progress bar.
 _REDRAW_SECONDS = 0.2
+# How long to wait for a --scheduler to answer: a cluster on a busy login node may be slow.
+CONNECT_TIMEOUT = "10s"
 
 
 @dataclass(frozen=True)
@@ -79,17 +82,24 @@ def compute_batch(job, reference_chunks, threads):
     """Run one batch and return its outputs, name -> array with the case axis first.
 
     ``reference_chunks`` are the results of the reference tasks the batch needs; each case
-    finds its own at ``job.references`` (chunk, position). ``run_time`` per case is the
-    kernel's wall time times the threads it used, divided among the cases: core-seconds per
-    case, comparable whatever the scheduler.
+    finds its own at ``job.references`` (chunk, position). ``run_time`` per case is the CPU
+    time of the compiled batch call (summed over its threads) divided among the cases:
+    core-seconds per case, comparable whatever the scheduler and however busy the process.
     """
     references = [reference_chunks[chunk][position] for chunk, position in job.references]
     run = simulate(job.scenes, job.scheme, job.dt, job.output_interval, list(job.options),
                    threads=threads)
-    used = min(threads, len(job.scenes))
-    per_case = run.kernel_seconds * used / len(job.scenes)
+    per_case = run.kernel_cpu_seconds / len(job.scenes)
     return batch_outputs(job.scenes, run, references, job.variables,
                          [per_case] * len(job.scenes))
+
+
+def compile_schemes(names):
+    """Compile the schemes ``names`` one after the other, before any batch runs: a compiling
+    thread holds the GIL for long stretches, and a batch beside it would stall (run on every
+    worker of a cluster too)."""
+    for name in sorted(names):
+        get_scheme(name).ensure_compiled()
 
 
 def store_part(values, layout, batch, path):
@@ -221,8 +231,10 @@ def _graph(study, pending, parts_dir, threads):
     return tasks
 
 
-def _run_local(tasks, sizes, progress, workers):
+def _run_local(tasks, sizes, progress, workers, schemes):
     from dask.callbacks import Callback
+
+    compile_schemes(schemes)
 
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
@@ -233,13 +245,13 @@ def _run_local(tasks, sizes, progress, workers):
         dask.compute(*tasks, scheduler="threads", num_workers=workers)
 
 
-def _run_distributed(tasks, sizes, progress, scheduler, workers):
+def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
         if scheduler:
             try:
-                client = stack.enter_context(Client(scheduler, timeout="10s"))
+                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
             except (OSError, TimeoutError) as error:
                 raise RbstudyError(f"--scheduler {scheduler}: cannot connect ({error}); start "
                                    "the cluster first or drop --scheduler") from None
@@ -248,6 +260,7 @@ def _run_distributed(tasks, sizes, progress, scheduler, workers):
                 n_workers=workers, threads_per_worker=1, processes=True,
                 dashboard_address=None, silence_logs=logging.ERROR))
             client = stack.enter_context(Client(cluster))
+        client.run(compile_schemes, schemes)
         futures = client.compute(tasks)
         for future in as_completed(futures):
             progress.advance(sizes[f"store-{future.result()}"])
@@ -284,11 +297,12 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
         tasks = _graph(study, pending, parts_dir, threads)
         sizes = {f"store-{batch.id}": len(batch.cases) for batch in pending}
         progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
+        schemes = {batch.scheme for batch in pending}
         if tasks:
             if distributed:
-                _run_distributed(tasks, sizes, progress, scheduler, workers)
+                _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
             else:
-                _run_local(tasks, sizes, progress, cores)
+                _run_local(tasks, sizes, progress, cores, schemes)
         target = folder / f"{study.name}.nc"
         consolidate(study, parts, target, global_attrs(study, started=started))
         current = {path.name for path in parts.values()}

@@ -41,6 +41,7 @@ class Simulation:
     failure_time : (B,) s, NaN where none.  n_steps, iterations : (B,).
     max_energy_drift, max_momentum_drift : (B,) over every step, NaN under moments.
     kernel_seconds : wall time of the batch kernel (compilation excluded).
+    kernel_cpu_seconds : CPU time spent in the batch kernel, summed over its threads.
     """
 
     scheme: str
@@ -57,6 +58,7 @@ class Simulation:
     max_energy_drift: np.ndarray
     max_momentum_drift: np.ndarray
     kernel_seconds: float
+    kernel_cpu_seconds: float
 
     @property
     def status_names(self):
@@ -109,4 +111,5 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
         max_energy_drift=out.max_energy_drift,
         max_momentum_drift=out.max_momentum_drift,
         kernel_seconds=out.kernel_seconds,
+        kernel_cpu_seconds=out.kernel_cpu_seconds,
     )

@@ -298,6 +298,7 @@ def expand(path, base, dimensions, output_interval):
     scheme of the study has is an error.
     """
     cases = []
+    scenes = {}
     used, ignored = set(), set()
     for index in itertools.product(*(range(d.size) for d in dimensions)):
         where = f"sweep ({_where(dimensions, index)})" if dimensions else "run"
@@ -327,8 +328,11 @@ def expand(path, base, dimensions, output_interval):
             steps_per(output_interval, float(dt), "output interval")
         except RbstudyError as error:
             _fail(path, where if dimensions else "run.dt", str(error))
+        key = json.dumps(_normalised(spec["scene"]), sort_keys=True)
         try:
-            scene = scene_from_mapping(spec["scene"], source=path)
+            # Cases that differ only in scheme or dt share one scene object.
+            scene = scenes.get(key) or scenes.setdefault(
+                key, scene_from_mapping(spec["scene"], source=path))
         except RbstudyError as error:
             if not dimensions:
                 raise ConfigError(str(error)) from None

@@ -16,6 +16,7 @@ import pytest
 import xarray as xr
 from conftest import CONFIGS, abaqus_mapping, write_study
 
+from rbstudy import execute
 from rbstudy.cli import main
 from rbstudy.config import load_study
 from rbstudy.errors import RbstudyError
@@ -164,11 +165,27 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     _assert_same_numbers(resumed.path, clean.path)
 
 
-def test_two_worker_local_cluster_gives_the_same_numbers(tmp_path):
+def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(tmp_path):
+    from distributed import LocalCluster
+
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     cluster = run_study(load_study(config), tmp_path / "cluster", workers=2, quiet=True)
     _assert_same_numbers(threaded.path, cluster.path)
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                      dashboard_address=None) as running:
+        remote = run_study(load_study(config), tmp_path / "remote",
+                           scheduler=running.scheduler_address, quiet=True)
+    _assert_same_numbers(threaded.path, remote.path)
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(execute, "CONNECT_TIMEOUT", "1s")
+    config = _small_study(tmp_path)
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet",
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "--scheduler tcp://127.0.0.1:9: cannot connect" in error and "\n" not in error
 
 
 def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
