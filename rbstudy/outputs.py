@@ -65,6 +65,7 @@ def batch_outputs(scenes, run, references, names, run_time):
         "run_time": np.asarray(run_time, dtype=float),
         "max_energy_error": run.max_energy_drift,
         "max_momentum_error": run.max_momentum_drift,
+        "physical_body": np.array([scene.body.physical for scene in scenes], dtype=np.int8),
     }
     if "omega_space" in names:
         space = np.einsum("btij,btj->bti", quat_to_matrix(safe_q), w)

@@ -256,10 +256,8 @@ def consolidate(study, parts, target, attrs):
                 variable_attrs_ = variable_attrs(name)
                 if auxiliary:
                     variable_attrs_["coordinates"] = auxiliary
-                kind = {"status": "i1", "reference": "i1", "n_steps": "i8",
-                        "iterations": "i8"}.get(name, "f8")
                 targets[name] = _create(nc, name, grid_dims + VARIABLES[name].dims,
-                                        attrs=variable_attrs_, dtype=kind)
+                                        attrs=variable_attrs_, dtype=VARIABLES[name].dtype)
             for batch in study.batches:
                 part = open_results(parts[batch.id])
                 _write_part(targets, part, shape)

@@ -26,10 +26,11 @@ class Variable:
     long_name: str
     needs: frozenset = frozenset()
     standard_name: str | None = None
+    dtype: str = "f8"  # netCDF storage type: flags are bytes, counts 64-bit integers
 
 
-def _v(name, dims, units, long_name, *needs, standard_name=None):
-    return Variable(name, dims, units, long_name, frozenset(needs), standard_name)
+def _v(name, dims, units, long_name, *needs, standard_name=None, dtype="f8"):
+    return Variable(name, dims, units, long_name, frozenset(needs), standard_name, dtype)
 
 
 VARIABLES = {v.name: v for v in (
@@ -56,17 +57,21 @@ VARIABLES = {v.name: v for v in (
        "exact body-frame precession frequency W = w3 (I3 - I1) / I1", "symmetric"),
     _v("precession_frequency_error", (), "rad s-1",
        "precession frequency minus its exact value", "symmetric"),
-    _v("status", (), "1", "case outcome"),
+    _v("status", (), "1", "case outcome", dtype="i1"),
     _v("failure_time", (), "s", "time of blow-up or solver failure (NaN if none)"),
-    _v("n_steps", (), "1", "time steps taken"),
-    _v("iterations", (), "1", "Newton iterations summed over the steps"),
+    _v("n_steps", (), "1", "time steps taken", dtype="i8"),
+    _v("iterations", (), "1", "Newton iterations summed over the steps", dtype="i8"),
     _v("run_time", (), "s", "kernel wall time per case: batch time / batch size, after compilation"),
     _v("max_energy_error", (), "1", "largest |relative energy error| over every step",
        "moment_free"),
     _v("max_momentum_error", (), "1", "largest relative |L| drift over every step", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
-    _v("reference", (), "1", "reference solution the errors are measured against", "reference"),
+    _v("reference", (), "1", "reference solution the errors are measured against", "reference",
+       dtype="i1"),
+    _v("physical_body", (), "1",
+       "whether the principal inertias meet the triangle inequality (a real rigid body)",
+       dtype="i1"),
 )}
 
 # CF flags of `status` (values match rbstudy.driver's codes) and of `reference` (names match
@@ -74,7 +79,8 @@ VARIABLES = {v.name: v for v in (
 STATUS_FLAGS = {"flag_values": [0, 1, 2], "flag_meanings": "ok unstable not_converged"}
 REFERENCE_FLAGS = {"flag_values": [0, 1, 2],
                    "flag_meanings": "symmetric_top axial_moment dop853"}
-_FLAGS = {"status": STATUS_FLAGS, "reference": REFERENCE_FLAGS}
+PHYSICAL_FLAGS = {"flag_values": [0, 1], "flag_meanings": "unphysical_stress_body physical"}
+_FLAGS = {"status": STATUS_FLAGS, "reference": REFERENCE_FLAGS, "physical_body": PHYSICAL_FLAGS}
 
 # CF-1.11 requires a reference epoch on a time coordinate. The epoch stands for t = 0 of the
 # run, not a calendar date: open results with ``decode_times=False`` (as

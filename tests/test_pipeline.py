@@ -56,6 +56,7 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
     assert "position" not in ds  # the top does not translate: absent, not NaN
     assert ds.status.attrs["flag_meanings"] == "ok unstable not_converged"
     assert (ds.status == 0).all() and (ds.run_time > 0).all()
+    assert (ds.physical_body == 1).all()  # I3/I1 <= 2 keeps every body physical
     # the benchmark case itself: 200 increments, one Newton iteration each
     bench = ds.sel(scheme="hht", dt=0.01, inertia_ratio=2.0)
     assert int(bench.n_steps) == 200 and int(bench.iterations) == 200
