@@ -24,19 +24,28 @@ import pathlib
 
 import numba
 
-__all__ = ["jit", "entry_jit", "cache_dir"]
+__all__ = ["jit", "entry_jit", "cache_dir", "SOURCE_DIGEST"]
 
 _PACKAGE = pathlib.Path(__file__).resolve().parent
 
 
-def cache_dir():
-    """``$XDG_CACHE_HOME/rbstudy/numba-<hash of the package sources>`` (~/.cache by default)."""
+def _source_digest():
     digest = hashlib.sha256()
     for path in sorted(_PACKAGE.rglob("*.py")):
         digest.update(path.relative_to(_PACKAGE).as_posix().encode())
         digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+# A hash of this package's sources: names the numba cache, and enters every batch id so that
+# results of changed code are never reused.
+SOURCE_DIGEST = _source_digest()
+
+
+def cache_dir():
+    """``$XDG_CACHE_HOME/rbstudy/numba-<SOURCE_DIGEST>`` (~/.cache by default)."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "rbstudy", f"numba-{digest.hexdigest()[:16]}")
+    return os.path.join(base, "rbstudy", f"numba-{SOURCE_DIGEST}")
 
 
 if not os.environ.get("NUMBA_CACHE_DIR"):

@@ -63,6 +63,11 @@ def _sweep(args):
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
+    names = [study.name for study in studies]
+    for study in studies:
+        if names.count(study.name) > 1:
+            raise RbstudyError(f"{study.path}: name: {study.name!r} is also the name of another "
+                               "config of this command; study names pick the results folder")
     for study in studies:
         if not args.quiet:
             print(_describe(study))
@@ -74,6 +79,37 @@ def _sweep(args):
     return 0
 
 
+def _plot(args):
+    import pathlib
+
+    from rbstudy.plots import all_figures
+    from rbstudy.store import open_results
+    for path in args.files:
+        dataset = _open(path, open_results)
+        folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
+        written = all_figures(dataset, folder)
+        print(f"{path}: {len(written)} figures (PNG and SVG) in {folder}")
+    return 0
+
+
+def _report(args):
+    from rbstudy.report import write_report
+    from rbstudy.store import open_results
+    dataset = _open(args.file, open_results)
+    index = write_report(dataset, args.out)
+    print(f"{args.file}: report in {index}")
+    return 0
+
+
+def _open(path, open_results):
+    """A results file, or a one-line error naming it."""
+    try:
+        return open_results(path)
+    except (OSError, ValueError) as error:
+        raise RbstudyError(f"{path}: cannot read it as an rbstudy results file ({error}); "
+                           "give the <study>.nc written by rbstudy sweep") from None
+
+
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="rbstudy", description="Parameter studies of rigid-body rotation integrators.")
@@ -81,9 +117,10 @@ def build_parser():
     sweep = commands.add_parser("sweep", help="run study configs and archive the results")
     sweep.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
     sweep.add_argument("--out", default="results", help="results root (default: results/)")
-    sweep.add_argument("--scheduler", metavar="ADDRESS",
+    where = sweep.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS",
                        help="run on a running dask.distributed scheduler (tcp://host:8786)")
-    sweep.add_argument("--workers", type=int, metavar="N",
+    where.add_argument("--workers", type=int, metavar="N",
                        help="start a local dask.distributed cluster of N worker processes")
     sweep.add_argument("--force", action="store_true",
                        help="recompute every batch, even those already stored")
@@ -94,6 +131,14 @@ def build_parser():
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
     schemes.set_defaults(run=_schemes)
+    plot = commands.add_parser("plot", help="draw the figures of results files")
+    plot.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
+    plot.add_argument("--out", help="figure folder (default: figures/ beside each file)")
+    plot.set_defaults(run=_plot)
+    report = commands.add_parser("report", help="write an HTML report of a results file")
+    report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
+    report.add_argument("--out", default="report", help="report folder (default: report/)")
+    report.set_defaults(run=_report)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
     bench.add_argument("schemes", nargs="*", help="schemes to measure (default: all)")
     bench.set_defaults(run=_bench)

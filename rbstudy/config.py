@@ -11,14 +11,17 @@ import os
 import pathlib
 from dataclasses import dataclass
 
+import numpy as np
 import yaml
 
 from rbstudy.errors import ConfigError, RbstudyError
 from rbstudy.simulate import steps_per
-from rbstudy.sweep import expand, parse_sweep, plan_batches
-from rbstudy.variables import VARIABLES, scene_features, selected
+from rbstudy.state import N_STATE
+from rbstudy.sweep import expand, fail, parse_sweep, plan_batches
+from rbstudy.variables import BOOKKEEPING, VARIABLES, scene_features, selected
 
-__all__ = ["StudyConfig", "load_study", "MEMORY_FRACTION", "BATCH_MAX_CASES", "BATCH_MAX_BYTES"]
+__all__ = ["StudyConfig", "load_study", "MEMORY_FRACTION", "BATCH_MAX_CASES", "BATCH_MAX_BYTES",
+           "MAX_CASES"]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -30,9 +33,12 @@ BATCH_MAX_BYTES = 256 * 2 ** 20
 # A sweep whose working set (the batches running at once) needs more than this share of the
 # machine's memory is refused by `validate`.
 MEMORY_FRACTION = 0.5
-# Sampled state per time: rbstudy.state.N_STATE floats (kept here as the pipeline's estimate).
-_STATE_FLOATS = 13
-_FLOAT_BYTES = 8
+# A batch in flight holds its sampled states, its references (about as large) and the derived
+# variables being built from both: about this many times its sampled states and outputs.
+_IN_FLIGHT_FACTOR = 3
+# Every case is expanded and validated up front (a few kB of Python objects each): a grid
+# larger than this is refused before expansion, with its size.
+MAX_CASES = 200_000
 
 
 @dataclass(frozen=True)
@@ -70,22 +76,25 @@ class StudyConfig:
         return self.cases[0].scene.node_names
 
     def bytes_per_case(self):
-        """Bytes one case occupies in the archive (float64 everywhere)."""
+        """Bytes one case occupies in the archive."""
         sizes = {"time": self.n_times, "axis": 3, "component": 4, "node": len(self.node_names)}
-        return sum(_FLOAT_BYTES * math.prod(sizes[d] for d in VARIABLES[name].dims)
-                   for name in self.variables)
+        return sum(np.dtype(VARIABLES[name].dtype).itemsize
+                   * math.prod(sizes[d] for d in VARIABLES[name].dims) for name in self.variables)
+
+    def working_bytes_per_case(self):
+        """Bytes a case holds while its batch runs: sampled states plus outputs."""
+        return self.bytes_per_case() + N_STATE * np.dtype("f8").itemsize * self.n_times
 
     def memory_estimate(self, workers=None):
         """(archive bytes, peak working bytes): the consolidated dataset on disk, and the
         batches running at once (sampled states, derived variables and references) in memory."""
-        per_case = self.bytes_per_case() + _STATE_FLOATS * _FLOAT_BYTES * self.n_times
         largest = max(len(batch.cases) for batch in self.batches)
         running = min(len(self.batches), workers or os.cpu_count() or 1)
-        return self.bytes_per_case() * len(self.cases), 3 * per_case * largest * running
+        return (self.bytes_per_case() * len(self.cases),
+                _IN_FLIGHT_FACTOR * self.working_bytes_per_case() * largest * running)
 
 
-def _fail(path, key, message):
-    raise ConfigError(f"{path}: {key}: {message}")
+_fail = fail
 
 
 def _mapping(path, value, key, allowed):
@@ -120,7 +129,8 @@ def _read_yaml(path):
 
 
 def _variables(path, requested, cases):
-    """The variables every case defines, narrowed to ``output.variables`` when given."""
+    """The variables every case defines, narrowed to ``output.variables`` when given (the
+    per-case bookkeeping of `rbstudy.variables.BOOKKEEPING` is always kept)."""
     available = selected(set.intersection(*(scene_features(case.scene) for case in cases)))
     if requested is None:
         return tuple(available)
@@ -134,7 +144,7 @@ def _variables(path, requested, cases):
             needs = ", ".join(sorted(VARIABLES[name].needs))
             _fail(path, f"output.variables[{i}]",
                   f"{name} needs {needs}, which not every case of this study has; remove it")
-    return tuple(name for name in available if name in requested)
+    return tuple(name for name in available if name in requested or name in BOOKKEEPING)
 
 
 def load_study(path):
@@ -148,12 +158,23 @@ def load_study(path):
     name = data["name"]
     if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
         _fail(path, "name", f"use letters, digits, '-' and '_' only (it names a folder), got {name!r}")
+    title = data.get("title", name)
+    if not isinstance(title, str):
+        _fail(path, "title", f"expected one line of text, got {title!r}")
     run = _mapping(path, data["run"], "run", ("scheme", "options", "dt"))
     dimensions = parse_sweep(path, data.get("sweep"))
+    count = math.prod(d.size for d in dimensions)
+    if count > MAX_CASES:
+        _fail(path, "sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
+              + f"); at most {MAX_CASES:,} per study: split it into several studies")
     swept = {axis.target for d in dimensions for axis in d.axes}
     for key in ("scheme", "dt"):
         if key not in run and key not in swept:
             _fail(path, f"run.{key}", "missing (give it here or sweep it)")
+    if "dt" in run and "dt" not in swept:
+        _positive(path, run["dt"], "run.dt")
+    if not isinstance(run.get("options") or {}, dict):
+        _fail(path, "run.options", f"expected a mapping of option: value, got {run['options']!r}")
     output = _mapping(path, data.get("output") or {}, "output", ("interval", "variables"))
     if "interval" in output:
         interval = _positive(path, output["interval"], "output.interval")
@@ -172,12 +193,11 @@ def load_study(path):
     except RbstudyError as error:
         _fail(path, "output.interval", str(error).replace("dt =", "interval ="))
     variables = _variables(path, output.get("variables"), cases)
-    study = StudyConfig(path=path, text=text, name=name, title=str(data.get("title", name)),
+    study = StudyConfig(path=path, text=text, name=name, title=title,
                         base=base, output_interval=interval, duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=())
-    per_case = study.bytes_per_case() + _STATE_FLOATS * _FLOAT_BYTES * study.n_times
-    max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // per_case))
-    batches = plan_batches(cases, interval, variables, max_cases)
+    max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
+    batches = plan_batches(cases, dimensions, interval, variables, max_cases)
     study = StudyConfig(**{**study.__dict__, "batches": batches})
     _check_memory(path, study)
     return study

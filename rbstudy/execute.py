@@ -18,6 +18,7 @@ import os
 import pathlib
 import sys
 import time
+import uuid
 from dataclasses import dataclass
 
 import dask
@@ -32,13 +33,14 @@ from rbstudy.store import (
     Layout,
     consolidate,
     global_attrs,
+    part_complete,
     part_dataset,
     resolved_config,
     utc_now,
     write_atomic,
     write_text_atomic,
 )
-from rbstudy.sweep import canonical_id
+from rbstudy.sweep import scene_key
 
 __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Progress"]
 
@@ -188,7 +190,7 @@ def _reference_chunks(study, pending):
     chunks, seen, where = [], {}, {}
     for batch in pending:
         for number in batch.cases:
-            key = canonical_id(study.cases[number].spec["scene"])
+            key = scene_key(study.cases[number].spec["scene"])
             if key not in seen:
                 if not chunks or len(chunks[-1]) == size:
                     chunks.append([])
@@ -198,7 +200,7 @@ def _reference_chunks(study, pending):
     return chunks, where
 
 
-def _graph(study, pending, parts_dir, threads):
+def _graph(study, pending, parts_dir, threads, token):
     """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
     distinct scenes (references do not depend on the scheme or dt, so batches share them).
 
@@ -210,7 +212,7 @@ def _graph(study, pending, parts_dir, threads):
     reference_tasks = [
         dask.delayed(compute_references)(dask.delayed(tuple(scenes), traverse=False),
                                          study.n_times, study.output_interval,
-                                         dask_key_name=f"references-{study.name}-{k}")
+                                         dask_key_name=f"references-{token}-{k}")
         for k, scenes in enumerate(chunks)]
     tasks = []
     for batch in pending:
@@ -223,11 +225,11 @@ def _graph(study, pending, parts_dir, threads):
                        tuple(case.options for case in cases), study.variables, positions)
         values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False),
                                              [reference_tasks[k] for k in needed], threads,
-                                             dask_key_name=f"batch-{batch.id}")
+                                             dask_key_name=f"batch-{token}-{batch.id}")
         tasks.append(dask.delayed(store_part)(values, layout,
                                               dask.delayed(batch, traverse=False),
                                               str(parts_dir / f"{batch.id}.nc"),
-                                              dask_key_name=f"store-{batch.id}"))
+                                              dask_key_name=f"store-{token}-{batch.id}"))
     return tasks
 
 
@@ -263,7 +265,8 @@ def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
         client.run(compile_schemes, schemes)
         futures = client.compute(tasks)
         for future in as_completed(futures):
-            progress.advance(sizes[f"store-{future.result()}"])
+            future.result()  # a failed task raises here; finished parts stay on disk
+            progress.advance(sizes[future.key])
 
 
 def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False):
@@ -283,19 +286,17 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     folder = _prepare(root, study)
     parts_dir = folder / "parts"
     with study_lock(folder):
-        for stale in parts_dir.glob(".*.tmp"):  # left by a killed sweep; the lock is ours
-            stale.unlink()
-        write_text_atomic(resolved_config(study), folder / "study.yaml")
+        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp")]:
+            stale.unlink()  # left by a killed sweep; the lock is ours
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
-        if force:
-            for path in parts.values():
-                path.unlink(missing_ok=True)
-        pending = [batch for batch in study.batches if not parts[batch.id].exists()]
+        pending = [batch for batch in study.batches
+                   if force or not part_complete(parts[batch.id], batch)]
         cores = os.cpu_count() or 1
         distributed = scheduler is not None or workers is not None
         threads = 1 if distributed else max(1, cores // max(1, len(pending)))
-        tasks = _graph(study, pending, parts_dir, threads)
-        sizes = {f"store-{batch.id}": len(batch.cases) for batch in pending}
+        token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
+        tasks = _graph(study, pending, parts_dir, threads, token)
+        sizes = {f"store-{token}-{batch.id}": len(batch.cases) for batch in pending}
         progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
         schemes = {batch.scheme for batch in pending}
         if tasks:
@@ -303,8 +304,14 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
                 _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
             else:
                 _run_local(tasks, sizes, progress, cores, schemes)
+        missing = [batch.id for batch in pending if not parts[batch.id].exists()]
+        if missing:
+            raise RbstudyError(f"{parts_dir}: {len(missing)} finished batches left no part "
+                               "there; the cluster's workers must see this results folder "
+                               "(give --out a shared path)")
         target = folder / f"{study.name}.nc"
         consolidate(study, parts, target, global_attrs(study, started=started))
+        write_text_atomic(resolved_config(study), folder / "study.yaml")
         current = {path.name for path in parts.values()}
         for old in parts_dir.glob("*.nc"):
             if old.name not in current:  # from an earlier version of the config

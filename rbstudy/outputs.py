@@ -66,6 +66,8 @@ def batch_outputs(scenes, run, references, names, run_time):
         "max_energy_error": run.max_energy_drift,
         "max_momentum_error": run.max_momentum_drift,
         "physical_body": np.array([scene.body.physical for scene in scenes], dtype=np.int8),
+        "inertia": inertia[:, 0, :],
+        "initial_spin": np.linalg.norm(w[:, 0], axis=-1),
     }
     if "omega_space" in names:
         space = np.einsum("btij,btj->bti", quat_to_matrix(safe_q), w)
@@ -81,8 +83,9 @@ def batch_outputs(scenes, run, references, names, run_time):
         values["omega_error"] = omega_error(w, np.array([ref.omega_body for ref in references]))
         values["reference"] = np.array([REFERENCE_CODES[ref.name] for ref in references],
                                        dtype=np.int8)
-    if names & {"node_displacement", "node_error"}:
+    if names & {"node_displacement", "node_error", "node_offset"}:
         offsets = np.array([scene.nodes for scene in scenes])  # (B, N, 3)
+        values["node_offset"] = offsets
         nodes = node_positions(safe_q, run.position, offsets)  # (B, T, N, 3)
         nodes[~finite] = np.nan
         values["node_displacement"] = nodes - nodes[:, :1]

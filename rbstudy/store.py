@@ -33,7 +33,7 @@ from rbstudy.variables import COORDINATES, VARIABLES, variable_attrs
 
 __all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_atomic", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
-           "open_results"]
+           "open_results", "part_complete"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
                  "matplotlib", "PyYAML")
@@ -200,8 +200,24 @@ def open_results(path, variables=None):
     summary of a large study needs its per-case scalars, not its trajectories.
     """
     skip = None if variables is None else [name for name in VARIABLES if name not in variables]
-    with HDF5_LOCK:
-        return xr.open_dataset(path, decode_times=False, drop_variables=skip).load()
+    with HDF5_LOCK, xr.open_dataset(path, decode_times=False, drop_variables=skip) as dataset:
+        return dataset.load()
+
+
+def part_complete(path, batch):
+    """True when ``path`` is a readable part of ``batch``: its id and its cases match.
+
+    A rename makes a part appear whole, but a crash of the machine (not of the process) can
+    still leave an empty or truncated file: such a part is recomputed, not trusted.
+    """
+    if not pathlib.Path(path).exists():
+        return False
+    try:
+        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+            return (nc.getncattr("batch") == batch.id
+                    and np.array_equal(nc["case"][:], np.asarray(batch.cases)))
+    except (OSError, KeyError, AttributeError, IndexError):
+        return False
 
 
 def write_atomic(dataset, path):

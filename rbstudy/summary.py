@@ -1,29 +1,59 @@
 """The per-scheme summary of a study, read from its dataset (never from a rerun).
 
-For each scheme: the observed order of the final orientation error over the swept ``dt``
-(fitted only over the asymptotic range, per value of every other swept axis), the error at
-the largest ``dt``, the kernel time per body-step, and how many cases ended unstable.
+The error measures (`ERROR_MEASURES`) and their asymptotic ranges live here, shared by the
+terminal table, the figures and the report. For each scheme, `scheme_rows` gives the
+observed order of the final orientation error over the swept ``dt`` (fitted per value of
+every other swept axis, only where the error is neither at round-off nor too large to be
+asymptotic), the errors at the largest and smallest ``dt``, the kernel time per body-step,
+the stable range in ``dt |w0|``, and which invariants every stable case kept.
 """
 
 import numpy as np
 
 from rbstudy.metrics import observed_order
 
-__all__ = ["scheme_rows", "format_table", "ORDER_FLOOR", "ORDER_CEILING", "ERROR_MEASURE",
-           "SUMMARY_VARIABLES"]
+__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "error_measure",
+           "fitted_order", "scheme_rows", "format_table"]
 
-ERROR_MEASURE = "final_orientation_error"
+# name -> (label, units, floor, ceiling, stored variable). Errors below the floor are
+# round-off (a geodesic angle of 1e-11 rad after a few hundred steps is the sum of per-step
+# rounding; energy and |L| are relative to their start and sit lower), above the ceiling
+# not asymptotic or unstable: the order fit leaves both out.
+ERROR_MEASURES = {
+    "orientation": ("final orientation error", "rad", 1e-11, 1e-1, "final_orientation_error"),
+    "omega": ("max relative angular velocity error", "1", 1e-11, 1e-1, "omega_error"),
+    "nodes": ("max node position error", "m", 1e-11, 1e-1, "node_error"),
+    "energy": ("max relative energy error", "1", 1e-13, 1e-1, "max_energy_error"),
+    "momentum": ("max relative |L| error", "1", 1e-13, 1e-1, "max_momentum_error"),
+    "precession": ("|precession frequency error|", "rad/s", 1e-9, 1e-1,
+                   "precession_frequency_error"),
+}
 # What `scheme_rows` reads: per-case scalars only.
-SUMMARY_VARIABLES = ("status", "run_time", "n_steps", ERROR_MEASURE)
-# The order fit skips errors at round-off (an orientation error of 1e-11 rad after a few
-# hundred steps is the sum of per-step rounding) and errors too large to be asymptotic
-# (0.1 rad: the error expansion no longer holds, or the run went unstable).
-ORDER_FLOOR = 1e-11
-ORDER_CEILING = 1e-1
+SUMMARY_VARIABLES = ("status", "run_time", "n_steps", "final_orientation_error",
+                     "max_energy_error", "max_momentum_error", "initial_spin")
+# An invariant counts as kept when its largest relative drift over every step of every
+# stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
+KEPT_TOLERANCE = 1e-10
+_ORDER_MEASURE = "orientation"
 
 
-def _per_scheme(ds, name, scheme):
-    variable = ds[name]
+def error_measure(ds, key):
+    """|error measure| ``key`` of every case (time and nodes reduced by max), or None."""
+    name = ERROR_MEASURES[key][4]
+    if name not in ds:
+        return None
+    value = ds[name]
+    reduce = [d for d in value.dims if d in ("time", "node")]
+    return abs(value.max(reduce, skipna=False) if reduce else value)
+
+
+def fitted_order(dts, errors, key):
+    """Observed order of measure ``key`` over its asymptotic range: (order, used mask)."""
+    _, _, floor, ceiling, _ = ERROR_MEASURES[key]
+    return observed_order(dts, errors, floor, ceiling)
+
+
+def _per_scheme(variable, scheme):
     return variable.sel(scheme=scheme) if "scheme" in variable.dims else variable
 
 
@@ -34,56 +64,84 @@ def _orders(errors):
     dts = errors["dt"].values
     orders, used = [], np.zeros(dts.shape, dtype=bool)
     for k in range(stacked.sizes["other"]):
-        order, mask = observed_order(dts, stacked.isel(other=k).values, ORDER_FLOOR,
-                                     ORDER_CEILING)
+        order, mask = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE)
         if np.isfinite(order):
             orders.append(order)
             used |= mask
     return orders, dts[used]
 
 
+def _kept(ds, scheme, stable):
+    kept = []
+    for name, label in (("max_energy_error", "energy"), ("max_momentum_error", "|L|")):
+        if name in ds:
+            drift = _per_scheme(ds[name], scheme).values[stable]
+            if drift.size and np.all(drift < KEPT_TOLERANCE):
+                kept.append(label)
+    return tuple(kept)
+
+
 def scheme_rows(ds):
-    """One dict per scheme: order (min, max) or None, the dt fitted, error at the largest dt,
-    nanoseconds per body-step, unstable and total case counts."""
-    schemes = [str(s) for s in np.atleast_1d(ds["scheme"].values)]
+    """One dict per scheme.
+
+    Keys: scheme; cases, unstable (counts); order ((min, max) or None) and fit_dt ((smallest,
+    largest) dt fitted); error_dt / error (largest dt, worst case) and error_small_dt /
+    error_small; ns_per_step (median kernel time per body-step); stable_hw (largest
+    ``dt |w0|`` of a stable case), unstable_hw (smallest of an unstable one, NaN if none);
+    kept (invariants every stable case kept to `KEPT_TOLERANCE`).
+    """
     rows = []
-    for scheme in schemes:
-        row = {"scheme": scheme, "order": None, "fit_dt": (), "error": None}
-        status = _per_scheme(ds, "status", scheme)
-        row["cases"] = int(status.size)
-        row["unstable"] = int((status != 0).sum())
-        per_step = _per_scheme(ds, "run_time", scheme) / _per_scheme(ds, "n_steps", scheme)
+    step = ds["dt"] if "dt" in ds.coords else None
+    spin = ds["initial_spin"]
+    for scheme in [str(s) for s in np.atleast_1d(ds["scheme"].values)]:
+        status = _per_scheme(ds["status"], scheme)
+        stable = status.values == 0
+        row = {"scheme": scheme, "cases": int(status.size), "unstable": int((~stable).sum()),
+               "order": None, "fit_dt": (), "error": None, "error_small": None}
+        per_step = _per_scheme(ds["run_time"], scheme) / _per_scheme(ds["n_steps"], scheme)
         row["ns_per_step"] = float(per_step.median()) * 1e9
-        if ERROR_MEASURE in ds:
-            errors = _per_scheme(ds, ERROR_MEASURE, scheme)
+        load = (_per_scheme(step * spin, scheme).broadcast_like(status).values
+                if step is not None else np.full(status.shape, np.nan))
+        row["stable_hw"] = float(np.max(load[stable])) if stable.any() else np.nan
+        row["unstable_hw"] = float(np.min(load[~stable])) if (~stable).any() else np.nan
+        row["kept"] = _kept(ds, scheme, stable)
+        errors = error_measure(ds, _ORDER_MEASURE)
+        if errors is not None:
+            errors = _per_scheme(errors, scheme)
             if "dt" in errors.dims:
                 orders, fitted = _orders(errors)
                 if orders:
                     row["order"] = (min(orders), max(orders))
                     row["fit_dt"] = (float(fitted.min()), float(fitted.max()))
-                largest = errors.sel(dt=errors["dt"].max())
-                row["error_dt"] = float(errors["dt"].max())
-                row["error"] = float(largest.max())
+                for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
+                    row[f"error{key}_dt"] = float(pick)
+                    row[f"error{key}"] = float(errors.sel(dt=pick).max())
             else:
                 row["error"] = float(errors.max())
         rows.append(row)
     return rows
 
 
+def _order_text(row):
+    if row["order"] is None:
+        return "-"
+    low, high = row["order"]
+    return f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+
+
+def _error_text(value):
+    return "-" if value is None or not np.isfinite(value) else f"{value:.3e} rad"
+
+
 def format_table(rows):
-    """The rows as a fixed-width text table."""
+    """The rows as the fixed-width text table `rbstudy sweep` prints."""
     dt = next((row["error_dt"] for row in rows if "error_dt" in row), None)
     error_head = f"error at dt={dt:g} s" if dt is not None else "final error"
     lines = [f"{'scheme':10s} {'order':>11s} {'fit over dt (s)':>19s} {error_head:>22s} "
              f"{'ns/body-step':>12s}  stable"]
     for row in rows:
-        order = "-" if row["order"] is None else (
-            f"{row['order'][0]:.2f}" if row["order"][1] - row["order"][0] < 0.005
-            else f"{row['order'][0]:.2f}-{row['order'][1]:.2f}")
         fit = "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"
-        error = "-" if row["error"] is None or not np.isfinite(row["error"]) else \
-            f"{row['error']:.3e} rad"
         stable = "yes" if not row["unstable"] else f"no: {row['unstable']}/{row['cases']} unstable"
-        lines.append(f"{row['scheme']:10s} {order:>11s} {fit:>19s} {error:>22s} "
-                     f"{row['ns_per_step']:12.1f}  {stable}")
+        lines.append(f"{row['scheme']:10s} {_order_text(row):>11s} {fit:>19s} "
+                     f"{_error_text(row['error']):>22s} {row['ns_per_step']:12.1f}  {stable}")
     return "\n".join(lines)

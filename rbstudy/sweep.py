@@ -21,6 +21,7 @@ A case is the study's scene and run with one value of every axis written in; its
 built and validated like any scene, so a bad value fails with the axis and value named.
 """
 
+import collections
 import copy
 import hashlib
 import itertools
@@ -30,17 +31,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rbstudy._jit import SOURCE_DIGEST
 from rbstudy.errors import ConfigError, RbstudyError
 from rbstudy.scenes import Scene, scene_from_mapping
 from rbstudy.schemes import SCHEMES, get_scheme
 from rbstudy.simulate import steps_per
-from rbstudy.variables import coordinate_units
+from rbstudy.variables import VARIABLES, coordinate_units
 
-__all__ = ["Axis", "Dimension", "Case", "SHORT_NAMES", "parse_sweep", "expand", "canonical_id",
-           "ALL_SCHEMES", "SCHEMA_VERSION"]
+__all__ = ["Axis", "Dimension", "Case", "Batch", "SHORT_NAMES", "RESERVED_NAMES", "parse_sweep",
+           "expand", "plan_batches", "canonical_id", "scene_key", "fail", "ALL_SCHEMES",
+           "SCHEMA_VERSION", "ID_LENGTH"]
 
 # Bumped whenever what a part file holds changes, so that old parts are never reused.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+# Hex digits of a batch id's hash: 64 bits, no collision among any realistic set of batches.
+ID_LENGTH = 16
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
 ALL_SCHEMES = "all"
@@ -59,6 +64,12 @@ _SHORT_ORDER = ("scheme", "dt", "inertia_ratio", "tilt", "spin")
 
 # Swept values must leave one output grid for every case.
 _NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
+# Names the dataset already uses: a zipped dimension may not take them.
+RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
+    frozenset(VARIABLES)
+# Batches group cases by scheme and dt, and the convergence fit runs along dt: both must be
+# dimensions of their own.
+_NOT_ZIPPABLE = ("scheme", "dt")
 
 
 @dataclass(frozen=True)
@@ -100,8 +111,12 @@ class Case:
     dt: float
 
 
-def _fail(path, key, message):
+def fail(path, key, message):
+    """Raise the one-line `ConfigError` ``<file>: <key path>: <message>``."""
     raise ConfigError(f"{path}: {key}: {message}")
+
+
+_fail = fail
 
 
 def _number(path, key, value):
@@ -116,12 +131,25 @@ def _count(path, key, value):
     return value
 
 
+def _scalar_values(path, key, values):
+    """``values`` if each is a number or a string and none repeats, else a `ConfigError`."""
+    for i, value in enumerate(values):
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            _fail(path, f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}; "
+                                       "sweep a vector one entry at a time (path.0, path.1...)")
+    counts = collections.Counter(float(v) if not isinstance(v, str) else v for v in values)
+    repeated = sorted(str(v) for v, n in counts.items() if n > 1)
+    if repeated:
+        _fail(path, key, f"{', '.join(repeated)} given twice; each value once")
+    return tuple(values)
+
+
 def _values(path, key, spec):
     """The tuple of values of one axis from its YAML spec."""
     if isinstance(spec, list):
         if not spec:
             _fail(path, key, "empty sweep: give at least one value")
-        return tuple(spec)
+        return _scalar_values(path, key, spec)
     if isinstance(spec, dict) and len(spec) == 1 and next(iter(spec)) in ("linspace", "logspace"):
         form, triple = next(iter(spec.items()))
         if not isinstance(triple, list) or len(triple) != 3:
@@ -191,10 +219,16 @@ def parse_sweep(path, spec):
             key = f"sweep.zip.{dim}"
             if not isinstance(dim, str) or not dim.isidentifier():
                 _fail(path, key, "a dimension name needs letters, digits and '_' only")
+            if dim in RESERVED_NAMES:
+                _fail(path, key, f"{dim!r} is a name the dataset already uses; choose another")
             if not isinstance(group, dict) or not group:
                 _fail(path, key, f"expected a mapping of axis -> values, got {group!r}")
             axes = tuple(_axis(path, f"{key}.{target}", target, values)
                          for target, values in group.items())
+            for axis in axes:
+                if axis.target in _NOT_ZIPPABLE:
+                    _fail(path, f"{key}.{axis.target}", f"{axis.target} cannot be zipped; sweep "
+                                                        "it as an axis of its own")
             sizes = {axis.target: len(axis.values) for axis in axes}
             if len(set(sizes.values())) != 1:
                 _fail(path, key, f"zipped axes need equal lengths, got {sizes}")
@@ -215,18 +249,22 @@ def _set_path(spec, dotted, value):
     node = spec
     for part in parents:
         if isinstance(node, list):
-            node = node[int(part)]
+            node = node[_list_index(dotted, node, part)]
         else:
             node = node.setdefault(part, {})
     if isinstance(node, list):
-        index = int(leaf)
-        if not 0 <= index < len(node):
-            raise RbstudyError(f"{dotted}: index {index} out of range (the list has {len(node)})")
-        node[index] = value
+        node[_list_index(dotted, node, leaf)] = value
     elif isinstance(node, dict):
         node[leaf] = value
     else:
         raise RbstudyError(f"{dotted}: {'.'.join(parents)} holds {node!r}, not a mapping or list")
+
+
+def _list_index(dotted, node, part):
+    if not part.isdigit() or int(part) >= len(node):
+        raise RbstudyError(f"{dotted}: {part!r} is not an entry of a list of {len(node)}; "
+                           f"use 0..{len(node) - 1}")
+    return int(part)
 
 
 def _body_omega(spec, name):
@@ -310,8 +348,6 @@ def expand(path, base, dimensions, output_interval):
         try:
             scheme = get_scheme(run.get("scheme"))
             given = run.get("options") or {}
-            if not isinstance(given, dict):
-                raise RbstudyError(f"run.options: expected a mapping, got {given!r}")
             known = {option.name for option in scheme.options}
             options = {name: value for name, value in given.items() if name in known}
             used.update(options)
@@ -328,7 +364,7 @@ def expand(path, base, dimensions, output_interval):
             steps_per(output_interval, float(dt), "output interval")
         except RbstudyError as error:
             _fail(path, where if dimensions else "run.dt", str(error))
-        key = json.dumps(_normalised(spec["scene"]), sort_keys=True)
+        key = scene_key(spec["scene"])
         try:
             # Cases that differ only in scheme or dt share one scene object.
             scene = scenes.get(key) or scenes.setdefault(
@@ -358,12 +394,17 @@ def _normalised(value):
     return float(value)
 
 
+def scene_key(scene_spec):
+    """The identity of a resolved scene mapping (cases with equal keys share a scene)."""
+    return json.dumps(_normalised(scene_spec), sort_keys=True)
+
+
 def canonical_id(payload):
     """A short stable hash of ``payload``: canonical JSON (sorted keys, numbers as floats) plus
     `SCHEMA_VERSION`."""
     text = json.dumps({"schema": SCHEMA_VERSION, "payload": _normalised(payload)},
                       sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    return hashlib.sha256(text.encode()).hexdigest()[:ID_LENGTH]
 
 
 @dataclass(frozen=True)
@@ -381,8 +422,15 @@ class Batch:
     cases: tuple
 
 
-def plan_batches(cases, output_interval, variables, max_cases):
-    """Group ``cases`` by (scheme, dt), in case order, into batches of at most ``max_cases``."""
+def plan_batches(cases, dimensions, output_interval, variables, max_cases):
+    """Group ``cases`` by (scheme, dt), in case order, into batches of at most ``max_cases``.
+
+    A batch's id hashes what its part holds and where it goes: the cases' resolved specs and
+    their positions, the grid (every dimension's axes and values), the output grid and the
+    stored variables, and the source digest of rbstudy (a fixed bug never reuses old numbers).
+    Reordering or extending an axis therefore gives new ids, never a part in the wrong cells.
+    """
+    grid = [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions]
     groups = {}
     for position, case in enumerate(cases):
         groups.setdefault((case.scheme, case.dt), []).append(position)
@@ -391,7 +439,8 @@ def plan_batches(cases, output_interval, variables, max_cases):
         for start in range(0, len(members), max_cases):
             chunk = tuple(members[start:start + max_cases])
             digest = canonical_id({"cases": [cases[i].spec for i in chunk],
+                                   "positions": list(chunk), "grid": grid,
                                    "output_interval": output_interval,
-                                   "variables": list(variables)})
+                                   "variables": list(variables), "source": SOURCE_DIGEST})
             batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt, chunk))
     return tuple(batches)

@@ -15,7 +15,7 @@ left out instead of filled with NaN:
 from dataclasses import dataclass
 
 __all__ = ["Variable", "VARIABLES", "STATUS_FLAGS", "REFERENCE_FLAGS", "COORDINATES", "TIME_UNITS",
-           "coordinate_units", "variable_attrs", "scene_features", "selected"]
+           "coordinate_units", "variable_attrs", "scene_features", "selected", "BOOKKEEPING"]
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,8 @@ VARIABLES = {v.name: v for v in (
     _v("failure_time", (), "s", "time of blow-up or solver failure (NaN if none)"),
     _v("n_steps", (), "1", "time steps taken", dtype="i8"),
     _v("iterations", (), "1", "Newton iterations summed over the steps", dtype="i8"),
-    _v("run_time", (), "s", "kernel wall time per case: batch time / batch size, after compilation"),
+    _v("run_time", (), "s", "kernel CPU time per case: CPU time of the compiled batch call, "
+       "summed over its threads, / batch size; compilation excluded"),
     _v("max_energy_error", (), "1", "largest |relative energy error| over every step",
        "moment_free"),
     _v("max_momentum_error", (), "1", "largest relative |L| drift over every step", "moment_free"),
@@ -69,6 +70,10 @@ VARIABLES = {v.name: v for v in (
        "reference"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
        dtype="i1"),
+    _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
+    _v("initial_spin", (), "rad s-1", "initial angular speed |w(0)|"),
+    _v("node_offset", ("node", "axis"), "m", "node offsets from the centre of mass, principal axes",
+       "nodes"),
     _v("physical_body", (), "1",
        "whether the principal inertias meet the triangle inequality (a real rigid body)",
        dtype="i1"),
@@ -122,7 +127,7 @@ def coordinate_units(target):
     return None
 
 
-def variable_attrs(name, reference_names=()):
+def variable_attrs(name):
     """The CF attributes of output variable ``name``, all from the table above."""
     variable = VARIABLES[name]
     if name in _FLAGS:
@@ -130,8 +135,6 @@ def variable_attrs(name, reference_names=()):
     attrs = {"units": variable.units, "long_name": variable.long_name}
     if variable.standard_name:
         attrs["standard_name"] = variable.standard_name
-    if "reference" in variable.needs and reference_names:
-        attrs["comment"] = f"reference: {', '.join(reference_names)} (see variable reference)"
     return attrs
 
 
@@ -147,6 +150,12 @@ def scene_features(scene):
         if scene.body.symmetry_axis is not None:
             features.add("symmetric")
     return features
+
+
+# Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
+# the report read them (a few numbers per case).
+BOOKKEEPING = ("status", "failure_time", "n_steps", "iterations", "run_time", "reference",
+               "physical_body", "inertia", "initial_spin")
 
 
 def selected(features):

@@ -123,10 +123,25 @@ def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tm
     assert changed.computed == 4  # no batch of the old config is reused...
     assert not set(parts) & set((out / "small" / "parts").iterdir())  # ...or left behind
     ds = open_results(changed.path)
+    reordered = run_study(load_study(_small_study(tmp_path, inertia_ratio=[1.5, 0.5])), out,
+                          quiet=True)
+    assert reordered.computed == 4  # same cases, other cells: recomputed, never misplaced
+    assert np.array_equal(open_results(reordered.path).quaternion.sel(inertia_ratio=1.5),
+                          ds.quaternion.sel(inertia_ratio=1.5))
     assert list(ds.inertia_ratio.values) == [0.5, 1.5]
     w3 = ds.omega_body.isel(time=0).sel(scheme="euler", dt=0.01, axis="z")
     assert np.allclose(ds.precession_frequency_exact.sel(scheme="euler", dt=0.01),
                        w3 * (ds.inertia_ratio - 1.0), rtol=1e-14)
+
+
+def test_a_damaged_part_is_recomputed_not_trusted(tmp_path):
+    config = _small_study(tmp_path)
+    first = run_study(load_study(config), tmp_path / "out", quiet=True)
+    victim = sorted((tmp_path / "out" / "small" / "parts").glob("*.nc"))[0]
+    victim.write_bytes(victim.read_bytes()[:100])  # a crash of the machine after the rename
+    again = run_study(load_study(config), tmp_path / "out", quiet=True)
+    assert (again.computed, again.reused) == (1, 3)
+    _assert_same_numbers(first.path, again.path)
 
 
 def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
@@ -159,9 +174,11 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     finished = len(list(parts.glob("*.nc")))
     assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
     assert not (out / "long" / "long.nc").exists()
+    (parts / ".planted.nc.x.tmp").write_text("half a part")  # as a kill mid-write leaves
+    (out / "long" / ".long.nc.x.tmp").write_text("half a dataset")
     resumed = run_study(load_study(config), out, quiet=True)
     assert resumed.reused == finished and resumed.computed == 10 - finished
-    assert not list(parts.glob(".*.tmp"))  # a half-written part of the killed run is gone
+    assert not list(parts.glob(".*.tmp")) and not list((out / "long").glob(".*.tmp"))
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
     _assert_same_numbers(resumed.path, clean.path)
 

@@ -75,11 +75,15 @@ def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
     for batch in first.batches:
         assert {(first.cases[i].scheme, first.cases[i].dt) for i in batch.cases} == {
             (batch.scheme, batch.dt)}
-    again = load_study(write_study(tmp_path / "..", name="study", sweep={
+    again = load_study(write_study(tmp_path, name="study", sweep={
         **sweep, "inertia_ratio": [0.5, 2]}))  # 2 and 2.0 are the same case
     assert [b.id for b in again.batches] == [b.id for b in first.batches]
     changed = load_study(write_study(tmp_path, sweep={**sweep, "inertia_ratio": [0.5, 1.9]}))
     assert not {b.id for b in changed.batches} & {b.id for b in first.batches}
+    # the same cases at other places of the grid are other batches: a reordered axis must
+    # never put an old part in new cells
+    reordered = load_study(write_study(tmp_path, sweep={**sweep, "dt": [0.005, 0.01]}))
+    assert not {b.id for b in reordered.batches} & {b.id for b in first.batches}
 
 
 @pytest.mark.parametrize("sweep, message", [
@@ -99,6 +103,18 @@ def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
                                    "schemes (rk4)"),
     ({"scene.body.mass": [1.0, -1.0]}, "sweep (body_mass[1] = -1.0): scene.body.mass: must "
                                        "be > 0"),
+    ({"zip": {"time": {"spin": [1.0, 2.0]}}}, "sweep.zip.time: 'time' is a name the dataset "
+                                              "already uses"),
+    ({"zip": {"pair": {"scheme": ["rk4", "euler"], "spin": [1.0, 2.0]}}},
+     "sweep.zip.pair.scheme: scheme cannot be zipped"),
+    ({"scene.body.inertia": [[1, 1, 2], [1, 1, 1.5]]},
+     "sweep.scene.body.inertia[0]: sweep values must be numbers or names"),
+    ({"scheme": ["rk4", "rk4"]}, "sweep.scheme: rk4 given twice"),
+    ({"scene.body.mass": [1, 1.0]}, "sweep.scene.body.mass: 1.0 given twice"),
+    ({"scene.initial.angular_velocity.body.x": [1.0]},
+     "scene.initial.angular_velocity.body.x: 'x' is not an entry of a list of 3; use 0..2"),
+    ({"spin": {"linspace": [1, 2, 500]}, "tilt": {"linspace": [0, 60, 500]}},
+     "sweep: 250,000 cases (500 x 500); at most 200,000 per study"),
 ])
 def test_bad_sweeps_name_file_key_value_and_fix(tmp_path, sweep, message):
     path = write_study(tmp_path, sweep=sweep)
@@ -113,6 +129,13 @@ def test_unknown_output_variable_and_one_a_scene_lacks(tmp_path):
                                                  "variables": ["quaternion", "omega"]}))
     with pytest.raises(ConfigError, match=r"output.variables\[0\]: position needs translation"):
         load_study(write_study(tmp_path, output={"interval": 0.01, "variables": ["position"]}))
+
+
+def test_output_variables_narrow_trajectories_but_keep_the_bookkeeping(tmp_path):
+    study = load_study(write_study(tmp_path, output={"interval": 0.01,
+                                                     "variables": ["quaternion"]}))
+    assert "quaternion" in study.variables and "omega_body" not in study.variables
+    assert {"status", "run_time", "n_steps", "initial_spin"} <= set(study.variables)
 
 
 def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeypatch):
