@@ -102,12 +102,19 @@ def _report(args):
 
 
 def _open(path, open_results):
-    """A results file, or a one-line error naming it."""
+    """A results file with the bookkeeping the figures read, or a one-line error naming it."""
+    from rbstudy.variables import BOOKKEEPING
     try:
-        return open_results(path)
+        dataset = open_results(path)
     except (OSError, ValueError) as error:
-        raise RbstudyError(f"{path}: cannot read it as an rbstudy results file ({error}); "
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error)
+        raise RbstudyError(f"{path}: cannot read it as an rbstudy results file ({first_line}); "
                            "give the <study>.nc written by rbstudy sweep") from None
+    missing = [name for name in BOOKKEEPING if name not in dataset]
+    if missing:
+        raise RbstudyError(f"{path}: lacks {', '.join(missing)}: written by an older rbstudy; "
+                           "rerun its sweep (with --force) to rebuild it")
+    return dataset
 
 
 def build_parser():

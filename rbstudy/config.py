@@ -9,6 +9,7 @@ the value and the fix. docs/config.md documents every key.
 import math
 import os
 import pathlib
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,13 +115,27 @@ def _positive(path, value, key):
     return float(value)
 
 
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading floats as YAML 1.2 does.
+
+    YAML 1.1 (PyYAML) takes ``1e-3`` and ``1.0e4`` for strings: exponents without a sign or
+    without a dot. Study configs are full of such numbers; read them as floats.
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)$"),
+    list("-+0123456789"))
+
+
 def _read_yaml(path):
     try:
         text = pathlib.Path(path).read_text()
     except OSError as error:
         raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from None
     try:
-        return text, yaml.safe_load(text)
+        return text, yaml.load(text, Loader=_Loader)  # noqa: S506 (a safe loader)
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
         line = f"line {where.line + 1}: " if where else ""

@@ -10,8 +10,15 @@ from rbstudy.quaternions import quat_mul, quat_to_matrix
 
 __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
-    "momentum_error", "phase_rate", "observed_order",
+    "momentum_error", "phase_rate", "observed_order", "asymptotic_order", "ORDER_SPREAD",
+    "MIN_ASYMPTOTIC_POINTS",
 ]
+
+# Local slopes (between neighbouring dt) within this distance of the fitted order mark the
+# asymptotic range, where the error behaves like C dt^p; half an order separates p = 1, 2, 4.
+ORDER_SPREAD = 0.5
+# Two points always agree with their own line: an asymptotic range needs three.
+MIN_ASYMPTOTIC_POINTS = 3
 
 
 def orientation_error(q, q_ref):
@@ -89,3 +96,28 @@ def observed_order(dts, errors, floor=1e-12, ceiling=1e-1):
         return float("nan"), used
     slope = np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)[0]
     return float(slope), used
+
+
+def asymptotic_order(dts, errors, floor=1e-12, ceiling=1e-1, spread=ORDER_SPREAD):
+    """`observed_order` over the asymptotic range only: starting from the points between
+    ``floor`` and ``ceiling``, drop the largest dt until every local slope between
+    neighbouring points lies within ``spread`` of the fitted order.
+
+    Returns ``(order, used)``; NaN when fewer than `MIN_ASYMPTOTIC_POINTS` remain or the
+    error does not shrink with dt (no asymptotic range, as for a stiff case whose error
+    wanders with dt).
+    """
+    dts = np.asarray(dts, dtype=float)
+    errors = np.asarray(errors, dtype=float)
+    order, used = observed_order(dts, errors, floor, ceiling)
+    while np.isfinite(order) and used.sum() >= MIN_ASYMPTOTIC_POINTS:
+        points = np.flatnonzero(used)
+        points = points[np.argsort(dts[points])]
+        local = np.diff(np.log(errors[points])) / np.diff(np.log(dts[points]))
+        if np.all(np.abs(local - order) <= spread):
+            # an error that grows as dt shrinks is aliasing (dt |w| >> 1), not convergence
+            return (order, used) if order > 0 else (float("nan"), np.zeros_like(used))
+        used = used.copy()
+        used[points[-1]] = False
+        order = float(np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)[0])
+    return float("nan"), np.zeros_like(used)

@@ -10,7 +10,7 @@ the stable range in ``dt |w0|``, and which invariants every stable case kept.
 
 import numpy as np
 
-from rbstudy.metrics import observed_order
+from rbstudy.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "error_measure",
            "fitted_order", "scheme_rows", "format_table"]
@@ -50,7 +50,7 @@ def error_measure(ds, key):
 def fitted_order(dts, errors, key):
     """Observed order of measure ``key`` over its asymptotic range: (order, used mask)."""
     _, _, floor, ceiling, _ = ERROR_MEASURES[key]
-    return observed_order(dts, errors, floor, ceiling)
+    return asymptotic_order(dts, errors, floor, ceiling)
 
 
 def _per_scheme(variable, scheme):

@@ -143,3 +143,11 @@ def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeyp
     with pytest.raises(ConfigError, match=r"sweep: needs about [\d,]+ MiB of memory at once "
                                           r"\(limit 0 MiB"):
         load_study(write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}}))
+
+
+def test_numbers_with_bare_exponents_are_numbers(tmp_path):
+    path = write_study(tmp_path, output={"interval": 0.01})
+    path.write_text(path.read_text().replace("dt: 0.01", "dt: 1e-3").replace(
+        "duration: 0.5", "duration: 5.0e-1"))
+    study = load_study(path)
+    assert study.cases[0].dt == 1e-3 and study.duration == 0.5

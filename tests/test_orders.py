@@ -1,0 +1,30 @@
+"""The order fit of the summary, figures and report: asymptotic range only."""
+
+import numpy as np
+
+from rbstudy.metrics import asymptotic_order
+
+DTS = 0.01 / 2.0 ** np.arange(6)
+
+
+def test_pre_asymptotic_points_at_large_dt_are_dropped():
+    errors = 3.0 * DTS ** 2
+    errors[:2] *= (5.0, 0.3)  # the two coarsest steps are off the C dt^2 line
+    order, used = asymptotic_order(DTS, errors, 1e-12, 1e-1)
+    assert abs(order - 2.0) < 1e-12
+    assert list(used) == [False, False, True, True, True, True]
+
+
+def test_round_off_and_large_errors_are_never_fitted():
+    errors = 2.0 * DTS ** 4
+    errors[-2:] = 1e-14  # at round-off
+    order, used = asymptotic_order(np.append(0.1, DTS), np.append(0.5, errors), 1e-11, 1e-1)
+    assert abs(order - 4.0) < 1e-12 and not used[0] and not used[-2:].any()
+
+
+def test_an_error_that_wanders_or_grows_has_no_order():
+    wandering = np.array([3e-3, 1e-2, 2e-3, 8e-3, 1e-3, 5e-3])
+    growing = 1e-6 * DTS ** -1.2
+    for errors in (wandering, growing):
+        order, used = asymptotic_order(DTS, errors, 1e-12, 1e-1)
+        assert np.isnan(order) and not used.any()
