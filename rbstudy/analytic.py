@@ -20,12 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.special import ellipk
 
 from rbstudy.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 from rbstudy.simulate import simulate
 
 __all__ = ["Reference", "reference_solution", "reference_solutions", "symmetric_top", "axial_moment",
-           "precession_frequency_exact", "closed_form_name"]
+           "precession_frequency_exact", "closed_form_name", "flip_interval_exact"]
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,41 @@ def precession_frequency_exact(scene):
         return None
     transverse = scene.body.inertia[(axis + 1) % 3]
     return scene.omega_body[axis] * (scene.body.inertia[axis] - transverse) / transverse
+
+
+def flip_interval_exact(scene):
+    """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s.
+
+    ``w_mid = a2 sn(lambda t + u0 | k^2)`` (physics.md s3) changes sign every ``2 K(k^2) /
+    |lambda|``: the Dzhanibekov flip interval near the intermediate axis, the half period of
+    the wobble elsewhere. With the axes sorted ``I1 < I2 < I3`` and ``m = I w``:
+    ``lambda^2 = (I3 - I2)(G^2 - 2E I1)/(I1 I2 I3)``,
+    ``k^2 = (I2 - I1)(2E I3 - G^2)/((I3 - I2)(G^2 - 2E I1))``, swapping the roles of I1 and
+    I3 when ``G^2 < 2E I2`` (circulation about the minimum axis). The differences
+    ``G^2 - 2E I_j`` are summed term by term, free of cancellation. None for symmetric or
+    loaded bodies, NaN when the body turns about a principal axis (no sign change).
+    """
+    inertia = np.asarray(scene.body.inertia, dtype=float)
+    if not scene.loads.moment_free or len(set(inertia)) < 3:
+        return None
+    order = np.argsort(inertia)
+    i = inertia[order]
+    m = i * np.asarray(scene.omega_body, dtype=float)[order]
+
+    def excess(j):  # G^2 - 2E I_j, term by term
+        return float(sum(m[n] ** 2 * (i[n] - i[j]) / i[n] for n in range(3) if n != j))
+
+    # G^2 > 2E I2: the body circulates about the maximum axis; else about the minimum one,
+    # and the formulas hold with I1 and I3 exchanged (all factors then change sign in pairs).
+    low, high = (0, 2) if excess(1) > 0 else (2, 0)
+    top, bottom = abs(excess(low)), abs(excess(high))
+    if top == 0.0 or bottom == 0.0:
+        return float("nan")  # a steady spin about a principal axis: no sign change
+    rate = math.sqrt(abs(i[high] - i[1]) * top / (i[0] * i[1] * i[2]))
+    parameter = abs(i[1] - i[low]) * bottom / (abs(i[high] - i[1]) * top)
+    if parameter >= 1.0:
+        return float("inf")  # on the separatrix: one flip, never the next
+    return 2.0 * float(ellipk(parameter)) / rate
 
 
 def _parabola(scene, times):

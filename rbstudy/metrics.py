@@ -10,8 +10,8 @@ from rbstudy.quaternions import quat_mul, quat_to_matrix
 
 __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
-    "momentum_error", "phase_rate", "observed_order", "asymptotic_order", "ORDER_SPREAD",
-    "MIN_ASYMPTOTIC_POINTS",
+    "momentum_error", "phase_rate", "sign_change_interval", "observed_order",
+    "asymptotic_order", "ORDER_SPREAD", "MIN_ASYMPTOTIC_POINTS",
 ]
 
 # Local slopes (between neighbouring dt) within this distance of the fitted order mark the
@@ -80,6 +80,24 @@ def phase_rate(a, b, time):
     slope = np.sum((phase - phase.mean(axis=-1, keepdims=True)) * centred, axis=-1) / np.sum(
         centred ** 2)
     return np.where(np.all(np.isfinite(phase), axis=-1), slope, np.nan)
+
+
+def sign_change_interval(values, time):
+    """Mean time between sign changes of ``values`` (T,) sampled at ``time`` (T,), s.
+
+    Each crossing is placed by linear interpolation between its two samples. NaN with fewer
+    than two crossings or any non-finite sample (the flip interval of a free asymmetric body
+    from its intermediate-axis rate).
+    """
+    values = np.asarray(values, dtype=float)
+    time = np.asarray(time, dtype=float)
+    if not np.all(np.isfinite(values)):
+        return float("nan")
+    k = np.flatnonzero(np.signbit(values[1:]) != np.signbit(values[:-1]))
+    if k.size < 2:
+        return float("nan")
+    crossings = time[k] - values[k] * (time[k + 1] - time[k]) / (values[k + 1] - values[k])
+    return float(np.diff(crossings).mean())
 
 
 def observed_order(dts, errors, floor=1e-12, ceiling=1e-1):

@@ -7,7 +7,7 @@ after a blow-up are NaN; every measure taken from them is NaN too.
 
 import numpy as np
 
-from rbstudy.analytic import precession_frequency_exact
+from rbstudy.analytic import flip_interval_exact, precession_frequency_exact
 from rbstudy.metrics import (
     energy_error,
     momentum_error,
@@ -15,6 +15,7 @@ from rbstudy.metrics import (
     omega_error,
     orientation_error,
     phase_rate,
+    sign_change_interval,
 )
 from rbstudy.quaternions import quat_to_matrix
 from rbstudy.variables import REFERENCE_FLAGS
@@ -100,4 +101,11 @@ def batch_outputs(scenes, run, references, names, run_time):
         values["precession_frequency"] = measured
         values["precession_frequency_exact"] = exact
         values["precession_frequency_error"] = measured - exact
+    if names & {"flip_interval", "flip_interval_exact", "flip_interval_error"}:
+        middle = [int(np.argsort(scene.body.inertia)[1]) for scene in scenes]
+        measured = np.array([sign_change_interval(w[b, :, axis], run.time)
+                             for b, axis in enumerate(middle)])
+        exact = np.array([flip_interval_exact(scene) for scene in scenes])
+        values.update(flip_interval=measured, flip_interval_exact=exact,
+                      flip_interval_error=measured - exact)
     return {name: values[name] for name in names}

@@ -27,6 +27,8 @@ ERROR_MEASURES = {
     "momentum": ("max relative |L| error", "1", 1e-13, 1e-1, "max_momentum_error"),
     "precession": ("|precession frequency error|", "rad/s", 1e-9, 1e-1,
                    "precession_frequency_error"),
+    # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
+    "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error"),
 }
 # What `scheme_rows` reads: per-case scalars only.
 SUMMARY_VARIABLES = ("status", "run_time", "n_steps", "final_orientation_error",

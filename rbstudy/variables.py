@@ -9,7 +9,8 @@ left out instead of filled with NaN:
 - ``translation``: the centre of mass moves;
 - ``reference``: a reference solution (closed form, or DOP853 where none exists);
 - ``symmetric``: a moment-free symmetric body (precession frequency);
-- ``moment_free``: energy and angular momentum are conserved, so their drift is an error.
+- ``moment_free``: energy and angular momentum are conserved, so their drift is an error;
+- ``asymmetric``: a moment-free body with three different inertias (flip interval).
 """
 
 from dataclasses import dataclass
@@ -57,6 +58,11 @@ VARIABLES = {v.name: v for v in (
        "exact body-frame precession frequency W = w3 (I3 - I1) / I1", "symmetric"),
     _v("precession_frequency_error", (), "rad s-1",
        "precession frequency minus its exact value", "symmetric"),
+    _v("flip_interval", (), "s",
+       "mean time between sign changes of the intermediate-axis angular velocity",
+       "asymmetric"),
+    _v("flip_interval_exact", (), "s", "exact flip interval 2 K(k^2) / |lambda|", "asymmetric"),
+    _v("flip_interval_error", (), "s", "flip interval minus its exact value", "asymmetric"),
     _v("status", (), "1", "case outcome", dtype="i1"),
     _v("failure_time", (), "s", "time of blow-up or solver failure (NaN if none)"),
     _v("n_steps", (), "1", "time steps taken", dtype="i8"),
@@ -149,6 +155,8 @@ def scene_features(scene):
         features.add("moment_free")
         if scene.body.symmetry_axis is not None:
             features.add("symmetric")
+        elif len(set(scene.body.inertia)) == 3:
+            features.add("asymmetric")
     return features
 
 

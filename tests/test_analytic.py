@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy.analytic import axial_moment, reference_solution, reference_solutions, symmetric_top
-from rbstudy.metrics import omega_error, orientation_error
+from rbstudy.analytic import (
+    axial_moment,
+    flip_interval_exact,
+    reference_solution,
+    reference_solutions,
+    symmetric_top,
+)
+from rbstudy.metrics import omega_error, orientation_error, sign_change_interval
 from rbstudy.scenes import Body, Loads, Scene
 from rbstudy.simulate import simulate
 
@@ -67,3 +73,24 @@ def test_references_of_a_batch_equal_those_of_each_scene():
         alone = reference_solution(scene, times, 0.1)
         assert np.max(orientation_error(batch.quaternion, alone.quaternion)) < 1e-14
         assert np.allclose(batch.omega_body, alone.omega_body, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("inertia, omega", [
+    ((1.0, 2.0, 3.0), (1e-3, 1.0, 1e-3)),   # the Dzhanibekov flip, ~27.5 s (physics.md s7)
+    ((1.0, 2.0, 3.0), (1.0, 0.2, 0.1)),     # circulating about the minimum axis
+    ((3.0, 1.0, 2.0), (0.2, 0.5, 1.3)),     # axes not sorted
+])
+def test_flip_interval_matches_the_sign_changes_of_dop853(inertia, omega):
+    scene = Scene(body=Body(mass=1.0, inertia=inertia), quaternion=(0.0, 0.0, 0.0, 1.0),
+                  omega_body=omega, duration=120.0)
+    numeric = simulate([scene], "dop853", 0.01, 0.01)
+    middle = int(np.argsort(inertia)[1])
+    measured = sign_change_interval(numeric.omega_body[0, :, middle], numeric.time)
+    assert abs(measured / flip_interval_exact(scene) - 1.0) < 1e-8
+
+
+def test_no_flip_interval_for_a_steady_spin_or_a_symmetric_body():
+    spin = Scene(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.0, 0.0, 0.0, 1.0),
+                 omega_body=(0.0, 0.0, 1.0))
+    assert np.isnan(flip_interval_exact(spin))
+    assert flip_interval_exact(spin.with_changes(body=Body(1.0, (1.0, 1.0, 2.0)))) is None
