@@ -79,9 +79,12 @@ def _plain_log_labels(fig):
     for ax in fig.axes:
         for axis, scale in ((ax.xaxis, ax.get_xscale()), (ax.yaxis, ax.get_yscale())):
             if scale == "log":
+                low, high = axis.get_view_interval()
                 axis.set_major_locator(LogLocator(numticks=8))
                 axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0e}"))
-                axis.set_minor_formatter(NullFormatter())
+                # less than a decade shown: label the minor ticks too, or none would be
+                axis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:.1g}")
+                                         if 0 < low and high / low < 10 else NullFormatter())
 
 
 def _save(fig, folder, name):
