@@ -14,7 +14,7 @@ import numpy as np
 from rbstudy.plots import CAPTIONS, all_figures
 from rbstudy.schemes import SCHEMES
 from rbstudy.store import write_text_atomic
-from rbstudy.summary import KEPT_TOLERANCE, scheme_rows
+from rbstudy.summary import KEPT_TOLERANCE, order_text, scheme_rows
 
 __all__ = ["write_report"]
 
@@ -43,9 +43,7 @@ def _scheme_table(rows):
     lines = ["<table>", "<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
     for row in rows:
         scheme = SCHEMES.get(row["scheme"])
-        order = "-" if row["order"] is None else (
-            f"{row['order'][0]:.2f}" if row["order"][1] - row["order"][0] < 0.005
-            else f"{row['order'][0]:.2f} to {row['order'][1]:.2f}")
+        order = order_text(row)
         fit = "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.4g} to {row['fit_dt'][1]:.4g}"
         large = _number(row["error"], unit=" rad")
         if "error_dt" in row:

@@ -13,7 +13,7 @@ import numpy as np
 from rbstudy.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "error_measure",
-           "fitted_order", "scheme_rows", "format_table"]
+           "fitted_order", "scheme_rows", "format_table", "order_text"]
 
 # name -> (label, units, floor, ceiling, stored variable). Errors below the floor are
 # round-off (a geodesic angle of 1e-11 rad after a few hundred steps is the sum of per-step
@@ -124,26 +124,33 @@ def scheme_rows(ds):
     return rows
 
 
-def _order_text(row):
+def order_text(row):
+    """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), ``-`` without a fit."""
     if row["order"] is None:
         return "-"
     low, high = row["order"]
     return f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
 
 
-def _error_text(value):
-    return "-" if value is None or not np.isfinite(value) else f"{value:.3e} rad"
+def _short(value, spec=".1e"):
+    return "-" if value is None or not np.isfinite(value) else f"{value:{spec}}"
 
 
 def format_table(rows):
-    """The rows as the fixed-width text table `rbstudy sweep` prints."""
-    dt = next((row["error_dt"] for row in rows if "error_dt" in row), None)
-    error_head = f"error at dt={dt:g} s" if dt is not None else "final error"
-    lines = [f"{'scheme':10s} {'order':>11s} {'fit over dt (s)':>19s} {error_head:>22s} "
-             f"{'ns/body-step':>12s}  stable"]
+    """The rows as the fixed-width text table `rbstudy sweep` prints (the report's columns)."""
+    large = next((row["error_dt"] for row in rows if "error_dt" in row), None)
+    small = next((row["error_small_dt"] for row in rows if "error_small_dt" in row), None)
+    head_large = f"err dt={large:g}" if large is not None else "final error"
+    head_small = f"err dt={small:g}" if small is not None else ""
+    lines = [f"{'scheme':10s} {'order':>10s} {'fit over dt (s)':>17s} {head_large:>13s} "
+             f"{head_small:>15s} {'ns/step':>8s} {'stable dt|w0|<=':>15s} {'unstable':>9s}  kept"]
     for row in rows:
         fit = "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"
-        stable = "yes" if not row["unstable"] else f"no: {row['unstable']}/{row['cases']} unstable"
-        lines.append(f"{row['scheme']:10s} {_order_text(row):>11s} {fit:>19s} "
-                     f"{_error_text(row['error']):>22s} {row['ns_per_step']:12.1f}  {stable}")
+        lines.append(
+            f"{row['scheme']:10s} {order_text(row):>10s} {fit:>17s} {_short(row['error']):>13s} "
+            f"{_short(row.get('error_small')) if small is not None else '':>15s} "
+            f"{row['ns_per_step']:8.0f} {_short(row['stable_hw'], '.3g'):>15s} "
+            f"{row['unstable']:>4d}/{row['cases']:<4d}  {', '.join(row['kept']) or '-'}")
+    lines.append("(errors: final orientation error in rad, worst over the other swept axes; "
+                 "order fitted per value of the other axes)")
     return "\n".join(lines)
