@@ -217,7 +217,9 @@ def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
     euler = ds.sel(scheme="euler", dt=0.1)
     assert int(euler.status) == 1 and 0 < float(euler.failure_time) <= 2.0
     assert int(ds.status.sel(scheme="midpoint", dt=0.01)) == 0
-    assert "no: 1/2 unstable" in capsys.readouterr().out
+    euler_row = next(line.split() for line in capsys.readouterr().out.splitlines()
+                     if line.startswith("euler"))
+    assert "1/2" in euler_row  # one of its two cases unstable
     assert ds.reference.attrs["flag_meanings"].split()[int(euler.reference)] == "dop853"
 
 
