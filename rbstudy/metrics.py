@@ -12,6 +12,7 @@ __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
     "momentum_error", "phase_rate", "sign_change_interval", "observed_order",
     "asymptotic_order", "ORDER_SPREAD", "MIN_ASYMPTOTIC_POINTS",
+    "MIN_CONVERGENCE_ORDER",
 ]
 
 # Local slopes (between neighbouring dt) within this distance of the fitted order mark the
@@ -19,6 +20,8 @@ __all__ = [
 ORDER_SPREAD = 0.5
 # Two points always agree with their own line: an asymptotic range needs three.
 MIN_ASYMPTOTIC_POINTS = 3
+# An error that shrinks more slowly than dt^0.5 is stalling or wandering, not converging.
+MIN_CONVERGENCE_ORDER = 0.5
 
 
 def orientation_error(q, q_ref):
@@ -116,26 +119,39 @@ def observed_order(dts, errors, floor=1e-12, ceiling=1e-1):
     return float(slope), used
 
 
-def asymptotic_order(dts, errors, floor=1e-12, ceiling=1e-1, spread=ORDER_SPREAD):
-    """`observed_order` over the asymptotic range only: starting from the points between
-    ``floor`` and ``ceiling``, drop the largest dt until every local slope between
-    neighbouring points lies within ``spread`` of the fitted order.
+def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD):
+    """`observed_order` over the asymptotic range only.
 
-    Returns ``(order, used)``; NaN when fewer than `MIN_ASYMPTOTIC_POINTS` remain or the
-    error does not shrink with dt (no asymptotic range, as for a stiff case whose error
-    wanders with dt).
+    The asymptotic range is the longest run of neighbouring time steps (at least
+    `MIN_ASYMPTOTIC_POINTS`) whose errors lie between ``floor`` (round-off) and ``ceiling``
+    and whose local slopes all lie within ``spread`` of their fitted order, that order being
+    at least `MIN_CONVERGENCE_ORDER`; among equally long runs, the one at the smallest steps.
+    Both ends can go: pre-asymptotic points at large dt, points reaching round-off at small
+    dt, and unstable (NaN) points anywhere.
+
+    Returns ``(order, used)``: NaN and no point used when no such run exists (the error
+    wanders or stalls with dt, as for a stiff case with dt |w| >> 1).
     """
     dts = np.asarray(dts, dtype=float)
     errors = np.asarray(errors, dtype=float)
-    order, used = observed_order(dts, errors, floor, ceiling)
-    while np.isfinite(order) and used.sum() >= MIN_ASYMPTOTIC_POINTS:
-        points = np.flatnonzero(used)
-        points = points[np.argsort(dts[points])]
-        local = np.diff(np.log(errors[points])) / np.diff(np.log(dts[points]))
-        if np.all(np.abs(local - order) <= spread):
-            # an error that grows as dt shrinks is aliasing (dt |w| >> 1), not convergence
-            return (order, used) if order > 0 else (float("nan"), np.zeros_like(used))
-        used = used.copy()
-        used[points[-1]] = False
-        order = float(np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)[0])
-    return float("nan"), np.zeros_like(used)
+    ascending = np.argsort(dts)
+    usable = np.isfinite(errors) & (errors > floor) & (errors < ceiling)
+    best, best_order = None, float("nan")
+    n = dts.size
+    for length in range(n, MIN_ASYMPTOTIC_POINTS - 1, -1):
+        for start in range(n - length + 1):
+            run = ascending[start:start + length]
+            if not usable[run].all():
+                continue
+            x, y = np.log(dts[run]), np.log(errors[run])
+            order = float(np.polyfit(x, y, 1)[0])
+            local = np.diff(y) / np.diff(x)
+            if order >= MIN_CONVERGENCE_ORDER and np.all(np.abs(local - order) <= spread):
+                best, best_order = run, order
+                break
+        if best is not None:
+            break
+    used = np.zeros(n, dtype=bool)
+    if best is not None:
+        used[best] = True
+    return best_order, used

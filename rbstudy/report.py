@@ -9,12 +9,9 @@ stable range, invariants kept), every figure of `rbstudy.plots` (PNG files besid
 import html
 import pathlib
 
-import numpy as np
-
 from rbstudy.plots import CAPTIONS, all_figures
-from rbstudy.schemes import SCHEMES
 from rbstudy.store import write_text_atomic
-from rbstudy.summary import KEPT_TOLERANCE, order_text, scheme_rows
+from rbstudy.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
 
 __all__ = ["write_report"]
 
@@ -29,33 +26,13 @@ figcaption { font-size: 0.9em; color: #444; }
 """
 
 
-def _number(value, spec=".3e", unit=""):
-    if value is None or not np.isfinite(value):
-        return "-"
-    return f"{value:{spec}}{unit}"
-
-
 def _scheme_table(rows):
-    head = ("scheme", "nominal order", "observed order", "fitted over dt (s)",
-            "error at largest dt", "error at smallest dt", "ns per body-step",
-            "largest stable dt|w0|", "smallest unstable dt|w0|", "unstable cases",
-            "invariants kept")
-    lines = ["<table>", "<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
+    columns = table_columns(rows)
+    lines = ["<table>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h, _ in columns)
+             + "</tr>"]
     for row in rows:
-        scheme = SCHEMES.get(row["scheme"])
-        order = order_text(row)
-        fit = "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.4g} to {row['fit_dt'][1]:.4g}"
-        large = _number(row["error"], unit=" rad")
-        if "error_dt" in row:
-            large += f" (dt {row['error_dt']:g})"
-        small = _number(row.get("error_small"), unit=" rad")
-        if "error_small_dt" in row:
-            small += f" (dt {row['error_small_dt']:g})"
-        cells = (row["scheme"], scheme.order if scheme else "-", order, fit, large, small,
-                 _number(row["ns_per_step"], ".0f"), _number(row["stable_hw"], ".3g"),
-                 _number(row["unstable_hw"], ".3g"), f"{row['unstable']} of {row['cases']}",
-                 ", ".join(row["kept"]) or "-")
-        lines.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+        lines.append("<tr>" + "".join(f"<td>{html.escape(cell(row))}</td>" for _, cell in columns)
+                     + "</tr>")
     lines.append("</table>")
     return "\n".join(lines)
 
@@ -70,6 +47,7 @@ def write_report(ds, out):
     out = pathlib.Path(out)
     figures = all_figures(ds, out / "figures")
     rows = scheme_rows(ds)
+    floor, ceiling = ERROR_MEASURES["orientation"][2:4]
     title = html.escape(ds.attrs.get("title", ds.attrs.get("study", "rbstudy results")))
     dims = ", ".join(f"{d} ({ds.sizes[d]})" for d in ds["status"].dims) or "one case"
     parts = [
@@ -79,12 +57,10 @@ def write_report(ds, out):
         f"<p>Study <code>{html.escape(str(ds.attrs.get('study', '')))}</code>: "
         f"{int(ds['status'].size)} cases over {html.escape(dims)}.</p>",
         "<h2>Schemes</h2>",
-        "<p>Observed order: least-squares slope of the final orientation error against dt, "
-        "fitted for each value of the other swept axes over the points neither at round-off "
-        "(1e-11 rad) nor above 0.1 rad; a range gives the smallest and largest fit. Errors "
-        "are the worst over the other axes. ns per body-step: median kernel CPU time per "
-        "case divided by its steps. Invariants kept: largest relative drift of every stable "
-        f"case below {KEPT_TOLERANCE:g}.</p>",
+        f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: at least three neighbouring "
+        f"steps with errors between {floor:g} and {ceiling:g} rad whose local slopes agree "
+        "within half an order, order at least 0.5. ns/step: the scheme's kernel CPU time over "
+        "all its steps. dt|w0|: the step parameter of a physical body (physics.md s7).</p>",
         _scheme_table(rows),
         "<h2>Figures</h2>",
     ]

@@ -11,21 +11,24 @@ the stable range in ``dt |w0|``, and which invariants every stable case kept.
 import numpy as np
 
 from rbstudy.metrics import asymptotic_order
+from rbstudy.schemes import SCHEMES
 
-__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "error_measure",
-           "fitted_order", "scheme_rows", "format_table", "order_text"]
+__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TABLE_NOTE",
+           "error_measure", "fitted_order", "scheme_rows", "format_table", "order_text",
+           "table_columns", "schemes_of", "per_scheme", "step_load"]
 
-# name -> (label, units, floor, ceiling, stored variable). Errors below the floor are
-# round-off (a geodesic angle of 1e-11 rad after a few hundred steps is the sum of per-step
-# rounding; energy and |L| are relative to their start and sit lower), above the ceiling
-# not asymptotic or unstable: the order fit leaves both out.
+# name -> (label, units, floor, ceiling, stored variable). Below the floor an error is
+# round-off: a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
+# to 1); energy and |L| are relative to their exact start values and sit lower. Above the
+# ceiling it is not asymptotic (or the run failed). `metrics.asymptotic_order` also cuts the
+# range where the local slopes stop agreeing, so a floor set a little low costs nothing.
 ERROR_MEASURES = {
-    "orientation": ("final orientation error", "rad", 1e-11, 1e-1, "final_orientation_error"),
-    "omega": ("max relative angular velocity error", "1", 1e-11, 1e-1, "omega_error"),
-    "nodes": ("max node position error", "m", 1e-11, 1e-1, "node_error"),
-    "energy": ("max relative energy error", "1", 1e-13, 1e-1, "max_energy_error"),
-    "momentum": ("max relative |L| error", "1", 1e-13, 1e-1, "max_momentum_error"),
-    "precession": ("|precession frequency error|", "rad/s", 1e-9, 1e-1,
+    "orientation": ("final orientation error", "rad", 1e-13, 1e-1, "final_orientation_error"),
+    "omega": ("max relative angular velocity error", "1", 1e-13, 1e-1, "omega_error"),
+    "nodes": ("max node position error", "m", 1e-13, 1e-1, "node_error"),
+    "energy": ("max relative energy error", "1", 1e-15, 1e-1, "max_energy_error"),
+    "momentum": ("max relative |L| (magnitude) error", "1", 1e-15, 1e-1, "max_momentum_error"),
+    "precession": ("|precession frequency error|", "rad/s", 1e-13, 1e-1,
                    "precession_frequency_error"),
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
     "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error"),
@@ -55,12 +58,24 @@ def fitted_order(dts, errors, key):
     return asymptotic_order(dts, errors, floor, ceiling)
 
 
-def _per_scheme(variable, scheme):
+def schemes_of(ds):
+    """The scheme names of a dataset (swept or scalar coordinate)."""
+    return [str(s) for s in np.atleast_1d(ds["scheme"].values)]
+
+
+def per_scheme(variable, scheme):
+    """``variable`` for one scheme (all of it when the study has one)."""
     return variable.sel(scheme=scheme) if "scheme" in variable.dims else variable
 
 
+def step_load(ds):
+    """``dt |w0|`` of every case (the step parameter of a physical body, physics.md s7)."""
+    return (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"])
+
+
 def _orders(errors):
-    """Observed orders over ``dt`` for every value of the other swept axes, and the dt used."""
+    """Observed orders over ``dt`` for every value of the other swept axes: the list of
+    successful fits, how many were tried, and the union of the dt values fitted."""
     others = [d for d in errors.dims if d != "dt"]
     stacked = errors.stack(other=others) if others else errors.expand_dims(other=[0])
     dts = errors["dt"].values
@@ -70,14 +85,14 @@ def _orders(errors):
         if np.isfinite(order):
             orders.append(order)
             used |= mask
-    return orders, dts[used]
+    return orders, stacked.sizes["other"], dts[used]
 
 
 def _kept(ds, scheme, stable):
     kept = []
     for name, label in (("max_energy_error", "energy"), ("max_momentum_error", "|L|")):
         if name in ds:
-            drift = _per_scheme(ds[name], scheme).values[stable]
+            drift = per_scheme(ds[name], scheme).values[stable]
             if drift.size and np.all(drift < KEPT_TOLERANCE):
                 kept.append(label)
     return tuple(kept)
@@ -86,71 +101,106 @@ def _kept(ds, scheme, stable):
 def scheme_rows(ds):
     """One dict per scheme.
 
-    Keys: scheme; cases, unstable (counts); order ((min, max) or None) and fit_dt ((smallest,
-    largest) dt fitted); error_dt / error (largest dt, worst case) and error_small_dt /
-    error_small; ns_per_step (median kernel time per body-step); stable_hw (largest
-    ``dt |w0|`` of a stable case), unstable_hw (smallest of an unstable one, NaN if none);
-    kept (invariants every stable case kept to `KEPT_TOLERANCE`).
+    Keys: scheme; cases, unstable (counts); order ((min, max) over the successful fits, or
+    None), fits and tries (how many of the other axes' values gave an asymptotic range),
+    fit_dt ((smallest, largest) dt fitted); error_dt / error at the largest dt and
+    error_small_dt / error_small at the smallest, the worst over the other axes (NaN when a
+    case there failed: a failure is never hidden behind the stable cases); ns_per_step
+    (kernel time per body-step, all the scheme's time over all its steps); stable_hw
+    (largest ``dt |w0|`` of a stable case), unstable_hw (smallest of a failed one, NaN if
+    none); kept (invariants every stable case kept to `KEPT_TOLERANCE`).
     """
     rows = []
-    step = ds["dt"] if "dt" in ds.coords else None
-    spin = ds["initial_spin"]
-    for scheme in [str(s) for s in np.atleast_1d(ds["scheme"].values)]:
-        status = _per_scheme(ds["status"], scheme)
+    load = step_load(ds)
+    for scheme in schemes_of(ds):
+        status = per_scheme(ds["status"], scheme)
         stable = status.values == 0
         row = {"scheme": scheme, "cases": int(status.size), "unstable": int((~stable).sum()),
-               "order": None, "fit_dt": (), "error": None, "error_small": None}
-        per_step = _per_scheme(ds["run_time"], scheme) / _per_scheme(ds["n_steps"], scheme)
-        row["ns_per_step"] = float(per_step.median()) * 1e9
-        load = (_per_scheme(step * spin, scheme).broadcast_like(status).values
-                if step is not None else np.full(status.shape, np.nan))
-        row["stable_hw"] = float(np.max(load[stable])) if stable.any() else np.nan
-        row["unstable_hw"] = float(np.min(load[~stable])) if (~stable).any() else np.nan
+               "order": None, "fits": 0, "tries": 0, "fit_dt": (), "error": None,
+               "error_small": None}
+        row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
+                                   / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
+        scheme_load = per_scheme(load, scheme).values
+        row["stable_hw"] = float(np.max(scheme_load[stable])) if stable.any() else np.nan
+        row["unstable_hw"] = float(np.min(scheme_load[~stable])) if (~stable).any() else np.nan
         row["kept"] = _kept(ds, scheme, stable)
         errors = error_measure(ds, _ORDER_MEASURE)
         if errors is not None:
-            errors = _per_scheme(errors, scheme)
+            errors = per_scheme(errors, scheme)
             if "dt" in errors.dims:
-                orders, fitted = _orders(errors)
+                orders, row["tries"], fitted = _orders(errors)
+                row["fits"] = len(orders)
                 if orders:
                     row["order"] = (min(orders), max(orders))
                     row["fit_dt"] = (float(fitted.min()), float(fitted.max()))
                 for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
                     row[f"error{key}_dt"] = float(pick)
-                    row[f"error{key}"] = float(errors.sel(dt=pick).max())
+                    row[f"error{key}"] = float(errors.sel(dt=pick).max(skipna=False))
             else:
-                row["error"] = float(errors.max())
+                row["error"] = float(errors.max(skipna=False))
         rows.append(row)
     return rows
 
 
 def order_text(row):
-    """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), ``-`` without a fit."""
+    """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), with ``(3/4 fits)``
+    when some values of the other axes had no asymptotic range; ``-`` without any."""
     if row["order"] is None:
-        return "-"
+        return "-" if not row["tries"] else f"- (0/{row['tries']})"
     low, high = row["order"]
-    return f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+    text = f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+    return text if row["fits"] == row["tries"] else f"{text} ({row['fits']}/{row['tries']})"
 
 
-def _short(value, spec=".1e"):
+def _error(value):
+    if value is None:
+        return "-"
+    return "failed" if not np.isfinite(value) else f"{value:.1e}"
+
+
+def _number(value, spec):
     return "-" if value is None or not np.isfinite(value) else f"{value:{spec}}"
+
+
+def table_columns(rows):
+    """(header, cell function) of the per-scheme table, shared by the terminal and report."""
+    large = next((row["error_dt"] for row in rows if "error_dt" in row), None)
+    small = next((row["error_small_dt"] for row in rows if "error_small_dt" in row), None)
+    columns = [
+        ("scheme", lambda row: row["scheme"]),
+        ("nominal", lambda row: str(SCHEMES[row["scheme"]].order) if row["scheme"] in SCHEMES
+         else "-"),
+        ("order", order_text),
+        ("fit over dt (s)", lambda row: "-" if not row["fit_dt"] else
+         f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"),
+        (f"error dt={large:g}" if large is not None else "final error",
+         lambda row: _error(row["error"])),
+    ]
+    if small is not None and small != large:
+        columns.append((f"error dt={small:g}", lambda row: _error(row.get("error_small"))))
+    columns += [
+        ("ns/step", lambda row: _number(row["ns_per_step"], ".0f")),
+        ("largest stable dt|w0|", lambda row: _number(row["stable_hw"], ".3g")),
+        ("first failed dt|w0|", lambda row: _number(row["unstable_hw"], ".3g")),
+        ("failed", lambda row: f"{row['unstable']}/{row['cases']}"),
+        ("kept", lambda row: ", ".join(row["kept"]) or "-"),
+    ]
+    return columns
+
+
+TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other swept axes "
+              "(\"failed\" when a case there blew up); order: fitted per value of the other "
+              "axes over its asymptotic range, (k/n) when only k of n had one; kept: drift "
+              f"below {KEPT_TOLERANCE:g} in every stable case")
 
 
 def format_table(rows):
     """The rows as the fixed-width text table `rbstudy sweep` prints (the report's columns)."""
-    large = next((row["error_dt"] for row in rows if "error_dt" in row), None)
-    small = next((row["error_small_dt"] for row in rows if "error_small_dt" in row), None)
-    head_large = f"err dt={large:g}" if large is not None else "final error"
-    head_small = f"err dt={small:g}" if small is not None else ""
-    lines = [f"{'scheme':10s} {'order':>10s} {'fit over dt (s)':>17s} {head_large:>13s} "
-             f"{head_small:>15s} {'ns/step':>8s} {'stable dt|w0|<=':>15s} {'unstable':>9s}  kept"]
-    for row in rows:
-        fit = "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"
-        lines.append(
-            f"{row['scheme']:10s} {order_text(row):>10s} {fit:>17s} {_short(row['error']):>13s} "
-            f"{_short(row.get('error_small')) if small is not None else '':>15s} "
-            f"{row['ns_per_step']:8.0f} {_short(row['stable_hw'], '.3g'):>15s} "
-            f"{row['unstable']:>4d}/{row['cases']:<4d}  {', '.join(row['kept']) or '-'}")
-    lines.append("(errors: final orientation error in rad, worst over the other swept axes; "
-                 "order fitted per value of the other axes)")
-    return "\n".join(lines)
+    columns = table_columns(rows)
+    cells = [[header for header, _ in columns]] + [[cell(row) for _, cell in columns]
+                                                   for row in rows]
+    widths = [max(len(line[k]) for line in cells) for k in range(len(columns))]
+    lines = ["  ".join(text.ljust(width) if k in (0, len(columns) - 1) else text.rjust(width)
+                       for k, (text, width) in enumerate(zip(line, widths, strict=True)))
+             for line in cells]
+    return "\n".join([line.rstrip() for line in lines] + [f"({TABLE_NOTE})"])

@@ -22,8 +22,8 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()
             if line.split()[:1] in (["rk4"], ["hht"])}
-    assert rows["rk4"][1] == "4.00" and rows["hht"][1] == "2.00"
-    assert rows["hht"][7] == "0/3"  # none of the three cases unstable
+    assert rows["rk4"][1:3] == ["4", "4.00"] and rows["hht"][1:3] == ["2", "2.00"]  # nominal, fit
+    assert "0/3" in rows["hht"]  # none of the three cases failed
 
 
 def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
@@ -34,7 +34,7 @@ def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
     assert ds.omega_body.dims == ("time", "axis") and int(ds.n_steps) == 100
     row = next(line.split() for line in capsys.readouterr().out.splitlines()
                if line.startswith("splitting"))
-    assert row[1] == "-" and row[-2:] == ["0/1", "|L|"]  # no dt axis: no order; L kept
+    assert row[2] == "-" and row[-2:] == ["0/1", "|L|"]  # no dt axis: no order; L kept
 
 
 def test_validate_reports_cases_batches_and_memory(capsys):

@@ -29,7 +29,7 @@ def _shrink(values):
     if isinstance(values, dict):
         form, (start, stop, count) = next(iter(values.items()))
         return {form: [start, stop, min(count, 3)]}
-    return values[:3]
+    return values[-3:]  # the last values: the Abaqus flat disk (I3/I1 = 2) stays in
 
 
 def shrunk_config(name, folder):
@@ -77,15 +77,22 @@ def test_every_shipped_study_gives_its_figures(name, tmp_path):
         assert png.stat().st_size > 10_000 and png.with_suffix(".svg").stat().st_size > 10_000
 
 
-class _Images(html.parser.HTMLParser):
+class _Page(html.parser.HTMLParser):
+    """The images, links and table rows (as cell counts) of a page."""
+
     def __init__(self):
         super().__init__()
-        self.images, self.rows = [], 0
+        self.images, self.links, self.rows = [], [], []
 
     def handle_starttag(self, tag, attrs):
         if tag == "img":
             self.images.append(dict(attrs)["src"])
-        self.rows += tag == "tr"
+        elif tag == "a":
+            self.links.append(dict(attrs)["href"])
+        elif tag == "tr":
+            self.rows.append(0)
+        elif tag in ("td", "th") and self.rows:
+            self.rows[-1] += 1
 
 
 def test_report_parses_and_every_image_exists(tmp_path, capsys):
@@ -93,12 +100,14 @@ def test_report_parses_and_every_image_exists(tmp_path, capsys):
                      quiet=True)
     assert main(["report", str(done.path), "--out", str(tmp_path / "report")]) == 0
     index = tmp_path / "report" / "index.html"
-    parser = _Images()
+    parser = _Page()
     parser.feed(index.read_text())
     parser.close()
     assert len(parser.images) == len(expected_figures(open_results(done.path)))
-    for source in parser.images:
+    for source in parser.images + parser.links:
         assert (index.parent / source).is_file(), source
+    scheme_table = parser.rows[:1 + len(SHRUNK_SCHEMES)]
+    assert len(set(scheme_table)) == 1 and scheme_table[0] >= 10  # every row fills the header
     text = index.read_text()
     for scheme in SHRUNK_SCHEMES:
         assert f"<td>{scheme}</td>" in text

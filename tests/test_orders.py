@@ -28,3 +28,23 @@ def test_an_error_that_wanders_or_grows_has_no_order():
     for errors in (wandering, growing):
         order, used = asymptotic_order(DTS, errors, 1e-12, 1e-1)
         assert np.isnan(order) and not used.any()
+
+
+def test_round_off_at_the_small_end_is_cut_not_the_whole_fit():
+    errors = 2.0 * DTS ** 4
+    errors[-1] = 3e-11  # the finest step stalls at round-off, above the floor
+    order, used = asymptotic_order(DTS, errors, 1e-13, 1e-1)
+    assert abs(order - 4.0) < 1e-12 and used[:-1].all() and not used[-1]
+
+
+def test_a_stalling_error_has_no_order():
+    stalled = np.array([2.40e-5, 2.48e-5, 2.41e-5, 1.81e-5, 2.2e-5, 2.3e-5])  # hht, I3/I1 ~ 3e3
+    order, used = asymptotic_order(DTS, stalled, 1e-13, 1e-1)
+    assert np.isnan(order) and not used.any()
+
+
+def test_unstable_points_split_the_range():
+    errors = 3.0 * DTS ** 2
+    errors[0] = np.nan  # the coarsest step blew up
+    order, used = asymptotic_order(DTS, errors, 1e-13, 1e-1)
+    assert abs(order - 2.0) < 1e-12 and list(used) == [False] + [True] * 5
