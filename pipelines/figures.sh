@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerate every figure of docs/ from a clean checkout: run the shipped studies, draw their
 # figures from the archives, and copy the ones docs/results.md shows into docs/figures/.
-# Usage: pipelines/figures.sh [RESULTS_DIR]   (default: results; about 3 minutes on 2 cores)
+# Usage: pipelines/figures.sh [RESULTS_DIR]   (default: results; about 2 minutes on 2 cores)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 results="${1:-results}"
