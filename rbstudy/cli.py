@@ -1,4 +1,4 @@
-"""Command line: ``rbstudy sweep | validate | schemes | bench``.
+"""Command line: ``rbstudy sweep | validate | schemes | plot | report | bench``.
 
 ``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
 per-scheme summary; ``validate`` checks configs without running anything.
@@ -85,11 +85,33 @@ def _plot(args):
     from rbstudy.plots import all_figures
     from rbstudy.store import open_results
     for path in args.files:
-        dataset = _open(path, open_results)
+        dataset = _select(_open(path, open_results), args.select, path)
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
         written = all_figures(dataset, folder)
         print(f"{path}: {len(written)} figures (PNG and SVG) in {folder}")
     return 0
+
+
+def _select(dataset, choices, path):
+    """Narrow ``dataset`` to ``DIM=VALUE`` choices (each dimension kept, of length one)."""
+    for choice in choices or ():
+        dim, _, text = choice.partition("=")
+        if dim not in dataset.dims:
+            swept = [d for d in dataset["status"].dims]
+            raise RbstudyError(f"{path}: --select {choice}: {dim!r} is not a swept dimension "
+                               f"here; use one of {', '.join(swept) or 'none'}")
+        coordinate = dataset[dim].values
+        try:
+            value = text if coordinate.dtype.kind in "OUS" else float(text)
+        except ValueError:
+            raise RbstudyError(f"{path}: --select {choice}: {dim} takes a number") from None
+        match = [v for v in coordinate if v == value or (
+            coordinate.dtype.kind == "f" and abs(v - value) <= 1e-12 * abs(value))]
+        if not match:
+            raise RbstudyError(f"{path}: --select {choice}: no {dim} = {text}; the values are "
+                               + ", ".join(str(v) for v in coordinate))
+        dataset = dataset.sel({dim: match})
+    return dataset
 
 
 def _report(args):
@@ -141,6 +163,9 @@ def build_parser():
     plot = commands.add_parser("plot", help="draw the figures of results files")
     plot.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
     plot.add_argument("--out", help="figure folder (default: figures/ beside each file)")
+    plot.add_argument("--select", action="append", metavar="DIM=VALUE",
+                      help="only these cases, e.g. --select inertia_ratio=2 --select dt=0.01 "
+                           "(repeatable)")
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of a results file")
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")

@@ -9,6 +9,7 @@ stable range, invariants kept), every figure of `rbstudy.plots` (PNG files besid
 import html
 import pathlib
 
+from rbstudy.metrics import MIN_ASYMPTOTIC_POINTS, MIN_CONVERGENCE_ORDER, ORDER_SPREAD
 from rbstudy.plots import CAPTIONS, all_figures
 from rbstudy.store import write_text_atomic
 from rbstudy.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
@@ -57,10 +58,11 @@ def write_report(ds, out):
         f"<p>Study <code>{html.escape(str(ds.attrs.get('study', '')))}</code>: "
         f"{int(ds['status'].size)} cases over {html.escape(dims)}.</p>",
         "<h2>Schemes</h2>",
-        f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: at least three neighbouring "
-        f"steps with errors between {floor:g} and {ceiling:g} rad whose local slopes agree "
-        "within half an order, order at least 0.5. ns/step: the scheme's kernel CPU time over "
-        "all its steps. dt|w0|: the step parameter of a physical body (physics.md s7).</p>",
+        f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: the longest run of at least "
+        f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
+        f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
+        f"order, itself at least {MIN_CONVERGENCE_ORDER:g}. ns/step: the scheme's kernel CPU "
+        "time over all its steps. dt|w0|: the step parameter of a physical body.</p>",
         _scheme_table(rows),
         "<h2>Figures</h2>",
     ]

@@ -71,7 +71,9 @@ VARIABLES = {v.name: v for v in (
        "summed over its threads, / batch size; compilation excluded"),
     _v("max_energy_error", (), "1", "largest |relative energy error| over every step",
        "moment_free"),
-    _v("max_momentum_error", (), "1", "largest relative |L| drift over every step", "moment_free"),
+    _v("max_momentum_error", (), "1",
+       "largest relative drift of the magnitude |L| over every step (the vector's drift, "
+       "sampled, is momentum_error)", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",

@@ -130,3 +130,13 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
     assert main(["plot", str(bogus)]) == 2
     error = capsys.readouterr().err.strip()
     assert "cannot read it as an rbstudy results file" in error and "\n" not in error
+
+
+def test_plot_select_narrows_the_cases(tmp_path, capsys):
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
+                     quiet=True)
+    assert main(["plot", str(done.path), "--out", str(tmp_path / "one"),
+                 "--select", "scheme=hht", "--select", "inertia_ratio=2"]) == 0
+    assert (tmp_path / "one" / "benchmark_node_path.png").is_file()
+    assert main(["plot", str(done.path), "--select", "dt=fast"]) == 2
+    assert "--select dt=fast: dt takes a number" in capsys.readouterr().err
