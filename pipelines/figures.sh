@@ -19,7 +19,7 @@ shown=(
     abaqus_top:benchmark_omega_time abaqus_top:benchmark_omega_xy abaqus_top:benchmark_node_path
     abaqus_top:convergence_precession
     convergence_asymmetric:convergence_orientation convergence_asymmetric:work_precision
-    high_spin:stability_map stiff_inertia:stability_map stiff_inertia:convergence_orientation
+    high_spin:stability_map stiff_inertia:stability_map
     long_run:invariant_drift intermediate_axis:convergence_orientation
     hht_damping:convergence_orientation spin_tilt:stability_map
 )

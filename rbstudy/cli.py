@@ -84,6 +84,9 @@ def _plot(args):
 
     from rbstudy.plots import all_figures
     from rbstudy.store import open_results
+    if args.select and not args.out:
+        raise RbstudyError("--select needs --out: the selected figures would replace the "
+                           "study's full set beside the archive")
     for path in args.files:
         dataset = _select(_open(path, open_results), args.select, path)
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
@@ -96,8 +99,8 @@ def _select(dataset, choices, path):
     """Narrow ``dataset`` to ``DIM=VALUE`` choices (each dimension kept, of length one)."""
     for choice in choices or ():
         dim, _, text = choice.partition("=")
-        if dim not in dataset.dims:
-            swept = [d for d in dataset["status"].dims]
+        swept = list(dataset["status"].dims)
+        if dim not in swept:
             raise RbstudyError(f"{path}: --select {choice}: {dim!r} is not a swept dimension "
                                f"here; use one of {', '.join(swept) or 'none'}")
         coordinate = dataset[dim].values

@@ -12,7 +12,7 @@ __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
     "momentum_error", "phase_rate", "sign_change_interval", "observed_order",
     "asymptotic_order", "ORDER_SPREAD", "MIN_ASYMPTOTIC_POINTS",
-    "MIN_CONVERGENCE_ORDER",
+    "MIN_CONVERGENCE_ORDER", "ROUND_OFF_MARGIN",
 ]
 
 # Local slopes (between neighbouring dt) within this distance of the fitted order mark the
@@ -22,6 +22,9 @@ ORDER_SPREAD = 0.5
 MIN_ASYMPTOTIC_POINTS = 3
 # An error that shrinks more slowly than dt^0.5 is stalling or wandering, not converging.
 MIN_CONVERGENCE_ORDER = 0.5
+# A finer step whose error rises above the asymptotic run's finest error disproves the run,
+# unless it is within this factor of the round-off floor (rounding may rise a little).
+ROUND_OFF_MARGIN = 100.0
 
 
 def orientation_error(q, q_ref):
@@ -125,9 +128,10 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
     The asymptotic range is the longest run of neighbouring time steps (at least
     `MIN_ASYMPTOTIC_POINTS`) whose errors lie between ``floor`` (round-off) and ``ceiling``
     and whose local slopes all lie within ``spread`` of their fitted order, that order being
-    at least `MIN_CONVERGENCE_ORDER`; among equally long runs, the one at the smallest steps.
-    Both ends can go: pre-asymptotic points at large dt, points reaching round-off at small
-    dt, and unstable (NaN) points anywhere.
+    at least `MIN_CONVERGENCE_ORDER`, and no finer step beyond it with a larger error (except
+    within `ROUND_OFF_MARGIN` of the floor); among equally long runs, the one at the smallest
+    steps. Both ends can go: pre-asymptotic points at large dt, points reaching round-off at
+    small dt, and unstable (NaN) points anywhere.
 
     Returns ``(order, used)``: NaN and no point used when no such run exists (the error
     wanders or stalls with dt, as for a stiff case with dt |w| >> 1).
@@ -146,7 +150,10 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
             x, y = np.log(dts[run]), np.log(errors[run])
             order = float(np.polyfit(x, y, 1)[0])
             local = np.diff(y) / np.diff(x)
-            if order >= MIN_CONVERGENCE_ORDER and np.all(np.abs(local - order) <= spread):
+            finer = errors[ascending[:start]]
+            rises = np.any(finer > max(errors[run[0]], ROUND_OFF_MARGIN * floor))
+            if (order >= MIN_CONVERGENCE_ORDER and not rises
+                    and np.all(np.abs(local - order) <= spread)):
                 best, best_order = run, order
                 break
         if best is not None:

@@ -414,8 +414,9 @@ CAPTIONS = {
     "stability_map": "Every case by its dt |w0| against the swept parameter: green stable, "
                      "red crosses failed; the line joins the largest stable value.",
     "invariant_drift": "Energy and angular-momentum errors against time for one case per "
-                       "scheme (named in the legend: the largest stable dt): bounded "
-                       "oscillation or secular growth.",
+                       "scheme, named in the legend (the largest stable dt when dt is swept; "
+                       "a failed case ends where it failed): bounded oscillation or secular "
+                       "growth.",
     "benchmark": "The Abaqus benchmark figures for the case named in the legend (HHT on the "
                  "flat disk at the largest dt where the study has it), with the closed-form "
                  "solution dashed.",

@@ -62,7 +62,8 @@ def write_report(ds, out):
         f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
         f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
         f"order, itself at least {MIN_CONVERGENCE_ORDER:g}. ns/step: the scheme's kernel CPU "
-        "time over all its steps. dt|w0|: the step parameter of a physical body.</p>",
+        "time over all its steps. dt|w0| is the step parameter of a physical body (a stress body "
+        "beyond the triangle inequality precesses faster than |w0|).</p>",
         _scheme_table(rows),
         "<h2>Figures</h2>",
     ]

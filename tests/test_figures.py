@@ -106,9 +106,10 @@ def test_report_parses_and_every_image_exists(tmp_path, capsys):
     assert len(parser.images) == len(expected_figures(open_results(done.path)))
     for source in parser.images + parser.links:
         assert (index.parent / source).is_file(), source
-    scheme_table = parser.rows[:1 + len(SHRUNK_SCHEMES)]
-    assert len(set(scheme_table)) == 1 and scheme_table[0] >= 10  # every row fills the header
     text = index.read_text()
+    for row in scheme_rows(open_results(done.path)):  # the table shows the summary's numbers
+        assert f"<td>{row['unstable']}/{row['cases']}</td>" in text
+        assert f"<td>{row['order'][0]:.2f}</td>" in text or row["order"][0] != row["order"][1]
     for scheme in SHRUNK_SCHEMES:
         assert f"<td>{scheme}</td>" in text
     assert "Provenance" in text and "history" in text
@@ -135,8 +136,16 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
 def test_plot_select_narrows_the_cases(tmp_path, capsys):
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
+    from rbstudy.cli import _select
+    narrowed = _select(open_results(done.path), ["scheme=hht", "inertia_ratio=2"], "x")
+    assert (narrowed.sizes["scheme"], narrowed.sizes["inertia_ratio"]) == (1, 1)
+    assert str(narrowed.scheme.values[0]) == "hht" and float(narrowed.inertia_ratio[0]) == 2.0
     assert main(["plot", str(done.path), "--out", str(tmp_path / "one"),
                  "--select", "scheme=hht", "--select", "inertia_ratio=2"]) == 0
-    assert (tmp_path / "one" / "benchmark_node_path.png").is_file()
-    assert main(["plot", str(done.path), "--select", "dt=fast"]) == 2
-    assert "--select dt=fast: dt takes a number" in capsys.readouterr().err
+    assert len(list((tmp_path / "one").glob("*.png"))) == len(expected_figures(narrowed))
+    for bad, message in ((["--select", "dt=fast"], "--select dt=fast: dt takes a number"),
+                         (["--select", "time=1"], "'time' is not a swept dimension")):
+        assert main(["plot", str(done.path), "--out", str(tmp_path / "x"), *bad]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["plot", str(done.path), "--select", "dt=0.01"]) == 2
+    assert "--select needs --out" in capsys.readouterr().err

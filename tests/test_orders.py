@@ -32,7 +32,7 @@ def test_an_error_that_wanders_or_grows_has_no_order():
 
 def test_round_off_at_the_small_end_is_cut_not_the_whole_fit():
     errors = 2.0 * DTS ** 4
-    errors[-1] = 3e-11  # the finest step stalls at round-off, above the floor
+    errors[-1] = 3e-12  # the finest step stalls at round-off, above the floor
     order, used = asymptotic_order(DTS, errors, 1e-13, 1e-1)
     assert abs(order - 4.0) < 1e-12 and used[:-1].all() and not used[-1]
 
@@ -48,3 +48,9 @@ def test_unstable_points_split_the_range():
     errors[0] = np.nan  # the coarsest step blew up
     order, used = asymptotic_order(DTS, errors, 1e-13, 1e-1)
     assert abs(order - 2.0) < 1e-12 and list(used) == [False] + [True] * 5
+
+
+def test_a_finer_step_with_a_larger_error_disproves_the_run():
+    errors = np.array([2.1e-3, 9.2e-4, 3.9e-4, 7.7e-4])  # midpoint on I3/I1 = 100 (stiff study)
+    order, used = asymptotic_order(DTS[:4], errors, 1e-13, 1e-1)
+    assert np.isnan(order) and not used.any()
