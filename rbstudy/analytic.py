@@ -177,7 +177,12 @@ def _parabola(scene, times):
 
 
 def reference_solutions(scenes, times, output_interval=None):
-    """`reference_solution` of each of ``scenes``, the symmetric tops in one vectorised call."""
+    """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s.
+
+    The symmetric tops go through one vectorised closed-form call; the others one by one.
+    ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when DOP853 is needed
+    (``output_interval`` = d, default ``times[1] - times[0]``).
+    """
     times = np.asarray(times, dtype=float)
     tops = [i for i, scene in enumerate(scenes) if closed_form_name(scene) == "symmetric_top"]
     found = {}
@@ -188,27 +193,22 @@ def reference_solutions(scenes, times, output_interval=None):
         for k, i in enumerate(tops):
             found[i] = Reference("symmetric_top", quaternion[k], omega[k],
                                  *_parabola(scenes[i], times))
-    return [found[i] if i in found else reference_solution(scene, times, output_interval)
+    return [found[i] if i in found else _other_reference(scene, times, output_interval)
             for i, scene in enumerate(scenes)]
 
 
 def reference_solution(scene, times, output_interval=None):
-    """The best available reference for ``scene`` at ``times`` (T,), a `Reference`.
+    """The best available reference for one ``scene`` (see `reference_solutions`)."""
+    return reference_solutions([scene], times, output_interval)[0]
 
-    ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when DOP853 is needed
-    (``output_interval`` = d, default ``times[1] - times[0]``).
-    """
-    times = np.asarray(times, dtype=float)
-    name = closed_form_name(scene)
-    if name is not None:
-        if name == "symmetric_top":
-            quaternion, omega = symmetric_top(scene.body.inertia, scene.quaternion,
-                                              scene.omega_body, times)
-        else:
-            quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
-                                             scene.omega_body, scene.loads.moment_body, times)
-        position, velocity = _parabola(scene, times)
-        return Reference(name, quaternion, omega, position, velocity)
+
+def _other_reference(scene, times, output_interval):
+    """The reference of a scene that is not a free symmetric top: the axial-moment closed
+    form, or DOP853."""
+    if closed_form_name(scene) == "axial_moment":
+        quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
+                                         scene.omega_body, scene.loads.moment_body, times)
+        return Reference("axial_moment", quaternion, omega, *_parabola(scene, times))
     interval = output_interval if output_interval is not None else times[1] - times[0]
     duration = times[-1]
     run = simulate([scene.with_changes(duration=duration)], "dop853", interval, interval)

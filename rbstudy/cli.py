@@ -13,6 +13,9 @@ from rbstudy.errors import RbstudyError
 
 __all__ = ["main"]
 
+# `--select dt=0.0003125` finds the stored dt although decimal text and binary floats differ.
+_SELECT_RTOL = 1e-12
+
 
 def _schemes(args):
     from rbstudy.schemes import SCHEMES
@@ -109,7 +112,7 @@ def _select(dataset, choices, path):
         except ValueError:
             raise RbstudyError(f"{path}: --select {choice}: {dim} takes a number") from None
         match = [v for v in coordinate if v == value or (
-            coordinate.dtype.kind == "f" and abs(v - value) <= 1e-12 * abs(value))]
+            coordinate.dtype.kind == "f" and abs(v - value) <= _SELECT_RTOL * abs(value))]
         if not match:
             raise RbstudyError(f"{path}: --select {choice}: no {dim} = {text}; the values are "
                                + ", ".join(str(v) for v in coordinate))

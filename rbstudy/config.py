@@ -6,6 +6,7 @@ case's scene, so every error surfaces before any work starts, naming the file, t
 the value and the fix. docs/config.md documents every key.
 """
 
+import dataclasses
 import math
 import os
 import pathlib
@@ -95,23 +96,21 @@ class StudyConfig:
                 _IN_FLIGHT_FACTOR * self.working_bytes_per_case() * largest * running)
 
 
-_fail = fail
-
 
 def _mapping(path, value, key, allowed):
     if not isinstance(value, dict):
-        _fail(path, key or "(top level)",
+        fail(path, key or "(top level)",
               f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
     for name in value:
         if name not in allowed:
-            _fail(path, f"{key}.{name}" if key else name,
+            fail(path, f"{key}.{name}" if key else name,
                   f"unknown key; valid keys here: {', '.join(allowed)}")
     return value
 
 
 def _positive(path, value, key):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-        _fail(path, key, f"must be a number > 0, got {value!r}")
+        fail(path, key, f"must be a number > 0, got {value!r}")
     return float(value)
 
 
@@ -150,14 +149,14 @@ def _variables(path, requested, cases):
     if requested is None:
         return tuple(available)
     if not isinstance(requested, list) or not requested:
-        _fail(path, "output.variables", f"expected a non-empty list of names, got {requested!r}")
+        fail(path, "output.variables", f"expected a non-empty list of names, got {requested!r}")
     for i, name in enumerate(requested):
         if name not in VARIABLES:
-            _fail(path, f"output.variables[{i}]",
+            fail(path, f"output.variables[{i}]",
                   f"unknown variable {name!r}; valid: {', '.join(VARIABLES)}")
         if name not in available:
             needs = ", ".join(sorted(VARIABLES[name].needs))
-            _fail(path, f"output.variables[{i}]",
+            fail(path, f"output.variables[{i}]",
                   f"{name} needs {needs}, which not every case of this study has; remove it")
     return tuple(name for name in available if name in requested or name in BOOKKEEPING)
 
@@ -169,51 +168,51 @@ def load_study(path):
     data = _mapping(path, data, "", _TOP_KEYS)
     for key in ("name", "scene", "run"):
         if key not in data:
-            _fail(path, key, "missing")
+            fail(path, key, "missing")
     name = data["name"]
     if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
-        _fail(path, "name", f"use letters, digits, '-' and '_' only (it names a folder), got {name!r}")
+        fail(path, "name", f"use letters, digits, '-' and '_' only (it names a folder), got {name!r}")
     title = data.get("title", name)
     if not isinstance(title, str):
-        _fail(path, "title", f"expected one line of text, got {title!r}")
+        fail(path, "title", f"expected one line of text, got {title!r}")
     run = _mapping(path, data["run"], "run", ("scheme", "options", "dt"))
     dimensions = parse_sweep(path, data.get("sweep"))
     count = math.prod(d.size for d in dimensions)
     if count > MAX_CASES:
-        _fail(path, "sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
+        fail(path, "sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
               + f"); at most {MAX_CASES:,} per study: split it into several studies")
     swept = {axis.target for d in dimensions for axis in d.axes}
     for key in ("scheme", "dt"):
         if key not in run and key not in swept:
-            _fail(path, f"run.{key}", "missing (give it here or sweep it)")
+            fail(path, f"run.{key}", "missing (give it here or sweep it)")
     if "dt" in run and "dt" not in swept:
         _positive(path, run["dt"], "run.dt")
     if not isinstance(run.get("options") or {}, dict):
-        _fail(path, "run.options", f"expected a mapping of option: value, got {run['options']!r}")
+        fail(path, "run.options", f"expected a mapping of option: value, got {run['options']!r}")
     output = _mapping(path, data.get("output") or {}, "output", ("interval", "variables"))
     if "interval" in output:
         interval = _positive(path, output["interval"], "output.interval")
     elif isinstance(run.get("dt"), (int, float)) and "dt" not in swept:
         interval = _positive(path, run["dt"], "run.dt")
     else:
-        _fail(path, "output.interval", "missing: with dt swept, give the output interval (s)")
+        fail(path, "output.interval", "missing: with dt swept, give the output interval (s)")
     scene_spec = data["scene"]
     if not isinstance(scene_spec, dict):
-        _fail(path, "scene", f"expected a mapping, got {scene_spec!r}")
+        fail(path, "scene", f"expected a mapping, got {scene_spec!r}")
     base = {"scene": scene_spec, "run": dict(run)}
     cases = expand(path, base, dimensions, interval)
     duration = cases[0].scene.duration
     try:
         steps_per(duration, interval, "duration")
     except RbstudyError as error:
-        _fail(path, "output.interval", str(error).replace("dt =", "interval ="))
+        fail(path, "output.interval", str(error).replace("dt =", "interval ="))
     variables = _variables(path, output.get("variables"), cases)
     study = StudyConfig(path=path, text=text, name=name, title=title,
                         base=base, output_interval=interval, duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=())
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, dimensions, interval, variables, max_cases)
-    study = StudyConfig(**{**study.__dict__, "batches": batches})
+    study = dataclasses.replace(study, batches=batches)
     _check_memory(path, study)
     return study
 
@@ -226,6 +225,6 @@ def _check_memory(path, study):
     _, peak = study.memory_estimate()
     limit = MEMORY_FRACTION * _physical_memory()
     if peak > limit:
-        _fail(path, "sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
+        fail(path, "sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
                              f"{limit / 2 ** 20:,.0f} MiB, half of this machine's); sweep fewer "
                              "values, a shorter duration or a longer output.interval")

@@ -116,18 +116,16 @@ def fail(path, key, message):
     raise ConfigError(f"{path}: {key}: {message}")
 
 
-_fail = fail
-
 
 def _number(path, key, value):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(path, key, f"expected a finite number, got {value!r}")
+        fail(path, key, f"expected a finite number, got {value!r}")
     return float(value)
 
 
 def _count(path, key, value):
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        _fail(path, key, f"expected a whole number >= 1, got {value!r}")
+        fail(path, key, f"expected a whole number >= 1, got {value!r}")
     return value
 
 
@@ -135,12 +133,12 @@ def _scalar_values(path, key, values):
     """``values`` if each is a number or a string and none repeats, else a `ConfigError`."""
     for i, value in enumerate(values):
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            _fail(path, f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}; "
+            fail(path, f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}; "
                                        "sweep a vector one entry at a time (path.0, path.1...)")
     counts = collections.Counter(float(v) if not isinstance(v, str) else v for v in values)
     repeated = sorted(str(v) for v, n in counts.items() if n > 1)
     if repeated:
-        _fail(path, key, f"{', '.join(repeated)} given twice; each value once")
+        fail(path, key, f"{', '.join(repeated)} given twice; each value once")
     return tuple(values)
 
 
@@ -148,19 +146,19 @@ def _values(path, key, spec):
     """The tuple of values of one axis from its YAML spec."""
     if isinstance(spec, list):
         if not spec:
-            _fail(path, key, "empty sweep: give at least one value")
+            fail(path, key, "empty sweep: give at least one value")
         return _scalar_values(path, key, spec)
     if isinstance(spec, dict) and len(spec) == 1 and next(iter(spec)) in ("linspace", "logspace"):
         form, triple = next(iter(spec.items()))
         if not isinstance(triple, list) or len(triple) != 3:
-            _fail(path, f"{key}.{form}", f"expected [start, stop, count], got {triple!r}")
+            fail(path, f"{key}.{form}", f"expected [start, stop, count], got {triple!r}")
         start = _number(path, f"{key}.{form}[0]", triple[0])
         stop = _number(path, f"{key}.{form}[1]", triple[1])
         count = _count(path, f"{key}.{form}[2]", triple[2])
         if form == "linspace":
             return tuple(float(v) for v in np.linspace(start, stop, count))
         if start <= 0 or stop <= 0:
-            _fail(path, f"{key}.logspace", f"end points must be > 0, got {triple!r}")
+            fail(path, f"{key}.logspace", f"end points must be > 0, got {triple!r}")
         return tuple(float(v) for v in np.geomspace(start, stop, count))
     if isinstance(spec, dict) and set(spec) == {"halving", "count"}:
         start = _number(path, f"{key}.halving", spec["halving"])
@@ -168,7 +166,7 @@ def _values(path, key, spec):
         return tuple(start / 2 ** i for i in range(count))
     if spec == ALL_SCHEMES and key.endswith("scheme"):
         return tuple(name for name, scheme in SCHEMES.items() if not scheme.adaptive)
-    _fail(path, key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
+    fail(path, key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
                      f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
                      f"got {spec!r}")
 
@@ -191,11 +189,11 @@ def _axis(path, key, target, spec):
         head = target.split(".")[0]
         if head not in ("scene", "run") or target.count(".") < 1 or (
                 head == "run" and not target.startswith("run.options.")):
-            _fail(path, key, f"unknown sweep axis {target!r}; use a short name "
+            fail(path, key, f"unknown sweep axis {target!r}; use a short name "
                              f"({', '.join(SHORT_NAMES)}) or a dotted path such as "
                              "scene.body.mass or run.options.alpha")
         if target in _NOT_SWEEPABLE:
-            _fail(path, key, f"{target} cannot be swept: {_NOT_SWEEPABLE[target]}")
+            fail(path, key, f"{target} cannot be swept: {_NOT_SWEEPABLE[target]}")
     values = _values(path, key, spec)
     return Axis(target=target, values=values, coordinate=_coordinate(target),
                 units=coordinate_units(target))
@@ -206,7 +204,7 @@ def parse_sweep(path, spec):
     if spec is None:
         return ()
     if not isinstance(spec, dict) or not spec:
-        _fail(path, "sweep", f"expected a mapping of axis -> values, got {spec!r}")
+        fail(path, "sweep", f"expected a mapping of axis -> values, got {spec!r}")
     dimensions = []
     for name, value in spec.items():
         if name != "zip":
@@ -214,24 +212,24 @@ def parse_sweep(path, spec):
             dimensions.append(Dimension(axis.coordinate, (axis,)))
             continue
         if not isinstance(value, dict) or not value:
-            _fail(path, "sweep.zip", "expected a mapping of dimension name -> {axis: values}")
+            fail(path, "sweep.zip", "expected a mapping of dimension name -> {axis: values}")
         for dim, group in value.items():
             key = f"sweep.zip.{dim}"
             if not isinstance(dim, str) or not dim.isidentifier():
-                _fail(path, key, "a dimension name needs letters, digits and '_' only")
+                fail(path, key, "a dimension name needs letters, digits and '_' only")
             if dim in RESERVED_NAMES:
-                _fail(path, key, f"{dim!r} is a name the dataset already uses; choose another")
+                fail(path, key, f"{dim!r} is a name the dataset already uses; choose another")
             if not isinstance(group, dict) or not group:
-                _fail(path, key, f"expected a mapping of axis -> values, got {group!r}")
+                fail(path, key, f"expected a mapping of axis -> values, got {group!r}")
             axes = tuple(_axis(path, f"{key}.{target}", target, values)
                          for target, values in group.items())
             for axis in axes:
                 if axis.target in _NOT_ZIPPABLE:
-                    _fail(path, f"{key}.{axis.target}", f"{axis.target} cannot be zipped; sweep "
+                    fail(path, f"{key}.{axis.target}", f"{axis.target} cannot be zipped; sweep "
                                                         "it as an axis of its own")
             sizes = {axis.target: len(axis.values) for axis in axes}
             if len(set(sizes.values())) != 1:
-                _fail(path, key, f"zipped axes need equal lengths, got {sizes}")
+                fail(path, key, f"zipped axes need equal lengths, got {sizes}")
             dimensions.append(Dimension(dim, axes))
     names = [d.name for d in dimensions] + [a.coordinate for d in dimensions for a in d.axes
                                              if a.coordinate != d.name]
@@ -239,7 +237,7 @@ def parse_sweep(path, spec):
     for seen in (names, targets):
         repeated = sorted({n for n in seen if seen.count(n) > 1})
         if repeated:
-            _fail(path, "sweep", f"{', '.join(repeated)} swept twice; sweep each quantity once")
+            fail(path, "sweep", f"{', '.join(repeated)} swept twice; sweep each quantity once")
     return tuple(dimensions)
 
 
@@ -343,7 +341,7 @@ def expand(path, base, dimensions, output_interval):
         try:
             spec = _case_spec(base, dimensions, index)
         except RbstudyError as error:
-            _fail(path, where, str(error))
+            fail(path, where, str(error))
         run = spec["run"]
         try:
             scheme = get_scheme(run.get("scheme"))
@@ -354,16 +352,16 @@ def expand(path, base, dimensions, output_interval):
             ignored.update(set(given) - known)
             scheme.option_row(options)
         except RbstudyError as error:
-            _fail(path, where, str(error))
+            fail(path, where, str(error))
         run["options"] = options
         dt = run.get("dt")
         if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0:
-            _fail(path, f"{where}: run.dt" if dimensions else "run.dt",
+            fail(path, f"{where}: run.dt" if dimensions else "run.dt",
                   f"must be a number > 0 (s), got {dt!r}")
         try:
             steps_per(output_interval, float(dt), "output interval")
         except RbstudyError as error:
-            _fail(path, where if dimensions else "run.dt", str(error))
+            fail(path, where if dimensions else "run.dt", str(error))
         key = scene_key(spec["scene"])
         try:
             # Cases that differ only in scheme or dt share one scene object.
@@ -372,13 +370,13 @@ def expand(path, base, dimensions, output_interval):
         except RbstudyError as error:
             if not dimensions:
                 raise ConfigError(str(error)) from None
-            _fail(path, where, str(error).removeprefix(f"{path}: "))
+            fail(path, where, str(error).removeprefix(f"{path}: "))
         cases.append(Case(index=index, scene=scene, spec=spec, scheme=scheme.name,
                           options=options, dt=float(dt)))
     unknown = sorted(ignored - used)
     if unknown:
         schemes = sorted({case.scheme for case in cases})
-        _fail(path, "run.options", f"{', '.join(unknown)} is an option of none of the study's "
+        fail(path, "run.options", f"{', '.join(unknown)} is an option of none of the study's "
                                    f"schemes ({', '.join(schemes)}); see `rbstudy schemes`")
     return tuple(cases)
 

@@ -41,7 +41,7 @@ def test_validate_reports_cases_batches_and_memory(capsys):
     assert main(["validate", "configs/abaqus_top.yaml"]) == 0
     out = capsys.readouterr().out
     assert "192 cases (scheme 8 x dt 6 x inertia_ratio 4) in 48 batches" in out
-    assert "archive ~7.7 MiB" in out and "peak memory" in out
+    assert "archive ~" in out and "peak memory" in out  # the sizes: test_pipeline
 
 
 @pytest.mark.parametrize("text, message", [

@@ -67,6 +67,14 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
                        2 * math.pi * (ds.inertia_ratio - 1.0))
 
 
+def test_the_archive_estimate_matches_the_archive(abaqus_results):
+    study = load_study(CONFIGS / "abaqus_top.yaml")
+    estimate, _ = study.memory_estimate()
+    ds = open_results(abaqus_results)
+    stored = sum(ds[name].nbytes for name in ds.data_vars)  # what validate promises to store
+    assert abs(estimate / stored - 1.0) < 0.01, (estimate, stored)
+
+
 def test_default_study_is_cf_compliant(abaqus_results, tmp_path):
     checker = shutil.which("compliance-checker") or os.path.join(
         os.path.dirname(sys.executable), "compliance-checker")
