@@ -38,7 +38,7 @@ start = time.perf_counter()
 from rbstudy.cli import main
 code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet"])
 wall = time.perf_counter() - start
-from rbstudy.store import open_results
+from rbstudy.pipeline.store import open_results
 import pathlib
 dataset = open_results(next(pathlib.Path(sys.argv[2]).glob("*/*.nc")), ["run_time", "status"])
 print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.sum()),

@@ -19,19 +19,18 @@ _SELECT_RTOL = 1e-12
 
 def _schemes(args):
     from rbstudy.schemes import SCHEMES
-    print(f"{'scheme':10s} {'order':>5s} {'kind':9s} {'keeps':16s} {'loads':5s} options / summary")
+    print(f"{'scheme':10s} {'order':>5s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
         keeps = ", ".join(scheme.keeps) or "-"
         options = ", ".join(f"{o.name}={o.default}" for o in scheme.options)
-        print(f"{name:10s} {scheme.order:5d} {kind:9s} {keeps:16s} "
-              f"{'yes' if scheme.handles_loads else 'no':5s} {scheme.summary}"
+        print(f"{name:10s} {scheme.order:5d} {kind:9s} {keeps:16s} {scheme.summary}"
               + (f" [{options}]" if options else ""))
     return 0
 
 
 def _bench(args):
-    from rbstudy.bench import run_bench
+    from rbstudy.analysis.bench import run_bench
     run_bench(schemes=args.schemes or None)
     return 0
 
@@ -45,7 +44,7 @@ def _describe(study):
 
 
 def _validate(args):
-    from rbstudy.config import load_study
+    from rbstudy.pipeline.config import load_study
     failures = 0
     for path in args.files:
         try:
@@ -59,10 +58,10 @@ def _validate(args):
 
 
 def _sweep(args):
-    from rbstudy.config import load_study
-    from rbstudy.execute import run_study
-    from rbstudy.store import open_results
-    from rbstudy.summary import SUMMARY_VARIABLES, format_table, scheme_rows
+    from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.store import open_results
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
@@ -85,8 +84,8 @@ def _sweep(args):
 def _plot(args):
     import pathlib
 
-    from rbstudy.plots import all_figures
-    from rbstudy.store import open_results
+    from rbstudy.analysis.plots import all_figures
+    from rbstudy.pipeline.store import open_results
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
@@ -121,8 +120,8 @@ def _select(dataset, choices, path):
 
 
 def _report(args):
-    from rbstudy.report import write_report
-    from rbstudy.store import open_results
+    from rbstudy.analysis.report import write_report
+    from rbstudy.pipeline.store import open_results
     dataset = _open(args.file, open_results)
     index = write_report(dataset, args.out)
     print(f"{args.file}: report in {index}")
@@ -131,7 +130,7 @@ def _report(args):
 
 def _open(path, open_results):
     """A results file with the bookkeeping the figures read, or a one-line error naming it."""
-    from rbstudy.variables import BOOKKEEPING
+    from rbstudy.pipeline.variables import BOOKKEEPING
     try:
         dataset = open_results(path)
     except (OSError, ValueError) as error:

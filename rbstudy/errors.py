@@ -1,23 +1,50 @@
 """Errors a user can cause. The CLI prints them in one line and exits non-zero.
 
-Every message names where the problem is (file, key path), the value received and what is
-expected, so that the user can fix the input without reading code.
+An `InputError` is structured: where (the file, the key path), what is wrong (naming the value
+received) and the fix. It prints as ``<file>: <key>: <message>; <fix>``. Code that does not
+know the file or the key (a scheme's option parser, the time-step check) raises it without
+them, and the caller that does places it with `InputError.located`, so that no message is
+ever rewritten as text.
 """
 
-__all__ = ["RbstudyError", "SceneError", "ConfigError", "SchemeError"]
+__all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError"]
 
 
 class RbstudyError(Exception):
     """Base class of all expected, user-caused failures."""
 
 
-class SceneError(RbstudyError):
+class InputError(RbstudyError):
+    """A bad input value: ``source`` (file) and ``key`` (path) where, ``message``, ``fix``.
+
+    Either place may be None while unknown; `located` fills them in.
+    """
+
+    def __init__(self, message, fix=None, source=None, key=None):
+        self.message, self.fix, self.source, self.key = message, fix, source, key
+        super().__init__(str(self))
+
+    def __str__(self):
+        text = self.message if not self.fix else f"{self.message}; {self.fix}"
+        return ": ".join(str(part) for part in (self.source, self.key, text) if part)
+
+    def located(self, source=None, key=None, kind=None):
+        """The same error placed in ``source`` under ``key`` (an outer key path is prefixed
+        to the error's own: ``sweep (dt[1] = 0.003): scene.body.mass``), as a ``kind``
+        (default: its own class)."""
+        if key and self.key:
+            key = f"{key}: {self.key}"
+        return (kind or type(self))(self.message, self.fix, source or self.source,
+                                    key or self.key)
+
+
+class SceneError(InputError):
     """A scene description is malformed or non-physical."""
 
 
-class ConfigError(RbstudyError):
+class ConfigError(InputError):
     """A study configuration is malformed."""
 
 
-class SchemeError(RbstudyError):
+class SchemeError(InputError):
     """An unknown scheme, an unknown scheme option, or an option value out of range."""

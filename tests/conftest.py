@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import yaml
 
-from rbstudy.analytic import reference_solution
-from rbstudy.metrics import orientation_error
-from rbstudy.scenes import scene_from_mapping
+from rbstudy.physics.metrics import orientation_error
+from rbstudy.physics.references import reference_solution
+from rbstudy.physics.scenes import scene_from_mapping
+from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import SCHEMES
-from rbstudy.simulate import simulate
 
 # Schemes with a fixed step, whose order in dt is observable (dop853 chooses its own steps).
 FIXED_STEP = [name for name, scheme in SCHEMES.items() if not scheme.adaptive]

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy.analytic import precession_frequency_exact
-from rbstudy.metrics import phase_rate
-from rbstudy.simulate import simulate
+from rbstudy.physics.analytic import precession_frequency_exact
+from rbstudy.physics.metrics import phase_rate
+from rbstudy.physics.simulate import simulate
 
 A, OMEGA3 = 0.25, 2.0 * math.pi
 THETA0 = math.atan(A / (2.0 * OMEGA3))  # tan(theta0) = I1 A / (I3 w3)
@@ -48,9 +48,9 @@ def test_initial_condition_is_the_benchmark_one(abaqus_scene):
 
 
 def test_hht_runs_200_increments_with_one_newton_iteration_each(run):
-    assert run.status[0] == 0
-    assert run.n_steps[0] == 200
-    assert run.iterations[0] == 200  # Abaqus: "each increment requiring only 1 iteration"
+    assert run.results["status"][0] == 0
+    assert run.results["n_steps"][0] == 200
+    assert run.results["iterations"][0] == 200  # Abaqus: "each increment requiring only 1 iteration"
 
 
 def test_w3_constant(run):

@@ -4,16 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy.analytic import (
-    axial_moment,
-    flip_interval_exact,
-    reference_solution,
-    reference_solutions,
-    symmetric_top,
-)
-from rbstudy.metrics import omega_error, orientation_error, sign_change_interval
-from rbstudy.scenes import Body, Loads, Scene
-from rbstudy.simulate import simulate
+from rbstudy.physics.analytic import axial_moment, flip_interval_exact, symmetric_top
+from rbstudy.physics.metrics import omega_error, orientation_error, sign_change_interval
+from rbstudy.physics.references import reference_solution, reference_solutions
+from rbstudy.physics.scenes import Body, Loads, Scene
+from rbstudy.physics.simulate import simulate
 
 RNG = np.random.default_rng(2026)
 

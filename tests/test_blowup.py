@@ -4,9 +4,9 @@ import math
 
 import numpy as np
 
-from rbstudy.driver import NOT_CONVERGED, OK, UNSTABLE
-from rbstudy.scenes import Body, Scene
-from rbstudy.simulate import simulate
+from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
+from rbstudy.physics.scenes import Body, Scene
+from rbstudy.physics.simulate import simulate
 
 
 def spinner(omega, inertia=(1.0, 2.0, 3.0), duration=200.0):
@@ -18,9 +18,9 @@ def test_euler_near_the_intermediate_axis_is_flagged_unstable_with_a_time():
     diverging = spinner((0.1, 10.0, 0.1))  # h |w| = 1 at dt = 0.1, 2000 steps
     run = simulate([diverging], "euler", 0.1, 1.0)
     assert run.status_names == ["unstable"]
-    assert 0.0 < run.failure_time[0] < 200.0
-    assert run.n_steps[0] == round(run.failure_time[0] / 0.1)
-    after = run.time > run.failure_time[0]
+    assert 0.0 < run.results["failure_time"][0] < 200.0
+    assert run.results["n_steps"][0] == round(run.results["failure_time"][0] / 0.1)
+    after = run.time > run.results["failure_time"][0]
     assert np.all(np.isnan(run.omega_body[0, after]))
     assert np.all(np.isfinite(run.omega_body[0, ~after]))
 
@@ -28,12 +28,12 @@ def test_euler_near_the_intermediate_axis_is_flagged_unstable_with_a_time():
 def test_batch_mates_of_a_blow_up_equal_their_solo_runs():
     scenes = [spinner((0.0, 0.0, 0.5)), spinner((0.1, 10.0, 0.1)), spinner((0.02, 0.0, 0.3))]
     batch = simulate(scenes, "euler", 0.1, 1.0)
-    assert list(batch.status) == [OK, UNSTABLE, OK]
+    assert list(batch.results["status"]) == [OK, UNSTABLE, OK]
     for i in (0, 2):
         alone = simulate([scenes[i]], "euler", 0.1, 1.0)
         assert np.array_equal(batch.quaternion[i], alone.quaternion[0])
         assert np.array_equal(batch.omega_body[i], alone.omega_body[0])
-        assert math.isnan(batch.failure_time[i])
+        assert math.isnan(batch.results["failure_time"][i])
 
 
 def test_every_scheme_gives_a_result_or_a_clean_unstable_at_huge_steps():
@@ -47,8 +47,8 @@ def test_every_scheme_gives_a_result_or_a_clean_unstable_at_huge_steps():
             continue
         steps = round(30.0 / h)
         run = simulate([scene.with_changes(duration=steps * h)], name, h, h)
-        assert run.status[0] in (OK, UNSTABLE, NOT_CONVERGED)
-        if run.status[0] == OK:
+        assert run.results["status"][0] in (OK, UNSTABLE, NOT_CONVERGED)
+        if run.results["status"][0] == OK:
             assert np.all(np.isfinite(run.omega_body))
         else:
-            assert np.isfinite(run.failure_time[0])
+            assert np.isfinite(run.results["failure_time"][0])

@@ -5,7 +5,7 @@ import yaml
 from conftest import write_study
 
 from rbstudy.cli import main
-from rbstudy.store import open_results
+from rbstudy.pipeline.store import open_results
 
 
 def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
@@ -46,7 +46,7 @@ def test_validate_reports_cases_batches_and_memory(capsys):
 
 @pytest.mark.parametrize("text, message", [
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: leapfrg, dt: 0.1}\n",
-     "bad.yaml: run: unknown scheme 'leapfrg'; valid schemes: dop853, euler"),
+     "bad.yaml: run.scheme: unknown scheme 'leapfrg'; valid schemes: dop853, euler"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.03}\n"
      "output: {interval: 0.1}\n", "bad.yaml: run.dt: dt = 0.03 s does not divide the output"),
     ("name: x\nscene: {body: {inertia: [1, 1, 3]}}\nrun: {scheme: rk4, dt: 0.1}\n",
@@ -55,7 +55,7 @@ def test_validate_reports_cases_batches_and_memory(capsys):
      "bad.yaml: sweeps: unknown key"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.1}\n"
      "output: {interval: 0.1}\nsweep: {dt: [0.1, 0.03]}\n",
-     "bad.yaml: sweep (dt[1] = 0.03): dt = 0.03 s does not divide"),
+     "bad.yaml: sweep (dt[1] = 0.03): run.dt: dt = 0.03 s does not divide"),
     ("name: x\nscene: [1, 2\n", "bad.yaml: line 3: malformed YAML"),
 ])
 def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, text, message):

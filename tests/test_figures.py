@@ -9,13 +9,13 @@ import pytest
 import yaml
 from conftest import CONFIGS
 
+from rbstudy.analysis.plots import all_figures
+from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows
 from rbstudy.cli import main
-from rbstudy.config import load_study
-from rbstudy.execute import run_study
-from rbstudy.plots import all_figures
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import SCHEMES
-from rbstudy.store import open_results
-from rbstudy.summary import ERROR_MEASURES, scheme_rows
 
 SHIPPED = sorted(path.name for path in CONFIGS.glob("*.yaml"))
 SHRUNK_SCHEMES = ["hht", "leapfrog"]  # hht takes the option some configs set

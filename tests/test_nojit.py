@@ -8,8 +8,8 @@ import sys
 
 SCRIPT = r"""
 import json, math
-from rbstudy.scenes import Body, Scene
-from rbstudy.simulate import simulate
+from rbstudy.physics.scenes import Body, Scene
+from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import SCHEMES
 scene = Scene(body=Body(mass=2.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.1, 0.2, 0.3, 0.927),
               omega_body=(0.6, 1.5, 0.9), velocity=(1.0, 0.0, 0.0), duration=0.2)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from rbstudy.metrics import asymptotic_order
+from rbstudy.physics.metrics import asymptotic_order
 
 DTS = 0.01 / 2.0 ** np.arange(6)
 

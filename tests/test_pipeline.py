@@ -16,15 +16,15 @@ import pytest
 import xarray as xr
 from conftest import CONFIGS, abaqus_mapping, write_study
 
-from rbstudy import execute
+from rbstudy.analysis.summary import scheme_rows
 from rbstudy.cli import main
-from rbstudy.config import load_study
 from rbstudy.errors import RbstudyError
-from rbstudy.execute import Progress, run_study, study_lock
+from rbstudy.physics.simulate import simulate
+from rbstudy.pipeline import execute
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import Progress, run_study, study_lock
+from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import SCHEMES
-from rbstudy.simulate import simulate
-from rbstudy.store import open_results
-from rbstudy.summary import scheme_rows
 
 # Timings differ between runs; everything else must not.
 TIMINGS = ["run_time"]

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy import rotation as r
+from rbstudy.numerics import rotation as r
 
 RNG = np.random.default_rng(7)
 

@@ -8,7 +8,7 @@ from conftest import abaqus_mapping
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
-from rbstudy.scenes import scene_from_mapping
+from rbstudy.physics.scenes import scene_from_mapping
 
 
 def fails(mapping, message):

@@ -8,9 +8,9 @@ import pytest
 from conftest import write_study
 from scipy.spatial.transform import Rotation
 
-from rbstudy import config
-from rbstudy.config import load_study
 from rbstudy.errors import ConfigError
+from rbstudy.pipeline import config
+from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import SCHEMES
 
 
@@ -88,13 +88,13 @@ def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
 
 @pytest.mark.parametrize("sweep, message", [
     ({"speed": [1.0]}, "sweep.speed: unknown sweep axis 'speed'; use a short name"),
-    ({"dt": []}, "sweep.dt: empty sweep: give at least one value"),
-    ({"dt": [0.01, 0.003]}, "sweep (dt[1] = 0.003): dt = 0.003 s does not divide the output "
-                            "interval 0.01 s"),
+    ({"dt": []}, "sweep.dt: empty sweep; give at least one value"),
+    ({"dt": [0.01, 0.003]}, "sweep (dt[1] = 0.003): run.dt: dt = 0.003 s does not divide the "
+                            "output interval 0.01 s (0.01 / 0.003 = 3.33333); choose dt = 0.01 / n"),
     ({"inertia_ratio": [2.0, 3.0]}, "sweep (inertia_ratio[1] = 3.0): scene.body.inertia: "
                                     "[1.0, 1.0, 3.0] violates the triangle inequality"),
-    ({"scheme": ["rk4", "rk5"]}, "sweep (scheme[1] = 'rk5'): unknown scheme 'rk5'; valid "
-                                 "schemes: dop853, euler"),
+    ({"scheme": ["rk4", "rk5"]}, "sweep (scheme[1] = 'rk5'): run.scheme: unknown scheme 'rk5'; "
+                                 "valid schemes: dop853, euler"),
     ({"zip": {"pair": {"spin": [1.0], "tilt": [1.0, 2.0]}}},
      "sweep.zip.pair: zipped axes need equal lengths"),
     ({"scene.duration": [1.0, 2.0]}, "sweep.scene.duration: scene.duration cannot be swept"),

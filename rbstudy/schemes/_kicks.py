@@ -6,10 +6,10 @@ frame and the centre of mass. The composition kick(h/2) free(h) kick(h/2) is sym
 second-order free step stays second order under loads.
 """
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
-from rbstudy.rotation import axpy, read3, read4, write3
+from rbstudy.numerics import state as S
+from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import axpy, read3, read4, write3
 
 
 @jit

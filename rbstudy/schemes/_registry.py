@@ -6,10 +6,10 @@ from typing import Any
 
 import numpy as np
 
-from rbstudy import state as S
 from rbstudy.errors import SchemeError
+from rbstudy.numerics import state as S
 
-__all__ = ["Option", "Scheme", "AXIS_ORDER"]
+__all__ = ["Option", "Scheme", "INVARIANTS"]
 
 # Invariant names a scheme may claim to keep to round-off for the moment-free body.
 INVARIANTS = ("energy", "momentum")
@@ -30,25 +30,6 @@ class Option:
     parse: Callable[[Any], tuple]
 
 
-def _parse_axis_order(value):
-    text = str(value)
-    if sorted(text) != ["1", "2", "3"]:
-        raise ValueError("expected a permutation of the axes 1, 2, 3 such as '123' or '213'")
-    return tuple(float(int(c) - 1) for c in text)
-
-
-AXIS_ORDER = Option(
-    name="axis_order",
-    default="123",
-    description=(
-        "order of the free sub-flows 'abc' in T_a(h/2) T_b(h/2) T_c(h) T_b(h/2) T_a(h/2); "
-        "it changes the error constant a lot (Fasso 2003)"
-    ),
-    slot=0,
-    parse=_parse_axis_order,
-)
-
-
 @dataclass(frozen=True)
 class Scheme:
     """A registered integrator.
@@ -60,10 +41,9 @@ class Scheme:
     order : nominal global order of accuracy.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
     keeps : invariants kept to round-off for the moment-free body ("energy", "momentum").
-    handles_loads : accepts forces and moments; a scheme that cannot says so here.
     adaptive : chooses its own steps (dt only sets the output grid).
     options : the scheme's options.
-    run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.driver`).
+    run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.numerics.driver`).
     reference : literature reference.
     """
 
@@ -72,7 +52,6 @@ class Scheme:
     order: int
     implicit: bool
     keeps: tuple
-    handles_loads: bool
     run_bodies_inplace: Callable
     reference: str
     adaptive: bool = False
@@ -82,10 +61,6 @@ class Scheme:
         unknown = set(self.keeps) - set(INVARIANTS)
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
-
-    @property
-    def option_defaults(self):
-        return {option.name: option.default for option in self.options}
 
     def option_row(self, values: Mapping | None = None):
         """Validate option ``values`` and pack them (defaults filled) into a (N_OPTION,) row."""
@@ -123,4 +98,4 @@ class Scheme:
         params[0, S.INERTIA:S.INERTIA + 3] = 1.0
         options = self.option_row()[None, :]
         kernel(0, 1, state0, params, options, 0.1, 1, 1, 1.0, np.empty((1, 2, S.N_STATE)),
-               np.empty((1, 6)))
+               np.empty((1, S.N_RESULT)))

@@ -1,6 +1,6 @@
 """The classical fourth-order Runge-Kutta weights, shared by `rk4` and `rkmk4`."""
 
-from rbstudy._jit import jit
+from rbstudy.numerics.jit import jit
 
 
 @jit

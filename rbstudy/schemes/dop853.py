@@ -8,7 +8,7 @@ the steps are chosen by the error control, and ``n_steps`` reports the accepted 
 ``iterations`` the right-hand-side evaluations.
 
 Order 8, explicit, adaptive. Keeps no invariant exactly, but its errors sit near 1e-12, which
-is why rbstudy uses it as the reference where no closed form exists (physics.md s3).
+is why rbstudy uses it as the reference where no closed form exists (docs/theory.md).
 This is the one scheme of the numerics layer that imports scipy; it does no I/O.
 Reference: Hairer, Norsett & Wanner, Solving ODEs I (1993), II.10; scipy.integrate.solve_ivp.
 """
@@ -17,11 +17,12 @@ Reference: Hairer, Norsett & Wanner, Solving ODEs I (1993), II.10; scipy.integra
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, UNSTABLE
-from rbstudy.dynamics import is_moment_free
-from rbstudy.rotation import read3, read4, write3, write4
+from rbstudy.numerics import algebra
+from rbstudy.numerics import state as S
+from rbstudy.numerics.dynamics import is_moment_free
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import read3, read4, write3, write4
+from rbstudy.numerics.state import OK, UNSTABLE, Result
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes.rk4 import rates
 
@@ -42,23 +43,23 @@ def derivative(t, y, p):
     return out
 
 
-def _first_drift(samples, p, drift_bound):
-    """Index of the first sample whose energy or |L| drift exceeds the bound (else None), and
-    the drift at every sample. samples : (T, N_STATE); p : (N_PARAM,)."""
+def _drifts(samples, p):
+    """Relative drifts (T,) of the rotational energy and of |L| at each sample (T, N_STATE)
+    of the parameter row ``p`` (N_PARAM,), by the formulas the compiled driver uses."""
     inertia_ = p[S.INERTIA:S.INERTIA + 3]
-    w = samples[:, S.OMEGA:S.OMEGA + 3]
-    energy = 0.5 * np.sum(inertia_ * w * w, axis=1)
-    momentum = np.linalg.norm(inertia_ * w, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        drift = np.maximum(np.abs(energy - energy[0]) / (energy[0] if energy[0] > 0 else 1.0),
-                           np.abs(momentum - momentum[0]) / (momentum[0] if momentum[0] > 0 else 1.0))
-    bad = np.flatnonzero(~(drift <= drift_bound))
-    return (int(bad[0]) if bad.size else None), drift
+    w = samples[:, S.OMEGA:S.OMEGA + 3].T  # components first, as `algebra` takes them
+    energy = algebra.rotational_energy(w, inertia_)
+    momentum = np.sqrt(algebra.momentum_squared(w, inertia_))
+    with np.errstate(invalid="ignore"):
+        return (algebra.relative_drift(energy, energy[0]),
+                algebra.relative_drift(momentum, momentum[0]))
 
 
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, diag):
-    """Same contract as the compiled entry points (see `rbstudy.driver`), one case at a time."""
+                       samples, results):
+    """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
+    a time; a sample whose energy or |L| drift passes ``drift_bound`` (a moment-free body)
+    counts as the failure."""
     n_times = samples.shape[1]
     times = h * every * np.arange(n_times)
     for b in range(start, stop):
@@ -75,13 +76,17 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         failure = np.nan if status == OK else reached
         max_energy = max_momentum = np.nan
         if is_moment_free(p):
-            first_bad, drift = _first_drift(out, p, drift_bound)
-            max_energy = max_momentum = float(np.nanmax(drift))
-            if first_bad is not None:
-                status, failure = UNSTABLE, float(times[first_bad])
-                out[first_bad:] = np.nan
+            energy, momentum = _drifts(out, p)
+            max_energy, max_momentum = float(np.nanmax(energy)), float(np.nanmax(momentum))
+            bad = np.flatnonzero(~((energy <= drift_bound) & (momentum <= drift_bound)))
+            if bad.size:
+                status, failure = UNSTABLE, float(times[bad[0]])
+                out[bad[0]:] = np.nan
         samples[b] = out
-        diag[b] = (status, failure, len(solution.t) - 1, solution.nfev, max_energy, max_momentum)
+        row = results[b]
+        row[Result.status], row[Result.failure_time] = status, failure
+        row[Result.n_steps], row[Result.iterations] = len(solution.t) - 1, solution.nfev
+        row[Result.max_energy_error], row[Result.max_momentum_error] = max_energy, max_momentum
 
 
 SCHEME = Scheme(
@@ -90,7 +95,6 @@ SCHEME = Scheme(
     order=8,
     implicit=False,
     keeps=(),
-    handles_loads=True,
     adaptive=True,
     run_bodies_inplace=run_bodies_inplace,
     reference="Hairer, Norsett & Wanner, Solving ODEs I (1993); scipy.integrate.solve_ivp",

@@ -12,10 +12,9 @@ Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. 
 """
 
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, init_nothing, make_entry
-from rbstudy.dynamics import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import (
     body_moment,
     inertia,
     momentum_rates,
@@ -23,7 +22,8 @@ from rbstudy.dynamics import (
     to_momentum,
     to_omega,
 )
-from rbstudy.rotation import (
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     axpy,
     quat_exp,
     quat_mul,
@@ -34,6 +34,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Scheme
 
 N_WORK = 0
@@ -61,7 +62,6 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
 )

@@ -30,11 +30,11 @@ Taylor, Earthq. Eng. Struct. Dyn. 5 (1977) 283.
 
 import math
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import NOT_CONVERGED, OK, make_entry
-from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
-from rbstudy.rotation import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import make_entry
+from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     add,
     axpy,
     cross,
@@ -51,6 +51,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
 from rbstudy.schemes._registry import Option, Scheme
 
@@ -156,7 +157,6 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=(),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
     options=(ALPHA,),

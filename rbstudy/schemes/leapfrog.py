@@ -17,11 +17,11 @@ Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (seed radioss_rigid_bo
 """
 
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, init_nothing, make_entry
-from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
-from rbstudy.rotation import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     axpy,
     quat_exp,
     quat_mul,
@@ -32,6 +32,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Scheme
 
 N_WORK = 0
@@ -56,7 +57,6 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
 )

@@ -18,11 +18,11 @@ Reference: Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105.
 
 import math
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import NOT_CONVERGED, OK, init_nothing, make_entry
-from rbstudy.dynamics import inertia, to_momentum, to_omega
-from rbstudy.rotation import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     axpy,
     cross,
     norm,
@@ -38,6 +38,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
 from rbstudy.schemes._registry import Scheme
@@ -92,7 +93,6 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=("energy", "momentum"),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
 )

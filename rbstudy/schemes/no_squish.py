@@ -8,7 +8,8 @@ of ``T_k`` for a time ``d`` is the rotation in the (x, P_k x) planes
     zeta = P . P_k q / (4 I_k)
     q <- cos(zeta d) q + sin(zeta d) P_k q,    P <- cos(zeta d) P + sin(zeta d) P_k P
 
-composed as ``T_a(h/2) T_b(h/2) T_c(h) T_b(h/2) T_a(h/2)`` (option ``axis_order``) between
+composed as ``T_a(h/2) T_b(h/2) T_c(h) T_b(h/2) T_a(h/2)`` (option ``axis_order``,
+`rbstudy.schemes._splitting`) between
 half kicks ``P += h q * (M_b, 0)``, ``v += h/2 F/mass`` (LAMMPS' fix rigid/nve form). This is
 the DLM splitting written in other variables: equal to `splitting` with the same axis order
 up to round-off (a test checks it).
@@ -20,11 +21,11 @@ Reference: Miller, Eleftheriou, Pattnaik, Ndirango, Newns & Martyna, J. Chem. Ph
 
 import math
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, make_entry
-from rbstudy.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
-from rbstudy.rotation import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import make_entry
+from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     axpy,
     axpy4,
     dot4,
@@ -36,8 +37,10 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._kicks import drift_inplace
-from rbstudy.schemes._registry import AXIS_ORDER, Scheme
+from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
 # work: conjugate momentum P (4)
 N_WORK = 4
@@ -85,15 +88,11 @@ def init_inplace(y, p, opt, h, work):
 
 @jit
 def step_inplace(y, p, opt, h, work):
-    a, b, c = int(opt[0]), int(opt[1]), int(opt[2])
     inertia_ = inertia(p)
     momentum = kick_inplace(y, p, read4(work, 0), 0.5 * h)
     q = read4(y, S.QUATERNION)
-    q, momentum = axis_flow(q, momentum, inertia_, a, 0.5 * h)
-    q, momentum = axis_flow(q, momentum, inertia_, b, 0.5 * h)
-    q, momentum = axis_flow(q, momentum, inertia_, c, h)
-    q, momentum = axis_flow(q, momentum, inertia_, b, 0.5 * h)
-    q, momentum = axis_flow(q, momentum, inertia_, a, 0.5 * h)
+    for k, fraction in flow_sequence(opt):
+        q, momentum = axis_flow(q, momentum, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, q)
     drift_inplace(y, h)
     momentum = kick_inplace(y, p, momentum, 0.5 * h)
@@ -108,7 +107,6 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum",),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=(AXIS_ORDER,),

@@ -11,11 +11,11 @@ integration of rotational motion".
 """
 
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, init_nothing, make_entry
-from rbstudy.dynamics import body_moment, euler_rates, inertia, space_force
-from rbstudy.rotation import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     axpy,
     axpy4,
     quat_mul,
@@ -26,6 +26,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
 
@@ -62,7 +63,6 @@ SCHEME = Scheme(
     order=4,
     implicit=False,
     keeps=(),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
 )

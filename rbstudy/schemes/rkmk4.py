@@ -15,10 +15,9 @@ Numerica 9 (2000) 215.
 """
 
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, init_nothing, make_entry
-from rbstudy.dynamics import (
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import (
     body_moment,
     inertia,
     momentum_rates,
@@ -26,7 +25,8 @@ from rbstudy.dynamics import (
     to_momentum,
     to_omega,
 )
-from rbstudy.rotation import (
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import (
     add,
     axpy,
     cross,
@@ -39,6 +39,7 @@ from rbstudy.rotation import (
     write3,
     write4,
 )
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes._rk import rk4_sum3
 
@@ -81,7 +82,6 @@ SCHEME = Scheme(
     order=4,
     implicit=False,
     keeps=(),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
 )

@@ -1,13 +1,14 @@
 """`splitting`: the Dullweber-Leimkuhler-McLachlan (DLM) symplectic splitting.
 
 The kinetic energy splits into ``T_k = m_k^2 / (2 I_k)``; each part's flow is an exact
-rotation about body axis ``k`` by the angle ``theta = d m_k / I_k`` (physics.md s5):
+rotation about body axis ``k`` by the angle ``theta = d m_k / I_k`` (docs/theory.md):
 
     R <- R Rot(e_k, theta),    m <- Rot(e_k, theta)^T m
 
 and a step is the symmetric composition ``T_a(h/2) T_b(h/2) T_c(h) T_b(h/2) T_a(h/2)`` for the
-axis order ``abc`` (option ``axis_order``, default ``123``), wrapped in half kicks of the loads
-(``m += h/2 M_b``, ``v += h/2 F/mass``; see `rbstudy.schemes._kicks`).
+axis order ``abc`` (option ``axis_order``, default ``123``; `rbstudy.schemes._splitting`),
+wrapped in half kicks of the loads (``m += h/2 M_b``, ``v += h/2 F/mass``; see
+`rbstudy.schemes._kicks`).
 
 Order 2, explicit, symplectic and time-reversible. Keeps ``|m|`` and the space vector ``L``
 to round-off (every sub-flow is a rotation that leaves ``R m`` fixed); the energy error stays
@@ -18,13 +19,15 @@ Comput. Phys. 189 (2003) 527.
 
 import math
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.driver import OK, init_nothing, make_entry
-from rbstudy.dynamics import inertia, to_momentum, to_omega
-from rbstudy.rotation import quat_mul_axis_rotation, quat_normalize, read3, read4, write3, write4
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import quat_mul_axis_rotation, quat_normalize, read3, read4, write3, write4
+from rbstudy.numerics.state import OK
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
-from rbstudy.schemes._registry import AXIS_ORDER, Scheme
+from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
 N_WORK = 0
 
@@ -49,16 +52,12 @@ def axis_flow(q, m, inertia_, k, d):
 
 @jit
 def step_inplace(y, p, opt, h, work):
-    a, b, c = int(opt[0]), int(opt[1]), int(opt[2])
     kick_inplace(y, p, 0.5 * h)
     inertia_ = inertia(p)
     q = read4(y, S.QUATERNION)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
-    q, m = axis_flow(q, m, inertia_, a, 0.5 * h)
-    q, m = axis_flow(q, m, inertia_, b, 0.5 * h)
-    q, m = axis_flow(q, m, inertia_, c, h)
-    q, m = axis_flow(q, m, inertia_, b, 0.5 * h)
-    q, m = axis_flow(q, m, inertia_, a, 0.5 * h)
+    for k, fraction in flow_sequence(opt):
+        q, m = axis_flow(q, m, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, quat_normalize(q))
     write3(y, S.OMEGA, to_omega(m, inertia_))
     drift_inplace(y, h)
@@ -72,7 +71,6 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum",),
-    handles_loads=True,
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
     options=(AXIS_ORDER,),

@@ -5,13 +5,14 @@ terminal table, the figures and the report. For each scheme, `scheme_rows` gives
 observed order of the final orientation error over the swept ``dt`` (fitted per value of
 every other swept axis, only where the error is neither at round-off nor too large to be
 asymptotic), the errors at the largest and smallest ``dt``, the kernel time per body-step,
-the stable range in ``dt |w0|``, and which invariants every stable case kept.
+the stable range in ``dt |w0|``, and which invariants every stable case kept. Everything
+comes from the archive (the nominal order from its ``nominal_order`` coordinate): nothing here
+needs the scheme registry or a compiler.
 """
 
 import numpy as np
 
-from rbstudy.metrics import asymptotic_order
-from rbstudy.schemes import SCHEMES
+from rbstudy.physics.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TABLE_NOTE",
            "error_measure", "fitted_order", "scheme_rows", "format_table", "order_text",
@@ -69,7 +70,7 @@ def per_scheme(variable, scheme):
 
 
 def step_load(ds):
-    """``dt |w0|`` of every case (the step parameter of a physical body, physics.md s7)."""
+    """``dt |w0|`` of every case (the step parameter of a physical body, docs/theory.md s7)."""
     return (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"])
 
 
@@ -88,6 +89,12 @@ def _orders(errors):
     return orders, stacked.sizes["other"], dts[used]
 
 
+def _nominal_order(ds, scheme):
+    if "nominal_order" not in ds.coords:
+        return None
+    return int(per_scheme(ds["nominal_order"], scheme))
+
+
 def _kept(ds, scheme, stable):
     kept = []
     for name, label in (("max_energy_error", "energy"), ("max_momentum_error", "|L|")):
@@ -101,7 +108,8 @@ def _kept(ds, scheme, stable):
 def scheme_rows(ds):
     """One dict per scheme.
 
-    Keys: scheme; cases, unstable (counts); order ((min, max) over the successful fits, or
+    Keys: scheme; nominal (the scheme's nominal order as archived, None if the archive does
+    not record it); cases, unstable (counts); order ((min, max) over the successful fits, or
     None), fits and tries (how many of the other axes' values gave an asymptotic range),
     fit_dt ((smallest, largest) dt fitted); error_dt / error at the largest dt and
     error_small_dt / error_small at the smallest, the worst over the other axes (NaN when a
@@ -116,7 +124,8 @@ def scheme_rows(ds):
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         stable = status.values == 0
-        row = {"scheme": scheme, "cases": int(status.size), "unstable": int((~stable).sum()),
+        row = {"scheme": scheme, "nominal": _nominal_order(ds, scheme),
+               "cases": int(status.size), "unstable": int((~stable).sum()),
                "order": None, "fits": 0, "tries": 0, "fit_dt": (), "error": None,
                "error_small": None}
         row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
@@ -173,8 +182,7 @@ def table_columns(rows):
     small = next((row["error_small_dt"] for row in rows if "error_small_dt" in row), None)
     columns = [
         ("scheme", lambda row: row["scheme"]),
-        ("nominal", lambda row: str(SCHEMES[row["scheme"]].order) if row["scheme"] in SCHEMES
-         else "-"),
+        ("nominal", lambda row: "-" if row["nominal"] is None else str(row["nominal"])),
         ("order", order_text),
         ("fit over dt (s)", lambda row: "-" if not row["fit_dt"] else
          f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"),

@@ -1,37 +1,69 @@
-"""The one table of output variables: dimensions, units, CF names, and when each exists.
+"""The one table of output variables: each bound to the function that computes it, with its
+dimensions, units, CF names, flags, and the scene features it needs.
 
-Every variable the archive can hold is described here once; the store reads its ``units``,
-``long_name`` and ``standard_name`` attributes from this table and nowhere else. ``needs``
-names the scene features a variable requires, so that a variable a scene does not define is
-left out instead of filled with NaN:
-
-- ``nodes``: the scene has nodes fixed to the body;
-- ``translation``: the centre of mass moves;
-- ``reference``: a reference solution (closed form, or DOP853 where none exists);
-- ``symmetric``: a moment-free symmetric body (precession frequency);
-- ``moment_free``: energy and angular momentum are conserved, so their drift is an error;
-- ``asymmetric``: a moment-free body with three different inertias (flip interval).
+Every variable the archive can hold is an entry of `VARIABLES`; the store reads its
+attributes from here and nowhere else, and `evaluate` computes a batch's variables through
+the bound functions (`rbstudy.pipeline.outputs`). Adding a variable is one entry here plus
+its function. ``needs`` names the scene features (`FEATURES`) a variable requires, so that a
+variable a scene does not define is left out instead of filled with NaN. The flag tables come
+from where the codes are made: status from the driver (`rbstudy.numerics.state`), reference
+from the reference kinds (`rbstudy.physics.analytic`).
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
-__all__ = ["Variable", "VARIABLES", "STATUS_FLAGS", "REFERENCE_FLAGS", "COORDINATES", "TIME_UNITS",
-           "coordinate_units", "variable_attrs", "scene_features", "selected", "BOOKKEEPING"]
+from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
+from rbstudy.physics.analytic import REFERENCE_KINDS
+from rbstudy.pipeline import outputs
+
+__all__ = ["Variable", "VARIABLES", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
+           "TIME_UNITS", "coordinate_units", "variable_attrs", "scene_features", "selected",
+           "evaluate", "BOOKKEEPING"]
+
+# The scene features a variable may need: name -> (predicate on a Scene, meaning).
+FEATURES = {
+    "nodes": (lambda scene: len(scene.nodes) > 0, "the scene has nodes fixed to the body"),
+    "translation": (lambda scene: scene.translates, "the centre of mass moves"),
+    "reference": (lambda scene: True,
+                  "a reference solution (closed form, or DOP853 where none exists)"),
+    "moment_free": (lambda scene: scene.loads.moment_free,
+                    "no moment acts: energy and angular momentum are conserved, so their "
+                    "drift is an error"),
+    "symmetric": (lambda scene: scene.loads.moment_free and scene.body.symmetry_axis is not None,
+                  "a moment-free symmetric body (precession frequency)"),
+    "asymmetric": (lambda scene: scene.loads.moment_free and len(set(scene.body.inertia)) == 3,
+                   "a moment-free body with three different inertias (flip interval)"),
+}
 
 
 @dataclass(frozen=True)
 class Variable:
+    """An output variable: ``compute(batch) -> values`` (case axis first), ``dims`` beyond the
+    case dimensions, CF ``units``, ``long_name`` and ``standard_name``, the scene features it
+    ``needs``, its netCDF storage type, and for a flag the meaning of each code (``flags``)."""
+
     name: str
-    dims: tuple  # beyond the case dimensions
+    dims: tuple
     units: str
     long_name: str
+    compute: Callable
     needs: frozenset = frozenset()
     standard_name: str | None = None
-    dtype: str = "f8"  # netCDF storage type: flags are bytes, counts 64-bit integers
+    dtype: str = "f8"
+    flags: tuple = ()
 
 
-def _v(name, dims, units, long_name, *needs, standard_name=None, dtype="f8"):
-    return Variable(name, dims, units, long_name, frozenset(needs), standard_name, dtype)
+def _v(name, dims, units, long_name, *needs, flags=(), dtype="f8"):
+    """A variable computed by `rbstudy.pipeline.outputs` function of the same name."""
+    return Variable(name, dims, units, long_name, getattr(outputs, name), frozenset(needs),
+                    dtype=dtype, flags=flags)
+
+
+def _result(name, units, long_name, *needs, flags=()):
+    """A per-case result of the driver, stored as the driver's storage type."""
+    return Variable(name, (), units, long_name, outputs.driver_result(name), frozenset(needs),
+                    dtype=dict(RESULT_FIELDS)[name], flags=flags)
 
 
 VARIABLES = {v.name: v for v in (
@@ -40,8 +72,8 @@ VARIABLES = {v.name: v for v in (
     _v("quaternion", ("time", "component"), "1",
        "orientation quaternion, scalar-last (x, y, z, w), principal body axes to space"),
     _v("position", ("time", "axis"), "m", "centre-of-mass position", "translation"),
-    _v("node_displacement", ("time", "node", "axis"), "m", "displacement of nodes fixed to the body",
-       "nodes"),
+    _v("node_displacement", ("time", "node", "axis"), "m",
+       "displacement of nodes fixed to the body", "nodes"),
     _v("energy_error", ("time",), "1", "relative rotational kinetic energy error (T - T0) / T0",
        "moment_free"),
     _v("momentum_error", ("time",), "1", "relative space angular momentum error |L - L0| / |L0|",
@@ -63,41 +95,34 @@ VARIABLES = {v.name: v for v in (
        "asymmetric"),
     _v("flip_interval_exact", (), "s", "exact flip interval 2 K(k^2) / |lambda|", "asymmetric"),
     _v("flip_interval_error", (), "s", "flip interval minus its exact value", "asymmetric"),
-    _v("status", (), "1", "case outcome", dtype="i1"),
-    _v("failure_time", (), "s", "time of blow-up or solver failure (NaN if none)"),
-    _v("n_steps", (), "1", "time steps taken", dtype="i8"),
-    _v("iterations", (), "1", "Newton iterations summed over the steps", dtype="i8"),
+    _result("status", "1", "case outcome", flags=STATUS_NAMES),
+    _result("failure_time", "s", "time of blow-up or solver failure (NaN if none)"),
+    _result("n_steps", "1", "time steps taken"),
+    _result("iterations", "1", "Newton iterations summed over the steps"),
     _v("run_time", (), "s", "kernel CPU time per case: CPU time of the compiled batch call, "
        "summed over its threads, / batch size; compilation excluded"),
-    _v("max_energy_error", (), "1", "largest |relative energy error| over every step",
-       "moment_free"),
-    _v("max_momentum_error", (), "1",
-       "largest relative drift of the magnitude |L| over every step (the vector's drift, "
-       "sampled, is momentum_error)", "moment_free"),
+    _result("max_energy_error", "1", "largest |relative energy error| over every step",
+            "moment_free"),
+    _result("max_momentum_error", "1",
+            "largest relative drift of the magnitude |L| over every step (the vector's drift, "
+            "sampled, is momentum_error)", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
-       dtype="i1"),
+       flags=REFERENCE_KINDS, dtype="i1"),
     _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
     _v("initial_spin", (), "rad s-1", "initial angular speed |w(0)|"),
     _v("node_offset", ("node", "axis"), "m", "node offsets from the centre of mass, principal axes",
        "nodes"),
     _v("physical_body", (), "1",
        "whether the principal inertias meet the triangle inequality (a real rigid body)",
-       dtype="i1"),
+       flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
-
-# CF flags of `status` (values match rbstudy.driver's codes) and of `reference` (names match
-# rbstudy.analytic's `Reference.name`).
-STATUS_FLAGS = {"flag_values": [0, 1, 2], "flag_meanings": "ok unstable not_converged"}
-REFERENCE_FLAGS = {"flag_values": [0, 1, 2],
-                   "flag_meanings": "symmetric_top axial_moment dop853"}
-PHYSICAL_FLAGS = {"flag_values": [0, 1], "flag_meanings": "unphysical_stress_body physical"}
-_FLAGS = {"status": STATUS_FLAGS, "reference": REFERENCE_FLAGS, "physical_body": PHYSICAL_FLAGS}
+assert all(v.needs <= set(FEATURES) for v in VARIABLES.values()), "a need no scene can have"
 
 # CF-1.11 requires a reference epoch on a time coordinate. The epoch stands for t = 0 of the
 # run, not a calendar date: open results with ``decode_times=False`` (as
-# `rbstudy.store.open_results` does) to read seconds.
+# `rbstudy.pipeline.store.open_results` does) to read seconds.
 TIME_UNITS = "seconds since 1970-01-01 00:00:00"
 
 # Coordinates: the output grid and the named sweep axes. (units, long_name); units None for
@@ -112,6 +137,15 @@ COORDINATES = {
     "inertia_ratio": ("1", "inertia ratio I3 / I1 of the symmetric body"),
     "spin": ("rad s-1", "initial angular speed |w|"),
     "tilt": ("degree", "initial angle between w and the body symmetry axis 3"),
+}
+
+# What the archive records of each scheme, beside the `scheme` coordinate, so that the
+# summary, figures and report never need the registry (nor a compiler): name ->
+# (Scheme attribute, units, long_name).
+SCHEME_COORDINATES = {
+    "nominal_order": ("order", "1", "nominal global order of accuracy of the scheme"),
+    "claimed_invariants": ("keeps", None,
+                           "invariants the scheme keeps to round-off for a moment-free body"),
 }
 
 # Units of a value swept by dotted path, found from the last key of the path that is listed
@@ -138,8 +172,10 @@ def coordinate_units(target):
 def variable_attrs(name):
     """The CF attributes of output variable ``name``, all from the table above."""
     variable = VARIABLES[name]
-    if name in _FLAGS:
-        return {"long_name": variable.long_name, **_FLAGS[name]}
+    if variable.flags:
+        return {"long_name": variable.long_name,
+                "flag_values": list(range(len(variable.flags))),
+                "flag_meanings": " ".join(variable.flags)}
     attrs = {"units": variable.units, "long_name": variable.long_name}
     if variable.standard_name:
         attrs["standard_name"] = variable.standard_name
@@ -147,19 +183,8 @@ def variable_attrs(name):
 
 
 def scene_features(scene):
-    """The features (see the module docstring) that a `rbstudy.scenes.Scene` has."""
-    features = {"reference"}
-    if len(scene.nodes):
-        features.add("nodes")
-    if scene.translates:
-        features.add("translation")
-    if scene.loads.moment_free:
-        features.add("moment_free")
-        if scene.body.symmetry_axis is not None:
-            features.add("symmetric")
-        elif len(set(scene.body.inertia)) == 3:
-            features.add("asymmetric")
-    return features
+    """The names of the `FEATURES` a `rbstudy.physics.scenes.Scene` has."""
+    return {name for name, (has, _) in FEATURES.items() if has(scene)}
 
 
 # Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
@@ -171,3 +196,8 @@ BOOKKEEPING = ("status", "failure_time", "n_steps", "iterations", "run_time", "r
 def selected(features):
     """Names of the variables a scene with ``features`` defines, in table order."""
     return [name for name, v in VARIABLES.items() if v.needs <= set(features)]
+
+
+def evaluate(names, batch):
+    """The values of the variables ``names`` for an `rbstudy.pipeline.outputs.BatchData`."""
+    return {name: VARIABLES[name].compute(batch) for name in names}

@@ -1,5 +1,7 @@
 """`rbstudy bench`: throughput of every scheme on the Abaqus top, printed, never asserted.
 
+The one module of the analysis layer that runs kernels: it measures them.
+
 For each scheme: the first-call compilation time, then body-steps per second at batch sizes
 1, 100 and 10,000, on one thread and on all cores. Each measurement runs about
 ``BODY_STEPS`` body-steps (steps x bodies) and times the compiled batch call only; the rate is
@@ -16,8 +18,8 @@ import time
 
 import numpy as np
 
-from rbstudy.driver import default_threads, run_batch
-from rbstudy.scenes import scene_from_mapping
+from rbstudy.numerics.driver import default_threads, run_batch
+from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.schemes import SCHEMES, get_scheme
 
 __all__ = ["run_bench", "abaqus_top_scene"]
@@ -31,7 +33,7 @@ REFERENCE_STEPS = 2_000
 
 
 def abaqus_top_scene():
-    """The Abaqus force-free top of physics.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi)."""
+    """The Abaqus force-free top of docs/theory.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi)."""
     return scene_from_mapping({
         "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
         "initial": {"angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
@@ -46,7 +48,7 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
     options = np.repeat(scheme.option_row()[None, :], n_bodies, axis=0)
     out = run_batch(scheme, state0, params, options, BENCH_DT, n_steps,
                     min(SAMPLE_EVERY, n_steps), threads=threads)
-    taken = n_steps * n_bodies if scheme.adaptive else out.n_steps.sum()
+    taken = n_steps * n_bodies if scheme.adaptive else out.results["n_steps"].sum()
     return taken / out.kernel_seconds, out
 
 

@@ -2,8 +2,8 @@
 
 A scene is read from a mapping (the ``scene:`` block of a study YAML, see docs/config.md) into
 a frozen `Scene` that holds everything in the principal body frame, SI units, ready to become
-one state row and one parameter row (`rbstudy.state`). Non-physical input is rejected with a
-`SceneError` naming the source, the key path, the value and the fix.
+one state row and one parameter row (`rbstudy.numerics.state`). Non-physical input is
+rejected with a `SceneError` naming the source, the key path, the value and the fix.
 
 Frames: when the inertia is given as a full 3x3 tensor, the body vectors of the input
 (angular velocity in body axes, node offsets, body loads) are in that tensor's frame; the
@@ -17,8 +17,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rbstudy import state as S
 from rbstudy.errors import SceneError
+from rbstudy.numerics import state as S
+from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "scene_from_mapping", "momentum_aligned", "TRIANGLE_RTOL"]
 
@@ -106,7 +107,7 @@ class Scene:
         return any(self.velocity) or not self.loads.force_free
 
     def state_row(self):
-        """The initial state as a (N_STATE,) row (see `rbstudy.state`)."""
+        """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
         row = np.zeros(S.N_STATE)
         row[S.POSITION:S.POSITION + 3] = self.position
         row[S.QUATERNION:S.QUATERNION + 4] = self.quaternion
@@ -115,7 +116,7 @@ class Scene:
         return row
 
     def param_row(self):
-        """The parameters as a (N_PARAM,) row (see `rbstudy.state`)."""
+        """The parameters as a (N_PARAM,) row (see `rbstudy.numerics.state`)."""
         row = np.zeros(S.N_PARAM)
         row[S.MASS] = self.body.mass
         row[S.INERTIA:S.INERTIA + 3] = self.body.inertia
@@ -137,49 +138,12 @@ def _triangle_ok(inertia):
     return i1 + i2 >= i3 - slack and i2 + i3 >= i1 - slack and i3 + i1 >= i2 - slack
 
 
-class _Reader:
-    """Reads typed values from a nested mapping, naming the key path in every error."""
-
-    def __init__(self, source):
-        self.source = source
-
-    def fail(self, path, message):
-        raise SceneError(f"{self.source}: {path}: {message}")
-
-    def mapping(self, value, path, allowed):
-        if value is None:
-            return {}
-        if not isinstance(value, dict):
-            self.fail(path, f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
-        for key in value:
-            if key not in allowed:
-                self.fail(f"{path}.{key}", f"unknown key; valid keys here: {', '.join(allowed)}")
-        return value
-
-    def number(self, value, path, positive=False):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(path, f"expected a number, got {value!r}")
-        number = float(value)
-        if not math.isfinite(number):
-            self.fail(path, f"must be finite, got {value!r}")
-        if positive and number <= 0.0:
-            self.fail(path, f"must be > 0, got {value!r}")
-        return number
-
-    def vector(self, value, path, length=3):
-        if not isinstance(value, (list, tuple)) or len(value) != length:
-            self.fail(path, f"expected a list of {length} numbers, got {value!r}")
-        return tuple(self.number(v, f"{path}[{i}]") for i, v in enumerate(value))
-
-
 def _read_body(reader, spec, path):
     spec = reader.mapping(spec, path, ("mass", "inertia", "allow_unphysical"))
     if "inertia" not in spec:
         reader.fail(f"{path}.inertia", "missing; give principal inertias [I1, I2, I3] in kg m^2")
     mass = reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True)
-    allow = spec.get("allow_unphysical", False)
-    if not isinstance(allow, bool):
-        reader.fail(f"{path}.allow_unphysical", f"expected true or false, got {allow!r}")
+    allow = reader.flag(spec.get("allow_unphysical", False), f"{path}.allow_unphysical")
     raw = spec["inertia"]
     if isinstance(raw, (list, tuple)) and len(raw) == 3 and all(isinstance(r, (list, tuple)) for r in raw):
         tensor = np.array([reader.vector(row, f"{path}.inertia[{i}]") for i, row in enumerate(raw)])
@@ -283,7 +247,7 @@ def scene_from_mapping(spec, source="<scene>", path="scene"):
     or inertia, and inertias that violate the triangle inequality (unless
     ``body.allow_unphysical`` is true).
     """
-    reader = _Reader(source)
+    reader = Reader(source, SceneError)
     spec = reader.mapping(spec, path, ("body", "initial", "nodes", "loads", "duration"))
     body = _read_body(reader, spec.get("body"), f"{path}.body")
     to_principal = body.axes.T  # input body frame -> principal frame

@@ -1,4 +1,4 @@
-"""Error measures (physics.md section 6), vectorised over any leading axes.
+"""Error measures (docs/theory.md section 6), vectorised over any leading axes.
 
 Array arguments carry the time axis ``T`` second to last for vectors: ``(..., T, 3)`` or
 ``(..., T, 4)``; scalars per time are ``(..., T)``.
@@ -6,13 +6,13 @@ Array arguments carry the time axis ``T`` second to last for vectors: ``(..., T,
 
 import numpy as np
 
-from rbstudy.quaternions import quat_mul, quat_to_matrix
+from rbstudy.numerics.algebra import rotational_energy
+from rbstudy.physics.quaternions import quat_mul, quat_to_matrix
 
 __all__ = [
     "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
-    "momentum_error", "phase_rate", "sign_change_interval", "observed_order",
-    "asymptotic_order", "ORDER_SPREAD", "MIN_ASYMPTOTIC_POINTS",
-    "MIN_CONVERGENCE_ORDER", "ROUND_OFF_MARGIN",
+    "momentum_error", "phase_rate", "sign_change_interval", "asymptotic_order", "ORDER_SPREAD",
+    "MIN_ASYMPTOTIC_POINTS", "MIN_CONVERGENCE_ORDER", "ROUND_OFF_MARGIN",
 ]
 
 # Local slopes (between neighbouring dt) within this distance of the fitted order mark the
@@ -58,8 +58,13 @@ def node_error(x, x_ref):
 
 
 def energy_error(w, inertia):
-    """Signed relative rotational energy error ``(T(t) - T(0)) / T(0)``; w (..., T, 3) -> (..., T)."""
-    energy = 0.5 * np.sum(np.asarray(inertia) * np.asarray(w) ** 2, axis=-1)
+    """Signed relative rotational energy error ``(T(t) - T(0)) / T(0)``.
+
+    w (..., T, 3); inertia (3,) or broadcastable (..., 1, 3). Returns (..., T). The energy is
+    the formula the driver checks every step with (`rbstudy.numerics.algebra`).
+    """
+    energy = rotational_energy(np.moveaxis(np.asarray(w), -1, 0),
+                               np.moveaxis(np.asarray(inertia), -1, 0))
     return energy / energy[..., :1] - 1.0
 
 
@@ -106,24 +111,9 @@ def sign_change_interval(values, time):
     return float(np.diff(crossings).mean())
 
 
-def observed_order(dts, errors, floor=1e-12, ceiling=1e-1):
-    """Observed convergence order: least-squares slope of log(error) against log(dt).
-
-    Only points in the asymptotic range are used: errors above ``floor`` (round-off) and
-    below ``ceiling`` (not yet asymptotic, or unstable), finite. Returns ``(order, used)``
-    with ``used`` a boolean mask; order is NaN with fewer than two usable points.
-    """
-    dts = np.asarray(dts, dtype=float)
-    errors = np.asarray(errors, dtype=float)
-    used = np.isfinite(errors) & (errors > floor) & (errors < ceiling)
-    if used.sum() < 2:
-        return float("nan"), used
-    slope = np.polyfit(np.log(dts[used]), np.log(errors[used]), 1)[0]
-    return float(slope), used
-
-
 def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD):
-    """`observed_order` over the asymptotic range only.
+    """Observed convergence order: the least-squares slope of log(error) against log(dt) over
+    the asymptotic range only.
 
     The asymptotic range is the longest run of neighbouring time steps (at least
     `MIN_ASYMPTOTIC_POINTS`) whose errors lie between ``floor`` (round-off) and ``ceiling``

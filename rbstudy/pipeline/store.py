@@ -1,6 +1,6 @@
 """Results on disk: part files per batch and the consolidated CF-1.11 dataset of a study.
 
-Layout (design.md): ``<root>/<study>/study.yaml`` (the resolved config),
+Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved config),
 ``parts/<batch-id>.nc`` (one finished batch, dimension ``case``) and ``<study>.nc`` (every
 case on the study's grid). Every file is written under a temporary name in the same folder and
 renamed, so a reader, or a rerun after a kill, never sees half a file.
@@ -8,7 +8,7 @@ renamed, so a reader, or a rerun after a kill, never sees half a file.
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
 memory stays bounded by the largest part whatever the size of the study. Its dimensions are
 the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y, z) and
-``component`` (x, y, z, w); every attribute comes from `rbstudy.variables`.
+``component`` (x, y, z, w); every attribute comes from `rbstudy.pipeline.variables`.
 """
 
 import datetime
@@ -29,7 +29,12 @@ import xarray as xr
 import yaml
 
 from rbstudy.errors import RbstudyError
-from rbstudy.variables import COORDINATES, VARIABLES, variable_attrs
+from rbstudy.pipeline.variables import (
+    COORDINATES,
+    SCHEME_COORDINATES,
+    VARIABLES,
+    variable_attrs,
+)
 
 __all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_atomic", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
@@ -138,7 +143,8 @@ def grid_coordinates(study):
 
     A product dimension's coordinate is its axis; a zipped dimension gets an index coordinate
     and one auxiliary coordinate per axis. ``scheme`` and ``dt``, when not swept, are scalar
-    coordinates, so that every dataset names both.
+    coordinates, so that every dataset names both. Each scheme's nominal order and claimed
+    invariants (`SCHEME_COORDINATES`) are auxiliary coordinates along ``scheme``.
     """
     coords = {}
     swept = {axis.target for dim in study.dimensions for axis in dim.axes}
@@ -148,6 +154,7 @@ def grid_coordinates(study):
             units, long_name = COORDINATES[name]
             coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
                             {"long_name": long_name} | ({"units": units} if units else {}))
+    coords.update(_scheme_coordinates(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
             coords[dim.name] = ((dim.name,), np.arange(dim.size),
@@ -159,6 +166,21 @@ def grid_coordinates(study):
             if axis.units:
                 attrs["units"] = axis.units
             coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
+    return coords
+
+
+def _scheme_coordinates(study, dims):
+    """`SCHEME_COORDINATES` of the study's schemes, along ``dims`` (the scheme dimension, or
+    none for a one-scheme study); invariants as space-separated names, "none" for none."""
+    schemes = (list(next(a.values for d in study.dimensions for a in d.axes
+                         if a.target == "scheme")) if dims else [study.cases[0].scheme])
+    coords = {}
+    for name, (_, units, long_name) in SCHEME_COORDINATES.items():
+        values = [study.schemes[scheme][name] for scheme in schemes]
+        if name == "claimed_invariants":
+            values = np.array([" ".join(v) or "none" for v in values], dtype=object)
+        values = np.asarray(values).reshape(len(values) if dims else ())
+        coords[name] = (dims, values, {"long_name": long_name} | ({"units": units} if units else {}))
     return coords
 
 

@@ -1,24 +1,21 @@
 """Quaternion algebra on numpy arrays, vectorised over any leading axes (physics layer).
 
 Scalar-last ``(x, y, z, w)`` like `scipy.spatial.transform.Rotation`. The numba kernels of
-`rbstudy.rotation` work on one body's tuples; these work on whole trajectories and batches.
+`rbstudy.numerics.rotation` work on one body's tuples; these work on whole trajectories and
+batches. The Hamilton product is the kernels' own formula (`rbstudy.numerics.algebra`).
 """
 
 import numpy as np
+
+from rbstudy.numerics.algebra import hamilton_product
 
 __all__ = ["quat_mul", "quat_to_matrix", "quat_from_rotvec"]
 
 
 def quat_mul(a, b):
-    """Hamilton products ``a * b`` of (..., 4) arrays (broadcast)."""
-    ax, ay, az, aw = np.moveaxis(np.asarray(a), -1, 0)
-    bx, by, bz, bw = np.moveaxis(np.asarray(b), -1, 0)
-    return np.stack([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ], axis=-1)
+    """Hamilton products ``a * b`` of (..., 4) arrays (broadcast), by the kernels' formula."""
+    return np.stack(hamilton_product(np.moveaxis(np.asarray(a), -1, 0),
+                                     np.moveaxis(np.asarray(b), -1, 0)), axis=-1)
 
 
 def quat_to_matrix(q):

@@ -3,12 +3,13 @@
 Everything here works on tuples so that numba keeps the values in registers: no array is
 allocated on the hot path of a step. Quaternions are scalar-last ``(x, y, z, w)`` as in
 `scipy.spatial.transform.Rotation`; ``q`` maps body to space, and the body-frame kinematics is
-``dq/dt = 1/2 q * (omega, 0)`` (physics.md section 1).
+``dq/dt = 1/2 q * (omega, 0)`` (docs/theory.md, section 1).
 """
 
 import math
 
-from rbstudy._jit import jit
+from rbstudy.numerics import algebra
+from rbstudy.numerics.jit import jit
 
 __all__ = [
     "read3", "write3", "read4", "write4",
@@ -129,17 +130,8 @@ def solve3(m, r):
     return (x0, x1, x2)
 
 
-@jit
-def quat_mul(a, b):
-    """Hamilton product ``a * b`` of scalar-last quaternions."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    )
+# Hamilton product ``a * b`` of scalar-last quaternions (the formula numpy code shares).
+quat_mul = jit(algebra.hamilton_product)
 
 
 @jit

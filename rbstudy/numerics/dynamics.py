@@ -1,12 +1,13 @@
 """Rigid-body physics on scalars: loads, Euler's equations, invariants.
 
-Shared by every scheme so that all of them see the same loads (physics.md section 1):
+Shared by every scheme so that all of them see the same loads (docs/theory.md, section 1):
 moments enter Euler's equations in the body frame, forces the translation in space.
 """
 
-from rbstudy import state as S
-from rbstudy._jit import jit
-from rbstudy.rotation import add, axpy, cross, dot, quat_rotate, quat_rotate_inverse, read3
+from rbstudy.numerics import algebra
+from rbstudy.numerics import state as S
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3
 
 __all__ = [
     "inertia", "to_momentum", "to_omega", "body_moment", "space_force", "euler_rates", "momentum_rates",
@@ -63,17 +64,9 @@ def momentum_rates(m, w, moment):
     return add(cross(m, w), moment)
 
 
-@jit
-def rotational_energy(w, inertia_):
-    """Kinetic energy of rotation ``1/2 w . (I w)``."""
-    return 0.5 * (inertia_[0] * w[0] * w[0] + inertia_[1] * w[1] * w[1] + inertia_[2] * w[2] * w[2])
-
-
-@jit
-def momentum_squared(w, inertia_):
-    """``|I w|^2``, equal to ``|L|^2`` in space (rotation keeps lengths)."""
-    m = to_momentum(w, inertia_)
-    return dot(m, m)
+# The invariants, as `rbstudy.numerics.algebra` writes them for numpy code too.
+rotational_energy = jit(algebra.rotational_energy)
+momentum_squared = jit(algebra.momentum_squared)
 
 
 @jit

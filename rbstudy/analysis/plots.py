@@ -1,6 +1,6 @@
 """Figures from archived results: never the solver, only the dataset (`rbstudy plot`).
 
-Each figure function takes a dataset opened by `rbstudy.store.open_results` and an output
+Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results` and an output
 folder, writes ``<name>.png`` and ``<name>.svg`` and returns the PNG paths it wrote (none
 when the dataset lacks what the figure needs: no ``dt`` axis, no nodes, ...).
 
@@ -28,10 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
-from rbstudy.analytic import symmetric_top  # noqa: E402
-from rbstudy.metrics import node_positions  # noqa: E402
-from rbstudy.quaternions import quat_to_matrix  # noqa: E402
-from rbstudy.summary import (  # noqa: E402
+from rbstudy.analysis.summary import (  # noqa: E402
     ERROR_MEASURES,
     error_measure,
     fitted_order,
@@ -39,6 +36,9 @@ from rbstudy.summary import (  # noqa: E402
     schemes_of,
     step_load,
 )
+from rbstudy.physics.analytic import symmetric_top  # noqa: E402
+from rbstudy.physics.metrics import node_positions  # noqa: E402
+from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 
 __all__ = ["MAX_FACETS", "MAX_LINES", "convergence", "work_precision", "stability_map",
            "invariant_drift", "benchmark", "all_figures", "CAPTIONS"]

@@ -1,9 +1,10 @@
 """Study configs: YAML -> a validated, frozen `StudyConfig`, or a one-line `ConfigError`.
 
-A study holds a name, a title, a scene (`rbstudy.scenes`), the output spec, the run (scheme,
-scheme options, dt) and a sweep (`rbstudy.sweep`). Loading expands the sweep and builds every
-case's scene, so every error surfaces before any work starts, naming the file, the key path,
-the value and the fix. docs/config.md documents every key.
+A study holds a name, a title, a scene (`rbstudy.physics.scenes`), the output spec, the run
+(scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.grid`). Loading expands the sweep,
+builds every case's scene and plans the batches (`rbstudy.pipeline.batches`), so every error
+surfaces before any work starts, through one `rbstudy.reader.Reader` naming the file, the key
+path, the value and the fix. docs/config.md documents every key.
 """
 
 import dataclasses
@@ -16,11 +17,20 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
-from rbstudy.errors import ConfigError, RbstudyError
-from rbstudy.simulate import steps_per
-from rbstudy.state import N_STATE
-from rbstudy.sweep import expand, fail, parse_sweep, plan_batches
-from rbstudy.variables import BOOKKEEPING, VARIABLES, scene_features, selected
+from rbstudy.errors import ConfigError, InputError
+from rbstudy.numerics.state import N_STATE
+from rbstudy.physics.simulate import steps_per
+from rbstudy.pipeline.batches import plan_batches
+from rbstudy.pipeline.grid import expand, parse_sweep
+from rbstudy.pipeline.variables import (
+    BOOKKEEPING,
+    SCHEME_COORDINATES,
+    VARIABLES,
+    scene_features,
+    selected,
+)
+from rbstudy.reader import Reader
+from rbstudy.schemes import get_scheme
 
 __all__ = ["StudyConfig", "load_study", "MEMORY_FRACTION", "BATCH_MAX_CASES", "BATCH_MAX_BYTES",
            "MAX_CASES"]
@@ -48,9 +58,11 @@ class StudyConfig:
     """A validated study.
 
     base : the ``scene`` and ``run`` mappings as written. dimensions : the swept
-    `rbstudy.sweep.Dimension`s (empty for one case). cases : every `rbstudy.sweep.Case`, in C
-    order of the dimensions. variables : the stored variable names. batches : the
-    `rbstudy.sweep.Batch`es. n_times : output samples per case.
+    `rbstudy.pipeline.grid.Dimension`s (empty for one case). cases : every
+    `rbstudy.pipeline.grid.Case`, in C order of the dimensions. variables : the stored
+    variable names. batches : the `rbstudy.pipeline.batches.Batch`es. schemes : what the
+    archive records of each scheme, name -> {coordinate: value}
+    (`rbstudy.pipeline.variables.SCHEME_COORDINATES`). n_times : output samples per case.
     """
 
     path: str
@@ -64,6 +76,7 @@ class StudyConfig:
     cases: tuple
     variables: tuple
     batches: tuple
+    schemes: dict
 
     @property
     def n_times(self):
@@ -97,23 +110,6 @@ class StudyConfig:
 
 
 
-def _mapping(path, value, key, allowed):
-    if not isinstance(value, dict):
-        fail(path, key or "(top level)",
-              f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
-    for name in value:
-        if name not in allowed:
-            fail(path, f"{key}.{name}" if key else name,
-                  f"unknown key; valid keys here: {', '.join(allowed)}")
-    return value
-
-
-def _positive(path, value, key):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-        fail(path, key, f"must be a number > 0, got {value!r}")
-    return float(value)
-
-
 class _Loader(yaml.SafeLoader):
     """PyYAML's safe loader reading floats as YAML 1.2 does.
 
@@ -132,88 +128,99 @@ def _read_yaml(path):
     try:
         text = pathlib.Path(path).read_text()
     except OSError as error:
-        raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from None
+        raise ConfigError(f"cannot read the config: {error.strerror}", source=path) from None
     try:
         return text, yaml.load(text, Loader=_Loader)  # noqa: S506 (a safe loader)
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
-        line = f"line {where.line + 1}: " if where else ""
-        raise ConfigError(f"{path}: {line}malformed YAML: {getattr(error, 'problem', error)}") \
-            from None
+        raise ConfigError(f"malformed YAML: {getattr(error, 'problem', error)}", source=path,
+                          key=f"line {where.line + 1}" if where else None) from None
 
 
-def _variables(path, requested, cases):
+def _variables(reader, requested, cases):
     """The variables every case defines, narrowed to ``output.variables`` when given (the
-    per-case bookkeeping of `rbstudy.variables.BOOKKEEPING` is always kept)."""
+    per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept)."""
     available = selected(set.intersection(*(scene_features(case.scene) for case in cases)))
     if requested is None:
         return tuple(available)
     if not isinstance(requested, list) or not requested:
-        fail(path, "output.variables", f"expected a non-empty list of names, got {requested!r}")
+        reader.fail("output.variables", f"expected a non-empty list of names, got {requested!r}")
     for i, name in enumerate(requested):
         if name not in VARIABLES:
-            fail(path, f"output.variables[{i}]",
-                  f"unknown variable {name!r}; valid: {', '.join(VARIABLES)}")
+            reader.fail(f"output.variables[{i}]", f"unknown variable {name!r}",
+                        f"valid: {', '.join(VARIABLES)}")
         if name not in available:
             needs = ", ".join(sorted(VARIABLES[name].needs))
-            fail(path, f"output.variables[{i}]",
-                  f"{name} needs {needs}, which not every case of this study has; remove it")
+            reader.fail(f"output.variables[{i}]",
+                        f"{name} needs {needs}, which not every case of this study has",
+                        "remove it")
     return tuple(name for name in available if name in requested or name in BOOKKEEPING)
+
+
+def _scheme_coordinates(cases):
+    """What the archive records of each scheme of the study: name -> {coordinate: value}."""
+    return {name: {coordinate: getattr(get_scheme(name), attribute)
+                   for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
+            for name in sorted({case.scheme for case in cases})}
+
+
+def _output_interval(reader, output, run, swept):
+    if "interval" in output:
+        return reader.number(output["interval"], "output.interval", positive=True)
+    if "dt" not in swept and isinstance(run.get("dt"), (int, float)):
+        return reader.number(run["dt"], "run.dt", positive=True)
+    reader.fail("output.interval", "missing",
+                "with dt swept, give the output interval (s)")
 
 
 def load_study(path):
     """Read and validate the study config at ``path``; nothing is run or written."""
     path = str(path)
     text, data = _read_yaml(path)
-    data = _mapping(path, data, "", _TOP_KEYS)
+    reader = Reader(path, ConfigError)
+    data = reader.mapping(data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key in ("name", "scene", "run"):
         if key not in data:
-            fail(path, key, "missing")
+            reader.fail(key, "missing")
     name = data["name"]
     if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
-        fail(path, "name", f"use letters, digits, '-' and '_' only (it names a folder), got {name!r}")
-    title = data.get("title", name)
-    if not isinstance(title, str):
-        fail(path, "title", f"expected one line of text, got {title!r}")
-    run = _mapping(path, data["run"], "run", ("scheme", "options", "dt"))
-    dimensions = parse_sweep(path, data.get("sweep"))
+        reader.fail("name", f"use letters, digits, '-' and '_' only (it names a folder), got "
+                            f"{name!r}")
+    title = reader.line(data.get("title", name), "title")
+    run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
+    dimensions = parse_sweep(reader, data.get("sweep"))
     count = math.prod(d.size for d in dimensions)
     if count > MAX_CASES:
-        fail(path, "sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
-              + f"); at most {MAX_CASES:,} per study: split it into several studies")
+        reader.fail("sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
+                    + f"); at most {MAX_CASES:,} per study", "split it into several studies")
     swept = {axis.target for d in dimensions for axis in d.axes}
     for key in ("scheme", "dt"):
         if key not in run and key not in swept:
-            fail(path, f"run.{key}", "missing (give it here or sweep it)")
+            reader.fail(f"run.{key}", "missing", "give it here or sweep it")
     if "dt" in run and "dt" not in swept:
-        _positive(path, run["dt"], "run.dt")
+        reader.number(run["dt"], "run.dt", positive=True)
     if not isinstance(run.get("options") or {}, dict):
-        fail(path, "run.options", f"expected a mapping of option: value, got {run['options']!r}")
-    output = _mapping(path, data.get("output") or {}, "output", ("interval", "variables"))
-    if "interval" in output:
-        interval = _positive(path, output["interval"], "output.interval")
-    elif isinstance(run.get("dt"), (int, float)) and "dt" not in swept:
-        interval = _positive(path, run["dt"], "run.dt")
-    else:
-        fail(path, "output.interval", "missing: with dt swept, give the output interval (s)")
-    scene_spec = data["scene"]
-    if not isinstance(scene_spec, dict):
-        fail(path, "scene", f"expected a mapping, got {scene_spec!r}")
-    base = {"scene": scene_spec, "run": dict(run)}
-    cases = expand(path, base, dimensions, interval)
+        reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
+    output = reader.mapping(data.get("output"), "output", ("interval", "variables"))
+    interval = _output_interval(reader, output, run, swept)
+    if not isinstance(data["scene"], dict):
+        reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
+    base = {"scene": data["scene"], "run": dict(run)}
+    cases = expand(reader, base, dimensions, interval)
     duration = cases[0].scene.duration
     try:
-        steps_per(duration, interval, "duration")
-    except RbstudyError as error:
-        fail(path, "output.interval", str(error).replace("dt =", "interval ="))
-    variables = _variables(path, output.get("variables"), cases)
+        steps_per(duration, interval, "interval", "duration")
+    except InputError as error:
+        raise reader.locate(error, "output.interval") from None
+    variables = _variables(reader, output.get("variables"), cases)
     study = StudyConfig(path=path, text=text, name=name, title=title,
                         base=base, output_interval=interval, duration=duration,
-                        dimensions=dimensions, cases=cases, variables=variables, batches=())
+                        dimensions=dimensions, cases=cases, variables=variables, batches=(),
+                        schemes=_scheme_coordinates(cases))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, dimensions, interval, variables, max_cases)
     study = dataclasses.replace(study, batches=batches)
-    _check_memory(path, study)
+    _check_memory(reader, study)
     return study
 
 
@@ -221,10 +228,10 @@ def _physical_memory():
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def _check_memory(path, study):
+def _check_memory(reader, study):
     _, peak = study.memory_estimate()
     limit = MEMORY_FRACTION * _physical_memory()
     if peak > limit:
-        fail(path, "sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
-                             f"{limit / 2 ** 20:,.0f} MiB, half of this machine's); sweep fewer "
-                             "values, a shorter duration or a longer output.interval")
+        reader.fail("sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
+                             f"{limit / 2 ** 20:,.0f} MiB, half of this machine's)",
+                    "sweep fewer values, a shorter duration or a longer output.interval")

@@ -5,16 +5,19 @@ compiling it. `entry_jit` is for functions that take kernels as arguments (the g
 driver loop) or pass them (each scheme's batch entry point): numba cannot cache those
 (it counts a kernel passed as a value as a "dynamic global"), so they compile once per
 process, under a second per scheme (docs/performance.md). Kernels release the GIL (`nogil`):
-`rbstudy.driver` runs chunks of a batch on several threads.
+`rbstudy.numerics.driver` runs chunks of a batch on several threads.
 `error_model="numpy"` makes a division by zero give inf/nan instead of raising: numerical
-failure must become a status code, never an exception (design.md, numerics layer).
+failure must become a status code, never an exception (docs/architecture.md, numerics).
 `fastmath` stays off: batch results must be bit-identical to single-case results, and the
 energy-conserving schemes rely on IEEE semantics.
 
+``jit(formula)`` also compiles a plain-Python formula of `rbstudy.numerics.algebra`, so that
+kernels and numpy code share one written expression.
+
 The cache lives in a folder named after a hash of this package's sources. numba checks only
 the timestamp of the file that defines a cached function, not of the files whose kernels it
-inlines: after an edit of `rotation.py` alone, a cached scheme step would still run the old
-rotation code. A new source tree gets a new, empty cache instead. ``NUMBA_CACHE_DIR``, when
+inlines: after an edit of `algebra.py` alone, a cached scheme step would still run the old
+formula. A new source tree gets a new, empty cache instead. ``NUMBA_CACHE_DIR``, when
 set, is respected as it is.
 """
 
@@ -26,18 +29,19 @@ import numba
 
 __all__ = ["jit", "entry_jit", "cache_dir", "SOURCE_DIGEST"]
 
-_PACKAGE = pathlib.Path(__file__).resolve().parent
-# Modules that only present stored numbers: editing them changes no result.
-_PRESENTATION = frozenset(("plots.py", "report.py", "summary.py", "cli.py", "bench.py",
-                           "__main__.py"))
+_PACKAGE = pathlib.Path(__file__).resolve().parents[1]
+# What only presents stored numbers (the analysis layer, the command line): editing it
+# changes no result.
+_PRESENTATION = ("analysis/", "cli.py", "__main__.py")
 
 
 def _source_digest():
     digest = hashlib.sha256()
     for path in sorted(_PACKAGE.rglob("*.py")):
-        if path.name in _PRESENTATION:
+        relative = path.relative_to(_PACKAGE).as_posix()
+        if relative.startswith(_PRESENTATION):
             continue
-        digest.update(path.relative_to(_PACKAGE).as_posix().encode())
+        digest.update(relative.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 

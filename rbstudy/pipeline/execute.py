@@ -1,11 +1,12 @@
 """Execution: a study's batches -> dask tasks -> part files -> the consolidated dataset.
 
 One dask task per batch runs the compiled driver on all its cases and returns their outputs
-(small: decimated samples only); a second task writes them as the batch's part file. The
-references (closed form or DOP853) are tasks of their own, one per chunk of distinct scenes,
-shared by every batch that needs them. The default scheduler is dask's local threaded one (the kernels
-release the GIL); ``scheduler`` connects to a running ``dask.distributed`` cluster and
-``workers`` starts a `LocalCluster` (workers must see the results folder).
+(small: decimated samples only, computed through the variables table); a second task writes
+them as the batch's part file. The references (closed form or DOP853) are tasks of their own,
+one per chunk of distinct scenes, shared by every batch that needs them. The default
+scheduler is dask's local threaded one (the kernels release the GIL); ``scheduler`` connects
+to a running ``dask.distributed`` cluster and ``workers`` starts a `LocalCluster` (workers
+must see the results folder).
 
 A study folder is locked while a sweep writes it; a rerun skips the batches whose part exists,
 so a killed sweep resumes where it stopped.
@@ -24,12 +25,12 @@ from dataclasses import dataclass
 import dask
 import numpy as np
 
-from rbstudy.analytic import reference_solutions
 from rbstudy.errors import RbstudyError
-from rbstudy.outputs import batch_outputs
-from rbstudy.schemes import get_scheme
-from rbstudy.simulate import simulate
-from rbstudy.store import (
+from rbstudy.physics.references import reference_solutions
+from rbstudy.physics.simulate import simulate
+from rbstudy.pipeline.batches import scene_key
+from rbstudy.pipeline.outputs import BatchData
+from rbstudy.pipeline.store import (
     Layout,
     consolidate,
     global_attrs,
@@ -40,7 +41,8 @@ from rbstudy.store import (
     write_atomic,
     write_text_atomic,
 )
-from rbstudy.sweep import scene_key
+from rbstudy.pipeline.variables import evaluate
+from rbstudy.schemes import get_scheme
 
 __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Progress"]
 
@@ -91,9 +93,9 @@ def compute_batch(job, reference_chunks, threads):
     references = [reference_chunks[chunk][position] for chunk, position in job.references]
     run = simulate(job.scenes, job.scheme, job.dt, job.output_interval, list(job.options),
                    threads=threads)
-    per_case = run.kernel_cpu_seconds / len(job.scenes)
-    return batch_outputs(job.scenes, run, references, job.variables,
-                         [per_case] * len(job.scenes))
+    per_case = run.output.kernel_cpu_seconds / len(job.scenes)
+    return evaluate(job.variables, BatchData(job.scenes, run, references,
+                                             [per_case] * len(job.scenes)))
 
 
 def compile_schemes(names):
@@ -274,7 +276,7 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
 
     Parameters
     ----------
-    study : `rbstudy.config.StudyConfig`.
+    study : `rbstudy.pipeline.config.StudyConfig`.
     root : results root folder.
     scheduler : address of a running dask.distributed scheduler, or None.
     workers : start a LocalCluster of this many single-threaded worker processes, or None.

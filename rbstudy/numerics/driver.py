@@ -10,6 +10,8 @@ A scheme supplies two compiled single-body kernels,
 with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (N_PARAM,), ``opt`` its
 scheme options (N_OPTION,), and ``work`` a scratch/carry array (n_work,) that lives for the
 whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugate momentum).
+The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure time, steps,
+iterations, energy and |L| drift) are filled here, by name.
 
 `integrate_body_inplace` below runs one body through all its steps; `make_entry` compiles,
 for one scheme, the loop over a range of batch rows that calls it with the scheme's kernels;
@@ -38,30 +40,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy import state as S
-from rbstudy._jit import entry_jit, jit
-from rbstudy.dynamics import is_moment_free, momentum_squared, rotational_energy
-from rbstudy.rotation import read3
+from rbstudy.numerics import algebra
+from rbstudy.numerics import state as S
+from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
+from rbstudy.numerics.jit import entry_jit, jit
+from rbstudy.numerics.rotation import read3
+from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
-    "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "DRIFT_BOUND",
-    "BatchOutput", "init_nothing", "integrate_body_inplace", "make_entry", "run_batch", "n_samples",
-    "default_threads",
+    "DRIFT_BOUND", "BatchOutput", "init_nothing", "integrate_body_inplace", "make_entry",
+    "run_batch", "n_samples", "default_threads",
 ]
-
-OK = 0
-UNSTABLE = 1
-NOT_CONVERGED = 2
-STATUS_NAMES = ("ok", "unstable", "not_converged")
 
 # Relative drift of the rotational energy or of |L| beyond which a moment-free body counts as
 # blown up. Half its size is far outside any accurate run (accurate runs sit below 1e-2) and
 # well before overflow, so a diverging explicit scheme is stopped while its numbers are finite.
 DRIFT_BOUND = 0.5
-
-# Columns of the per-body diagnostics array filled by the kernel.
-_STATUS, _FAILURE_TIME, _STEPS, _ITERATIONS, _MAX_ENERGY, _MAX_MOMENTUM = range(6)
-_N_DIAG = 6
 
 # Chunks of rows handed to each thread of `run_batch`.
 _CHUNKS_PER_THREAD = 4
@@ -78,18 +72,13 @@ def init_nothing(y, p, opt, h, work):
     return OK
 
 
-@jit
-def _relative_drift(value, initial):
-    """``|value - initial| / initial``, or the absolute change when the initial value is zero."""
-    if initial > 0.0:
-        return abs(value - initial) / initial
-    return abs(value - initial)
+_relative_drift = jit(algebra.relative_drift)
 
 
 @entry_jit
 def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, every,
-                           drift_bound, samples, diag):
-    """Integrate body ``b`` of a batch from state ``y``; write its samples and diagnostics.
+                           drift_bound, samples, results):
+    """Integrate body ``b`` of a batch from state ``y``; write its samples and results.
 
     Parameters
     ----------
@@ -101,8 +90,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     h : float, time step (s); n_steps : int; every : int, steps between samples.
     drift_bound : float, relative energy / |L| drift that flags a moment-free body unstable.
     samples : (B, T, N_STATE) output, T = n_steps // every + 1; row b is written.
-    diag : (B, 6) output: status, failure time (s, NaN if none), steps taken, Newton
-        iterations, max relative energy drift, max relative |L| drift (NaN under moments).
+    results : (B, N_RESULT) output, row b written by name (`rbstudy.numerics.state`): the
+        drifts are NaN under moments, the failure time NaN when the body finished.
     """
     p = params[b]
     opt = options[b]
@@ -146,24 +135,25 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     for t in range(sample, samples.shape[1]):
         for k in range(S.N_STATE):
             samples[b, t, k] = math.nan
-    diag[b, _STATUS] = status
-    diag[b, _FAILURE_TIME] = steps_done * h if status != OK else math.nan
-    diag[b, _STEPS] = steps_done
-    diag[b, _ITERATIONS] = iterations
-    diag[b, _MAX_ENERGY] = max_energy if check_invariants else math.nan
-    diag[b, _MAX_MOMENTUM] = max_momentum if check_invariants else math.nan
+    results[b, Result.status] = status
+    results[b, Result.failure_time] = steps_done * h if status != OK else math.nan
+    results[b, Result.n_steps] = steps_done
+    results[b, Result.iterations] = iterations
+    results[b, Result.max_energy_error] = max_energy if check_invariants else math.nan
+    results[b, Result.max_momentum_error] = max_momentum if check_invariants else math.nan
 
 
 def make_entry(step, init, n_work):
     """The compiled entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
-    options, h, n_steps, every, drift_bound, samples, diag)`` integrates rows [start, stop)."""
+    options, h, n_steps, every, drift_bound, samples, results)`` integrates rows [start,
+    stop)."""
 
     @entry_jit
     def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every,
-                           drift_bound, samples, diag):
+                           drift_bound, samples, results):
         for b in range(start, stop):
             integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
-                                   options, h, n_steps, every, drift_bound, samples, diag)
+                                   options, h, n_steps, every, drift_bound, samples, results)
 
     return run_bodies_inplace
 
@@ -173,23 +163,16 @@ class BatchOutput:
     """What the driver returns for a batch of B bodies sampled at T times.
 
     samples : (B, T, N_STATE) sampled states (NaN after a failure).
-    status : (B,) int8, OK / UNSTABLE / NOT_CONVERGED.
-    failure_time : (B,) s, NaN for bodies that finished.
-    n_steps, iterations : (B,) int64, steps taken and Newton iterations summed over them.
-    max_energy_drift, max_momentum_drift : (B,) largest relative drift over every step
-        (NaN for bodies under a moment, whose energy is not conserved).
+    results : name -> (B,) array of its storage type, one per `RESULT_FIELDS` entry: status,
+        failure_time (s), n_steps, iterations, max_energy_error and max_momentum_error
+        (largest relative drifts over every step; NaN for bodies under a moment).
     kernel_seconds : wall time of the compiled batch call, compilation excluded.
     kernel_cpu_seconds : CPU time of the threads inside the compiled calls, summed: the
         batch's cost in core-seconds, not inflated by other threads holding the GIL.
     """
 
     samples: np.ndarray
-    status: np.ndarray
-    failure_time: np.ndarray
-    n_steps: np.ndarray
-    iterations: np.ndarray
-    max_energy_drift: np.ndarray
-    max_momentum_drift: np.ndarray
+    results: dict
     kernel_seconds: float
     kernel_cpu_seconds: float
 
@@ -240,9 +223,9 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     scheme.ensure_compiled()
     n_bodies = state0.shape[0]
     samples = np.empty((n_bodies, n_samples(n_steps, every), S.N_STATE))
-    diag = np.empty((n_bodies, _N_DIAG))
+    results = np.full((n_bodies, S.N_RESULT), np.nan)
     arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
-                 diag)
+                 results)
     chunks = _chunks(n_bodies, threads or default_threads())
 
     def run_chunk(rows):
@@ -258,14 +241,7 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
         with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
             cpu = sum(pool.map(run_chunk, chunks))
     seconds = time.perf_counter() - start
-    return BatchOutput(
-        samples=samples,
-        status=diag[:, _STATUS].astype(np.int8),
-        failure_time=diag[:, _FAILURE_TIME].copy(),
-        n_steps=diag[:, _STEPS].astype(np.int64),
-        iterations=diag[:, _ITERATIONS].astype(np.int64),
-        max_energy_drift=diag[:, _MAX_ENERGY].copy(),
-        max_momentum_drift=diag[:, _MAX_MOMENTUM].copy(),
-        kernel_seconds=seconds,
-        kernel_cpu_seconds=cpu,
-    )
+    named = {name: results[:, Result[name]].astype(dtype)
+             for name, dtype in S.RESULT_FIELDS}
+    return BatchOutput(samples=samples, results=named, kernel_seconds=seconds,
+                       kernel_cpu_seconds=cpu)

@@ -1,48 +1,37 @@
-"""Exact references: closed forms where they exist, DOP853 at 1e-13 where they do not.
-
-`reference_solution(scene, times)` returns the reference for a scene on an output grid and
-says which one it used (``Reference.name``):
+"""Closed forms of rigid-body motion, and which reference applies to a scene: numpy and scipy
+only (nothing here integrates, so the figures may draw a closed form without a compiler).
 
 - ``symmetric_top``: force-free (moment-free) body with two equal principal inertias, any
-  initial data (physics.md s3): ``R(t) = Rot(L/|L|, |L| t/I1) R0 Rot(e3, -W t)``,
+  initial data (docs/theory.md s3): ``R(t) = Rot(L/|L|, |L| t/I1) R0 Rot(e3, -W t)``,
   ``w(t) = R(t)^T L / I1 - W e3`` with ``W = w3 (I3 - I1) / I1``, in the frame whose third
   axis is the symmetry axis.
 - ``axial_moment``: a body spinning about a principal axis ``k`` under a constant body moment
   along that axis: ``w_k = w_k0 + M_k t / I_k``, ``R = R0 Rot(e_k, w_k0 t + M_k t^2 / (2 I_k))``.
 - the centre of mass under constant space forces and uniform gravity follows the parabola
-  ``x0 + v0 t + a t^2 / 2`` whatever the rotation does.
-- ``dop853``: everything else (asymmetric bodies, body-fixed forces, space moments), scipy's
-  DOP853 at rtol = atol = 1e-13.
+  ``x0 + v0 t + a t^2 / 2`` whatever the rotation does (`parabola`).
+- the flip interval of a free asymmetric body and the precession frequency of a free
+  symmetric one.
+
+`reference_kind` names the reference of a scene: one of the closed forms, or ``dop853``
+(scipy's DOP853 at rtol = atol = 1e-13, computed by `rbstudy.physics.references`) for
+everything else (asymmetric bodies, body-fixed forces, space moments).
 """
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import ellipk
 
-from rbstudy.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
-from rbstudy.simulate import simulate
+from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
-__all__ = ["Reference", "reference_solution", "reference_solutions", "symmetric_top", "axial_moment",
-           "precession_frequency_exact", "closed_form_name", "flip_interval_exact"]
+__all__ = ["REFERENCE_KINDS", "reference_kind", "symmetric_top", "axial_moment", "parabola",
+           "precession_frequency_exact", "flip_interval_exact"]
 
-
-@dataclass(frozen=True)
-class Reference:
-    """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
-    position and velocity (T, 3); ``name`` says where it comes from."""
-
-    name: str
-    quaternion: np.ndarray
-    omega_body: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-
-    @property
-    def exact(self):
-        return self.name != "dop853"
+# Every reference an archive can name, in the order of their codes in the archive's
+# `reference` flag (append only: archives store the codes). The last is integrated, not
+# closed.
+REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853")
 
 
 def symmetric_top(inertia, quaternion0, omega0, times):
@@ -110,16 +99,17 @@ def _axial_index(omega0, moment_body):
     return support[0] if len(support) == 1 else None
 
 
-def closed_form_name(scene):
-    """Name of the closed form that applies to the scene's rotation, or None."""
+def reference_kind(scene):
+    """The reference of a scene, one of `REFERENCE_KINDS`: the closed form that applies to
+    its rotation and centre of mass, else ``dop853``."""
     loads = scene.loads
     if any(loads.force_body):
-        return None  # the force turns with the body: translation and rotation couple
+        return "dop853"  # the force turns with the body: translation and rotation couple
     if loads.moment_free and scene.body.symmetry_axis is not None:
         return "symmetric_top"
     if not any(loads.moment_space) and _axial_index(scene.omega_body, loads.moment_body) is not None:
         return "axial_moment"
-    return None
+    return "dop853"
 
 
 def precession_frequency_exact(scene):
@@ -135,7 +125,7 @@ def precession_frequency_exact(scene):
 def flip_interval_exact(scene):
     """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s.
 
-    ``w_mid = a2 sn(lambda t + u0 | k^2)`` (physics.md s3) changes sign every ``2 K(k^2) /
+    ``w_mid = a2 sn(lambda t + u0 | k^2)`` (docs/theory.md s3) changes sign every ``2 K(k^2) /
     |lambda|``: the Dzhanibekov flip interval near the intermediate axis, the half period of
     the wobble elsewhere. With the axes sorted ``I1 < I2 < I3`` and ``m = I w``:
     ``lambda^2 = (I3 - I2)(G^2 - 2E I1)/(I1 I2 I3)``,
@@ -167,52 +157,12 @@ def flip_interval_exact(scene):
     return 2.0 * float(ellipk(parameter)) / rate
 
 
-def _parabola(scene, times):
+def parabola(scene, times):
+    """Centre-of-mass position and velocity (T, 3) each at ``times`` (T,) under the scene's
+    constant space force and gravity (exact whatever the rotation does)."""
     loads = scene.loads
     acceleration = (np.asarray(loads.force_space) / scene.body.mass + np.asarray(loads.gravity))
     t = np.asarray(times, dtype=float)[:, None]
     position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t ** 2
     velocity = np.asarray(scene.velocity) + acceleration * t
     return position, velocity
-
-
-def reference_solutions(scenes, times, output_interval=None):
-    """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s.
-
-    The symmetric tops go through one vectorised closed-form call; the others one by one.
-    ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when DOP853 is needed
-    (``output_interval`` = d, default ``times[1] - times[0]``).
-    """
-    times = np.asarray(times, dtype=float)
-    tops = [i for i, scene in enumerate(scenes) if closed_form_name(scene) == "symmetric_top"]
-    found = {}
-    if tops:
-        quaternion, omega = symmetric_top(
-            [scenes[i].body.inertia for i in tops], [scenes[i].quaternion for i in tops],
-            [scenes[i].omega_body for i in tops], times)
-        for k, i in enumerate(tops):
-            found[i] = Reference("symmetric_top", quaternion[k], omega[k],
-                                 *_parabola(scenes[i], times))
-    return [found[i] if i in found else _other_reference(scene, times, output_interval)
-            for i, scene in enumerate(scenes)]
-
-
-def reference_solution(scene, times, output_interval=None):
-    """The best available reference for one ``scene`` (see `reference_solutions`)."""
-    return reference_solutions([scene], times, output_interval)[0]
-
-
-def _other_reference(scene, times, output_interval):
-    """The reference of a scene that is not a free symmetric top: the axial-moment closed
-    form, or DOP853."""
-    if closed_form_name(scene) == "axial_moment":
-        quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
-                                         scene.omega_body, scene.loads.moment_body, times)
-        return Reference("axial_moment", quaternion, omega, *_parabola(scene, times))
-    interval = output_interval if output_interval is not None else times[1] - times[0]
-    duration = times[-1]
-    run = simulate([scene.with_changes(duration=duration)], "dop853", interval, interval)
-    if run.status[0] != 0 or not math.isclose(run.time[-1], duration):
-        raise RuntimeError("the DOP853 reference failed for this scene")
-    return Reference("dop853", run.quaternion[0], run.omega_body[0], run.position[0],
-                     run.velocity[0])

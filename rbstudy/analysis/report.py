@@ -2,17 +2,17 @@
 
 ``<out>/index.html`` holds the study's config, the per-scheme table (observed order with the
 dt range it was fitted on, errors at the largest and smallest dt, kernel time per body-step,
-stable range, invariants kept), every figure of `rbstudy.plots` (PNG files beside it in
+stable range, invariants kept), every figure of `rbstudy.analysis.plots` (PNG files beside it in
 ``<out>/figures/``, SVG too) and the provenance recorded in the dataset.
 """
 
 import html
 import pathlib
 
-from rbstudy.metrics import MIN_ASYMPTOTIC_POINTS, MIN_CONVERGENCE_ORDER, ORDER_SPREAD
-from rbstudy.plots import CAPTIONS, all_figures
-from rbstudy.store import write_text_atomic
-from rbstudy.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
+from rbstudy.analysis.plots import CAPTIONS, all_figures
+from rbstudy.analysis.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
+from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS, MIN_CONVERGENCE_ORDER, ORDER_SPREAD
+from rbstudy.pipeline.store import write_text_atomic
 
 __all__ = ["write_report"]
 

@@ -1,0 +1,68 @@
+"""Memory layout of the per-body rows: the only place that knows indices.
+
+A batch of B bodies is C-ordered float64 arrays with one row per body: ``state`` (B, N_STATE),
+``params`` (B, N_PARAM), scheme ``options`` (B, N_OPTION) in, and per-body ``results``
+(B, N_RESULT) out. A body's row is contiguous, so each thread of the batch driver streams
+through its own body's data while it integrates all steps of that body.
+
+State row (SI units):
+    POSITION  3  centre-of-mass position in space (m)
+    QUATERNION 4 orientation of the principal body frame, scalar-last (x, y, z, w); maps body
+                 to space
+    VELOCITY  3  centre-of-mass velocity in space (m/s)
+    OMEGA     3  angular velocity in the principal body frame (rad/s)
+
+Parameter row:
+    MASS 1, INERTIA 3 (principal, kg m^2), FORCE_SPACE 3 (N), FORCE_BODY 3 (N, body axes),
+    MOMENT_SPACE 3 (N m), MOMENT_BODY 3 (N m, body axes), GRAVITY 3 (m/s^2, space).
+
+Results row: `RESULT_FIELDS`, by name; kernels index it with ``Result.<name>``. Numba-free:
+the layers above read this layout and the status codes without compiling anything.
+"""
+
+import enum
+
+__all__ = [
+    "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE",
+    "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
+    "N_PARAM", "N_OPTION", "RESULT_FIELDS", "Result", "N_RESULT",
+    "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES",
+]
+
+POSITION = 0
+QUATERNION = 3
+VELOCITY = 7
+OMEGA = 10
+N_STATE = 13
+
+MASS = 0
+INERTIA = 1
+FORCE_SPACE = 4
+FORCE_BODY = 7
+MOMENT_SPACE = 10
+MOMENT_BODY = 13
+GRAVITY = 16
+N_PARAM = 19
+
+# Scheme options (e.g. HHT alpha, splitting axis order) travel per body in a row of this width,
+# so that a batch may mix option values and a sweep over an option needs no recompilation.
+N_OPTION = 4
+
+# What the driver reports per body, declared once: (name, storage type). The names are those
+# of the archive's variables; the storage type is numpy's. A kernel writes column
+# ``Result.<name>``; `rbstudy.numerics.driver.BatchOutput` hands them on by name.
+RESULT_FIELDS = (
+    ("status", "i1"),               # OK / UNSTABLE / NOT_CONVERGED
+    ("failure_time", "f8"),         # s; NaN for a body that finished
+    ("n_steps", "i8"),              # steps taken
+    ("iterations", "i8"),           # Newton iterations (an adaptive scheme: rhs evaluations)
+    ("max_energy_error", "f8"),     # largest relative rotational-energy drift over the steps
+    ("max_momentum_error", "f8"),   # largest relative drift of |L| over the steps
+)
+Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
+N_RESULT = len(RESULT_FIELDS)
+
+# Status codes of a body; archives store the code, `STATUS_NAMES` gives its meaning (append
+# only: archived codes must keep theirs).
+STATUS_NAMES = ("ok", "unstable", "not_converged")
+OK, UNSTABLE, NOT_CONVERGED = range(len(STATUS_NAMES))

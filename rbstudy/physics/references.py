@@ -1,0 +1,101 @@
+"""References: the best available solution of each scene on an output grid, and its name.
+
+A closed form where one applies (`rbstudy.physics.analytic.reference_kind`), scipy's DOP853
+at rtol = atol = 1e-13 otherwise. This module sits above `simulate` because the fallback
+integrates; the closed forms themselves stay numba-free in `analytic`.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbstudy.physics.analytic import (
+    REFERENCE_KINDS,
+    axial_moment,
+    parabola,
+    reference_kind,
+    symmetric_top,
+)
+from rbstudy.physics.simulate import simulate
+
+__all__ = ["Reference", "reference_solutions", "reference_solution"]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
+    position and velocity (T, 3); ``name`` (one of `REFERENCE_KINDS`) says where it comes
+    from."""
+
+    name: str
+    quaternion: np.ndarray
+    omega_body: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+
+    @property
+    def exact(self):
+        return self.name != "dop853"
+
+
+def _symmetric_tops(scenes, times, output_interval):
+    """The free symmetric tops, in one vectorised closed-form call."""
+    quaternion, omega = symmetric_top(
+        [scene.body.inertia for scene in scenes], [scene.quaternion for scene in scenes],
+        [scene.omega_body for scene in scenes], times)
+    return [Reference("symmetric_top", quaternion[k], omega[k], *parabola(scene, times))
+            for k, scene in enumerate(scenes)]
+
+
+def _axial_moments(scenes, times, output_interval):
+    references = []
+    for scene in scenes:
+        quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
+                                         scene.omega_body, scene.loads.moment_body, times)
+        references.append(Reference("axial_moment", quaternion, omega, *parabola(scene, times)))
+    return references
+
+
+def _dop853(scenes, times, output_interval):
+    """DOP853 on the output grid ``0, d, 2 d, ...`` (``d`` = output_interval, default
+    ``times[1] - times[0]``), case by case."""
+    interval = output_interval if output_interval is not None else times[1] - times[0]
+    references = []
+    for scene in scenes:
+        duration = times[-1]
+        run = simulate([scene.with_changes(duration=duration)], "dop853", interval, interval)
+        if run.results["status"][0] != 0 or not math.isclose(run.time[-1], duration):
+            raise RuntimeError("the DOP853 reference failed for this scene")
+        references.append(Reference("dop853", run.quaternion[0], run.omega_body[0],
+                                    run.position[0], run.velocity[0]))
+    return references
+
+
+# How each kind is computed, for a list of scenes at once.
+_COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments,
+            "dop853": _dop853}
+assert tuple(_COMPUTE) == REFERENCE_KINDS, "every reference kind needs its computation"
+
+
+def reference_solutions(scenes, times, output_interval=None):
+    """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s.
+
+    Scenes are grouped by kind and each kind computed in one call (the symmetric tops of a
+    batch vectorised). ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when
+    DOP853 is needed (``output_interval`` = d, default ``times[1] - times[0]``).
+    """
+    times = np.asarray(times, dtype=float)
+    kinds = [reference_kind(scene) for scene in scenes]
+    found = {}
+    for kind, compute in _COMPUTE.items():
+        members = [i for i, k in enumerate(kinds) if k == kind]
+        if members:
+            computed = compute([scenes[i] for i in members], times, output_interval)
+            found.update(zip(members, computed, strict=True))
+    return [found[i] for i in range(len(scenes))]
+
+
+def reference_solution(scene, times, output_interval=None):
+    """The best available reference for one ``scene`` (see `reference_solutions`)."""
+    return reference_solutions([scene], times, output_interval)[0]

@@ -1,0 +1,367 @@
+"""The sweep grid: the ``sweep:`` block of a study -> dimensions -> one `Case` per grid point.
+
+A sweep maps axis names to values. Each axis is its own dimension (a product), except the
+axes grouped under ``zip:``, which share one named dimension::
+
+    sweep:
+      scheme: all                         # every fixed-step scheme
+      dt: {halving: 0.01, count: 6}       # 0.01, 0.005, ..., 0.0003125
+      inertia_ratio: [0.1, 0.5, 1.5, 2.0]
+      zip:
+        spin_tilt:                        # dimension name
+          spin: [1.0, 2.0, 4.0]
+          tilt: [5.0, 10.0, 20.0]
+
+An axis is a short name (`SHORT_NAMES`) or a dotted path into the study: ``scene.body.mass``,
+``scene.initial.angular_velocity.body.2`` (list entries by index), ``run.options.alpha``.
+Values: a non-empty list, ``{linspace: [start, stop, count]}``, ``{logspace: [start, stop,
+count]}`` (the end points themselves, not exponents) or ``{halving: start, count: n}``.
+
+A case is the study's scene and run with one value of every axis written in; its scene is
+built and validated like any scene, so a bad value fails with the axis and value named.
+Every failure goes through the study's `rbstudy.reader.Reader`.
+"""
+
+import collections
+import copy
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbstudy.errors import InputError
+from rbstudy.physics.scenes import Scene, scene_from_mapping
+from rbstudy.physics.simulate import steps_per
+from rbstudy.pipeline.batches import scene_key
+from rbstudy.pipeline.variables import VARIABLES, coordinate_units
+from rbstudy.schemes import SCHEMES, get_scheme
+
+__all__ = ["Axis", "Dimension", "Case", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
+           "parse_sweep", "expand"]
+
+# `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
+ALL_SCHEMES = "all"
+
+SHORT_NAMES = {
+    "scheme": "the integration scheme (run.scheme)",
+    "dt": "the time step in s (run.dt)",
+    "inertia_ratio": "I3 / I1 of a body symmetric about axis 3: inertia becomes [I1, I1, r I1]",
+    "spin": "the initial |w| in rad/s, direction kept",
+    "tilt": "the angle in degrees between the initial w and body axis 3, |w| and azimuth kept",
+}
+
+# Applied after dotted paths, in this order (spin and tilt commute: one sets the length of w,
+# the other its direction).
+_SHORT_ORDER = ("scheme", "dt", "inertia_ratio", "tilt", "spin")
+
+# Swept values must leave one output grid for every case.
+_NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
+# Names the dataset already uses: a zipped dimension may not take them.
+RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
+    frozenset(VARIABLES)
+# Batches group cases by scheme and dt, and the convergence fit runs along dt: both must be
+# dimensions of their own.
+_NOT_ZIPPABLE = ("scheme", "dt")
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One swept quantity: ``target`` (short name or dotted path), its values, its name in the
+    dataset (``coordinate``) and the units of its values."""
+
+    target: str
+    values: tuple
+    coordinate: str
+    units: str | None
+
+
+@dataclass(frozen=True)
+class Dimension:
+    """A dimension of the study: one axis (product) or several of equal length (zip)."""
+
+    name: str
+    axes: tuple
+
+    @property
+    def size(self):
+        return len(self.axes[0].values)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One grid point of a study.
+
+    index : position along each dimension. scene : the validated scene. spec : the case's
+    study mapping (``scene``, ``run``) with every swept value written in: its identity.
+    """
+
+    index: tuple
+    scene: Scene
+    spec: dict
+    scheme: str
+    options: dict
+    dt: float
+
+
+# --- the sweep block -> dimensions ---------------------------------------------------------
+
+def _scalar_values(reader, key, values):
+    """``values`` if each is a number or a string and none repeats."""
+    for i, value in enumerate(values):
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            reader.fail(f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}",
+                        "sweep a vector one entry at a time (path.0, path.1...)")
+    counts = collections.Counter(float(v) if not isinstance(v, str) else v for v in values)
+    repeated = sorted(str(v) for v, n in counts.items() if n > 1)
+    if repeated:
+        reader.fail(key, f"{', '.join(repeated)} given twice", "each value once")
+    return tuple(values)
+
+
+def _values(reader, key, spec):
+    """The tuple of values of one axis from its YAML spec."""
+    if isinstance(spec, list):
+        if not spec:
+            reader.fail(key, "empty sweep", "give at least one value")
+        return _scalar_values(reader, key, spec)
+    if isinstance(spec, dict) and len(spec) == 1 and next(iter(spec)) in ("linspace", "logspace"):
+        form, triple = next(iter(spec.items()))
+        if not isinstance(triple, list) or len(triple) != 3:
+            reader.fail(f"{key}.{form}", f"expected [start, stop, count], got {triple!r}")
+        start = reader.number(triple[0], f"{key}.{form}[0]")
+        stop = reader.number(triple[1], f"{key}.{form}[1]")
+        count = reader.count(triple[2], f"{key}.{form}[2]")
+        if form == "linspace":
+            return tuple(float(v) for v in np.linspace(start, stop, count))
+        if start <= 0 or stop <= 0:
+            reader.fail(f"{key}.logspace", f"end points must be > 0, got {triple!r}")
+        return tuple(float(v) for v in np.geomspace(start, stop, count))
+    if isinstance(spec, dict) and set(spec) == {"halving", "count"}:
+        start = reader.number(spec["halving"], f"{key}.halving")
+        count = reader.count(spec["count"], f"{key}.count")
+        return tuple(start / 2 ** i for i in range(count))
+    if spec == ALL_SCHEMES and key.endswith("scheme"):
+        return tuple(name for name, scheme in SCHEMES.items() if not scheme.adaptive)
+    reader.fail(key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
+                     f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
+                     f"got {spec!r}")
+
+
+def _coordinate(target):
+    """The dataset name of an axis: short names as they are, ``run.options.alpha`` -> ``alpha``,
+    ``scene.body.mass`` -> ``body_mass``."""
+    if target in SHORT_NAMES:
+        return target
+    parts = target.split(".")
+    if parts[:2] == ["run", "options"]:
+        return "_".join(parts[2:])
+    return "_".join(parts[1:])
+
+
+def _axis(reader, key, target, spec):
+    if target in ("run.scheme", "run.dt"):
+        target = target[4:]
+    if target not in SHORT_NAMES:
+        head = target.split(".")[0]
+        if head not in ("scene", "run") or target.count(".") < 1 or (
+                head == "run" and not target.startswith("run.options.")):
+            reader.fail(key, f"unknown sweep axis {target!r}",
+                        f"use a short name ({', '.join(SHORT_NAMES)}) or a dotted path such as "
+                        "scene.body.mass or run.options.alpha")
+        if target in _NOT_SWEEPABLE:
+            reader.fail(key, f"{target} cannot be swept: {_NOT_SWEEPABLE[target]}")
+    return Axis(target=target, values=_values(reader, key, spec), coordinate=_coordinate(target),
+                units=coordinate_units(target))
+
+
+def _zipped(reader, name, group):
+    """The dimension ``name`` of the zipped axes ``group``."""
+    key = f"sweep.zip.{name}"
+    if not isinstance(name, str) or not name.isidentifier():
+        reader.fail(key, "a dimension name needs letters, digits and '_' only")
+    if name in RESERVED_NAMES:
+        reader.fail(key, f"{name!r} is a name the dataset already uses", "choose another")
+    if not isinstance(group, dict) or not group:
+        reader.fail(key, f"expected a mapping of axis -> values, got {group!r}")
+    axes = tuple(_axis(reader, f"{key}.{target}", target, values)
+                 for target, values in group.items())
+    for axis in axes:
+        if axis.target in _NOT_ZIPPABLE:
+            reader.fail(f"{key}.{axis.target}", f"{axis.target} cannot be zipped",
+                        "sweep it as an axis of its own")
+    sizes = {axis.target: len(axis.values) for axis in axes}
+    if len(set(sizes.values())) != 1:
+        reader.fail(key, f"zipped axes need equal lengths, got {sizes}")
+    return Dimension(name, axes)
+
+
+def parse_sweep(reader, spec):
+    """The dimensions of a ``sweep:`` mapping (empty for a one-case study)."""
+    if spec is None:
+        return ()
+    if not isinstance(spec, dict) or not spec:
+        reader.fail("sweep", f"expected a mapping of axis -> values, got {spec!r}")
+    dimensions = []
+    for name, value in spec.items():
+        if name != "zip":
+            axis = _axis(reader, f"sweep.{name}", name, value)
+            dimensions.append(Dimension(axis.coordinate, (axis,)))
+            continue
+        if not isinstance(value, dict) or not value:
+            reader.fail("sweep.zip", "expected a mapping of dimension name -> {axis: values}")
+        dimensions += [_zipped(reader, dim, group) for dim, group in value.items()]
+    names = [d.name for d in dimensions] + [a.coordinate for d in dimensions for a in d.axes
+                                             if a.coordinate != d.name]
+    targets = [a.target for d in dimensions for a in d.axes]
+    for seen in (names, targets):
+        repeated = sorted({n for n in seen if seen.count(n) > 1})
+        if repeated:
+            reader.fail("sweep", f"{', '.join(repeated)} swept twice", "sweep each quantity once")
+    return tuple(dimensions)
+
+
+# --- one grid point -> its case mapping ----------------------------------------------------
+
+def _set_path(spec, dotted, value):
+    """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
+    *parents, leaf = dotted.split(".")
+    node = spec
+    for part in parents:
+        if isinstance(node, list):
+            node = node[_list_index(dotted, node, part)]
+        else:
+            node = node.setdefault(part, {})
+    if isinstance(node, list):
+        node[_list_index(dotted, node, leaf)] = value
+    elif isinstance(node, dict):
+        node[leaf] = value
+    else:
+        raise InputError(f"{'.'.join(parents)} holds {node!r}, not a mapping or list",
+                         key=dotted)
+
+
+def _list_index(dotted, node, part):
+    if not part.isdigit() or int(part) >= len(node):
+        raise InputError(f"{part!r} is not an entry of a list of {len(node)}",
+                         f"use 0..{len(node) - 1}", key=dotted)
+    return int(part)
+
+
+def _body_omega(spec, name):
+    omega = spec["scene"].get("initial", {}).get("angular_velocity", {})
+    if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
+        raise InputError(f"{name} needs scene.initial.angular_velocity.body (or .space)")
+    frame = "body" if "body" in omega else "space"
+    if name == "tilt" and frame != "body":
+        raise InputError("tilt needs scene.initial.angular_velocity.body")
+    return omega, frame
+
+
+def _apply_short(spec, name, value):
+    """Write a short-name value into the case mapping ``spec`` (``scene``, ``run``)."""
+    if name in ("scheme", "dt"):
+        spec["run"][name] = value
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"expected a number, got {value!r}")
+    number = float(value)
+    if name == "inertia_ratio":
+        inertia = spec["scene"].get("body", {}).get("inertia")
+        if not (isinstance(inertia, list) and len(inertia) == 3 and inertia[0] == inertia[1]
+                and not isinstance(inertia[0], list)):
+            raise InputError("inertia_ratio needs scene.body.inertia = [I1, I1, I3], a body "
+                             f"symmetric about axis 3, got {inertia!r}")
+        spec["scene"]["body"]["inertia"] = [inertia[0], inertia[0], number * inertia[0]]
+        return
+    omega, frame = _body_omega(spec, name)
+    vector = np.asarray(omega[frame], dtype=float)
+    size = float(np.linalg.norm(vector))
+    if name == "spin":
+        if size == 0.0:
+            raise InputError("spin keeps the direction of the initial w, which is zero")
+        omega[frame] = [float(v) for v in vector * (number / size)]
+        return
+    azimuth = math.atan2(vector[1], vector[0])
+    tilt = math.radians(number)
+    omega[frame] = [size * math.sin(tilt) * math.cos(azimuth),
+                    size * math.sin(tilt) * math.sin(azimuth), size * math.cos(tilt)]
+
+
+def _case_spec(base, dimensions, index):
+    spec = copy.deepcopy(base)
+    chosen = {axis.target: axis.values[i] for dim, i in zip(dimensions, index, strict=True)
+              for axis in dim.axes}
+    for target, value in chosen.items():
+        if target not in SHORT_NAMES:
+            _set_path(spec, target, value)
+    for name in _SHORT_ORDER:
+        if name in chosen:
+            _apply_short(spec, name, chosen[name])
+    return spec
+
+
+def _where(dimensions, index):
+    """``sweep (dt[2] = 0.0025, scheme[0] = 'euler')``: names a case in an error."""
+    return "sweep (" + ", ".join(f"{axis.coordinate}[{i}] = {axis.values[i]!r}"
+                                 for dim, i in zip(dimensions, index, strict=True)
+                                 for axis in dim.axes) + ")"
+
+
+def _case(source, base, dimensions, index, output_interval, scenes):
+    """The case at grid ``index``; an `InputError` keyed within the case mapping if it is bad.
+
+    Scheme options apply to the schemes that have them; ``scenes`` shares one scene between
+    cases that differ only in scheme or dt (keyed by `scene_key`).
+    """
+    spec = _case_spec(base, dimensions, index)
+    run = spec["run"]
+    try:
+        scheme = get_scheme(run.get("scheme"))
+    except InputError as error:
+        raise error.located(key="run.scheme") from None
+    known = {option.name for option in scheme.options}
+    options = {name: value for name, value in (run.get("options") or {}).items()
+               if name in known}
+    try:
+        scheme.option_row(options)
+    except InputError as error:
+        raise error.located(key="run.options") from None
+    run["options"] = options
+    dt = run.get("dt")
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0:
+        raise InputError(f"must be a number > 0 (s), got {dt!r}", key="run.dt")
+    try:
+        steps_per(output_interval, float(dt), "dt", "output interval")
+    except InputError as error:
+        raise error.located(key="run.dt") from None
+    key = scene_key(spec["scene"])
+    if key not in scenes:
+        scenes[key] = scene_from_mapping(spec["scene"], source=source)
+    return Case(index=index, scene=scenes[key], spec=spec, scheme=scheme.name, options=options,
+                dt=float(dt))
+
+
+def expand(reader, base, dimensions, output_interval):
+    """Every case of the grid, in C order of ``dimensions``, each scene built and checked.
+
+    ``base`` is the study mapping (``scene``, ``run``); the first bad case fails through
+    ``reader``, naming the swept values (``sweep (dt[1] = 0.003)``) and the key within the
+    case. An option that no scheme of the study has is an error.
+    """
+    cases, scenes = [], {}
+    for index in itertools.product(*(range(d.size) for d in dimensions)):
+        try:
+            cases.append(_case(reader.source, base, dimensions, index, output_interval, scenes))
+        except InputError as error:
+            where = _where(dimensions, index) if dimensions else None
+            raise reader.locate(error.located(key=where) if where else error) from None
+    given = set(base["run"].get("options") or {}) | {
+        axis.target.removeprefix("run.options.") for d in dimensions for axis in d.axes
+        if axis.target.startswith("run.options.")}
+    unknown = sorted(given - {name for case in cases for name in case.options})
+    if unknown:
+        schemes = sorted({case.scheme for case in cases})
+        reader.fail("run.options", f"{', '.join(unknown)} is an option of none of the study's "
+                                   f"schemes ({', '.join(schemes)})", "see `rbstudy schemes`")
+    return tuple(cases)

@@ -1,0 +1,203 @@
+"""The functions that compute the output variables of a batch, one per variable.
+
+Each takes a `BatchData` (the batch's scenes, its `Simulation`, its references and run time)
+and returns the variable's values with the case axis first: (B, T, 3) for vectors over time,
+(B, T, N, 3) for nodes, (B,) per case. `rbstudy.pipeline.variables` binds each to its name,
+units and needs. Quantities several variables share (finite samples, node positions, the
+orientation error) are computed once per batch, on first use. Samples after a blow-up are NaN;
+every measure taken from them is NaN too.
+"""
+
+from functools import cached_property
+
+import numpy as np
+
+from rbstudy.numerics.state import RESULT_FIELDS
+from rbstudy.physics import analytic, metrics
+from rbstudy.physics.quaternions import quat_to_matrix
+
+__all__ = ["BatchData", "driver_result"]
+
+_IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+class BatchData:
+    """What the variables of a batch of B cases are computed from.
+
+    scenes : (B,) `rbstudy.physics.scenes.Scene`; run : their `Simulation` (T samples);
+    references : (B,) `rbstudy.physics.references.Reference` on the same T times;
+    run_time : (B,) s, kernel time per case.
+    """
+
+    def __init__(self, scenes, run, references, run_time):
+        self.scenes, self.run, self.references = scenes, run, references
+        self.run_time = np.asarray(run_time, dtype=float)
+
+    @cached_property
+    def finite(self):
+        """(B, T): the sample exists (the body had not failed yet)."""
+        return np.all(np.isfinite(self.run.quaternion), axis=-1)
+
+    @cached_property
+    def safe_quaternion(self):
+        """(B, T, 4): the orientations, the identity where a sample is missing."""
+        return np.where(self.finite[..., None], self.run.quaternion, _IDENTITY)
+
+    @cached_property
+    def inertia(self):
+        """(B, 1, 3) principal inertias, broadcastable against (B, T, 3)."""
+        return np.array([scene.body.inertia for scene in self.scenes])[:, None, :]
+
+    @cached_property
+    def node_offsets(self):
+        """(B, N, 3) node offsets from the centre of mass, principal axes."""
+        return np.array([scene.nodes for scene in self.scenes])
+
+    @cached_property
+    def node_positions(self):
+        """(B, T, N, 3) node positions in space, NaN after a failure."""
+        nodes = metrics.node_positions(self.safe_quaternion, self.run.position, self.node_offsets)
+        nodes[~self.finite] = np.nan
+        return nodes
+
+    def reference(self, name):
+        """``name`` (quaternion, omega_body, position, velocity) of every reference, (B, T, k)."""
+        return np.array([getattr(reference, name) for reference in self.references])
+
+    @cached_property
+    def orientation_error(self):
+        return metrics.orientation_error(self.run.quaternion, self.reference("quaternion"))
+
+    @cached_property
+    def measured_precession(self):
+        """(B,) rad/s: the phase rate of the transverse body rates of symmetric bodies."""
+        axes = np.array([scene.body.symmetry_axis for scene in self.scenes])[:, None, None]
+        omega = self.run.omega_body
+        first = np.take_along_axis(omega, (axes + 1) % 3, axis=2)[..., 0]
+        second = np.take_along_axis(omega, (axes + 2) % 3, axis=2)[..., 0]
+        return metrics.phase_rate(first, second, self.run.time)
+
+    @cached_property
+    def exact_precession(self):
+        return np.array([analytic.precession_frequency_exact(scene) for scene in self.scenes])
+
+    @cached_property
+    def measured_flip(self):
+        """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
+        middle = [int(np.argsort(scene.body.inertia)[1]) for scene in self.scenes]
+        return np.array([metrics.sign_change_interval(self.run.omega_body[b, :, axis], self.run.time)
+                         for b, axis in enumerate(middle)])
+
+    @cached_property
+    def exact_flip(self):
+        return np.array([analytic.flip_interval_exact(scene) for scene in self.scenes])
+
+
+def driver_result(name):
+    """The compute function of the driver's per-body result ``name``."""
+    if name not in dict(RESULT_FIELDS):
+        raise ValueError(f"the driver reports no {name!r}")
+
+    def compute(batch):
+        return batch.run.results[name]
+
+    compute.__name__ = name
+    return compute
+
+
+def omega_body(batch):
+    return batch.run.omega_body
+
+
+def omega_space(batch):
+    space = np.einsum("btij,btj->bti", quat_to_matrix(batch.safe_quaternion),
+                      batch.run.omega_body)
+    return np.where(batch.finite[..., None], space, np.nan)
+
+
+def quaternion(batch):
+    return batch.run.quaternion
+
+
+def position(batch):
+    return batch.run.position
+
+
+def node_displacement(batch):
+    return batch.node_positions - batch.node_positions[:, :1]
+
+
+def energy_error(batch):
+    return metrics.energy_error(batch.run.omega_body, batch.inertia)
+
+
+def momentum_error(batch):
+    return metrics.momentum_error(batch.run.quaternion, batch.run.omega_body, batch.inertia)
+
+
+def orientation_error(batch):
+    return batch.orientation_error
+
+
+def omega_error(batch):
+    return metrics.omega_error(batch.run.omega_body, batch.reference("omega_body"))
+
+
+def node_error(batch):
+    exact = metrics.node_positions(batch.reference("quaternion"), batch.reference("position"),
+                           batch.node_offsets)
+    return metrics.node_error(batch.node_positions, exact)
+
+
+def precession_frequency(batch):
+    return batch.measured_precession
+
+
+def precession_frequency_exact(batch):
+    return batch.exact_precession
+
+
+def precession_frequency_error(batch):
+    return batch.measured_precession - batch.exact_precession
+
+
+def flip_interval(batch):
+    return batch.measured_flip
+
+
+def flip_interval_exact(batch):
+    return batch.exact_flip
+
+
+def flip_interval_error(batch):
+    return batch.measured_flip - batch.exact_flip
+
+
+def run_time(batch):
+    return batch.run_time
+
+
+def final_orientation_error(batch):
+    return batch.orientation_error[:, -1]
+
+
+def reference(batch):
+    """The code of each case's reference in `rbstudy.physics.analytic.REFERENCE_KINDS`."""
+    return np.array([analytic.REFERENCE_KINDS.index(ref.name) for ref in batch.references],
+                    dtype=np.int8)
+
+
+def inertia(batch):
+    return batch.inertia[:, 0, :]
+
+
+def initial_spin(batch):
+    return np.linalg.norm(batch.run.omega_body[:, 0], axis=-1)
+
+
+def node_offset(batch):
+    return batch.node_offsets
+
+
+def physical_body(batch):
+    return np.array([scene.body.physical for scene in batch.scenes], dtype=np.int8)

@@ -1,0 +1,75 @@
+"""The one reader of user input: typed values from nested YAML mappings, by key path.
+
+Scenes, study configs and sweeps read their input through a `Reader`, so that every bad value
+fails the same way: an `rbstudy.errors.InputError` (of the reader's kind) naming the file, the
+key path, the value received and what is expected.
+"""
+
+import math
+
+from rbstudy.errors import InputError
+
+__all__ = ["Reader"]
+
+
+class Reader:
+    """Reads values from the file ``source``; every failure is a ``kind`` error there."""
+
+    def __init__(self, source, kind=InputError):
+        self.source, self.kind = source, kind
+
+    def fail(self, key, message, fix=None):
+        """Raise the error ``<source>: <key>: <message>; <fix>``."""
+        raise self.kind(message, fix, self.source, key or "(top level)")
+
+    def locate(self, error, key=None):
+        """``error`` (an `InputError` raised where the file and key were unknown) placed
+        here, under ``key``, as this reader's kind."""
+        return error.located(self.source, key, self.kind)
+
+    def mapping(self, value, key, allowed):
+        """``value`` as a mapping whose keys are all in ``allowed`` (None reads as empty)."""
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
+        for name in value:
+            if name not in allowed:
+                self.fail(f"{key}.{name}" if key else name,
+                          f"unknown key; valid keys here: {', '.join(allowed)}")
+        return value
+
+    def number(self, value, key, positive=False):
+        """``value`` as a finite float (and > 0 when ``positive``)."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(key, f"expected a number, got {value!r}")
+        number = float(value)
+        if not math.isfinite(number):
+            self.fail(key, f"must be finite, got {value!r}")
+        if positive and number <= 0.0:
+            self.fail(key, f"must be > 0, got {value!r}")
+        return number
+
+    def count(self, value, key):
+        """``value`` as a whole number >= 1."""
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            self.fail(key, f"expected a whole number >= 1, got {value!r}")
+        return value
+
+    def vector(self, value, key, length=3):
+        """``value`` as a tuple of ``length`` finite floats."""
+        if not isinstance(value, (list, tuple)) or len(value) != length:
+            self.fail(key, f"expected a list of {length} numbers, got {value!r}")
+        return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
+
+    def flag(self, value, key):
+        """``value`` as true or false."""
+        if not isinstance(value, bool):
+            self.fail(key, f"expected true or false, got {value!r}")
+        return value
+
+    def line(self, value, key):
+        """``value`` as one line of text."""
+        if not isinstance(value, str):
+            self.fail(key, f"expected one line of text, got {value!r}")
+        return value
