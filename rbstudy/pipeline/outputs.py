@@ -127,6 +127,15 @@ def node_displacement(batch):
     return batch.node_positions - batch.node_positions[:, :1]
 
 
+def node_velocity(batch):
+    """Space velocity of every node, ``v_i = v + R (w x s_i)`` (s_i its body offset)."""
+    spin = np.cross(batch.run.omega_body[:, :, None, :], batch.node_offsets[:, None, :, :])
+    turned = np.einsum("btij,btnj->btni", quat_to_matrix(batch.safe_quaternion), spin)
+    velocity = turned + batch.run.velocity[:, :, None, :]
+    velocity[~batch.finite] = np.nan
+    return velocity
+
+
 def energy_error(batch):
     return metrics.energy_error(batch.run.omega_body, batch.inertia)
 

@@ -74,6 +74,8 @@ VARIABLES = {v.name: v for v in (
     _v("position", ("time", "axis"), "m", "centre-of-mass position", "translation"),
     _v("node_displacement", ("time", "node", "axis"), "m",
        "displacement of nodes fixed to the body", "nodes"),
+    _v("node_velocity", ("time", "node", "axis"), "m s-1",
+       "velocity of nodes fixed to the body, v + w x r, in space axes", "nodes"),
     _v("energy_error", ("time",), "1", "relative rotational kinetic energy error (T - T0) / T0",
        "moment_free"),
     _v("momentum_error", ("time",), "1", "relative space angular momentum error |L - L0| / |L0|",
