@@ -21,7 +21,7 @@ ROUND_OFF_FLOOR = 1e-11
 
 
 def abaqus_mapping(**body):
-    """The Abaqus force-free top of physics.md s2: I = (1, 1, 2), A = 0.25, w3 = 2 pi."""
+    """The Abaqus force-free top of docs/theory.md s2: I = (1, 1, 2), A = 0.25, w3 = 2 pi."""
     return {
         "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0], **body},
         "initial": {"angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},

@@ -1,4 +1,4 @@
-"""The Abaqus force-free symmetric-top benchmark (physics.md s2), integrated with hht alpha = 0.
+"""The Abaqus force-free symmetric-top benchmark (docs/theory.md s2), integrated with hht alpha = 0.
 
 What the benchmark shows and what we assert: w3 constant; the global w_x-w_y trace is a circle
 of diameter 2 W sin(theta0) = 0.2499 ~ A; the motion seen in space has period

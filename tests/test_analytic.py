@@ -71,7 +71,7 @@ def test_references_of_a_batch_equal_those_of_each_scene():
 
 
 @pytest.mark.parametrize("inertia, omega", [
-    ((1.0, 2.0, 3.0), (1e-3, 1.0, 1e-3)),   # the Dzhanibekov flip, ~27.5 s (physics.md s7)
+    ((1.0, 2.0, 3.0), (1e-3, 1.0, 1e-3)),   # the Dzhanibekov flip, ~27.5 s (docs/theory.md s3)
     ((1.0, 2.0, 3.0), (1.0, 0.2, 0.1)),     # circulating about the minimum axis
     ((3.0, 1.0, 2.0), (0.2, 0.5, 1.3)),     # axes not sorted
 ])

@@ -1,5 +1,5 @@
 """With NUMBA_DISABLE_JIT=1 the kernels run as plain Python, so coverage sees them, and they
-must give the compiled numbers (style.md rule 10). Run in a subprocess: the flag is read when
+must give the compiled numbers. Run in a subprocess: the flag is read when
 numba is imported."""
 
 import os

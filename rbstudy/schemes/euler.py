@@ -1,6 +1,6 @@
 """`euler`: explicit (forward) Euler on the body angular momentum and the frame.
 
-Update, with ``m = I w``, ``M_b`` the body moment and ``F`` the space force (physics.md s5):
+Update, with ``m = I w``, ``M_b`` the body moment and ``F`` the space force (docs/theory.md s5):
 
     m+ = m + h (m x w + M_b)
     q+ = q * exp(h w / 2)         i.e. R+ = R exp(h [w]x), renormalised

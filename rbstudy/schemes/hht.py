@@ -1,7 +1,7 @@
 """`hht`: Newmark / HHT-alpha on SO(3) in material form, as in implicit FE codes (Abaqus).
 
 With body angular velocity ``W``, body angular acceleration ``A``, inertia ``J`` and body
-moment ``T(R)`` (Simo & Vu-Quoc 1988; physics.md s5):
+moment ``T(R)`` (Simo & Vu-Quoc 1988; docs/theory.md s5):
 
     Theta   = h W_n + h^2 ((1/2 - beta) A_n + beta A_n+1)
     R_n+1   = R_n exp([Theta]x)

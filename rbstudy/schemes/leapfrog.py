@@ -2,7 +2,7 @@
 
 Velocities live at half steps; the stored ``v`` and ``w`` are ``v(n-1/2)`` and ``w(n-1/2)``
 (the initial velocities are taken as those at ``-1/2``, as an explicit code starts).
-With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` (physics.md s4):
+With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` (docs/theory.md s4):
 
     alpha_i   = (M_i - (I_k - I_j) w_j w_k) / I_i     with w = w(n-1/2): lagged gyroscopic term
     w(n+1/2)  = w(n-1/2) + h alpha
@@ -13,7 +13,7 @@ With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` (physics.m
 Order 1, explicit: the ``w`` update is forward Euler on Euler's equations. Keeps nothing: for
 an asymmetric free body ``|m|^2`` grows by ``h^2 |m x w|^2`` each step, so there is no stable
 time step for the gyroscopic term; OpenRadioss itself flags ``(h |w|)^2 > 1``.
-Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (seed radioss_rigid_body_theory.txt).
+Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (time integration).
 """
 
 

@@ -1,6 +1,6 @@
 """`rk4`: classical Runge-Kutta on (x, q, v, w), quaternion renormalised after each step.
 
-The ODE (physics.md s1): ``dx/dt = v``, ``dq/dt = 1/2 q * (w, 0)``, ``dv/dt = F/mass``,
+The ODE (docs/theory.md s1): ``dx/dt = v``, ``dq/dt = 1/2 q * (w, 0)``, ``dv/dt = F/mass``,
 ``dw/dt = I^-1 (M_b - w x I w)``; the classical four-stage tableau, then ``q <- q/|q|``
 (the projection that Fukushima 2008 recommends).
 
