@@ -9,7 +9,7 @@ Expected failures (`RbstudyError`) print one line and exit 2; bugs print a trace
 import argparse
 import sys
 
-from rbstudy.errors import RbstudyError
+from rbstudy.errors import ConfigError, InputError, RbstudyError
 
 __all__ = ["main"]
 
@@ -68,8 +68,9 @@ def _sweep(args):
     names = [study.name for study in studies]
     for study in studies:
         if names.count(study.name) > 1:
-            raise RbstudyError(f"{study.path}: name: {study.name!r} is also the name of another "
-                               "config of this command; study names pick the results folder")
+            raise ConfigError(f"{study.name!r} is also the name of another config of this "
+                              "command", "study names pick the results folder: rename one",
+                              source=study.path, key="name")
     for study in studies:
         if not args.quiet:
             print(_describe(study))
@@ -103,18 +104,19 @@ def _select(dataset, choices, path):
         dim, _, text = choice.partition("=")
         swept = list(dataset["status"].dims)
         if dim not in swept:
-            raise RbstudyError(f"{path}: --select {choice}: {dim!r} is not a swept dimension "
-                               f"here; use one of {', '.join(swept) or 'none'}")
+            raise InputError(f"{dim!r} is not a swept dimension here",
+                             f"use one of {', '.join(swept) or 'none'}", path, f"--select {choice}")
         coordinate = dataset[dim].values
         try:
             value = text if coordinate.dtype.kind in "OUS" else float(text)
         except ValueError:
-            raise RbstudyError(f"{path}: --select {choice}: {dim} takes a number") from None
+            raise InputError(f"{dim} takes a number", None, path, f"--select {choice}") from None
         match = [v for v in coordinate if v == value or (
             coordinate.dtype.kind == "f" and abs(v - value) <= _SELECT_RTOL * abs(value))]
         if not match:
-            raise RbstudyError(f"{path}: --select {choice}: no {dim} = {text}; the values are "
-                               + ", ".join(str(v) for v in coordinate))
+            raise InputError(f"no {dim} = {text}",
+                             "the values are " + ", ".join(str(v) for v in coordinate), path,
+                             f"--select {choice}")
         dataset = dataset.sel({dim: match})
     return dataset
 
@@ -135,12 +137,12 @@ def _open(path, open_results):
         dataset = open_results(path)
     except (OSError, ValueError) as error:
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error)
-        raise RbstudyError(f"{path}: cannot read it as an rbstudy results file ({first_line}); "
-                           "give the <study>.nc written by rbstudy sweep") from None
+        raise InputError(f"cannot read it as an rbstudy results file ({first_line})",
+                         "give the <study>.nc written by rbstudy sweep", path) from None
     missing = [name for name in BOOKKEEPING if name not in dataset]
     if missing:
-        raise RbstudyError(f"{path}: lacks {', '.join(missing)}: written by an older rbstudy; "
-                           "rerun its sweep (with --force) to rebuild it")
+        raise InputError(f"lacks {', '.join(missing)}: written by an older rbstudy",
+                         "rerun its sweep (with --force) to rebuild it", path)
     return dataset
 
 

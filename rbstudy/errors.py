@@ -29,12 +29,13 @@ class InputError(RbstudyError):
         return ": ".join(str(part) for part in (self.source, self.key, text) if part)
 
     def located(self, source=None, key=None, kind=None):
-        """The same error placed in ``source`` under ``key`` (an outer key path is prefixed
-        to the error's own: ``sweep (dt[1] = 0.003): scene.body.mass``), as a ``kind``
-        (default: its own class)."""
+        """The same error placed in ``source`` under ``key``, as a ``kind`` (default: its own
+        class). An outer key path is prefixed to the error's own (``sweep (dt[1] = 0.003):
+        scene.body.mass``); a source the error already names is kept (it is the more specific
+        file, such as a table the config refers to)."""
         if key and self.key:
             key = f"{key}: {self.key}"
-        return (kind or type(self))(self.message, self.fix, source or self.source,
+        return (kind or type(self))(self.message, self.fix, self.source or source,
                                     key or self.key)
 
 

@@ -134,7 +134,7 @@ def test_hht_negative_alpha_damps_and_is_first_order_for_a_rigid_body(abaqus_sce
 
 @pytest.mark.parametrize("options, message", [
     ({"alpha": 0.2}, "option 'alpha': got 0.2; expected a number in [-0.333333, 0]"),
-    ({"beta": 0.1}, "scheme 'hht' has no option 'beta' (its options: alpha)"),
+    ({"beta": 0.1}, "scheme 'hht' has no option 'beta'; its options: alpha"),
 ])
 def test_bad_scheme_options_are_named(options, message):
     with pytest.raises(SchemeError, match=message.replace("[", r"\[").replace("(", r"\(")

@@ -241,7 +241,13 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
         with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
             cpu = sum(pool.map(run_chunk, chunks))
     seconds = time.perf_counter() - start
-    named = {name: results[:, Result[name]].astype(dtype)
-             for name, dtype in S.RESULT_FIELDS}
+    named = {}
+    for name, dtype in S.RESULT_FIELDS:
+        column = results[:, Result[name]]
+        if np.dtype(dtype).kind == "i" and np.isnan(column).any():
+            # NaN cast to an integer is garbage (to int8 it is 0, "ok"): a scheme that does
+            # not fill a result is a bug, never a number
+            raise RuntimeError(f"scheme {scheme.name!r} left the result {name!r} unset")
+        named[name] = column.astype(dtype)
     return BatchOutput(samples=samples, results=named, kernel_seconds=seconds,
                        kernel_cpu_seconds=cpu)

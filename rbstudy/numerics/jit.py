@@ -14,41 +14,20 @@ energy-conserving schemes rely on IEEE semantics.
 ``jit(formula)`` also compiles a plain-Python formula of `rbstudy.numerics.algebra`, so that
 kernels and numpy code share one written expression.
 
-The cache lives in a folder named after a hash of this package's sources. numba checks only
+The cache lives in a folder named after a hash of this package's sources (`sources.py`). numba checks only
 the timestamp of the file that defines a cached function, not of the files whose kernels it
 inlines: after an edit of `algebra.py` alone, a cached scheme step would still run the old
 formula. A new source tree gets a new, empty cache instead. ``NUMBA_CACHE_DIR``, when
 set, is respected as it is.
 """
 
-import hashlib
 import os
-import pathlib
 
 import numba
 
-__all__ = ["jit", "entry_jit", "cache_dir", "SOURCE_DIGEST"]
+from rbstudy.numerics.sources import SOURCE_DIGEST
 
-_PACKAGE = pathlib.Path(__file__).resolve().parents[1]
-# What only presents stored numbers (the analysis layer, the command line): editing it
-# changes no result.
-_PRESENTATION = ("analysis/", "cli.py", "__main__.py")
-
-
-def _source_digest():
-    digest = hashlib.sha256()
-    for path in sorted(_PACKAGE.rglob("*.py")):
-        relative = path.relative_to(_PACKAGE).as_posix()
-        if relative.startswith(_PRESENTATION):
-            continue
-        digest.update(relative.encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
-# A hash of the sources that compute results: names the numba cache, and enters every batch
-# id so that results of changed code are never reused.
-SOURCE_DIGEST = _source_digest()
+__all__ = ["jit", "entry_jit", "cache_dir"]
 
 
 def cache_dir():

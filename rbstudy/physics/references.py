@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rbstudy.numerics.state import OK
 from rbstudy.physics.analytic import (
-    REFERENCE_KINDS,
     axial_moment,
     parabola,
     reference_kind,
@@ -19,14 +19,14 @@ from rbstudy.physics.analytic import (
 )
 from rbstudy.physics.simulate import simulate
 
-__all__ = ["Reference", "reference_solutions", "reference_solution"]
+__all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE"]
 
 
 @dataclass(frozen=True)
 class Reference:
     """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
-    position and velocity (T, 3); ``name`` (one of `REFERENCE_KINDS`) says where it comes
-    from."""
+    position and velocity (T, 3); ``name`` (one of the reference kinds of
+    `rbstudy.physics.analytic`) says where it comes from."""
 
     name: str
     quaternion: np.ndarray
@@ -65,17 +65,16 @@ def _dop853(scenes, times, output_interval):
     for scene in scenes:
         duration = times[-1]
         run = simulate([scene.with_changes(duration=duration)], "dop853", interval, interval)
-        if run.results["status"][0] != 0 or not math.isclose(run.time[-1], duration):
+        if run.results["status"][0] != OK or not math.isclose(run.time[-1], duration):
             raise RuntimeError("the DOP853 reference failed for this scene")
         references.append(Reference("dop853", run.quaternion[0], run.omega_body[0],
                                     run.position[0], run.velocity[0]))
     return references
 
 
-# How each kind is computed, for a list of scenes at once.
-_COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments,
-            "dop853": _dop853}
-assert tuple(_COMPUTE) == REFERENCE_KINDS, "every reference kind needs its computation"
+# How each reference kind (`rbstudy.physics.analytic.REFERENCE_KINDS`) is computed, for a
+# list of scenes at once (a test checks that every kind has its computation).
+COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments, "dop853": _dop853}
 
 
 def reference_solutions(scenes, times, output_interval=None):
@@ -88,7 +87,7 @@ def reference_solutions(scenes, times, output_interval=None):
     times = np.asarray(times, dtype=float)
     kinds = [reference_kind(scene) for scene in scenes]
     found = {}
-    for kind, compute in _COMPUTE.items():
+    for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]
         if members:
             computed = compute([scenes[i] for i in members], times, output_interval)

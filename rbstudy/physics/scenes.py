@@ -141,7 +141,7 @@ def _triangle_ok(inertia):
 def _read_body(reader, spec, path):
     spec = reader.mapping(spec, path, ("mass", "inertia", "allow_unphysical"))
     if "inertia" not in spec:
-        reader.fail(f"{path}.inertia", "missing; give principal inertias [I1, I2, I3] in kg m^2")
+        reader.fail(f"{path}.inertia", "missing", "give principal inertias [I1, I2, I3] in kg m^2")
     mass = reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True)
     allow = reader.flag(spec.get("allow_unphysical", False), f"{path}.allow_unphysical")
     raw = spec["inertia"]
@@ -165,7 +165,7 @@ def _read_body(reader, spec, path):
     if not allow and not _triangle_ok(inertia):
         reader.fail(f"{path}.inertia",
                     f"{list(inertia)} violates the triangle inequality I1 + I2 >= I3 (and cyclic): "
-                    "no rigid body has it; set allow_unphysical: true for a numerical stress body")
+                    "no rigid body has it", "set allow_unphysical: true for a numerical stress body")
     return Body(mass=mass, inertia=inertia, axes=axes, allow_unphysical=allow)
 
 

@@ -11,7 +11,7 @@ import hashlib
 import json
 from dataclasses import dataclass
 
-from rbstudy.numerics.jit import SOURCE_DIGEST
+from rbstudy.numerics.sources import SOURCE_DIGEST
 
 __all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "SCHEMA_VERSION", "ID_LENGTH"]
 

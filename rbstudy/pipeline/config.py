@@ -157,7 +157,7 @@ def _variables(reader, requested, cases):
     return tuple(name for name in available if name in requested or name in BOOKKEEPING)
 
 
-def _scheme_coordinates(cases):
+def _scheme_claims(cases):
     """What the archive records of each scheme of the study: name -> {coordinate: value}."""
     return {name: {coordinate: getattr(get_scheme(name), attribute)
                    for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
@@ -216,7 +216,7 @@ def load_study(path):
     study = StudyConfig(path=path, text=text, name=name, title=title,
                         base=base, output_interval=interval, duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=(),
-                        schemes=_scheme_coordinates(cases))
+                        schemes=_scheme_claims(cases))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, dimensions, interval, variables, max_cases)
     study = dataclasses.replace(study, batches=batches)

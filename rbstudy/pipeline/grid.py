@@ -227,18 +227,21 @@ def _set_path(spec, dotted, value):
     """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
     *parents, leaf = dotted.split(".")
     node = spec
-    for part in parents:
+    for depth, part in enumerate(parents):
         if isinstance(node, list):
             node = node[_list_index(dotted, node, part)]
-        else:
+        elif isinstance(node, dict):
             node = node.setdefault(part, {})
+        else:
+            raise InputError(f"{'.'.join(parents[:depth])} holds {node!r}, not a mapping or list",
+                             "sweep a path that exists in the study", key=dotted)
     if isinstance(node, list):
         node[_list_index(dotted, node, leaf)] = value
     elif isinstance(node, dict):
         node[leaf] = value
     else:
         raise InputError(f"{'.'.join(parents)} holds {node!r}, not a mapping or list",
-                         key=dotted)
+                         "sweep a path that exists in the study", key=dotted)
 
 
 def _list_index(dotted, node, part):
@@ -248,13 +251,18 @@ def _list_index(dotted, node, part):
     return int(part)
 
 
+_OMEGA_KEY = "scene.initial.angular_velocity"
+
+
 def _body_omega(spec, name):
     omega = spec["scene"].get("initial", {}).get("angular_velocity", {})
     if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
-        raise InputError(f"{name} needs scene.initial.angular_velocity.body (or .space)")
+        raise InputError(f"{name} needs the initial angular velocity", "give its .body (or "
+                         ".space) components", key=_OMEGA_KEY)
     frame = "body" if "body" in omega else "space"
     if name == "tilt" and frame != "body":
-        raise InputError("tilt needs scene.initial.angular_velocity.body")
+        raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
+                         "body axes (.body)", key=_OMEGA_KEY)
     return omega, frame
 
 
@@ -264,14 +272,14 @@ def _apply_short(spec, name, value):
         spec["run"][name] = value
         return
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"expected a number, got {value!r}")
+        raise InputError(f"{name} takes a number, got {value!r}")
     number = float(value)
     if name == "inertia_ratio":
         inertia = spec["scene"].get("body", {}).get("inertia")
         if not (isinstance(inertia, list) and len(inertia) == 3 and inertia[0] == inertia[1]
                 and not isinstance(inertia[0], list)):
-            raise InputError("inertia_ratio needs scene.body.inertia = [I1, I1, I3], a body "
-                             f"symmetric about axis 3, got {inertia!r}")
+            raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r}",
+                             "give inertia: [I1, I1, I3]", key="scene.body.inertia")
         spec["scene"]["body"]["inertia"] = [inertia[0], inertia[0], number * inertia[0]]
         return
     omega, frame = _body_omega(spec, name)
@@ -279,7 +287,8 @@ def _apply_short(spec, name, value):
     size = float(np.linalg.norm(vector))
     if name == "spin":
         if size == 0.0:
-            raise InputError("spin keeps the direction of the initial w, which is zero")
+            raise InputError("spin keeps the direction of the initial w, which is zero",
+                             "give a non-zero initial angular velocity", key=_OMEGA_KEY)
         omega[frame] = [float(v) for v in vector * (number / size)]
         return
     azimuth = math.atan2(vector[1], vector[0])
@@ -308,7 +317,7 @@ def _where(dimensions, index):
                                  for axis in dim.axes) + ")"
 
 
-def _case(source, base, dimensions, index, output_interval, scenes):
+def _case(reader, base, dimensions, index, output_interval, scenes):
     """The case at grid ``index``; an `InputError` keyed within the case mapping if it is bad.
 
     Scheme options apply to the schemes that have them; ``scenes`` shares one scene between
@@ -319,27 +328,25 @@ def _case(source, base, dimensions, index, output_interval, scenes):
     try:
         scheme = get_scheme(run.get("scheme"))
     except InputError as error:
-        raise error.located(key="run.scheme") from None
+        raise reader.locate(error, "run.scheme") from None
     known = {option.name for option in scheme.options}
     options = {name: value for name, value in (run.get("options") or {}).items()
                if name in known}
     try:
         scheme.option_row(options)
     except InputError as error:
-        raise error.located(key="run.options") from None
+        raise reader.locate(error, "run.options") from None
     run["options"] = options
-    dt = run.get("dt")
-    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0:
-        raise InputError(f"must be a number > 0 (s), got {dt!r}", key="run.dt")
+    dt = reader.number(run.get("dt"), "run.dt", positive=True)
     try:
-        steps_per(output_interval, float(dt), "dt", "output interval")
+        steps_per(output_interval, dt, "dt", "output interval")
     except InputError as error:
-        raise error.located(key="run.dt") from None
+        raise reader.locate(error, "run.dt") from None
     key = scene_key(spec["scene"])
     if key not in scenes:
-        scenes[key] = scene_from_mapping(spec["scene"], source=source)
+        scenes[key] = scene_from_mapping(spec["scene"], source=reader.source)
     return Case(index=index, scene=scenes[key], spec=spec, scheme=scheme.name, options=options,
-                dt=float(dt))
+                dt=dt)
 
 
 def expand(reader, base, dimensions, output_interval):
@@ -352,10 +359,10 @@ def expand(reader, base, dimensions, output_interval):
     cases, scenes = [], {}
     for index in itertools.product(*(range(d.size) for d in dimensions)):
         try:
-            cases.append(_case(reader.source, base, dimensions, index, output_interval, scenes))
+            cases.append(_case(reader, base, dimensions, index, output_interval, scenes))
         except InputError as error:
             where = _where(dimensions, index) if dimensions else None
-            raise reader.locate(error.located(key=where) if where else error) from None
+            raise reader.locate(error, where) from None
     given = set(base["run"].get("options") or {}) | {
         axis.target.removeprefix("run.options.") for d in dimensions for axis in d.axes
         if axis.target.startswith("run.options.")}

@@ -44,6 +44,11 @@ class BatchData:
         return np.where(self.finite[..., None], self.run.quaternion, _IDENTITY)
 
     @cached_property
+    def rotation(self):
+        """(B, T, 3, 3): the rotation matrices of `safe_quaternion`."""
+        return quat_to_matrix(self.safe_quaternion)
+
+    @cached_property
     def inertia(self):
         """(B, 1, 3) principal inertias, broadcastable against (B, T, 3)."""
         return np.array([scene.body.inertia for scene in self.scenes])[:, None, :]
@@ -85,7 +90,8 @@ class BatchData:
     def measured_flip(self):
         """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
         middle = [int(np.argsort(scene.body.inertia)[1]) for scene in self.scenes]
-        return np.array([metrics.sign_change_interval(self.run.omega_body[b, :, axis], self.run.time)
+        omega, time = self.run.omega_body, self.run.time
+        return np.array([metrics.sign_change_interval(omega[b, :, axis], time)
                          for b, axis in enumerate(middle)])
 
     @cached_property
@@ -110,8 +116,7 @@ def omega_body(batch):
 
 
 def omega_space(batch):
-    space = np.einsum("btij,btj->bti", quat_to_matrix(batch.safe_quaternion),
-                      batch.run.omega_body)
+    space = np.einsum("btij,btj->bti", batch.rotation, batch.run.omega_body)
     return np.where(batch.finite[..., None], space, np.nan)
 
 
@@ -130,7 +135,7 @@ def node_displacement(batch):
 def node_velocity(batch):
     """Space velocity of every node, ``v_i = v + R (w x s_i)`` (s_i its body offset)."""
     spin = np.cross(batch.run.omega_body[:, :, None, :], batch.node_offsets[:, None, :, :])
-    turned = np.einsum("btij,btnj->btni", quat_to_matrix(batch.safe_quaternion), spin)
+    turned = np.einsum("btij,btnj->btni", batch.rotation, spin)
     velocity = turned + batch.run.velocity[:, :, None, :]
     velocity[~batch.finite] = np.nan
     return velocity
@@ -154,7 +159,7 @@ def omega_error(batch):
 
 def node_error(batch):
     exact = metrics.node_positions(batch.reference("quaternion"), batch.reference("position"),
-                           batch.node_offsets)
+                                   batch.node_offsets)
     return metrics.node_error(batch.node_positions, exact)
 
 

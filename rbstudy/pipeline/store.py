@@ -154,7 +154,7 @@ def grid_coordinates(study):
             units, long_name = COORDINATES[name]
             coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
                             {"long_name": long_name} | ({"units": units} if units else {}))
-    coords.update(_scheme_coordinates(study, () if "scheme" not in swept else ("scheme",)))
+    coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
             coords[dim.name] = ((dim.name,), np.arange(dim.size),
@@ -169,7 +169,7 @@ def grid_coordinates(study):
     return coords
 
 
-def _scheme_coordinates(study, dims):
+def _scheme_claims(study, dims):
     """`SCHEME_COORDINATES` of the study's schemes, along ``dims`` (the scheme dimension, or
     none for a one-scheme study); invariants as space-separated names, "none" for none."""
     schemes = (list(next(a.values for d in study.dimensions for a in d.axes

@@ -40,8 +40,8 @@ FEATURES = {
 @dataclass(frozen=True)
 class Variable:
     """An output variable: ``compute(batch) -> values`` (case axis first), ``dims`` beyond the
-    case dimensions, CF ``units``, ``long_name`` and ``standard_name``, the scene features it
-    ``needs``, its netCDF storage type, and for a flag the meaning of each code (``flags``)."""
+    case dimensions, CF ``units`` and ``long_name``, the scene features it ``needs``, its
+    netCDF storage type, and for a flag the meaning of each code (``flags``)."""
 
     name: str
     dims: tuple
@@ -49,7 +49,6 @@ class Variable:
     long_name: str
     compute: Callable
     needs: frozenset = frozenset()
-    standard_name: str | None = None
     dtype: str = "f8"
     flags: tuple = ()
 
@@ -57,13 +56,13 @@ class Variable:
 def _v(name, dims, units, long_name, *needs, flags=(), dtype="f8"):
     """A variable computed by `rbstudy.pipeline.outputs` function of the same name."""
     return Variable(name, dims, units, long_name, getattr(outputs, name), frozenset(needs),
-                    dtype=dtype, flags=flags)
+                    dtype, flags)
 
 
 def _result(name, units, long_name, *needs, flags=()):
     """A per-case result of the driver, stored as the driver's storage type."""
     return Variable(name, (), units, long_name, outputs.driver_result(name), frozenset(needs),
-                    dtype=dict(RESULT_FIELDS)[name], flags=flags)
+                    dict(RESULT_FIELDS)[name], flags)
 
 
 VARIABLES = {v.name: v for v in (
@@ -120,7 +119,6 @@ VARIABLES = {v.name: v for v in (
        "whether the principal inertias meet the triangle inequality (a real rigid body)",
        flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
-assert all(v.needs <= set(FEATURES) for v in VARIABLES.values()), "a need no scene can have"
 
 # CF-1.11 requires a reference epoch on a time coordinate. The epoch stands for t = 0 of the
 # run, not a calendar date: open results with ``decode_times=False`` (as
@@ -178,10 +176,7 @@ def variable_attrs(name):
         return {"long_name": variable.long_name,
                 "flag_values": list(range(len(variable.flags))),
                 "flag_meanings": " ".join(variable.flags)}
-    attrs = {"units": variable.units, "long_name": variable.long_name}
-    if variable.standard_name:
-        attrs["standard_name"] = variable.standard_name
-    return attrs
+    return {"units": variable.units, "long_name": variable.long_name}
 
 
 def scene_features(scene):

@@ -33,4 +33,4 @@ def get_scheme(name):
         return SCHEMES[name]
     except (KeyError, TypeError):
         valid = ", ".join(SCHEMES)
-        raise SchemeError(f"unknown scheme {name!r}; valid schemes: {valid}") from None
+        raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}") from None

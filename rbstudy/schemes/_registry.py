@@ -69,16 +69,16 @@ class Scheme:
         for name in values:
             if name not in known:
                 valid = ", ".join(sorted(known)) or "none"
-                raise SchemeError(
-                    f"scheme {self.name!r} has no option {name!r} (its options: {valid})")
+                raise SchemeError(f"scheme {self.name!r} has no option {name!r}",
+                                  f"its options: {valid}")
         row = np.zeros(S.N_OPTION)
         for option in self.options:
             value = values.get(option.name, option.default)
             try:
                 packed = option.parse(value)
             except (TypeError, ValueError) as exc:
-                raise SchemeError(
-                    f"scheme {self.name!r} option {option.name!r}: got {value!r}; {exc}") from None
+                raise SchemeError(f"scheme {self.name!r} option {option.name!r}: got {value!r}",
+                                  str(exc)) from None
             row[option.slot:option.slot + len(packed)] = packed
         return row
 

@@ -59,7 +59,9 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
                        samples, results):
     """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
     a time; a sample whose energy or |L| drift passes ``drift_bound`` (a moment-free body)
-    counts as the failure."""
+    counts as the failure. Results are written by name: a result added to
+    `rbstudy.numerics.state.RESULT_FIELDS` must be added here too (`run_batch` refuses an
+    integer result left unset)."""
     n_times = samples.shape[1]
     times = h * every * np.arange(n_times)
     for b in range(start, stop):
@@ -83,10 +85,11 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
                 status, failure = UNSTABLE, float(times[bad[0]])
                 out[bad[0]:] = np.nan
         samples[b] = out
-        row = results[b]
-        row[Result.status], row[Result.failure_time] = status, failure
-        row[Result.n_steps], row[Result.iterations] = len(solution.t) - 1, solution.nfev
-        row[Result.max_energy_error], row[Result.max_momentum_error] = max_energy, max_momentum
+        row = {"status": status, "failure_time": failure, "n_steps": len(solution.t) - 1,
+               "iterations": solution.nfev, "max_energy_error": max_energy,
+               "max_momentum_error": max_momentum}
+        for name, value in row.items():
+            results[b, Result[name]] = value
 
 
 SCHEME = Scheme(
