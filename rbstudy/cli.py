@@ -7,6 +7,7 @@ Expected failures (`RbstudyError`) print one line and exit 2; bugs print a trace
 """
 
 import argparse
+import pathlib
 import sys
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError
@@ -18,11 +19,11 @@ _SELECT_RTOL = 1e-12
 
 
 def _schemes(args):
-    from rbstudy.schemes import SCHEMES
+    from rbstudy.schemes import INVARIANTS, SCHEMES
     print(f"{'scheme':10s} {'order':>5s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
-        keeps = ", ".join(scheme.keeps) or "-"
+        keeps = ", ".join(INVARIANTS[name] for name in scheme.keeps) or "-"
         options = ", ".join(f"{o.name}={o.default}" for o in scheme.options)
         print(f"{name:10s} {scheme.order:5d} {kind:9s} {keeps:16s} {scheme.summary}"
               + (f" [{options}]" if options else ""))
@@ -30,8 +31,11 @@ def _schemes(args):
 
 
 def _bench(args):
-    from rbstudy.analysis.bench import run_bench
-    run_bench(schemes=args.schemes or None)
+    from rbstudy.analysis.bench import BODY_STEPS, run_bench
+    if args.body_steps is not None and args.body_steps < 1:
+        raise RbstudyError(f"--body-steps: need at least 1, got {args.body_steps}")
+    run_bench(schemes=args.schemes or None, body_steps=args.body_steps or BODY_STEPS,
+              progress=not args.quiet)
     return 0
 
 
@@ -75,26 +79,37 @@ def _sweep(args):
         if not args.quiet:
             print(_describe(study))
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
-                         force=args.force, quiet=args.quiet)
-        print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
-              f"{done.wall_seconds:.1f} s; wrote {done.path}")
+                         force=args.force, quiet=args.quiet, keep_parts=args.keep_parts)
+        if done.up_to_date:
+            print(f"{study.name}: {done.path} is up to date (the same config and code); "
+                  "--force recomputes it")
+        else:
+            print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+                  f"{done.wall_seconds:.1f} s; wrote {done.path}")
         print(format_table(scheme_rows(open_results(done.path, SUMMARY_VARIABLES))))
     return 0
 
 
 def _plot(args):
-    import pathlib
-
     from rbstudy.analysis.plots import all_figures
     from rbstudy.pipeline.store import open_results
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
-    for path in args.files:
-        dataset = _select(_open(path, open_results), args.select, path)
+    datasets = [(path, _select(_open(path, open_results), args.select, path))
+                 for path in args.files]
+    studies = [str(dataset.attrs.get("study", "results")) for _, dataset in datasets]
+    for (path, _), study in zip(datasets, studies, strict=True):
+        if args.out and studies.count(study) > 1:
+            raise InputError(f"another file of this command is also study {study!r}: their "
+                             "figures would overwrite each other in --out",
+                             "plot them one at a time, each with its own --out", path)
+    for path, dataset in datasets:
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
-        written = all_figures(dataset, folder)
-        print(f"{path}: {len(written)} figures (PNG and SVG) in {folder}")
+        figures = all_figures(dataset, folder)
+        print(f"{path}: {len(figures.written)} figures (PNG and SVG) in {folder}")
+        for name, reason in figures.absent.items():
+            print(f"  not drawn: {name}: {reason}")
     return 0
 
 
@@ -125,7 +140,7 @@ def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.pipeline.store import open_results
     dataset = _open(args.file, open_results)
-    index = write_report(dataset, args.out)
+    index = write_report(dataset, args.out or pathlib.Path(args.file).parent / "report")
     print(f"{args.file}: report in {index}")
     return 0
 
@@ -149,6 +164,7 @@ def _open(path, open_results):
 def build_parser():
     parser = argparse.ArgumentParser(
         prog="rbstudy", description="Parameter studies of rigid-body rotation integrators.")
+    parser.add_argument("--version", action="version", version=f"rbstudy {_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
     sweep = commands.add_parser("sweep", help="run study configs and archive the results")
     sweep.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
@@ -160,6 +176,9 @@ def build_parser():
                        help="start a local dask.distributed cluster of N worker processes")
     sweep.add_argument("--force", action="store_true",
                        help="recompute every batch, even those already stored")
+    sweep.add_argument("--keep-parts", action="store_true",
+                       help="keep parts/ after the archive is written (a changed config then "
+                            "reuses the batches it shares)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs without running")
@@ -176,12 +195,23 @@ def build_parser():
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of a results file")
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    report.add_argument("--out", default="report", help="report folder (default: report/)")
+    report.add_argument("--out", help="report folder (default: report/ beside the file)")
     report.set_defaults(run=_report)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
     bench.add_argument("schemes", nargs="*", help="schemes to measure (default: all)")
+    bench.add_argument("--body-steps", type=int, metavar="N",
+                       help="body-steps per figure (default 1e7; fewer for a quick look)")
+    bench.add_argument("--quiet", action="store_true", help="no progress line")
     bench.set_defaults(run=_bench)
     return parser
+
+
+def _version():
+    from importlib import metadata
+    try:
+        return metadata.version("rbstudy")
+    except metadata.PackageNotFoundError:
+        return "(not installed)"
 
 
 def main(argv=None):

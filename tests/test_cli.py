@@ -13,9 +13,12 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
                                                         "dt": [0.01, 0.005, 0.0025]})
     assert main(["sweep", str(config), "--out", str(tmp_path / "out")]) == 0
     folder = tmp_path / "out" / "small"
-    assert sorted(p.name for p in folder.iterdir()) == [".lock", "parts", "small.nc",
-                                                        "study.yaml"]
-    assert len(list((folder / "parts").iterdir())) == 6  # one per scheme and dt, no temporaries
+    # the archive holds everything: parts/ goes once it is written
+    assert sorted(p.name for p in folder.iterdir()) == [".lock", "small.nc", "study.yaml"]
+    assert main(["sweep", str(config), "--out", str(tmp_path / "kept"), "--keep-parts",
+                 "--quiet"]) == 0
+    parts = tmp_path / "kept" / "small" / "parts"
+    assert len(list(parts.iterdir())) == 6  # one per scheme and dt, no temporaries
     resolved = yaml.safe_load((folder / "study.yaml").read_text())
     assert resolved["sweep"]["dt"] == {"dt": [0.01, 0.005, 0.0025]} and resolved["cases"] == 6
     out = capsys.readouterr().out
@@ -34,7 +37,7 @@ def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
     assert ds.omega_body.dims == ("time", "axis") and int(ds.n_steps) == 100
     row = next(line.split() for line in capsys.readouterr().out.splitlines()
                if line.startswith("splitting"))
-    assert row[2] == "-" and row[-2:] == ["0/1", "|L|"]  # no dt axis: no order; L kept
+    assert row[2] == "-" and row[-3:] == ["0/1", "|L|,", "L"]  # no dt axis: no order; L kept
 
 
 def test_validate_reports_cases_batches_and_memory(capsys):

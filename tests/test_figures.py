@@ -9,7 +9,7 @@ import pytest
 import yaml
 from conftest import CONFIGS
 
-from rbstudy.analysis.plots import all_figures
+from rbstudy.analysis.plots import all_figures, convergence
 from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
@@ -51,15 +51,14 @@ def shrunk_config(name, folder):
     return path
 
 
-def expected_figures(ds):
-    """A convergence figure per error measure stored and not zero everywhere, when dt is
-    swept; the others by what the dataset holds."""
+def candidate_figures(ds):
+    """The figures a dataset could show by what it stores: a convergence figure per error
+    measure stored, when dt is swept; the others by what the dataset holds."""
     names = {"stability_map"}
     if "dt" in ds.dims:
         names.add("work_precision")
-        for key, (*_, variable) in ERROR_MEASURES.items():
-            if variable in ds and (abs(ds[variable]) > 0).any():
-                names.add(f"convergence_{key}")
+        names |= {f"convergence_{key}" for key, (*_, variable) in ERROR_MEASURES.items()
+                  if variable in ds}
     if "energy_error" in ds:
         names.add("invariant_drift")
     if "precession_frequency" in ds and "node_offset" in ds:
@@ -67,13 +66,25 @@ def expected_figures(ds):
     return names
 
 
+def drawn(figures, study):
+    return {png.stem.removeprefix(f"{study}_") for png in figures.written}
+
+
 @pytest.mark.parametrize("name", SHIPPED)
 def test_every_shipped_study_gives_its_figures(name, tmp_path):
+    """Every figure the archive supports is drawn, in both formats and named by study, or
+    left out with its reason."""
     done = run_study(load_study(shrunk_config(name, tmp_path)), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
-    written = all_figures(ds, tmp_path / "figures")
-    assert {png.stem for png in written} == expected_figures(ds)
-    for png in written:
+    study = ds.attrs["study"]
+    figures = all_figures(ds, tmp_path / "figures")
+    candidates, shown, left_out = candidate_figures(ds), drawn(figures, study), set(figures.absent)
+    if "benchmark" in left_out:  # the three benchmark figures stand or fall together
+        candidates = {n for n in candidates if not n.startswith("benchmark_")} | {"benchmark"}
+    assert shown | left_out == candidates and not shown & left_out
+    assert all(figures.absent.values())  # every absence says why
+    for png in figures.written:
+        assert png.name.startswith(f"{study}_")
         assert png.stat().st_size > 10_000 and png.with_suffix(".svg").stat().st_size > 10_000
 
 
@@ -103,7 +114,9 @@ def test_report_parses_and_every_image_exists(tmp_path, capsys):
     parser = _Page()
     parser.feed(index.read_text())
     parser.close()
-    assert len(parser.images) == len(expected_figures(open_results(done.path)))
+    drawn_pngs = sorted((index.parent / "figures").glob("*.png"))
+    assert sorted(index.parent / source for source in parser.images) == drawn_pngs
+    assert all(png.name.startswith("abaqus_top_") for png in drawn_pngs)
     for source in parser.images + parser.links:
         assert (index.parent / source).is_file(), source
     text = index.read_text()
@@ -140,12 +153,86 @@ def test_plot_select_narrows_the_cases(tmp_path, capsys):
     narrowed = _select(open_results(done.path), ["scheme=hht", "inertia_ratio=2"], "x")
     assert (narrowed.sizes["scheme"], narrowed.sizes["inertia_ratio"]) == (1, 1)
     assert str(narrowed.scheme.values[0]) == "hht" and float(narrowed.inertia_ratio[0]) == 2.0
+    capsys.readouterr()
     assert main(["plot", str(done.path), "--out", str(tmp_path / "one"),
                  "--select", "scheme=hht", "--select", "inertia_ratio=2"]) == 0
-    assert len(list((tmp_path / "one").glob("*.png"))) == len(expected_figures(narrowed))
+    reported = int(capsys.readouterr().out.split(": ")[1].split()[0])
+    assert len(list((tmp_path / "one").glob("*.png"))) == reported > 0
     for bad, message in ((["--select", "dt=fast"], "--select dt=fast: dt takes a number"),
                          (["--select", "time=1"], "'time' is not a swept dimension")):
         assert main(["plot", str(done.path), "--out", str(tmp_path / "x"), *bad]) == 2
         assert message in capsys.readouterr().err
     assert main(["plot", str(done.path), "--select", "dt=0.01"]) == 2
     assert "--select needs --out" in capsys.readouterr().err
+
+
+def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_archive(
+        tmp_path, capsys):
+    """`plot a.nc b.nc --out DIR` used to leave 13 of 50 figures: names now carry the study;
+    a report goes beside its archive by default and never into another study's folder."""
+    paths = [run_study(load_study(shrunk_config(name, tmp_path)), tmp_path / "out",
+                       quiet=True).path for name in ("long_run.yaml", "high_spin.yaml")]
+    assert main(["plot", *map(str, paths), "--out", str(tmp_path / "both")]) == 0
+    counts = [int(line.split(": ")[1].split()[0]) for line in capsys.readouterr().out.splitlines()
+              if "figures (PNG and SVG)" in line]
+    assert len(list((tmp_path / "both").glob("*.png"))) == sum(counts) > counts[0]
+    assert main(["report", str(paths[0])]) == 0
+    assert (paths[0].parent / "report" / "index.html").is_file()
+    assert main(["report", str(paths[1]), "--out", str(paths[0].parent / "report")]) == 2
+    error = capsys.readouterr().err
+    assert "holds the report of study 'long_run', not 'high_spin'" in error
+    assert main(["plot", str(paths[0]), str(paths[0]), "--out", str(tmp_path / "x")]) == 2
+    assert "also study 'long_run'" in capsys.readouterr().err
+
+
+def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path):
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
+                     quiet=True)
+    ds = open_results(done.path)
+    ds["final_orientation_error"][:] = float("nan")  # every case failed
+    figures = convergence(ds, tmp_path / "figures")
+    assert "convergence_orientation" in figures.absent
+    assert "no line shows an asymptotic range" in figures.absent["convergence_orientation"]
+    assert not (tmp_path / "figures" / "abaqus_top_convergence_orientation.png").exists()
+
+
+def test_every_scheme_has_a_style_of_its_own():
+    from rbstudy.analysis.plots import SCHEME_STYLES
+    assert set(SCHEMES) <= set(SCHEME_STYLES)
+    styles = [SCHEME_STYLES[name] for name in SCHEMES]
+    assert len({color for color, _, _ in styles}) == len(styles)
+    for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4")):
+        # curves that coincide: another marker and another dash, so that both show
+        assert SCHEME_STYLES[a][1:] != SCHEME_STYLES[b][1:]
+        assert SCHEME_STYLES[a][2] != SCHEME_STYLES[b][2]
+
+
+def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from rbstudy.analysis.plots import plot_with_zeros, zero_floor
+    errors = np.array([3e-4, 0.0, np.nan, 2e-6])  # a zero, and a failed case
+    floor = zero_floor(errors)
+    assert floor == 1e-7
+    fig, ax = plt.subplots()
+    style = dict(color="k", marker="o", linestyle="-", markersize=4, markerfacecolor="k",
+                 zorder=2, linewidth=1)
+    plot_with_zeros(ax, np.arange(4.0), errors, floor, "x", style)
+    line, zeros = ax.lines
+    assert np.isnan(line.get_ydata()[1]) and np.isnan(line.get_ydata()[2])
+    assert list(zeros.get_xdata()) == [1.0] and list(zeros.get_ydata()) == [1e-7]  # only 0
+    plt.close(fig)
+
+
+def test_linear_axes_read_their_values_without_an_offset():
+    """The benchmark's w_z axis read "1e-7+6.28691"."""
+    import matplotlib.pyplot as plt
+
+    from rbstudy.analysis import plots
+    with plt.rc_context(plots._RC):
+        fig, ax = plt.subplots()
+        ax.plot([0.0, 1.0], [6.28691, 6.28691 + 1e-7])
+        fig.canvas.draw()
+        assert ax.yaxis.get_major_formatter().get_offset() == ""
+        plt.close(fig)

@@ -96,3 +96,26 @@ def test_space_angular_velocity_is_turned_into_the_body():
                     "orientation": {"euler_zxz_deg": [10, 30, 50]}}})
     space = Rotation.from_quat(scene.quaternion).apply(scene.omega_body)
     assert np.allclose(space, [0.0, 0.0, 2.0], atol=1e-14)
+
+
+def test_a_symmetric_body_given_as_a_rotated_tensor_is_symmetric(tmp_path):
+    """diag(1, 1, 2) turned by a rotation diagonalises to (1.0, 1.0000000000000004, 2.0): it is
+    still the symmetric top, with its closed-form reference and precession variables."""
+    from conftest import write_study
+
+    from rbstudy.physics.analytic import precession_frequency_exact, reference_kind
+    from rbstudy.pipeline.config import load_study
+
+    turn = Rotation.from_rotvec([0.4, -0.7, 0.2]).as_matrix()
+    tensor = turn @ np.diag([1.0, 1.0, 2.0]) @ turn.T
+    assert len(set(np.linalg.eigh(tensor)[0])) == 3  # round-off makes the values differ
+    w_input = turn @ np.array([0.25, 0.0, 2.0 * math.pi])  # (A, 0, w3) in principal axes
+    scene_spec = {"body": {"inertia": tensor.tolist()},
+                  "initial": {"angular_velocity": {"body": w_input.tolist()}}, "duration": 0.5}
+    scene = scene_from_mapping(scene_spec)
+    assert scene.body.symmetry_axis is not None
+    assert reference_kind(scene) == "symmetric_top"
+    assert math.isclose(abs(precession_frequency_exact(scene)), 2.0 * math.pi, rel_tol=1e-12)
+    study = load_study(write_study(tmp_path, scene=scene_spec))
+    assert {"precession_frequency", "precession_frequency_error"} <= set(study.variables)
+    assert "flip_interval" not in study.variables

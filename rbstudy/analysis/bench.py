@@ -14,6 +14,7 @@ below the blow-up bound over the long single-body run; output is sampled every
 """
 
 import math
+import sys
 import time
 
 import numpy as np
@@ -52,11 +53,25 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
     return taken / out.kernel_seconds, out
 
 
-def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo=print):
-    """Measure and print the figures; returns them as a list of dicts."""
+def _progress(enabled):
+    """``note(text)``: redraws one status line on a terminal's stderr (nothing elsewhere)."""
+    live = enabled and sys.stderr.isatty()
+
+    def note(text):
+        if live:
+            sys.stderr.write(f"\r{text:<60s}\r" if text else f"\r{'':60s}\r")
+            sys.stderr.flush()
+    return note
+
+
+def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo=print,
+              progress=True):
+    """Measure and print the figures (a progress line on a terminal while each runs);
+    returns them as a list of dicts."""
     chosen = [get_scheme(name) for name in schemes or SCHEMES]  # unknown names fail first
     scene = abaqus_top_scene()
     cores = default_threads()
+    note = _progress(progress)
     rows = []
     echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
          f"figure, {cores} cores; rates in body-steps/s")
@@ -66,6 +81,7 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
     echo(header)
     for scheme in chosen:
         name = scheme.name
+        note(f"{name}: compiling")
         start = time.perf_counter()
         scheme.ensure_compiled()
         compile_seconds = time.perf_counter() - start
@@ -79,9 +95,11 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
                     continue
                 steps = REFERENCE_STEPS
             for threads in (1, cores):
+                note(f"{name}: B={size}, {threads} thread(s), {steps * size:.1e} body-steps")
                 rate, _ = _rate(scheme, scene, size, steps, threads)
                 row[f"B{size}_threads{threads}"] = rate
                 line += f" {rate:14.3e}"
+        note("")
         echo(line)
         rows.append(row)
     return rows

@@ -1,17 +1,24 @@
 """Figures from archived results: never the solver, only the dataset (`rbstudy plot`).
 
-Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results` and an output
-folder, writes ``<name>.png`` and ``<name>.svg`` and returns the PNG paths it wrote (none
-when the dataset lacks what the figure needs: no ``dt`` axis, no nodes, ...).
+Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results` and an
+output folder, writes ``<study>_<name>.png`` and ``.svg`` and returns a `Figures`: the PNG
+paths it wrote, and for each figure it could have drawn but did not, the reason (the
+dataset lacks what it needs, or it would have nothing to show).
 
-- `convergence`: error against dt, log-log, a line per scheme with its fitted order, and
-  reference slopes; one figure per error measure.
+- `convergence`: error against dt, log-log, a line per scheme with its fitted order and the
+  slope of the finest fitted pair, and reference slopes; one figure per error measure, drawn
+  only when at least one line has an asymptotic range.
 - `work_precision`: run time per case against error, a line per scheme.
-- `stability_map`: ``dt |w0|`` of every case against the swept parameter, stable and
-  unstable marked, the largest stable value per scheme joined.
-- `invariant_drift`: |energy| and |L| errors against time for one case per scheme.
+- `stability_map`: ``dt |w0|`` of every case against the swept parameter: accurate,
+  finished but inaccurate, and failed marked apart; the largest accurate value joined.
+- `invariant_drift`: |energy| and |L - L0| errors against time for one case per scheme.
 - `benchmark`: the Abaqus figures (global w against time, w_x against w_y, a node's path
   seen down z) with the closed form overlaid.
+
+Every scheme keeps one colour, marker and line style (`SCHEME_STYLES`) in every figure, and
+schemes whose curves coincide differ in marker and dash, so that both stay visible. Legends
+sit outside the data. An exact zero, which log axes cannot show, is a marked point on a floor
+line labelled "0 (exact)"; a gap is a failed case and nothing else.
 
 Large sweeps stay readable: lines are the schemes (or, in a one-scheme study, the values of
 a swept axis with at most `MAX_LINES` values); a further axis with at most `MAX_FACETS`
@@ -20,6 +27,7 @@ case makes the worst case a gap, never hidden), and the panel title says so.
 """
 
 import pathlib
+from dataclasses import dataclass, field
 
 import matplotlib
 
@@ -40,23 +48,61 @@ from rbstudy.physics.analytic import symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 
-__all__ = ["MAX_FACETS", "MAX_LINES", "convergence", "work_precision", "stability_map",
-           "invariant_drift", "benchmark", "all_figures", "CAPTIONS"]
+__all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "Figures", "convergence",
+           "work_precision", "stability_map", "invariant_drift", "benchmark", "all_figures",
+           "CAPTIONS", "figure_name", "zero_floor", "plot_with_zeros"]
 
 MAX_FACETS = 4
 MAX_LINES = 8
 REFERENCE_ORDERS = (1, 2, 4)
-# An invariant kept exactly has error 0, which log axes cannot show: it is drawn here.
-ZERO_SHOWN_AT = 1e-17
 # A swept parameter spanning more than this ratio gets a log axis in the stability map.
 LOG_AXIS_RATIO = 50
 # The benchmark figures show this case where the study has it (the Abaqus set-up: HHT on the
 # flat disk, the node on the symmetry axis), else the first of each axis.
 BENCHMARK_PICKS = {"scheme": "hht", "inertia_ratio": 2.0}
 BENCHMARK_NODE = "4"
-_FONT = {"font.size": 10, "axes.titlesize": 10, "legend.fontsize": 8,
-         "figure.titlesize": 10}
+# No "1e-7 + 6.28691" offsets on linear axes: every tick reads as its value.
+_RC = {"font.size": 10, "axes.titlesize": 10, "legend.fontsize": 8, "figure.titlesize": 10,
+       "axes.formatter.useoffset": False}
 _CASE_DIMS_EXCLUDED = ("time", "node", "axis", "component")
+
+# (colour, marker, line style) of each scheme, the same in every figure. The pairs whose
+# curves coincide on a symmetric top (euler/leapfrog, splitting/no_squish, rk4/rkmk4) take a
+# large hollow marker on a solid line and a small filled one on a dashed line on top.
+SCHEME_STYLES = {
+    "euler": ("tab:blue", "o", "-"),
+    "leapfrog": ("tab:orange", "s", "--"),
+    "hht": ("tab:brown", "D", "-"),
+    "midpoint": ("tab:purple", "^", "-."),
+    "splitting": ("tab:green", "o", "-"),
+    "no_squish": ("tab:olive", "P", "--"),
+    "rk4": ("tab:red", "o", "-"),
+    "rkmk4": ("tab:pink", "X", "--"),
+    "dop853": ("black", "+", ":"),
+}
+# Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
+_OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
+                 ("tab:red", "D", ":"), ("tab:purple", "v", "-"), ("tab:brown", "P", "--"),
+                 ("tab:pink", "X", "-."), ("tab:gray", "*", ":")]
+ZERO_LABEL = "0 (exact)"
+
+
+@dataclass
+class Figures:
+    """The PNG files written, and why each figure not drawn was left out (name -> reason)."""
+
+    written: list = field(default_factory=list)
+    absent: dict = field(default_factory=dict)
+
+    def __iadd__(self, other):
+        self.written += other.written
+        self.absent.update(other.absent)
+        return self
+
+
+def figure_name(ds, name):
+    """``<study>_<name>``: figures of several studies can share a folder."""
+    return f"{ds.attrs.get('study', 'results')}_{name}"
 
 
 def _case_dims(ds):
@@ -93,12 +139,25 @@ def _panel_title(dim, value, reduced):
 
 
 def _lines(da, line):
-    """(label, data) per line of a panel."""
+    """(label, style key, data) per line of a panel."""
     if line is None:
-        return [("", da)]
+        return [("", None, da)]
     if line == "scheme":
-        return [(scheme, per_scheme(da, scheme)) for scheme in schemes_of(da)]
-    return [(_value_text(line, v), da.sel({line: v})) for v in da[line].values]
+        return [(scheme, scheme, per_scheme(da, scheme)) for scheme in schemes_of(da)]
+    return [(_value_text(line, v), k, da.sel({line: v})) for k, v in enumerate(da[line].values)]
+
+
+def _style(key):
+    """Keyword arguments that draw the line ``key`` (a scheme name or a line number)."""
+    if isinstance(key, str) and key in SCHEME_STYLES:
+        color, marker, dash = SCHEME_STYLES[key]
+    else:
+        index = key if isinstance(key, int) else sum(map(ord, str(key)))
+        color, marker, dash = _OTHER_STYLES[index % len(_OTHER_STYLES)]
+    solid = dash == "-"
+    return dict(color=color, marker=marker, linestyle=dash, linewidth=2.0 if solid else 1.2,
+                markersize=7 if solid else 4, zorder=2 if solid else 3,
+                markerfacecolor="none" if solid else color)
 
 
 def _worst(da, reduced):
@@ -115,8 +174,9 @@ def _plain_log_labels(fig):
                 low, high = axis.get_view_interval()
                 axis.set_major_locator(LogLocator(numticks=8))
                 axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0e}"))
-                # less than a decade shown: label the minor ticks at 2 and 5, or none would be
-                short = 0 < low and high / low < 10
+                # under two decades shown: label the minor ticks at 2 and 5 as well, or a
+                # single major tick (or none) would be labelled
+                short = 0 < low and high / low < 100
                 axis.set_minor_formatter(FuncFormatter(_two_and_five) if short
                                          else NullFormatter())
 
@@ -126,13 +186,13 @@ def _two_and_five(value, _):
     return mantissa if mantissa[0] in "25" else ""
 
 
-def _save(fig, folder, name):
+def _save(fig, folder, ds, name):
     _plain_log_labels(fig)
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    png = folder / f"{name}.png"
+    png = folder / f"{figure_name(ds, name)}.png"
     fig.savefig(png, dpi=110)  # constrained layout fits the labels: no second "tight" pass
-    fig.savefig(folder / f"{name}.svg")
+    fig.savefig(png.with_suffix(".svg"))
     plt.close(fig)
     return png
 
@@ -151,6 +211,49 @@ def _title(fig, ds, what):
     fig.suptitle(f"{ds.attrs.get('title', '')}\n{what}", wrap=True)
 
 
+def _legend_outside(ax):
+    """The panel's legend to the right of its axes, clear of the data."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+
+
+def zero_floor(values):
+    """The y of the floor line on which exact zeros of ``values`` are drawn: a decade below
+    the smallest positive value, or None when no value is zero."""
+    values = np.asarray(values, dtype=float)
+    if not np.any(values == 0.0):
+        return None
+    positive = values[values > 0]
+    return 10.0 ** (np.floor(np.log10(positive.min())) - 1) if positive.size else 1e-16
+
+
+def _mark_floor(ax, floor):
+    """Draw and label the floor line (after the data, so that the limits know the data)."""
+    if floor is None:
+        return
+    ax.axhline(floor, color="0.5", linewidth=0.8, linestyle=":", zorder=1)
+    ax.annotate(ZERO_LABEL, (0.01, floor), xycoords=("axes fraction", "data"),
+                xytext=(0, 3), textcoords="offset points", fontsize=7, color="0.3")
+    ax.set_ylim(bottom=floor / 3.0, top=max(ax.get_ylim()[1], floor * 10.0))
+
+
+def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
+    """A line with exact zeros drawn on the floor line (failed cases, NaN, stay gaps): as its
+    markers there, or for a dense time series (``markers`` off) as stretches of its line."""
+    y = np.asarray(y, dtype=float)
+    line_style = style if markers else {**style, "marker": ""}
+    line, = ax.plot(x, np.where(y > 0, y, np.nan), label=label, **line_style)
+    zero = y == 0.0
+    if zero.any() and floor is not None:
+        if markers:
+            ax.plot(np.asarray(x)[zero], np.full(zero.sum(), floor), linestyle="none",
+                    marker=style["marker"], markersize=style["markersize"],
+                    color=style["color"], markerfacecolor=style["markerfacecolor"],
+                    zorder=style["zorder"])
+        else:
+            ax.plot(x, np.where(zero, floor, np.nan), **line_style)
+    return line
+
+
 def _reference_slopes(ax, dts, errors):
     finite = errors[np.isfinite(errors) & (errors > 0)]
     if finite.size == 0:
@@ -158,80 +261,102 @@ def _reference_slopes(ax, dts, errors):
     anchor_dt, anchor = dts.max(), np.median(finite)
     for order in REFERENCE_ORDERS:
         ax.plot(dts, anchor * (dts / anchor_dt) ** order, color="0.6", linestyle=":",
-                linewidth=1)
+                linewidth=1, zorder=1)
         ax.annotate(f"order {order}", (dts.min(), anchor * (dts.min() / anchor_dt) ** order),
                     fontsize=7, color="0.4")
 
 
+def _fit_label(name, errors, fit):
+    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order."""
+    if np.isfinite(fit.order):
+        text = f"order {fit.order:.2f}, finest {fit.finest_slope:.2f}"
+    elif not np.isfinite(errors).any():
+        text = "failed at every dt"
+    elif np.all(errors[np.isfinite(errors)] == 0.0):
+        text = "exact at every dt"
+    else:
+        text = "no asymptotic range"
+    return f"{name} ({text})".strip()
+
+
 def convergence(ds, folder):
     """Error against dt per measure, fitted order per line in the legend."""
+    figures = Figures()
     if "dt" not in ds.dims:
-        return []
-    written = []
+        return figures
     dts = ds["dt"].values
     line_dim, facet, reduced = _layout(ds)
     values = list(ds[facet].values) if facet else [None]
     for key, (label, units, *_) in ERROR_MEASURES.items():
         measure = error_measure(ds, key)
-        if measure is None or not (measure > 0).any():
-            continue  # not stored, or exactly kept in every case: nothing to draw on log axes
-        with plt.rc_context(_FONT):
-            fig, axes = _grid(len(values))
-            for ax, value in zip(axes, values, strict=True):
-                panel = _worst(measure.sel({facet: value}) if facet else measure, reduced)
+        name = f"convergence_{key}"
+        if measure is None:
+            continue  # not stored: not a figure this study could have
+        panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced)
+                  for value in values]
+        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key))
+                 for line_name, style, data in _lines(panel, line_dim)] for panel in panels]
+        if not any(np.isfinite(fit.order) for panel in fits for *_, fit in panel):
+            figures.absent[name] = (f"no line shows an asymptotic range of the {label} (every "
+                                    "line failed, stalled or was exact at every dt)")
+            continue
+        with plt.rc_context(_RC):
+            fig, axes = _grid(len(values), width=6.4)
+            for ax, value, panel, lines in zip(axes, values, panels, fits, strict=True):
                 ax.set_xscale("log")
-                for name, data in _lines(panel, line_dim):
-                    errors = data.values
-                    order, used = fitted_order(dts, errors, key)
-                    shown = f"{order:.2f}" if np.isfinite(order) else "n/a"
-                    # zeros (an invariant kept exactly) have no place on log axes
-                    line, = ax.plot(dts, np.where(errors > 0, errors, np.nan), marker="o",
-                                    markersize=3, label=f"{name} (order {shown})".strip())
-                    ax.plot(dts[used], errors[used], linestyle="none", marker="o",
-                            markersize=6, markerfacecolor="none", color=line.get_color())
-                if (panel.values > 0).any():
-                    ax.set_yscale("log")
-                    _reference_slopes(ax, dts, panel.values.ravel())
-                else:
-                    ax.text(0.5, 0.5, "zero in every case", transform=ax.transAxes,
-                            ha="center")
+                ax.set_yscale("log")
+                floor = zero_floor(panel.values)
+                for line_name, style_key, errors, fit in lines:
+                    style = _style(style_key)
+                    plot_with_zeros(ax, dts, errors, floor, _fit_label(line_name, errors, fit),
+                                    style)
+                    ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
+                            markersize=11, markerfacecolor="none", markeredgewidth=0.8,
+                            color=style["color"], zorder=1)
+                _reference_slopes(ax, dts, panel.values.ravel())
+                _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
                 ax.set_title(_panel_title(facet, value, reduced))
                 ax.grid(True, which="major", alpha=0.3)
-                ax.legend(loc="lower right")  # lines rise to the right: this corner stays empty
-            _title(fig, ds, f"convergence: {label}; circled points: the fitted asymptotic "
-                            "range; gaps: failed cases")
-            written.append(_save(fig, folder, f"convergence_{key}"))
-    return written
+                _legend_outside(ax)
+            _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic "
+                            f"range; gaps: failed cases; on the dotted floor: {ZERO_LABEL}")
+            figures.written.append(_save(fig, folder, ds, name))
+    return figures
 
 
 def work_precision(ds, folder):
     """Run time per case against the final orientation error, a line per scheme over dt."""
+    figures = Figures()
     measure = error_measure(ds, "orientation")
     if measure is None or "dt" not in ds.dims:
-        return []
+        return figures
+    if not (measure > 0).any():
+        figures.absent["work_precision"] = "no case has a finite, non-zero orientation error"
+        return figures
     line_dim, facet, reduced = _layout(ds)
     values = list(ds[facet].values) if facet else [None]
-    with plt.rc_context(_FONT):
-        fig, axes = _grid(len(values))
+    with plt.rc_context(_RC):
+        fig, axes = _grid(len(values), width=6.0)
         for ax, value in zip(axes, values, strict=True):
             pick = {facet: value} if facet else {}
             errors = _worst(measure.sel(pick), reduced)
             times = _worst(ds["run_time"].sel(pick), reduced)
-            for (name, error_line), (_, time_line) in zip(_lines(errors, line_dim),
-                                                          _lines(times, line_dim), strict=True):
-                ax.loglog(error_line.values, time_line.values, marker="o", markersize=3,
-                          label=name or None)
+            for (name, style_key, error_line), (*_, time_line) in zip(
+                    _lines(errors, line_dim), _lines(times, line_dim), strict=True):
+                ax.loglog(error_line.values, time_line.values, label=name or None,
+                          **_style(style_key))
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("run time per case (core-seconds)")
             ax.set_title(_panel_title(facet, value, reduced))
             ax.grid(True, which="major", alpha=0.3)
             if line_dim:
-                ax.legend(loc="upper right")  # cost falls as error grows: this corner is empty
+                _legend_outside(ax)
         _title(fig, ds, "work-precision: kernel CPU time of each batch divided among its "
                         "cases, compilation excluded; each point a dt")
-        return [_save(fig, folder, "work_precision")]
+        figures.written.append(_save(fig, folder, ds, "work_precision"))
+    return figures
 
 
 def _parameter(ds):
@@ -249,19 +374,27 @@ def _parameter(ds):
 
 
 def stability_map(ds, folder):
-    """``dt |w0|`` of every case against the swept parameter, one panel per scheme."""
+    """``dt |w0|`` of every case against the swept parameter, one panel per scheme: accurate,
+    finished but inaccurate, failed."""
+    figures = Figures()
     if "dt" not in ds.coords:
-        return []
+        return figures
     load = step_load(ds)
     parameter = _parameter(ds)
     schemes = schemes_of(ds)
-    with plt.rc_context(_FONT):
+    bound = ds.attrs.get("accuracy_bound")
+    inaccurate_label = ("finished, inaccurate" + (f" (error or drift > {bound:g})"
+                                                  if bound is not None else ""))
+    with plt.rc_context(_RC):
         fig, axes = _grid(len(schemes), width=3.4, height=2.9, columns=4)
         for ax, scheme in zip(axes, schemes, strict=True):
-            status = per_scheme(ds["status"], scheme)
-            y, ok = per_scheme(load, scheme).values.ravel(), status.values.ravel() == 0
+            status = per_scheme(ds["status"], scheme).values.ravel()
+            accurate = (per_scheme(ds["accuracy"], scheme).values.ravel() == 0
+                        if "accuracy" in ds else status == 0)
+            y = per_scheme(load, scheme).values.ravel()
+            good, poor, failed = (status == 0) & accurate, (status == 0) & ~accurate, status != 0
             if parameter:
-                name, values, label = parameter
+                _, values, label = parameter
                 x = per_scheme(values, scheme).values.ravel()
                 ax.set_xlabel(label)
                 if np.all(x > 0) and x.max() / x.min() > LOG_AXIS_RATIO:
@@ -269,21 +402,31 @@ def stability_map(ds, folder):
             else:
                 x = np.zeros(y.size)
                 ax.set_xticks([])
-            ax.scatter(x[ok], y[ok], s=14, color="tab:green", label="stable")
-            ax.scatter(x[~ok], y[~ok], s=22, marker="x", color="tab:red",
-                       label="failed (unstable or not converged)")
+            for cases, kind in ((good, dict(s=14, color="tab:green", label="accurate")),
+                                (poor, dict(s=22, marker="^", color="tab:orange",
+                                            label=inaccurate_label)),
+                                (failed, dict(s=22, marker="x", color="tab:red",
+                                              label="failed (unstable or not converged)"))):
+                if cases.any():  # the legend lists what occurs, nothing else
+                    ax.scatter(x[cases], y[cases], **kind)
             if parameter:
                 xs = np.unique(x)
-                largest = [y[ok & (x == v)].max() if (ok & (x == v)).any() else np.nan
+                largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
                            for v in xs]
-                ax.plot(xs, largest, color="tab:green", linewidth=1, label="largest stable")
+                ax.plot(xs, largest, color="tab:green", linewidth=1, label="largest accurate")
             ax.set_yscale("log")
             ax.set_ylabel("dt |w0| (rad)")
-            ax.set_title(scheme if (~ok).any() else f"{scheme}: all stable")
+            ax.set_title(scheme if (poor | failed).any() else f"{scheme}: all accurate")
             ax.grid(True, alpha=0.3)
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=3)
-        _title(fig, ds, "stability: every case by its dt |w0|")
-        return [_save(fig, folder, "stability_map")]
+        handles = {}
+        for ax in axes:  # every category that occurs in some panel, once
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                handles[label] = handle
+        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
+                   ncols=len(handles))
+        _title(fig, ds, "stability and accuracy: every case by its dt |w0|")
+        figures.written.append(_save(fig, folder, ds, "stability_map"))
+    return figures
 
 
 def _drift_case(ds, scheme):
@@ -305,28 +448,36 @@ def _drift_case(ds, scheme):
 
 
 def invariant_drift(ds, folder):
-    """|energy error| and |L| error against time, one case per scheme."""
-    panels = [(name, label) for name, label in (("energy_error", "|relative energy error|"),
-                                                ("momentum_error", "relative |L - L0|"))
-              if name in ds]
+    """|energy error| and |L - L0| / |L0| against time, one case per scheme."""
+    figures = Figures()
+    panels = [(name, label) for name, label in (
+        ("energy_error", "|relative energy error|"),
+        ("momentum_error", "relative |L - L0| (vector)")) if name in ds]
     if not panels:
-        return []
-    with plt.rc_context(_FONT):
-        fig, axes = _grid(len(panels))
+        return figures
+    cases = [(scheme, *_drift_case(ds, scheme)) for scheme in schemes_of(ds)]
+    cases = [(scheme, case, label) for scheme, case, label in cases if case is not None]
+    if not cases:
+        figures.absent["invariant_drift"] = "every case failed"
+        return figures
+    times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
+    with plt.rc_context(_RC):
+        fig, axes = _grid(len(panels), width=6.4)
         for ax, (name, label) in zip(axes, panels, strict=True):
-            for scheme in schemes_of(ds):
-                case, case_label = _drift_case(ds, scheme)
-                if case is None:
-                    continue
-                values = np.maximum(np.abs(case[name].values), ZERO_SHOWN_AT)
-                ax.semilogy(ds["time"].values, values, linewidth=1, label=case_label)
+            ax.set_yscale("log")
+            floor = zero_floor(np.concatenate([np.abs(case[name].values[1:])
+                                               for _, case, _ in cases]))
+            for scheme, case, case_label in cases:
+                plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, case_label,
+                                _style(scheme), markers=False)
+            _mark_floor(ax, floor)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
-            ax.legend(loc="best")
-        _title(fig, ds, "invariant drift: bounded or secular; "
-                        f"{ZERO_SHOWN_AT:g} stands for exactly zero")
-        return [_save(fig, folder, "invariant_drift")]
+            _legend_outside(ax)
+        _title(fig, ds, f"invariant drift: bounded or secular; on the dotted floor: {ZERO_LABEL}")
+        figures.written.append(_save(fig, folder, ds, "invariant_drift"))
+    return figures
 
 
 def _benchmark_case(ds):
@@ -349,15 +500,18 @@ _BENCHMARK_NEEDS = ("precession_frequency", "node_offset", "node_displacement", 
 
 def benchmark(ds, folder):
     """The Abaqus benchmark figures of a symmetric body with nodes, exact solution overlaid."""
+    figures = Figures()
     if any(name not in ds for name in _BENCHMARK_NEEDS):
-        return []
+        return figures
     case, what = _benchmark_case(ds)
+    if int(case["status"]) != 0:
+        figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
+        return figures
     times = ds["time"].values
     q_exact, w_exact = symmetric_top(case["inertia"].values, case["quaternion"].values[0],
                                      case["omega_body"].values[0], times)
     w_space = np.einsum("tij,tj->ti", quat_to_matrix(q_exact), w_exact)
-    written = []
-    with plt.rc_context(_FONT):
+    with plt.rc_context(_RC):
         fig, axes = _grid(3, width=4.2, height=3.0)
         for k, ax in enumerate(axes):
             ax.plot(times, case["omega_space"].values[:, k], label=what)
@@ -365,21 +519,21 @@ def benchmark(ds, folder):
             ax.set_xlabel("time (s)")
             ax.set_ylabel(f"global w_{'xyz'[k]} (rad/s)")
             ax.grid(True, alpha=0.3)
-        axes[0].legend(loc="best")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2)
         fig.suptitle("global angular velocity against time (benchmark figures 2-4)")
-        written.append(_save(fig, folder, "benchmark_omega_time"))
+        figures.written.append(_save(fig, folder, ds, "benchmark_omega_time"))
 
-        fig, ax = plt.subplots(figsize=(5.0, 4.8), layout="constrained")
+        fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
         ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], label=what)
         ax.plot(w_space[:, 0], w_space[:, 1], linestyle="--", color="k", linewidth=1,
                 label="exact")
         ax.set_aspect("equal")
         ax.set_xlabel("global w_x (rad/s)")
         ax.set_ylabel("global w_y (rad/s)")
-        ax.legend(loc="best")
+        fig.legend(loc="outside lower center", ncols=2)
         ax.grid(True, alpha=0.3)
         ax.set_title("w_x against w_y (benchmark figure 5)")
-        written.append(_save(fig, folder, "benchmark_omega_xy"))
+        figures.written.append(_save(fig, folder, ds, "benchmark_omega_xy"))
 
         names = [str(n) for n in case["node"].values]
         node = BENCHMARK_NODE if BENCHMARK_NODE in names else names[-1]
@@ -387,36 +541,39 @@ def benchmark(ds, folder):
         start = node_positions(case["quaternion"].values[:1], np.zeros((1, 3)), offset[None])
         path = start[0, 0] + case["node_displacement"].sel(node=node).values
         exact = node_positions(q_exact, np.zeros((times.size, 3)), offset[None])[:, 0]
-        fig, ax = plt.subplots(figsize=(5.0, 4.8), layout="constrained")
+        fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
         ax.plot(path[:, 0], path[:, 1], label=what)
         ax.plot(exact[:, 0], exact[:, 1], linestyle="--", color="k", linewidth=1, label="exact")
         ax.set_aspect("equal")
         ax.locator_params(nbins=5)  # short tick labels that do not run into each other
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-        ax.legend(loc="best")
+        fig.legend(loc="outside lower center", ncols=2)
         ax.grid(True, alpha=0.3)
         ax.set_title(f"node {node} seen down global z (benchmark figure 6)")
-        written.append(_save(fig, folder, "benchmark_node_path"))
-    return written
+        figures.written.append(_save(fig, folder, ds, "benchmark_node_path"))
+    return figures
 
 
-# What each figure shows, for the report (keyed by file name without the measure suffix).
+# What each figure shows, for the report (keyed by figure name without the measure suffix).
 CAPTIONS = {
     "convergence": "Error against the time step, log-log, one line per scheme (or per value "
                    "of the swept axis in a one-scheme study); the legend gives the order "
-                   "fitted on the circled points, the asymptotic range (see the table); "
-                   "dotted lines are slopes 1, 2 and 4; a gap is a failed case.",
+                   "fitted on the circled points, the asymptotic range (see the table), and "
+                   "the local slope of the finest fitted pair; dotted lines are slopes 1, 2 "
+                   "and 4; a gap is a failed case; a point on the dotted floor is exactly 0.",
     "work_precision": "Kernel run time per case against the final orientation error, one "
                       "point per dt: the cheapest scheme for a given accuracy is the lowest "
                       "line. Run time is the CPU time of the compiled batch call divided "
                       "among its cases, compilation excluded.",
-    "stability_map": "Every case by its dt |w0| against the swept parameter: green stable, "
-                     "red crosses failed; the line joins the largest stable value.",
-    "invariant_drift": "Energy and angular-momentum errors against time for one case per "
-                       "scheme, named in the legend (the largest stable dt when dt is swept; "
-                       "a failed case ends where it failed): bounded oscillation or secular "
-                       "growth.",
+    "stability_map": "Every case by its dt |w0| against the swept parameter: green accurate, "
+                     "orange triangles finished but inaccurate (final orientation error or "
+                     "energy or |L| drift past the study's accuracy bound), red crosses "
+                     "failed; the line joins the largest accurate value.",
+    "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
+                       "case per scheme, named in the legend (the largest stable dt when dt "
+                       "is swept; a failed case ends where it failed): bounded oscillation or "
+                       "secular growth; a point on the dotted floor is exactly 0.",
     "benchmark": "The Abaqus benchmark figures for the case named in the legend (HHT on the "
                  "flat disk at the largest dt where the study has it), with the closed-form "
                  "solution dashed.",
@@ -424,8 +581,8 @@ CAPTIONS = {
 
 
 def all_figures(ds, folder):
-    """Every figure the dataset supports; returns the PNG paths."""
-    written = []
+    """Every figure the dataset supports, as a `Figures` (written PNGs, absent with why)."""
+    figures = Figures()
     for figure in (convergence, work_precision, stability_map, invariant_drift, benchmark):
-        written += figure(ds, folder)
-    return written
+        figures += figure(ds, folder)
+    return figures

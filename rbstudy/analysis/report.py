@@ -1,9 +1,12 @@
 """`rbstudy report`: one self-contained HTML page per study, from its dataset only.
 
 ``<out>/index.html`` holds the study's config, the per-scheme table (observed order with the
-dt range it was fitted on, errors at the largest and smallest dt, kernel time per body-step,
-stable range, invariants kept), every figure of `rbstudy.analysis.plots` (PNG files beside it in
-``<out>/figures/``, SVG too) and the provenance recorded in the dataset.
+dt range it was fitted on and the slope of its finest pair, errors at the largest and smallest
+dt, kernel time per body-step, accurate range, invariants kept), every figure of
+`rbstudy.analysis.plots` (PNG files beside it in ``<out>/figures/``, SVG too), the figures
+the study could not show and why, and the provenance recorded in the dataset. A report folder
+belongs to one study (``.rbstudy-report`` names it): writing another study's report there is
+refused.
 """
 
 import html
@@ -11,10 +14,19 @@ import pathlib
 
 from rbstudy.analysis.plots import CAPTIONS, all_figures
 from rbstudy.analysis.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
-from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS, MIN_CONVERGENCE_ORDER, ORDER_SPREAD
+from rbstudy.errors import InputError
+from rbstudy.physics.metrics import (
+    MAX_SLOPE_DRIFT,
+    MIN_ASYMPTOTIC_POINTS,
+    MIN_CONVERGENCE_ORDER,
+    ORDER_SPREAD,
+)
 from rbstudy.pipeline.store import write_text_atomic
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "MARKER"]
+
+# The file that names the study a report folder belongs to.
+MARKER = ".rbstudy-report"
 
 _STYLE = """
 body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; color: #222; }
@@ -43,9 +55,24 @@ def _caption(name):
     return CAPTIONS.get(key, "")
 
 
+def _claim(out, study):
+    """Make ``out`` this study's report folder, or refuse one that belongs to another."""
+    marker = out / MARKER
+    owner = marker.read_text().strip() if marker.is_file() else None
+    if owner is not None and owner != study:
+        raise InputError(f"holds the report of study {owner!r}, not {study!r}",
+                         "give --out another folder", str(out))
+    if owner is None and out.is_dir() and any(out.iterdir()):
+        raise InputError("is not empty and holds no rbstudy report",
+                         "give --out a new or empty folder", str(out))
+    write_text_atomic(study + "\n", marker)
+
+
 def write_report(ds, out):
     """Write ``out/index.html`` and ``out/figures/`` for dataset ``ds``; returns the index path."""
     out = pathlib.Path(out)
+    study = str(ds.attrs.get("study", "results"))
+    _claim(out, study)
     figures = all_figures(ds, out / "figures")
     rows = scheme_rows(ds)
     floor, ceiling = ERROR_MEASURES["orientation"][2:4]
@@ -61,17 +88,26 @@ def write_report(ds, out):
         f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: the longest run of at least "
         f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
         f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
-        f"order, itself at least {MIN_CONVERGENCE_ORDER:g}. ns/step: the scheme's kernel CPU "
-        "time over all its steps. dt|w0| is the step parameter of a physical body (a stress body "
-        "beyond the triangle inequality precesses faster than |w0|).</p>",
+        f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift steadily by more "
+        f"than {MAX_SLOPE_DRIFT:g}, starting from the finest step that allows one. "
+        f"Accuracy bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
+        "final orientation error, relative for energy and |L|). ns/step: the scheme's kernel "
+        "CPU time over all its steps. dt|w0| is the step parameter of a physical body (a "
+        "stress body beyond the triangle inequality precesses faster than |w0|).</p>",
         _scheme_table(rows),
         "<h2>Figures</h2>",
     ]
-    for png in figures:
+    for png in figures.written:
         relative = png.relative_to(out).as_posix()
+        name = png.stem.removeprefix(f"{study}_")
         parts.append(f"<figure><img src='{relative}' alt='{png.stem}'>"
-                     f"<figcaption><b>{png.stem}</b>: {html.escape(_caption(png.stem))} "
+                     f"<figcaption><b>{name}</b>: {html.escape(_caption(name))} "
                      f"(<a href='{relative[:-4]}.svg'>SVG</a>)</figcaption></figure>")
+    if figures.absent:
+        parts += ["<h3>Figures not drawn</h3>", "<ul>"]
+        parts += [f"<li><b>{html.escape(name)}</b>: {html.escape(reason)}</li>"
+                  for name, reason in figures.absent.items()]
+        parts.append("</ul>")
     parts += ["<h2>Configuration</h2>", f"<pre>{html.escape(ds.attrs.get('config', ''))}</pre>",
               "<h2>Provenance</h2>", "<table>"]
     for key in ("source", "history", "versions", "platform", "python", "config_path"):

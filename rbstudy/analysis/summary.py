@@ -28,15 +28,18 @@ ERROR_MEASURES = {
     "omega": ("max relative angular velocity error", "1", 1e-13, 1e-1, "omega_error"),
     "nodes": ("max node position error", "m", 1e-13, 1e-1, "node_error"),
     "energy": ("max relative energy error", "1", 1e-15, 1e-1, "max_energy_error"),
-    "momentum": ("max relative |L| (magnitude) error", "1", 1e-15, 1e-1, "max_momentum_error"),
+    "momentum_magnitude": ("max relative error of |L| (magnitude)", "1", 1e-15, 1e-1,
+                           "max_momentum_magnitude_error"),
+    "momentum_vector": ("max relative |L - L0| (vector)", "1", 1e-15, 1e-1, "momentum_error"),
     "precession": ("|precession frequency error|", "rad/s", 1e-13, 1e-1,
                    "precession_frequency_error"),
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
     "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error"),
 }
 # What `scheme_rows` reads: per-case scalars only.
-SUMMARY_VARIABLES = ("status", "run_time", "n_steps", "final_orientation_error",
-                     "max_energy_error", "max_momentum_error", "initial_spin", "physical_body")
+SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orientation_error",
+                     "max_energy_error", "max_momentum_magnitude_error", "momentum_error",
+                     "initial_spin", "physical_body")
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
@@ -54,7 +57,8 @@ def error_measure(ds, key):
 
 
 def fitted_order(dts, errors, key):
-    """Observed order of measure ``key`` over its asymptotic range: (order, used mask)."""
+    """Observed order of measure ``key`` over its asymptotic range, an
+    `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope)."""
     _, _, floor, ceiling, _ = ERROR_MEASURES[key]
     return asymptotic_order(dts, errors, floor, ceiling)
 
@@ -75,18 +79,18 @@ def step_load(ds):
 
 
 def _orders(errors):
-    """Observed orders over ``dt`` for every value of the other swept axes: the list of
-    successful fits, how many were tried, and the union of the dt values fitted."""
+    """Observed orders over ``dt`` for every value of the other swept axes: the successful
+    fits, how many were tried, and the union of the dt values fitted."""
     others = [d for d in errors.dims if d != "dt"]
     stacked = errors.stack(other=others) if others else errors.expand_dims(other=[0])
     dts = errors["dt"].values
-    orders, used = [], np.zeros(dts.shape, dtype=bool)
+    fits, used = [], np.zeros(dts.shape, dtype=bool)
     for k in range(stacked.sizes["other"]):
-        order, mask = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE)
-        if np.isfinite(order):
-            orders.append(order)
-            used |= mask
-    return orders, stacked.sizes["other"], dts[used]
+        fit = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE)
+        if np.isfinite(fit.order):
+            fits.append(fit)
+            used |= fit.used
+    return fits, stacked.sizes["other"], dts[used]
 
 
 def _nominal_order(ds, scheme):
@@ -95,11 +99,17 @@ def _nominal_order(ds, scheme):
     return int(per_scheme(ds["nominal_order"], scheme))
 
 
+# The invariants the table checks, as it labels them: the energy and the magnitude |L| over
+# every step (the driver's drifts), and the space vector L at the samples (momentum_error).
+_KEPT = (("energy", "energy"), ("momentum_magnitude", "|L|"), ("momentum_vector", "L"))
+
+
 def _kept(ds, scheme, stable):
     kept = []
-    for name, label in (("max_energy_error", "energy"), ("max_momentum_error", "|L|")):
-        if name in ds:
-            drift = per_scheme(ds[name], scheme).values[stable]
+    for key, label in _KEPT:
+        drift = error_measure(ds, key)
+        if drift is not None:
+            drift = per_scheme(drift, scheme).values[stable]
             if drift.size and np.all(drift < KEPT_TOLERANCE):
                 kept.append(label)
     return tuple(kept)
@@ -109,14 +119,16 @@ def scheme_rows(ds):
     """One dict per scheme.
 
     Keys: scheme; nominal (the scheme's nominal order as archived, None if the archive does
-    not record it); cases, unstable (counts); order ((min, max) over the successful fits, or
-    None), fits and tries (how many of the other axes' values gave an asymptotic range),
-    fit_dt ((smallest, largest) dt fitted); error_dt / error at the largest dt and
-    error_small_dt / error_small at the smallest, the worst over the other axes (NaN when a
-    case there failed: a failure is never hidden behind the stable cases); ns_per_step
-    (kernel time per body-step, all the scheme's time over all its steps); stable_hw
-    (largest ``dt |w0|`` of a stable physical case), unstable_hw (smallest of a failed
-    physical one, NaN if none); kept (invariants every stable case kept to `KEPT_TOLERANCE`).
+    not record it); cases, unstable (cases that failed), inaccurate (cases that finished but
+    were judged inaccurate, None for an archive without the verdict); order ((min, max) over
+    the successful fits, or None) and finest ((min, max) of the fits' finest-pair slopes),
+    fits and tries (how many of the other axes' values gave an asymptotic range), fit_dt
+    ((smallest, largest) dt fitted); error_dt / error at the largest dt and error_small_dt /
+    error_small at the smallest, the worst over the other axes (NaN when a case there failed:
+    a failure is never hidden behind the stable cases); ns_per_step (kernel time per
+    body-step, all the scheme's time over all its steps); accurate_hw (largest ``dt |w0|`` of
+    a physical case that finished accurate), unstable_hw (smallest of a failed physical one,
+    NaN if none); kept (invariants every stable case kept to `KEPT_TOLERANCE`).
     """
     rows = []
     load = step_load(ds)
@@ -124,28 +136,33 @@ def scheme_rows(ds):
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         stable = status.values == 0
+        accurate = (per_scheme(ds["accuracy"], scheme).values == 0 if "accuracy" in ds
+                    else stable)
         row = {"scheme": scheme, "nominal": _nominal_order(ds, scheme),
                "cases": int(status.size), "unstable": int((~stable).sum()),
-               "order": None, "fits": 0, "tries": 0, "fit_dt": (), "error": None,
-               "error_small": None}
+               "inaccurate": int((stable & ~accurate).sum()) if "accuracy" in ds else None,
+               "order": None, "finest": None, "fits": 0, "tries": 0, "fit_dt": (),
+               "error": None, "error_small": None}
         row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
                                    / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
         # dt |w0| is the step parameter of physical bodies only (for a stress body beyond the
         # triangle inequality the precession rate W outgrows |w0|): those cases alone count
         scheme_load = per_scheme(load, scheme).values
         real = per_scheme(physical, scheme).values
-        good, bad = stable & real, ~stable & real
-        row["stable_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
+        good, bad = stable & accurate & real, ~stable & real
+        row["accurate_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
         row["unstable_hw"] = float(np.min(scheme_load[bad])) if bad.any() else np.nan
         row["kept"] = _kept(ds, scheme, stable)
         errors = error_measure(ds, _ORDER_MEASURE)
         if errors is not None:
             errors = per_scheme(errors, scheme)
             if "dt" in errors.dims:
-                orders, row["tries"], fitted = _orders(errors)
-                row["fits"] = len(orders)
-                if orders:
-                    row["order"] = (min(orders), max(orders))
+                fits, row["tries"], fitted = _orders(errors)
+                row["fits"] = len(fits)
+                if fits:
+                    row["order"] = (min(f.order for f in fits), max(f.order for f in fits))
+                    row["finest"] = (min(f.finest_slope for f in fits),
+                                     max(f.finest_slope for f in fits))
                     row["fit_dt"] = (float(fitted.min()), float(fitted.max()))
                 for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
                     row[f"error{key}_dt"] = float(pick)
@@ -156,13 +173,17 @@ def scheme_rows(ds):
     return rows
 
 
+def _span(pair):
+    low, high = pair
+    return f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+
+
 def order_text(row):
     """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), with ``(3/4 fits)``
     when some values of the other axes had no asymptotic range; ``-`` without any."""
     if row["order"] is None:
         return "-" if not row["tries"] else f"- (0/{row['tries']})"
-    low, high = row["order"]
-    text = f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+    text = _span(row["order"])
     return text if row["fits"] == row["tries"] else f"{text} ({row['fits']}/{row['tries']})"
 
 
@@ -184,6 +205,7 @@ def table_columns(rows):
         ("scheme", lambda row: row["scheme"]),
         ("nominal", lambda row: "-" if row["nominal"] is None else str(row["nominal"])),
         ("order", order_text),
+        ("finest pair", lambda row: "-" if row["finest"] is None else _span(row["finest"])),
         ("fit over dt (s)", lambda row: "-" if not row["fit_dt"] else
          f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"),
         (f"error dt={large:g}" if large is not None else "final error",
@@ -193,8 +215,10 @@ def table_columns(rows):
         columns.append((f"error dt={small:g}", lambda row: _error(row.get("error_small"))))
     columns += [
         ("ns/step", lambda row: _number(row["ns_per_step"], ".0f")),
-        ("largest stable dt|w0|", lambda row: _number(row["stable_hw"], ".3g")),
+        ("largest accurate dt|w0|", lambda row: _number(row["accurate_hw"], ".3g")),
         ("first failed dt|w0|", lambda row: _number(row["unstable_hw"], ".3g")),
+        ("inaccurate", lambda row: "-" if row["inaccurate"] is None
+         else f"{row['inaccurate']}/{row['cases']}"),
         ("failed", lambda row: f"{row['unstable']}/{row['cases']}"),
         ("kept", lambda row: ", ".join(row["kept"]) or "-"),
     ]
@@ -204,9 +228,12 @@ def table_columns(rows):
 TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other swept axes "
               "(\"failed\" when a case there blew up); order: fitted per value of the other "
               "axes over its asymptotic range, (k/n) when only k of the n values had one (a "
-              "value where the scheme failed at most steps has none); dt|w0|: over physical "
-              "bodies only; kept: drift below "
-              f"{KEPT_TOLERANCE:g} in every stable case")
+              "value where the scheme failed at most steps has none); finest pair: the local "
+              "slope between the two finest fitted steps; inaccurate: cases that finished "
+              "but whose final orientation error or energy or |L| drift passed the study's "
+              "accuracy bound; failed: cases that blew up or did not converge; dt|w0|: over "
+              "physical bodies only; kept: energy and |L| drift over every step, and L (the "
+              f"vector) at the samples, below {KEPT_TOLERANCE:g} in every stable case")
 
 
 def format_table(rows):

@@ -140,7 +140,7 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     results[b, Result.n_steps] = steps_done
     results[b, Result.iterations] = iterations
     results[b, Result.max_energy_error] = max_energy if check_invariants else math.nan
-    results[b, Result.max_momentum_error] = max_momentum if check_invariants else math.nan
+    results[b, Result.max_momentum_magnitude_error] = max_momentum if check_invariants else math.nan
 
 
 def make_entry(step, init, n_work):
@@ -164,7 +164,7 @@ class BatchOutput:
 
     samples : (B, T, N_STATE) sampled states (NaN after a failure).
     results : name -> (B,) array of its storage type, one per `RESULT_FIELDS` entry: status,
-        failure_time (s), n_steps, iterations, max_energy_error and max_momentum_error
+        failure_time (s), n_steps, iterations, max_energy_error and max_momentum_magnitude_error
         (largest relative drifts over every step; NaN for bodies under a moment).
     kernel_seconds : wall time of the compiled batch call, compilation excluded.
     kernel_cpu_seconds : CPU time of the threads inside the compiled calls, summed: the

@@ -57,7 +57,7 @@ RESULT_FIELDS = (
     ("n_steps", "i8"),              # steps taken
     ("iterations", "i8"),           # Newton iterations (an adaptive scheme: rhs evaluations)
     ("max_energy_error", "f8"),     # largest relative rotational-energy drift over the steps
-    ("max_momentum_error", "f8"),   # largest relative drift of |L| over the steps
+    ("max_momentum_magnitude_error", "f8"),  # largest relative drift of |L| over the steps
 )
 Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
 N_RESULT = len(RESULT_FIELDS)

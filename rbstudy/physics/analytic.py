@@ -25,13 +25,48 @@ from scipy.special import ellipk
 
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
-__all__ = ["REFERENCE_KINDS", "reference_kind", "symmetric_top", "axial_moment", "parabola",
+__all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
+           "reference_kind", "symmetric_top", "axial_moment", "parabola",
            "precession_frequency_exact", "flip_interval_exact"]
 
 # Every reference an archive can name, in the order of their codes in the archive's
 # `reference` flag (append only: archives store the codes). The last is integrated, not
 # closed.
 REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853")
+
+# Two principal inertias closer than this, relative to the largest, are equal: the body is
+# symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of
+# round-off (diag(1, 1, 2) turned by a rotation comes back as 1.0, 1.0000000000000004, 2.0);
+# 1e-12 leaves a thousand times that, and a body meant to be asymmetric differs by far more.
+SYMMETRY_RTOL = 1e-12
+
+
+def symmetry_axes(inertia):
+    """The symmetry axis (0, 1, 2) of bodies with principal inertias ``inertia`` (..., 3):
+    the axis whose moment differs when the other two are equal within `SYMMETRY_RTOL`; -1 for
+    an asymmetric body, 2 for a spherical one. The one answer every part of rbstudy uses."""
+    inertia = np.asarray(inertia, dtype=float)
+    i1, i2, i3 = np.moveaxis(inertia, -1, 0)
+    tolerance = SYMMETRY_RTOL * np.max(inertia, axis=-1)
+    return np.where(abs(i1 - i2) <= tolerance, 2, np.where(
+        abs(i2 - i3) <= tolerance, 0, np.where(abs(i1 - i3) <= tolerance, 1, -1)))
+
+
+def symmetry_axis(inertia):
+    """`symmetry_axes` of one body (3,): an index, or None for an asymmetric body."""
+    axis = int(symmetry_axes(inertia))
+    return None if axis < 0 else axis
+
+
+def symmetrised(inertia):
+    """The principal inertias (3,) with the two transverse moments of a symmetric body set to
+    their mean, so that equality is exact wherever it is used; an asymmetric body as it is."""
+    axis = symmetry_axis(inertia)
+    if axis is None:
+        return tuple(float(v) for v in inertia)
+    transverse = ((axis + 1) % 3, (axis + 2) % 3)
+    mean = 0.5 * (inertia[transverse[0]] + inertia[transverse[1]])
+    return tuple(mean if k in transverse else float(inertia[k]) for k in range(3))
 
 
 def symmetric_top(inertia, quaternion0, omega0, times):
@@ -56,8 +91,7 @@ def symmetric_top(inertia, quaternion0, omega0, times):
     inertia = np.asarray(inertia, dtype=float)
     omega0 = np.asarray(omega0, dtype=float)
     quaternion0 = np.asarray(quaternion0, dtype=float)
-    i1, i2, i3 = np.moveaxis(inertia, -1, 0)
-    axis = np.where(i1 == i2, 2, np.where(i2 == i3, 0, np.where(i1 == i3, 1, -1)))
+    axis = symmetry_axes(inertia)
     if np.any(axis < 0):
         raise ValueError(f"not a symmetric body: {inertia}")
     pick = axis[..., None]
@@ -135,7 +169,7 @@ def flip_interval_exact(scene):
     loaded bodies, NaN when the body turns about a principal axis (no sign change).
     """
     inertia = np.asarray(scene.body.inertia, dtype=float)
-    if not scene.loads.moment_free or len(set(inertia)) < 3:
+    if not scene.loads.moment_free or scene.body.symmetry_axis is not None:
         return None
     order = np.argsort(inertia)
     i = inertia[order]

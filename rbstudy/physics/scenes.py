@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
+from rbstudy.physics.analytic import symmetrised, symmetry_axis
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "scene_from_mapping", "momentum_aligned", "TRIANGLE_RTOL"]
@@ -46,21 +47,20 @@ class Body:
         """True when the principal inertias meet the triangle inequalities."""
         return _triangle_ok(self.inertia)
 
+    def __post_init__(self):
+        # symmetry is decided once (`rbstudy.physics.analytic.symmetry_axis`); a symmetric
+        # body's two transverse moments are made exactly equal here, so that the integrated
+        # body and its closed form are the same body
+        object.__setattr__(self, "inertia", symmetrised(self.inertia))
+
     @property
     def symmetry_axis(self):
         """Index (0, 1, 2) of the symmetry axis of a symmetric body, or None.
 
-        Two equal principal inertias make the third axis the symmetry axis; a spherical body
-        reports axis 2.
+        Two principal inertias equal within `rbstudy.physics.analytic.SYMMETRY_RTOL` make the
+        third axis the symmetry axis; a spherical body reports axis 2.
         """
-        i1, i2, i3 = self.inertia
-        if i1 == i2:
-            return 2
-        if i2 == i3:
-            return 0
-        if i1 == i3:
-            return 1
-        return None
+        return symmetry_axis(self.inertia)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
-__all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "SCHEMA_VERSION", "ID_LENGTH"]
+__all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "batches_digest",
+           "SCHEMA_VERSION", "ID_LENGTH"]
 
 # Bumped whenever what a part file holds changes, so that old parts are never reused.
 SCHEMA_VERSION = 2
@@ -59,18 +60,24 @@ class Batch:
     cases: tuple
 
 
-def plan_batches(cases, dimensions, output_interval, variables, max_cases):
+def batches_digest(batches):
+    """One id for a whole study's batches: an archive built from exactly these is current."""
+    return canonical_id([batch.id for batch in batches])
+
+
+def plan_batches(cases, dimensions, output_interval, variables, max_cases, verdict=None):
     """Group ``cases`` by (scheme, dt), in case order, into batches of at most ``max_cases``.
 
     A batch's id hashes what its part holds and where it goes: the cases' resolved specs and
     their positions, the grid (every dimension's axes and values), the output grid and the
-    stored variables, and the source digest of rbstudy (a fixed bug never reuses old numbers).
+    stored variables, what the stored verdicts depend on (``verdict``: the accuracy bound), and
+    the source digest of rbstudy (a fixed bug never reuses old numbers).
     Reordering or extending an axis therefore gives new ids, never a part in the wrong cells.
     Everything but the cases is hashed once for the study, so planning is linear in its size.
     """
     study_digest = canonical_id({
         "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
-        "output_interval": output_interval, "variables": list(variables),
+        "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
         "source": SOURCE_DIGEST})
     groups = {}
     for position, case in enumerate(cases):

@@ -22,6 +22,7 @@ from rbstudy.numerics.state import N_STATE
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
 from rbstudy.pipeline.grid import expand, parse_sweep
+from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
     SCHEME_COORDINATES,
@@ -71,6 +72,7 @@ class StudyConfig:
     title: str
     base: dict
     output_interval: float
+    accuracy_bound: float
     duration: float
     dimensions: tuple
     cases: tuple
@@ -201,8 +203,11 @@ def load_study(path):
         reader.number(run["dt"], "run.dt", positive=True)
     if not isinstance(run.get("options") or {}, dict):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
-    output = reader.mapping(data.get("output"), "output", ("interval", "variables"))
+    output = reader.mapping(data.get("output"), "output",
+                            ("interval", "variables", "accuracy_bound"))
     interval = _output_interval(reader, output, run, swept)
+    accuracy_bound = reader.number(output.get("accuracy_bound", ACCURACY_BOUND),
+                                   "output.accuracy_bound", positive=True)
     if not isinstance(data["scene"], dict):
         reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
     base = {"scene": data["scene"], "run": dict(run)}
@@ -214,11 +219,13 @@ def load_study(path):
         raise reader.locate(error, "output.interval") from None
     variables = _variables(reader, output.get("variables"), cases)
     study = StudyConfig(path=path, text=text, name=name, title=title,
-                        base=base, output_interval=interval, duration=duration,
+                        base=base, output_interval=interval, accuracy_bound=accuracy_bound,
+                        duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=(),
                         schemes=_scheme_claims(cases))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
-    batches = plan_batches(cases, dimensions, interval, variables, max_cases)
+    batches = plan_batches(cases, dimensions, interval, variables, max_cases,
+                           verdict={"accuracy_bound": accuracy_bound})
     study = dataclasses.replace(study, batches=batches)
     _check_memory(reader, study)
     return study

@@ -17,6 +17,7 @@ import fcntl
 import logging
 import os
 import pathlib
+import shutil
 import sys
 import time
 import uuid
@@ -32,6 +33,7 @@ from rbstudy.pipeline.batches import scene_key
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.store import (
     Layout,
+    archive_current,
     consolidate,
     global_attrs,
     part_complete,
@@ -62,18 +64,21 @@ class BatchJob:
     scenes: tuple
     options: tuple
     variables: tuple
+    accuracy_bound: float  # rad for the orientation, relative for energy and |L|
     references: tuple  # per case: (chunk, position) in the reference chunks it is given
 
 
 @dataclass(frozen=True)
 class StudyRun:
-    """What a sweep did: the dataset path, batches computed and reused, wall time (s)."""
+    """What a sweep did: the dataset path, batches computed and reused, wall time (s), and
+    whether the archive was already current (nothing to do)."""
 
     path: pathlib.Path
     computed: int
     reused: int
     cases: int
     wall_seconds: float
+    up_to_date: bool = False
 
 
 def compute_references(scenes, n_times, output_interval):
@@ -95,7 +100,7 @@ def compute_batch(job, reference_chunks, threads):
                    threads=threads)
     per_case = run.output.kernel_cpu_seconds / len(job.scenes)
     return evaluate(job.variables, BatchData(job.scenes, run, references,
-                                             [per_case] * len(job.scenes)))
+                                             [per_case] * len(job.scenes), job.accuracy_bound))
 
 
 def compile_schemes(names):
@@ -173,7 +178,7 @@ def study_lock(folder):
 def _prepare(root, study):
     folder = pathlib.Path(root) / study.name
     try:
-        (folder / "parts").mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise RbstudyError(f"{folder}: cannot write results there ({error.strerror}); choose "
                            "another folder with --out") from None
@@ -224,7 +229,8 @@ def _graph(study, pending, parts_dir, threads, token):
         positions = tuple((local[where[i][0]], where[i][1]) for i in batch.cases)
         job = BatchJob(batch.scheme, batch.dt, study.output_interval,
                        tuple(case.scene for case in cases),
-                       tuple(case.options for case in cases), study.variables, positions)
+                       tuple(case.options for case in cases), study.variables,
+                       study.accuracy_bound, positions)
         values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False),
                                              [reference_tasks[k] for k in needed], threads,
                                              dask_key_name=f"batch-{token}-{batch.id}")
@@ -271,7 +277,8 @@ def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
             progress.advance(sizes[future.key])
 
 
-def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False):
+def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False,
+              keep_parts=False):
     """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
 
     Parameters
@@ -280,16 +287,24 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     root : results root folder.
     scheduler : address of a running dask.distributed scheduler, or None.
     workers : start a LocalCluster of this many single-threaded worker processes, or None.
-    force : recompute every batch even when its part exists.
+    force : recompute every batch even when its part or a current archive exists.
     quiet : no progress bar.
+    keep_parts : keep ``parts/`` after the archive is written (else it is removed: the
+        archive holds everything; until then the parts are what a rerun resumes from).
     """
     started_clock = time.perf_counter()
     started = utc_now()
     folder = _prepare(root, study)
     parts_dir = folder / "parts"
+    target = folder / f"{study.name}.nc"
     with study_lock(folder):
         for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp")]:
             stale.unlink()  # left by a killed sweep; the lock is ours
+        if not force and archive_current(target, study):
+            return StudyRun(path=target, computed=0, reused=len(study.batches),
+                            cases=len(study.cases), up_to_date=True,
+                            wall_seconds=time.perf_counter() - started_clock)
+        parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         pending = [batch for batch in study.batches
                    if force or not part_complete(parts[batch.id], batch)]
@@ -311,13 +326,15 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
             raise RbstudyError(f"{parts_dir}: {len(missing)} finished batches left no part "
                                "there; the cluster's workers must see this results folder "
                                "(give --out a shared path)")
-        target = folder / f"{study.name}.nc"
         consolidate(study, parts, target, global_attrs(study, started=started))
         write_text_atomic(resolved_config(study), folder / "study.yaml")
-        current = {path.name for path in parts.values()}
-        for old in parts_dir.glob("*.nc"):
-            if old.name not in current:  # from an earlier version of the config
-                old.unlink()
+        if keep_parts:
+            current = {path.name for path in parts.values()}
+            for old in parts_dir.glob("*.nc"):
+                if old.name not in current:  # from an earlier version of the config
+                    old.unlink()
+        else:
+            shutil.rmtree(parts_dir)
     return StudyRun(path=target, computed=len(pending),
                     reused=len(study.batches) - len(pending), cases=len(study.cases),
                     wall_seconds=time.perf_counter() - started_clock)

@@ -12,13 +12,17 @@ from functools import cached_property
 
 import numpy as np
 
-from rbstudy.numerics.state import RESULT_FIELDS
+from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
 
-__all__ = ["BatchData", "driver_result"]
+__all__ = ["BatchData", "driver_result", "ACCURACY_BOUND"]
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+# The default accuracy bound (`output.accuracy_bound`): a final orientation error of 0.01 rad
+# or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
+# inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.
+ACCURACY_BOUND = 1e-2
 
 
 class BatchData:
@@ -26,12 +30,14 @@ class BatchData:
 
     scenes : (B,) `rbstudy.physics.scenes.Scene`; run : their `Simulation` (T samples);
     references : (B,) `rbstudy.physics.references.Reference` on the same T times;
-    run_time : (B,) s, kernel time per case.
+    run_time : (B,) s, kernel time per case; accuracy_bound : the study's bound on the final
+    orientation error (rad) and the relative energy and |L| drift of a case judged accurate.
     """
 
-    def __init__(self, scenes, run, references, run_time):
+    def __init__(self, scenes, run, references, run_time, accuracy_bound=ACCURACY_BOUND):
         self.scenes, self.run, self.references = scenes, run, references
         self.run_time = np.asarray(run_time, dtype=float)
+        self.accuracy_bound = accuracy_bound
 
     @cached_property
     def finite(self):
@@ -193,6 +199,18 @@ def run_time(batch):
 
 def final_orientation_error(batch):
     return batch.orientation_error[:, -1]
+
+
+def accuracy(batch):
+    """0 accurate, 1 inaccurate: a finished case is inaccurate when its final orientation error
+    (rad) or its relative energy or |L| drift (moment-free bodies) passes the accuracy bound;
+    a failed case is never accurate."""
+    results, bound = batch.run.results, batch.accuracy_bound
+    with np.errstate(invalid="ignore"):
+        accurate = (results["status"] == OK) & (batch.orientation_error[:, -1] <= bound)
+        for name in ("max_energy_error", "max_momentum_magnitude_error"):
+            accurate &= ~(results[name] > bound)  # NaN under moments: no conserved quantity
+    return (~accurate).astype(np.int8)
 
 
 def reference(batch):

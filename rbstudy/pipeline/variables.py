@@ -10,6 +10,7 @@ from where the codes are made: status from the driver (`rbstudy.numerics.state`)
 from the reference kinds (`rbstudy.physics.analytic`).
 """
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -17,7 +18,7 @@ from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
 from rbstudy.physics.analytic import REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
-__all__ = ["Variable", "VARIABLES", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
+__all__ = ["Variable", "VARIABLES", "DEPRECATED", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
            "TIME_UNITS", "coordinate_units", "variable_attrs", "scene_features", "selected",
            "evaluate", "BOOKKEEPING"]
 
@@ -32,7 +33,7 @@ FEATURES = {
                     "drift is an error"),
     "symmetric": (lambda scene: scene.loads.moment_free and scene.body.symmetry_axis is not None,
                   "a moment-free symmetric body (precession frequency)"),
-    "asymmetric": (lambda scene: scene.loads.moment_free and len(set(scene.body.inertia)) == 3,
+    "asymmetric": (lambda scene: scene.loads.moment_free and scene.body.symmetry_axis is None,
                    "a moment-free body with three different inertias (flip interval)"),
 }
 
@@ -104,11 +105,15 @@ VARIABLES = {v.name: v for v in (
        "summed over its threads, / batch size; compilation excluded"),
     _result("max_energy_error", "1", "largest |relative energy error| over every step",
             "moment_free"),
-    _result("max_momentum_error", "1",
+    _result("max_momentum_magnitude_error", "1",
             "largest relative drift of the magnitude |L| over every step (the vector's drift, "
             "sampled, is momentum_error)", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
+    _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its final "
+       "orientation error (rad) or relative energy or |L| drift passes the global attribute "
+       "accuracy_bound; a failed case is inaccurate", "reference",
+       flags=("accurate", "inaccurate"), dtype="i1"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
        flags=REFERENCE_KINDS, dtype="i1"),
     _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
@@ -120,10 +125,18 @@ VARIABLES = {v.name: v for v in (
        flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
 
-# CF-1.11 requires a reference epoch on a time coordinate. The epoch stands for t = 0 of the
-# run, not a calendar date: open results with ``decode_times=False`` (as
-# `rbstudy.pipeline.store.open_results` does) to read seconds.
-TIME_UNITS = "seconds since 1970-01-01 00:00:00"
+# Names replaced by clearer ones, kept for one release as aliases: stored beside the new name
+# (same values) and accepted in output.variables. Old name -> new name.
+DEPRECATED = {"max_momentum_error": "max_momentum_magnitude_error"}
+VARIABLES.update({old: dataclasses.replace(
+    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}, removed in the next "
+                                        f"release: {VARIABLES[new].long_name}")
+    for old, new in DEPRECATED.items()})
+
+# Simulated time is a duration, not a date: plain seconds, which every reader (xarray
+# included) opens as numbers. (A "seconds since <epoch>" unit made xarray decode it to
+# calendar dates.)
+TIME_UNITS = "s"
 
 # Coordinates: the output grid and the named sweep axes. (units, long_name); units None for
 # labels.
@@ -186,8 +199,8 @@ def scene_features(scene):
 
 # Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
 # the report read them (a few numbers per case).
-BOOKKEEPING = ("status", "failure_time", "n_steps", "iterations", "run_time", "reference",
-               "physical_body", "inertia", "initial_spin")
+BOOKKEEPING = ("status", "accuracy", "failure_time", "n_steps", "iterations", "run_time",
+               "reference", "physical_body", "inertia", "initial_spin")
 
 
 def selected(features):

@@ -8,9 +8,9 @@ import importlib
 import pkgutil
 
 from rbstudy.errors import SchemeError
-from rbstudy.schemes._registry import Option, Scheme
+from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
-__all__ = ["SCHEMES", "Option", "Scheme", "get_scheme"]
+__all__ = ["SCHEMES", "INVARIANTS", "Option", "Scheme", "get_scheme"]
 
 
 def _discover():

@@ -11,8 +11,10 @@ from rbstudy.numerics import state as S
 
 __all__ = ["Option", "Scheme", "INVARIANTS"]
 
-# Invariant names a scheme may claim to keep to round-off for the moment-free body.
-INVARIANTS = ("energy", "momentum")
+# The invariants a scheme may claim to keep to round-off for the moment-free body, and how
+# they read: the energy, the magnitude |L| of the angular momentum, the space vector L itself
+# (which keeps |L| too).
+INVARIANTS = {"energy": "energy", "momentum_magnitude": "|L|", "momentum_vector": "L"}
 
 
 @dataclass(frozen=True)
@@ -40,7 +42,7 @@ class Scheme:
     summary : one line for `rbstudy schemes`.
     order : nominal global order of accuracy.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
-    keeps : invariants kept to round-off for the moment-free body ("energy", "momentum").
+    keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
     options : the scheme's options.
     run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.numerics.driver`).

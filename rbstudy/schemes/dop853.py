@@ -87,7 +87,7 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         samples[b] = out
         row = {"status": status, "failure_time": failure, "n_steps": len(solution.t) - 1,
                "iterations": solution.nfev, "max_energy_error": max_energy,
-               "max_momentum_error": max_momentum}
+               "max_momentum_magnitude_error": max_momentum}
         for name, value in row.items():
             results[b, Result[name]] = value
 

@@ -92,7 +92,7 @@ SCHEME = Scheme(
     summary="implicit midpoint on m with Cayley frame update; energy and L kept exactly",
     order=2,
     implicit=True,
-    keeps=("energy", "momentum"),
+    keeps=("energy", "momentum_vector"),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
 )
