@@ -9,9 +9,9 @@ results="${1:-results}"
 rbstudy sweep configs/*.yaml --out "$results" --quiet
 for config in configs/*.yaml; do
     study="$(basename "$config" .yaml)"
-    rbstudy plot "$results/$study/$study.nc" --out "$results/$study/figures"
+    rbstudy plot "$results/$study/$study.nc"       # into $results/$study/figures/
 done
-rbstudy report "$results/abaqus_top/abaqus_top.nc" --out "$results/report"
+rbstudy report "$results/abaqus_top/abaqus_top.nc"  # into $results/abaqus_top/report/
 
 # study:figure pairs shown in docs/results.md
 shown=(
@@ -27,6 +27,6 @@ mkdir -p docs/figures
 for pair in "${shown[@]}"; do
     study="${pair%%:*}"
     figure="${pair#*:}"
-    cp "$results/$study/figures/$figure.png" "docs/figures/${study}_${figure}.png"
+    cp "$results/$study/figures/${study}_${figure}.png" "docs/figures/${study}_${figure}.png"
 done
 echo "docs/figures: ${#shown[@]} figures from $results"

@@ -106,8 +106,9 @@ def _plot(args):
                              "plot them one at a time, each with its own --out", path)
     for path, dataset in datasets:
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
-        figures = all_figures(dataset, folder)
-        print(f"{path}: {len(figures.written)} figures (PNG and SVG) in {folder}")
+        figures = all_figures(dataset, folder, tuple(args.format))
+        print(f"{path}: {len(figures.written)} figures ({' and '.join(args.format).upper()}) "
+              f"in {folder}")
         for name, reason in figures.absent.items():
             print(f"  not drawn: {name}: {reason}")
     return 0
@@ -192,6 +193,9 @@ def build_parser():
     plot.add_argument("--select", action="append", metavar="DIM=VALUE",
                       help="only these cases, e.g. --select inertia_ratio=2 --select dt=0.01 "
                            "(repeatable)")
+    # the formats of rbstudy.analysis.plots, named here so that parsing loads no matplotlib
+    plot.add_argument("--format", nargs="+", choices=("png", "svg"), default=["png"],
+                      help="file formats (default: png; an SVG takes as long again)")
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of a results file")
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")

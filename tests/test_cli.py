@@ -86,3 +86,36 @@ def test_schemes_lists_the_registry(capsys):
     for name in ("euler", "leapfrog", "rk4", "midpoint", "hht", "splitting", "no_squish",
                  "rkmk4", "dop853"):
         assert f"\n{name} " in listing
+
+
+def test_version_and_a_quick_bench(capsys):
+    from importlib import metadata
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"rbstudy {metadata.version('rbstudy')}"
+    assert main(["bench", "euler", "--body-steps", "2000", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "~2e+03 body-steps per figure" in out
+    row = next(line.split() for line in out.splitlines() if line.startswith("euler"))
+    assert len(row) == 8 and all(float(rate) > 0 for rate in row[2:])
+
+
+def test_schemes_name_the_invariants_they_keep(capsys):
+    assert main(["schemes"]) == 0
+    rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()[1:]}
+    assert " energy, L " in rows["midpoint"] and " L " in rows["splitting"]
+    assert "momentum" not in rows["midpoint"]
+
+
+def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
+    """max_momentum_error was the drift of |L|, next to momentum_error, the vector's: renamed
+    max_momentum_magnitude_error; the old name stays an alias for one release."""
+    config = write_study(tmp_path, name="alias", output={
+        "interval": 0.01, "variables": ["quaternion", "max_momentum_error"]})
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    ds = open_results(tmp_path / "out" / "alias" / "alias.nc")
+    assert float(ds.max_momentum_error) == float(ds.max_momentum_magnitude_error)
+    assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["long_name"]
+    assert ds.max_momentum_error.attrs["long_name"].startswith(
+        "deprecated alias of max_momentum_magnitude_error")

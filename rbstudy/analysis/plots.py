@@ -1,9 +1,10 @@
 """Figures from archived results: never the solver, only the dataset (`rbstudy plot`).
 
-Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results` and an
-output folder, writes ``<study>_<name>.png`` and ``.svg`` and returns a `Figures`: the PNG
-paths it wrote, and for each figure it could have drawn but did not, the reason (the
-dataset lacks what it needs, or it would have nothing to show).
+Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results`, an
+output folder and the file formats (`FORMATS`: PNG; SVG on request), writes
+``<study>_<name>.<format>`` and returns a `Figures`: the files it wrote (in the first
+format), and for each figure it could have drawn but did not, the reason (it would have
+nothing to show).
 
 - `convergence`: error against dt, log-log, a line per scheme with its fitted order and the
   slope of the finest fitted pair, and reference slopes; one figure per error measure, drawn
@@ -48,7 +49,8 @@ from rbstudy.physics.analytic import symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 
-__all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "Figures", "convergence",
+__all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
+           "Figures", "convergence",
            "work_precision", "stability_map", "invariant_drift", "benchmark", "all_figures",
            "CAPTIONS", "figure_name", "zero_floor", "plot_with_zeros"]
 
@@ -85,6 +87,9 @@ _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green"
                  ("tab:red", "D", ":"), ("tab:purple", "v", "-"), ("tab:brown", "P", "--"),
                  ("tab:pink", "X", "-."), ("tab:gray", "*", ":")]
 ZERO_LABEL = "0 (exact)"
+# File formats: PNG by default (an SVG takes as long again to write); SVG on request.
+FORMATS = ("png",)
+ALL_FORMATS = ("png", "svg")
 
 
 @dataclass
@@ -186,15 +191,16 @@ def _two_and_five(value, _):
     return mantissa if mantissa[0] in "25" else ""
 
 
-def _save(fig, folder, ds, name):
+def _save(fig, folder, ds, name, formats):
+    """Write the figure in each of ``formats``; returns the first file."""
     _plain_log_labels(fig)
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    png = folder / f"{figure_name(ds, name)}.png"
-    fig.savefig(png, dpi=110)  # constrained layout fits the labels: no second "tight" pass
-    fig.savefig(png.with_suffix(".svg"))
+    paths = [folder / f"{figure_name(ds, name)}.{suffix}" for suffix in formats]
+    for path in paths:  # constrained layout fits the labels: no second "tight" pass
+        fig.savefig(path, dpi=110)
     plt.close(fig)
-    return png
+    return paths[0]
 
 
 def _grid(count, width=5.4, height=4.2, columns=2):
@@ -279,7 +285,7 @@ def _fit_label(name, errors, fit):
     return f"{name} ({text})".strip()
 
 
-def convergence(ds, folder):
+def convergence(ds, folder, formats=FORMATS):
     """Error against dt per measure, fitted order per line in the legend."""
     figures = Figures()
     if "dt" not in ds.dims:
@@ -322,11 +328,11 @@ def convergence(ds, folder):
                 _legend_outside(ax)
             _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic "
                             f"range; gaps: failed cases; on the dotted floor: {ZERO_LABEL}")
-            figures.written.append(_save(fig, folder, ds, name))
+            figures.written.append(_save(fig, folder, ds, name, formats))
     return figures
 
 
-def work_precision(ds, folder):
+def work_precision(ds, folder, formats=FORMATS):
     """Run time per case against the final orientation error, a line per scheme over dt."""
     figures = Figures()
     measure = error_measure(ds, "orientation")
@@ -355,7 +361,7 @@ def work_precision(ds, folder):
                 _legend_outside(ax)
         _title(fig, ds, "work-precision: kernel CPU time of each batch divided among its "
                         "cases, compilation excluded; each point a dt")
-        figures.written.append(_save(fig, folder, ds, "work_precision"))
+        figures.written.append(_save(fig, folder, ds, "work_precision", formats))
     return figures
 
 
@@ -373,7 +379,7 @@ def _parameter(ds):
     return name, ds[name].broadcast_like(ds["status"]), label
 
 
-def stability_map(ds, folder):
+def stability_map(ds, folder, formats=FORMATS):
     """``dt |w0|`` of every case against the swept parameter, one panel per scheme: accurate,
     finished but inaccurate, failed."""
     figures = Figures()
@@ -425,7 +431,7 @@ def stability_map(ds, folder):
         fig.legend(list(handles.values()), list(handles), loc="outside lower center",
                    ncols=len(handles))
         _title(fig, ds, "stability and accuracy: every case by its dt |w0|")
-        figures.written.append(_save(fig, folder, ds, "stability_map"))
+        figures.written.append(_save(fig, folder, ds, "stability_map", formats))
     return figures
 
 
@@ -447,7 +453,7 @@ def _drift_case(ds, scheme):
     return case, ", ".join(named)
 
 
-def invariant_drift(ds, folder):
+def invariant_drift(ds, folder, formats=FORMATS):
     """|energy error| and |L - L0| / |L0| against time, one case per scheme."""
     figures = Figures()
     panels = [(name, label) for name, label in (
@@ -476,7 +482,7 @@ def invariant_drift(ds, folder):
             ax.grid(True, alpha=0.3)
             _legend_outside(ax)
         _title(fig, ds, f"invariant drift: bounded or secular; on the dotted floor: {ZERO_LABEL}")
-        figures.written.append(_save(fig, folder, ds, "invariant_drift"))
+        figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))
     return figures
 
 
@@ -498,7 +504,7 @@ _BENCHMARK_NEEDS = ("precession_frequency", "node_offset", "node_displacement", 
                     "omega_body", "quaternion")
 
 
-def benchmark(ds, folder):
+def benchmark(ds, folder, formats=FORMATS):
     """The Abaqus benchmark figures of a symmetric body with nodes, exact solution overlaid."""
     figures = Figures()
     if any(name not in ds for name in _BENCHMARK_NEEDS):
@@ -521,7 +527,7 @@ def benchmark(ds, folder):
             ax.grid(True, alpha=0.3)
         fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2)
         fig.suptitle("global angular velocity against time (benchmark figures 2-4)")
-        figures.written.append(_save(fig, folder, ds, "benchmark_omega_time"))
+        figures.written.append(_save(fig, folder, ds, "benchmark_omega_time", formats))
 
         fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
         ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], label=what)
@@ -533,7 +539,7 @@ def benchmark(ds, folder):
         fig.legend(loc="outside lower center", ncols=2)
         ax.grid(True, alpha=0.3)
         ax.set_title("w_x against w_y (benchmark figure 5)")
-        figures.written.append(_save(fig, folder, ds, "benchmark_omega_xy"))
+        figures.written.append(_save(fig, folder, ds, "benchmark_omega_xy", formats))
 
         names = [str(n) for n in case["node"].values]
         node = BENCHMARK_NODE if BENCHMARK_NODE in names else names[-1]
@@ -551,7 +557,7 @@ def benchmark(ds, folder):
         fig.legend(loc="outside lower center", ncols=2)
         ax.grid(True, alpha=0.3)
         ax.set_title(f"node {node} seen down global z (benchmark figure 6)")
-        figures.written.append(_save(fig, folder, ds, "benchmark_node_path"))
+        figures.written.append(_save(fig, folder, ds, "benchmark_node_path", formats))
     return figures
 
 
@@ -580,9 +586,10 @@ CAPTIONS = {
 }
 
 
-def all_figures(ds, folder):
-    """Every figure the dataset supports, as a `Figures` (written PNGs, absent with why)."""
+def all_figures(ds, folder, formats=FORMATS):
+    """Every figure the dataset supports, as a `Figures` (files written in the first of
+    ``formats``, absent with why)."""
     figures = Figures()
     for figure in (convergence, work_precision, stability_map, invariant_drift, benchmark):
-        figures += figure(ds, folder)
+        figures += figure(ds, folder, formats)
     return figures

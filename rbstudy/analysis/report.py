@@ -12,7 +12,7 @@ refused.
 import html
 import pathlib
 
-from rbstudy.analysis.plots import CAPTIONS, all_figures
+from rbstudy.analysis.plots import ALL_FORMATS, CAPTIONS, all_figures
 from rbstudy.analysis.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
 from rbstudy.errors import InputError
 from rbstudy.physics.metrics import (
@@ -73,7 +73,7 @@ def write_report(ds, out):
     out = pathlib.Path(out)
     study = str(ds.attrs.get("study", "results"))
     _claim(out, study)
-    figures = all_figures(ds, out / "figures")
+    figures = all_figures(ds, out / "figures", ALL_FORMATS)  # PNG shown, SVG linked
     rows = scheme_rows(ds)
     floor, ceiling = ERROR_MEASURES["orientation"][2:4]
     title = html.escape(ds.attrs.get("title", ds.attrs.get("study", "rbstudy results")))

@@ -25,6 +25,7 @@ from rbstudy.pipeline.grid import expand, parse_sweep
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
+    DEPRECATED,
     SCHEME_COORDINATES,
     VARIABLES,
     scene_features,
@@ -141,7 +142,8 @@ def _read_yaml(path):
 
 def _variables(reader, requested, cases):
     """The variables every case defines, narrowed to ``output.variables`` when given (the
-    per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept)."""
+    per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept, and a
+    deprecated name brings its new name along)."""
     available = selected(set.intersection(*(scene_features(case.scene) for case in cases)))
     if requested is None:
         return tuple(available)
@@ -156,7 +158,8 @@ def _variables(reader, requested, cases):
             reader.fail(f"output.variables[{i}]",
                         f"{name} needs {needs}, which not every case of this study has",
                         "remove it")
-    return tuple(name for name in available if name in requested or name in BOOKKEEPING)
+    wanted = set(requested) | {DEPRECATED[name] for name in requested if name in DEPRECATED}
+    return tuple(name for name in available if name in wanted or name in BOOKKEEPING)
 
 
 def _scheme_claims(cases):

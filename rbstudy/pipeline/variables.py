@@ -125,12 +125,12 @@ VARIABLES = {v.name: v for v in (
        flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
 
-# Names replaced by clearer ones, kept for one release as aliases: stored beside the new name
-# (same values) and accepted in output.variables. Old name -> new name.
+# Names replaced by clearer ones in rbstudy 0.2, kept as aliases until 0.3: stored beside the
+# new name (same values) and accepted in output.variables. Old name -> new name.
 DEPRECATED = {"max_momentum_error": "max_momentum_magnitude_error"}
 VARIABLES.update({old: dataclasses.replace(
-    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}, removed in the next "
-                                        f"release: {VARIABLES[new].long_name}")
+    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}, removed in rbstudy "
+                                        f"0.3: {VARIABLES[new].long_name}")
     for old, new in DEPRECATED.items()})
 
 # Simulated time is a duration, not a date: plain seconds, which every reader (xarray
