@@ -107,8 +107,8 @@ def _plot(args):
     for path, dataset in datasets:
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
         figures = all_figures(dataset, folder, tuple(args.format))
-        print(f"{path}: {len(figures.written)} figures ({' and '.join(args.format).upper()}) "
-              f"in {folder}")
+        kinds = " and ".join(kind.upper() for kind in args.format)
+        print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         for name, reason in figures.absent.items():
             print(f"  not drawn: {name}: {reason}")
     return 0

@@ -214,14 +214,14 @@ def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
     from rbstudy.analysis.plots import plot_with_zeros, zero_floor
     errors = np.array([3e-4, 0.0, np.nan, 2e-6])  # a zero, and a failed case
     floor = zero_floor(errors)
-    assert floor == 1e-7
+    assert floor == 10 ** -7.5  # between the tick labels 1e-8 and 1e-7, below every value
     fig, ax = plt.subplots()
     style = dict(color="k", marker="o", linestyle="-", markersize=4, markerfacecolor="k",
                  zorder=2, linewidth=1)
     plot_with_zeros(ax, np.arange(4.0), errors, floor, "x", style)
     line, zeros = ax.lines
     assert np.isnan(line.get_ydata()[1]) and np.isnan(line.get_ydata()[2])
-    assert list(zeros.get_xdata()) == [1.0] and list(zeros.get_ydata()) == [1e-7]  # only 0
+    assert list(zeros.get_xdata()) == [1.0] and list(zeros.get_ydata()) == [floor]  # only 0
     plt.close(fig)
 
 
@@ -236,3 +236,45 @@ def test_linear_axes_read_their_values_without_an_offset():
         fig.canvas.draw()
         assert ax.yaxis.get_major_formatter().get_offset() == ""
         plt.close(fig)
+
+
+@pytest.fixture
+def drawn_figures(monkeypatch):
+    """The matplotlib figures the plot functions draw, kept open instead of saved."""
+    from rbstudy.analysis import plots
+    kept = {}
+
+    def keep(fig, folder, ds, name, formats):
+        kept[name] = fig
+        return pathlib.Path(folder) / f"{name}.png"
+
+    monkeypatch.setattr(plots, "_save", keep)
+    return kept
+
+
+def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path,
+                                                                          drawn_figures):
+    import matplotlib.colors as colors
+
+    from rbstudy.analysis.plots import SCHEME_STYLES, ZERO_LABEL
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
+                     quiet=True)
+    all_figures(open_results(done.path), tmp_path / "figures")
+    fig = drawn_figures["convergence_energy"]
+    fig.canvas.draw()
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    for ax in panels:
+        legend = ax.get_legend()
+        assert legend is not None
+        # the legend lies right of the data, not over it
+        assert legend.get_window_extent().x0 >= ax.get_window_extent().x1
+        for line in ax.get_lines():
+            scheme = line.get_label().split(" (")[0]
+            if scheme in SCHEME_STYLES:
+                assert colors.same_color(line.get_color(), SCHEME_STYLES[scheme][0]), scheme
+    texts = [t.get_text() for ax in panels for t in ax.texts]
+    assert ZERO_LABEL in texts  # hht and midpoint keep the energy exactly: drawn on the floor
+    bench = drawn_figures["benchmark_omega_time"]
+    case_line = bench.axes[0].get_lines()[0]
+    assert case_line.get_label().startswith("hht")
+    assert colors.same_color(case_line.get_color(), SCHEME_STYLES["hht"][0])

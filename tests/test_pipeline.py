@@ -14,6 +14,7 @@ import time
 import numpy as np
 import pytest
 import xarray as xr
+import yaml
 from conftest import CONFIGS, abaqus_mapping, write_study
 
 from rbstudy.analysis.summary import scheme_rows
@@ -51,7 +52,8 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
                  "orientation_error", "omega_error", "node_error", "precession_frequency",
                  "precession_frequency_exact", "precession_frequency_error", "status",
                  "failure_time", "n_steps", "iterations", "run_time", "max_energy_error",
-                 "max_momentum_error", "final_orientation_error"):
+                 "max_momentum_magnitude_error", "max_momentum_error", "final_orientation_error",
+                 "accuracy"):
         assert name in ds, name
     assert "position" not in ds  # the top does not translate: absent, not NaN
     assert ds.status.attrs["flag_meanings"] == "ok unstable not_converged"
@@ -299,6 +301,12 @@ def test_a_finished_study_keeps_a_compressed_archive_and_no_parts(tmp_path):
     import netCDF4
     with netCDF4.Dataset(first.path) as nc:
         assert nc["omega_body"].filters()["zlib"] and nc["omega_body"].filters()["shuffle"]
+    retitled = config.read_text().replace("name: small", "name: small\ntitle: New title")
+    config.write_text(retitled)
+    again = run_study(load_study(config), out, quiet=True)
+    assert (again.computed, again.up_to_date) == (0, True)  # the same cases: no recomputation
+    assert open_results(again.path).attrs["title"] == "New title"  # but the new description
+    assert "New title" in (out / "small" / "study.yaml").read_text()
     changed = run_study(load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out,
                         quiet=True)
     assert (changed.computed, changed.up_to_date) == (4, False)
@@ -315,7 +323,7 @@ def test_finite_but_meaningless_is_inaccurate_not_ok(tmp_path):
     config = write_study(tmp_path, name="spin200", scene=scene, output={"interval": 0.01},
                          sweep={"scheme": ["euler", "rk4"], "dt": [1.25e-4, 6.25e-5]})
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
-    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate"
+    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed"
     assert ds.attrs["accuracy_bound"] == 0.01
     euler = ds.sel(scheme="euler", dt=1.25e-4)
     assert int(euler.status) == 0 and float(euler.final_orientation_error) > 0.3
@@ -327,3 +335,18 @@ def test_finite_but_meaningless_is_inaccurate_not_ok(tmp_path):
     spin = float(ds.initial_spin.sel(scheme="euler", dt=6.25e-5))
     assert rows["euler"]["accurate_hw"] == pytest.approx(6.25e-5 * spin)
     assert rows["rk4"]["accurate_hw"] == pytest.approx(1.25e-4 * spin)
+
+
+def test_the_verdict_judges_the_largest_error_not_the_last(tmp_path):
+    """splitting on the flat disk at 46.2 rad/s, dt = 0.01 s: 0.040 rad off at t = 1.02 s,
+    back to 0.004 rad at the end. Judged on the last sample it passed as accurate."""
+    scene = yaml.safe_load((CONFIGS / "high_spin.yaml").read_text())["scene"]
+    spin = float(np.geomspace(1.0, np.pi / 0.01, 13)[8])  # 46.2 rad/s, a value of the study
+    w = np.array(scene["initial"]["angular_velocity"]["body"])
+    scene["initial"]["angular_velocity"]["body"] = (w / np.linalg.norm(w) * spin).tolist()
+    config = write_study(tmp_path, name="wrap", scene=scene, output={"interval": 0.01},
+                         run={"scheme": "splitting", "dt": 0.01})
+    ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
+    assert float(ds.final_orientation_error) < 0.005 < 0.03 < float(ds.orientation_error.max())
+    assert int(ds.status) == 0 and int(ds.accuracy) == 1
+    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed"

@@ -74,7 +74,8 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
     note = _progress(progress)
     rows = []
     echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
-         f"figure, {cores} cores; rates in body-steps/s")
+         f"figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), {cores} cores; "
+         "rates in body-steps/s")
     header = f"{'scheme':10s} {'compile s':>9s}"
     for size in batch_sizes:
         header += f" {f'B={size} 1 core':>14s} {f'B={size} {cores} cores':>14s}"

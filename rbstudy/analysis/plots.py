@@ -44,6 +44,7 @@ from rbstudy.analysis.summary import (  # noqa: E402
     per_scheme,
     schemes_of,
     step_load,
+    verdicts,
 )
 from rbstudy.physics.analytic import symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
@@ -223,13 +224,15 @@ def _legend_outside(ax):
 
 
 def zero_floor(values):
-    """The y of the floor line on which exact zeros of ``values`` are drawn: a decade below
-    the smallest positive value, or None when no value is zero."""
+    """The y of the floor line on which exact zeros of ``values`` are drawn: half a decade
+    below the decade under the smallest positive value (between tick labels, so that no
+    label reads as the value of a zero), or None when no value is zero."""
     values = np.asarray(values, dtype=float)
     if not np.any(values == 0.0):
         return None
     positive = values[values > 0]
-    return 10.0 ** (np.floor(np.log10(positive.min())) - 1) if positive.size else 1e-16
+    decade = np.floor(np.log10(positive.min())) - 1 if positive.size else -16.0
+    return 10.0 ** (decade - 0.5)
 
 
 def _mark_floor(ax, floor):
@@ -239,7 +242,7 @@ def _mark_floor(ax, floor):
     ax.axhline(floor, color="0.5", linewidth=0.8, linestyle=":", zorder=1)
     ax.annotate(ZERO_LABEL, (0.01, floor), xycoords=("axes fraction", "data"),
                 xytext=(0, 3), textcoords="offset points", fontsize=7, color="0.3")
-    ax.set_ylim(bottom=floor / 3.0, top=max(ax.get_ylim()[1], floor * 10.0))
+    ax.set_ylim(bottom=floor / 2.0, top=max(ax.get_ylim()[1], floor * 10.0))
 
 
 def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
@@ -272,14 +275,18 @@ def _reference_slopes(ax, dts, errors):
                     fontsize=7, color="0.4")
 
 
-def _fit_label(name, errors, fit):
-    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order."""
+def _fit_label(name, errors, fit, round_off):
+    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order: failed, exact, at
+    round-off (an invariant kept: errors at or below ``round_off``), or no asymptotic range."""
+    finite = errors[np.isfinite(errors)]
     if np.isfinite(fit.order):
         text = f"order {fit.order:.2f}, finest {fit.finest_slope:.2f}"
-    elif not np.isfinite(errors).any():
+    elif not finite.size:
         text = "failed at every dt"
-    elif np.all(errors[np.isfinite(errors)] == 0.0):
+    elif np.all(finite == 0.0):
         text = "exact at every dt"
+    elif np.all(finite <= round_off):
+        text = "at round-off at every dt"
     else:
         text = "no asymptotic range"
     return f"{name} ({text})".strip()
@@ -293,7 +300,7 @@ def convergence(ds, folder, formats=FORMATS):
     dts = ds["dt"].values
     line_dim, facet, reduced = _layout(ds)
     values = list(ds[facet].values) if facet else [None]
-    for key, (label, units, *_) in ERROR_MEASURES.items():
+    for key, (label, units, round_off, *_) in ERROR_MEASURES.items():
         measure = error_measure(ds, key)
         name = f"convergence_{key}"
         if measure is None:
@@ -308,14 +315,16 @@ def convergence(ds, folder, formats=FORMATS):
             continue
         with plt.rc_context(_RC):
             fig, axes = _grid(len(values), width=6.4)
+            floors = []
             for ax, value, panel, lines in zip(axes, values, panels, fits, strict=True):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
+                floors.append(floor)
                 for line_name, style_key, errors, fit in lines:
                     style = _style(style_key)
-                    plot_with_zeros(ax, dts, errors, floor, _fit_label(line_name, errors, fit),
-                                    style)
+                    plot_with_zeros(ax, dts, errors, floor,
+                                    _fit_label(line_name, errors, fit, round_off), style)
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
                             color=style["color"], zorder=1)
@@ -326,8 +335,10 @@ def convergence(ds, folder, formats=FORMATS):
                 ax.set_title(_panel_title(facet, value, reduced))
                 ax.grid(True, which="major", alpha=0.3)
                 _legend_outside(ax)
-            _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic "
-                            f"range; gaps: failed cases; on the dotted floor: {ZERO_LABEL}")
+            zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
+                else ""
+            _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic range; "
+                            f"gaps: failed cases{zeros}")
             figures.written.append(_save(fig, folder, ds, name, formats))
     return figures
 
@@ -394,11 +405,8 @@ def stability_map(ds, folder, formats=FORMATS):
     with plt.rc_context(_RC):
         fig, axes = _grid(len(schemes), width=3.4, height=2.9, columns=4)
         for ax, scheme in zip(axes, schemes, strict=True):
-            status = per_scheme(ds["status"], scheme).values.ravel()
-            accurate = (per_scheme(ds["accuracy"], scheme).values.ravel() == 0
-                        if "accuracy" in ds else status == 0)
+            good, poor, failed = (mask.ravel() for mask in verdicts(ds, scheme))
             y = per_scheme(load, scheme).values.ravel()
-            good, poor, failed = (status == 0) & accurate, (status == 0) & ~accurate, status != 0
             if parameter:
                 _, values, label = parameter
                 x = per_scheme(values, scheme).values.ravel()
@@ -469,10 +477,12 @@ def invariant_drift(ds, folder, formats=FORMATS):
     times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
     with plt.rc_context(_RC):
         fig, axes = _grid(len(panels), width=6.4)
+        floors = []
         for ax, (name, label) in zip(axes, panels, strict=True):
             ax.set_yscale("log")
             floor = zero_floor(np.concatenate([np.abs(case[name].values[1:])
                                                for _, case, _ in cases]))
+            floors.append(floor)
             for scheme, case, case_label in cases:
                 plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, case_label,
                                 _style(scheme), markers=False)
@@ -481,7 +491,9 @@ def invariant_drift(ds, folder, formats=FORMATS):
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
             _legend_outside(ax)
-        _title(fig, ds, f"invariant drift: bounded or secular; on the dotted floor: {ZERO_LABEL}")
+        zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
+            else ""
+        _title(fig, ds, f"invariant drift: bounded or secular{zeros}")
         figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))
     return figures
 
@@ -510,6 +522,7 @@ def benchmark(ds, folder, formats=FORMATS):
     if any(name not in ds for name in _BENCHMARK_NEEDS):
         return figures
     case, what = _benchmark_case(ds)
+    color = _style(str(case["scheme"].values))["color"]
     if int(case["status"]) != 0:
         figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
         return figures
@@ -520,7 +533,7 @@ def benchmark(ds, folder, formats=FORMATS):
     with plt.rc_context(_RC):
         fig, axes = _grid(3, width=4.2, height=3.0)
         for k, ax in enumerate(axes):
-            ax.plot(times, case["omega_space"].values[:, k], label=what)
+            ax.plot(times, case["omega_space"].values[:, k], color=color, label=what)
             ax.plot(times, w_space[:, k], linestyle="--", color="k", linewidth=1, label="exact")
             ax.set_xlabel("time (s)")
             ax.set_ylabel(f"global w_{'xyz'[k]} (rad/s)")
@@ -530,7 +543,8 @@ def benchmark(ds, folder, formats=FORMATS):
         figures.written.append(_save(fig, folder, ds, "benchmark_omega_time", formats))
 
         fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
-        ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], label=what)
+        ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], color=color,
+                label=what)
         ax.plot(w_space[:, 0], w_space[:, 1], linestyle="--", color="k", linewidth=1,
                 label="exact")
         ax.set_aspect("equal")
@@ -548,7 +562,7 @@ def benchmark(ds, folder, formats=FORMATS):
         path = start[0, 0] + case["node_displacement"].sel(node=node).values
         exact = node_positions(q_exact, np.zeros((times.size, 3)), offset[None])[:, 0]
         fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
-        ax.plot(path[:, 0], path[:, 1], label=what)
+        ax.plot(path[:, 0], path[:, 1], color=color, label=what)
         ax.plot(exact[:, 0], exact[:, 1], linestyle="--", color="k", linewidth=1, label="exact")
         ax.set_aspect("equal")
         ax.locator_params(nbins=5)  # short tick labels that do not run into each other
@@ -573,7 +587,7 @@ CAPTIONS = {
                       "line. Run time is the CPU time of the compiled batch call divided "
                       "among its cases, compilation excluded.",
     "stability_map": "Every case by its dt |w0| against the swept parameter: green accurate, "
-                     "orange triangles finished but inaccurate (final orientation error or "
+                     "orange triangles finished but inaccurate (orientation error at a sample or "
                      "energy or |L| drift past the study's accuracy bound), red crosses "
                      "failed; the line joins the largest accurate value.",
     "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
@@ -589,6 +603,10 @@ CAPTIONS = {
 def all_figures(ds, folder, formats=FORMATS):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why)."""
+    folder = pathlib.Path(folder)
+    for old in folder.glob(f"{figure_name(ds, '*')}.*"):  # an earlier drawing of this study
+        if old.suffix.lstrip(".") in ALL_FORMATS:
+            old.unlink()
     figures = Figures()
     for figure in (convergence, work_precision, stability_map, invariant_drift, benchmark):
         figures += figure(ds, folder, formats)

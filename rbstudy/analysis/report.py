@@ -88,10 +88,11 @@ def write_report(ds, out):
         f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: the longest run of at least "
         f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
         f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
-        f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift steadily by more "
-        f"than {MAX_SLOPE_DRIFT:g}, starting from the finest step that allows one. "
+        f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more "
+        f"than {MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. "
         f"Accuracy bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
-        "final orientation error, relative for energy and |L|). ns/step: the scheme's kernel "
+        "orientation error at any sample, relative for energy and |L|). ns/step: the "
+        "scheme's kernel "
         "CPU time over all its steps. dt|w0| is the step parameter of a physical body (a "
         "stress body beyond the triangle inequality precesses faster than |w0|).</p>",
         _scheme_table(rows),

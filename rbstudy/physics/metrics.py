@@ -25,7 +25,7 @@ ORDER_SPREAD = 0.5
 MIN_ASYMPTOTIC_POINTS = 3
 # An error that shrinks more slowly than dt^0.5 is stalling or wandering, not converging.
 MIN_CONVERGENCE_ORDER = 0.5
-# Local slopes that fall (or rise) steadily by more than this across a run show an error not
+# Local slopes whose trend across a run falls (or rises) by more than this show an error not
 # yet of the form C dt^p: with slopes 4.92 ... 4.09 towards small dt, a fit over all of them
 # reports 4.5 for a fourth-order scheme.
 MAX_SLOPE_DRIFT = 0.3
@@ -132,34 +132,34 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
     """Observed convergence order: the least-squares slope of log(error) against log(dt) over
     the asymptotic range only, as an `OrderFit`.
 
-    The asymptotic range is a run of at least `MIN_ASYMPTOTIC_POINTS` neighbouring time steps
-    whose errors lie between ``floor`` (round-off) and ``ceiling``, whose local slopes all lie
-    within ``spread`` of their fitted order (itself at least `MIN_CONVERGENCE_ORDER`) and do
-    not drift monotonically by more than `MAX_SLOPE_DRIFT` (a pre-asymptotic range whose
-    slopes still fall towards the order), and beyond whose finest step no finer step has a
-    larger error (except within `ROUND_OFF_MARGIN` of the floor). The run starts at the
-    finest step that allows one and reaches as far towards larger steps as it may: the
-    finest steps above round-off are the most asymptotic. Unstable (NaN) points split runs.
+    The asymptotic range is the longest run of at least `MIN_ASYMPTOTIC_POINTS` neighbouring
+    time steps whose errors lie between ``floor`` (round-off) and ``ceiling``, whose local
+    slopes all lie within ``spread`` of their fitted order (itself at least
+    `MIN_CONVERGENCE_ORDER`) and do not drift by more than `MAX_SLOPE_DRIFT` across the run
+    (the least-squares trend of the local slopes, so that one noisy slope hides no drift: a
+    pre-asymptotic range whose slopes still fall towards the order), and beyond whose finest
+    step no finer step has a larger error (except within `ROUND_OFF_MARGIN` of the floor).
+    Among runs of equal length the one at the finest steps wins: the finest steps above
+    round-off are the most asymptotic. Unstable (NaN) points split runs.
     """
     dts = np.asarray(dts, dtype=float)
     errors = np.asarray(errors, dtype=float)
     ascending = np.argsort(dts)
     usable = np.isfinite(errors) & (errors > floor) & (errors < ceiling)
     n = dts.size
-    for start in range(n - MIN_ASYMPTOTIC_POINTS + 1):
-        for stop in range(n, start + MIN_ASYMPTOTIC_POINTS - 1, -1):
-            run = ascending[start:stop]
+    for length in range(n, MIN_ASYMPTOTIC_POINTS - 1, -1):
+        for start in range(n - length + 1):
+            run = ascending[start:start + length]
             if not usable[run].all():
                 continue
             x, y = np.log(dts[run]), np.log(errors[run])
             order = float(np.polyfit(x, y, 1)[0])
             local = np.diff(y) / np.diff(x)  # finest pair first
-            steps = np.diff(local)
-            drifting = (np.all(steps > 0) or np.all(steps < 0)) and \
-                abs(local[-1] - local[0]) > MAX_SLOPE_DRIFT
+            positions = np.arange(local.size)
+            drift = abs(np.polyfit(positions, local, 1)[0]) * (local.size - 1)
             finer = errors[ascending[:start]]
             rises = np.any(finer > max(errors[run[0]], ROUND_OFF_MARGIN * floor))
-            if (order >= MIN_CONVERGENCE_ORDER and not rises and not drifting
+            if (order >= MIN_CONVERGENCE_ORDER and not rises and drift <= MAX_SLOPE_DRIFT
                     and np.all(np.abs(local - order) <= spread)):
                 used = np.zeros(n, dtype=bool)
                 used[run] = True

@@ -36,8 +36,10 @@ from rbstudy.pipeline.store import (
     archive_current,
     consolidate,
     global_attrs,
+    open_results,
     part_complete,
     part_dataset,
+    refresh_description,
     resolved_config,
     utc_now,
     write_atomic,
@@ -301,6 +303,10 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
         for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp")]:
             stale.unlink()  # left by a killed sweep; the lock is ours
         if not force and archive_current(target, study):
+            if open_results(target, ()).attrs.get("config") != study.text:
+                # the same cases and code, another text (a title, a comment): redescribe
+                refresh_description(target, global_attrs(study, started=started))
+                write_text_atomic(resolved_config(study), folder / "study.yaml")
             return StudyRun(path=target, computed=0, reused=len(study.batches),
                             cases=len(study.cases), up_to_date=True,
                             wall_seconds=time.perf_counter() - started_clock)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import InputError
+from rbstudy.physics.analytic import symmetry_axis
 from rbstudy.physics.scenes import Scene, scene_from_mapping
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import scene_key
@@ -276,8 +277,9 @@ def _apply_short(spec, name, value):
     number = float(value)
     if name == "inertia_ratio":
         inertia = spec["scene"].get("body", {}).get("inertia")
-        if not (isinstance(inertia, list) and len(inertia) == 3 and inertia[0] == inertia[1]
-                and not isinstance(inertia[0], list)):
+        if not (isinstance(inertia, list) and len(inertia) == 3
+                and all(isinstance(v, (int, float)) for v in inertia)
+                and symmetry_axis(inertia) == 2):
             raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r}",
                              "give inertia: [I1, I1, I3]", key="scene.body.inertia")
         spec["scene"]["body"]["inertia"] = [inertia[0], inertia[0], number * inertia[0]]

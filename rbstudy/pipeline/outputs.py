@@ -16,10 +16,14 @@ from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
 
-__all__ = ["BatchData", "driver_result", "ACCURACY_BOUND"]
+__all__ = ["BatchData", "driver_result", "ACCURACY_BOUND", "VERDICTS", "ACCURATE",
+           "INACCURATE", "FAILED"]
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
-# The default accuracy bound (`output.accuracy_bound`): a final orientation error of 0.01 rad
+# Codes of the accuracy verdict (`accuracy`): a failed case has none.
+VERDICTS = ("accurate", "inaccurate", "failed")
+ACCURATE, INACCURATE, FAILED = range(len(VERDICTS))
+# The default accuracy bound (`output.accuracy_bound`): an orientation error of 0.01 rad
 # or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
 # inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.
 ACCURACY_BOUND = 1e-2
@@ -30,7 +34,7 @@ class BatchData:
 
     scenes : (B,) `rbstudy.physics.scenes.Scene`; run : their `Simulation` (T samples);
     references : (B,) `rbstudy.physics.references.Reference` on the same T times;
-    run_time : (B,) s, kernel time per case; accuracy_bound : the study's bound on the final
+    run_time : (B,) s, kernel time per case; accuracy_bound : the study's bound on the
     orientation error (rad) and the relative energy and |L| drift of a case judged accurate.
     """
 
@@ -202,15 +206,17 @@ def final_orientation_error(batch):
 
 
 def accuracy(batch):
-    """0 accurate, 1 inaccurate: a finished case is inaccurate when its final orientation error
-    (rad) or its relative energy or |L| drift (moment-free bodies) passes the accuracy bound;
-    a failed case is never accurate."""
+    """0 accurate, 1 inaccurate, 2 failed: a finished case is inaccurate when its orientation
+    error at any sample (rad), or its relative energy or |L| drift over the steps (moment-free
+    bodies), passes the accuracy bound. The largest error, not the final one: an error that
+    wrapped round by the end of the run still was one."""
     results, bound = batch.run.results, batch.accuracy_bound
     with np.errstate(invalid="ignore"):
-        accurate = (results["status"] == OK) & (batch.orientation_error[:, -1] <= bound)
+        accurate = np.max(batch.orientation_error, axis=1) <= bound
         for name in ("max_energy_error", "max_momentum_magnitude_error"):
             accurate &= ~(results[name] > bound)  # NaN under moments: no conserved quantity
-    return (~accurate).astype(np.int8)
+    verdict = np.where(accurate, ACCURATE, INACCURATE)
+    return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
 
 def reference(batch):

@@ -17,6 +17,7 @@ import math
 import os
 import pathlib
 import platform
+import shutil
 import sys
 import tempfile
 import threading
@@ -40,7 +41,8 @@ from rbstudy.pipeline.variables import (
 
 __all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_atomic", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
-           "open_results", "part_complete", "archive_current", "decimal_grid", "COMPRESSION"]
+           "open_results", "part_complete", "archive_current", "refresh_description",
+           "decimal_grid", "COMPRESSION"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
                  "matplotlib", "PyYAML")
@@ -245,6 +247,16 @@ def open_results(path, variables=None):
     skip = None if variables is None else [name for name in VARIABLES if name not in variables]
     with HDF5_LOCK, xr.open_dataset(path, decode_times=False, drop_variables=skip) as dataset:
         return dataset.load()
+
+
+def refresh_description(path, attrs):
+    """Replace the global attributes of the archive at ``path`` (its title, config text and
+    provenance) without touching its data: a changed title or comment needs no recomputation.
+    Written through a copy and a rename, like every other write."""
+    with _temporary_beside(path) as temporary, HDF5_LOCK:
+        shutil.copyfile(path, temporary)
+        with netCDF4.Dataset(temporary, "a") as nc:
+            nc.setncatts(attrs)
 
 
 def archive_current(path, study):

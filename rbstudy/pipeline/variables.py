@@ -110,10 +110,10 @@ VARIABLES = {v.name: v for v in (
             "sampled, is momentum_error)", "moment_free"),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
-    _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its final "
-       "orientation error (rad) or relative energy or |L| drift passes the global attribute "
-       "accuracy_bound; a failed case is inaccurate", "reference",
-       flags=("accurate", "inaccurate"), dtype="i1"),
+    _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its "
+       "orientation error at any sample (rad) or its relative energy or |L| drift passes the "
+       "global attribute accuracy_bound; a failed case has no verdict", "reference",
+       flags=outputs.VERDICTS, dtype="i1"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
        flags=REFERENCE_KINDS, dtype="i1"),
     _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
