@@ -3,16 +3,24 @@
 ``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
 per-scheme summary; ``validate`` checks configs without running anything.
 
-Expected failures (`RbstudyError`) print one line and exit 2; bugs print a traceback.
+Exit codes, as the command-line tools users know have them: 0 success; 1 a user's mistake
+(`RbstudyError`), told in one line naming the file, the key and the fix; 2 bad usage (from
+argparse); 70 a bug in rbstudy (`EX_SOFTWARE`), the only case with a traceback, and a line
+asking for a report. A reader that closes the output early (``| head -1``) ends it quietly.
 """
 
 import argparse
+import os
 import pathlib
 import sys
+import traceback
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError
 
-__all__ = ["main"]
+__all__ = ["main", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG"]
+
+EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
+EXIT_BUG = 70  # EX_SOFTWARE of sysexits.h: an internal error
 
 # `--select dt=0.0003125` finds the stored dt although decimal text and binary floats differ.
 _SELECT_RTOL = 1e-12
@@ -58,7 +66,7 @@ def _validate(args):
             failures += 1
             continue
         print(f"{path}: ok: {_describe(study)}")
-    return 2 if failures else 0
+    return EXIT_USER_ERROR if failures else EXIT_OK
 
 
 def _sweep(args):
@@ -218,17 +226,34 @@ def _version():
         return "(not installed)"
 
 
+def _quiet_stdout():
+    """Point stdout at /dev/null: its reader is gone, and Python's own flush at exit would
+    otherwise report the broken pipe once more."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
 def main(argv=None):
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(argv)  # bad usage: argparse exits with EXIT_USAGE
     try:
-        return args.run(args)
+        code = args.run(args)
+        sys.stdout.flush()  # a closed pipe shows here, after the work is done
+        return code
     except RbstudyError as error:
         print(f"rbstudy: error: {error}", file=sys.stderr)
-        return 2
+        return EXIT_USER_ERROR
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_OK
     except KeyboardInterrupt:
         print("\nrbstudy: interrupted; finished batches are kept: rerun the same command to "
               "resume", file=sys.stderr)
         return 130
+    except Exception:  # noqa: BLE001 (a bug: shown whole, once, with where to report it)
+        traceback.print_exc()
+        print("rbstudy: this is a bug in rbstudy, not in your input; please report it with "
+              "the command, the config and the lines above", file=sys.stderr)
+        return EXIT_BUG
 
 
 if __name__ == "__main__":

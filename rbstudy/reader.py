@@ -50,10 +50,12 @@ class Reader:
             self.fail(key, f"must be > 0, got {value!r}")
         return number
 
-    def count(self, value, key):
-        """``value`` as a whole number >= 1."""
+    def count(self, value, key, maximum=None):
+        """``value`` as a whole number >= 1 (and at most ``maximum``)."""
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             self.fail(key, f"expected a whole number >= 1, got {value!r}")
+        if maximum is not None and value > maximum:
+            self.fail(key, f"{value:,} is too many", f"at most {maximum:,}")
         return value
 
     def vector(self, value, key, length=3):
@@ -70,6 +72,6 @@ class Reader:
 
     def line(self, value, key):
         """``value`` as one line of text."""
-        if not isinstance(value, str):
+        if not isinstance(value, str) or "\n" in value.strip():
             self.fail(key, f"expected one line of text, got {value!r}")
-        return value
+        return value.strip()

@@ -66,7 +66,7 @@ def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, tex
     config.write_text(text)
     out = tmp_path / "results"
     for verb in (["validate", str(config)], ["sweep", str(config), "--out", str(out)]):
-        assert main(verb) == 2
+        assert main(verb) == 1
         error = capsys.readouterr().err.strip()
         assert "\n" not in error and message.replace("bad.yaml", str(config)) in error, error
     assert not out.exists()
@@ -75,7 +75,7 @@ def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, tex
 def test_unwritable_output_folder_is_one_line(tmp_path, capsys):
     blocked = tmp_path / "file"
     blocked.write_text("not a folder")
-    assert main(["sweep", "configs/abaqus_top.yaml", "--out", str(blocked)]) == 2
+    assert main(["sweep", "configs/abaqus_top.yaml", "--out", str(blocked)]) == 1
     error = capsys.readouterr().err.strip()
     assert "cannot write results there" in error and "\n" not in error
 
@@ -119,3 +119,75 @@ def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
     assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["long_name"]
     assert ds.max_momentum_error.attrs["long_name"].startswith(
         "deprecated alias of max_momentum_magnitude_error")
+
+
+GOOD = "name: x\nscene: {body: {inertia: [1, 1, 2]}, initial: {angular_velocity: {body: [0.1, 0, 1]}}}\n" \
+       "run: {scheme: rk4, dt: 0.1}\noutput: {interval: 0.1}\n"
+# nine levels of nine aliases, under `title` (387 million strings once expanded)
+BOMB = "title:\n  a0: &a0 x\n" + "".join(
+    f"  a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 9) + "]\n" for k in range(1, 10))
+
+
+@pytest.mark.parametrize("content, message", [
+    (GOOD.replace("name: x", "name: x\ntitle: caf\xe9").encode("latin-1"),
+     "is not UTF-8 text (byte 0xe9 at offset 18); save the config as UTF-8"),
+    (GOOD.encode("utf-16"), "is not UTF-8 text"),
+    (bytes(range(256)) * 4, "is not UTF-8 text"),
+    (GOOD + "name: other\n", "line 5: malformed YAML: duplicate key 'name'"),
+    (GOOD + "sweep: " + "{a: " * 5000 + "1" + "}" * 5000 + "\n", "nested"),
+    (GOOD + "sweep:\n  spin: " + "[" * 40 + "1" + "]" * 40 + "\n",
+     "sweep: nested 42 levels deep (at most 32)"),
+    (BOMB + GOOD, "title: its aliases expand to 490,329,066 values (at most 100,000)"),
+    (GOOD.replace("name: x", "name: x\ntitle: |\n  two\n  lines"),
+     "title: expected one line of text"),
+    (GOOD + "sweep: {tilt: [.inf]}\n", "sweep (tilt[0] = inf): tilt must be finite"),
+    (GOOD + "sweep: {spin: [.inf]}\n", "sweep (spin[0] = inf): spin must be finite"),
+    (GOOD + "sweep: {spin: [0.0]}\n", "sweep (spin[0] = 0.0): spin must be > 0 rad/s"),
+    (GOOD + "sweep: {dt: {halving: 0.01, count: 1100}}\n",
+     "sweep.dt.count: 1,100 is too many; at most 1,000"),
+    (GOOD + "sweep: {inertia_ratio: {linspace: [0.1, 2.0, 1000000000000]}}\n",
+     "sweep.inertia_ratio.linspace[2]: 1,000,000,000,000 is too many; at most 200,000"),
+])
+def test_hostile_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, content,
+                                                               message):
+    config = tmp_path / "bad.yaml"
+    config.write_bytes(content if isinstance(content, bytes) else content.encode())
+    out = tmp_path / "results"
+    for verb in (["validate", str(config)], ["sweep", str(config), "--out", str(out)]):
+        assert main(verb) == 1
+        error = capsys.readouterr().err.strip()
+        assert "\n" not in error and f"{config}: " in error and message in error, error
+    assert not out.exists()
+
+
+def test_a_bug_shows_its_traceback_once_with_where_to_report_it(capsys, monkeypatch):
+    from rbstudy import cli
+
+    def broken(args):
+        raise ZeroDivisionError("a bug")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    parser._subparsers._group_actions[0].choices["schemes"].set_defaults(run=broken)
+    assert main(["schemes"]) == cli.EXIT_BUG == 70
+    error = capsys.readouterr().err
+    assert "Traceback" in error and "ZeroDivisionError: a bug" in error
+    assert error.strip().endswith("please report it with the command, the config and the "
+                                  "lines above")
+
+
+def test_bad_usage_is_exit_two(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["sweep"])
+    assert done.value.code == 2
+
+
+def test_a_closed_output_ends_the_command_quietly():
+    """`rbstudy ... | head -1`: the reader is gone; no traceback, exit 0."""
+    import subprocess
+    import sys
+    process = subprocess.Popen([sys.executable, "-m", "rbstudy", "schemes"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()  # the reader leaves before anything is written
+    assert process.wait(timeout=120) == 0
+    assert process.stderr.read() == b""

@@ -141,7 +141,7 @@ def test_the_shipped_convergence_study_shows_every_nominal_order(tmp_path):
 def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
     bogus = tmp_path / "x.nc"
     bogus.write_text("not netCDF")
-    assert main(["plot", str(bogus)]) == 2
+    assert main(["plot", str(bogus)]) == 1
     error = capsys.readouterr().err.strip()
     assert "cannot read it as an rbstudy results file" in error and "\n" not in error
 
@@ -160,9 +160,9 @@ def test_plot_select_narrows_the_cases(tmp_path, capsys):
     assert len(list((tmp_path / "one").glob("*.png"))) == reported > 0
     for bad, message in ((["--select", "dt=fast"], "--select dt=fast: dt takes a number"),
                          (["--select", "time=1"], "'time' is not a swept dimension")):
-        assert main(["plot", str(done.path), "--out", str(tmp_path / "x"), *bad]) == 2
+        assert main(["plot", str(done.path), "--out", str(tmp_path / "x"), *bad]) == 1
         assert message in capsys.readouterr().err
-    assert main(["plot", str(done.path), "--select", "dt=0.01"]) == 2
+    assert main(["plot", str(done.path), "--select", "dt=0.01"]) == 1
     assert "--select needs --out" in capsys.readouterr().err
 
 
@@ -178,10 +178,10 @@ def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_arch
     assert len(list((tmp_path / "both").glob("*.png"))) == sum(counts) > counts[0]
     assert main(["report", str(paths[0])]) == 0
     assert (paths[0].parent / "report" / "index.html").is_file()
-    assert main(["report", str(paths[1]), "--out", str(paths[0].parent / "report")]) == 2
+    assert main(["report", str(paths[1]), "--out", str(paths[0].parent / "report")]) == 1
     error = capsys.readouterr().err
     assert "holds the report of study 'long_run', not 'high_spin'" in error
-    assert main(["plot", str(paths[0]), str(paths[0]), "--out", str(tmp_path / "x")]) == 2
+    assert main(["plot", str(paths[0]), str(paths[0]), "--out", str(tmp_path / "x")]) == 1
     assert "also study 'long_run'" in capsys.readouterr().err
 
 

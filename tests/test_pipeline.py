@@ -178,7 +178,7 @@ def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
     folder = tmp_path / "out" / "small"
     folder.mkdir(parents=True)
     with study_lock(folder):
-        assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+        assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()
     assert "another rbstudy sweep is writing this study" in error and "\n" not in error
     assert not (folder / "small.nc").exists()
@@ -230,7 +230,7 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(execute, "CONNECT_TIMEOUT", "1s")
     config = _small_study(tmp_path)
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet",
-                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 1
     error = capsys.readouterr().err.strip()
     assert "--scheduler tcp://127.0.0.1:9: cannot connect" in error and "\n" not in error
 

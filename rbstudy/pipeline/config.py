@@ -10,18 +10,15 @@ path, the value and the fix. docs/config.md documents every key.
 import dataclasses
 import math
 import os
-import pathlib
-import re
 from dataclasses import dataclass
 
 import numpy as np
-import yaml
 
 from rbstudy.errors import ConfigError, InputError
 from rbstudy.numerics.state import N_STATE
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
-from rbstudy.pipeline.grid import expand, parse_sweep
+from rbstudy.pipeline.grid import MAX_CASES, expand, parse_sweep
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
@@ -31,6 +28,7 @@ from rbstudy.pipeline.variables import (
     scene_features,
     selected,
 )
+from rbstudy.pipeline.yaml_file import read_study_file
 from rbstudy.reader import Reader
 from rbstudy.schemes import get_scheme
 
@@ -50,9 +48,6 @@ MEMORY_FRACTION = 0.5
 # A batch in flight holds its sampled states, its references (about as large) and the derived
 # variables being built from both: about this many times its sampled states and outputs.
 _IN_FLIGHT_FACTOR = 3
-# Every case is expanded and validated up front (a few kB of Python objects each): a grid
-# larger than this is refused before expansion, with its size.
-MAX_CASES = 200_000
 
 
 @dataclass(frozen=True)
@@ -113,33 +108,6 @@ class StudyConfig:
 
 
 
-class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader reading floats as YAML 1.2 does.
-
-    YAML 1.1 (PyYAML) takes ``1e-3`` and ``1.0e4`` for strings: exponents without a sign or
-    without a dot. Study configs are full of such numbers; read them as floats.
-    """
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)$"),
-    list("-+0123456789"))
-
-
-def _read_yaml(path):
-    try:
-        text = pathlib.Path(path).read_text()
-    except OSError as error:
-        raise ConfigError(f"cannot read the config: {error.strerror}", source=path) from None
-    try:
-        return text, yaml.load(text, Loader=_Loader)  # noqa: S506 (a safe loader)
-    except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        raise ConfigError(f"malformed YAML: {getattr(error, 'problem', error)}", source=path,
-                          key=f"line {where.line + 1}" if where else None) from None
-
-
 def _variables(reader, requested, cases):
     """The variables every case defines, narrowed to ``output.variables`` when given (the
     per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept, and a
@@ -181,7 +149,7 @@ def _output_interval(reader, output, run, swept):
 def load_study(path):
     """Read and validate the study config at ``path``; nothing is run or written."""
     path = str(path)
-    text, data = _read_yaml(path)
+    text, data = read_study_file(path)
     reader = Reader(path, ConfigError)
     data = reader.mapping(data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key in ("name", "scene", "run"):

@@ -39,7 +39,7 @@ from rbstudy.pipeline.variables import VARIABLES, coordinate_units
 from rbstudy.schemes import SCHEMES, get_scheme
 
 __all__ = ["Axis", "Dimension", "Case", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
-           "parse_sweep", "expand"]
+           "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand"]
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
 ALL_SCHEMES = "all"
@@ -61,6 +61,13 @@ _NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
 # Names the dataset already uses: a zipped dimension may not take them.
 RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
     frozenset(VARIABLES)
+# Every case is expanded and validated up front (a few kB of Python objects each): a study
+# has at most this many cases, and an axis at most this many values, checked before any list
+# is built, so that a count of 1e12 is an error, not an allocation.
+MAX_CASES = 200_000
+MAX_AXIS_VALUES = MAX_CASES
+# Halvings of a float: after 1,074 the value is no longer a number above zero.
+MAX_HALVINGS = 1_000
 # Batches group cases by scheme and dt, and the convergence fit runs along dt: both must be
 # dimensions of their own.
 _NOT_ZIPPABLE = ("scheme", "dt")
@@ -132,7 +139,7 @@ def _values(reader, key, spec):
             reader.fail(f"{key}.{form}", f"expected [start, stop, count], got {triple!r}")
         start = reader.number(triple[0], f"{key}.{form}[0]")
         stop = reader.number(triple[1], f"{key}.{form}[1]")
-        count = reader.count(triple[2], f"{key}.{form}[2]")
+        count = reader.count(triple[2], f"{key}.{form}[2]", MAX_AXIS_VALUES)
         if form == "linspace":
             return tuple(float(v) for v in np.linspace(start, stop, count))
         if start <= 0 or stop <= 0:
@@ -140,8 +147,8 @@ def _values(reader, key, spec):
         return tuple(float(v) for v in np.geomspace(start, stop, count))
     if isinstance(spec, dict) and set(spec) == {"halving", "count"}:
         start = reader.number(spec["halving"], f"{key}.halving")
-        count = reader.count(spec["count"], f"{key}.count")
-        return tuple(start / 2 ** i for i in range(count))
+        count = reader.count(spec["count"], f"{key}.count", MAX_HALVINGS)
+        return tuple(start * 0.5 ** i for i in range(count))
     if spec == ALL_SCHEMES and key.endswith("scheme"):
         return tuple(name for name, scheme in SCHEMES.items() if not scheme.adaptive)
     reader.fail(key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
@@ -275,6 +282,11 @@ def _apply_short(spec, name, value):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"{name} takes a number, got {value!r}")
     number = float(value)
+    if not math.isfinite(number):
+        raise InputError(f"{name} must be finite, got {value!r}")
+    if name == "spin" and number <= 0.0:
+        raise InputError(f"spin must be > 0 rad/s, got {value!r}",
+                         "a body at rest has no rotation to study: sweep a positive spin")
     if name == "inertia_ratio":
         inertia = spec["scene"].get("body", {}).get("inertia")
         if not (isinstance(inertia, list) and len(inertia) == 3

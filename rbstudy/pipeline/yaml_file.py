@@ -1,0 +1,111 @@
+"""Reading a study file: UTF-8 text -> YAML -> plain Python values, or a one-line `ConfigError`.
+
+Beyond PyYAML's safe loader, it reads floats as YAML 1.2 does (``1e-3`` is a number, not a
+string), refuses duplicate keys (the last one would silently win: an appended ``name: other``
+renames the study), and refuses documents nested deeper than `MAX_DEPTH` or whose aliases
+expand to more than `MAX_VALUES` values (nine levels of nine aliases are 387 million values:
+every later step that walks the config, from an error message to a scene's identity, would
+exhaust the memory).
+"""
+
+import pathlib
+import re
+
+import yaml
+
+from rbstudy.errors import ConfigError
+
+__all__ = ["read_study_file", "MAX_DEPTH", "MAX_VALUES"]
+
+# A study config is a few hundred values a few levels deep (scene.initial.angular_velocity
+# .body is five): these bounds leave ample room.
+MAX_DEPTH = 32
+MAX_VALUES = 100_000
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 floats and no duplicate keys."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if not isinstance(key, (str, int, float, bool)):
+                continue  # an unhashable key fails in PyYAML's own construction
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r}: give each key once (the later one "
+                                "would silently win)", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+# YAML 1.1 (PyYAML) takes ``1e-3`` and ``1.0e4`` for strings: exponents without a sign or
+# without a dot. Study configs are full of such numbers; read them as floats.
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)$"),
+    list("-+0123456789"))
+
+
+def _extent(root):
+    """(depth, number of values once every alias is expanded) of a composed YAML node.
+
+    Iterative and memoised by node: an alias is the same node object, so a document of
+    nested aliases is measured in time proportional to its text, not to its expansion.
+    """
+    measured = {}
+    stack = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if id(node) in measured:
+            continue
+        children = ([item for pair in node.value for item in pair]
+                    if isinstance(node, yaml.MappingNode)
+                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        if not children_done:
+            stack.append((node, True))
+            stack.extend((child, False) for child in children if id(child) not in measured)
+            continue
+        depth = 1 + max((measured[id(c)][0] for c in children), default=0)
+        size = 1 + sum(measured[id(c)][1] for c in children)
+        measured[id(node)] = (depth, size)
+    return measured[id(root)]
+
+
+def _check_extent(path, root):
+    """Refuse what is nested too deeply or expands too far, naming the top-level key."""
+    parts = root.value if isinstance(root, yaml.MappingNode) else [(None, root)]
+    for key_node, value in parts:
+        key = key_node.value if key_node is not None else None
+        depth, size = _extent(value)
+        if depth > MAX_DEPTH:
+            raise ConfigError(f"nested {depth} levels deep (at most {MAX_DEPTH})",
+                              "write it flat, as docs/config.md shows", path, key)
+        if size > MAX_VALUES:
+            raise ConfigError(f"its aliases expand to {size:,} values (at most {MAX_VALUES:,})",
+                              "write the values out instead of nesting aliases", path, key)
+
+
+def read_study_file(path):
+    """The text of the study file at ``path`` and its values; a `ConfigError` names what is
+    wrong with the file (unreadable, not UTF-8, malformed YAML, too deep or too large)."""
+    try:
+        text = pathlib.Path(path).read_text(encoding="utf-8")
+    except OSError as error:
+        raise ConfigError(f"cannot read the config: {error.strerror}", source=path) from None
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
+                          f"offset {error.start})", "save the config as UTF-8", path) from None
+    try:
+        root = yaml.compose(text, Loader=_Loader)  # noqa: S506 (a safe loader)
+        if root is not None:
+            _check_extent(path, root)
+        return text, yaml.load(text, Loader=_Loader)  # noqa: S506 (a safe loader)
+    except RecursionError:
+        raise ConfigError("nested too deeply to read", "write it flat, as docs/config.md "
+                          "shows", path) from None
+    except yaml.YAMLError as error:
+        where = getattr(error, "problem_mark", None)
+        raise ConfigError(f"malformed YAML: {getattr(error, 'problem', error)}", source=path,
+                          key=f"line {where.line + 1}" if where else None) from None
