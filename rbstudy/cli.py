@@ -163,10 +163,18 @@ def _open(path, open_results):
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error)
         raise InputError(f"cannot read it as an rbstudy results file ({first_line})",
                          "give the <study>.nc written by rbstudy sweep", path) from None
+    if "batch" in dataset.attrs and "case" in dataset.dims:
+        raise InputError("is one batch's part file, not a study's archive",
+                         "give the <study>.nc written beside parts/", path)
+    if "study" not in dataset.attrs:
+        held = ", ".join(list(dataset.data_vars)[:6]) or "no variables"
+        raise InputError(f"is not an rbstudy archive (no study attribute; it holds {held})",
+                         "give the <study>.nc written by rbstudy sweep", path)
     missing = [name for name in BOOKKEEPING if name not in dataset]
     if missing:
-        raise InputError(f"lacks {', '.join(missing)}: written by an older rbstudy",
-                         "rerun its sweep (with --force) to rebuild it", path)
+        written_by = dataset.attrs.get("source", "an unknown writer")
+        raise InputError(f"lacks {', '.join(missing)} (written by {written_by})",
+                         "rerun its sweep with this rbstudy (--force) to rebuild it", path)
     return dataset
 
 

@@ -278,3 +278,24 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     case_line = bench.axes[0].get_lines()[0]
     assert case_line.get_label().startswith("hht")
     assert colors.same_color(case_line.get_color(), SCHEME_STYLES["hht"][0])
+
+
+def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
+    import numpy as np
+    import xarray as xr
+    done = run_study(load_study(shrunk_config("long_run.yaml", tmp_path)), tmp_path / "out",
+                     quiet=True, keep_parts=True)
+    part = next((done.path.parent / "parts").glob("*.nc"))
+    foreign = tmp_path / "foreign.nc"
+    xr.Dataset({"status": ("x", np.zeros(3)), "omega_body": ("x", np.ones(3))}).to_netcdf(foreign)
+    stripped = tmp_path / "stripped.nc"
+    open_results(done.path).drop_vars(["accuracy", "run_time"]).to_netcdf(stripped)
+    for path, message in ((part, "is one batch's part file, not a study's archive"),
+                          (foreign, "is not an rbstudy archive (no study attribute; it holds "
+                                    "status, omega_body)"),
+                          (stripped, "lacks accuracy, run_time (written by rbstudy ")):
+        for verb in (["plot", str(path), "--out", str(tmp_path / "figs")],
+                     ["report", str(path), "--out", str(tmp_path / "rep")]):
+            assert main(verb) == 1
+            error = capsys.readouterr().err.strip()
+            assert "\n" not in error and f"{path}: {message}" in error, error

@@ -233,6 +233,7 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
                  "--scheduler", "tcp://127.0.0.1:9"]) == 1
     error = capsys.readouterr().err.strip()
     assert "--scheduler tcp://127.0.0.1:9: cannot connect" in error and "\n" not in error
+    assert not (tmp_path / "out" / "small").exists()  # no empty folder, .lock or parts/ left
 
 
 def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):

@@ -118,7 +118,7 @@ def _variables(reader, requested, cases):
     if not isinstance(requested, list) or not requested:
         reader.fail("output.variables", f"expected a non-empty list of names, got {requested!r}")
     for i, name in enumerate(requested):
-        if name not in VARIABLES:
+        if not isinstance(name, str) or name not in VARIABLES:
             reader.fail(f"output.variables[{i}]", f"unknown variable {name!r}",
                         f"valid: {', '.join(VARIABLES)}")
         if name not in available:
@@ -170,8 +170,14 @@ def load_study(path):
     for key in ("scheme", "dt"):
         if key not in run and key not in swept:
             reader.fail(f"run.{key}", "missing", "give it here or sweep it")
-    if "dt" in run and "dt" not in swept:
+    # checked even when swept: a value that is never used must still not be garbage
+    if "dt" in run:
         reader.number(run["dt"], "run.dt", positive=True)
+    if "scheme" in run:
+        try:
+            get_scheme(run["scheme"])
+        except InputError as error:
+            raise reader.locate(error, "run.scheme") from None
     if not isinstance(run.get("options") or {}, dict):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
     output = reader.mapping(data.get("output"), "output",

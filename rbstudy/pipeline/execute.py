@@ -296,7 +296,20 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     """
     started_clock = time.perf_counter()
     started = utc_now()
+    created = not (pathlib.Path(root) / study.name).exists()
     folder = _prepare(root, study)
+    try:
+        return _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started,
+                       started_clock)
+    except RbstudyError:
+        if created and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
+            shutil.rmtree(folder)  # this run made the folder and left nothing worth keeping
+        raise
+
+
+def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started,
+            started_clock):
+    """`run_study` inside its study folder."""
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
     with study_lock(folder):

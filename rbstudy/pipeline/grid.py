@@ -271,6 +271,11 @@ def _body_omega(spec, name):
     if name == "tilt" and frame != "body":
         raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
                          "body axes (.body)", key=_OMEGA_KEY)
+    vector = omega[frame]
+    if not (isinstance(vector, list) and len(vector) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in vector)):
+        raise InputError(f"expected a list of 3 numbers, got {vector!r}",
+                         key=f"{_OMEGA_KEY}.{frame}")
     return omega, frame
 
 

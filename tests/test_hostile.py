@@ -1,0 +1,71 @@
+"""A hostile-input corpus built from every shipped config: an unknown key beside every
+mapping, and a value of the wrong kind (a nested list) in place of every scalar. Each mutation
+must fail in one line naming the file, with exit 1 and nothing written: never a traceback,
+never a silently ignored value."""
+
+import contextlib
+import copy
+import io
+
+import yaml
+from conftest import CONFIGS
+
+from rbstudy.cli import main
+
+# More than this many mutations come from the eight shipped configs (287 when written).
+MIN_MUTATIONS = 100
+
+
+def _places(node, path=()):
+    """(kind, key path) of every mapping and every scalar of a loaded YAML document."""
+    if isinstance(node, dict):
+        yield "mapping", path
+        for key, value in node.items():
+            yield from _places(value, path + (key,))
+    elif isinstance(node, list):
+        for index, value in enumerate(node):
+            yield from _places(value, path + (index,))
+    elif path:
+        yield "scalar", path
+
+
+def _mutated(study, kind, path):
+    study = copy.deepcopy(study)
+    node = study
+    for part in path if kind == "mapping" else path[:-1]:
+        node = node[part]
+    if kind == "mapping":
+        node["bogus_key"] = 1
+    else:
+        node[path[-1]] = [[]]
+    return study
+
+
+def mutations():
+    for config in sorted(CONFIGS.glob("*.yaml")):
+        study = yaml.safe_load(config.read_text())
+        for kind, path in _places(study):
+            yield config.stem, kind, path, _mutated(study, kind, path)
+
+
+def _run(argv):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(argv)
+    return code, err.getvalue().strip()
+
+
+def test_every_mutation_of_the_shipped_configs_fails_in_one_line(tmp_path):
+    failures, count = [], 0
+    for stem, kind, path, study in mutations():
+        count += 1
+        name = f"{stem}_{kind}_{count}.yaml"
+        config = tmp_path / name
+        config.write_text(yaml.safe_dump(study, sort_keys=False))
+        out = tmp_path / f"out_{count}"
+        for verb in (["validate", str(config)], ["sweep", str(config), "--out", str(out)]):
+            code, error = _run(verb)
+            if code != 1 or "\n" in error or f"{config}: " not in error or out.exists():
+                failures.append(f"{verb[0]} {stem} {kind} {path}: exit {code}: {error[-300:]}")
+    assert count >= MIN_MUTATIONS
+    assert not failures, "\n".join(failures[:20])
