@@ -6,7 +6,8 @@ per-scheme summary; ``validate`` checks configs without running anything.
 Exit codes, as the command-line tools users know have them: 0 success; 1 a user's mistake
 (`RbstudyError`), told in one line naming the file, the key and the fix; 2 bad usage (from
 argparse); 70 a bug in rbstudy (`EX_SOFTWARE`), the only case with a traceback, and a line
-asking for a report. A reader that closes the output early (``| head -1``) ends it quietly.
+asking for a report; 141 (as for a broken pipe) without a word when the reader of the output
+has gone (``| head -1``): the command stops there.
 """
 
 import argparse
@@ -17,10 +18,11 @@ import traceback
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError
 
-__all__ = ["main", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG"]
+__all__ = ["main", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 EXIT_BUG = 70  # EX_SOFTWARE of sysexits.h: an internal error
+EXIT_PIPE = 141  # 128 + SIGPIPE, as other tools end when their reader has gone
 
 # `--select dt=0.0003125` finds the stored dt although decimal text and binary floats differ.
 _SELECT_RTOL = 1e-12
@@ -250,9 +252,9 @@ def main(argv=None):
     except RbstudyError as error:
         print(f"rbstudy: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except BrokenPipeError:
+    except BrokenPipeError:  # the reader left (| head -1): what was not yet done is not done
         _quiet_stdout()
-        return EXIT_OK
+        return EXIT_PIPE
     except KeyboardInterrupt:
         print("\nrbstudy: interrupted; finished batches are kept: rerun the same command to "
               "resume", file=sys.stderr)

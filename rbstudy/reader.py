@@ -42,8 +42,11 @@ class Reader:
     def number(self, value, key, positive=False):
         """``value`` as a finite float (and > 0 when ``positive``)."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(key, f"expected a number, got {value!r}")
-        number = float(value)
+            self.fail(key, f"expected a number, got {value!r:.80}")
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond any float
+            number = math.inf
         if not math.isfinite(number):
             self.fail(key, f"must be finite, got {value!r}")
         if positive and number <= 0.0:

@@ -123,7 +123,7 @@ def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
 
 GOOD = "name: x\nscene: {body: {inertia: [1, 1, 2]}, initial: {angular_velocity: {body: [0.1, 0, 1]}}}\n" \
        "run: {scheme: rk4, dt: 0.1}\noutput: {interval: 0.1}\n"
-# nine levels of nine aliases, under `title` (387 million strings once expanded)
+# nine levels of nine aliases, under `title` (490 million values once expanded)
 BOMB = "title:\n  a0: &a0 x\n" + "".join(
     f"  a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 9) + "]\n" for k in range(1, 10))
 
@@ -140,13 +140,24 @@ BOMB = "title:\n  a0: &a0 x\n" + "".join(
     (BOMB + GOOD, "title: its aliases expand to 490,329,066 values (at most 100,000)"),
     (GOOD.replace("name: x", "name: x\ntitle: |\n  two\n  lines"),
      "title: expected one line of text"),
-    (GOOD + "sweep: {tilt: [.inf]}\n", "sweep (tilt[0] = inf): tilt must be finite"),
-    (GOOD + "sweep: {spin: [.inf]}\n", "sweep (spin[0] = inf): spin must be finite"),
+    (GOOD + "sweep: {tilt: [.inf]}\n", "sweep.tilt[0]: must be finite, got inf"),
+    (GOOD + "sweep: {spin: [.inf]}\n", "sweep.spin[0]: must be finite, got inf"),
     (GOOD + "sweep: {spin: [0.0]}\n", "sweep (spin[0] = 0.0): spin must be > 0 rad/s"),
     (GOOD + "sweep: {dt: {halving: 0.01, count: 1100}}\n",
-     "sweep.dt.count: 1,100 is too many; at most 1,000"),
+     "sweep.dt.count: 1,100 is too many; at most 60"),
     (GOOD + "sweep: {inertia_ratio: {linspace: [0.1, 2.0, 1000000000000]}}\n",
      "sweep.inertia_ratio.linspace[2]: 1,000,000,000,000 is too many; at most 200,000"),
+    (GOOD.replace("name: x", "name: x\ntitle: &a [*a]"),
+     "title: an alias refers to itself; write the values out"),
+    (GOOD.replace("dt: 0.1", "dt: 1.0e-320"),
+     "run.dt: dt = 9.99989e-321 s is too small for the output interval 0.1 s"),
+    (GOOD + "sweep: {dt: {halving: 1.0e-320, count: 6}}\n", "is too small for the output"),
+    (GOOD.replace("inertia: [1, 1, 2]}", "inertia: [1, 1, 2]}, duration: 1" + "0" * 5000),
+     "holds a value that cannot be read"),
+    (GOOD.replace("{inertia: [1, 1, 2]}", "{mass: 1" + "0" * 400 + ", inertia: [1, 1, 2]}"),
+     "scene.body.mass: must be finite"),
+    (GOOD.replace("inertia: [1, 1, 2]}", "inertia: [1, 1, 2]}, duration: 2001-12-14"),
+     "scene.duration: expected a number, got '2001-12-14'"),
 ])
 def test_hostile_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, content,
                                                                message):
@@ -183,11 +194,20 @@ def test_bad_usage_is_exit_two(capsys):
 
 
 def test_a_closed_output_ends_the_command_quietly():
-    """`rbstudy ... | head -1`: the reader is gone; no traceback, exit 0."""
+    """`rbstudy ... | head -1`: the reader is gone; no traceback, exit 141 (not a success:
+    what was not yet done is not done)."""
     import subprocess
     import sys
     process = subprocess.Popen([sys.executable, "-m", "rbstudy", "schemes"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     process.stdout.close()  # the reader leaves before anything is written
-    assert process.wait(timeout=120) == 0
+    assert process.wait(timeout=120) == 141
     assert process.stderr.read() == b""
+
+
+def test_yaml_merge_keys_still_merge(tmp_path, capsys):
+    config = tmp_path / "merge.yaml"
+    config.write_text(GOOD.replace("run: {scheme: rk4, dt: 0.1}",
+                                   "run: {<<: {scheme: rk4}, dt: 0.1}"))
+    assert main(["validate", str(config)]) == 0
+    assert "ok: x: 1 cases" in capsys.readouterr().out

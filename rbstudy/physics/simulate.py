@@ -20,12 +20,19 @@ __all__ = ["Simulation", "simulate", "steps_per", "STEP_RTOL"]
 # A time step "divides" an interval when the quotient is within this relative distance of an
 # integer: decimal inputs such as 0.01 and 2.0 are not exact binary fractions.
 STEP_RTOL = 1e-9
+# Beyond this many steps in one interval the divisibility test itself loses its meaning (the
+# quotient's rounding passes STEP_RTOL) and no run could finish.
+MAX_STEPS_PER_INTERVAL = 1e12
 
 
 def steps_per(interval, step, step_name="dt", interval_name="interval"):
     """The whole number of ``step``s in ``interval``; an unplaced `InputError` if there is
     none (the caller knows the file and key)."""
     ratio = interval / step
+    if not ratio < MAX_STEPS_PER_INTERVAL:  # inf for a subnormal step, NaN for a NaN
+        raise InputError(f"{step_name} = {step:g} s is too small for the {interval_name} "
+                         f"{interval:g} s (over {MAX_STEPS_PER_INTERVAL:.0e} steps)",
+                         f"choose {step_name} = {interval:g} / n with a reasonable n")
     count = round(ratio)
     if count < 1 or abs(ratio - count) > STEP_RTOL * ratio:
         raise InputError(

@@ -30,7 +30,10 @@ def _normalised(value):
         return [_normalised(v) for v in value]
     if isinstance(value, bool) or value is None or isinstance(value, str):
         return value
-    return float(value)
+    try:
+        return float(value)
+    except (OverflowError, TypeError, ValueError):  # refused later, with its key, by the reader
+        return repr(value)
 
 
 def scene_key(scene_spec):

@@ -66,8 +66,8 @@ RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme
 # is built, so that a count of 1e12 is an error, not an allocation.
 MAX_CASES = 200_000
 MAX_AXIS_VALUES = MAX_CASES
-# Halvings of a float: after 1,074 the value is no longer a number above zero.
-MAX_HALVINGS = 1_000
+# Halvings of a step: 60 divide it by 1e18, beyond any study (and a float by 2^1074 is 0).
+MAX_HALVINGS = 60
 # Batches group cases by scheme and dt, and the convergence fit runs along dt: both must be
 # dimensions of their own.
 _NOT_ZIPPABLE = ("scheme", "dt")
@@ -120,6 +120,8 @@ def _scalar_values(reader, key, values):
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
             reader.fail(f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}",
                         "sweep a vector one entry at a time (path.0, path.1...)")
+        if not isinstance(value, str):
+            reader.number(value, f"{key}[{i}]")  # finite
     counts = collections.Counter(float(v) if not isinstance(v, str) else v for v in values)
     repeated = sorted(str(v) for v, n in counts.items() if n > 1)
     if repeated:
@@ -271,10 +273,9 @@ def _body_omega(spec, name):
     if name == "tilt" and frame != "body":
         raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
                          "body axes (.body)", key=_OMEGA_KEY)
-    vector = omega[frame]
-    if not (isinstance(vector, list) and len(vector) == 3 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in vector)):
-        raise InputError(f"expected a list of 3 numbers, got {vector!r}",
+    vector = _finite_numbers(omega[frame])
+    if vector is None or len(vector) != 3:
+        raise InputError(f"expected a list of 3 finite numbers, got {omega[frame]!r:.80}",
                          key=f"{_OMEGA_KEY}.{frame}")
     return omega, frame
 
@@ -294,9 +295,8 @@ def _apply_short(spec, name, value):
                          "a body at rest has no rotation to study: sweep a positive spin")
     if name == "inertia_ratio":
         inertia = spec["scene"].get("body", {}).get("inertia")
-        if not (isinstance(inertia, list) and len(inertia) == 3
-                and all(isinstance(v, (int, float)) for v in inertia)
-                and symmetry_axis(inertia) == 2):
+        moments = _finite_numbers(inertia)
+        if not (moments and len(moments) == 3 and symmetry_axis(moments) == 2):
             raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r}",
                              "give inertia: [I1, I1, I3]", key="scene.body.inertia")
         spec["scene"]["body"]["inertia"] = [inertia[0], inertia[0], number * inertia[0]]
@@ -314,6 +314,18 @@ def _apply_short(spec, name, value):
     tilt = math.radians(number)
     omega[frame] = [size * math.sin(tilt) * math.cos(azimuth),
                     size * math.sin(tilt) * math.sin(azimuth), size * math.cos(tilt)]
+
+
+def _finite_numbers(values):
+    """``values`` as a list of finite floats, or None if it is not one."""
+    if not isinstance(values, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return None
+    try:
+        numbers = [float(v) for v in values]
+    except OverflowError:  # an integer beyond any float
+        return None
+    return numbers if all(math.isfinite(v) for v in numbers) else None
 
 
 def _case_spec(base, dimensions, index):

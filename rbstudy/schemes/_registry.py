@@ -78,7 +78,7 @@ class Scheme:
             value = values.get(option.name, option.default)
             try:
                 packed = option.parse(value)
-            except (TypeError, ValueError) as exc:
+            except (TypeError, ValueError, OverflowError) as exc:
                 raise SchemeError(f"scheme {self.name!r} option {option.name!r}: got {value!r}",
                                   str(exc)) from None
             row[option.slot:option.slot + len(packed)] = packed
