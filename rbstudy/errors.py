@@ -7,7 +7,11 @@ them, and the caller that does places it with `InputError.located`, so that no m
 ever rewritten as text.
 """
 
-__all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError"]
+__all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError",
+           "MAX_LENGTH"]
+
+# An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
+MAX_LENGTH = 1000
 
 
 class RbstudyError(Exception):
@@ -25,8 +29,11 @@ class InputError(RbstudyError):
         super().__init__(str(self))
 
     def __str__(self):
+        """One line, of bounded length: a key may hold a newline, a value may be huge."""
         text = self.message if not self.fix else f"{self.message}; {self.fix}"
-        return ": ".join(str(part) for part in (self.source, self.key, text) if part)
+        line = ": ".join(str(part) for part in (self.source, self.key, text) if part)
+        line = line.replace("\r", "\\r").replace("\n", "\\n")
+        return line if len(line) <= MAX_LENGTH else f"{line[:MAX_LENGTH - 30]} ... (cut)"
 
     def located(self, source=None, key=None, kind=None):
         """The same error placed in ``source`` under ``key``, as a ``kind`` (default: its own

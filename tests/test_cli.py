@@ -158,6 +158,12 @@ BOMB = "title:\n  a0: &a0 x\n" + "".join(
      "scene.body.mass: must be finite"),
     (GOOD.replace("inertia: [1, 1, 2]}", "inertia: [1, 1, 2]}, duration: 2001-12-14"),
      "scene.duration: expected a number, got '2001-12-14'"),
+    (GOOD.replace("dt: 0.1}", 'dt: 0.1, options: {"alpha\\nfoo": 0.0}}'),
+     "alpha\\nfoo is an option of none"),
+    (GOOD.replace("name: x", "name: x\ntitle: [" + ", ".join(["7"] * 90000) + "]"),
+     "title: expected one line of text, got [7, 7"),
+    (GOOD + "sweep: {spin: [1.0e308]}\n", "sweep (spin[0] = 1e+308): scene.initial."
+     "angular_velocity.body: so large that the body's energy overflows a float"),
 ])
 def test_hostile_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, content,
                                                                message):

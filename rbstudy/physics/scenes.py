@@ -240,6 +240,12 @@ def _read_nodes(reader, spec, path):
     return names, offsets
 
 
+def _energy_representable(body, omega):
+    """True when ``|w|^2 max(I)``, a bound on twice the rotational energy, is a finite float."""
+    with np.errstate(over="ignore"):
+        return bool(np.isfinite(np.dot(omega, omega) * max(body.inertia)))
+
+
 def scene_from_mapping(spec, source="<scene>", path="scene"):
     """Build a `Scene` from a mapping such as the ``scene:`` block of a study YAML.
 
@@ -261,6 +267,11 @@ def scene_from_mapping(spec, source="<scene>", path="scene"):
         reader.fail(omega_path, "give the angular velocity in body or in space axes, not both")
     omega_input = (np.array(reader.vector(omega["body"], f"{omega_path}.body"))
                    if "body" in omega else None)
+    for frame in omega:
+        key = f"{omega_path}.{frame}"
+        if not _energy_representable(body, np.array(reader.vector(omega[frame], key))):
+            reader.fail(key, "so large that the body's energy overflows a float",
+                        "give a smaller angular velocity")
     omega_principal = np.zeros(3) if omega_input is None else to_principal @ omega_input
     tensor = body.axes @ np.diag(body.inertia) @ body.axes.T  # in the input body frame
     momentum_input = None if omega_input is None else tensor @ omega_input

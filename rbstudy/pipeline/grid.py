@@ -308,7 +308,12 @@ def _apply_short(spec, name, value):
         if size == 0.0:
             raise InputError("spin keeps the direction of the initial w, which is zero",
                              "give a non-zero initial angular velocity", key=_OMEGA_KEY)
-        omega[frame] = [float(v) for v in vector * (number / size)]
+        with np.errstate(over="ignore"):
+            scaled = vector * (number / size)
+        if not np.all(np.isfinite(scaled)):
+            raise InputError(f"spin {value!r} rad/s overflows the angular velocity",
+                             "sweep a spin a float can hold")
+        omega[frame] = [float(v) for v in scaled]
         return
     azimuth = math.atan2(vector[1], vector[0])
     tilt = math.radians(number)
