@@ -351,3 +351,20 @@ def test_the_verdict_judges_the_largest_error_not_the_last(tmp_path):
     assert float(ds.final_orientation_error) < 0.005 < 0.03 < float(ds.orientation_error.max())
     assert int(ds.status) == 0 and int(ds.accuracy) == 1
     assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed"
+
+
+def test_every_file_is_synced_before_and_after_its_rename(tmp_path, monkeypatch):
+    """A machine crash must not leave a renamed but empty part: the file is fsynced before
+    the rename, its folder after."""
+    from rbstudy.pipeline import store
+    calls = []
+    real_replace = os.replace
+    monkeypatch.setattr(store.os, "fsync", lambda fd: calls.append(("fsync", os.readlink(
+        f"/proc/self/fd/{fd}"))))
+    monkeypatch.setattr(store.os, "replace", lambda a, b: (calls.append(("replace", str(b))),
+                                                           real_replace(a, b)))
+    target = tmp_path / "x.txt"
+    store.write_text_atomic("data", target)
+    assert [kind for kind, _ in calls] == ["fsync", "replace", "fsync"]
+    assert calls[0][1].endswith(".tmp") and calls[2][1] == str(tmp_path)
+    assert target.read_text() == "data"

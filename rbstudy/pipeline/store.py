@@ -3,7 +3,8 @@
 Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved config),
 ``parts/<batch-id>.nc`` (one finished batch, dimension ``case``) and ``<study>.nc`` (every
 case on the study's grid). Every file is written under a temporary name in the same folder and
-renamed, so a reader, or a rerun after a kill, never sees half a file.
+renamed (the file and then its folder synced to disk first), so a reader, or a rerun after a
+kill or a machine crash, never sees half a file.
 
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
 memory stays bounded by the largest part whatever the size of the study. Its dimensions are
@@ -232,10 +233,22 @@ def _temporary_beside(path):
     try:
         yield temporary
         os.chmod(temporary, _FILE_MODE)
+        _sync(temporary)  # the data on disk before the name points at it
         os.replace(temporary, path)
+        _sync(path.parent)  # and the rename itself, so that a crash keeps one or the other
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def _sync(path):
+    """fsync a file or a folder: a machine crash after a rename must not leave the new name
+    on an empty or partial file (the rename can reach the disk before the data)."""
+    handle = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(handle)
+    finally:
+        os.close(handle)
 
 
 def open_results(path, variables=None):
