@@ -116,11 +116,13 @@ def read_study_file(path):
     except UnicodeDecodeError as error:
         raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
                           f"offset {error.start})", "save the config as UTF-8", path) from None
+    loader = _Loader(text)
     try:
-        root = yaml.compose(text, Loader=_Loader)  # noqa: S506 (a safe loader)
-        if root is not None:
-            _check_extent(path, root)
-        return text, yaml.load(text, Loader=_Loader)  # noqa: S506 (a safe loader)
+        root = loader.get_single_node()  # composed once: measured, then built
+        if root is None:
+            return text, None
+        _check_extent(path, root)
+        return text, loader.construct_document(root)
     except RecursionError:
         raise ConfigError("nested too deeply to read", "write it flat, as docs/config.md "
                           "shows", path) from None
@@ -131,3 +133,5 @@ def read_study_file(path):
         where = getattr(error, "problem_mark", None)
         raise ConfigError(f"malformed YAML: {getattr(error, 'problem', error)}", source=path,
                           key=f"line {where.line + 1}" if where else None) from None
+    finally:
+        loader.dispose()
