@@ -1,4 +1,4 @@
-"""Command line: ``rbstudy sweep | validate | schemes | plot | report | bench``.
+"""Command line: ``rbstudy sweep | validate | schemes | plot | report | bench | verify``.
 
 ``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
 per-scheme summary; ``validate`` checks configs without running anything.
@@ -49,12 +49,13 @@ def _bench(args):
     return 0
 
 
-def _describe(study):
-    archive, peak = study.memory_estimate()
-    axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
-    return (f"{study.name}: {len(study.cases)} cases ({axes}) in {len(study.batches)} batches, "
-            f"{study.n_times} output times; archive ~{archive / 2 ** 20:.1f} MiB, "
-            f"peak memory ~{peak / 2 ** 20:.0f} MiB")
+def _costed(study, args):
+    """The study's one-line estimate, after refusing it past the limits of ``args``."""
+    from rbstudy.pipeline.estimate import check_limits, describe, estimate
+    cost = estimate(study)
+    max_memory = None if args.max_memory is None else args.max_memory * 2 ** 20
+    check_limits(study, cost, args.out, args.max_body_steps, max_memory)
+    return describe(study, cost)
 
 
 def _validate(args):
@@ -62,12 +63,12 @@ def _validate(args):
     failures = 0
     for path in args.files:
         try:
-            study = load_study(path)
+            line = _costed(load_study(path), args)
         except RbstudyError as error:
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1
             continue
-        print(f"{path}: ok: {_describe(study)}")
+        print(f"{path}: ok: {line}")
     return EXIT_USER_ERROR if failures else EXIT_OK
 
 
@@ -85,11 +86,18 @@ def _sweep(args):
             raise ConfigError(f"{study.name!r} is also the name of another config of this "
                               "command", "study names pick the results folder: rename one",
                               source=study.path, key="name")
-    for study in studies:
+    lines = [_costed(study, args) for study in studies]  # every limit checked before any run
+    for study, line in zip(studies, lines, strict=True):
         if not args.quiet:
-            print(_describe(study))
+            print(line)
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
                          force=args.force, quiet=args.quiet, keep_parts=args.keep_parts)
+        if done.archive_problems:
+            print(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
+                  "rebuilt it")
+        if done.damaged_parts:
+            print(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
+                  "match their checksums) recomputed")
         if done.up_to_date:
             print(f"{study.name}: {done.path} is up to date (the same config and code); "
                   "--force recomputes it")
@@ -147,6 +155,13 @@ def _select(dataset, choices, path):
     return dataset
 
 
+def _verify(args):
+    from rbstudy.pipeline.integrity import verify_file
+    for path in args.files:
+        print(f"{path}: {verify_file(path)}")
+    return 0
+
+
 def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.pipeline.store import open_results
@@ -199,9 +214,14 @@ def build_parser():
                        help="keep parts/ after the archive is written (a changed config then "
                             "reuses the batches it shares)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
+    _limit_arguments(sweep)
     sweep.set_defaults(run=_sweep)
-    validate = commands.add_parser("validate", help="check study configs without running")
+    validate = commands.add_parser("validate", help="check study configs and forecast their "
+                                                    "cost without running")
     validate.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
+    validate.add_argument("--out", default="results",
+                          help="results root the sweep would write (its free space is checked)")
+    _limit_arguments(validate)
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
     schemes.set_defaults(run=_schemes)
@@ -219,6 +239,10 @@ def build_parser():
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
     report.add_argument("--out", help="report folder (default: report/ beside the file)")
     report.set_defaults(run=_report)
+    verify = commands.add_parser("verify", help="prove results files intact by their checksums")
+    verify.add_argument("files", nargs="+", metavar="RESULTS.nc",
+                        help="archives (or part files) written by rbstudy sweep")
+    verify.set_defaults(run=_verify)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
     bench.add_argument("schemes", nargs="*", help="schemes to measure (default: all)")
     bench.add_argument("--body-steps", type=int, metavar="N",
@@ -226,6 +250,16 @@ def build_parser():
     bench.add_argument("--quiet", action="store_true", help="no progress line")
     bench.set_defaults(run=_bench)
     return parser
+
+
+def _limit_arguments(parser):
+    # defaults named here so that parsing loads nothing heavy (rbstudy.pipeline.estimate)
+    parser.add_argument("--max-body-steps", type=float, default=1e11, metavar="N",
+                        help="refuse a study forecast to take more body-steps (default 1e11, "
+                             "about 3 core-hours)")
+    parser.add_argument("--max-memory", type=float, metavar="MIB",
+                        help="refuse a study forecast to need more memory, in MiB (default: "
+                             "half of this machine's)")
 
 
 def _version():

@@ -1,10 +1,12 @@
 """The command line: sweep writes a CF dataset; bad configs give one line, exit 2, no file."""
 
+import re
+
 import pytest
 import yaml
-from conftest import write_study
+from conftest import abaqus_mapping, write_study
 
-from rbstudy.cli import main
+from rbstudy.cli import build_parser, main
 from rbstudy.pipeline.store import open_results
 
 
@@ -18,7 +20,8 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     assert main(["sweep", str(config), "--out", str(tmp_path / "kept"), "--keep-parts",
                  "--quiet"]) == 0
     parts = tmp_path / "kept" / "small" / "parts"
-    assert len(list(parts.iterdir())) == 6  # one per scheme and dt, no temporaries
+    # one per scheme and dt, each with its digest, no temporaries
+    assert sorted(p.suffix for p in parts.iterdir()) == [".nc"] * 6 + [".sha256"] * 6
     resolved = yaml.safe_load((folder / "study.yaml").read_text())
     assert resolved["sweep"]["dt"] == {"dt": [0.01, 0.005, 0.0025]} and resolved["cases"] == 6
     out = capsys.readouterr().out
@@ -45,6 +48,41 @@ def test_validate_reports_cases_batches_and_memory(capsys):
     out = capsys.readouterr().out
     assert "192 cases (scheme 8 x dt 6 x inertia_ratio 4) in 48 batches" in out
     assert "archive ~" in out and "peak memory" in out  # the sizes: test_pipeline
+    assert "4e+05 body-steps" in out  # 192 cases of 2 s at dt 0.01 .. 0.0003125
+
+
+def test_the_default_step_limit_is_the_estimates(capsys):
+    from rbstudy.pipeline import estimate
+    assert build_parser().parse_args(["validate", "x"]).max_body_steps == estimate.MAX_BODY_STEPS
+
+
+def test_a_runaway_study_is_refused_with_its_estimate_and_leaves_nothing(tmp_path, capsys):
+    """dt = 1e-9 over 1000 s: 1e12 steps, which validate used to call ok and sweep to start."""
+    config = write_study(tmp_path, name="runaway", run={"scheme": "rk4", "dt": 1e-9},
+                         output={"interval": 1.0},
+                         scene={**abaqus_mapping(), "duration": 1000.0})
+    for verb in ("validate", "sweep"):
+        assert main([verb, str(config), "--out", str(tmp_path / "out")]) == 1
+        error = capsys.readouterr().err.strip()
+        assert re.fullmatch(
+            rf"rbstudy: error: {re.escape(str(config))}: run\.dt: needs 1e\+12 body-steps, "
+            r"~[\d,]+ h on \d+ cores? \(limit 1e\+11, --max-body-steps\); use a larger dt, a "
+            r"shorter duration or fewer cases, or raise --max-body-steps", error), error
+    assert not (tmp_path / "out").exists()
+    assert main(["validate", str(config), "--max-body-steps", "2e12"]) == 0
+
+
+def test_a_study_past_the_memory_or_the_free_disk_is_refused(tmp_path, capsys, monkeypatch):
+    from rbstudy.pipeline import estimate
+    config = write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}})
+    assert main(["validate", str(config), "--max-memory", "100"]) == 1
+    error = capsys.readouterr().err
+    assert "MiB of memory at once (limit 100 MiB, --max-memory)" in error
+    monkeypatch.setattr(estimate, "_free_bytes", lambda folder: 1000)
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out")]) == 1
+    error = capsys.readouterr().err
+    assert "MiB on disk for its parts and archive; 0.0 MiB are free under" in error
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("text, message", [
@@ -216,4 +254,4 @@ def test_yaml_merge_keys_still_merge(tmp_path, capsys):
     config.write_text(GOOD.replace("run: {scheme: rk4, dt: 0.1}",
                                    "run: {<<: {scheme: rk4}, dt: 0.1}"))
     assert main(["validate", str(config)]) == 0
-    assert "ok: x: 1 cases" in capsys.readouterr().out
+    assert "ok: x: 1 case (one case)" in capsys.readouterr().out

@@ -17,13 +17,17 @@ import xarray as xr
 import yaml
 from conftest import CONFIGS, abaqus_mapping, write_study
 
-from rbstudy.analysis.summary import scheme_rows
+from rbstudy.analysis.summary import TABLE_NOTE, format_table, scheme_rows
 from rbstudy.cli import main
 from rbstudy.errors import RbstudyError
+from rbstudy.physics import references
+from rbstudy.physics.analytic import REFERENCE_KINDS
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline import execute
 from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import Progress, run_study, study_lock
+from rbstudy.pipeline.outputs import VERDICTS
 from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import SCHEMES
 
@@ -69,12 +73,28 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
                        2 * math.pi * (ds.inertia_ratio - 1.0))
 
 
-def test_the_archive_estimate_matches_the_archive(abaqus_results):
+def test_the_estimate_matches_the_archive_and_its_steps(abaqus_results):
     study = load_study(CONFIGS / "abaqus_top.yaml")
-    estimate, _ = study.memory_estimate()
+    cost = estimate(study)
     ds = open_results(abaqus_results)
     stored = sum(ds[name].nbytes for name in ds.data_vars)  # what validate promises to store
-    assert abs(estimate / stored - 1.0) < 0.01, (estimate, stored)
+    assert abs(cost.archive_bytes / stored - 1.0) < 0.01, (cost.archive_bytes, stored)
+    assert cost.body_steps == int(ds.n_steps.sum())  # fixed steps: the forecast is exact
+
+
+def test_the_dop853_forecast_is_within_a_factor_two_of_its_steps(tmp_path):
+    """The forecast that warns of a reference past its budget: accepted DOP853 steps against
+    |w0| T for asymmetric bodies turning 10 to 1000 radians."""
+    for spin in (1.0, 10.0, 100.0):
+        scene = {"body": {"inertia": [1.0, 2.0, 3.0]}, "duration": 10.0,
+                 "initial": {"angular_velocity": {"body": [0.6 * spin, 1.5 * spin, 0.9 * spin]}}}
+        config = write_study(tmp_path, name="dop", scene=scene, output={"interval": 0.1},
+                             run={"scheme": "dop853", "dt": 0.1})
+        study = load_study(config)
+        taken = simulate([study.cases[0].scene], "dop853", 0.1).results["n_steps"][0]
+        forecast = estimate(study)
+        assert forecast.references == 1 and forecast.body_steps == forecast.reference_steps
+        assert 0.5 < forecast.body_steps / taken < 2.0, (spin, forecast.body_steps, taken)
 
 
 # The one CF-1.11 rule the archive breaks on purpose: a coordinate named `time` must carry a
@@ -195,12 +215,13 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     parts = out / "long" / "parts"
     deadline = time.monotonic() + 120
-    while not (parts.exists() and list(parts.glob("*.nc"))) and process.poll() is None:
+    while not (parts.exists() and list(parts.glob("*.nc.sha256"))) and process.poll() is None:
         assert time.monotonic() < deadline, "no part written in 120 s"
         time.sleep(0.01)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    finished = len(list(parts.glob("*.nc")))
+    # a part whose digest a kill prevented is recomputed, not reused
+    finished = len(list(parts.glob("*.nc.sha256")))
     assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
     assert not (out / "long" / "long.nc").exists()
     (parts / ".planted.nc.x.tmp").write_text("half a part")  # as a kill mid-write leaves
@@ -210,6 +231,60 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     assert not list(parts.glob(".*.tmp")) and not list((out / "long").glob(".*.tmp"))
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
     _assert_same_numbers(resumed.path, clean.path)
+
+
+def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path):
+    """A batch of 1.6e7 body-steps is halted from inside its compiled loop: the process ends
+    at once (it used to wait for the kernel), the study's lock is free only then, and the
+    rerun computes the halted batch to the numbers of an uninterrupted run."""
+    scene = {**abaqus_mapping(), "duration": 40.0}
+    config = write_study(tmp_path, name="long", scene=scene, output={"interval": 0.1},
+                         sweep={"scheme": ["rk4"], "dt": [0.01, 1e-5],
+                                "inertia_ratio": [0.5, 1.0, 1.5, 2.0]})
+    out = tmp_path / "out"
+    process = subprocess.Popen([sys.executable, "-m", "rbstudy", "sweep", str(config), "--out",
+                                str(out), "--quiet"], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE)
+    parts = out / "long" / "parts"
+    deadline = time.monotonic() + 120
+    while not (parts.exists() and list(parts.glob("*.sha256"))) and process.poll() is None:
+        assert time.monotonic() < deadline, "the short batch did not finish in 120 s"
+        time.sleep(0.01)
+    time.sleep(0.5)  # the long batch (about 4 s) is in its kernel now
+    assert process.poll() is None, "the long batch ended before the interrupt"
+    interrupted = time.monotonic()
+    process.send_signal(signal.SIGINT)
+    _, error = process.communicate(timeout=30)
+    ended = time.monotonic() - interrupted
+    assert process.returncode == 130 and "interrupted" in error.decode()
+    assert ended < 1.0, f"the process took {ended:.2f} s to end after Ctrl-C"
+    assert len(list(parts.glob("*.nc"))) == 1  # the halted batch left no part
+    resumed = run_study(load_study(config), out, quiet=True)
+    assert (resumed.computed, resumed.reused) == (1, 1)
+    clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
+    _assert_same_numbers(resumed.path, clean.path)
+
+
+def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, monkeypatch):
+    """DOP853 stops at its budget: the case is stored, reference "none", its errors NaN and its
+    verdict "unjudged" (not accurate, not failed), and the summary reads it."""
+    monkeypatch.setattr(references, "REFERENCE_MAX_STEPS", 20)
+    scene = {"body": {"inertia": [1.0, 2.0, 3.0]}, "duration": 1.0,
+             "initial": {"angular_velocity": {"body": [0.6, 15.0, 0.9]}}}
+    config = write_study(tmp_path, name="budget", scene=scene,
+                         sweep={"scheme": ["rk4", "euler"], "dt": [0.01, 0.005]})
+    done = run_study(load_study(config), tmp_path / "out", quiet=True)
+    ds = open_results(done.path)
+    assert set(ds.reference.values.ravel()) == {REFERENCE_KINDS.index("none")}
+    assert np.all(np.isnan(ds.final_orientation_error)) and np.all(ds.status == 0)
+    rk4 = ds.accuracy.sel(scheme="rk4").values
+    assert set(rk4) == {VERDICTS.index("unjudged")}  # rk4 drifts little: no verdict
+    euler = ds.accuracy.sel(scheme="euler").values
+    assert set(euler) == {VERDICTS.index("inaccurate")}  # euler's drift alone condemns it
+    rows = {row["scheme"]: row for row in scheme_rows(ds)}
+    assert rows["rk4"]["inaccurate"] == 0 and rows["rk4"]["unstable"] == 0
+    assert rows["rk4"]["error"] is None and "no reference" in TABLE_NOTE
+    assert "failed" not in format_table(list(rows.values())).splitlines()[1]
 
 
 def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(tmp_path):
@@ -324,7 +399,7 @@ def test_finite_but_meaningless_is_inaccurate_not_ok(tmp_path):
     config = write_study(tmp_path, name="spin200", scene=scene, output={"interval": 0.01},
                          sweep={"scheme": ["euler", "rk4"], "dt": [1.25e-4, 6.25e-5]})
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
-    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed"
+    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed unjudged"
     assert ds.attrs["accuracy_bound"] == 0.01
     euler = ds.sel(scheme="euler", dt=1.25e-4)
     assert int(euler.status) == 0 and float(euler.final_orientation_error) > 0.3
@@ -350,7 +425,7 @@ def test_the_verdict_judges_the_largest_error_not_the_last(tmp_path):
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
     assert float(ds.final_orientation_error) < 0.005 < 0.03 < float(ds.orientation_error.max())
     assert int(ds.status) == 0 and int(ds.accuracy) == 1
-    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed"
+    assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed unjudged"
 
 
 def test_every_file_is_synced_before_and_after_its_rename(tmp_path, monkeypatch):

@@ -9,7 +9,7 @@ from conftest import write_study
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import ConfigError
-from rbstudy.pipeline import config
+from rbstudy.pipeline import estimate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import SCHEMES
 
@@ -140,14 +140,15 @@ def test_output_variables_narrow_trajectories_but_keep_the_bookkeeping(tmp_path)
 
 def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeypatch):
     path = write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}})
-    _, peak = load_study(path).memory_estimate()
+    study = load_study(path)
+    cost = estimate.estimate(study)
     # a machine with just enough memory takes it; one byte less is refused, size shown
-    monkeypatch.setattr(config, "_physical_memory", lambda: 2 * peak)
-    load_study(path)
-    monkeypatch.setattr(config, "_physical_memory", lambda: 2 * peak - 2)
+    monkeypatch.setattr(estimate, "physical_memory", lambda: 2 * cost.peak_bytes)
+    estimate.check_limits(study, cost, tmp_path)
+    monkeypatch.setattr(estimate, "physical_memory", lambda: 2 * cost.peak_bytes - 2)
     with pytest.raises(ConfigError, match=r"sweep: needs about [\d,]+ MiB of memory at once "
                                           r"\(limit [\d,]+ MiB, half of this machine's\)"):
-        load_study(path)
+        estimate.check_limits(study, cost, tmp_path)
 
 
 def test_numbers_with_bare_exponents_are_numbers(tmp_path):

@@ -405,7 +405,7 @@ def stability_map(ds, folder, formats=FORMATS):
     with plt.rc_context(_RC):
         fig, axes = _grid(len(schemes), width=3.4, height=2.9, columns=4)
         for ax, scheme in zip(axes, schemes, strict=True):
-            good, poor, failed = (mask.ravel() for mask in verdicts(ds, scheme))
+            good, poor, failed, unjudged = (mask.ravel() for mask in verdicts(ds, scheme))
             y = per_scheme(load, scheme).values.ravel()
             if parameter:
                 _, values, label = parameter
@@ -420,7 +420,10 @@ def stability_map(ds, folder, formats=FORMATS):
                                 (poor, dict(s=22, marker="^", color="tab:orange",
                                             label=inaccurate_label)),
                                 (failed, dict(s=22, marker="x", color="tab:red",
-                                              label="failed (unstable or not converged)"))):
+                                              label="failed (unstable or not converged)")),
+                                (unjudged, dict(s=22, marker="s", facecolors="none",
+                                                edgecolors="tab:gray",
+                                                label="finished, no reference (unjudged)"))):
                 if cases.any():  # the legend lists what occurs, nothing else
                     ax.scatter(x[cases], y[cases], **kind)
             if parameter:
@@ -430,7 +433,7 @@ def stability_map(ds, folder, formats=FORMATS):
                 ax.plot(xs, largest, color="tab:green", linewidth=1, label="largest accurate")
             ax.set_yscale("log")
             ax.set_ylabel("dt |w0| (rad)")
-            ax.set_title(scheme if (poor | failed).any() else f"{scheme}: all accurate")
+            ax.set_title(f"{scheme}: all accurate" if good.all() else scheme)
             ax.grid(True, alpha=0.3)
         handles = {}
         for ax in axes:  # every category that occurs in some panel, once

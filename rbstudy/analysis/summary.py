@@ -96,15 +96,16 @@ def _orders(errors):
 
 
 def verdicts(ds, scheme):
-    """Boolean masks (accurate, inaccurate, failed) over the cases of ``scheme``: the archive's
-    accuracy verdict, and its status where the archive has no verdict (all finished cases
-    then count as accurate)."""
+    """Boolean masks (accurate, inaccurate, failed, unjudged) over the cases of ``scheme``:
+    the archive's accuracy verdict, and its status where the archive has no verdict (all
+    finished cases then count as accurate). Unjudged: finished, but without a reference."""
     status = per_scheme(ds["status"], scheme).values
     failed = status != 0
     if "accuracy" not in ds:
-        return ~failed, np.zeros_like(failed), failed
+        return ~failed, np.zeros_like(failed), failed, np.zeros_like(failed)
     verdict = per_scheme(ds["accuracy"], scheme).values
-    return (verdict == 0) & ~failed, (verdict == 1) & ~failed, failed
+    return ((verdict == 0) & ~failed, (verdict == 1) & ~failed, failed,
+            (verdict == 3) & ~failed)
 
 
 def _smallest(values):
@@ -143,7 +144,8 @@ def scheme_rows(ds):
     fits and tries (how many of the other axes' values gave an asymptotic range), fit_dt
     ((smallest, largest) dt fitted); error_dt / error at the largest dt and error_small_dt /
     error_small at the smallest, the worst over the other axes (NaN when a case there failed:
-    a failure is never hidden behind the stable cases); ns_per_step (kernel time per
+    a failure is never hidden behind the stable cases; None when a case there had no
+    reference); ns_per_step (kernel time per
     body-step, all the scheme's time over all its steps); and over physical cases, by
     ``dt |w0|``: accurate_hw (accurate up to: the largest of an accurate case below the
     first that is not), inaccurate_hw (the smallest of a finished but inaccurate case) and
@@ -156,7 +158,7 @@ def scheme_rows(ds):
     judged = "accuracy" in ds
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
-        accurate, inaccurate, failed = verdicts(ds, scheme)
+        accurate, inaccurate, failed, _ = verdicts(ds, scheme)
         row = {"scheme": scheme, "nominal": _nominal_order(ds, scheme),
                "cases": int(status.size), "unstable": int(failed.sum()),
                "inaccurate": int(inaccurate.sum()) if judged else None,
@@ -188,11 +190,18 @@ def scheme_rows(ds):
                     row["fit_dt"] = (float(fitted.min()), float(fitted.max()))
                 for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
                     row[f"error{key}_dt"] = float(pick)
-                    row[f"error{key}"] = float(errors.sel(dt=pick).max(skipna=False))
+                    row[f"error{key}"] = _worst(errors.sel(dt=pick), status.sel(dt=pick))
             else:
-                row["error"] = float(errors.max(skipna=False))
+                row["error"] = _worst(errors, status)
         rows.append(row)
     return rows
+
+
+def _worst(errors, status):
+    """The largest of ``errors``: NaN when a case failed (a failure is never hidden behind the
+    stable cases), None when the errors are missing only because a case had no reference."""
+    worst = float(errors.max(skipna=False))
+    return None if np.isnan(worst) and not (status != 0).any() else worst
 
 
 def _span(pair):
@@ -249,7 +258,8 @@ def table_columns(rows):
 
 
 TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other swept axes "
-              "(\"failed\" when a case there blew up); order: fitted per value of the other "
+              "(\"failed\" when a case there blew up, \"-\" when one had no reference: its "
+              "DOP853 reference passed its step budget); order: fitted per value of the other "
               "axes over its asymptotic range, (k/n) when only k of the n values had one (a "
               "value where the scheme failed at most steps has none); finest pair: the local "
               "slope between the two finest fitted steps; inaccurate: cases that finished "

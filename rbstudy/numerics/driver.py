@@ -25,6 +25,12 @@ element by element and allocates nothing; the entry point allocates the body's a
 Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
 threads at once and let the caller choose the number of cores.
 
+A run can be halted from outside: `request_halt` sets a flag that every body's loop reads
+every `HALT_CHECK_STEPS` steps (a few milliseconds of work at most), so that Ctrl-C ends even
+a batch of 1e12 steps at once; `run_batch` then raises `Halted` instead of returning partial
+numbers. The flag is an array the compiled loops read from memory, not a constant they could
+keep in a register.
+
 Failure is data, never an exception: a body whose state turns non-finite, or whose energy or
 angular momentum drifts past ``drift_bound`` while no moment acts, stops with status
 ``UNSTABLE`` and its failure time; an implicit step whose Newton iteration does not converge
@@ -49,7 +55,8 @@ from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
     "DRIFT_BOUND", "BatchOutput", "init_nothing", "integrate_body_inplace", "make_entry",
-    "run_batch", "n_samples", "default_threads",
+    "run_batch", "n_samples", "default_threads", "Halted", "request_halt", "clear_halt",
+    "HALT_CHECK_STEPS", "HALT_FLAG",
 ]
 
 # Relative drift of the rotational energy or of |L| beyond which a moment-free body counts as
@@ -59,6 +66,27 @@ DRIFT_BOUND = 0.5
 
 # Chunks of rows handed to each thread of `run_batch`.
 _CHUNKS_PER_THREAD = 4
+
+# Steps between two reads of the halt flag (a power of two: the test is a mask).
+HALT_CHECK_STEPS = 1024
+_HALT_MASK = HALT_CHECK_STEPS - 1
+# The halt flag of this process: nonzero once `request_halt` is called.
+HALT_FLAG = np.zeros(1, dtype=np.int64)
+
+
+class Halted(Exception):
+    """A batch stopped by `request_halt` before its end: it has no results."""
+
+
+def request_halt():
+    """Make every running and later batch of this process stop within `HALT_CHECK_STEPS`
+    steps and raise `Halted` (Ctrl-C)."""
+    HALT_FLAG[0] = 1
+
+
+def clear_halt():
+    """Let batches run again (a new sweep in the same process)."""
+    HALT_FLAG[0] = 0
 
 
 def n_samples(n_steps, every):
@@ -77,7 +105,7 @@ _relative_drift = jit(algebra.relative_drift)
 
 @entry_jit
 def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, every,
-                           drift_bound, samples, results):
+                           drift_bound, samples, results, halt):
     """Integrate body ``b`` of a batch from state ``y``; write its samples and results.
 
     Parameters
@@ -92,6 +120,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     samples : (B, T, N_STATE) output, T = n_steps // every + 1; row b is written.
     results : (B, N_RESULT) output, row b written by name (`rbstudy.numerics.state`): the
         drifts are NaN under moments, the failure time NaN when the body finished.
+    halt : (1,) int64, the halt flag: the body stops early when it is nonzero (its numbers
+        are then discarded by `run_batch`).
     """
     p = params[b]
     opt = options[b]
@@ -110,6 +140,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     max_momentum = 0.0
     sample = 1
     while status == OK and steps_done < n_steps:
+        if (steps_done & _HALT_MASK) == 0 and halt[0] != 0:
+            break
         status, iters = step(y, p, opt, h, work)
         iterations += iters
         steps_done += 1
@@ -145,15 +177,18 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
 
 def make_entry(step, init, n_work):
     """The compiled entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
-    options, h, n_steps, every, drift_bound, samples, results)`` integrates rows [start,
-    stop)."""
+    options, h, n_steps, every, drift_bound, samples, results, halt)`` integrates rows
+    [start, stop)."""
 
     @entry_jit
     def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every,
-                           drift_bound, samples, results):
+                           drift_bound, samples, results, halt):
         for b in range(start, stop):
+            if halt[0] != 0:
+                return
             integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
-                                   options, h, n_steps, every, drift_bound, samples, results)
+                                   options, h, n_steps, every, drift_bound, samples, results,
+                                   halt)
 
     return run_bodies_inplace
 
@@ -210,7 +245,8 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
         scheduler that already runs one task per core).
 
     The first call of a scheme in a process compiles (or loads from cache) before the clock
-    starts, so ``kernel_seconds`` is run time only.
+    starts, so ``kernel_seconds`` is run time only. Raises `Halted` when `request_halt` was
+    called before the batch ended.
     """
     state0 = _as_rows(state0, S.N_STATE, "state0")
     params = _as_rows(params, S.N_PARAM, "params")
@@ -225,7 +261,7 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     samples = np.empty((n_bodies, n_samples(n_steps, every), S.N_STATE))
     results = np.full((n_bodies, S.N_RESULT), np.nan)
     arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
-                 results)
+                 results, HALT_FLAG)
     chunks = _chunks(n_bodies, threads or default_threads())
 
     def run_chunk(rows):
@@ -241,6 +277,8 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
         with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
             cpu = sum(pool.map(run_chunk, chunks))
     seconds = time.perf_counter() - start
+    if HALT_FLAG[0]:
+        raise Halted(f"a batch of {scheme.name} was halted")
     named = {}
     for name, dtype in S.RESULT_FIELDS:
         column = results[:, Result[name]]

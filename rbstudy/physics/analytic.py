@@ -30,9 +30,10 @@ __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis",
            "precession_frequency_exact", "flip_interval_exact"]
 
 # Every reference an archive can name, in the order of their codes in the archive's
-# `reference` flag (append only: archives store the codes). The last is integrated, not
-# closed.
-REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853")
+# `reference` flag (append only: archives store the codes). ``dop853`` is integrated, not
+# closed; ``none`` marks a case whose DOP853 reference passed its step budget (or failed):
+# its errors against a reference are NaN.
+REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none")
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
 # symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of

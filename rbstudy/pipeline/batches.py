@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
-__all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "batches_digest",
+__all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "batches_digest", "ids_digest",
            "SCHEMA_VERSION", "ID_LENGTH"]
 
 # Bumped whenever what a part file holds changes, so that old parts are never reused.
@@ -65,7 +65,12 @@ class Batch:
 
 def batches_digest(batches):
     """One id for a whole study's batches: an archive built from exactly these is current."""
-    return canonical_id([batch.id for batch in batches])
+    return ids_digest([batch.id for batch in batches])
+
+
+def ids_digest(ids):
+    """`batches_digest` of the batches of ids ``ids``, in order."""
+    return canonical_id(list(ids))
 
 
 def plan_batches(cases, dimensions, output_interval, variables, max_cases, verdict=None):

@@ -9,7 +9,6 @@ path, the value and the fix. docs/config.md documents every key.
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,8 +31,7 @@ from rbstudy.pipeline.yaml_file import read_study_file
 from rbstudy.reader import Reader
 from rbstudy.schemes import get_scheme
 
-__all__ = ["StudyConfig", "load_study", "MEMORY_FRACTION", "BATCH_MAX_CASES", "BATCH_MAX_BYTES",
-           "MAX_CASES"]
+__all__ = ["StudyConfig", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -42,12 +40,6 @@ _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 # loses little work.
 BATCH_MAX_CASES = 512
 BATCH_MAX_BYTES = 256 * 2 ** 20
-# A sweep whose working set (the batches running at once) needs more than this share of the
-# machine's memory is refused by `validate`.
-MEMORY_FRACTION = 0.5
-# A batch in flight holds its sampled states, its references (about as large) and the derived
-# variables being built from both: about this many times its sampled states and outputs.
-_IN_FLIGHT_FACTOR = 3
 
 
 @dataclass(frozen=True)
@@ -97,15 +89,6 @@ class StudyConfig:
     def working_bytes_per_case(self):
         """Bytes a case holds while its batch runs: sampled states plus outputs."""
         return self.bytes_per_case() + N_STATE * np.dtype("f8").itemsize * self.n_times
-
-    def memory_estimate(self, workers=None):
-        """(archive bytes, peak working bytes): the consolidated dataset on disk, and the
-        batches running at once (sampled states, derived variables and references) in memory."""
-        largest = max(len(batch.cases) for batch in self.batches)
-        running = min(len(self.batches), workers or os.cpu_count() or 1)
-        return (self.bytes_per_case() * len(self.cases),
-                _IN_FLIGHT_FACTOR * self.working_bytes_per_case() * largest * running)
-
 
 
 def _variables(reader, requested, cases):
@@ -203,19 +186,6 @@ def load_study(path):
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, dimensions, interval, variables, max_cases,
                            verdict={"accuracy_bound": accuracy_bound})
-    study = dataclasses.replace(study, batches=batches)
-    _check_memory(reader, study)
-    return study
+    return dataclasses.replace(study, batches=batches)
 
 
-def _physical_memory():
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def _check_memory(reader, study):
-    _, peak = study.memory_estimate()
-    limit = MEMORY_FRACTION * _physical_memory()
-    if peak > limit:
-        reader.fail("sweep", f"needs about {peak / 2 ** 20:,.0f} MiB of memory at once (limit "
-                             f"{limit / 2 ** 20:,.0f} MiB, half of this machine's)",
-                    "sweep fewer values, a shorter duration or a longer output.interval")

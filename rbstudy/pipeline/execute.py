@@ -21,19 +21,22 @@ import shutil
 import sys
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import dask
 import numpy as np
 
 from rbstudy.errors import RbstudyError
+from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.batches import scene_key
+from rbstudy.pipeline.integrity import SIDECAR_SUFFIX
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.store import (
     Layout,
-    archive_current,
+    archive_state,
     consolidate,
     global_attrs,
     open_results,
@@ -42,7 +45,7 @@ from rbstudy.pipeline.store import (
     refresh_description,
     resolved_config,
     utc_now,
-    write_atomic,
+    write_part,
     write_text_atomic,
 )
 from rbstudy.pipeline.variables import evaluate
@@ -72,8 +75,9 @@ class BatchJob:
 
 @dataclass(frozen=True)
 class StudyRun:
-    """What a sweep did: the dataset path, batches computed and reused, wall time (s), and
-    whether the archive was already current (nothing to do)."""
+    """What a sweep did: the dataset path, batches computed and reused, wall time (s),
+    whether the archive was already current (nothing to do), the parts found damaged (and
+    recomputed) and what was wrong with a damaged archive (rebuilt)."""
 
     path: pathlib.Path
     computed: int
@@ -81,6 +85,8 @@ class StudyRun:
     cases: int
     wall_seconds: float
     up_to_date: bool = False
+    damaged_parts: int = 0
+    archive_problems: tuple = ()
 
 
 def compute_references(scenes, n_times, output_interval):
@@ -114,9 +120,9 @@ def compile_schemes(names):
 
 
 def store_part(values, layout, batch, path):
-    """Write one batch's part file atomically (a dask task); returns the batch id."""
-    write_atomic(part_dataset(layout, batch, values), path)
-    return batch.id
+    """Write one batch's part file atomically, its digest beside it (a dask task); returns
+    the digest."""
+    return write_part(part_dataset(layout, batch, values), path)
 
 
 class Progress:
@@ -244,6 +250,10 @@ def _graph(study, pending, parts_dir, threads, token):
 
 
 def _run_local(tasks, sizes, progress, workers, schemes):
+    """Run the tasks on this process's threads. On Ctrl-C (or when a task fails) every
+    running kernel and reference is halted (`rbstudy.numerics.driver.request_halt`) and the
+    threads are joined before the exception goes on: the study stays locked until nothing of
+    this run is left working, and the process ends within a second."""
     from dask.callbacks import Callback
 
     compile_schemes(schemes)
@@ -253,8 +263,16 @@ def _run_local(tasks, sizes, progress, workers, schemes):
             if isinstance(key, str) and key.startswith("store-"):
                 progress.advance(sizes[key])
 
-    with _Advance():
-        dask.compute(*tasks, scheduler="threads", num_workers=workers)
+    clear_halt()
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        with _Advance():
+            dask.compute(*tasks, scheduler="threads", num_workers=workers, pool=pool)
+    except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
+        request_halt()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
@@ -315,7 +333,8 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
     with study_lock(folder):
         for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp")]:
             stale.unlink()  # left by a killed sweep; the lock is ours
-        if not force and archive_current(target, study):
+        state, archive_problems = archive_state(target, study)
+        if not force and state == "current":
             if open_results(target, ()).attrs.get("config") != study.text:
                 # the same cases and code, another text (a title, a comment): redescribe
                 refresh_description(target, global_attrs(study, started=started))
@@ -325,8 +344,10 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
                             wall_seconds=time.perf_counter() - started_clock)
         parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
-        pending = [batch for batch in study.batches
-                   if force or not part_complete(parts[batch.id], batch)]
+        digests = {} if force else {batch.id: part_complete(parts[batch.id], batch)
+                                    for batch in study.batches}
+        pending = [batch for batch in study.batches if digests.get(batch.id) is None]
+        damaged = sum(parts[batch.id].exists() for batch in pending) if not force else 0
         cores = os.cpu_count() or 1
         distributed = scheduler is not None or workers is not None
         threads = 1 if distributed else max(1, cores // max(1, len(pending)))
@@ -340,20 +361,22 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
                 _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
             else:
                 _run_local(tasks, sizes, progress, cores, schemes)
-        missing = [batch.id for batch in pending if not parts[batch.id].exists()]
+        digests.update({batch.id: part_complete(parts[batch.id], batch) for batch in pending})
+        missing = [batch_id for batch_id, digest in digests.items() if digest is None]
         if missing:
             raise RbstudyError(f"{parts_dir}: {len(missing)} finished batches left no part "
                                "there; the cluster's workers must see this results folder "
                                "(give --out a shared path)")
-        consolidate(study, parts, target, global_attrs(study, started=started))
+        consolidate(study, parts, digests, target, global_attrs(study, started=started))
         write_text_atomic(resolved_config(study), folder / "study.yaml")
         if keep_parts:
             current = {path.name for path in parts.values()}
-            for old in parts_dir.glob("*.nc"):
-                if old.name not in current:  # from an earlier version of the config
-                    old.unlink()
+            for old in parts_dir.glob("*.nc*"):
+                if old.name.removesuffix(SIDECAR_SUFFIX) not in current:
+                    old.unlink()  # from an earlier version of the config
         else:
             shutil.rmtree(parts_dir)
     return StudyRun(path=target, computed=len(pending),
                     reused=len(study.batches) - len(pending), cases=len(study.cases),
-                    wall_seconds=time.perf_counter() - started_clock)
+                    wall_seconds=time.perf_counter() - started_clock, damaged_parts=damaged,
+                    archive_problems=tuple(archive_problems))

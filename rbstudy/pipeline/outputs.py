@@ -17,12 +17,13 @@ from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
 
 __all__ = ["BatchData", "driver_result", "ACCURACY_BOUND", "VERDICTS", "ACCURATE",
-           "INACCURATE", "FAILED"]
+           "INACCURATE", "FAILED", "UNJUDGED"]
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
-# Codes of the accuracy verdict (`accuracy`): a failed case has none.
-VERDICTS = ("accurate", "inaccurate", "failed")
-ACCURATE, INACCURATE, FAILED = range(len(VERDICTS))
+# Codes of the accuracy verdict (`accuracy`): a failed case has none, and a finished case
+# without a reference (its DOP853 reference passed its step budget) cannot be judged.
+VERDICTS = ("accurate", "inaccurate", "failed", "unjudged")
+ACCURATE, INACCURATE, FAILED, UNJUDGED = range(len(VERDICTS))
 # The default accuracy bound (`output.accuracy_bound`): an orientation error of 0.01 rad
 # or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
 # inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.
@@ -209,13 +210,19 @@ def accuracy(batch):
     """0 accurate, 1 inaccurate, 2 failed: a finished case is inaccurate when its orientation
     error at any sample (rad), or its relative energy or |L| drift over the steps (moment-free
     bodies), passes the accuracy bound. The largest error, not the final one: an error that
-    wrapped round by the end of the run still was one."""
+    wrapped round by the end of the run still was one. A finished case with no reference and
+    no drift past the bound is unjudged, not accurate."""
     results, bound = batch.run.results, batch.accuracy_bound
     with np.errstate(invalid="ignore"):
         accurate = np.max(batch.orientation_error, axis=1) <= bound
         for name in ("max_energy_error", "max_momentum_magnitude_error"):
             accurate &= ~(results[name] > bound)  # NaN under moments: no conserved quantity
     verdict = np.where(accurate, ACCURATE, INACCURATE)
+    drifted = np.zeros(len(verdict), dtype=bool)
+    for name in ("max_energy_error", "max_momentum_magnitude_error"):
+        drifted |= results[name] > bound
+    unknown = np.array([ref.name == "none" for ref in batch.references]) & ~drifted
+    verdict = np.where(unknown, UNJUDGED, verdict)
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
 

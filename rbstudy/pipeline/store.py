@@ -4,7 +4,8 @@ Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved confi
 ``parts/<batch-id>.nc`` (one finished batch, dimension ``case``) and ``<study>.nc`` (every
 case on the study's grid). Every file is written under a temporary name in the same folder and
 renamed (the file and then its folder synced to disk first), so a reader, or a rerun after a
-kill or a machine crash, never sees half a file.
+kill or a machine crash, never sees half a file; every part and the archive carry checksums
+(`rbstudy.pipeline.integrity`), so that a file damaged later is never reused.
 
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
 memory stays bounded by the largest part whatever the size of the study. Its dimensions are
@@ -33,6 +34,7 @@ import yaml
 
 from rbstudy.errors import RbstudyError
 from rbstudy.pipeline.batches import batches_digest
+from rbstudy.pipeline.integrity import part_digest, seal_archive, seal_part, verify_archive
 from rbstudy.pipeline.variables import (
     COORDINATES,
     SCHEME_COORDINATES,
@@ -40,9 +42,9 @@ from rbstudy.pipeline.variables import (
     variable_attrs,
 )
 
-__all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_atomic", "write_text_atomic",
+__all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
-           "open_results", "part_complete", "archive_current", "refresh_description",
+           "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
            "decimal_grid", "COMPRESSION"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
@@ -58,6 +60,8 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 # reader) after byte shuffling, which groups the slowly varying high bytes of neighbouring
 # floats; level 4 gives nearly all of level 9's size at a fraction of its time.
 COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
+# Free bytes below which a failed write is put down to a full disk.
+_FULL_BYTES = 2 ** 20
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
 _MAX_DECIMALS = 15
@@ -228,6 +232,7 @@ def _temporary_beside(path):
                                              suffix=".tmp")
         os.close(handle)
     except OSError as error:
+        _raise_if_full(path.parent)
         raise RbstudyError(f"{path.parent}: cannot write results there ({error.strerror}); "
                            "choose another folder with --out") from None
     try:
@@ -236,9 +241,25 @@ def _temporary_beside(path):
         _sync(temporary)  # the data on disk before the name points at it
         os.replace(temporary, path)
         _sync(path.parent)  # and the rename itself, so that a crash keeps one or the other
+    except (OSError, RuntimeError):
+        _raise_if_full(path.parent)
+        raise
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+def _raise_if_full(folder):
+    """The one-line error of a full disk, when the file system of ``folder`` is (nearly)
+    full. HDF5 reports a full disk as "HDF error" or even "Permission denied", so the free
+    space, not the error, tells."""
+    if shutil.disk_usage(folder).free >= _FULL_BYTES:
+        return
+    mount = pathlib.Path(folder).absolute()
+    while not os.path.ismount(mount):
+        mount = mount.parent
+    raise RbstudyError(f"{folder}: no space left on the file system at {mount}; finished parts "
+                       "are kept: free space and rerun the same command to resume") from None
 
 
 def _sync(path):
@@ -272,38 +293,53 @@ def refresh_description(path, attrs):
             nc.setncatts(attrs)
 
 
-def archive_current(path, study):
-    """True when ``path`` is the consolidated archive of exactly this study's batches (its
-    ``batches`` attribute), so that a rerun has nothing to do."""
+def archive_state(path, study):
+    """What the archive at ``path`` is to ``study``: ``("absent", [])``, ``("outdated", [])``
+    (another config or code: its ``batches`` differ), ``("damaged", problems)`` (a variable
+    no longer matches its checksum, `rbstudy.pipeline.integrity`) or ``("current", [])``:
+    then a rerun has nothing to do."""
     if not pathlib.Path(path).exists():
-        return False
+        return "absent", []
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            return nc.getncattr("batches") == batches_digest(study.batches)
-    except (OSError, AttributeError):
-        return False
+            batches = nc.getncattr("batches")
+    except (OSError, AttributeError, RuntimeError):
+        return "damaged", ["it cannot be read as netCDF"]
+    if batches != batches_digest(study.batches):
+        return "outdated", []
+    with HDF5_LOCK:
+        problems = verify_archive(path)
+    return ("damaged", problems) if problems else ("current", [])
 
 
 def part_complete(path, batch):
-    """True when ``path`` is a readable part of ``batch``: its id and its cases match.
+    """The digest of ``path`` when it is an intact part of ``batch`` (its bytes match the
+    digest stored when it was written, its id and its cases match), else None.
 
     A rename makes a part appear whole, but a crash of the machine (not of the process) can
-    still leave an empty or truncated file: such a part is recomputed, not trusted.
+    leave an empty or truncated file, and a disk or a hand can change one: such a part is
+    recomputed, never trusted.
     """
-    if not pathlib.Path(path).exists():
-        return False
+    digest = part_digest(path)
+    if digest is None:
+        return None
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            return (nc.getncattr("batch") == batch.id
+            same = (nc.getncattr("batch") == batch.id
                     and np.array_equal(nc["case"][:], np.asarray(batch.cases)))
-    except (OSError, KeyError, AttributeError, IndexError):
-        return False
+    except (OSError, KeyError, AttributeError, IndexError, RuntimeError):
+        return None
+    return digest if same else None
 
 
-def write_atomic(dataset, path):
-    """Write ``dataset`` to ``path`` through a temporary file, then rename."""
+def write_part(dataset, path):
+    """Write the part ``dataset`` to ``path`` through a temporary file and a rename, then its
+    digest beside it; returns the digest."""
     with _temporary_beside(path) as temporary, HDF5_LOCK:
         dataset.to_netcdf(temporary)
+        digest, store_digest = seal_part(temporary, path, write_text_atomic)
+    store_digest()
+    return digest
 
 
 def write_text_atomic(text, path):
@@ -327,8 +363,9 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None):
     return variable
 
 
-def consolidate(study, parts, target, attrs):
-    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part."""
+def consolidate(study, parts, digests, target, attrs):
+    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part,
+    and seal it with its checksums and the ``digests`` of its parts (batch id -> digest)."""
     shape = study.shape
     grid = grid_coordinates(study)
     # Auxiliary coordinates (zipped axes, unswept scheme and dt) that CF readers attach to
@@ -359,6 +396,7 @@ def consolidate(study, parts, target, attrs):
             for batch in study.batches:
                 part = open_results(parts[batch.id])
                 _write_part(targets, part, shape)
+        seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
 
 
 def _block(cases, shape):

@@ -112,7 +112,9 @@ VARIABLES = {v.name: v for v in (
        "reference"),
     _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its "
        "orientation error at any sample (rad) or its relative energy or |L| drift passes the "
-       "global attribute accuracy_bound; a failed case has no verdict", "reference",
+       "global attribute accuracy_bound; a failed case has no verdict; a finished case "
+       "without a reference (reference = none) and no drift past the bound is unjudged",
+       "reference",
        flags=outputs.VERDICTS, dtype="i1"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
        flags=REFERENCE_KINDS, dtype="i1"),
@@ -125,7 +127,7 @@ VARIABLES = {v.name: v for v in (
        flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
 
-# Names replaced by clearer ones in rbstudy 0.2, kept as aliases until 0.3: stored beside the
+# Names replaced by clearer ones in rbstudy 0.2, kept as aliases until 0.4: stored beside the
 # new name (same values) and accepted in output.variables. Old name -> new name.
 DEPRECATED = {"max_momentum_error": "max_momentum_magnitude_error"}
 VARIABLES.update({old: dataclasses.replace(

@@ -41,6 +41,9 @@ class Scheme:
     name : registry name used in configs and on the command line.
     summary : one line for `rbstudy schemes`.
     order : nominal global order of accuracy.
+    step_seconds : core-seconds one body-step takes, as `rbstudy bench` measured it on the
+        development machine (one core, 1e4 bodies; dop853: per accepted step); the run-time
+        forecast of `rbstudy validate` starts from it.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
     keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
@@ -51,6 +54,7 @@ class Scheme:
 
     name: str
     summary: str
+    step_seconds: float
     order: int
     implicit: bool
     keeps: tuple
@@ -100,4 +104,4 @@ class Scheme:
         params[0, S.INERTIA:S.INERTIA + 3] = 1.0
         options = self.option_row()[None, :]
         kernel(0, 1, state0, params, options, 0.1, 1, 1, 1.0, np.empty((1, 2, S.N_STATE)),
-               np.empty((1, S.N_RESULT)))
+               np.empty((1, S.N_RESULT)), np.zeros(1, dtype=np.int64))

@@ -2,10 +2,12 @@
 
 Integrates the same ODE as `rk4` (``dx/dt = v``, ``dq/dt = 1/2 q * (w, 0)``,
 ``dv/dt = F/mass``, ``dw/dt = I^-1 (M_b - w x I w)``) with ``rtol = atol = 1e-13``, one case
-after another (it is not compiled and not batched), reading the output grid from the dense
-output; the quaternion is normalised at the samples. ``dt`` only sets the output grid here:
-the steps are chosen by the error control, and ``n_steps`` reports the accepted steps and
-``iterations`` the right-hand-side evaluations.
+after another (it is not compiled and not batched), stepping scipy's solver itself and sampling each
+step's dense output at the output times it covers (no interpolant is kept, so a run of
+millions of steps needs no more memory than its samples); the quaternion is normalised at the
+samples. `integrate` is the same run with an optional step budget, for the references.
+``dt`` only sets the output grid here: the steps are chosen by the error control, and
+``n_steps`` reports the accepted steps and ``iterations`` the right-hand-side evaluations.
 
 Order 8, explicit, adaptive. Keeps no invariant exactly, but its errors sit near 1e-12, which
 is why rbstudy uses it as the reference where no closed form exists (docs/theory.md).
@@ -14,8 +16,10 @@ Reference: Hairer, Norsett & Wanner, Solving ODEs I (1993), II.10; scipy.integra
 """
 
 
+from dataclasses import dataclass
+
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import DOP853
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
@@ -33,7 +37,7 @@ RTOL = ATOL = 1e-13
 
 @jit
 def derivative(t, y, p):
-    """Right-hand side for solve_ivp: ``dy/dt`` of a state row ``y`` (N_STATE,)."""
+    """Right-hand side for scipy's DOP853: ``dy/dt`` of a state row ``y`` (N_STATE,)."""
     dx, dq, dv, dw = rates(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p)
     out = np.empty(S.N_STATE)
     write3(out, S.POSITION, dx)
@@ -55,38 +59,79 @@ def _drifts(samples, p):
                 algebra.relative_drift(momentum, momentum[0]))
 
 
+@dataclass(frozen=True)
+class Trajectory:
+    """One body's DOP853 run sampled at T times: ``samples`` (T, N_STATE), NaN past
+    ``reached`` (s); accepted ``steps`` and right-hand-side ``evaluations``; ``finished``
+    when it reached the last time, ``over_budget`` when it stopped at ``max_steps`` first."""
+
+    samples: np.ndarray
+    reached: float
+    steps: int
+    evaluations: int
+    finished: bool
+    over_budget: bool
+
+
+def integrate(y0, p, times, max_steps=None, halt=None):
+    """Integrate state row ``y0`` (N_STATE,) with parameters ``p`` (N_PARAM,) over ``times``
+    (T,), 0 first, step by step, sampling the dense output of each step that covers a sample
+    time (so memory stays (T, N_STATE) however many steps a fast spin takes).
+
+    ``max_steps`` bounds the accepted steps (None: no bound); ``halt`` (a (1,) array, see
+    `rbstudy.numerics.driver.request_halt`) is read every step.
+    """
+    samples = np.full((len(times), S.N_STATE), np.nan)
+    samples[0] = y0
+    solver = DOP853(lambda t, y: derivative(t, y, p), 0.0, np.array(y0, dtype=float),
+                    float(times[-1]), rtol=RTOL, atol=ATOL)
+    filled, steps = 1, 0
+    while solver.status == "running" and filled < len(times):
+        if halt is not None and halt[0]:
+            break
+        if max_steps is not None and steps >= max_steps:
+            break
+        solver.step()
+        steps += 1
+        covered = np.searchsorted(times, solver.t, side="right")
+        if covered > filled:
+            samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
+            filled = covered
+    samples[:filled, S.QUATERNION:S.QUATERNION + 4] /= np.linalg.norm(
+        samples[:filled, S.QUATERNION:S.QUATERNION + 4], axis=1)[:, None]
+    finished = filled == len(times) and np.all(np.isfinite(samples))
+    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished),
+                      filled < len(times) and max_steps is not None and steps >= max_steps)
+
+
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, results):
+                       samples, results, halt):
     """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
     a time; a sample whose energy or |L| drift passes ``drift_bound`` (a moment-free body)
     counts as the failure. Results are written by name: a result added to
     `rbstudy.numerics.state.RESULT_FIELDS` must be added here too (`run_batch` refuses an
     integer result left unset)."""
-    n_times = samples.shape[1]
-    times = h * every * np.arange(n_times)
+    times = h * every * np.arange(samples.shape[1])
     for b in range(start, stop):
+        if halt[0]:
+            return
         p = params[b]
-        solution = solve_ivp(derivative, (0.0, h * n_steps), state0[b], method="DOP853",
-                             rtol=RTOL, atol=ATOL, dense_output=True, args=(p,))
-        reached = solution.t[-1]
-        valid = times <= reached
-        out = np.full((n_times, S.N_STATE), np.nan)
-        out[valid] = solution.sol(times[valid]).T if valid.any() else out[valid]
-        out[valid, S.QUATERNION:S.QUATERNION + 4] /= np.linalg.norm(
-            out[valid, S.QUATERNION:S.QUATERNION + 4], axis=1)[:, None]
-        status = OK if solution.success and np.all(np.isfinite(out)) else UNSTABLE
-        failure = np.nan if status == OK else reached
+        run = integrate(state0[b], p, times, halt=halt)
+        out = run.samples
+        status = OK if run.finished else UNSTABLE
+        failure = np.nan if status == OK else run.reached
         max_energy = max_momentum = np.nan
         if is_moment_free(p):
             energy, momentum = _drifts(out, p)
-            max_energy, max_momentum = float(np.nanmax(energy)), float(np.nanmax(momentum))
+            with np.errstate(invalid="ignore"):
+                max_energy, max_momentum = float(np.nanmax(energy)), float(np.nanmax(momentum))
             bad = np.flatnonzero(~((energy <= drift_bound) & (momentum <= drift_bound)))
             if bad.size:
                 status, failure = UNSTABLE, float(times[bad[0]])
                 out[bad[0]:] = np.nan
         samples[b] = out
-        row = {"status": status, "failure_time": failure, "n_steps": len(solution.t) - 1,
-               "iterations": solution.nfev, "max_energy_error": max_energy,
+        row = {"status": status, "failure_time": failure, "n_steps": run.steps,
+               "iterations": run.evaluations, "max_energy_error": max_energy,
                "max_momentum_magnitude_error": max_momentum}
         for name, value in row.items():
             results[b, Result[name]] = value
@@ -95,6 +140,7 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
 SCHEME = Scheme(
     name="dop853",
     summary="scipy DOP853 at rtol = atol = 1e-13, case by case: the reference peer",
+    step_seconds=6.5e-05,
     order=8,
     implicit=False,
     keeps=(),

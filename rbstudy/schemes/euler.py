@@ -59,6 +59,7 @@ def step_inplace(y, p, opt, h, work):
 SCHEME = Scheme(
     name="euler",
     summary="explicit Euler on (m, R); energy and |L| grow every step",
+    step_seconds=5.6e-08,
     order=1,
     implicit=False,
     keeps=(),

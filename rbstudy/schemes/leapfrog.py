@@ -54,6 +54,7 @@ def step_inplace(y, p, opt, h, work):
 SCHEME = Scheme(
     name="leapfrog",
     summary="OpenRadioss central difference: lagged gyroscopic term, Rodrigues frame update",
+    step_seconds=7.5e-08,
     order=1,
     implicit=False,
     keeps=(),

@@ -104,6 +104,7 @@ def step_inplace(y, p, opt, h, work):
 SCHEME = Scheme(
     name="no_squish",
     summary="NO_SQUISH: DLM splitting on quaternion + conjugate momentum (LAMMPS form)",
+    step_seconds=2.32e-07,
     order=2,
     implicit=False,
     keeps=("momentum_vector",),

@@ -60,6 +60,7 @@ def step_inplace(y, p, opt, h, work):
 SCHEME = Scheme(
     name="rk4",
     summary="classical Runge-Kutta 4 on (q, w), quaternion renormalised each step",
+    step_seconds=1.28e-07,
     order=4,
     implicit=False,
     keeps=(),

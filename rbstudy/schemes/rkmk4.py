@@ -79,6 +79,7 @@ def step_inplace(y, p, opt, h, work):
 SCHEME = Scheme(
     name="rkmk4",
     summary="Runge-Kutta-Munthe-Kaas 4: RK4 in the Lie algebra, frame exactly on SO(3)",
+    step_seconds=2.67e-07,
     order=4,
     implicit=False,
     keeps=(),

@@ -1,0 +1,196 @@
+"""What a study will cost before it runs, and the limits past which it is refused.
+
+`estimate` forecasts, from the config alone: the body-steps of every case (duration / dt;
+for the adaptive dop853, its steps per radian turned), the DOP853 references and which of
+them would pass their step budget, the run time on this machine's cores (each scheme's
+measured seconds per body-step, `rbstudy.schemes.Scheme.step_seconds`), the process's peak
+memory (a measured baseline plus the batches in flight) and the bytes the parts and the
+archive need on disk. `check_limits` refuses a study past ``--max-body-steps``,
+``--max-memory`` or the free space of the results folder, with the estimate and the fix.
+
+The forecasts are for the initial spin: a load that speeds a body up makes its DOP853 work
+larger than forecast (the step budget still bounds it).
+"""
+
+import math
+import os
+import pathlib
+import shutil
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbstudy.errors import ConfigError
+from rbstudy.physics.analytic import reference_kind
+from rbstudy.physics.references import REFERENCE_MAX_STEPS, REFERENCE_STEPS_PER_RADIAN
+from rbstudy.pipeline.batches import scene_key
+from rbstudy.schemes import get_scheme
+
+__all__ = ["Estimate", "estimate", "describe", "check_limits", "MAX_BODY_STEPS", "MEMORY_FRACTION",
+           "PROCESS_BYTES", "physical_memory"]
+
+# Default of --max-body-steps: about three hours of one core for the fastest schemes; a study
+# past it is far more likely a slip of dt or duration than an intent.
+MAX_BODY_STEPS = 1e11
+# Default of --max-memory: this share of the machine's memory.
+MEMORY_FRACTION = 0.5
+# Resident memory of a sweep process before any batch: Python, numpy, scipy, numba, dask and
+# xarray loaded and the schemes compiled (330-420 MiB measured, docs/performance.md).
+PROCESS_BYTES = 400 * 2 ** 20
+# A batch in flight holds its sampled states, its references (about as large) and the derived
+# variables being built from both: about this many times its sampled states and outputs.
+IN_FLIGHT_FACTOR = 3
+# What a netCDF file holds besides its data (HDF5 structure, coordinates, attributes), and a
+# part's digest beside it: 32-34 KiB measured for a part, rounded up.
+_FILE_OVERHEAD = 40 * 2 ** 10
+_MIB = 2 ** 20
+
+
+def _mib(size):
+    """Bytes as MiB, with a decimal below 10 MiB."""
+    return f"{size / _MIB:,.1f}" if size < 10 * _MIB else f"{size / _MIB:,.0f}"
+
+
+def physical_memory():
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def _turned(scene):
+    """Radians the body turns over the run at its initial spin, |w0| T."""
+    return float(np.linalg.norm(scene.omega_body)) * scene.duration
+
+
+def _dop853_steps(scene):
+    """Forecast of accepted DOP853 steps for ``scene`` at rtol 1e-13 (plus the few a slow
+    run still takes)."""
+    return math.ceil(REFERENCE_STEPS_PER_RADIAN * _turned(scene)) + 16
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A study's forecast cost.
+
+    body_steps : steps over every case (the schemes studied). references : distinct scenes
+    that need a DOP853 reference; reference_steps : their forecast steps (each capped at the
+    budget); over_budget : cases whose reference would pass `REFERENCE_MAX_STEPS` (they get
+    reference "none"). core_seconds : schemes and references together; longest_seconds : the
+    longest single reference, which no number of cores shortens; cores : this machine's.
+    peak_bytes : the process's peak memory. archive_bytes : the archive,
+    uncompressed (compression usually halves it); disk_bytes : parts and archive, both
+    present until the archive is written, with each file's overhead.
+    """
+
+    body_steps: int
+    references: int
+    reference_steps: int
+    over_budget: int
+    core_seconds: float
+    longest_seconds: float
+    cores: int
+    peak_bytes: int
+    archive_bytes: int
+    disk_bytes: int
+
+    @property
+    def wall_seconds(self):
+        return max(self.core_seconds / self.cores, self.longest_seconds)
+
+
+def estimate(study, cores=None):
+    """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
+    cores = cores or os.cpu_count() or 1
+    body_steps, seconds = 0, 0.0
+    for batch in study.batches:
+        scheme = get_scheme(batch.scheme)
+        if scheme.adaptive:
+            steps = sum(_dop853_steps(study.cases[i].scene) for i in batch.cases)
+        else:
+            steps = len(batch.cases) * round(study.duration / batch.dt)
+        body_steps += steps
+        seconds += steps * scheme.step_seconds
+    integrated = {}
+    over_budget = 0
+    for case in study.cases:
+        if reference_kind(case.scene) == "dop853":
+            steps = _dop853_steps(case.scene)
+            over_budget += steps > REFERENCE_MAX_STEPS
+            integrated[scene_key(case.spec["scene"])] = min(steps, REFERENCE_MAX_STEPS)
+    reference_steps = sum(integrated.values())
+    per_step = get_scheme("dop853").step_seconds
+    seconds += reference_steps * per_step
+    longest = max(integrated.values(), default=0) * per_step
+    largest = max(len(batch.cases) for batch in study.batches)
+    running = min(len(study.batches), cores)
+    in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
+    archive = study.bytes_per_case() * len(study.cases)
+    files = (len(study.batches) + 1) * _FILE_OVERHEAD
+    return Estimate(body_steps, len(integrated), reference_steps, over_budget, seconds, longest,
+                    cores, PROCESS_BYTES + in_flight, archive, 2 * archive + files)
+
+
+def _duration(seconds):
+    """``~17 h``, ``~3 min``, ``~2.5 s`` or ``under 0.1 s``."""
+    for unit, size in (("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"~{seconds / size:,.0f} {unit}"
+    if seconds < 0.1:
+        return "under 0.1 s"
+    return f"~{seconds:.1f} s" if seconds < 10 else f"~{seconds:,.0f} s"
+
+
+def _count(number, noun, plural=None):
+    return f"{number} {noun if number == 1 else plural or noun + 's'}"
+
+
+def describe(study, cost):
+    """One line: cases, batches, output times and the `Estimate`."""
+    axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
+    text = (f"{study.name}: {_count(len(study.cases), 'case')} ({axes}) in "
+            f"{_count(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
+            f"{cost.body_steps:.2g} body-steps")
+    if cost.references:
+        text += (f" and {cost.reference_steps:.2g} DOP853 reference steps "
+                 f"({_count(cost.references, 'scene')})")
+    text += (f", {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
+             f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB")
+    if cost.over_budget:
+        text += (f"; no DOP853 reference within {REFERENCE_MAX_STEPS:.0e} steps for "
+                 f"{_count(cost.over_budget, 'case')} (too many turns): reference = none there")
+    return text
+
+
+def _free_bytes(folder):
+    """Free bytes on the file system that holds ``folder`` (or would: its nearest existing
+    ancestor)."""
+    path = pathlib.Path(folder).absolute()
+    while not path.exists():
+        path = path.parent
+    return shutil.disk_usage(path).free
+
+
+def check_limits(study, cost, out, max_body_steps=MAX_BODY_STEPS, max_memory=None):
+    """Refuse ``study`` (a `ConfigError` naming the file and the limit) when its `Estimate`
+    ``cost`` passes ``max_body_steps``, ``max_memory`` (bytes; default half this machine's
+    memory) or the free space of the results root ``out``."""
+    if cost.body_steps > max_body_steps:
+        raise ConfigError(
+            f"needs {cost.body_steps:.2g} body-steps, {_duration(cost.wall_seconds)} on "
+            f"{cost.cores} cores (limit {max_body_steps:.2g}, --max-body-steps)",
+            "use a larger dt, a shorter duration or fewer cases, or raise --max-body-steps",
+            source=study.path, key="sweep" if study.dimensions else "run.dt")
+    limit = max_memory if max_memory is not None else MEMORY_FRACTION * physical_memory()
+    if cost.peak_bytes > limit:
+        which = "--max-memory" if max_memory is not None else "half of this machine's"
+        raise ConfigError(
+            f"needs about {cost.peak_bytes / _MIB:,.0f} MiB of memory at once (limit "
+            f"{limit / _MIB:,.0f} MiB, {which})",
+            "sweep fewer values, a shorter duration or a longer output.interval",
+            source=study.path, key="sweep" if study.dimensions else "output.interval")
+    free = _free_bytes(out)
+    if cost.disk_bytes > free:
+        raise ConfigError(
+            f"needs up to {_mib(cost.disk_bytes)} MiB on disk for its parts and archive; "
+            f"{_mib(free)} MiB are free under {out}",
+            "free space, give --out another disk, or store fewer variables "
+            "(output.variables) or samples (output.interval)",
+            source=study.path, key="output")

@@ -1,0 +1,186 @@
+"""Damaged results are never reused: thirteen kinds of corruption of a part or of the archive
+are each recomputed (a part) or rebuilt (the archive) to the numbers of an undamaged run, and
+`rbstudy verify` tells an intact archive from a damaged one."""
+
+import shutil
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import write_study
+
+from rbstudy.cli import main
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.integrity import SIDECAR_SUFFIX
+from rbstudy.pipeline.store import open_results
+
+TIMINGS = ["run_time"]
+VICTIM = "final_orientation_error"
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """A four-batch study run once with its parts kept: (config, results root, a copy of the
+    undamaged folder)."""
+    root = tmp_path_factory.mktemp("integrity")
+    config = write_study(root, name="small", sweep={
+        "scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]})
+    run_study(load_study(config), root / "out", quiet=True, keep_parts=True)
+    shutil.copytree(root / "out" / "small", root / "pristine")
+    return config, root
+
+
+@pytest.fixture
+def study(clean):
+    """A fresh copy of the undamaged study folder for one test: (config, root, folder)."""
+    config, root = clean
+    folder = root / "out" / "small"
+    shutil.rmtree(folder)
+    shutil.copytree(root / "pristine", folder)
+    return config, root / "out", folder
+
+
+def _data_offset(path, name):
+    """Where the stored bytes of variable ``name`` begin in the (uncompressed) part file."""
+    with netCDF4.Dataset(path) as nc:
+        raw = np.ascontiguousarray(nc[name][...].filled(np.nan)).tobytes()
+    blob = path.read_bytes()
+    offset = blob.find(raw)
+    assert offset > 0, "the part's data are not stored contiguously"
+    return offset, len(raw)
+
+
+def _overwrite(path, offset, data):
+    blob = bytearray(path.read_bytes())
+    blob[offset:offset + len(data)] = data
+    path.write_bytes(bytes(blob))
+
+
+def _zero_data(path, other):
+    offset, size = _data_offset(path, VICTIM)
+    _overwrite(path, offset, bytes(size))
+
+
+def _random_data(path, other):
+    offset, size = _data_offset(path, "omega_body")
+    _overwrite(path, offset, np.random.default_rng(1).bytes(size))
+
+
+def _edit(path, change):
+    with netCDF4.Dataset(path, "a") as nc:
+        change(nc)
+
+
+CORRUPTIONS = {
+    "truncated": lambda path, other: path.write_bytes(path.read_bytes()[:-4096]),
+    "garbage at the head": lambda path, other: _overwrite(path, 0, b"\xde\xad" * 64),
+    "garbage at the tail": lambda path, other: path.write_bytes(path.read_bytes() + b"junk" * 99),
+    "zeroed data": _zero_data,
+    "random data": _random_data,
+    "an edited value": lambda path, other: _edit(
+        path, lambda nc: nc[VICTIM].__setitem__(0, 0.5)),
+    "a wrong batch attribute": lambda path, other: _edit(
+        path, lambda nc: nc.setncattr("batch", other.stem)),
+    "another batch's part copied in": lambda path, other: shutil.copyfile(other, path),
+    "changed units": lambda path, other: _edit(
+        path, lambda nc: nc["omega_body"].setncattr("units", "deg s-1")),
+    "an empty file": lambda path, other: path.write_bytes(b""),
+    "a deleted part": lambda path, other: path.unlink(),
+}
+
+
+def _same_numbers(path_a, path_b):
+    a, b = open_results(path_a), open_results(path_b)
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
+                                b.drop_vars(TIMINGS).drop_attrs())
+
+
+@pytest.mark.parametrize("kind", CORRUPTIONS)
+def test_a_damaged_part_is_recomputed_never_reused(study, kind):
+    config, out, folder = study
+    reference = folder.parent / "undamaged.nc"
+    (folder / "small.nc").rename(reference)  # the sweep resumes from its parts
+    victim, other = sorted((folder / "parts").glob("*.nc"))[:2]
+    CORRUPTIONS[kind](victim, other)
+    again = run_study(load_study(config), out, quiet=True, keep_parts=True)
+    assert (again.computed, again.reused) == (1, 3), kind
+    assert again.damaged_parts == (0 if kind == "a deleted part" else 1)
+    _same_numbers(reference, again.path)
+    assert main(["verify", str(victim)]) == 0  # the recomputed part is sealed again
+
+
+def test_another_parts_file_and_digest_copied_in_is_recomputed(study):
+    config, out, folder = study
+    (folder / "small.nc").unlink()
+    victim, other = sorted((folder / "parts").glob("*.nc"))[:2]
+    for suffix in ("", SIDECAR_SUFFIX):  # the whole of another part, digest and all
+        shutil.copyfile(f"{other}{suffix}", f"{victim}{suffix}")
+    again = run_study(load_study(config), out, quiet=True, keep_parts=True)
+    assert (again.computed, again.reused) == (1, 3)
+
+
+def test_a_tampered_archive_is_refused_by_verify_and_rebuilt_by_the_sweep(study, capsys):
+    config, out, folder = study
+    archive = folder / "small.nc"
+    reference = folder.parent / "undamaged.nc"
+    shutil.copyfile(archive, reference)
+    assert main(["verify", str(archive)]) == 0
+    assert "intact" in capsys.readouterr().out
+    _edit(archive, lambda nc: nc[VICTIM].__setitem__((0, 0, 0), 0.5))
+    assert main(["verify", str(archive)]) == 1
+    error = capsys.readouterr().err.strip()
+    assert f"{archive}: damaged: variable {VICTIM} differs from its checksum" in error
+    assert "\n" not in error and "rerun its sweep" in error
+    again = run_study(load_study(config), out, quiet=True, keep_parts=True)
+    assert not again.up_to_date and again.archive_problems
+    assert (again.computed, again.reused) == (0, 4)  # rebuilt from its intact parts
+    _same_numbers(reference, again.path)
+    assert main(["verify", str(archive)]) == 0
+
+
+def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):
+    config, out, folder = study
+    plain = tmp_path / "plain.nc"
+    xr.Dataset({"x": ("t", np.arange(3.0))}).to_netcdf(plain)
+    assert main(["verify", str(plain)]) == 1
+    assert "carries no checksums" in capsys.readouterr().err
+    archive = folder / "small.nc"
+    _edit(archive, lambda nc: nc.setncattr("part_checksums", '[["other", "sha256:0"]]'))
+    assert main(["verify", str(archive)]) == 1
+    assert "do not name the batches" in capsys.readouterr().err
+    assert main(["verify", str(tmp_path / "absent.nc")]) == 1
+
+
+def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, monkeypatch):
+    """HDF5 reports a full disk as "NetCDF: HDF error" (or "Permission denied"): the free space
+    tells. The first two parts are written, the third meets a full disk."""
+    import collections
+
+    from rbstudy.pipeline import store
+    config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"],
+                                                       "dt": [0.01, 0.005]})
+    written = []
+    real_write = xr.Dataset.to_netcdf
+    usage = collections.namedtuple("usage", "total used free")
+
+    def write_until_full(dataset, path, *args, **kwargs):
+        if len(written) == 2:
+            monkeypatch.setattr(store.shutil, "disk_usage", lambda folder: usage(1, 1, 0))
+            raise RuntimeError("NetCDF: HDF error")
+        written.append(path)
+        return real_write(dataset, path, *args, **kwargs)
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", write_until_full)
+    monkeypatch.setattr("rbstudy.pipeline.execute.os.cpu_count", lambda: 1)  # one at a time
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and "/full/parts: no space left on the file system at /" in error
+    assert error.endswith("finished parts are kept: free space and rerun the same command to "
+                          "resume")
+    parts = tmp_path / "out" / "full" / "parts"
+    assert len(list(parts.glob("*.nc.sha256"))) == 2 and not list(parts.glob(".*"))
+    monkeypatch.undo()
+    again = run_study(load_study(config), tmp_path / "out", quiet=True)
+    assert (again.computed, again.reused) == (2, 2)
