@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rbstudy.physics.analytic import axial_moment, flip_interval_exact, symmetric_top
+from rbstudy.physics.analytic import (
+    axial_moment,
+    flip_interval_exact,
+    symmetric_top,
+    symmetry_axes,
+    symmetry_axis,
+)
 from rbstudy.physics.metrics import omega_error, orientation_error, sign_change_interval
 from rbstudy.physics.references import reference_solution, reference_solutions
 from rbstudy.physics.scenes import Body, Loads, Scene
@@ -89,3 +95,20 @@ def test_no_flip_interval_for_a_steady_spin_or_a_symmetric_body():
                  omega_body=(0.0, 0.0, 1.0))
     assert np.isnan(flip_interval_exact(spin))
     assert flip_interval_exact(spin.with_changes(body=Body(1.0, (1.0, 1.0, 2.0)))) is None
+
+
+def test_one_body_and_many_bodies_get_the_same_symmetry_axis():
+    """The symmetry rule is evaluated on three floats for one body (a sweep asks it of every
+    case) and with numpy for many: the same answer, also at the tolerance's edge."""
+    rng = np.random.default_rng(7)
+    base = rng.uniform(0.5, 2.0, size=(2000, 3))
+    edge = 1.0 + np.array([0.0, 0.5e-12, 1.0e-12, 1.5e-12, 3e-12])  # at the edge of 1e-12
+    bodies = [*base, *([1.0, e, 2.0] for e in edge), *([e, 2.0, 2.0 * e] for e in edge),
+              *([2.0, 1.0, e] for e in edge), [1.0, 1.0, 1.0], [3.0, 3.0, 3.0 + 1e-11]]
+    for k in range(1, 4):  # symmetric about each axis, in either order
+        for body in base[:200]:
+            bodies.append(np.roll([body[0], body[0], body[1]], k))
+    many = symmetry_axes(np.array(bodies))
+    assert set(many) == {-1, 0, 1, 2}
+    for body, axis in zip(bodies, many, strict=True):
+        assert symmetry_axis(body) == (None if axis < 0 else axis), body

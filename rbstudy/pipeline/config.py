@@ -95,7 +95,8 @@ def _variables(reader, requested, cases):
     """The variables every case defines, narrowed to ``output.variables`` when given (the
     per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept, and a
     deprecated name brings its new name along)."""
-    available = selected(set.intersection(*(scene_features(case.scene) for case in cases)))
+    scenes = {id(case.scene): case.scene for case in cases}  # cases share scenes
+    available = selected(set.intersection(*(scene_features(scene) for scene in scenes.values())))
     if requested is None:
         return tuple(available)
     if not isinstance(requested, list) or not requested:

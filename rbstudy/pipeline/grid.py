@@ -23,7 +23,6 @@ Every failure goes through the study's `rbstudy.reader.Reader`.
 """
 
 import collections
-import copy
 import itertools
 import math
 from dataclasses import dataclass
@@ -328,8 +327,18 @@ def _finite_numbers(values):
     return numbers if all(math.isfinite(v) for v in numbers) else None
 
 
+def _copied(value):
+    """A copy of a tree of mappings and lists (what YAML gives), leaves shared: the same as
+    `copy.deepcopy` for it, at a third of the cost (no memo; a sweep copies every case)."""
+    if isinstance(value, dict):
+        return {key: _copied(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_copied(item) for item in value]
+    return value
+
+
 def _case_spec(base, dimensions, index):
-    spec = copy.deepcopy(base)
+    spec = _copied(base)
     chosen = {axis.target: axis.values[i] for dim, i in zip(dimensions, index, strict=True)
               for axis in dim.axes}
     for target, value in chosen.items():
