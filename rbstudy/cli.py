@@ -49,12 +49,24 @@ def _bench(args):
     return 0
 
 
-def _costed(study, args):
-    """The study's one-line estimate, after refusing it past the limits of ``args``."""
-    from rbstudy.pipeline.estimate import check_limits, describe, estimate
+def _costed(study, args, disk):
+    """The study's one-line estimate, after refusing it past the limits of ``args`` (and past
+    the free disk under ``args.out`` when ``disk``: a sweep checks it once it knows which
+    parts are already there)."""
+    from rbstudy.pipeline.estimate import (
+        check_disk,
+        check_limits,
+        describe,
+        estimate,
+        forecast_disk,
+    )
+    if not args.max_body_steps > 0 or (args.max_memory is not None and not args.max_memory > 0):
+        raise RbstudyError("--max-body-steps and --max-memory take a number above 0")
     cost = estimate(study)
     max_memory = None if args.max_memory is None else args.max_memory * 2 ** 20
-    check_limits(study, cost, args.out, args.max_body_steps, max_memory)
+    check_limits(study, cost, args.max_body_steps, max_memory)
+    if disk:
+        check_disk(study, forecast_disk(study, args.out), args.out)
     return describe(study, cost)
 
 
@@ -63,7 +75,7 @@ def _validate(args):
     failures = 0
     for path in args.files:
         try:
-            line = _costed(load_study(path), args)
+            line = _costed(load_study(path), args, disk=True)
         except RbstudyError as error:
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1
@@ -86,7 +98,7 @@ def _sweep(args):
             raise ConfigError(f"{study.name!r} is also the name of another config of this "
                               "command", "study names pick the results folder: rename one",
                               source=study.path, key="name")
-    lines = [_costed(study, args) for study in studies]  # every limit checked before any run
+    lines = [_costed(study, args, disk=False) for study in studies]  # before any run
     for study, line in zip(studies, lines, strict=True):
         if not args.quiet:
             print(line)
@@ -156,10 +168,16 @@ def _select(dataset, choices, path):
 
 
 def _verify(args):
+    """Every file checked, each intact one said on stdout, each other one in its error line."""
     from rbstudy.pipeline.integrity import verify_file
+    failures = 0
     for path in args.files:
-        print(f"{path}: {verify_file(path)}")
-    return 0
+        try:
+            print(f"{path}: {verify_file(path)}")
+        except RbstudyError as error:
+            print(f"rbstudy: error: {error}", file=sys.stderr)
+            failures += 1
+    return EXIT_USER_ERROR if failures else EXIT_OK
 
 
 def _report(args):
@@ -255,8 +273,8 @@ def build_parser():
 def _limit_arguments(parser):
     # defaults named here so that parsing loads nothing heavy (rbstudy.pipeline.estimate)
     parser.add_argument("--max-body-steps", type=float, default=1e11, metavar="N",
-                        help="refuse a study forecast to take more body-steps (default 1e11, "
-                             "about 3 core-hours)")
+                        help="refuse a study forecast to take more body-steps (default 1e11: "
+                             "hours of kernels for the compiled schemes)")
     parser.add_argument("--max-memory", type=float, metavar="MIB",
                         help="refuse a study forecast to need more memory, in MiB (default: "
                              "half of this machine's)")

@@ -66,7 +66,7 @@ def test_a_runaway_study_is_refused_with_its_estimate_and_leaves_nothing(tmp_pat
         error = capsys.readouterr().err.strip()
         assert re.fullmatch(
             rf"rbstudy: error: {re.escape(str(config))}: run\.dt: needs 1e\+12 body-steps, "
-            r"~[\d,]+ h on \d+ cores? \(limit 1e\+11, --max-body-steps\); use a larger dt, a "
+            r"kernels ~[\d,]+ h on \d+ cores? \(limit 1e\+11, --max-body-steps\); use a larger dt, a "
             r"shorter duration or fewer cases, or raise --max-body-steps", error), error
     assert not (tmp_path / "out").exists()
     assert main(["validate", str(config), "--max-body-steps", "2e12"]) == 0

@@ -2,6 +2,7 @@
 are each recomputed (a part) or rebuilt (the archive) to the numbers of an undamaged run, and
 `rbstudy verify` tells an intact archive from a damaged one."""
 
+import pathlib
 import shutil
 
 import netCDF4
@@ -138,6 +139,37 @@ def test_a_tampered_archive_is_refused_by_verify_and_rebuilt_by_the_sweep(study,
     assert (again.computed, again.reused) == (0, 4)  # rebuilt from its intact parts
     _same_numbers(reference, again.path)
     assert main(["verify", str(archive)]) == 0
+
+
+def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meaning(
+        study, capsys):
+    config, out, folder = study
+    archive, edited = folder / "small.nc", folder / "edited.nc"
+    shutil.copyfile(archive, edited)
+    _edit(edited, lambda nc: nc.setncattr("accuracy_bound", 0.5))  # what "accurate" meant
+    assert main(["verify", str(edited), str(archive)]) == 1
+    captured = capsys.readouterr()
+    assert f"{archive}: intact" in captured.out  # the second file is checked all the same
+    assert "the global attributes study, batches, accuracy_bound differs" in captured.err
+    _edit(edited, lambda nc: nc.setncattr("checksums", "5"))
+    assert main(["verify", str(edited)]) == 1
+    assert "not what rbstudy writes" in capsys.readouterr().err
+    part = sorted((folder / "parts").glob("*.nc"))[0]
+    pathlib.Path(f"{part}{SIDECAR_SUFFIX}").unlink()
+    assert main(["verify", str(part)]) == 1
+    assert "cannot be proven intact: it is a part file without its digest" in (
+        capsys.readouterr().err)
+
+
+def test_a_part_without_its_digest_is_unfinished_not_damaged(study):
+    """A kill between a part's rename and its digest leaves it unsealed: recomputed, and not
+    counted as damage."""
+    config, out, folder = study
+    (folder / "small.nc").unlink()
+    part = sorted((folder / "parts").glob("*.nc"))[0]
+    pathlib.Path(f"{part}{SIDECAR_SUFFIX}").unlink()
+    again = run_study(load_study(config), out, quiet=True, keep_parts=True)
+    assert (again.computed, again.reused, again.damaged_parts) == (1, 3, 0)
 
 
 def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):

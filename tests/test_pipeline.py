@@ -17,11 +17,14 @@ import xarray as xr
 import yaml
 from conftest import CONFIGS, abaqus_mapping, write_study
 
-from rbstudy.analysis.summary import TABLE_NOTE, format_table, scheme_rows
+from rbstudy.analysis.plots import all_figures
+from rbstudy.analysis.summary import format_table, scheme_rows
 from rbstudy.cli import main
 from rbstudy.errors import RbstudyError
+from rbstudy.numerics.driver import HALT_FLAG
 from rbstudy.physics import references
 from rbstudy.physics.analytic import REFERENCE_KINDS
+from rbstudy.physics.scenes import Body
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline import execute
 from rbstudy.pipeline.config import load_study
@@ -282,9 +285,48 @@ def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, m
     euler = ds.accuracy.sel(scheme="euler").values
     assert set(euler) == {VERDICTS.index("inaccurate")}  # euler's drift alone condemns it
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
-    assert rows["rk4"]["inaccurate"] == 0 and rows["rk4"]["unstable"] == 0
-    assert rows["rk4"]["error"] is None and "no reference" in TABLE_NOTE
-    assert "failed" not in format_table(list(rows.values())).splitlines()[1]
+    assert (rows["rk4"]["inaccurate"], rows["rk4"]["unstable"], rows["rk4"]["unjudged"]) == (0, 0, 2)
+    assert rows["rk4"]["error"] is None  # "-", not "failed": nothing failed
+    table = format_table(list(rows.values())).splitlines()
+    rk4 = next(line for line in table if line.startswith("rk4"))
+    assert "failed" not in rk4 and "0/2 (2 unjudged)" in rk4
+    figures = all_figures(ds, tmp_path / "figures")
+    assert "no case has a reference" in figures.absent["convergence_orientation"]
+
+
+def test_a_failed_run_leaves_later_runs_free_to_finish(tmp_path, monkeypatch):
+    """A failing task halts the others (so the command ends at once); the halt must not
+    outlive the run: later simulations and references in the process run to their end."""
+    config = _small_study(tmp_path)
+
+    def broken(*args):
+        raise RbstudyError("the disk broke")
+
+    monkeypatch.setattr(execute, "store_part", broken)
+    with pytest.raises(RbstudyError, match="the disk broke"):
+        run_study(load_study(config), tmp_path / "out", quiet=True)
+    monkeypatch.undo()
+    assert not HALT_FLAG[0]
+    asymmetric = load_study(config).cases[0].scene.with_changes(
+        body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)))
+    assert simulate([asymmetric], "rk4", 0.01).results["status"][0] == 0
+    assert references.reference_solution(asymmetric, np.arange(51) * 0.01).name == "dop853"
+
+
+def test_a_resume_needs_the_disk_for_what_is_left_only(tmp_path, monkeypatch):
+    from rbstudy.pipeline import estimate as forecast
+    config = _small_study(tmp_path)
+    study = load_study(config)
+    run_study(study, tmp_path / "out", quiet=True, keep_parts=True).path.unlink()
+    left = forecast.disk_needed(study, [])  # the archive alone: every part is there
+    assert left < forecast.disk_needed(study, study.batches)
+    monkeypatch.setattr(forecast, "_free_bytes", lambda folder: left)
+    again = run_study(study, tmp_path / "out", quiet=True)
+    assert (again.computed, again.reused) == (0, 4)
+    monkeypatch.setattr(forecast, "_free_bytes", lambda folder: left - 1)
+    again.path.unlink()
+    with pytest.raises(RbstudyError, match="MiB on disk for its parts and archive"):
+        run_study(study, tmp_path / "out", quiet=True, force=True)
 
 
 def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(tmp_path):

@@ -144,11 +144,11 @@ def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeyp
     cost = estimate.estimate(study)
     # a machine with just enough memory takes it; one byte less is refused, size shown
     monkeypatch.setattr(estimate, "physical_memory", lambda: 2 * cost.peak_bytes)
-    estimate.check_limits(study, cost, tmp_path)
+    estimate.check_limits(study, cost)
     monkeypatch.setattr(estimate, "physical_memory", lambda: 2 * cost.peak_bytes - 2)
     with pytest.raises(ConfigError, match=r"sweep: needs about [\d,]+ MiB of memory at once "
                                           r"\(limit [\d,]+ MiB, half of this machine's\)"):
-        estimate.check_limits(study, cost, tmp_path)
+        estimate.check_limits(study, cost)
 
 
 def test_numbers_with_bare_exponents_are_numbers(tmp_path):

@@ -19,7 +19,8 @@ nothing to show).
 Every scheme keeps one colour, marker and line style (`SCHEME_STYLES`) in every figure, and
 schemes whose curves coincide differ in marker and dash, so that both stay visible. Legends
 sit outside the data. An exact zero, which log axes cannot show, is a marked point on a floor
-line labelled "0 (exact)"; a gap is a failed case and nothing else.
+line labelled "0 (exact)"; a gap is a failed case, or a case without a reference (its
+DOP853 reference passed its step budget: `reference = none`).
 
 Large sweeps stay readable: lines are the schemes (or, in a one-scheme study, the values of
 a swept axis with at most `MAX_LINES` values); a further axis with at most `MAX_FACETS`
@@ -46,7 +47,7 @@ from rbstudy.analysis.summary import (  # noqa: E402
     step_load,
     verdicts,
 )
-from rbstudy.physics.analytic import symmetric_top  # noqa: E402
+from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 
@@ -68,6 +69,7 @@ BENCHMARK_NODE = "4"
 _RC = {"font.size": 10, "axes.titlesize": 10, "legend.fontsize": 8, "figure.titlesize": 10,
        "axes.formatter.useoffset": False}
 _CASE_DIMS_EXCLUDED = ("time", "node", "axis", "component")
+_NO_REFERENCE = REFERENCE_KINDS.index("none")
 
 # (colour, marker, line style) of each scheme, the same in every figure. The pairs whose
 # curves coincide on a symmetric top (euler/leapfrog, splitting/no_squish, rk4/rkmk4) take a
@@ -275,14 +277,15 @@ def _reference_slopes(ax, dts, errors):
                     fontsize=7, color="0.4")
 
 
-def _fit_label(name, errors, fit, round_off):
-    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order: failed, exact, at
-    round-off (an invariant kept: errors at or below ``round_off``), or no asymptotic range."""
+def _fit_label(name, errors, fit, round_off, failed):
+    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order: failed (``failed``: a
+    case of the line did; else it had no reference), exact, at round-off (an invariant kept:
+    errors at or below ``round_off``), or no asymptotic range."""
     finite = errors[np.isfinite(errors)]
     if np.isfinite(fit.order):
         text = f"order {fit.order:.2f}, finest {fit.finest_slope:.2f}"
     elif not finite.size:
-        text = "failed at every dt"
+        text = "failed at every dt" if failed else "no reference at any dt"
     elif np.all(finite == 0.0):
         text = "exact at every dt"
     elif np.all(finite <= round_off):
@@ -307,24 +310,39 @@ def convergence(ds, folder, formats=FORMATS):
             continue  # not stored: not a figure this study could have
         panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced)
                   for value in values]
-        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key))
-                 for line_name, style, data in _lines(panel, line_dim)] for panel in panels]
-        if not any(np.isfinite(fit.order) for panel in fits for *_, fit in panel):
-            figures.absent[name] = (f"no line shows an asymptotic range of the {label} (every "
-                                    "line failed, stalled or was exact at every dt)")
+        failures = [_worst((ds["status"] != 0).sel({facet: value}) if facet
+                           else ds["status"] != 0, reduced) for value in values]
+        # a panel whose every case finished without a reference has nothing to show
+        shown = [k for k, (panel, failed) in enumerate(zip(panels, failures, strict=True))
+                 if np.isfinite(panel.values).any() or failed.values.any()] or list(range(len(values)))
+        unreferenced = [values[k] for k in range(len(values)) if k not in shown]
+        facet_values, panels, failures = ([items[k] for k in shown]
+                                          for items in (values, panels, failures))
+        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key),
+                  bool(failed.values.any()))
+                 for (line_name, style, data), (*_, failed) in zip(
+                     _lines(panel, line_dim), _lines(failures_of_panel, line_dim), strict=True)]
+                for panel, failures_of_panel in zip(panels, failures, strict=True)]
+        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _ in panel):
+            figures.absent[name] = (
+                f"no case has a reference to measure the {label} against (reference = none)"
+                if _without_reference(ds) else
+                f"no line shows an asymptotic range of the {label} (every line failed, "
+                "stalled or was exact at every dt)")
             continue
         with plt.rc_context(_RC):
-            fig, axes = _grid(len(values), width=6.4)
+            fig, axes = _grid(len(facet_values), width=6.4)
             floors = []
-            for ax, value, panel, lines in zip(axes, values, panels, fits, strict=True):
+            for ax, value, panel, lines in zip(axes, facet_values, panels, fits, strict=True):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for line_name, style_key, errors, fit in lines:
+                for line_name, style_key, errors, fit, failed in lines:
                     style = _style(style_key)
                     plot_with_zeros(ax, dts, errors, floor,
-                                    _fit_label(line_name, errors, fit, round_off), style)
+                                    _fit_label(line_name, errors, fit, round_off, failed),
+                                    style)
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
                             color=style["color"], zorder=1)
@@ -337,8 +355,15 @@ def convergence(ds, folder, formats=FORMATS):
                 _legend_outside(ax)
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
                 else ""
+            unjudged_gap = any(not failed and not np.isfinite(errors).all()
+                               for panel in fits for _, _, errors, _, failed in panel)
+            gaps = ("failed cases, or cases without a reference"
+                    if unjudged_gap and _any_unreferenced(ds) else "failed cases")
+            left_out = ("; not shown, without a reference: "
+                        + ", ".join(_value_text(facet, v) for v in unreferenced)
+                        if unreferenced else "")
             _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic range; "
-                            f"gaps: failed cases{zeros}")
+                            f"gaps: {gaps}{zeros}{left_out}")
             figures.written.append(_save(fig, folder, ds, name, formats))
     return figures
 
@@ -578,13 +603,24 @@ def benchmark(ds, folder, formats=FORMATS):
     return figures
 
 
+def _any_unreferenced(ds):
+    return "reference" in ds and bool(np.any(ds["reference"].values == _NO_REFERENCE))
+
+
+def _without_reference(ds):
+    """True when no case of ``ds`` had a reference (every DOP853 reference passed its step
+    budget): errors against a reference are then NaN, not failures."""
+    return "reference" in ds and bool(np.all(ds["reference"].values == _NO_REFERENCE))
+
+
 # What each figure shows, for the report (keyed by figure name without the measure suffix).
 CAPTIONS = {
     "convergence": "Error against the time step, log-log, one line per scheme (or per value "
                    "of the swept axis in a one-scheme study); the legend gives the order "
                    "fitted on the circled points, the asymptotic range (see the table), and "
                    "the local slope of the finest fitted pair; dotted lines are slopes 1, 2 "
-                   "and 4; a gap is a failed case; a point on the dotted floor is exactly 0.",
+                   "and 4; a gap is a failed case (or one without a reference); a point on "
+                   "the dotted floor is exactly 0.",
     "work_precision": "Kernel run time per case against the final orientation error, one "
                       "point per dt: the cheapest scheme for a given accuracy is the lowest "
                       "line. Run time is the CPU time of the compiled batch call divided "
@@ -592,7 +628,8 @@ CAPTIONS = {
     "stability_map": "Every case by its dt |w0| against the swept parameter: green accurate, "
                      "orange triangles finished but inaccurate (orientation error at a sample or "
                      "energy or |L| drift past the study's accuracy bound), red crosses "
-                     "failed; the line joins the largest accurate value.",
+                     "failed, grey squares finished without a reference (unjudged); the line "
+                     "joins the largest accurate value.",
     "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
                        "case per scheme, named in the legend (the largest stable dt when dt "
                        "is swept; a failed case ends where it failed): bounded oscillation or "

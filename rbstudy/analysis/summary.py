@@ -139,7 +139,8 @@ def scheme_rows(ds):
 
     Keys: scheme; nominal (the scheme's nominal order as archived, None if the archive does
     not record it); cases, unstable (cases that failed), inaccurate (cases that finished but
-    were judged inaccurate, None for an archive without the verdict); order ((min, max) over
+    were judged inaccurate, None for an archive without the verdict), unjudged (finished
+    without a reference); order ((min, max) over
     the successful fits, or None) and finest ((min, max) of the fits' finest-pair slopes),
     fits and tries (how many of the other axes' values gave an asymptotic range), fit_dt
     ((smallest, largest) dt fitted); error_dt / error at the largest dt and error_small_dt /
@@ -158,10 +159,11 @@ def scheme_rows(ds):
     judged = "accuracy" in ds
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
-        accurate, inaccurate, failed, _ = verdicts(ds, scheme)
+        accurate, inaccurate, failed, unjudged = verdicts(ds, scheme)
         row = {"scheme": scheme, "nominal": _nominal_order(ds, scheme),
                "cases": int(status.size), "unstable": int(failed.sum()),
                "inaccurate": int(inaccurate.sum()) if judged else None,
+               "unjudged": int(unjudged.sum()),
                "order": None, "finest": None, "fits": 0, "tries": 0, "fit_dt": (),
                "error": None, "error_small": None}
         row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
@@ -250,7 +252,8 @@ def table_columns(rows):
         ("first inaccurate dt|w0|", lambda row: _number(row["inaccurate_hw"], ".3g")),
         ("first failed dt|w0|", lambda row: _number(row["unstable_hw"], ".3g")),
         ("inaccurate", lambda row: "-" if row["inaccurate"] is None
-         else f"{row['inaccurate']}/{row['cases']}"),
+         else f"{row['inaccurate']}/{row['cases']}"
+         + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else "")),
         ("failed", lambda row: f"{row['unstable']}/{row['cases']}"),
         ("kept", lambda row: ", ".join(row["kept"]) or "-"),
     ]
@@ -264,7 +267,8 @@ TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other s
               "value where the scheme failed at most steps has none); finest pair: the local "
               "slope between the two finest fitted steps; inaccurate: cases that finished "
               "but whose orientation error at some sample or energy or |L| drift passed the "
-              "study's accuracy bound; failed: cases that blew up or did not converge; "
+              "study's accuracy bound (unjudged: finished without a reference, and no "
+              "drift past the bound); failed: cases that blew up or did not converge; "
               "dt|w0|: over physical bodies only, accurate up to: the largest accurate case "
               "below the first that is not; kept: energy and |L| drift over every step, and L (the "
               f"vector) at the samples, below {KEPT_TOLERANCE:g} in every stable case")

@@ -26,8 +26,9 @@ from rbstudy.physics.references import REFERENCE_MAX_STEPS, REFERENCE_STEPS_PER_
 from rbstudy.pipeline.batches import scene_key
 from rbstudy.schemes import get_scheme
 
-__all__ = ["Estimate", "estimate", "describe", "check_limits", "MAX_BODY_STEPS", "MEMORY_FRACTION",
-           "PROCESS_BYTES", "physical_memory"]
+__all__ = ["Estimate", "estimate", "describe", "check_limits", "check_disk", "disk_needed",
+           "forecast_disk", "MAX_BODY_STEPS", "MEMORY_FRACTION", "PROCESS_BYTES",
+           "physical_memory"]
 
 # Default of --max-body-steps: about three hours of one core for the fastest schemes; a study
 # past it is far more likely a slip of dt or duration than an intent.
@@ -93,13 +94,15 @@ class Estimate:
 
     @property
     def wall_seconds(self):
+        """Kernel time on ``cores`` cores: the work spread over them, unless one batch or
+        reference takes longer on its own (start-up, compilation and writing not included)."""
         return max(self.core_seconds / self.cores, self.longest_seconds)
 
 
 def estimate(study, cores=None):
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
     cores = cores or os.cpu_count() or 1
-    body_steps, seconds = 0, 0.0
+    body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
         if scheme.adaptive:
@@ -108,6 +111,10 @@ def estimate(study, cores=None):
             steps = len(batch.cases) * round(study.duration / batch.dt)
         body_steps += steps
         seconds += steps * scheme.step_seconds
+        # a batch spreads its bodies over at most as many threads as it has bodies; dop853
+        # is Python and holds the interpreter: one core
+        spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
+        longest = max(longest, steps * scheme.step_seconds / spread)
     integrated = {}
     over_budget = 0
     for case in study.cases:
@@ -118,14 +125,21 @@ def estimate(study, cores=None):
     reference_steps = sum(integrated.values())
     per_step = get_scheme("dop853").step_seconds
     seconds += reference_steps * per_step
-    longest = max(integrated.values(), default=0) * per_step
+    longest = max(longest, max(integrated.values(), default=0) * per_step)
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
-    archive = study.bytes_per_case() * len(study.cases)
-    files = (len(study.batches) + 1) * _FILE_OVERHEAD
     return Estimate(body_steps, len(integrated), reference_steps, over_budget, seconds, longest,
-                    cores, PROCESS_BYTES + in_flight, archive, 2 * archive + files)
+                    cores, PROCESS_BYTES + in_flight,
+                    study.bytes_per_case() * len(study.cases), disk_needed(study, study.batches))
+
+
+def disk_needed(study, pending):
+    """Bytes on disk for the parts of the batches ``pending`` and the archive, which coexist
+    until the parts are removed (both uncompressed, with each file's overhead)."""
+    cases = sum(len(batch.cases) for batch in pending)
+    return ((cases + len(study.cases)) * study.bytes_per_case()
+            + (len(pending) + 1) * _FILE_OVERHEAD)
 
 
 def _duration(seconds):
@@ -151,7 +165,7 @@ def describe(study, cost):
     if cost.references:
         text += (f" and {cost.reference_steps:.2g} DOP853 reference steps "
                  f"({_count(cost.references, 'scene')})")
-    text += (f", {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
+    text += (f", kernels {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
              f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB")
     if cost.over_budget:
         text += (f"; no DOP853 reference within {REFERENCE_MAX_STEPS:.0e} steps for "
@@ -168,14 +182,14 @@ def _free_bytes(folder):
     return shutil.disk_usage(path).free
 
 
-def check_limits(study, cost, out, max_body_steps=MAX_BODY_STEPS, max_memory=None):
+def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
     """Refuse ``study`` (a `ConfigError` naming the file and the limit) when its `Estimate`
-    ``cost`` passes ``max_body_steps``, ``max_memory`` (bytes; default half this machine's
-    memory) or the free space of the results root ``out``."""
+    ``cost`` passes ``max_body_steps`` or ``max_memory`` (bytes; default half this machine's
+    memory). The disk is checked against what is left to write (`check_disk`)."""
     if cost.body_steps > max_body_steps:
         raise ConfigError(
-            f"needs {cost.body_steps:.2g} body-steps, {_duration(cost.wall_seconds)} on "
-            f"{cost.cores} cores (limit {max_body_steps:.2g}, --max-body-steps)",
+            f"needs {cost.body_steps:.2g} body-steps, kernels {_duration(cost.wall_seconds)} on "
+            f"{_count(cost.cores, 'core')} (limit {max_body_steps:.2g}, --max-body-steps)",
             "use a larger dt, a shorter duration or fewer cases, or raise --max-body-steps",
             source=study.path, key="sweep" if study.dimensions else "run.dt")
     limit = max_memory if max_memory is not None else MEMORY_FRACTION * physical_memory()
@@ -186,11 +200,25 @@ def check_limits(study, cost, out, max_body_steps=MAX_BODY_STEPS, max_memory=Non
             f"{limit / _MIB:,.0f} MiB, {which})",
             "sweep fewer values, a shorter duration or a longer output.interval",
             source=study.path, key="sweep" if study.dimensions else "output.interval")
-    free = _free_bytes(out)
-    if cost.disk_bytes > free:
+
+
+def check_disk(study, needed, folder):
+    """Refuse ``study`` when ``needed`` bytes exceed the free space where ``folder`` is (or
+    would be)."""
+    free = _free_bytes(folder)
+    if needed > free:
         raise ConfigError(
-            f"needs up to {_mib(cost.disk_bytes)} MiB on disk for its parts and archive; "
-            f"{_mib(free)} MiB are free under {out}",
+            f"needs up to {_mib(needed)} MiB on disk for its parts and archive; "
+            f"{_mib(free)} MiB are free under {folder}",
             "free space, give --out another disk, or store fewer variables "
             "(output.variables) or samples (output.interval)",
             source=study.path, key="output")
+
+
+def forecast_disk(study, out):
+    """`disk_needed` for a sweep into the results root ``out``: the batches whose part is
+    not there yet, and the archive."""
+    parts = pathlib.Path(out) / study.name / "parts"
+    return disk_needed(study, [batch for batch in study.batches
+                               if not (parts / f"{batch.id}.nc").exists()])
+

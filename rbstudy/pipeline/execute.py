@@ -32,7 +32,8 @@ from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.batches import scene_key
-from rbstudy.pipeline.integrity import SIDECAR_SUFFIX
+from rbstudy.pipeline.estimate import check_disk, disk_needed
+from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.store import (
     Layout,
@@ -263,7 +264,6 @@ def _run_local(tasks, sizes, progress, workers, schemes):
             if isinstance(key, str) and key.startswith("store-"):
                 progress.advance(sizes[key])
 
-    clear_halt()
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         with _Advance():
@@ -273,6 +273,7 @@ def _run_local(tasks, sizes, progress, workers, schemes):
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        clear_halt()  # nothing of this run works any more: later runs must not stop
 
 
 def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
@@ -314,14 +315,15 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    created = not (pathlib.Path(root) / study.name).exists()
+    made = [path for path in (pathlib.Path(root), pathlib.Path(root) / study.name)
+            if not path.exists()]
     folder = _prepare(root, study)
     try:
         return _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started,
                        started_clock)
     except RbstudyError:
-        if created and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
-            shutil.rmtree(folder)  # this run made the folder and left nothing worth keeping
+        if made and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
+            shutil.rmtree(made[0])  # this run made the folder and left nothing worth keeping
         raise
 
 
@@ -347,7 +349,9 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
         digests = {} if force else {batch.id: part_complete(parts[batch.id], batch)
                                     for batch in study.batches}
         pending = [batch for batch in study.batches if digests.get(batch.id) is None]
-        damaged = sum(parts[batch.id].exists() for batch in pending) if not force else 0
+        # a part without its digest was stopped between its rename and its digest: unfinished
+        damaged = 0 if force else sum(sealed(parts[batch.id]) for batch in pending)
+        check_disk(study, disk_needed(study, pending), folder)
         cores = os.cpu_count() or 1
         distributed = scheduler is not None or workers is not None
         threads = 1 if distributed else max(1, cores // max(1, len(pending)))

@@ -36,6 +36,15 @@ SIDECAR_SUFFIX = ".sha256"
 # bounded memory whatever the size of the study.
 _READ_BYTES = 1 << 20
 _SLAB_BYTES = 1 << 26
+# The global attributes in the archive's checksums (under the name `MEANING`): those that give
+# its values their meaning. The title, history and config text are left out: a changed title
+# is redescribed in place.
+MEANING_ATTRIBUTES = ("study", "batches", "accuracy_bound")
+MEANING = "(global attributes)"
+# Words of `verify_archive`'s problems that say the content changed (the others say that it
+# cannot be checked).
+_DAMAGE = ("differs", "is missing", "was added", "do not name", "not what rbstudy writes",
+           "cannot be read")
 
 
 def file_digest(path):
@@ -58,6 +67,12 @@ def seal_part(temporary, path, write_text):
     digest, after a kill between the two, is simply recomputed)."""
     digest = file_digest(temporary)
     return digest, lambda: write_text(f"{digest}  {pathlib.Path(path).name}\n", _sidecar(path))
+
+
+def sealed(path):
+    """True when the part at ``path`` exists with its digest beside it (so that a part which
+    fails `part_digest` then is damaged, not unfinished)."""
+    return pathlib.Path(path).exists() and _sidecar(path).exists()
 
 
 def part_digest(path):
@@ -89,9 +104,14 @@ def _update_values(digest, variable):
 
 def archive_checksums(nc):
     """Name -> ``sha256:<hex>`` for every variable of the open netCDF4 dataset ``nc``: of its
-    dimensions, type, attributes and raw stored values."""
+    dimensions, type, attributes and raw stored values; and under `MEANING` the global
+    attributes that say what the values mean (the study, its batches, the accuracy bound that
+    defines the stored verdict)."""
     nc.set_auto_maskandscale(False)
-    found = {}
+    meaning = {key: np.asarray(nc.getncattr(key)).tolist() for key in MEANING_ATTRIBUTES
+               if key in nc.ncattrs()}
+    found = {MEANING: f"{ALGORITHM}:" + hashlib.sha256(
+        json.dumps(meaning, sort_keys=True).encode()).hexdigest()}
     for name, variable in nc.variables.items():
         digest = hashlib.sha256()
         attributes = {key: np.asarray(variable.getncattr(key)).tolist()
@@ -114,27 +134,39 @@ def seal_archive(path, part_digests):
                       "part_checksums": json.dumps(part_digests)})
 
 
+def _named(name):
+    return (f"the global attributes {', '.join(MEANING_ATTRIBUTES)}" if name == MEANING
+            else f"variable {name}")
+
+
 def verify_archive(path):
     """Problems of the archive at ``path`` (empty when intact), each a short phrase: a
     variable that differs from its checksum, or parts that are not the study's batches."""
     try:
         with netCDF4.Dataset(path) as nc:
             attributes = set(nc.ncattrs())
+            if "batch" in attributes and "case" in nc.dimensions:
+                return ["it is a part file without its digest beside it (its sweep stopped "
+                        "before sealing it)"]
             if not {"checksums", "part_checksums", "batches"} <= attributes:
                 return ["it carries no checksums (written by an rbstudy before 0.3, or not by "
                         "rbstudy)"]
-            stored = json.loads(nc.getncattr("checksums"))
-            parts = json.loads(nc.getncattr("part_checksums"))
+            stored, parts = (json.loads(nc.getncattr(name))
+                             for name in ("checksums", "part_checksums"))
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
-    except (OSError, ValueError, RuntimeError) as error:
+    except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:
         return [f"it cannot be read as netCDF ({str(error).strip().splitlines()[0]})"]
-    problems = [f"variable {name} differs from its checksum"
-                for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]
-    problems += [f"variable {name} is missing" for name in sorted(set(stored) - set(found))]
-    problems += [f"variable {name} was added" for name in sorted(set(found) - set(stored))]
-    if ids_digest([batch_id for batch_id, _ in parts]) != batches:
-        problems.append("its part_checksums do not name the batches of its `batches` attribute")
+    try:
+        problems = [f"{_named(name)} differs from its checksum"
+                    for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]
+        problems += [f"{_named(name)} is missing" for name in sorted(set(stored) - set(found))]
+        problems += [f"{_named(name)} was added" for name in sorted(set(found) - set(stored))]
+        if ids_digest([batch_id for batch_id, _ in parts]) != batches:
+            problems.append("its part_checksums do not name the batches of its `batches` "
+                            "attribute")
+    except (TypeError, ValueError, AttributeError):
+        return ["its checksums attributes are not what rbstudy writes (edited?)"]
     return problems
 
 
@@ -151,11 +183,13 @@ def verify_file(path):
         return "intact (a part; its bytes match its digest)"
     problems = verify_archive(path)
     if problems:
-        fix = ("rerun its sweep with this rbstudy" if "no checksums" in problems[0]
-               else "rerun its sweep: a damaged archive is rebuilt")
         shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more"
                                            if len(problems) > 3 else "")
-        raise InputError(f"damaged: {shown}", fix, path)
+        if any(word in problems[0] for word in _DAMAGE):
+            raise InputError(f"damaged: {shown}", "rerun its sweep: a damaged archive is rebuilt",
+                             path)
+        raise InputError(f"cannot be proven intact: {shown}",
+                         "rerun its sweep with this rbstudy", path)
     with netCDF4.Dataset(path) as nc:
         variables = len(json.loads(nc.getncattr("checksums")))
         parts = len(json.loads(nc.getncattr("part_checksums")))

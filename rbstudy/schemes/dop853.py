@@ -7,7 +7,8 @@ step's dense output at the output times it covers (no interpolant is kept, so a 
 millions of steps needs no more memory than its samples); the quaternion is normalised at the
 samples. `integrate` is the same run with an optional step budget, for the references.
 ``dt`` only sets the output grid here: the steps are chosen by the error control, and
-``n_steps`` reports the accepted steps and ``iterations`` the right-hand-side evaluations.
+``n_steps`` reports the accepted steps and ``iterations`` the right-hand-side evaluations
+(including those of the dense output at the steps that cover a sample).
 
 Order 8, explicit, adaptive. Keeps no invariant exactly, but its errors sit near 1e-12, which
 is why rbstudy uses it as the reference where no closed form exists (docs/theory.md).
@@ -92,6 +93,8 @@ def integrate(y0, p, times, max_steps=None, halt=None):
         if max_steps is not None and steps >= max_steps:
             break
         solver.step()
+        if solver.status == "failed":  # the step was rejected for good: not an accepted one
+            break
         steps += 1
         covered = np.searchsorted(times, solver.t, side="right")
         if covered > filled:
