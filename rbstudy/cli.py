@@ -70,18 +70,23 @@ def _costed(study, args, disk):
     return describe(study, cost)
 
 
-def _validate(args):
-    from rbstudy.pipeline.config import load_study
+def _each_file(paths, say):
+    """``path: say(path)`` for every path; a file that fails gets its one-line error and the
+    others are still done; exit 1 if any failed."""
     failures = 0
-    for path in args.files:
+    for path in paths:
         try:
-            line = _costed(load_study(path), args, disk=True)
+            print(f"{path}: {say(path)}")
         except RbstudyError as error:
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1
-            continue
-        print(f"{path}: ok: {line}")
     return EXIT_USER_ERROR if failures else EXIT_OK
+
+
+def _validate(args):
+    from rbstudy.pipeline.config import load_study
+    return _each_file(args.files,
+                      lambda path: "ok: " + _costed(load_study(path), args, disk=True))
 
 
 def _sweep(args):
@@ -168,16 +173,8 @@ def _select(dataset, choices, path):
 
 
 def _verify(args):
-    """Every file checked, each intact one said on stdout, each other one in its error line."""
     from rbstudy.pipeline.integrity import verify_file
-    failures = 0
-    for path in args.files:
-        try:
-            print(f"{path}: {verify_file(path)}")
-        except RbstudyError as error:
-            print(f"rbstudy: error: {error}", file=sys.stderr)
-            failures += 1
-    return EXIT_USER_ERROR if failures else EXIT_OK
+    return _each_file(args.files, verify_file)
 
 
 def _report(args):

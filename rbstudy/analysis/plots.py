@@ -326,7 +326,7 @@ def convergence(ds, folder, formats=FORMATS):
         if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _ in panel):
             figures.absent[name] = (
                 f"no case has a reference to measure the {label} against (reference = none)"
-                if _without_reference(ds) else
+                if _unreferenced(ds).all() else
                 f"no line shows an asymptotic range of the {label} (every line failed, "
                 "stalled or was exact at every dt)")
             continue
@@ -358,7 +358,7 @@ def convergence(ds, folder, formats=FORMATS):
             unjudged_gap = any(not failed and not np.isfinite(errors).all()
                                for panel in fits for _, _, errors, _, failed in panel)
             gaps = ("failed cases, or cases without a reference"
-                    if unjudged_gap and _any_unreferenced(ds) else "failed cases")
+                    if unjudged_gap and _unreferenced(ds).any() else "failed cases")
             left_out = ("; not shown, without a reference: "
                         + ", ".join(_value_text(facet, v) for v in unreferenced)
                         if unreferenced else "")
@@ -455,7 +455,9 @@ def stability_map(ds, folder, formats=FORMATS):
                 xs = np.unique(x)
                 largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
                            for v in xs]
-                ax.plot(xs, largest, color="tab:green", linewidth=1, label="largest accurate")
+                # a bar at each value, so that one accurate value alone still shows
+                ax.plot(xs, largest, color="tab:green", linewidth=1, marker="_", markersize=12,
+                        label="largest accurate")
             ax.set_yscale("log")
             ax.set_ylabel("dt |w0| (rad)")
             ax.set_title(f"{scheme}: all accurate" if good.all() else scheme)
@@ -603,14 +605,12 @@ def benchmark(ds, folder, formats=FORMATS):
     return figures
 
 
-def _any_unreferenced(ds):
-    return "reference" in ds and bool(np.any(ds["reference"].values == _NO_REFERENCE))
-
-
-def _without_reference(ds):
-    """True when no case of ``ds`` had a reference (every DOP853 reference passed its step
-    budget): errors against a reference are then NaN, not failures."""
-    return "reference" in ds and bool(np.all(ds["reference"].values == _NO_REFERENCE))
+def _unreferenced(ds):
+    """Per case: it had no reference (its DOP853 reference passed its step budget), so its
+    errors against a reference are NaN without having failed."""
+    if "reference" not in ds:
+        return np.zeros(1, dtype=bool)
+    return ds["reference"].values == _NO_REFERENCE
 
 
 # What each figure shows, for the report (keyed by figure name without the measure suffix).

@@ -75,10 +75,10 @@ class Estimate:
     that need a DOP853 reference; reference_steps : their forecast steps (each capped at the
     budget); over_budget : cases whose reference would pass `REFERENCE_MAX_STEPS` (they get
     reference "none"). core_seconds : schemes and references together; longest_seconds : the
-    longest single reference, which no number of cores shortens; cores : this machine's.
-    peak_bytes : the process's peak memory. archive_bytes : the archive,
-    uncompressed (compression usually halves it); disk_bytes : parts and archive, both
-    present until the archive is written, with each file's overhead.
+    longest batch or reference on its own (a batch spreads over at most its bodies, a
+    reference over one core), which no number of cores shortens; cores : this machine's.
+    peak_bytes : the process's peak memory. archive_bytes : the archive, uncompressed
+    (compression usually halves it); the disk a sweep needs is `disk_needed`.
     """
 
     body_steps: int
@@ -90,7 +90,6 @@ class Estimate:
     cores: int
     peak_bytes: int
     archive_bytes: int
-    disk_bytes: int
 
     @property
     def wall_seconds(self):
@@ -130,8 +129,7 @@ def estimate(study, cores=None):
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
     return Estimate(body_steps, len(integrated), reference_steps, over_budget, seconds, longest,
-                    cores, PROCESS_BYTES + in_flight,
-                    study.bytes_per_case() * len(study.cases), disk_needed(study, study.batches))
+                    cores, PROCESS_BYTES + in_flight, study.bytes_per_case() * len(study.cases))
 
 
 def disk_needed(study, pending):

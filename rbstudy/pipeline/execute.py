@@ -365,6 +365,8 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
                 _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
             else:
                 _run_local(tasks, sizes, progress, cores, schemes)
+        # read back from disk, not taken from the tasks: the archive is built from what the
+        # folder holds (on a cluster, workers that cannot see it leave nothing there)
         digests.update({batch.id: part_complete(parts[batch.id], batch) for batch in pending})
         missing = [batch_id for batch_id, digest in digests.items() if digest is None]
         if missing:

@@ -20,6 +20,7 @@ a changed title is redescribed in place without touching the data (`store.refres
 import hashlib
 import json
 import pathlib
+from dataclasses import dataclass
 
 import netCDF4
 import numpy as np
@@ -27,8 +28,9 @@ import numpy as np
 from rbstudy.errors import InputError
 from rbstudy.pipeline.batches import ids_digest
 
-__all__ = ["file_digest", "seal_part", "part_digest", "archive_checksums", "seal_archive",
-           "verify_archive", "verify_file", "SIDECAR_SUFFIX", "ALGORITHM"]
+__all__ = ["file_digest", "sidecar", "sidecar_text", "sealed", "part_digest",
+           "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive", "verify_file",
+           "SIDECAR_SUFFIX", "ALGORITHM"]
 
 ALGORITHM = "sha256"
 SIDECAR_SUFFIX = ".sha256"
@@ -41,10 +43,6 @@ _SLAB_BYTES = 1 << 26
 # is redescribed in place.
 MEANING_ATTRIBUTES = ("study", "batches", "accuracy_bound")
 MEANING = "(global attributes)"
-# Words of `verify_archive`'s problems that say the content changed (the others say that it
-# cannot be checked).
-_DAMAGE = ("differs", "is missing", "was added", "do not name", "not what rbstudy writes",
-           "cannot be read")
 
 
 def file_digest(path):
@@ -56,23 +54,22 @@ def file_digest(path):
     return f"{ALGORITHM}:{digest.hexdigest()}"
 
 
-def _sidecar(path):
+def sidecar(path):
+    """Where the digest of the part at ``path`` is kept."""
     path = pathlib.Path(path)
     return path.with_name(path.name + SIDECAR_SUFFIX)
 
 
-def seal_part(temporary, path, write_text):
-    """The digest of the finished part ``temporary`` (about to be renamed to ``path``), and a
-    function that stores it beside ``path`` once the rename is done (a part without its
-    digest, after a kill between the two, is simply recomputed)."""
-    digest = file_digest(temporary)
-    return digest, lambda: write_text(f"{digest}  {pathlib.Path(path).name}\n", _sidecar(path))
+def sidecar_text(digest, path):
+    """The digest file's line, as ``sha256sum`` writes it (``sha256sum -c`` does not read the
+    ``sha256:`` prefix, but a reader sees which file and algorithm)."""
+    return f"{digest}  {pathlib.Path(path).name}\n"
 
 
 def sealed(path):
     """True when the part at ``path`` exists with its digest beside it (so that a part which
     fails `part_digest` then is damaged, not unfinished)."""
-    return pathlib.Path(path).exists() and _sidecar(path).exists()
+    return pathlib.Path(path).exists() and sidecar(path).exists()
 
 
 def part_digest(path):
@@ -80,7 +77,7 @@ def part_digest(path):
     writing, else None (no part, no digest, or any byte changed since)."""
     path = pathlib.Path(path)
     try:
-        stored = _sidecar(path).read_text().split()[0]
+        stored = sidecar(path).read_text().split()[0]
         return stored if file_digest(path) == stored else None
     except (OSError, IndexError, UnicodeDecodeError):
         return None
@@ -139,24 +136,37 @@ def _named(name):
             else f"variable {name}")
 
 
+@dataclass(frozen=True)
+class ArchiveCheck:
+    """What `verify_archive` found: ``problems`` (short phrases, none when intact);
+    ``provable`` False when the file cannot be checked at all (no checksums, not an archive)
+    rather than found changed; the ``variables`` and ``parts`` its checksums name."""
+
+    problems: tuple
+    provable: bool = True
+    variables: int = 0
+    parts: int = 0
+
+
 def verify_archive(path):
-    """Problems of the archive at ``path`` (empty when intact), each a short phrase: a
-    variable that differs from its checksum, or parts that are not the study's batches."""
+    """An `ArchiveCheck` of the archive at ``path``: every variable against its checksum, and
+    its parts against the study's batches."""
     try:
         with netCDF4.Dataset(path) as nc:
             attributes = set(nc.ncattrs())
             if "batch" in attributes and "case" in nc.dimensions:
-                return ["it is a part file without its digest beside it (its sweep stopped "
-                        "before sealing it)"]
+                return ArchiveCheck(("it is a part file without its digest beside it (its "
+                                     "sweep stopped before sealing it)",), provable=False)
             if not {"checksums", "part_checksums", "batches"} <= attributes:
-                return ["it carries no checksums (written by an rbstudy before 0.3, or not by "
-                        "rbstudy)"]
+                return ArchiveCheck(("it carries no checksums (written by an rbstudy before "
+                                     "0.3, or not by rbstudy)",), provable=False)
             stored, parts = (json.loads(nc.getncattr(name))
                              for name in ("checksums", "part_checksums"))
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
     except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:
-        return [f"it cannot be read as netCDF ({str(error).strip().splitlines()[0]})"]
+        return ArchiveCheck((f"it cannot be read as netCDF "
+                             f"({str(error).strip().splitlines()[0]})",))
     try:
         problems = [f"{_named(name)} differs from its checksum"
                     for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]
@@ -166,8 +176,9 @@ def verify_archive(path):
             problems.append("its part_checksums do not name the batches of its `batches` "
                             "attribute")
     except (TypeError, ValueError, AttributeError):
-        return ["its checksums attributes are not what rbstudy writes (edited?)"]
-    return problems
+        return ArchiveCheck(("its checksums attributes are not what rbstudy writes (edited?)",))
+    return ArchiveCheck(tuple(problems), variables=len(stored) - (MEANING in stored),
+                        parts=len(parts))
 
 
 def verify_file(path):
@@ -176,21 +187,20 @@ def verify_file(path):
     path = pathlib.Path(path)
     if not path.is_file():
         raise InputError("no such file", "give the <study>.nc written by rbstudy sweep", path)
-    if _sidecar(path).exists():
+    if sidecar(path).exists():
         if part_digest(path) is None:
             raise InputError("damaged: its bytes do not match the digest stored beside it",
                              "rerun its sweep: the part is recomputed", path)
         return "intact (a part; its bytes match its digest)"
-    problems = verify_archive(path)
-    if problems:
+    check = verify_archive(path)
+    if check.problems:
+        problems = check.problems
         shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more"
                                            if len(problems) > 3 else "")
-        if any(word in problems[0] for word in _DAMAGE):
-            raise InputError(f"damaged: {shown}", "rerun its sweep: a damaged archive is rebuilt",
-                             path)
-        raise InputError(f"cannot be proven intact: {shown}",
-                         "rerun its sweep with this rbstudy", path)
-    with netCDF4.Dataset(path) as nc:
-        variables = len(json.loads(nc.getncattr("checksums")))
-        parts = len(json.loads(nc.getncattr("part_checksums")))
-    return f"intact ({variables} variables match their SHA-256 checksums; built from {parts} parts)"
+        if not check.provable:
+            raise InputError(f"cannot be proven intact: {shown}",
+                             "rerun its sweep with this rbstudy", path)
+        raise InputError(f"damaged: {shown}", "rerun its sweep: a damaged archive is rebuilt",
+                         path)
+    return (f"intact ({check.variables} variables match their SHA-256 checksums; built from "
+            f"{check.parts} parts)")

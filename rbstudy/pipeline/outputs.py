@@ -213,16 +213,14 @@ def accuracy(batch):
     wrapped round by the end of the run still was one. A finished case with no reference and
     no drift past the bound is unjudged, not accurate."""
     results, bound = batch.run.results, batch.accuracy_bound
+    # NaN drifts (under moments: no conserved quantity) compare False: no drift past the bound
+    drifted = ((results["max_energy_error"] > bound)
+               | (results["max_momentum_magnitude_error"] > bound))
     with np.errstate(invalid="ignore"):
-        accurate = np.max(batch.orientation_error, axis=1) <= bound
-        for name in ("max_energy_error", "max_momentum_magnitude_error"):
-            accurate &= ~(results[name] > bound)  # NaN under moments: no conserved quantity
-    verdict = np.where(accurate, ACCURATE, INACCURATE)
-    drifted = np.zeros(len(verdict), dtype=bool)
-    for name in ("max_energy_error", "max_momentum_magnitude_error"):
-        drifted |= results[name] > bound
-    unknown = np.array([ref.name == "none" for ref in batch.references]) & ~drifted
-    verdict = np.where(unknown, UNJUDGED, verdict)
+        accurate = (np.max(batch.orientation_error, axis=1) <= bound) & ~drifted
+    unreferenced = np.array([ref.name == "none" for ref in batch.references])
+    verdict = np.where(accurate, ACCURATE,
+                       np.where(unreferenced & ~drifted, UNJUDGED, INACCURATE))
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
 

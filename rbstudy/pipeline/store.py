@@ -34,7 +34,14 @@ import yaml
 
 from rbstudy.errors import RbstudyError
 from rbstudy.pipeline.batches import batches_digest
-from rbstudy.pipeline.integrity import part_digest, seal_archive, seal_part, verify_archive
+from rbstudy.pipeline.integrity import (
+    file_digest,
+    part_digest,
+    seal_archive,
+    sidecar,
+    sidecar_text,
+    verify_archive,
+)
 from rbstudy.pipeline.variables import (
     COORDINATES,
     SCHEME_COORDINATES,
@@ -308,8 +315,8 @@ def archive_state(path, study):
     if batches != batches_digest(study.batches):
         return "outdated", []
     with HDF5_LOCK:
-        problems = verify_archive(path)
-    return ("damaged", problems) if problems else ("current", [])
+        problems = verify_archive(path).problems
+    return ("damaged", list(problems)) if problems else ("current", [])
 
 
 def part_complete(path, batch):
@@ -337,8 +344,9 @@ def write_part(dataset, path):
     digest beside it; returns the digest."""
     with _temporary_beside(path) as temporary, HDF5_LOCK:
         dataset.to_netcdf(temporary)
-        digest, store_digest = seal_part(temporary, path, write_text_atomic)
-    store_digest()
+        digest = file_digest(temporary)
+    # after the rename: a kill between the two leaves a part without digest, recomputed
+    write_text_atomic(sidecar_text(digest, path), sidecar(path))
     return digest
 
 
