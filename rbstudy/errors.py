@@ -21,11 +21,14 @@ class RbstudyError(Exception):
 class InputError(RbstudyError):
     """A bad input value: ``source`` (file) and ``key`` (path) where, ``message``, ``fix``.
 
-    Either place may be None while unknown; `located` fills them in.
+    Either place may be None while unknown; `located` fills them in. ``row`` is the scene of
+    a table (`rbstudy.physics.scenes.SceneTable`) the bad value belongs to, for the sweep to
+    name the case; None for a single value.
     """
 
-    def __init__(self, message, fix=None, source=None, key=None):
+    def __init__(self, message, fix=None, source=None, key=None, row=None):
         self.message, self.fix, self.source, self.key = message, fix, source, key
+        self.row = row
         super().__init__(str(self))
 
     def __str__(self):
@@ -43,7 +46,7 @@ class InputError(RbstudyError):
         if key and self.key:
             key = f"{key}: {self.key}"
         return (kind or type(self))(self.message, self.fix, self.source or source,
-                                    key or self.key)
+                                    key or self.key, self.row)
 
 
 class SceneError(InputError):

@@ -3,9 +3,15 @@
 Scenes, study configs and sweeps read their input through a `Reader`, so that every bad value
 fails the same way: an `rbstudy.errors.InputError` (of the reader's kind) naming the file, the
 key path, the value received and what is expected.
+
+A swept value arrives as a column: a numpy array with one entry per scene of a table
+(`rbstudy.physics.scenes.SceneTable`). Numbers are checked for the whole column at once; the
+first bad entry fails exactly as a single value would, with its row on the error.
 """
 
 import math
+
+import numpy as np
 
 from rbstudy.errors import InputError
 
@@ -18,17 +24,31 @@ class Reader:
     def __init__(self, source, kind=InputError):
         self.source, self.kind = source, kind
 
-    def fail(self, key, message, fix=None):
-        """Raise the error ``<source>: <key>: <message>; <fix>``."""
-        raise self.kind(message, fix, self.source, key or "(top level)")
+    def fail(self, key, message, fix=None, row=None):
+        """Raise the error ``<source>: <key>: <message>; <fix>`` (of the table row ``row``)."""
+        raise self.kind(message, fix, self.source, key or "(top level)", row)
 
     def locate(self, error, key=None):
         """``error`` (an `InputError` raised where the file and key were unknown) placed
         here, under ``key``, as this reader's kind."""
         return error.located(self.source, key, self.kind)
 
+    def _first_failure(self, column, rows, check):
+        """Run ``check`` on the entries ``rows`` of ``column``, one at a time: the first that
+        fails raises its error, marked with its row."""
+        entries = column.tolist()
+        for row in rows:
+            try:
+                check(entries[row])
+            except self.kind as error:
+                error.row = int(row)
+                raise
+
     def mapping(self, value, key, allowed):
         """``value`` as a mapping whose keys are all in ``allowed`` (None reads as empty)."""
+        if isinstance(value, np.ndarray):  # a swept number where a mapping belongs
+            self._first_failure(value, range(len(value)),
+                                lambda entry: self.mapping(entry, key, allowed))
         if value is None:
             return {}
         if not isinstance(value, dict):
@@ -40,7 +60,9 @@ class Reader:
         return value
 
     def number(self, value, key, positive=False):
-        """``value`` as a finite float (and > 0 when ``positive``)."""
+        """``value`` as a finite float (and > 0 when ``positive``); a column as a float array."""
+        if isinstance(value, np.ndarray):
+            return self._numbers(value, key, positive)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, f"expected a number, got {value!r:.80}")
         try:
@@ -53,6 +75,20 @@ class Reader:
             self.fail(key, f"must be > 0, got {value!r}")
         return number
 
+    def _numbers(self, column, key, positive):
+        """The column ``column`` (n,) as floats, each checked as `number` checks one."""
+        if column.dtype.kind in "iuf":
+            numbers = column.astype(float)
+            with np.errstate(invalid="ignore"):
+                bad = ~np.isfinite(numbers) | (positive & (numbers <= 0.0))
+            if not bad.any():
+                return numbers
+            rows = np.flatnonzero(bad)
+        else:  # names or flags among the values
+            rows = range(len(column))
+        self._first_failure(column, rows, lambda entry: self.number(entry, key, positive))
+        return column.astype(float)  # numbers only, held as objects
+
     def count(self, value, key, maximum=None):
         """``value`` as a whole number >= 1 (and at most ``maximum``)."""
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -62,13 +98,18 @@ class Reader:
         return value
 
     def vector(self, value, key, length=3):
-        """``value`` as a tuple of ``length`` finite floats."""
+        """``value`` as a tuple of ``length`` finite floats (a swept entry: a float array)."""
+        if isinstance(value, np.ndarray):  # a swept number where a list belongs
+            self._first_failure(value, range(len(value)),
+                                lambda entry: self.vector(entry, key, length))
         if not isinstance(value, (list, tuple)) or len(value) != length:
             self.fail(key, f"expected a list of {length} numbers, got {value!r}")
         return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
 
     def flag(self, value, key):
         """``value`` as true or false."""
+        if isinstance(value, np.ndarray):  # sweep values are numbers or names, never flags
+            self._first_failure(value, range(len(value)), lambda entry: self.flag(entry, key))
         if not isinstance(value, bool):
             self.fail(key, f"expected true or false, got {value!r}")
         return value

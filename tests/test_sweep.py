@@ -9,6 +9,7 @@ from conftest import write_study
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import ConfigError
+from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline import estimate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import SCHEMES
@@ -84,6 +85,68 @@ def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
     # never put an old part in new cells
     reordered = load_study(write_study(tmp_path, sweep={**sweep, "dt": [0.005, 0.01]}))
     assert not {b.id for b in reordered.batches} & {b.id for b in first.batches}
+
+
+# A body given by a full inertia tensor (principal axes not the input axes), its momentum
+# along a tilted space axis and a body moment: every frame change a scene makes.
+_TURNED_BODY = {
+    "body": {"mass": 1.0, "inertia": [[2.0, 0.1, 0.0], [0.1, 1.5, 0.0], [0.0, 0.0, 1.0]]},
+    "initial": {"angular_velocity": {"body": [0.3, 0.0, 2.0]},
+                "orientation": {"momentum_axis": [0.0, 1.0, 1.0]}},
+    "loads": {"moment_body": [0.0, 0.0, 0.0]},
+    "duration": 0.5,
+}
+
+
+def test_the_scenes_of_a_sweep_are_each_case_read_alone(tmp_path):
+    """The sweep reads its scenes as columns, all at once; each must be the scene its case's
+    own mapping gives, and the physics of the short names must hold in it."""
+    study = load_study(write_study(tmp_path, scene=_TURNED_BODY, sweep={
+        "scheme": ["rk4", "leapfrog"],
+        "scene.body.inertia.0.0": [2.0, 2.2],
+        "scene.loads.moment_body.2": [0.0, 0.5],
+        "zip": {"spin_tilt": {"spin": [1.0, 3.0], "tilt": [10.0, 40.0]}}}))
+    assert len(study.cases) == 16 and len(study.cases.scenes) == 8  # the schemes share them
+    for case in study.cases:
+        _, entry, moment, pair = case.index
+        spin, tilt = (1.0, 3.0)[pair], math.radians((10.0, 40.0)[pair])
+        alone = {**_TURNED_BODY,
+                 "body": {"mass": 1.0, "inertia": [[(2.0, 2.2)[entry], 0.1, 0.0],
+                                                   [0.1, 1.5, 0.0], [0.0, 0.0, 1.0]]},
+                 "initial": {"angular_velocity": {"body": [spin * math.sin(tilt), 0.0,
+                                                           spin * math.cos(tilt)]},
+                             "orientation": {"momentum_axis": [0.0, 1.0, 1.0]}},
+                 "loads": {"moment_body": [0.0, 0.0, (0.0, 0.5)[moment]]}}
+        expected = scene_from_mapping(alone)
+        for field in ("quaternion", "omega_body"):
+            assert np.allclose(getattr(case.scene, field), getattr(expected, field),
+                               rtol=0.0, atol=1e-14), field
+        assert case.scene.body.inertia == pytest.approx(expected.body.inertia, rel=1e-15)
+        assert np.allclose(case.scene.loads.moment_body, expected.loads.moment_body,
+                           rtol=0.0, atol=1e-15)
+        w = np.array(case.scene.omega_body)
+        assert math.isclose(np.linalg.norm(w), spin, rel_tol=1e-14)
+        space_momentum = Rotation.from_quat(case.scene.quaternion).apply(
+            np.array(case.scene.body.inertia) * w)
+        assert np.allclose(space_momentum / np.linalg.norm(space_momentum),
+                           [0.0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-14)
+        assert math.isclose(np.linalg.norm(case.scene.loads.moment_body), (0.0, 0.5)[moment],
+                            abs_tol=1e-15)
+
+
+def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path):
+    """The third spin overflows the body's energy: the error names that spin (and the first
+    mass, the first case it fails in), not the first case of the grid; the scheme, which
+    does not make the scene, is left out."""
+    path = write_study(tmp_path, sweep={"scheme": ["rk4", "euler"],
+                                        "spin": [1.0, 2.0, 1.0e200],
+                                        "scene.body.mass": [1.0, 2.0]})
+    with pytest.raises(ConfigError) as error:
+        load_study(path)
+    assert str(error.value) == (
+        f"{path}: sweep (spin[2] = 1e+200, body_mass[0] = 1.0): "
+        "scene.initial.angular_velocity.body: so large that the body's energy overflows a "
+        "float; give a smaller angular velocity")
 
 
 @pytest.mark.parametrize("sweep, message", [

@@ -12,7 +12,7 @@ only (nothing here integrates, so the figures may draw a closed form without a c
 - the flip interval of a free asymmetric body and the precession frequency of a free
   symmetric one.
 
-`reference_kind` names the reference of a scene: one of the closed forms, or ``dop853``
+`reference_kinds` names the reference of each scene: one of the closed forms, or ``dop853``
 (scipy's DOP853 at rtol = atol = 1e-13, computed by `rbstudy.physics.references`) for
 everything else (asymmetric bodies, body-fixed forces, space moments).
 """
@@ -26,7 +26,7 @@ from scipy.special import ellipk
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
 __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
-           "reference_kind", "symmetric_top", "axial_moment", "parabola",
+           "reference_kind", "reference_kinds", "symmetric_top", "axial_moment", "parabola",
            "precession_frequency_exact", "flip_interval_exact"]
 
 # Every reference an archive can name, in the order of their codes in the archive's
@@ -71,14 +71,17 @@ def symmetry_axis(inertia):
 
 
 def symmetrised(inertia):
-    """The principal inertias (3,) with the two transverse moments of a symmetric body set to
-    their mean, so that equality is exact wherever it is used; an asymmetric body as it is."""
-    axis = symmetry_axis(inertia)
-    if axis is None:
-        return tuple(float(v) for v in inertia)
-    transverse = ((axis + 1) % 3, (axis + 2) % 3)
-    mean = 0.5 * (inertia[transverse[0]] + inertia[transverse[1]])
-    return tuple(mean if k in transverse else float(inertia[k]) for k in range(3))
+    """The principal inertias (..., 3) with the two transverse moments of each symmetric body
+    set to their mean, so that equality is exact wherever it is used; an asymmetric body as it
+    is. Returns a new float array."""
+    inertia = np.array(inertia, dtype=float)
+    axis = symmetry_axes(inertia)
+    for k in range(3):
+        first, second = (k + 1) % 3, (k + 2) % 3
+        mean = 0.5 * (inertia[..., first] + inertia[..., second])
+        inertia[..., first] = np.where(axis == k, mean, inertia[..., first])
+        inertia[..., second] = np.where(axis == k, mean, inertia[..., second])
+    return inertia
 
 
 def symmetric_top(inertia, quaternion0, omega0, times):
@@ -127,8 +130,8 @@ def axial_moment(inertia, quaternion0, omega0, moment_body, times):
     Requires ``omega0`` and ``moment_body`` (3,) to have non-zero entries only at the same
     axis ``k``. Returns quaternion (T, 4) and omega_body (T, 3).
     """
-    k = _axial_index(omega0, moment_body)
-    if k is None:
+    k = int(_axial_indices([omega0], [moment_body])[0])
+    if k < 0:
         raise ValueError("omega0 and the moment must both lie along one principal axis")
     times = np.asarray(times, dtype=float)
     rate = moment_body[k] / inertia[k]
@@ -140,22 +143,32 @@ def axial_moment(inertia, quaternion0, omega0, moment_body, times):
     return (Rotation.from_quat(quaternion0) * Rotation.from_rotvec(turn)).as_quat(), omega
 
 
-def _axial_index(omega0, moment_body):
-    support = [k for k in range(3) if omega0[k] != 0.0 or moment_body[k] != 0.0]
-    return support[0] if len(support) == 1 else None
+def _axial_indices(omega0, moment_body):
+    """(n,) the one principal axis that ``omega0`` and ``moment_body`` (n, 3) both lie along,
+    or -1 where they do not."""
+    support = (np.asarray(omega0) != 0.0) | (np.asarray(moment_body) != 0.0)
+    return np.where(support.sum(axis=-1) == 1, support.argmax(axis=-1), -1)
+
+
+def reference_kinds(inertia, omega_body, force_body, moment_space, moment_body):
+    """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the closed form
+    that applies to its rotation and centre of mass, else ``dop853``. Arguments are the
+    scenes' principal inertias, initial body angular velocities and loads, each (n, 3)."""
+    pushed = np.any(np.asarray(force_body) != 0.0, axis=-1)
+    turned_in_space = np.any(np.asarray(moment_space) != 0.0, axis=-1)
+    moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
+    axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
+    return np.where(
+        pushed, "dop853",  # the force turns with the body: translation and rotation couple
+        np.where(moment_free & (symmetry_axes(inertia) >= 0), "symmetric_top",
+                 np.where(axial, "axial_moment", "dop853")))
 
 
 def reference_kind(scene):
-    """The reference of a scene, one of `REFERENCE_KINDS`: the closed form that applies to
-    its rotation and centre of mass, else ``dop853``."""
+    """`reference_kinds` of one `rbstudy.physics.scenes.Scene`."""
     loads = scene.loads
-    if any(loads.force_body):
-        return "dop853"  # the force turns with the body: translation and rotation couple
-    if loads.moment_free and scene.body.symmetry_axis is not None:
-        return "symmetric_top"
-    if not any(loads.moment_space) and _axial_index(scene.omega_body, loads.moment_body) is not None:
-        return "axial_moment"
-    return "dop853"
+    return str(reference_kinds([scene.body.inertia], [scene.omega_body], [loads.force_body],
+                               [loads.moment_space], [loads.moment_body])[0])
 
 
 def precession_frequency_exact(scene):

@@ -1,6 +1,6 @@
 """References: the best available solution of each scene on an output grid, and its name.
 
-A closed form where one applies (`rbstudy.physics.analytic.reference_kind`), scipy's DOP853
+A closed form where one applies (`rbstudy.physics.analytic.reference_kinds`), scipy's DOP853
 at rtol = atol = 1e-13 otherwise, within a step budget. This module sits above the schemes
 because the fallback integrates; the closed forms themselves stay numba-free in `analytic`.
 """
@@ -14,7 +14,7 @@ from rbstudy.numerics.driver import HALT_FLAG, Halted
 from rbstudy.physics.analytic import (
     axial_moment,
     parabola,
-    reference_kind,
+    reference_kinds,
     symmetric_top,
 )
 from rbstudy.schemes import dop853
@@ -96,7 +96,10 @@ def reference_solutions(scenes, times, output_interval=None):
     DOP853 is needed (``output_interval`` = d, default ``times[1] - times[0]``).
     """
     times = np.asarray(times, dtype=float)
-    kinds = [reference_kind(scene) for scene in scenes]
+    kinds = reference_kinds(
+        [scene.body.inertia for scene in scenes], [scene.omega_body for scene in scenes],
+        *([getattr(scene.loads, name) for scene in scenes]
+          for name in ("force_body", "moment_space", "moment_body")))
     found = {}
     for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]

@@ -5,6 +5,10 @@ a frozen `Scene` that holds everything in the principal body frame, SI units, re
 one state row and one parameter row (`rbstudy.numerics.state`). Non-physical input is
 rejected with a `SceneError` naming the source, the key path, the value and the fix.
 
+The scenes of a sweep share one mapping whose swept leaves are columns (numpy arrays, one
+entry per scene): `scene_table` reads and checks them all at once into a `SceneTable`, whose
+``scene(i)`` is the i-th `Scene`. One scene is a table of one: there is one reader.
+
 Frames: when the inertia is given as a full 3x3 tensor, the body vectors of the input
 (angular velocity in body axes, node offsets, body loads) are in that tensor's frame; the
 scene turns them into the principal frame, and the orientation it stores is the principal
@@ -20,10 +24,11 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
-from rbstudy.physics.analytic import symmetrised, symmetry_axis
+from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.reader import Reader
 
-__all__ = ["Body", "Loads", "Scene", "scene_from_mapping", "momentum_aligned", "TRIANGLE_RTOL"]
+__all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
+           "momentum_aligned", "TRIANGLE_RTOL"]
 
 # Inertias that meet the triangle inequality with equality (the thin flat disk I3 = I1 + I2 of
 # the Abaqus benchmark) are physical; this relative slack absorbs the round-off of a
@@ -31,6 +36,15 @@ __all__ = ["Body", "Loads", "Scene", "scene_from_mapping", "momentum_aligned", "
 TRIANGLE_RTOL = 1e-9
 
 _ORIENTATION_FORMS = ("euler_zxz_deg", "quaternion", "rotation_vector", "momentum_axis")
+_LOADS = ("force_space", "force_body", "moment_space", "moment_body", "gravity")
+_FORCES = ("force_space", "force_body", "gravity")
+_MOMENTS = ("moment_space", "moment_body")
+_IN_BODY_AXES = ("force_body", "moment_body")
+
+
+def _acting(*vectors):
+    """Whether any of ``vectors`` (each (..., 3)) has a non-zero entry: a bool, or (...,)."""
+    return np.any(np.stack(np.broadcast_arrays(*vectors)) != 0.0, axis=(0, -1))
 
 
 @dataclass(frozen=True)
@@ -46,13 +60,13 @@ class Body:
     @property
     def physical(self):
         """True when the principal inertias meet the triangle inequalities."""
-        return _triangle_ok(self.inertia)
+        return bool(_triangle_ok(np.array(self.inertia)))
 
     def __post_init__(self):
         # symmetry is decided once (`rbstudy.physics.analytic.symmetry_axis`); a symmetric
         # body's two transverse moments are made exactly equal here, so that the integrated
         # body and its closed form are the same body
-        object.__setattr__(self, "inertia", symmetrised(self.inertia))
+        object.__setattr__(self, "inertia", tuple(symmetrised(self.inertia).tolist()))
 
     @cached_property
     def symmetry_axis(self):
@@ -77,11 +91,11 @@ class Loads:
 
     @property
     def moment_free(self):
-        return not any(self.moment_space) and not any(self.moment_body)
+        return not _acting(self.moment_space, self.moment_body)
 
     @property
     def force_free(self):
-        return not any(self.force_space) and not any(self.force_body) and not any(self.gravity)
+        return not _acting(self.force_space, self.force_body, self.gravity)
 
 
 @dataclass(frozen=True)
@@ -106,7 +120,7 @@ class Scene:
     @property
     def translates(self):
         """True when the centre of mass moves (initial velocity or a force)."""
-        return any(self.velocity) or not self.loads.force_free
+        return bool(_acting(self.velocity, *(getattr(self.loads, name) for name in _FORCES)))
 
     def state_row(self):
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
@@ -134,44 +148,133 @@ class Scene:
         return replace(self, **changes)
 
 
+@dataclass(frozen=True)
+class SceneTable:
+    """Scenes of one structure (the same keys, node names and duration), read and checked at
+    once: the distinct scenes of a sweep. ``scene(i)`` is the i-th as a `Scene`.
+
+    mass : (n,) kg. inertia : (n, 3) principal, kg m^2, symmetrised. quaternion : (n, 4).
+    omega_body, position, velocity : (n, 3), as in `Scene`. loads : name of a `Loads` field ->
+    (n, 3). nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves alone may be read-only
+    broadcast views.
+    """
+
+    mass: np.ndarray
+    inertia: np.ndarray
+    allow_unphysical: bool
+    quaternion: np.ndarray
+    omega_body: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    loads: dict
+    nodes: np.ndarray
+    node_names: tuple
+    duration: float
+
+    def __len__(self):
+        return len(self.mass)
+
+    def scene(self, i):
+        """The scene of row ``i``."""
+        return Scene(
+            body=Body(mass=float(self.mass[i]), inertia=tuple(self.inertia[i].tolist()),
+                      allow_unphysical=self.allow_unphysical),
+            quaternion=tuple(self.quaternion[i].tolist()),
+            omega_body=tuple(self.omega_body[i].tolist()),
+            position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
+            nodes=np.array(self.nodes[i]), node_names=self.node_names,
+            loads=Loads(**{name: tuple(column[i].tolist()) for name, column in self.loads.items()}),
+            duration=self.duration)
+
+    @property
+    def symmetry_axes(self):
+        """(n,) the symmetry axis of each body, -1 for an asymmetric one
+        (`rbstudy.physics.analytic.symmetry_axes`)."""
+        return symmetry_axes(self.inertia)
+
+    @property
+    def reference_kinds(self):
+        """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
+        return reference_kinds(self.inertia, self.omega_body,
+                               *(self.loads[name] for name in ("force_body", "moment_space",
+                                                               "moment_body")))
+
+    @property
+    def moment_free(self):
+        """(n,) True where no moment acts."""
+        return ~_acting(*(self.loads[name] for name in _MOMENTS))
+
+    @property
+    def translates(self):
+        """(n,) True where the centre of mass moves (initial velocity or a force)."""
+        return _acting(self.velocity, *(self.loads[name] for name in _FORCES))
+
+
 def _triangle_ok(inertia):
-    i1, i2, i3 = inertia
+    """Whether principal inertias (..., 3) meet the triangle inequalities: a bool, or (...,)."""
+    i1, i2, i3 = np.moveaxis(inertia, -1, 0)
     slack = TRIANGLE_RTOL * (i1 + i2 + i3)
-    return i1 + i2 >= i3 - slack and i2 + i3 >= i1 - slack and i3 + i1 >= i2 - slack
+    return (i1 + i2 >= i3 - slack) & (i2 + i3 >= i1 - slack) & (i3 + i1 >= i2 - slack)
 
 
-def _read_body(reader, spec, path):
+def _refuse(reader, bad, key, message, fix=None):
+    """Fail at the first row where ``bad`` (n,) holds; ``message(row)`` names its value."""
+    if bad.any():
+        row = int(np.argmax(bad))
+        reader.fail(key, message(row), fix, row=row)
+
+
+def _rows(vector, size):
+    """A vector as the reader returns it (floats and columns) -> (size, len) floats."""
+    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in vector],
+                    axis=-1)
+
+
+def _in_principal(axes, vectors):
+    """Input-frame vectors (n, ..., 3) in the principal frame (``axes`` (n, 3, 3) as columns,
+    None for the identity)."""
+    if axes is None:
+        return vectors
+    return np.einsum("nji,n...j->n...i", axes, vectors)
+
+
+def _read_body(reader, spec, path, size):
+    """mass (n,), principal inertias (n, 3), principal axes (n, 3, 3) (None when principal
+    inertias were given) and the allow_unphysical flag."""
     spec = reader.mapping(spec, path, ("mass", "inertia", "allow_unphysical"))
     if "inertia" not in spec:
         reader.fail(f"{path}.inertia", "missing", "give principal inertias [I1, I2, I3] in kg m^2")
-    mass = reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True)
+    mass = np.broadcast_to(reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True),
+                           (size,))
     allow = reader.flag(spec.get("allow_unphysical", False), f"{path}.allow_unphysical")
     raw = spec["inertia"]
+    key = f"{path}.inertia"
     if isinstance(raw, (list, tuple)) and len(raw) == 3 and all(isinstance(r, (list, tuple)) for r in raw):
-        tensor = np.array([reader.vector(row, f"{path}.inertia[{i}]") for i, row in enumerate(raw)])
-        if not np.allclose(tensor, tensor.T, rtol=1e-12, atol=0.0):
-            reader.fail(f"{path}.inertia", "the inertia tensor must be symmetric")
-        values, axes = np.linalg.eigh(tensor)
-        if np.linalg.det(axes) < 0:
-            axes[:, 2] *= -1.0
-        inertia = tuple(float(v) for v in values)
-        if min(inertia) <= 0.0:
-            reader.fail(f"{path}.inertia",
-                        f"principal inertias must be > 0, got {[round(v, 12) for v in inertia]}")
+        tensor = np.stack([_rows(reader.vector(row, f"{key}[{i}]"), size)
+                           for i, row in enumerate(raw)], axis=-2)
+        _refuse(reader, ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
+                                           atol=0.0), axis=(-2, -1)),
+                key, lambda row: "the inertia tensor must be symmetric")
+        inertia, axes = np.linalg.eigh(tensor)
+        axes[np.linalg.det(axes) < 0, :, 2] *= -1.0
+        _refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
+                f"be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}")
     else:
-        inertia = reader.vector(raw, f"{path}.inertia")
-        axes = np.eye(3)
-        for i, value in enumerate(inertia):
-            if value <= 0.0:
-                reader.fail(f"{path}.inertia[{i}]", f"must be > 0 kg m^2, got {value!r}")
-    if not allow and not _triangle_ok(inertia):
-        reader.fail(f"{path}.inertia",
-                    f"{list(inertia)} violates the triangle inequality I1 + I2 >= I3 (and cyclic): "
-                    "no rigid body has it", "set allow_unphysical: true for a numerical stress body")
-    return Body(mass=mass, inertia=inertia, axes=axes, allow_unphysical=allow)
+        inertia = _rows(reader.vector(raw, key), size)
+        axes = None
+        for i, moments in enumerate(inertia.T):
+            _refuse(reader, moments <= 0.0, f"{key}[{i}]",
+                    lambda row, moments=moments: f"must be > 0 kg m^2, got {float(moments[row])!r}")
+    if not allow:
+        _refuse(reader, ~_triangle_ok(inertia), key,
+                lambda row: f"{inertia[row].tolist()} violates the triangle inequality I1 + I2 "
+                            ">= I3 (and cyclic): no rigid body has it",
+                "set allow_unphysical: true for a numerical stress body")
+    return mass, symmetrised(inertia), axes, allow
 
 
-def _read_orientation(reader, spec, path, body_momentum):
+def _read_orientation(reader, spec, path, body_momentum, size):
+    """The orientations of the input body frames, a `Rotation` of ``size``."""
     spec = reader.mapping(spec, path, _ORIENTATION_FORMS + ("phi_deg",))
     forms = [key for key in _ORIENTATION_FORMS if key in spec]
     if len(forms) > 1:
@@ -179,21 +282,22 @@ def _read_orientation(reader, spec, path, body_momentum):
     if "phi_deg" in spec and forms != ["momentum_axis"]:
         reader.fail(f"{path}.phi_deg", "only goes with momentum_axis")
     if not forms:
-        return Rotation.identity()
+        return Rotation.identity(size)
     form = forms[0]
     key = f"{path}.{form}"
     if form == "euler_zxz_deg":
-        return Rotation.from_euler("ZXZ", reader.vector(spec[form], key), degrees=True)
+        return Rotation.from_euler("ZXZ", _rows(reader.vector(spec[form], key), size),
+                                   degrees=True)
     if form == "quaternion":
-        quaternion = np.array(reader.vector(spec[form], key, length=4))
-        if np.linalg.norm(quaternion) == 0.0:
-            reader.fail(key, "a zero quaternion is no rotation")
+        quaternion = _rows(reader.vector(spec[form], key, length=4), size)
+        _refuse(reader, np.linalg.norm(quaternion, axis=-1) == 0.0, key,
+                lambda row: "a zero quaternion is no rotation")
         return Rotation.from_quat(quaternion)
     if form == "rotation_vector":
-        return Rotation.from_rotvec(reader.vector(spec[form], key))
-    axis = np.array(reader.vector(spec[form], key))
-    if np.linalg.norm(axis) == 0.0:
-        reader.fail(key, "the momentum axis must be a non-zero vector")
+        return Rotation.from_rotvec(_rows(reader.vector(spec[form], key), size))
+    axis = _rows(reader.vector(spec[form], key), size)
+    _refuse(reader, np.linalg.norm(axis, axis=-1) == 0.0, key,
+            lambda row: "the momentum axis must be a non-zero vector")
     if body_momentum is None:
         reader.fail(key, "needs the angular velocity in body axes (initial.angular_velocity.body)")
     phi = reader.number(spec.get("phi_deg", 0.0), f"{path}.phi_deg")
@@ -201,64 +305,63 @@ def _read_orientation(reader, spec, path, body_momentum):
 
 
 def momentum_aligned(body_momentum, axis, phi_deg=0.0):
-    """The orientation that puts ``L = R m`` along the space ``axis`` (the Abaqus set-up).
+    """The orientations that put ``L = R m`` along the space ``axis`` (the Abaqus set-up).
 
-    ``body_momentum`` (3,) is ``m = I w`` in body axes.
+    ``body_momentum`` (n, 3) is ``m = I w`` in body axes; ``axis`` (n, 3) or (3,);
+    ``phi_deg`` a number or (n,). Returns a `Rotation` of n.
 
     In z-x-z Euler angles about the momentum direction: ``theta = acos(m3/|m|)``,
     ``psi = atan2(m1, m2)``, ``phi`` free (default 0); then the frame is turned so that the
     space z axis goes to ``axis``. For the Abaqus top this gives (0, 1.1397 deg, 90 deg).
     """
     m = np.asarray(body_momentum, dtype=float)
-    size = np.linalg.norm(m)
-    if size == 0.0:
-        theta = psi = 0.0
-    else:
-        theta = math.acos(max(-1.0, min(1.0, m[2] / size)))
-        psi = math.atan2(m[0], m[1])
-    in_z = Rotation.from_euler("ZXZ", [math.radians(phi_deg), theta, psi])
-    return _align_z(np.asarray(axis, dtype=float)) * in_z
+    size = np.linalg.norm(m, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a body at rest: no tilt
+        theta = np.where(size == 0.0, 0.0, np.arccos(np.clip(m[:, 2] / size, -1.0, 1.0)))
+    psi = np.arctan2(m[:, 0], m[:, 1])
+    phi = np.broadcast_to(np.radians(phi_deg), theta.shape)
+    in_z = Rotation.from_euler("ZXZ", np.stack([phi, theta, psi], axis=-1))
+    return _align_z(np.broadcast_to(np.asarray(axis, dtype=float), m.shape)) * in_z
 
 
 def _align_z(axis):
-    """The smallest rotation taking the space z axis to ``axis``."""
-    target = axis / np.linalg.norm(axis)
+    """The smallest rotations taking the space z axis to each ``axis`` (n, 3) (a target within
+    `numpy.isclose` of +z is the identity, of -z a half turn about x)."""
+    target = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     z = np.array([0.0, 0.0, 1.0])
-    if np.allclose(target, z):
-        return Rotation.identity()
-    if np.allclose(target, -z):
-        return Rotation.from_rotvec([math.pi, 0.0, 0.0])
+    up = np.all(np.isclose(target, z), axis=-1)
+    down = np.all(np.isclose(target, -z), axis=-1)
     turn = np.cross(z, target)
-    return Rotation.from_rotvec(turn / np.linalg.norm(turn) * math.acos(np.clip(target[2], -1, 1)))
+    length = np.linalg.norm(turn, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rotvec = turn / length * np.arccos(np.clip(target[:, 2:], -1.0, 1.0))
+    rotvec[up] = 0.0
+    rotvec[down] = (math.pi, 0.0, 0.0)
+    return Rotation.from_rotvec(rotvec)
 
 
-def _read_nodes(reader, spec, path):
+def _read_nodes(reader, spec, path, size):
+    """Node names (N,) and offsets (n, N, 3) in the input body frame."""
     if spec is None:
-        return (), np.zeros((0, 3))
+        return (), np.zeros((size, 0, 3))
     if not isinstance(spec, dict):
         reader.fail(path, f"expected a mapping of node name -> [x, y, z] offset in m, got {spec!r}")
     names = tuple(str(name) for name in spec)
-    offsets = np.array([reader.vector(v, f"{path}.{k}") for k, v in spec.items()]).reshape(-1, 3)
-    return names, offsets
+    offsets = [_rows(reader.vector(v, f"{path}.{k}"), size) for k, v in spec.items()]
+    return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
-def _energy_representable(body, omega):
-    """True when ``|w|^2 max(I)``, a bound on twice the rotational energy, is a finite float."""
-    with np.errstate(over="ignore"):
-        return bool(np.isfinite(np.dot(omega, omega) * max(body.inertia)))
-
-
-def scene_from_mapping(spec, source="<scene>", path="scene"):
-    """Build a `Scene` from a mapping such as the ``scene:`` block of a study YAML.
+def scene_table(spec, source="<scene>", path="scene", size=1):
+    """Build a `SceneTable` of ``size`` scenes from one mapping such as the ``scene:`` block
+    of a study YAML, whose swept leaves are columns of ``size`` (module docstring).
 
     Raises `SceneError` for unknown keys, wrong types, non-finite numbers, non-positive mass
     or inertia, and inertias that violate the triangle inequality (unless
-    ``body.allow_unphysical`` is true).
+    ``body.allow_unphysical`` is true), on the first bad row of a column (its ``row``).
     """
     reader = Reader(source, SceneError)
     spec = reader.mapping(spec, path, ("body", "initial", "nodes", "loads", "duration"))
-    body = _read_body(reader, spec.get("body"), f"{path}.body")
-    to_principal = body.axes.T  # input body frame -> principal frame
+    mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
 
     initial_path = f"{path}.initial"
     initial = reader.mapping(spec.get("initial"), initial_path,
@@ -267,43 +370,45 @@ def scene_from_mapping(spec, source="<scene>", path="scene"):
     omega = reader.mapping(initial.get("angular_velocity"), omega_path, ("body", "space"))
     if len(omega) > 1:
         reader.fail(omega_path, "give the angular velocity in body or in space axes, not both")
-    omega_input = (np.array(reader.vector(omega["body"], f"{omega_path}.body"))
-                   if "body" in omega else None)
-    for frame in omega:
-        key = f"{omega_path}.{frame}"
-        if not _energy_representable(body, np.array(reader.vector(omega[frame], key))):
-            reader.fail(key, "so large that the body's energy overflows a float",
-                        "give a smaller angular velocity")
-    omega_principal = np.zeros(3) if omega_input is None else to_principal @ omega_input
-    tensor = body.axes @ np.diag(body.inertia) @ body.axes.T  # in the input body frame
-    momentum_input = None if omega_input is None else tensor @ omega_input
+    given = {frame: _rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size)
+             for frame in omega}
+    for frame, vector in given.items():
+        with np.errstate(over="ignore"):  # |w|^2 max(I) bounds twice the energy
+            energy = np.einsum("ni,ni->n", vector, vector) * inertia.max(axis=-1)
+        _refuse(reader, ~np.isfinite(energy), f"{omega_path}.{frame}",
+                lambda row: "so large that the body's energy overflows a float",
+                "give a smaller angular velocity")
+    omega_principal = _in_principal(axes, given["body"]) if "body" in given else np.zeros((size, 3))
+    # m = I w in the input body frame, for a momentum-aligned orientation
+    momentum_input = (None if "body" not in given else omega_principal * inertia if axes is None
+                      else np.einsum("nij,nj->ni", axes, omega_principal * inertia))
     input_rotation = _read_orientation(reader, initial.get("orientation"),
-                                       f"{initial_path}.orientation", momentum_input)
-    principal_rotation = (input_rotation if np.array_equal(body.axes, np.eye(3))
-                          else input_rotation * Rotation.from_matrix(body.axes))
-    if "space" in omega:
-        omega_space = np.array(reader.vector(omega["space"], f"{omega_path}.space"))
-        omega_principal = principal_rotation.inv().apply(omega_space)
+                                       f"{initial_path}.orientation", momentum_input, size)
+    principal_rotation = (input_rotation if axes is None
+                          else input_rotation * Rotation.from_matrix(axes))
+    if "space" in given:
+        omega_principal = principal_rotation.inv().apply(given["space"])
 
     loads_path = f"{path}.loads"
-    loads_spec = reader.mapping(spec.get("loads"), loads_path,
-                                ("force_space", "force_body", "moment_space", "moment_body",
-                                 "gravity"))
-    loads_values = {key: reader.vector(value, f"{loads_path}.{key}")
-                    for key, value in loads_spec.items()}
-    for key in ("force_body", "moment_body"):
-        if key in loads_values:
-            loads_values[key] = tuple(to_principal @ np.array(loads_values[key]))
-    names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes")
-    duration = reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True)
-    return Scene(
-        body=body,
-        quaternion=tuple(principal_rotation.as_quat()),
-        omega_body=tuple(float(v) for v in omega_principal),
-        position=reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"),
-        velocity=reader.vector(initial.get("velocity", [0, 0, 0]), f"{initial_path}.velocity"),
-        nodes=offsets @ to_principal.T,
-        node_names=names,
-        loads=Loads(**loads_values),
-        duration=duration,
-    )
+    loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS)
+    loads = {name: (_rows(reader.vector(loads_spec[name], f"{loads_path}.{name}"), size)
+                    if name in loads_spec else np.zeros((size, 3))) for name in _LOADS}
+    for name in _IN_BODY_AXES:
+        loads[name] = _in_principal(axes, loads[name])
+    names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
+    return SceneTable(
+        mass=mass, inertia=inertia, allow_unphysical=allow,
+        quaternion=principal_rotation.as_quat().reshape(size, 4),
+        omega_body=omega_principal,
+        position=_rows(reader.vector(initial.get("position", [0, 0, 0]),
+                                     f"{initial_path}.position"), size),
+        velocity=_rows(reader.vector(initial.get("velocity", [0, 0, 0]),
+                                     f"{initial_path}.velocity"), size),
+        loads=loads, nodes=_in_principal(axes, offsets), node_names=names,
+        duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True))
+
+
+def scene_from_mapping(spec, source="<scene>", path="scene"):
+    """Build one `Scene` from a mapping such as the ``scene:`` block of a study YAML (see
+    `scene_table`: a table of one)."""
+    return scene_table(spec, source, path).scene(0)

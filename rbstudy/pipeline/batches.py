@@ -2,18 +2,21 @@
 named by a hash of what its part file holds.
 
 A batch is the unit of work for dask and of storage. Its id is ``<scheme>_dt<dt>_<hash>``, the
-hash of the canonical JSON (numbers normalised) of its cases, their grid positions, the grid,
-the output grid, the stored variables, `SCHEMA_VERSION` and the digest of rbstudy's sources:
-the same config and code give the same ids, anything else new ids, never a silent mix.
+hash of the canonical JSON (numbers normalised) of what makes its cases: the study's scene
+mapping, the grid, the batch's grid positions and runs (scheme, dt, options), the output grid,
+the stored variables, `SCHEMA_VERSION` and the digest of rbstudy's sources: the same config
+and code give the same ids, anything else new ids, never a silent mix.
 """
 
 import hashlib
 import json
 from dataclasses import dataclass
 
+import numpy as np
+
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
-__all__ = ["Batch", "plan_batches", "canonical_id", "scene_key", "batches_digest", "ids_digest",
+__all__ = ["Batch", "plan_batches", "canonical_id", "batches_digest", "ids_digest",
            "SCHEMA_VERSION", "ID_LENGTH"]
 
 # Bumped whenever what a part file holds changes, so that old parts are never reused.
@@ -34,11 +37,6 @@ def _normalised(value):
         return float(value)
     except (OverflowError, TypeError, ValueError):  # refused later, with its key, by the reader
         return repr(value)
-
-
-def scene_key(scene_spec):
-    """The identity of a resolved scene mapping (cases with equal keys share a scene)."""
-    return json.dumps(_normalised(scene_spec), sort_keys=True)
 
 
 def canonical_id(payload):
@@ -73,28 +71,39 @@ def ids_digest(ids):
     return canonical_id(list(ids))
 
 
-def plan_batches(cases, dimensions, output_interval, variables, max_cases, verdict=None):
-    """Group ``cases`` by (scheme, dt), in case order, into batches of at most ``max_cases``.
+def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases,
+                 verdict=None):
+    """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt), in case order, into
+    batches of at most ``max_cases``.
 
-    A batch's id hashes what its part holds and where it goes: the cases' resolved specs and
-    their positions, the grid (every dimension's axes and values), the output grid and the
-    stored variables, what the stored verdicts depend on (``verdict``: the accuracy bound), and
-    the source digest of rbstudy (a fixed bug never reuses old numbers).
-    Reordering or extending an axis therefore gives new ids, never a part in the wrong cells.
-    Everything but the cases is hashed once for the study, so planning is linear in its size.
+    A batch's id hashes what its part holds and where it goes: the study's ``scene`` mapping
+    and the grid (every dimension's axes and values), which with the cases' positions make
+    their scenes; the runs of its cases (scheme, dt and the options that scheme has, so that
+    another scheme's option leaves it alone); the output grid and the stored variables; what
+    the stored verdicts depend on (``verdict``: the accuracy bound); and the source digest of
+    rbstudy (a fixed bug never reuses old numbers). Reordering or extending an axis therefore
+    gives new ids, never a part in the wrong cells. Planning is linear in the cases.
     """
     study_digest = canonical_id({
+        "scene": scene,
         "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
         "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
         "source": SOURCE_DIGEST})
-    groups = {}
-    for position, case in enumerate(cases):
-        groups.setdefault((case.scheme, case.dt), []).append(position)
+    keys = {}  # (scheme, dt) -> group, in order of first use
+    group_of_run = np.array([keys.setdefault((run.scheme, run.dt), len(keys))
+                             for run in cases.runs])
+    groups = group_of_run[cases.run_rows]
+    order = np.argsort(groups, kind="stable")  # each group's cases in case order
+    starts = np.searchsorted(groups[order], np.arange(len(keys) + 1))
     batches = []
-    for (scheme, dt), members in groups.items():
+    for (scheme, dt), group in keys.items():
+        members = order[starts[group]:starts[group + 1]]
         for start in range(0, len(members), max_cases):
-            chunk = tuple(members[start:start + max_cases])
-            digest = canonical_id({"cases": [cases[i].spec for i in chunk],
-                                   "positions": list(chunk), "study": study_digest})
-            batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt, chunk))
+            chunk = members[start:start + max_cases]
+            runs = [cases.runs[row] for row in np.unique(cases.run_rows[chunk])]
+            digest = canonical_id({
+                "positions": chunk.tolist(), "study": study_digest,
+                "runs": [[run.scheme, run.dt, run.options] for run in runs]})
+            batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt,
+                                 tuple(chunk.tolist())))
     return tuple(batches)

@@ -47,8 +47,8 @@ class StudyConfig:
     """A validated study.
 
     base : the ``scene`` and ``run`` mappings as written. dimensions : the swept
-    `rbstudy.pipeline.grid.Dimension`s (empty for one case). cases : every
-    `rbstudy.pipeline.grid.Case`, in C order of the dimensions. variables : the stored
+    `rbstudy.pipeline.grid.Dimension`s (empty for one case). cases : every case, in C order
+    of the dimensions (`rbstudy.pipeline.grid.Cases`: its distinct scenes and runs). variables : the stored
     variable names. batches : the `rbstudy.pipeline.batches.Batch`es. schemes : what the
     archive records of each scheme, name -> {coordinate: value}
     (`rbstudy.pipeline.variables.SCHEME_COORDINATES`). n_times : output samples per case.
@@ -78,7 +78,7 @@ class StudyConfig:
 
     @property
     def node_names(self):
-        return self.cases[0].scene.node_names
+        return self.cases.scenes.node_names
 
     def bytes_per_case(self):
         """Bytes one case occupies in the archive."""
@@ -91,12 +91,11 @@ class StudyConfig:
         return self.bytes_per_case() + N_STATE * np.dtype("f8").itemsize * self.n_times
 
 
-def _variables(reader, requested, cases):
-    """The variables every case defines, narrowed to ``output.variables`` when given (the
-    per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept, and a
-    deprecated name brings its new name along)."""
-    scenes = {id(case.scene): case.scene for case in cases}  # cases share scenes
-    available = selected(set.intersection(*(scene_features(scene) for scene in scenes.values())))
+def _variables(reader, requested, scenes):
+    """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when
+    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept,
+    and a deprecated name brings its new name along)."""
+    available = selected(scene_features(scenes))
     if requested is None:
         return tuple(available)
     if not isinstance(requested, list) or not requested:
@@ -118,7 +117,7 @@ def _scheme_claims(cases):
     """What the archive records of each scheme of the study: name -> {coordinate: value}."""
     return {name: {coordinate: getattr(get_scheme(name), attribute)
                    for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
-            for name in sorted({case.scheme for case in cases})}
+            for name in sorted({run.scheme for run in cases.runs})}
 
 
 def _output_interval(reader, output, run, swept):
@@ -173,19 +172,19 @@ def load_study(path):
         reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
     base = {"scene": data["scene"], "run": dict(run)}
     cases = expand(reader, base, dimensions, interval)
-    duration = cases[0].scene.duration
+    duration = cases.scenes.duration
     try:
         steps_per(duration, interval, "interval", "duration")
     except InputError as error:
         raise reader.locate(error, "output.interval") from None
-    variables = _variables(reader, output.get("variables"), cases)
+    variables = _variables(reader, output.get("variables"), cases.scenes)
     study = StudyConfig(path=path, text=text, name=name, title=title,
                         base=base, output_interval=interval, accuracy_bound=accuracy_bound,
                         duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=(),
                         schemes=_scheme_claims(cases))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
-    batches = plan_batches(cases, dimensions, interval, variables, max_cases,
+    batches = plan_batches(cases, base["scene"], dimensions, interval, variables, max_cases,
                            verdict={"accuracy_bound": accuracy_bound})
     return dataclasses.replace(study, batches=batches)
 

@@ -12,7 +12,6 @@ The forecasts are for the initial spin: a load that speeds a body up makes its D
 larger than forecast (the step budget still bounds it).
 """
 
-import math
 import os
 import pathlib
 import shutil
@@ -21,9 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import ConfigError
-from rbstudy.physics.analytic import reference_kind
 from rbstudy.physics.references import REFERENCE_MAX_STEPS, REFERENCE_STEPS_PER_RADIAN
-from rbstudy.pipeline.batches import scene_key
 from rbstudy.schemes import get_scheme
 
 __all__ = ["Estimate", "estimate", "describe", "check_limits", "check_disk", "disk_needed",
@@ -56,15 +53,12 @@ def physical_memory():
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def _turned(scene):
-    """Radians the body turns over the run at its initial spin, |w0| T."""
-    return float(np.linalg.norm(scene.omega_body)) * scene.duration
-
-
-def _dop853_steps(scene):
-    """Forecast of accepted DOP853 steps for ``scene`` at rtol 1e-13 (plus the few a slow
-    run still takes)."""
-    return math.ceil(REFERENCE_STEPS_PER_RADIAN * _turned(scene)) + 16
+def _dop853_steps(scenes):
+    """Forecast of accepted DOP853 steps at rtol 1e-13 for each scene of a
+    `rbstudy.physics.scenes.SceneTable` (n,): steps per radian of |w0| T, the radians the body
+    turns at its initial spin, plus the few a slow run still takes."""
+    turned = np.linalg.norm(scenes.omega_body, axis=-1) * scenes.duration
+    return np.ceil(REFERENCE_STEPS_PER_RADIAN * turned).astype(np.int64) + 16
 
 
 @dataclass(frozen=True)
@@ -101,11 +95,13 @@ class Estimate:
 def estimate(study, cores=None):
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
     cores = cores or os.cpu_count() or 1
+    cases = study.cases
+    dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
         if scheme.adaptive:
-            steps = sum(_dop853_steps(study.cases[i].scene) for i in batch.cases)
+            steps = int(dop853_steps[cases.scene_rows[list(batch.cases)]].sum())
         else:
             steps = len(batch.cases) * round(study.duration / batch.dt)
         body_steps += steps
@@ -114,17 +110,15 @@ def estimate(study, cores=None):
         # is Python and holds the interpreter: one core
         spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
         longest = max(longest, steps * scheme.step_seconds / spread)
-    integrated = {}
-    over_budget = 0
-    for case in study.cases:
-        if reference_kind(case.scene) == "dop853":
-            steps = _dop853_steps(case.scene)
-            over_budget += steps > REFERENCE_MAX_STEPS
-            integrated[scene_key(case.spec["scene"])] = min(steps, REFERENCE_MAX_STEPS)
-    reference_steps = sum(integrated.values())
+    # the references integrated: one per distinct scene without a closed form
+    needs_dop853 = cases.scenes.reference_kinds == "dop853"
+    over_budget = int(np.sum((needs_dop853 & (dop853_steps > REFERENCE_MAX_STEPS))
+                             [cases.scene_rows]))
+    integrated = np.minimum(dop853_steps[needs_dop853], REFERENCE_MAX_STEPS)
+    reference_steps = int(integrated.sum())
     per_step = get_scheme("dop853").step_seconds
     seconds += reference_steps * per_step
-    longest = max(longest, max(integrated.values(), default=0) * per_step)
+    longest = max(longest, int(integrated.max(initial=0)) * per_step)
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running

@@ -31,7 +31,6 @@ from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
-from rbstudy.pipeline.batches import scene_key
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
@@ -196,23 +195,24 @@ def _prepare(root, study):
 
 def _reference_chunks(study, pending):
     """The distinct scenes of the ``pending`` batches in chunks of at most a batch's size, and
-    where each case's reference sits: case number -> (chunk, position).
+    where each case's scene sits: case number -> (chunk, position).
 
     Chunks follow the batches' order, so a study of distinct scenes gets one chunk per batch
     and dask (which runs depth first) holds few references at a time; a study of few scenes
     gets one chunk that every batch shares.
     """
+    cases = study.cases
     size = max(len(batch.cases) for batch in study.batches)
     chunks, seen, where = [], {}, {}
     for batch in pending:
         for number in batch.cases:
-            key = scene_key(study.cases[number].spec["scene"])
-            if key not in seen:
+            row = int(cases.scene_rows[number])
+            if row not in seen:
                 if not chunks or len(chunks[-1]) == size:
                     chunks.append([])
-                seen[key] = (len(chunks) - 1, len(chunks[-1]))
-                chunks[-1].append(study.cases[number].scene)
-            where[number] = seen[key]
+                seen[row] = (len(chunks) - 1, len(chunks[-1]))
+                chunks[-1].append(cases.scenes.scene(row))
+            where[number] = seen[row]
     return chunks, where
 
 
@@ -230,16 +230,16 @@ def _graph(study, pending, parts_dir, threads, token):
                                          study.n_times, study.output_interval,
                                          dask_key_name=f"references-{token}-{k}")
         for k, scenes in enumerate(chunks)]
+    runs = study.cases.runs
     tasks = []
     for batch in pending:
-        cases = [study.cases[i] for i in batch.cases]
         needed = sorted({where[i][0] for i in batch.cases})
         local = {chunk: k for k, chunk in enumerate(needed)}
         positions = tuple((local[where[i][0]], where[i][1]) for i in batch.cases)
         job = BatchJob(batch.scheme, batch.dt, study.output_interval,
-                       tuple(case.scene for case in cases),
-                       tuple(case.options for case in cases), study.variables,
-                       study.accuracy_bound, positions)
+                       tuple(chunks[where[i][0]][where[i][1]] for i in batch.cases),
+                       tuple(runs[study.cases.run_rows[i]].options for i in batch.cases),
+                       study.variables, study.accuracy_bound, positions)
         values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False),
                                              [reference_tasks[k] for k in needed], threads,
                                              dask_key_name=f"batch-{token}-{batch.id}")

@@ -17,12 +17,18 @@ An axis is a short name (`SHORT_NAMES`) or a dotted path into the study: ``scene
 Values: a non-empty list, ``{linspace: [start, stop, count]}``, ``{logspace: [start, stop,
 count]}`` (the end points themselves, not exponents) or ``{halving: start, count: n}``.
 
-A case is the study's scene and run with one value of every axis written in; its scene is
-built and validated like any scene, so a bad value fails with the axis and value named.
-Every failure goes through the study's `rbstudy.reader.Reader`.
+A case is the study's scene and run with one value of every axis written in. The scene axes
+(short names that change the body or its spin, ``scene.`` paths) are written in as columns,
+one entry per distinct scene, and all scenes are read and checked at once
+(`rbstudy.physics.scenes.scene_table`); the run axes (scheme, dt, ``run.options.``) give the
+few distinct runs. A case is a pair of rows, built into a `Case` only when asked for, so
+that validating a study costs microseconds per case. A bad value fails with the axis and
+value named; every failure goes through the study's `rbstudy.reader.Reader`.
 """
 
 import collections
+import collections.abc
+import copy
 import itertools
 import math
 from dataclasses import dataclass
@@ -30,14 +36,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import InputError
-from rbstudy.physics.analytic import symmetry_axis
-from rbstudy.physics.scenes import Scene, scene_from_mapping
+from rbstudy.physics.analytic import symmetry_axes
+from rbstudy.physics.scenes import Scene, SceneTable, scene_table
 from rbstudy.physics.simulate import steps_per
-from rbstudy.pipeline.batches import scene_key
 from rbstudy.pipeline.variables import VARIABLES, coordinate_units
 from rbstudy.schemes import SCHEMES, get_scheme
 
-__all__ = ["Axis", "Dimension", "Case", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
+__all__ = ["Axis", "Dimension", "Case", "Cases", "Run", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
            "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand"]
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
@@ -60,9 +65,8 @@ _NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
 # Names the dataset already uses: a zipped dimension may not take them.
 RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
     frozenset(VARIABLES)
-# Every case is expanded and validated up front (a few kB of Python objects each): a study
-# has at most this many cases, and an axis at most this many values, checked before any list
-# is built, so that a count of 1e12 is an error, not an allocation.
+# A study has at most this many cases, and an axis at most this many values, checked before
+# any list is built, so that a count of 1e12 is an error, not an allocation.
 MAX_CASES = 200_000
 MAX_AXIS_VALUES = MAX_CASES
 # Halvings of a step: 60 divide it by 1e18, beyond any study (and a float by 2^1074 is 0).
@@ -93,22 +97,6 @@ class Dimension:
     @property
     def size(self):
         return len(self.axes[0].values)
-
-
-@dataclass(frozen=True)
-class Case:
-    """One grid point of a study.
-
-    index : position along each dimension. scene : the validated scene. spec : the case's
-    study mapping (``scene``, ``run``) with every swept value written in: its identity.
-    """
-
-    index: tuple
-    scene: Scene
-    spec: dict
-    scheme: str
-    options: dict
-    dt: float
 
 
 # --- the sweep block -> dimensions ---------------------------------------------------------
@@ -230,7 +218,7 @@ def parse_sweep(reader, spec):
     return tuple(dimensions)
 
 
-# --- one grid point -> its case mapping ----------------------------------------------------
+# --- the distinct scenes: scene axes as columns of one mapping -----------------------------
 
 def _set_path(spec, dotted, value):
     """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
@@ -240,7 +228,10 @@ def _set_path(spec, dotted, value):
         if isinstance(node, list):
             node = node[_list_index(dotted, node, part)]
         elif isinstance(node, dict):
-            node = node.setdefault(part, {})
+            if part not in node:  # a made-up mapping would only fail later, less clearly
+                raise InputError(f"{'.'.join(parents[:depth + 1])} is not in the study",
+                                 "give it there, then sweep its entries", key=dotted)
+            node = node[part]
         else:
             raise InputError(f"{'.'.join(parents[:depth])} holds {node!r}, not a mapping or list",
                              "sweep a path that exists in the study", key=dotted)
@@ -260,11 +251,40 @@ def _list_index(dotted, node, part):
     return int(part)
 
 
+def _column(values):
+    """Axis values as a column: floats, or objects when names are among them."""
+    if any(isinstance(v, str) for v in values):
+        return np.array(values, dtype=object)
+    return np.array(values, dtype=float)
+
+
+def _fail_at(bad, message, fix=None, key=None):
+    """Raise an `InputError` at the first row where ``bad`` (n,) holds."""
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise InputError(message(row), fix, key=key, row=row)
+
+
+def _vector_rows(values, size):
+    """A vector of 3 numbers or swept columns as (size, 3) floats; None if it is not one."""
+    if not isinstance(values, list) or len(values) != 3 or not all(
+            isinstance(v, np.ndarray) and v.dtype.kind == "f"
+            or isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return None
+    try:
+        rows = np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in values],
+                        axis=-1)
+    except OverflowError:  # an integer beyond any float
+        return None
+    return rows if np.isfinite(rows).all() else None
+
+
 _OMEGA_KEY = "scene.initial.angular_velocity"
 
 
-def _body_omega(spec, name):
-    omega = spec["scene"].get("initial", {}).get("angular_velocity", {})
+def _body_omega(scene, name, size):
+    """The initial angular velocity mapping, its frame and its vectors (size, 3)."""
+    omega = scene.get("initial", {}).get("angular_velocity", {})
     if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
         raise InputError(f"{name} needs the initial angular velocity", "give its .body (or "
                          ".space) components", key=_OMEGA_KEY)
@@ -272,98 +292,100 @@ def _body_omega(spec, name):
     if name == "tilt" and frame != "body":
         raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
                          "body axes (.body)", key=_OMEGA_KEY)
-    vector = _finite_numbers(omega[frame])
-    if vector is None or len(vector) != 3:
+    vector = _vector_rows(omega[frame], size)
+    if vector is None:
         raise InputError(f"expected a list of 3 finite numbers, got {omega[frame]!r:.80}",
                          key=f"{_OMEGA_KEY}.{frame}")
-    return omega, frame, np.array(vector)
+    return omega, frame, vector
 
 
-def _apply_short(spec, name, value):
-    """Write a short-name value into the case mapping ``spec`` (``scene``, ``run``)."""
-    if name in ("scheme", "dt"):
-        spec["run"][name] = value
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"{name} takes a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number):
-        raise InputError(f"{name} must be finite, got {value!r}")
-    if name == "spin" and number <= 0.0:
-        raise InputError(f"spin must be > 0 rad/s, got {value!r}",
-                         "a body at rest has no rotation to study: sweep a positive spin")
+def _short_numbers(name, column):
+    """A short name's column (n,) as floats: every value a finite number (spin > 0)."""
+    if column.dtype == object:
+        _fail_at(np.array([isinstance(v, str) for v in column]),
+                 lambda row: f"{name} takes a number, got {column[row]!r}")
+    numbers = column.astype(float)
+    if name == "spin":
+        _fail_at(numbers <= 0.0, lambda row: f"spin must be > 0 rad/s, got {column[row]!r}",
+                 "a body at rest has no rotation to study: sweep a positive spin")
+    return numbers
+
+
+def _apply_short(scene, name, column):
+    """Write a short name's values (a column of n) into the columnar scene mapping."""
+    values = _short_numbers(name, column)
+    size = len(values)
     if name == "inertia_ratio":
-        inertia = spec["scene"].get("body", {}).get("inertia")
-        moments = _finite_numbers(inertia)
-        if not (moments and len(moments) == 3 and symmetry_axis(moments) == 2):
+        inertia = scene.get("body", {}).get("inertia")
+        moments = _vector_rows(inertia, size)
+        if moments is None or (symmetry_axes(moments) != 2).any():
             raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r}",
                              "give inertia: [I1, I1, I3]", key="scene.body.inertia")
-        spec["scene"]["body"]["inertia"] = [inertia[0], inertia[0], number * inertia[0]]
+        scene["body"]["inertia"] = [inertia[0], inertia[0], values * inertia[0]]
         return
-    omega, frame, vector = _body_omega(spec, name)
-    size = math.hypot(*vector)  # scaled: no underflow to 0 for a tiny w, as the norm had
+    omega, frame, vector = _body_omega(scene, name, size)
+    # scaled: no underflow to 0 for a tiny w, as the norm had
+    length = np.hypot(np.hypot(vector[:, 0], vector[:, 1]), vector[:, 2])
     if name == "spin":
-        if size == 0.0:
-            raise InputError("spin keeps the direction of the initial w, which is zero",
-                             "give a non-zero initial angular velocity", key=_OMEGA_KEY)
+        _fail_at(length == 0.0, lambda row: "spin keeps the direction of the initial w, which "
+                                            "is zero", "give a non-zero initial angular velocity",
+                 key=_OMEGA_KEY)
         with np.errstate(over="ignore", invalid="ignore"):  # the scene refuses it, by key
-            omega[frame] = [float(v) for v in vector * (number / size)]
+            omega[frame] = list((vector * (values / length)[:, None]).T)
         return
-    azimuth = math.atan2(vector[1], vector[0])
-    tilt = math.radians(number)
-    omega[frame] = [size * math.sin(tilt) * math.cos(azimuth),
-                    size * math.sin(tilt) * math.sin(azimuth), size * math.cos(tilt)]
+    azimuth = np.arctan2(vector[:, 1], vector[:, 0])
+    tilt = np.radians(values)
+    omega[frame] = [length * np.sin(tilt) * np.cos(azimuth),
+                    length * np.sin(tilt) * np.sin(azimuth), length * np.cos(tilt)]
 
 
-def _finite_numbers(values):
-    """``values`` as a list of finite floats, or None if it is not one."""
-    if not isinstance(values, list) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
-        return None
-    try:
-        numbers = [float(v) for v in values]
-    except OverflowError:  # an integer beyond any float
-        return None
-    return numbers if all(math.isfinite(v) for v in numbers) else None
+def _touches_scene(axis):
+    return axis.target in _SCENE_SHORT_NAMES or axis.target.startswith("scene.")
 
 
-def _copied(value):
-    """A copy of a tree of mappings and lists (what YAML gives), leaves shared: the same as
-    `copy.deepcopy` for it, at a third of the cost (no memo; a sweep copies every case)."""
-    if isinstance(value, dict):
-        return {key: _copied(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [_copied(item) for item in value]
-    return value
+_SCENE_SHORT_NAMES = ("inertia_ratio", "tilt", "spin")
 
 
-def _case_spec(base, dimensions, index):
-    spec = _copied(base)
-    chosen = {axis.target: axis.values[i] for dim, i in zip(dimensions, index, strict=True)
-              for axis in dim.axes}
-    for target, value in chosen.items():
+def _scene_table(reader, base, dimensions):
+    """The distinct scenes of the grid, a `SceneTable` in C order of ``dimensions`` (the
+    dimensions with a scene axis; one scene when there is none)."""
+    shape = tuple(d.size for d in dimensions)
+    size = math.prod(shape)
+    rows = np.unravel_index(np.arange(size), shape) if shape else ()
+    scene = {"scene": copy.deepcopy(base["scene"])}
+    chosen = {axis.target: _column(axis.values)[rows[k]]
+              for k, dimension in enumerate(dimensions) for axis in dimension.axes
+              if _touches_scene(axis)}
+    for target, column in chosen.items():
         if target not in SHORT_NAMES:
-            _set_path(spec, target, value)
+            _set_path(scene, target, column)
     for name in _SHORT_ORDER:
         if name in chosen:
-            _apply_short(spec, name, chosen[name])
-    return spec
+            _apply_short(scene["scene"], name, chosen[name])
+    return scene_table(scene["scene"], source=reader.source, size=size)
 
 
-def _where(dimensions, index):
-    """``sweep (dt[2] = 0.0025, scheme[0] = 'euler')``: names a case in an error."""
-    return "sweep (" + ", ".join(f"{axis.coordinate}[{i}] = {axis.values[i]!r}"
-                                 for dim, i in zip(dimensions, index, strict=True)
-                                 for axis in dim.axes) + ")"
+# --- the distinct runs: scheme, options and dt -----------------------------------------------
+
+@dataclass(frozen=True)
+class Run:
+    """How a case is integrated: a scheme, the options it has, a time step (s)."""
+
+    scheme: str
+    options: dict
+    dt: float
 
 
-def _case(reader, base, dimensions, index, output_interval, scenes):
-    """The case at grid ``index``; an `InputError` keyed within the case mapping if it is bad.
-
-    Scheme options apply to the schemes that have them; ``scenes`` shares one scene between
-    cases that differ only in scheme or dt (keyed by `scene_key`).
-    """
-    spec = _case_spec(base, dimensions, index)
+def _run(reader, base, dimensions, index, output_interval):
+    """The run at ``index`` of the run ``dimensions``; an `InputError` keyed within it."""
+    spec = {"run": dict(base["run"])}
+    for dimension, i in zip(dimensions, index, strict=True):
+        for axis in dimension.axes:
+            if axis.target in ("scheme", "dt"):
+                spec["run"][axis.target] = axis.values[i]
+            elif axis.target.startswith("run."):
+                spec["run"]["options"] = dict(spec["run"].get("options") or {})
+                _set_path(spec, axis.target, axis.values[i])
     run = spec["run"]
     try:
         scheme = get_scheme(run.get("scheme"))
@@ -376,39 +398,112 @@ def _case(reader, base, dimensions, index, output_interval, scenes):
         scheme.option_row(options)
     except InputError as error:
         raise reader.locate(error, "run.options") from None
-    run["options"] = options
     dt = reader.number(run.get("dt"), "run.dt", positive=True)
     try:
         steps_per(output_interval, dt, "dt", "output interval")
     except InputError as error:
         raise reader.locate(error, "run.dt") from None
-    key = scene_key(spec["scene"])
-    if key not in scenes:
-        scenes[key] = scene_from_mapping(spec["scene"], source=reader.source)
-    return Case(index=index, scene=scenes[key], spec=spec, scheme=scheme.name, options=options,
-                dt=dt)
+    return Run(scheme.name, options, dt)
+
+
+# --- every case ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Case:
+    """One grid point of a study.
+
+    index : position along each dimension. scene : the validated scene. scheme, options, dt :
+    its run.
+    """
+
+    index: tuple
+    scene: Scene
+    scheme: str
+    options: dict
+    dt: float
+
+
+@dataclass(frozen=True, eq=False)
+class Cases(collections.abc.Sequence):
+    """Every case of a study, in C order of its dimensions, each built when asked for.
+
+    A case is a distinct scene and a distinct run: ``scenes`` (a `SceneTable`) and ``runs``
+    (`Run`s) hold them, ``scene_rows`` and ``run_rows`` (cases,) say which each case has, so
+    that a study of 1e5 cases holds no 1e5 Python objects.
+    """
+
+    shape: tuple
+    scenes: SceneTable
+    runs: tuple
+    scene_rows: np.ndarray
+    run_rows: np.ndarray
+
+    def __len__(self):
+        return len(self.scene_rows)
+
+    def __getitem__(self, number):
+        if not isinstance(number, (int, np.integer)):
+            raise TypeError("cases are numbered: index them with an integer")
+        number = range(len(self))[number]  # negative numbers, and IndexError past the end
+        run = self.runs[self.run_rows[number]]
+        return Case(index=tuple(int(i) for i in np.unravel_index(number, self.shape)),
+                    scene=self.scenes.scene(int(self.scene_rows[number])), scheme=run.scheme,
+                    options=run.options, dt=run.dt)
+
+    def __iter__(self):
+        return (self[number] for number in range(len(self)))
+
+
+def _where(dimensions, index):
+    """``sweep (dt[2] = 0.0025, scheme[0] = 'euler')``: names a case in an error."""
+    return "sweep (" + ", ".join(f"{axis.coordinate}[{i}] = {axis.values[i]!r}"
+                                 for dim, i in zip(dimensions, index, strict=True)
+                                 for axis in dim.axes) + ")"
+
+
+def _rows_of(dimensions, chosen, shape):
+    """For each case of the grid ``shape``, its row in the product of the ``chosen``
+    dimensions (positions among ``dimensions``)."""
+    size = math.prod(shape)
+    if not chosen:
+        return np.zeros(size, dtype=np.int64)
+    index = np.unravel_index(np.arange(size), shape)
+    return np.ravel_multi_index([index[k] for k in chosen], [shape[k] for k in chosen])
 
 
 def expand(reader, base, dimensions, output_interval):
-    """Every case of the grid, in C order of ``dimensions``, each scene built and checked.
+    """Every case of the grid as `Cases`, every distinct scene and run built and checked.
 
-    ``base`` is the study mapping (``scene``, ``run``); the first bad case fails through
-    ``reader``, naming the swept values (``sweep (dt[1] = 0.003)``) and the key within the
-    case. An option that no scheme of the study has is an error.
+    ``base`` is the study mapping (``scene``, ``run``); a bad scene or run fails through
+    ``reader``, naming the swept values of its dimensions (``sweep (dt[1] = 0.003)``) and the
+    key within the case. An option that no scheme of the study has is an error.
     """
-    cases, scenes = [], {}
-    for index in itertools.product(*(range(d.size) for d in dimensions)):
+    shape = tuple(d.size for d in dimensions)
+    of_scenes = [k for k, d in enumerate(dimensions) if any(map(_touches_scene, d.axes))]
+    of_runs = [k for k, d in enumerate(dimensions) if not all(map(_touches_scene, d.axes))]
+    scene_dimensions = [dimensions[k] for k in of_scenes]
+    try:
+        scenes = _scene_table(reader, base, scene_dimensions)
+    except InputError as error:
+        where = None
+        if scene_dimensions:
+            at = np.unravel_index(error.row or 0, [d.size for d in scene_dimensions])
+            where = _where(scene_dimensions, tuple(int(i) for i in at))
+        raise reader.locate(error, where) from None
+    run_dimensions = [dimensions[k] for k in of_runs]
+    runs = []
+    for index in itertools.product(*(range(d.size) for d in run_dimensions)):
         try:
-            cases.append(_case(reader, base, dimensions, index, output_interval, scenes))
+            runs.append(_run(reader, base, run_dimensions, index, output_interval))
         except InputError as error:
-            where = _where(dimensions, index) if dimensions else None
-            raise reader.locate(error, where) from None
+            raise reader.locate(error, _where(run_dimensions, index) if index else None) from None
     given = set(base["run"].get("options") or {}) | {
         axis.target.removeprefix("run.options.") for d in dimensions for axis in d.axes
         if axis.target.startswith("run.options.")}
-    unknown = sorted(given - {name for case in cases for name in case.options})
+    unknown = sorted(given - {name for run in runs for name in run.options})
     if unknown:
-        schemes = sorted({case.scheme for case in cases})
+        schemes = sorted({run.scheme for run in runs})
         reader.fail("run.options", f"{', '.join(unknown)} is an option of none of the study's "
                                    f"schemes ({', '.join(schemes)})", "see `rbstudy schemes`")
-    return tuple(cases)
+    return Cases(shape, scenes, tuple(runs), _rows_of(dimensions, of_scenes, shape),
+                 _rows_of(dimensions, of_runs, shape))

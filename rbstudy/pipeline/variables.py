@@ -14,6 +14,8 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
 from rbstudy.physics.analytic import REFERENCE_KINDS
 from rbstudy.pipeline import outputs
@@ -22,18 +24,20 @@ __all__ = ["Variable", "VARIABLES", "DEPRECATED", "FEATURES", "COORDINATES", "SC
            "TIME_UNITS", "coordinate_units", "variable_attrs", "scene_features", "selected",
            "evaluate", "BOOKKEEPING"]
 
-# The scene features a variable may need: name -> (predicate on a Scene, meaning).
+# The scene features a variable may need: name -> (predicate on a
+# `rbstudy.physics.scenes.SceneTable`, true or false per scene, meaning).
 FEATURES = {
-    "nodes": (lambda scene: len(scene.nodes) > 0, "the scene has nodes fixed to the body"),
-    "translation": (lambda scene: scene.translates, "the centre of mass moves"),
-    "reference": (lambda scene: True,
+    "nodes": (lambda scenes: np.full(len(scenes), len(scenes.node_names) > 0),
+              "the scene has nodes fixed to the body"),
+    "translation": (lambda scenes: scenes.translates, "the centre of mass moves"),
+    "reference": (lambda scenes: np.full(len(scenes), True),
                   "a reference solution (closed form, or DOP853 where none exists)"),
-    "moment_free": (lambda scene: scene.loads.moment_free,
+    "moment_free": (lambda scenes: scenes.moment_free,
                     "no moment acts: energy and angular momentum are conserved, so their "
                     "drift is an error"),
-    "symmetric": (lambda scene: scene.loads.moment_free and scene.body.symmetry_axis is not None,
+    "symmetric": (lambda scenes: scenes.moment_free & (scenes.symmetry_axes >= 0),
                   "a moment-free symmetric body (precession frequency)"),
-    "asymmetric": (lambda scene: scene.loads.moment_free and scene.body.symmetry_axis is None,
+    "asymmetric": (lambda scenes: scenes.moment_free & (scenes.symmetry_axes < 0),
                    "a moment-free body with three different inertias (flip interval)"),
 }
 
@@ -194,9 +198,9 @@ def variable_attrs(name):
     return {"units": variable.units, "long_name": variable.long_name}
 
 
-def scene_features(scene):
-    """The names of the `FEATURES` a `rbstudy.physics.scenes.Scene` has."""
-    return {name for name, (has, _) in FEATURES.items() if has(scene)}
+def scene_features(scenes):
+    """The names of the `FEATURES` every scene of a `rbstudy.physics.scenes.SceneTable` has."""
+    return {name for name, (has, _) in FEATURES.items() if has(scenes).all()}
 
 
 # Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
