@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
+from rbstudy.physics.assembly import REGULARISATION, read_assembly
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
@@ -156,7 +157,8 @@ class SceneTable:
     mass : (n,) kg. inertia : (n, 3) principal, kg m^2, symmetrised. quaternion : (n, 4).
     omega_body, position, velocity : (n, 3), as in `Scene`. loads : name of a `Loads` field ->
     (n, 3). nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves alone may be read-only
-    broadcast views.
+    broadcast views. warnings : what the reading noticed but accepted (a regularised
+    assembled body), one line each.
     """
 
     mass: np.ndarray
@@ -170,6 +172,7 @@ class SceneTable:
     nodes: np.ndarray
     node_names: tuple
     duration: float
+    warnings: tuple = ()
 
     def __len__(self):
         return len(self.mass)
@@ -238,6 +241,16 @@ def _in_principal(axes, vectors):
     return np.einsum("nji,n...j->n...i", axes, vectors)
 
 
+def _principal(reader, tensor, key):
+    """Principal inertias (n, 3), ascending, and right-handed principal axes (n, 3, 3) as
+    columns, of inertia tensors (n, 3, 3)."""
+    inertia, axes = np.linalg.eigh(tensor)
+    axes[np.linalg.det(axes) < 0, :, 2] *= -1.0
+    _refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
+            f"be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}")
+    return inertia, axes
+
+
 def _read_body(reader, spec, path, size):
     """mass (n,), principal inertias (n, 3), principal axes (n, 3, 3) (None when principal
     inertias were given) and the allow_unphysical flag."""
@@ -255,10 +268,7 @@ def _read_body(reader, spec, path, size):
         _refuse(reader, ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
                                            atol=0.0), axis=(-2, -1)),
                 key, lambda row: "the inertia tensor must be symmetric")
-        inertia, axes = np.linalg.eigh(tensor)
-        axes[np.linalg.det(axes) < 0, :, 2] *= -1.0
-        _refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
-                f"be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}")
+        inertia, axes = _principal(reader, tensor, key)
     else:
         inertia = _rows(reader.vector(raw, key), size)
         axes = None
@@ -271,6 +281,37 @@ def _read_body(reader, spec, path, size):
                             ">= I3 (and cyclic): no rigid body has it",
                 "set allow_unphysical: true for a numerical stress body")
     return mass, symmetrised(inertia), axes, allow
+
+
+# What an assembled body derives from its nodes, never given twice: key -> why.
+_DERIVED = {"body": "an assembled body's mass and inertia come from its nodes",
+            "nodes": "an assembled body's nodes are its assembly.nodes",
+            "initial.orientation": "an assembled body starts in the principal axes of its nodes",
+            "initial.position": "an assembled body starts at the centre of mass of its nodes"}
+
+
+def _read_assembled(reader, spec, path, size):
+    """The body, centre of mass and nodes of ``scene.assembly``
+    (`rbstudy.physics.assembly`): mass (n,), principal inertias (n, 3), axes (n, 3, 3),
+    centre (n, 3), node names (K,), offsets (n, K, 3) in space axes, warnings."""
+    for given, why in _DERIVED.items():
+        parent, _, leaf = given.rpartition(".")
+        if leaf in ((spec.get(parent) or {}) if parent else spec):
+            reader.fail(f"{path}.{given}", f"{why}", f"remove {path}.{given}")
+    key = f"{path}.assembly"
+    body, names = read_assembly(reader, spec["assembly"], key, size)
+    inertia, axes = _principal(reader, body.tensor, key)
+    warnings = []
+    if body.regularised.any():
+        warnings.append(f"{key}: a principal inertia below {REGULARISATION:g} of the largest "
+                        f"was raised to it in {int(body.regularised.sum())} of {size} scenes "
+                        "(Radioss regularisation)")
+    if body.lopsided.any():
+        warnings.append(f"{key}: one principal inertia exceeds the sum of the other two in "
+                        f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
+                        "masses has that: check the nodal inertias)")
+    return (body.mass, symmetrised(inertia), axes, body.centre, names, body.offsets,
+            tuple(warnings))
 
 
 def _read_orientation(reader, spec, path, body_momentum, size):
@@ -360,8 +401,16 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     ``body.allow_unphysical`` is true), on the first bad row of a column (its ``row``).
     """
     reader = Reader(source, SceneError)
-    spec = reader.mapping(spec, path, ("body", "initial", "nodes", "loads", "duration"))
-    mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
+    spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads",
+                                       "duration"))
+    if "assembly" in spec:
+        mass, inertia, axes, centre, names, offsets, warnings = _read_assembled(
+            reader, spec, path, size)
+        allow = True  # Radioss warns of a lopsided body rather than refusing it
+    else:
+        mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
+        names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
+        warnings = ()
 
     initial_path = f"{path}.initial"
     initial = reader.mapping(spec.get("initial"), initial_path,
@@ -395,17 +444,17 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
                     if name in loads_spec else np.zeros((size, 3))) for name in _LOADS}
     for name in _IN_BODY_AXES:
         loads[name] = _in_principal(axes, loads[name])
-    names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
     return SceneTable(
         mass=mass, inertia=inertia, allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
         omega_body=omega_principal,
-        position=_rows(reader.vector(initial.get("position", [0, 0, 0]),
-                                     f"{initial_path}.position"), size),
+        position=centre if "assembly" in spec else _rows(
+            reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size),
         velocity=_rows(reader.vector(initial.get("velocity", [0, 0, 0]),
                                      f"{initial_path}.velocity"), size),
         loads=loads, nodes=_in_principal(axes, offsets), node_names=names,
-        duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True))
+        duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),
+        warnings=warnings)
 
 
 def scene_from_mapping(spec, source="<scene>", path="scene"):

@@ -316,6 +316,10 @@ def _apply_short(scene, name, column):
     values = _short_numbers(name, column)
     size = len(values)
     if name == "inertia_ratio":
+        if "assembly" in scene:
+            raise InputError("inertia_ratio has no meaning for a body assembled from nodes",
+                             "sweep its nodes' masses or positions, or assembly.scale",
+                             key="scene.assembly")
         inertia = scene.get("body", {}).get("inertia")
         moments = _vector_rows(inertia, size)
         if moments is None or (symmetry_axes(moments) != 2).any():
