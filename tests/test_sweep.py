@@ -94,6 +94,7 @@ _TURNED_BODY = {
     "initial": {"angular_velocity": {"body": [0.3, 0.0, 2.0]},
                 "orientation": {"momentum_axis": [0.0, 1.0, 1.0]}},
     "loads": {"moment_body": [0.0, 0.0, 0.0]},
+    "nodes": {"tip": [0.1, 0.2, 0.3]},
     "duration": 0.5,
 }
 
@@ -132,21 +133,51 @@ def test_the_scenes_of_a_sweep_are_each_case_read_alone(tmp_path):
                            [0.0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-14)
         assert math.isclose(np.linalg.norm(case.scene.loads.moment_body), (0.0, 0.5)[moment],
                             abs_tol=1e-15)
+        # what no frame changes, worked out in the input frame with the tensor itself: the
+        # energy, and the node's distance and angle to the angular momentum
+        tensor = np.array(alone["body"]["inertia"])
+        w_input = np.array(alone["initial"]["angular_velocity"]["body"])
+        node_input = np.array(_TURNED_BODY["nodes"]["tip"])
+        assert math.isclose(0.5 * w @ (np.array(case.scene.body.inertia) * w),
+                            0.5 * w_input @ tensor @ w_input, rel_tol=1e-13)
+        node = np.array(case.scene.nodes[0])
+        momentum = np.array(case.scene.body.inertia) * w
+        assert math.isclose(np.linalg.norm(node), np.linalg.norm(node_input), rel_tol=1e-14)
+        assert math.isclose(node @ momentum, node_input @ tensor @ w_input, rel_tol=1e-12)
 
 
-def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path):
-    """The third spin overflows the body's energy: the error names that spin (and the first
-    mass, the first case it fails in), not the first case of the grid; the scheme, which
-    does not make the scene, is left out."""
-    path = write_study(tmp_path, sweep={"scheme": ["rk4", "euler"],
-                                        "spin": [1.0, 2.0, 1.0e200],
-                                        "scene.body.mass": [1.0, 2.0]})
+@pytest.mark.parametrize("sweep, scene, where, message", [
+    # the scene's own check (the energy of the third spin overflows)
+    ({"spin": [1.0, 2.0, 1.0e200], "scene.body.mass": [1.0, 2.0]}, None,
+     "spin[2] = 1e+200, body_mass[0] = 1.0",
+     "scene.initial.angular_velocity.body: so large that the body's energy overflows a float; "
+     "give a smaller angular velocity"),
+    # the reader's check of a column
+    ({"spin": [1.0, 2.0], "scene.body.mass": [1, 2, -3]}, None,
+     "spin[0] = 1.0, body_mass[2] = -3", "scene.body.mass: must be > 0, got -3.0"),
+    # a short name's own check, its value as given
+    ({"spin": [1.0, 0.0]}, None, "spin[1] = 0.0",
+     "spin must be > 0 rad/s, got 0.0; a body at rest has no rotation to study"),
+    # a swept entry of the vector a short name rewrites
+    ({"scene.body.inertia.0": [1.0, 1.2], "inertia_ratio": [1.5, 2.0]},
+     {"body": {"inertia": [1.0, 1.0, 2.0]},
+      "initial": {"angular_velocity": {"body": [0.1, 0.0, 1.0]}}, "duration": 0.5},
+     "body_inertia_0[1] = 1.2, inertia_ratio[0] = 1.5",
+     "scene.body.inertia: inertia_ratio needs a body symmetric about axis 3, got "
+     "[1.2, 1.0, 2.0]; give inertia: [I1, I1, I3]"),
+    ({"scene.initial.angular_velocity.body.0": [1.0, "a"], "spin": [1.0]}, None,
+     "initial_angular_velocity_body_0[1] = 'a', spin[0] = 1.0",
+     "scene.initial.angular_velocity.body: expected a list of 3 finite numbers, got "
+     "['a', 0.0, 6.283185307179586]"),
+])
+def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, where, message):
+    """Scenes are checked as columns: the error names the values of the scene axes of the
+    row that fails, not the first case of the grid, and shows that row's value as given;
+    the scheme, which does not make the scene, is left out."""
+    path = write_study(tmp_path, scene=scene, sweep={"scheme": ["rk4", "euler"], **sweep})
     with pytest.raises(ConfigError) as error:
         load_study(path)
-    assert str(error.value) == (
-        f"{path}: sweep (spin[2] = 1e+200, body_mass[0] = 1.0): "
-        "scene.initial.angular_velocity.body: so large that the body's energy overflows a "
-        "float; give a smaller angular velocity")
+    assert str(error.value).startswith(f"{path}: sweep ({where}): {message}"), error.value
 
 
 @pytest.mark.parametrize("sweep, message", [

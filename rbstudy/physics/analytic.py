@@ -26,7 +26,7 @@ from scipy.special import ellipk
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
 __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
-           "reference_kind", "reference_kinds", "symmetric_top", "axial_moment", "parabola",
+           "reference_kinds", "symmetric_top", "axial_moment", "parabola",
            "precession_frequency_exact", "flip_interval_exact"]
 
 # Every reference an archive can name, in the order of their codes in the archive's
@@ -53,8 +53,8 @@ def symmetry_axes(inertia):
 
 def _symmetry_rule(i1, i2, i3, tolerance, where):
     """The rule of `symmetry_axes`, written once for arrays (``where`` = `np.where`) and for
-    three floats (`_pick`, 50 times faster than numpy on three numbers: a sweep asks it of
-    every case)."""
+    three floats (`_pick`, 50 times faster than numpy on three numbers: every `Body` asks
+    it)."""
     return where(abs(i1 - i2) <= tolerance, 2, where(
         abs(i2 - i3) <= tolerance, 0, where(abs(i1 - i3) <= tolerance, 1, -1)))
 
@@ -162,13 +162,6 @@ def reference_kinds(inertia, omega_body, force_body, moment_space, moment_body):
         pushed, "dop853",  # the force turns with the body: translation and rotation couple
         np.where(moment_free & (symmetry_axes(inertia) >= 0), "symmetric_top",
                  np.where(axial, "axial_moment", "dop853")))
-
-
-def reference_kind(scene):
-    """`reference_kinds` of one `rbstudy.physics.scenes.Scene`."""
-    loads = scene.loads
-    return str(reference_kinds([scene.body.inertia], [scene.omega_body], [loads.force_body],
-                               [loads.moment_space], [loads.moment_body])[0])
 
 
 def precession_frequency_exact(scene):

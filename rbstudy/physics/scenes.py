@@ -29,7 +29,7 @@ from rbstudy.physics.assembly import REGULARISATION, read_assembly
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
-           "momentum_aligned", "TRIANGLE_RTOL"]
+           "TRIANGLE_RTOL"]
 
 # Inertias that meet the triangle inequality with equality (the thin flat disk I3 = I1 + I2 of
 # the Abaqus benchmark) are physical; this relative slack absorbs the round-off of a
@@ -50,12 +50,10 @@ def _acting(*vectors):
 
 @dataclass(frozen=True)
 class Body:
-    """Mass (kg), principal inertias (3,) in kg m^2, and the principal axes (3, 3) as columns
-    in the input body frame (identity when principal inertias were given)."""
+    """Mass (kg) and principal inertias (3,) in kg m^2."""
 
     mass: float
     inertia: tuple
-    axes: np.ndarray = field(default_factory=lambda: np.eye(3), compare=False)
     allow_unphysical: bool = False
 
     @property
@@ -72,7 +70,7 @@ class Body:
     @cached_property
     def symmetry_axis(self):
         """Index (0, 1, 2) of the symmetry axis of a symmetric body, or None (decided once per
-        body: a sweep asks it of every case several times).
+        body: the outputs ask it of every case several times).
 
         Two principal inertias equal within `rbstudy.physics.analytic.SYMMETRY_RTOL` make the
         third axis the symmetry axis; a spherical body reports axis 2.
@@ -94,9 +92,6 @@ class Loads:
     def moment_free(self):
         return not _acting(self.moment_space, self.moment_body)
 
-    @property
-    def force_free(self):
-        return not _acting(self.force_space, self.force_body, self.gravity)
 
 
 @dataclass(frozen=True)
@@ -154,7 +149,8 @@ class SceneTable:
     """Scenes of one structure (the same keys, node names and duration), read and checked at
     once: the distinct scenes of a sweep. ``scene(i)`` is the i-th as a `Scene`.
 
-    mass : (n,) kg. inertia : (n, 3) principal, kg m^2, symmetrised. quaternion : (n, 4).
+    mass : (n,) kg. inertia : (n, 3) principal, kg m^2, as read or diagonalised (each
+    `Scene`'s `Body` symmetrises its own, once). quaternion : (n, 4).
     omega_body, position, velocity : (n, 3), as in `Scene`. loads : name of a `Loads` field ->
     (n, 3). nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves alone may be read-only
     broadcast views. warnings : what the reading noticed but accepted (a regularised
@@ -193,7 +189,7 @@ class SceneTable:
     def symmetry_axes(self):
         """(n,) the symmetry axis of each body, -1 for an asymmetric one
         (`rbstudy.physics.analytic.symmetry_axes`)."""
-        return symmetry_axes(self.inertia)
+        return symmetry_axes(symmetrised(self.inertia))  # as each Body decides it
 
     @property
     def reference_kinds(self):
@@ -280,7 +276,7 @@ def _read_body(reader, spec, path, size):
                 lambda row: f"{inertia[row].tolist()} violates the triangle inequality I1 + I2 "
                             ">= I3 (and cyclic): no rigid body has it",
                 "set allow_unphysical: true for a numerical stress body")
-    return mass, symmetrised(inertia), axes, allow
+    return mass, inertia, axes, allow
 
 
 # What an assembled body derives from its nodes, never given twice: key -> why.
@@ -310,7 +306,7 @@ def _read_assembled(reader, spec, path, size):
         warnings.append(f"{key}: one principal inertia exceeds the sum of the other two in "
                         f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
                         "masses has that: check the nodal inertias)")
-    return (body.mass, symmetrised(inertia), axes, body.centre, names, body.offsets,
+    return (body.mass, inertia, axes, body.centre, names, body.offsets,
             tuple(warnings))
 
 
@@ -342,10 +338,10 @@ def _read_orientation(reader, spec, path, body_momentum, size):
     if body_momentum is None:
         reader.fail(key, "needs the angular velocity in body axes (initial.angular_velocity.body)")
     phi = reader.number(spec.get("phi_deg", 0.0), f"{path}.phi_deg")
-    return momentum_aligned(body_momentum, axis, phi)
+    return _momentum_aligned(body_momentum, axis, phi)
 
 
-def momentum_aligned(body_momentum, axis, phi_deg=0.0):
+def _momentum_aligned(body_momentum, axis, phi_deg=0.0):
     """The orientations that put ``L = R m`` along the space ``axis`` (the Abaqus set-up).
 
     ``body_momentum`` (n, 3) is ``m = I w`` in body axes; ``axis`` (n, 3) or (3,);
@@ -356,10 +352,13 @@ def momentum_aligned(body_momentum, axis, phi_deg=0.0):
     space z axis goes to ``axis``. For the Abaqus top this gives (0, 1.1397 deg, 90 deg).
     """
     m = np.asarray(body_momentum, dtype=float)
-    size = np.linalg.norm(m, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):  # a body at rest: no tilt
-        theta = np.where(size == 0.0, 0.0, np.arccos(np.clip(m[:, 2] / size, -1.0, 1.0)))
-    psi = np.arctan2(m[:, 0], m[:, 1])
+    largest = np.abs(m).max(axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = np.where(largest > 0.0, m / largest, 0.0)  # scaled: a tiny m does not underflow
+        size = np.linalg.norm(m, axis=-1)
+        at_rest = size == 0.0  # no tilt, no turn
+        theta = np.where(at_rest, 0.0, np.arccos(np.clip(m[:, 2] / size, -1.0, 1.0)))
+    psi = np.where(at_rest, 0.0, np.arctan2(m[:, 0], m[:, 1]))
     phi = np.broadcast_to(np.radians(phi_deg), theta.shape)
     in_z = Rotation.from_euler("ZXZ", np.stack([phi, theta, psi], axis=-1))
     return _align_z(np.broadcast_to(np.asarray(axis, dtype=float), m.shape)) * in_z

@@ -78,14 +78,16 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
 
     A batch's id hashes what its part holds and where it goes: the study's ``scene`` mapping
     and the grid (every dimension's axes and values), which with the cases' positions make
-    their scenes; the runs of its cases (scheme, dt and the options that scheme has, so that
-    another scheme's option leaves it alone); the output grid and the stored variables; what
+    their scenes (with the order of the nodes, which the part's node axis follows); the runs
+    of its cases (scheme, dt and the options that scheme has, so that another scheme's
+    option, unless swept, leaves it alone); the output grid and the stored variables; what
     the stored verdicts depend on (``verdict``: the accuracy bound); and the source digest of
     rbstudy (a fixed bug never reuses old numbers). Reordering or extending an axis therefore
     gives new ids, never a part in the wrong cells. Planning is linear in the cases.
     """
     study_digest = canonical_id({
-        "scene": scene,
+        "scene": scene,  # hashed with sorted keys: the node order goes in on its own
+        "nodes": list(cases.scenes.node_names),
         "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
         "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
         "source": SOURCE_DIGEST})

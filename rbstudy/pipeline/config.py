@@ -17,7 +17,7 @@ from rbstudy.errors import ConfigError, InputError
 from rbstudy.numerics.state import N_STATE
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
-from rbstudy.pipeline.grid import MAX_CASES, expand, parse_sweep
+from rbstudy.pipeline.grid import MAX_CASES, Cases, expand, parse_sweep
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
@@ -63,7 +63,7 @@ class StudyConfig:
     accuracy_bound: float
     duration: float
     dimensions: tuple
-    cases: tuple
+    cases: Cases
     variables: tuple
     batches: tuple
     schemes: dict

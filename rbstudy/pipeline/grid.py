@@ -265,18 +265,41 @@ def _fail_at(bad, message, fix=None, key=None):
         raise InputError(message(row), fix, key=key, row=row)
 
 
-def _vector_rows(values, size):
-    """A vector of 3 numbers or swept columns as (size, 3) floats; None if it is not one."""
-    if not isinstance(values, list) or len(values) != 3 or not all(
-            isinstance(v, np.ndarray) and v.dtype.kind == "f"
-            or isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
-        return None
+def _entry(value, row):
+    """The value of a leaf (a number, or a column) in scene ``row``, as a Python value."""
+    if not isinstance(value, np.ndarray):
+        return value
+    entry = value[row]
+    return entry.item() if isinstance(entry, np.generic) else entry
+
+
+def _as_floats(value, size):
+    """A leaf as (size,) floats, NaN where it is not a number."""
+    if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+        return value
+    entries = value.tolist() if isinstance(value, np.ndarray) else [value] * size
+    return np.array([_float_or_nan(entry) for entry in entries])
+
+
+def _float_or_nan(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return math.nan
     try:
-        rows = np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in values],
-                        axis=-1)
+        return float(value)
     except OverflowError:  # an integer beyond any float
-        return None
-    return rows if np.isfinite(rows).all() else None
+        return math.nan
+
+
+def _vector_rows(values, size, key):
+    """A vector of 3 numbers or swept columns as (size, 3) floats; an `InputError` at ``key``
+    otherwise, on the first bad row."""
+    if not isinstance(values, list) or len(values) != 3:
+        raise InputError(f"expected a list of 3 finite numbers, got {values!r:.80}", key=key)
+    with np.errstate(over="ignore"):
+        rows = np.stack([_as_floats(value, size) for value in values], axis=-1)
+    _fail_at(~np.isfinite(rows).all(axis=-1), lambda row: "expected a list of 3 finite "
+             f"numbers, got {[_entry(value, row) for value in values]!r:.80}", key=key)
+    return rows
 
 
 _OMEGA_KEY = "scene.initial.angular_velocity"
@@ -292,21 +315,17 @@ def _body_omega(scene, name, size):
     if name == "tilt" and frame != "body":
         raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
                          "body axes (.body)", key=_OMEGA_KEY)
-    vector = _vector_rows(omega[frame], size)
-    if vector is None:
-        raise InputError(f"expected a list of 3 finite numbers, got {omega[frame]!r:.80}",
-                         key=f"{_OMEGA_KEY}.{frame}")
-    return omega, frame, vector
+    return omega, frame, _vector_rows(omega[frame], size, f"{_OMEGA_KEY}.{frame}")
 
 
 def _short_numbers(name, column):
     """A short name's column (n,) as floats: every value a finite number (spin > 0)."""
     if column.dtype == object:
         _fail_at(np.array([isinstance(v, str) for v in column]),
-                 lambda row: f"{name} takes a number, got {column[row]!r}")
+                 lambda row: f"{name} takes a number, got {_entry(column, row)!r}")
     numbers = column.astype(float)
     if name == "spin":
-        _fail_at(numbers <= 0.0, lambda row: f"spin must be > 0 rad/s, got {column[row]!r}",
+        _fail_at(numbers <= 0.0, lambda row: f"spin must be > 0 rad/s, got {_entry(column, row)!r}",
                  "a body at rest has no rotation to study: sweep a positive spin")
     return numbers
 
@@ -321,10 +340,13 @@ def _apply_short(scene, name, column):
                              "sweep its nodes' masses or positions, or assembly.scale",
                              key="scene.assembly")
         inertia = scene.get("body", {}).get("inertia")
-        moments = _vector_rows(inertia, size)
-        if moments is None or (symmetry_axes(moments) != 2).any():
-            raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r}",
-                             "give inertia: [I1, I1, I3]", key="scene.body.inertia")
+        key, fix = "scene.body.inertia", "give inertia: [I1, I1, I3]"
+        if not isinstance(inertia, list) or len(inertia) != 3:
+            raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got "
+                             f"{inertia!r:.80}", fix, key=key)
+        moments = _vector_rows(inertia, size, key)
+        _fail_at(symmetry_axes(moments) != 2, lambda row: "inertia_ratio needs a body symmetric "
+                 f"about axis 3, got {moments[row].tolist()}", fix, key=key)
         scene["body"]["inertia"] = [inertia[0], inertia[0], values * inertia[0]]
         return
     omega, frame, vector = _body_omega(scene, name, size)
