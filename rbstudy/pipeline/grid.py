@@ -307,7 +307,7 @@ _OMEGA_KEY = "scene.initial.angular_velocity"
 
 def _body_omega(scene, name, size):
     """The initial angular velocity mapping, its frame and its vectors (size, 3)."""
-    omega = scene.get("initial", {}).get("angular_velocity", {})
+    omega = _inside(scene, "initial", "angular_velocity")
     if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
         raise InputError(f"{name} needs the initial angular velocity", "give its .body (or "
                          ".space) components", key=_OMEGA_KEY)
@@ -316,6 +316,13 @@ def _body_omega(scene, name, size):
         raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
                          "body axes (.body)", key=_OMEGA_KEY)
     return omega, frame, _vector_rows(omega[frame], size, f"{_OMEGA_KEY}.{frame}")
+
+
+def _inside(mapping, *keys):
+    """The value at ``keys`` in nested mappings, None where one is missing or not a mapping."""
+    for key in keys:
+        mapping = mapping.get(key) if isinstance(mapping, dict) else None
+    return mapping
 
 
 def _short_numbers(name, column):
@@ -339,7 +346,7 @@ def _apply_short(scene, name, column):
             raise InputError("inertia_ratio has no meaning for a body assembled from nodes",
                              "sweep its nodes' masses or positions, or assembly.scale",
                              key="scene.assembly")
-        inertia = scene.get("body", {}).get("inertia")
+        inertia = _inside(scene, "body", "inertia")
         key, fix = "scene.body.inertia", "give inertia: [I1, I1, I3]"
         if not isinstance(inertia, list) or len(inertia) != 3:
             raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got "
