@@ -16,7 +16,7 @@ import pathlib
 import sys
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError
+from rbstudy.errors import ConfigError, InputError, RbstudyError, first_line
 
 __all__ = ["main", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -133,15 +133,16 @@ def _plot(args):
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
-    datasets = [(path, _select(_open(path, open_results), args.select, path))
-                 for path in args.files]
-    studies = [str(dataset.attrs.get("study", "results")) for _, dataset in datasets]
-    for (path, _), study in zip(datasets, studies, strict=True):
-        if args.out and studies.count(study) > 1:
-            raise InputError(f"another file of this command is also study {study!r}: their "
-                             "figures would overwrite each other in --out",
-                             "plot them one at a time, each with its own --out", path)
-    for path, dataset in datasets:
+    if len(args.files) > 1:  # every file checked before any is drawn, one in memory at a time
+        studies = [str(_select(_open(path, open_results), args.select, path)
+                       .attrs.get("study", "results")) for path in args.files]
+        for path, study in zip(args.files, studies, strict=True):
+            if args.out and studies.count(study) > 1:
+                raise InputError(f"another file of this command is also study {study!r}: "
+                                 "their figures would overwrite each other in --out",
+                                 "plot them one at a time, each with its own --out", path)
+    for path in args.files:
+        dataset = _select(_open(path, open_results), args.select, path)
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
         figures = all_figures(dataset, folder, tuple(args.format))
         kinds = " and ".join(kind.upper() for kind in args.format)
@@ -190,14 +191,14 @@ def _report(args):
 
 def _open(path, open_results):
     """A results file with the bookkeeping the figures read, or a one-line error naming it."""
+    from rbstudy.pipeline.integrity import is_part
     from rbstudy.pipeline.variables import BOOKKEEPING
     try:
         dataset = open_results(path)
     except (OSError, ValueError) as error:
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error)
-        raise InputError(f"cannot read it as an rbstudy results file ({first_line})",
+        raise InputError(f"cannot read it as an rbstudy results file ({first_line(error)})",
                          "give the <study>.nc written by rbstudy sweep", path) from None
-    if "batch" in dataset.attrs and "case" in dataset.dims:
+    if is_part(dataset.attrs, dataset.dims):
         raise InputError("is one batch's part file, not a study's archive",
                          "give the <study>.nc written beside parts/", path)
     if "study" not in dataset.attrs:

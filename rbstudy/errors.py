@@ -8,7 +8,7 @@ ever rewritten as text.
 """
 
 __all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError",
-           "MAX_LENGTH"]
+           "MAX_LENGTH", "first_line"]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
 MAX_LENGTH = 1000
@@ -59,3 +59,10 @@ class ConfigError(InputError):
 
 class SchemeError(InputError):
     """An unknown scheme, an unknown scheme option, or an option value out of range."""
+
+
+def first_line(error):
+    """The first line of a foreign exception's message (a library's may run to pages), or
+    its class name when it has none: what a one-line error quotes of it."""
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__

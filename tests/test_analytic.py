@@ -68,10 +68,10 @@ def test_references_of_a_batch_equal_those_of_each_scene():
                         quaternion=(0.0, 0.0, 0.0, 1.0), omega_body=(0.3, 1.0, 0.2),
                         duration=1.0))
     times = np.arange(11) * 0.1
-    together = reference_solutions(scenes, times, 0.1)
+    together = reference_solutions(scenes, times)
     assert [r.name for r in together] == ["symmetric_top"] * 6 + ["dop853"]
     for scene, batch in zip(scenes, together, strict=True):
-        alone = reference_solution(scene, times, 0.1)
+        alone = reference_solution(scene, times)
         assert np.max(orientation_error(batch.quaternion, alone.quaternion)) < 1e-14
         assert np.allclose(batch.omega_body, alone.omega_body, rtol=0, atol=1e-14)
 

@@ -10,7 +10,7 @@ import yaml
 from conftest import CONFIGS
 
 from rbstudy.analysis.plots import all_figures, convergence
-from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows
+from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows, table_columns
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
@@ -83,6 +83,8 @@ def test_every_shipped_study_gives_its_figures(name, tmp_path):
         candidates = {n for n in candidates if not n.startswith("benchmark_")} | {"benchmark"}
     assert shown | left_out == candidates and not shown & left_out
     assert all(figures.absent.values())  # every absence says why
+    if "dt" in ds.dims:  # a dt sweep always has an order and a cost to show
+        assert {"convergence_orientation", "work_precision"} <= shown, shown
     for png in figures.written:
         assert png.name.startswith(f"{study}_")
         assert png.stat().st_size > 10_000 and png.with_suffix(".svg").stat().st_size > 10_000
@@ -120,8 +122,13 @@ def test_report_parses_and_every_image_exists(tmp_path, capsys):
     for source in parser.images + parser.links:
         assert (index.parent / source).is_file(), source
     text = index.read_text()
-    for row in scheme_rows(open_results(done.path)):  # the table shows the summary's numbers
-        assert f"<td>{row['unstable']}/{row['cases']}</td>" in text
+    rows = scheme_rows(open_results(done.path))
+    headers = [header for header, _ in table_columns(rows)]
+    for row in rows:  # the table shows the summary's numbers, each in its column
+        line = next(line for line in text.splitlines()
+                    if line.startswith(f"<tr><td>{row['scheme']}</td>"))
+        cells = line.removeprefix("<tr><td>").removesuffix("</td></tr>").split("</td><td>")
+        assert cells[headers.index("failed")] == f"{row['unstable']}/{row['cases']}"
         assert f"<td>{row['order'][0]:.2f}</td>" in text or row["order"][0] != row["order"][1]
     for scheme in SHRUNK_SCHEMES:
         assert f"<td>{scheme}</td>" in text
@@ -250,6 +257,7 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     fig = drawn_figures["convergence_energy"]
     fig.canvas.draw()
     panels = [ax for ax in fig.axes if ax.get_visible()]
+    styled = set()
     for ax in panels:
         legend = ax.get_legend()
         assert legend is not None
@@ -259,8 +267,10 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
             scheme = line.get_label().split(" (")[0]
             if scheme in SCHEME_STYLES:
                 assert colors.same_color(line.get_color(), SCHEME_STYLES[scheme][0]), scheme
+                styled.add(scheme)
+    assert styled == set(SHRUNK_SCHEMES)  # every scheme drawn, each in its own style
     texts = [t.get_text() for ax in panels for t in ax.texts]
-    assert ZERO_LABEL in texts  # hht and midpoint keep the energy exactly: drawn on the floor
+    assert ZERO_LABEL in texts  # hht keeps the energy exactly: drawn on the floor
     bench = drawn_figures["benchmark_omega_time"]
     bench.canvas.draw()
     w_z = bench.axes[2]  # w_z varies by 1e-7 around 6.28691: it read "1e-7+6.28691"

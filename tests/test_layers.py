@@ -124,10 +124,3 @@ def test_the_archive_readers_never_load_numba():
                           timeout=120)
     assert done.returncode == 0, done.stderr
 
-
-def test_the_plots_import_alone_loads_no_numba():
-    """The issue's own check, as a user would type it."""
-    done = subprocess.run([sys.executable, "-c", "import rbstudy.analysis.plots, sys; "
-                           "assert 'numba' not in sys.modules"], capture_output=True, text=True,
-                          timeout=120)
-    assert done.returncode == 0, done.stderr

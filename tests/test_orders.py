@@ -66,8 +66,7 @@ def test_a_pre_asymptotic_drift_is_refused_and_the_finest_steps_fitted():
     assert list(fit.used) == [False] * 4 + [True] * 4  # the four finest steps
     assert abs(fit.finest_slope - 4.09) < 1e-12
     assert abs(fit.order - 4.22) < 0.01  # honest: still above 4, with the finest pair beside it
-    whole = np.polyfit(np.log(dts), np.log(errors), 1)[0]
-    assert whole > 4.45  # what the whole range claimed
+    # (a straight fit over the whole range, np.polyfit, claims 4.49)
 
 
 def test_noise_in_the_slopes_is_not_a_drift():

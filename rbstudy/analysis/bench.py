@@ -21,6 +21,7 @@ import numpy as np
 
 from rbstudy.numerics.driver import default_threads, run_batch
 from rbstudy.physics.scenes import scene_from_mapping
+from rbstudy.pipeline.execute import progress_wanted
 from rbstudy.schemes import SCHEMES, get_scheme
 
 __all__ = ["run_bench", "abaqus_top_scene"]
@@ -54,8 +55,9 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
 
 
 def _progress(enabled):
-    """``note(text)``: redraws one status line on a terminal's stderr (nothing elsewhere)."""
-    live = enabled and sys.stderr.isatty()
+    """``note(text)``: redraws one status line on a terminal's stderr (nothing elsewhere,
+    as a sweep's bar: `rbstudy.pipeline.execute.progress_wanted`)."""
+    live = progress_wanted(quiet=not enabled)
 
     def note(text):
         if live:

@@ -12,6 +12,7 @@ needs the scheme registry or a compiler.
 
 import numpy as np
 
+from rbstudy.numerics.state import INVARIANTS
 from rbstudy.physics.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TABLE_NOTE",
@@ -38,7 +39,8 @@ ERROR_MEASURES = {
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
     "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error"),
 }
-# What `scheme_rows` reads: per-case scalars only.
+# What `scheme_rows` reads: per-case scalars, and momentum_error (the vector L is checked at
+# the samples: a time series per case).
 SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orientation_error",
                      "max_energy_error", "max_momentum_magnitude_error", "momentum_error",
                      "initial_spin", "physical_body")
@@ -118,15 +120,12 @@ def _nominal_order(ds, scheme):
     return int(per_scheme(ds["nominal_order"], scheme))
 
 
-# The invariants the table checks, as it labels them: the energy and the magnitude |L| over
-# every step (the driver's drifts), and the space vector L at the samples (momentum_error).
-_KEPT = (("energy", "energy"), ("momentum_magnitude", "|L|"), ("momentum_vector", "L"))
-
-
-def _kept(ds, scheme, stable):
+def _kept(drifts, scheme, stable):
+    """The labels of the invariants (`INVARIANTS`) whose ``drifts`` (label -> every case's
+    largest drift, or None) every ``stable`` case of ``scheme`` keeps: the energy and |L|
+    over every step (the driver's drifts), the space vector L at the samples."""
     kept = []
-    for key, label in _KEPT:
-        drift = error_measure(ds, key)
+    for label, drift in drifts.items():
         if drift is not None:
             drift = per_scheme(drift, scheme).values[stable]
             if drift.size and np.all(drift < KEPT_TOLERANCE):
@@ -157,6 +156,9 @@ def scheme_rows(ds):
     load = step_load(ds)
     physical = (ds["physical_body"] == 1).broadcast_like(ds["status"])
     judged = "accuracy" in ds
+    # every case's error measures, once for all schemes
+    drifts = {label: error_measure(ds, key) for key, label in INVARIANTS.items()}
+    orientation = error_measure(ds, _ORDER_MEASURE)
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         accurate, inaccurate, failed, unjudged = verdicts(ds, scheme)
@@ -178,10 +180,9 @@ def scheme_rows(ds):
         good = accurate & real & (scheme_load < limit if np.isfinite(limit) else True)
         row["accurate_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
         row["inaccurate_hw"], row["unstable_hw"] = first["inaccurate"], first["failed"]
-        row["kept"] = _kept(ds, scheme, ~failed)
-        errors = error_measure(ds, _ORDER_MEASURE)
-        if errors is not None:
-            errors = per_scheme(errors, scheme)
+        row["kept"] = _kept(drifts, scheme, ~failed)
+        if orientation is not None:
+            errors = per_scheme(orientation, scheme)
             if "dt" in errors.dims:
                 fits, row["tries"], fitted = _orders(errors)
                 row["fits"] = len(fits)

@@ -23,10 +23,10 @@ the layers above read this layout and the status codes without compiling anythin
 import enum
 
 __all__ = [
-    "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE",
+    "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
     "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
     "N_PARAM", "N_OPTION", "RESULT_FIELDS", "Result", "N_RESULT",
-    "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES",
+    "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
 ]
 
 POSITION = 0
@@ -34,6 +34,12 @@ QUATERNION = 3
 VELOCITY = 7
 OMEGA = 10
 N_STATE = 13
+# The state row's fields by the names the rest of rbstudy gives them (a scene's initial
+# values, a simulation's samples, a reference), as slices of the row.
+STATE_FIELDS = {"position": slice(POSITION, POSITION + 3),
+                "quaternion": slice(QUATERNION, QUATERNION + 4),
+                "velocity": slice(VELOCITY, VELOCITY + 3),
+                "omega_body": slice(OMEGA, OMEGA + 3)}
 
 MASS = 0
 INERTIA = 1
@@ -66,3 +72,8 @@ N_RESULT = len(RESULT_FIELDS)
 # only: archived codes must keep theirs).
 STATUS_NAMES = ("ok", "unstable", "not_converged")
 OK, UNSTABLE, NOT_CONVERGED = range(len(STATUS_NAMES))
+
+# The invariants a scheme may claim to keep to round-off for the moment-free body, and how
+# they read: the energy, the magnitude |L| of the angular momentum, the space vector L itself
+# (which keeps |L| too). Here, numba-free, for the summary table as well as the registry.
+INVARIANTS = {"energy": "energy", "momentum_magnitude": "|L|", "momentum_vector": "L"}

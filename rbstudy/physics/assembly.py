@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rbstudy.physics.columns import refuse, rows, symmetric_tensor
+
 __all__ = ["Assembly", "assemble", "CENTRES", "REGULARISATION", "DEGENERATE"]
 
 # Where the centre of mass is taken, Radioss's options.
@@ -111,15 +113,9 @@ _NODE_KEYS = ("position", "mass", "inertia")
 _MASTER_KEYS = ("position", "mass", "inertia")
 
 
-def _columns(values, size):
-    """Floats and columns (as the reader returns them) -> (size, len) floats."""
-    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in values],
-                    axis=-1)
-
-
 def _nodal_tensor(reader, value, key, size):
     """A nodal inertia ``[Ixx, Iyy, Izz, Ixy, Iyz, Izx]`` -> (size, 3, 3)."""
-    xx, yy, zz, xy, yz, zx = _columns(reader.vector(value, key, length=6), size).T
+    xx, yy, zz, xy, yz, zx = rows(reader.vector(value, key, length=6), size).T
     return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1),
                      np.stack([zx, yz, zz], -1)], -2)
 
@@ -127,23 +123,14 @@ def _nodal_tensor(reader, value, key, size):
 def _master_tensor(reader, value, key, size):
     """The master's added inertia: a number J (J on every axis) or a 3x3 tensor -> (size, 3, 3)."""
     if isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) for r in value):
-        tensor = np.stack([_columns(reader.vector(row, f"{key}[{i}]"), size)
-                           for i, row in enumerate(value)], axis=-2)
-        asymmetric = ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
-                                        atol=0.0), axis=(-2, -1))
-        if asymmetric.any():
-            reader.fail(key, "the inertia tensor must be symmetric", row=int(np.argmax(asymmetric)))
-        return tensor
+        return symmetric_tensor(reader, value, key, size)
     spherical = np.broadcast_to(reader.number(value, key), (size,))
     return spherical[:, None, None] * np.eye(3)
 
 
 def _not_negative(reader, values, key, what):
-    bad = values < 0.0
-    if bad.any():
-        row = int(np.argmax(bad))
-        reader.fail(key, f"{what} must be >= 0, got {float(values[row])!r}", "give a mass >= 0 kg",
-                    row=row)
+    refuse(reader, values < 0.0, key,
+           lambda row: f"{what} must be >= 0, got {float(values[row])!r}", "give a mass >= 0 kg")
 
 
 def read_assembly(reader, spec, path, size):
@@ -152,7 +139,7 @@ def read_assembly(reader, spec, path, size):
     spec = reader.mapping(spec, path, _KEYS)
     master = reader.mapping(spec.get("master"), f"{path}.master", _MASTER_KEYS)
     master_key = f"{path}.master"
-    master_position = _columns(reader.vector(master.get("position", [0.0, 0.0, 0.0]),
+    master_position = rows(reader.vector(master.get("position", [0.0, 0.0, 0.0]),
                                              f"{master_key}.position"), size)
     master_mass = np.broadcast_to(reader.number(master.get("mass", 0.0), f"{master_key}.mass"),
                                   (size,))
@@ -172,7 +159,7 @@ def read_assembly(reader, spec, path, size):
             if needed not in node:
                 reader.fail(f"{key}.{needed}", "missing", "give every node a position (m) and "
                                                           "a mass (kg)")
-        positions.append(_columns(reader.vector(node["position"], f"{key}.position"), size))
+        positions.append(rows(reader.vector(node["position"], f"{key}.position"), size))
         mass = np.broadcast_to(reader.number(node["mass"], f"{key}.mass"), (size,))
         _not_negative(reader, mass, f"{key}.mass", "a node's mass")
         masses.append(mass)
@@ -189,20 +176,16 @@ def read_assembly(reader, spec, path, size):
         reader.fail(f"{path}.centre_of_mass", f"expected one of {', '.join(CENTRES)}, got "
                                               f"{centre!r:.80}")
     spherical = reader.flag(spec.get("spherical", False), f"{path}.spherical")
-    total = master_mass + masses.sum(axis=1)
-    weighed = (masses.sum(axis=1) if centre == "secondaries" else total) > 0.0
-    if not weighed.all():
-        reader.fail(f"{path}.nodes", "the secondary nodes have no mass" if centre ==
-                    "secondaries" else "the body has no mass", "give a node (or the master) a "
-                    "mass > 0 kg", row=int(np.argmin(weighed)))
+    weighed = masses.sum(axis=1) + (0.0 if centre == "secondaries" else master_mass)
+    refuse(reader, weighed <= 0.0, f"{path}.nodes",
+           lambda row: "the secondary nodes have no mass" if centre == "secondaries"
+           else "the body has no mass", "give a node (or the master) a mass > 0 kg")
     body = assemble(master_position, master_mass, master_inertia, positions, masses, inertias,
                     centre, spherical)
-    largest = body.principal[:, 2]
-    flat = body.principal[:, 0] <= DEGENERATE * largest
-    if not spherical and flat.any():
-        row = int(np.argmax(flat))
-        reader.fail(f"{path}.nodes", f"principal inertias {body.principal[row].tolist()}: the "
-                    "nodes lie on one line (or at one point) and give no inertia about it",
-                    "add a node off that line, a nodal inertia, or the master's inertia, or set "
-                    "spherical: true", row=row)
+    if not spherical:
+        refuse(reader, body.principal[:, 0] <= DEGENERATE * body.principal[:, 2],
+               f"{path}.nodes", lambda row: f"principal inertias {body.principal[row].tolist()}: "
+               "the nodes lie on one line (or at one point) and give no inertia about it",
+               "add a node off that line, a nodal inertia, or the master's inertia, or set "
+               "spherical: true")
     return body, names

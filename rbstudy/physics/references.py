@@ -29,8 +29,6 @@ __all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",
 REFERENCE_MAX_STEPS = 1_000_000
 # DOP853 steps per radian of |w| T, for that forecast.
 REFERENCE_STEPS_PER_RADIAN = 6.5
-# Where a Reference's fields sit in a state row: quaternion, omega_body, position, velocity.
-_FIELDS = ((S.QUATERNION, 4), (S.OMEGA, 3), (S.POSITION, 3), (S.VELOCITY, 3))
 
 
 @dataclass(frozen=True)
@@ -46,7 +44,7 @@ class Reference:
     velocity: np.ndarray
 
 
-def _symmetric_tops(scenes, times, output_interval):
+def _symmetric_tops(scenes, times):
     """The free symmetric tops, in one vectorised closed-form call."""
     quaternion, omega = symmetric_top(
         [scene.body.inertia for scene in scenes], [scene.quaternion for scene in scenes],
@@ -55,7 +53,7 @@ def _symmetric_tops(scenes, times, output_interval):
             for k, scene in enumerate(scenes)]
 
 
-def _axial_moments(scenes, times, output_interval):
+def _axial_moments(scenes, times):
     references = []
     for scene in scenes:
         quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
@@ -64,22 +62,20 @@ def _axial_moments(scenes, times, output_interval):
     return references
 
 
-def _dop853(scenes, times, output_interval):
-    """DOP853 on the output grid ``0, d, 2 d, ...`` (``d`` = output_interval, default
-    ``times[1] - times[0]``), case by case, each within `REFERENCE_MAX_STEPS` steps: past
-    them (or when DOP853 itself fails) the case has no reference ("none"), never a hang."""
-    interval = output_interval if output_interval is not None else times[1] - times[0]
-    grid = interval * np.arange(len(times))
+def _dop853(scenes, times):
+    """DOP853 sampled at ``times``, case by case, each within `REFERENCE_MAX_STEPS` steps:
+    past them (or when DOP853 itself fails) the case has no reference ("none"), never a
+    hang."""
     references = []
     for scene in scenes:
-        run = dop853.integrate(scene.state_row(), scene.param_row(), grid,
+        run = dop853.integrate(scene.state_row(), scene.param_row(), times,
                                max_steps=REFERENCE_MAX_STEPS, halt=HALT_FLAG)
         if HALT_FLAG[0]:
             raise Halted("the DOP853 references were halted")
         samples = run.samples if run.finished else np.full_like(run.samples, np.nan)
         references.append(Reference("dop853" if run.finished else "none",
-                                    *(samples[:, start:start + width]
-                                      for start, width in _FIELDS)))
+                                    **{name: samples[:, place]
+                                       for name, place in S.STATE_FIELDS.items()}))
     return references
 
 
@@ -88,12 +84,12 @@ def _dop853(scenes, times, output_interval):
 COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments, "dop853": _dop853}
 
 
-def reference_solutions(scenes, times, output_interval=None):
-    """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s.
+def reference_solutions(scenes, times):
+    """The best available reference of each of ``scenes`` at ``times`` (T,), increasing from
+    0 (the run's output times), `Reference`s.
 
     Scenes are grouped by kind and each kind computed in one call (the symmetric tops of a
-    batch vectorised). ``times`` must be the output grid ``0, d, 2 d, ...`` of the run when
-    DOP853 is needed (``output_interval`` = d, default ``times[1] - times[0]``).
+    batch vectorised).
     """
     times = np.asarray(times, dtype=float)
     kinds = reference_kinds(
@@ -104,11 +100,11 @@ def reference_solutions(scenes, times, output_interval=None):
     for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]
         if members:
-            computed = compute([scenes[i] for i in members], times, output_interval)
+            computed = compute([scenes[i] for i in members], times)
             found.update(zip(members, computed, strict=True))
     return [found[i] for i in range(len(scenes))]
 
 
-def reference_solution(scene, times, output_interval=None):
+def reference_solution(scene, times):
     """The best available reference for one ``scene`` (see `reference_solutions`)."""
-    return reference_solutions([scene], times, output_interval)[0]
+    return reference_solutions([scene], times)[0]

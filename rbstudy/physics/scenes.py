@@ -26,6 +26,7 @@ from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.physics.assembly import REGULARISATION, read_assembly
+from rbstudy.physics.columns import refuse, rows, symmetric_tensor
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
@@ -121,10 +122,8 @@ class Scene:
     def state_row(self):
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
         row = np.zeros(S.N_STATE)
-        row[S.POSITION:S.POSITION + 3] = self.position
-        row[S.QUATERNION:S.QUATERNION + 4] = self.quaternion
-        row[S.VELOCITY:S.VELOCITY + 3] = self.velocity
-        row[S.OMEGA:S.OMEGA + 3] = self.omega_body
+        for name, place in S.STATE_FIELDS.items():
+            row[place] = getattr(self, name)
         return row
 
     def param_row(self):
@@ -216,19 +215,6 @@ def _triangle_ok(inertia):
     return (i1 + i2 >= i3 - slack) & (i2 + i3 >= i1 - slack) & (i3 + i1 >= i2 - slack)
 
 
-def _refuse(reader, bad, key, message, fix=None):
-    """Fail at the first row where ``bad`` (n,) holds; ``message(row)`` names its value."""
-    if bad.any():
-        row = int(np.argmax(bad))
-        reader.fail(key, message(row), fix, row=row)
-
-
-def _rows(vector, size):
-    """A vector as the reader returns it (floats and columns) -> (size, len) floats."""
-    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in vector],
-                    axis=-1)
-
-
 def _in_principal(axes, vectors):
     """Input-frame vectors (n, ..., 3) in the principal frame (``axes`` (n, 3, 3) as columns,
     None for the identity)."""
@@ -242,7 +228,7 @@ def _principal(reader, tensor, key):
     columns, of inertia tensors (n, 3, 3)."""
     inertia, axes = np.linalg.eigh(tensor)
     axes[np.linalg.det(axes) < 0, :, 2] *= -1.0
-    _refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
+    refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
             f"be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}")
     return inertia, axes
 
@@ -259,20 +245,15 @@ def _read_body(reader, spec, path, size):
     raw = spec["inertia"]
     key = f"{path}.inertia"
     if isinstance(raw, (list, tuple)) and len(raw) == 3 and all(isinstance(r, (list, tuple)) for r in raw):
-        tensor = np.stack([_rows(reader.vector(row, f"{key}[{i}]"), size)
-                           for i, row in enumerate(raw)], axis=-2)
-        _refuse(reader, ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
-                                           atol=0.0), axis=(-2, -1)),
-                key, lambda row: "the inertia tensor must be symmetric")
-        inertia, axes = _principal(reader, tensor, key)
+        inertia, axes = _principal(reader, symmetric_tensor(reader, raw, key, size), key)
     else:
-        inertia = _rows(reader.vector(raw, key), size)
+        inertia = rows(reader.vector(raw, key), size)
         axes = None
         for i, moments in enumerate(inertia.T):
-            _refuse(reader, moments <= 0.0, f"{key}[{i}]",
+            refuse(reader, moments <= 0.0, f"{key}[{i}]",
                     lambda row, moments=moments: f"must be > 0 kg m^2, got {float(moments[row])!r}")
     if not allow:
-        _refuse(reader, ~_triangle_ok(inertia), key,
+        refuse(reader, ~_triangle_ok(inertia), key,
                 lambda row: f"{inertia[row].tolist()} violates the triangle inequality I1 + I2 "
                             ">= I3 (and cyclic): no rigid body has it",
                 "set allow_unphysical: true for a numerical stress body")
@@ -323,17 +304,17 @@ def _read_orientation(reader, spec, path, body_momentum, size):
     form = forms[0]
     key = f"{path}.{form}"
     if form == "euler_zxz_deg":
-        return Rotation.from_euler("ZXZ", _rows(reader.vector(spec[form], key), size),
+        return Rotation.from_euler("ZXZ", rows(reader.vector(spec[form], key), size),
                                    degrees=True)
     if form == "quaternion":
-        quaternion = _rows(reader.vector(spec[form], key, length=4), size)
-        _refuse(reader, np.linalg.norm(quaternion, axis=-1) == 0.0, key,
+        quaternion = rows(reader.vector(spec[form], key, length=4), size)
+        refuse(reader, np.linalg.norm(quaternion, axis=-1) == 0.0, key,
                 lambda row: "a zero quaternion is no rotation")
         return Rotation.from_quat(quaternion)
     if form == "rotation_vector":
-        return Rotation.from_rotvec(_rows(reader.vector(spec[form], key), size))
-    axis = _rows(reader.vector(spec[form], key), size)
-    _refuse(reader, np.linalg.norm(axis, axis=-1) == 0.0, key,
+        return Rotation.from_rotvec(rows(reader.vector(spec[form], key), size))
+    axis = rows(reader.vector(spec[form], key), size)
+    refuse(reader, np.linalg.norm(axis, axis=-1) == 0.0, key,
             lambda row: "the momentum axis must be a non-zero vector")
     if body_momentum is None:
         reader.fail(key, "needs the angular velocity in body axes (initial.angular_velocity.body)")
@@ -387,7 +368,7 @@ def _read_nodes(reader, spec, path, size):
     if not isinstance(spec, dict):
         reader.fail(path, f"expected a mapping of node name -> [x, y, z] offset in m, got {spec!r}")
     names = tuple(str(name) for name in spec)
-    offsets = [_rows(reader.vector(v, f"{path}.{k}"), size) for k, v in spec.items()]
+    offsets = [rows(reader.vector(v, f"{path}.{k}"), size) for k, v in spec.items()]
     return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
@@ -418,12 +399,12 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     omega = reader.mapping(initial.get("angular_velocity"), omega_path, ("body", "space"))
     if len(omega) > 1:
         reader.fail(omega_path, "give the angular velocity in body or in space axes, not both")
-    given = {frame: _rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size)
+    given = {frame: rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size)
              for frame in omega}
     for frame, vector in given.items():
         with np.errstate(over="ignore"):  # |w|^2 max(I) bounds twice the energy
             energy = np.einsum("ni,ni->n", vector, vector) * inertia.max(axis=-1)
-        _refuse(reader, ~np.isfinite(energy), f"{omega_path}.{frame}",
+        refuse(reader, ~np.isfinite(energy), f"{omega_path}.{frame}",
                 lambda row: "so large that the body's energy overflows a float",
                 "give a smaller angular velocity")
     omega_principal = _in_principal(axes, given["body"]) if "body" in given else np.zeros((size, 3))
@@ -439,7 +420,7 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
 
     loads_path = f"{path}.loads"
     loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS)
-    loads = {name: (_rows(reader.vector(loads_spec[name], f"{loads_path}.{name}"), size)
+    loads = {name: (rows(reader.vector(loads_spec[name], f"{loads_path}.{name}"), size)
                     if name in loads_spec else np.zeros((size, 3))) for name in _LOADS}
     for name in _IN_BODY_AXES:
         loads[name] = _in_principal(axes, loads[name])
@@ -447,9 +428,9 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
         mass=mass, inertia=inertia, allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
         omega_body=omega_principal,
-        position=centre if "assembly" in spec else _rows(
+        position=centre if "assembly" in spec else rows(
             reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size),
-        velocity=_rows(reader.vector(initial.get("velocity", [0, 0, 0]),
+        velocity=rows(reader.vector(initial.get("velocity", [0, 0, 0]),
                                      f"{initial_path}.velocity"), size),
         loads=loads, nodes=_in_principal(axes, offsets), node_names=names,
         duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),

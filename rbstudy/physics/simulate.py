@@ -56,21 +56,14 @@ class Simulation:
     time: np.ndarray
     output: BatchOutput
 
-    @property
-    def quaternion(self):
-        return self.output.samples[:, :, S.QUATERNION:S.QUATERNION + 4]
+    def field(self, name):
+        """The samples of the state field ``name`` (`rbstudy.numerics.state.STATE_FIELDS`)."""
+        return self.output.samples[:, :, S.STATE_FIELDS[name]]
 
-    @property
-    def omega_body(self):
-        return self.output.samples[:, :, S.OMEGA:S.OMEGA + 3]
-
-    @property
-    def position(self):
-        return self.output.samples[:, :, S.POSITION:S.POSITION + 3]
-
-    @property
-    def velocity(self):
-        return self.output.samples[:, :, S.VELOCITY:S.VELOCITY + 3]
+    quaternion = property(lambda self: self.field("quaternion"))
+    omega_body = property(lambda self: self.field("omega_body"))
+    position = property(lambda self: self.field("position"))
+    velocity = property(lambda self: self.field("velocity"))
 
     @property
     def results(self):

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import ConfigError
+from rbstudy.numerics.driver import default_threads
 from rbstudy.physics.references import REFERENCE_MAX_STEPS, REFERENCE_STEPS_PER_RADIAN
 from rbstudy.schemes import get_scheme
 
@@ -94,7 +95,7 @@ class Estimate:
 
 def estimate(study, cores=None):
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
-    cores = cores or os.cpu_count() or 1
+    cores = cores or default_threads()
     cases = study.cases
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
     body_steps, seconds, longest = 0, 0.0, 0.0

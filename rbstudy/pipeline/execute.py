@@ -8,7 +8,7 @@ scheduler is dask's local threaded one (the kernels release the GIL); ``schedule
 to a running ``dask.distributed`` cluster and ``workers`` starts a `LocalCluster` (workers
 must see the results folder).
 
-A study folder is locked while a sweep writes it; a rerun skips the batches whose part exists,
+A study folder is locked while a sweep writes it; a rerun skips the batches whose part is intact,
 so a killed sweep resumes where it stopped.
 """
 
@@ -28,7 +28,7 @@ import dask
 import numpy as np
 
 from rbstudy.errors import RbstudyError
-from rbstudy.numerics.driver import clear_halt, request_halt
+from rbstudy.numerics.driver import clear_halt, default_threads, request_halt
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.estimate import check_disk, disk_needed
@@ -91,8 +91,7 @@ class StudyRun:
 
 def compute_references(scenes, n_times, output_interval):
     """The references of ``scenes`` on the output grid of ``n_times`` samples (a dask task)."""
-    times = np.arange(n_times) * output_interval
-    return reference_solutions(scenes, times, output_interval)
+    return reference_solutions(scenes, np.arange(n_times) * output_interval)
 
 
 def compute_batch(job, reference_chunks, threads):
@@ -251,10 +250,11 @@ def _graph(study, pending, parts_dir, threads, token):
 
 
 def _run_local(tasks, sizes, progress, workers, schemes):
-    """Run the tasks on this process's threads. On Ctrl-C (or when a task fails) every
-    running kernel and reference is halted (`rbstudy.numerics.driver.request_halt`) and the
-    threads are joined before the exception goes on: the study stays locked until nothing of
-    this run is left working, and the process ends within a second."""
+    """Run the tasks on this process's threads; their results, in order. On Ctrl-C (or when
+    a task fails) every running kernel and reference is halted
+    (`rbstudy.numerics.driver.request_halt`) and the threads are joined before the exception
+    goes on: the study stays locked until nothing of this run is left working, and the
+    process ends within a second."""
     from dask.callbacks import Callback
 
     compile_schemes(schemes)
@@ -267,7 +267,7 @@ def _run_local(tasks, sizes, progress, workers, schemes):
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         with _Advance():
-            dask.compute(*tasks, scheduler="threads", num_workers=workers, pool=pool)
+            return dask.compute(*tasks, scheduler="threads", num_workers=workers, pool=pool)
     except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
         request_halt()
         raise
@@ -277,6 +277,7 @@ def _run_local(tasks, sizes, progress, workers, schemes):
 
 
 def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
+    """Run the tasks on a cluster; their results, in order."""
     from distributed import Client, LocalCluster, as_completed
 
     with contextlib.ExitStack() as stack:
@@ -296,6 +297,7 @@ def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
         for future in as_completed(futures):
             future.result()  # a failed task raises here; finished parts stay on disk
             progress.advance(sizes[future.key])
+        return [future.result() for future in futures]
 
 
 def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False,
@@ -352,7 +354,7 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
         # a part without its digest was stopped between its rename and its digest: unfinished
         damaged = 0 if force else sum(sealed(parts[batch.id]) for batch in pending)
         check_disk(study, disk_needed(study, pending), folder)
-        cores = os.cpu_count() or 1
+        cores = default_threads()  # the cores this process may use (a SLURM share)
         distributed = scheduler is not None or workers is not None
         threads = 1 if distributed else max(1, cores // max(1, len(pending)))
         token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
@@ -360,14 +362,16 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
         sizes = {f"store-{token}-{batch.id}": len(batch.cases) for batch in pending}
         progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
         schemes = {batch.scheme for batch in pending}
+        written = []  # the digest each store task computed of the part it wrote
         if tasks:
             if distributed:
-                _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
+                written = _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
             else:
-                _run_local(tasks, sizes, progress, cores, schemes)
-        # read back from disk, not taken from the tasks: the archive is built from what the
-        # folder holds (on a cluster, workers that cannot see it leave nothing there)
-        digests.update({batch.id: part_complete(parts[batch.id], batch) for batch in pending})
+                written = _run_local(tasks, sizes, progress, cores, schemes)
+        # the archive is built from what the folder holds: on a cluster, workers that cannot
+        # see it leave nothing there (and their digests name no part here)
+        digests.update({batch.id: digest if parts[batch.id].exists() else None
+                        for batch, digest in zip(pending, written, strict=True)})
         missing = [batch_id for batch_id, digest in digests.items() if digest is None]
         if missing:
             raise RbstudyError(f"{parts_dir}: {len(missing)} finished batches left no part "

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import netCDF4
 import numpy as np
 
-from rbstudy.errors import InputError
+from rbstudy.errors import InputError, first_line
 from rbstudy.pipeline.batches import ids_digest
 
-__all__ = ["file_digest", "sidecar", "sidecar_text", "sealed", "part_digest",
+__all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
            "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive", "verify_file",
            "SIDECAR_SUFFIX", "ALGORITHM"]
 
@@ -64,6 +64,12 @@ def sidecar_text(digest, path):
     """The digest file's line, as ``sha256sum`` writes it (``sha256sum -c`` does not read the
     ``sha256:`` prefix, but a reader sees which file and algorithm)."""
     return f"{digest}  {pathlib.Path(path).name}\n"
+
+
+def is_part(attributes, dimensions):
+    """Whether a netCDF file with these global ``attributes`` and ``dimensions`` (names) is
+    one batch's part file rather than a study's archive."""
+    return "batch" in attributes and "case" in dimensions
 
 
 def sealed(path):
@@ -154,7 +160,7 @@ def verify_archive(path):
     try:
         with netCDF4.Dataset(path) as nc:
             attributes = set(nc.ncattrs())
-            if "batch" in attributes and "case" in nc.dimensions:
+            if is_part(attributes, nc.dimensions):
                 return ArchiveCheck(("it is a part file without its digest beside it (its "
                                      "sweep stopped before sealing it)",), provable=False)
             if not {"checksums", "part_checksums", "batches"} <= attributes:
@@ -165,8 +171,7 @@ def verify_archive(path):
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
     except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:
-        return ArchiveCheck((f"it cannot be read as netCDF "
-                             f"({str(error).strip().splitlines()[0]})",))
+        return ArchiveCheck((f"it cannot be read as netCDF ({first_line(error)})",))
     try:
         problems = [f"{_named(name)} differs from its checksum"
                     for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]

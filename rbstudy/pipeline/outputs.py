@@ -43,6 +43,7 @@ class BatchData:
         self.scenes, self.run, self.references = scenes, run, references
         self.run_time = np.asarray(run_time, dtype=float)
         self.accuracy_bound = accuracy_bound
+        self._stacked = {}  # reference field -> (B, T, k), stacked once
 
     @cached_property
     def finite(self):
@@ -78,7 +79,10 @@ class BatchData:
 
     def reference(self, name):
         """``name`` (quaternion, omega_body, position, velocity) of every reference, (B, T, k)."""
-        return np.array([getattr(reference, name) for reference in self.references])
+        if name not in self._stacked:
+            self._stacked[name] = np.array([getattr(reference, name)
+                                            for reference in self.references])
+        return self._stacked[name]
 
     @cached_property
     def orientation_error(self):

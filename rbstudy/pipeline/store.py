@@ -46,6 +46,7 @@ from rbstudy.pipeline.variables import (
     COORDINATES,
     SCHEME_COORDINATES,
     VARIABLES,
+    cf_attrs,
     variable_attrs,
 )
 
@@ -162,8 +163,7 @@ def _fixed_coords(layout):
     if layout.node_names:
         coords["node"] = (np.array(layout.node_names), {})
     for name, (_, attrs) in coords.items():
-        units, long_name = COORDINATES[name]
-        attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
+        attrs.update(cf_attrs(*COORDINATES[name]))
     return coords
 
 
@@ -186,9 +186,8 @@ def grid_coordinates(study):
     for name in ("scheme", "dt"):
         if name not in swept:
             value = getattr(study.cases[0], name)
-            units, long_name = COORDINATES[name]
             coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
-                            {"long_name": long_name} | ({"units": units} if units else {}))
+                            cf_attrs(*COORDINATES[name]))
     coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
@@ -196,10 +195,8 @@ def grid_coordinates(study):
                                 {"long_name": "index along the zipped axes "
                                               + ", ".join(a.coordinate for a in dim.axes)})
         for axis in dim.axes:
-            attrs = {"long_name": COORDINATES.get(axis.target, (None, axis.target))[1],
-                     "sweep_path": axis.target}
-            if axis.units:
-                attrs["units"] = axis.units
+            attrs = cf_attrs(axis.units, COORDINATES.get(axis.target, (None, axis.target))[1])
+            attrs["sweep_path"] = axis.target
             coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
     return coords
 
@@ -215,7 +212,7 @@ def _scheme_claims(study, dims):
         if name == "claimed_invariants":
             values = np.array([" ".join(v) or "none" for v in values], dtype=object)
         values = np.asarray(values).reshape(len(values) if dims else ())
-        coords[name] = (dims, values, {"long_name": long_name} | ({"units": units} if units else {}))
+        coords[name] = (dims, values, cf_attrs(units, long_name))
     return coords
 
 

@@ -21,7 +21,7 @@ from rbstudy.physics.analytic import REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
 __all__ = ["Variable", "VARIABLES", "DEPRECATED", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
-           "TIME_UNITS", "coordinate_units", "variable_attrs", "scene_features", "selected",
+           "TIME_UNITS", "coordinate_units", "cf_attrs", "variable_attrs", "scene_features", "selected",
            "evaluate", "BOOKKEEPING"]
 
 # The scene features a variable may need: name -> (predicate on a
@@ -186,6 +186,11 @@ def coordinate_units(target):
         if key in _KEY_UNITS:
             return _KEY_UNITS[key]
     return None
+
+
+def cf_attrs(units, long_name):
+    """CF ``long_name`` and, for a quantity with units, ``units``."""
+    return {"long_name": long_name} | ({"units": units} if units else {})
 
 
 def variable_attrs(name):

@@ -11,10 +11,7 @@ from rbstudy.numerics import state as S
 
 __all__ = ["Option", "Scheme", "INVARIANTS"]
 
-# The invariants a scheme may claim to keep to round-off for the moment-free body, and how
-# they read: the energy, the magnitude |L| of the angular momentum, the space vector L itself
-# (which keeps |L| too).
-INVARIANTS = {"energy": "energy", "momentum_magnitude": "|L|", "momentum_vector": "L"}
+INVARIANTS = S.INVARIANTS
 
 
 @dataclass(frozen=True)

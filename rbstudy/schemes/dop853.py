@@ -64,14 +64,13 @@ def _drifts(samples, p):
 class Trajectory:
     """One body's DOP853 run sampled at T times: ``samples`` (T, N_STATE), NaN past
     ``reached`` (s); accepted ``steps`` and right-hand-side ``evaluations``; ``finished``
-    when it reached the last time, ``over_budget`` when it stopped at ``max_steps`` first."""
+    when it reached the last time (a run that stopped at ``max_steps`` first did not)."""
 
     samples: np.ndarray
     reached: float
     steps: int
     evaluations: int
     finished: bool
-    over_budget: bool
 
 
 def integrate(y0, p, times, max_steps=None, halt=None):
@@ -100,11 +99,10 @@ def integrate(y0, p, times, max_steps=None, halt=None):
         if covered > filled:
             samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
             filled = covered
-    samples[:filled, S.QUATERNION:S.QUATERNION + 4] /= np.linalg.norm(
-        samples[:filled, S.QUATERNION:S.QUATERNION + 4], axis=1)[:, None]
+    quaternions = samples[:filled, S.STATE_FIELDS["quaternion"]]
+    quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
     finished = filled == len(times) and np.all(np.isfinite(samples))
-    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished),
-                      filled < len(times) and max_steps is not None and steps >= max_steps)
+    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished))
 
 
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,

@@ -1,0 +1,35 @@
+"""Reading swept columns: the shared steps of every reader of scene values held per scene.
+
+A sweep's scene mapping holds columns (numpy arrays, one entry per scene) where it sweeps;
+`rbstudy.reader.Reader` checks each value; these turn what it returns into arrays with the
+scenes first and refuse a row by a condition, naming the row
+(`rbstudy.physics.scenes`, `rbstudy.physics.assembly`).
+"""
+
+import numpy as np
+
+__all__ = ["rows", "refuse", "symmetric_tensor"]
+
+
+def rows(vector, size):
+    """A vector as the reader returns it (floats and columns) -> (size, len) floats."""
+    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in vector],
+                    axis=-1)
+
+
+def refuse(reader, bad, key, message, fix=None):
+    """Fail at the first row where ``bad`` (n,) holds; ``message(row)`` names its value."""
+    if bad.any():
+        row = int(np.argmax(bad))
+        reader.fail(key, message(row), fix, row=row)
+
+
+def symmetric_tensor(reader, value, key, size):
+    """A 3x3 tensor given as three rows of three numbers -> (size, 3, 3), refused unless
+    symmetric (to 1e-12 relative)."""
+    tensor = np.stack([rows(reader.vector(row, f"{key}[{i}]"), size)
+                       for i, row in enumerate(value)], axis=-2)
+    refuse(reader, ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
+                                      atol=0.0), axis=(-2, -1)),
+           key, lambda row: "the inertia tensor must be symmetric")
+    return tensor
