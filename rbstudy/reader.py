@@ -107,9 +107,11 @@ class Reader:
         return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
 
     def flag(self, value, key):
-        """``value`` as true or false."""
-        if isinstance(value, np.ndarray):  # sweep values are numbers or names, never flags
-            self._first_failure(value, range(len(value)), lambda entry: self.flag(entry, key))
+        """``value`` as true or false (a column: a bool array)."""
+        if isinstance(value, np.ndarray):  # a swept flag: a column of true and false
+            if value.dtype != bool:
+                self._first_failure(value, range(len(value)), lambda entry: self.flag(entry, key))
+            return value
         if not isinstance(value, bool):
             self.fail(key, f"expected true or false, got {value!r}")
         return value

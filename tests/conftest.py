@@ -2,6 +2,7 @@
 
 import math
 import pathlib
+import shutil
 
 import numpy as np
 import pytest
@@ -32,6 +33,13 @@ def abaqus_mapping(**body):
 
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+
+
+def copy_node_tables(folder):
+    """Copy the node tables the shipped configs name into ``folder``, where copies of those
+    configs are written (a table's path is relative to its config)."""
+    for table in CONFIGS.glob("*.csv"):
+        shutil.copy(table, folder)
 
 
 @pytest.fixture(scope="session")

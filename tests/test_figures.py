@@ -7,7 +7,7 @@ import pathlib
 
 import pytest
 import yaml
-from conftest import CONFIGS
+from conftest import CONFIGS, copy_node_tables
 
 from rbstudy.analysis.plots import all_figures, convergence
 from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows, table_columns
@@ -48,6 +48,7 @@ def shrunk_config(name, folder):
     study["scene"]["duration"] = min(study["scene"]["duration"], SHRUNK_SAMPLES * interval)
     path = pathlib.Path(folder) / name
     path.write_text(yaml.safe_dump(study))
+    copy_node_tables(folder)
     return path
 
 

@@ -8,7 +8,7 @@ import copy
 import io
 
 import yaml
-from conftest import CONFIGS
+from conftest import CONFIGS, copy_node_tables
 
 from rbstudy.cli import main
 
@@ -58,6 +58,7 @@ def _run(argv):
 
 def test_every_mutation_of_the_shipped_configs_fails_in_one_line(tmp_path):
     failures, count = [], 0
+    copy_node_tables(tmp_path)
     for stem, kind, path, study in mutations():
         count += 1
         name = f"{stem}_{kind}_{count}.yaml"

@@ -11,7 +11,9 @@ nothing to show).
   only when at least one line has an asymptotic range.
 - `work_precision`: run time per case against error, a line per scheme.
 - `stability_map`: ``dt |w0|`` of every case against the swept parameter: accurate,
-  finished but inaccurate, and failed marked apart; the largest accurate value joined.
+  finished but inaccurate, and failed marked apart; the largest accurate value joined (a
+  named parameter, such as a Radioss option, one column per name); the OpenRadioss limit
+  ``dt |w| = 1`` where some case passed it.
 - `invariant_drift`: |energy| and |L - L0| errors against time for one case per scheme.
 - `benchmark`: the Abaqus figures (global w against time, w_x against w_y, a node's path
   seen down z) with the closed form overlaid.
@@ -47,6 +49,7 @@ from rbstudy.analysis.summary import (  # noqa: E402
     step_load,
     verdicts,
 )
+from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
@@ -423,6 +426,8 @@ def stability_map(ds, folder, formats=FORMATS):
         return figures
     load = step_load(ds)
     parameter = _parameter(ds)
+    # the limit is drawn where some case passed it (at any step), not on every map
+    past_radioss_limit = "radioss_dt_limit" in ds and bool((ds["radioss_dt_limit"] == 1).any())
     schemes = schemes_of(ds)
     bound = ds.attrs.get("accuracy_bound")
     inaccurate_label = ("finished, inaccurate" + (f" (error or drift > {bound:g})"
@@ -436,7 +441,12 @@ def stability_map(ds, folder, formats=FORMATS):
                 _, values, label = parameter
                 x = per_scheme(values, scheme).values.ravel()
                 ax.set_xlabel(label)
-                if np.all(x > 0) and x.max() / x.min() > LOG_AXIS_RATIO:
+                named = x.dtype.kind not in "iuf"
+                if named:  # names or flags: one column each
+                    names, x = np.unique(x, return_inverse=True)
+                    ax.set_xticks(range(len(names)), [str(name) for name in names])
+                    ax.set_xlim(-0.5, len(names) - 0.5)
+                elif np.all(x > 0) and x.max() / x.min() > LOG_AXIS_RATIO:
                     ax.set_xscale("log")
             else:
                 x = np.zeros(y.size)
@@ -455,9 +465,13 @@ def stability_map(ds, folder, formats=FORMATS):
                 xs = np.unique(x)
                 largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
                            for v in xs]
-                # a bar at each value, so that one accurate value alone still shows
-                ax.plot(xs, largest, color="tab:green", linewidth=1, marker="_", markersize=12,
-                        label="largest accurate")
+                # a bar at each value, so that one accurate value alone still shows; joined
+                # only along a numeric axis (names or flags have nothing between them)
+                ax.plot(xs, largest, color="tab:green", linewidth=0 if named else 1, marker="_",
+                        markersize=12, label="largest accurate")
+            if past_radioss_limit:
+                ax.axhline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
+                           label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
             ax.set_yscale("log")
             ax.set_ylabel("dt |w0| (rad)")
             ax.set_title(f"{scheme}: all accurate" if good.all() else scheme)

@@ -11,7 +11,8 @@ with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (N_PARAM,), 
 scheme options (N_OPTION,), and ``work`` a scratch/carry array (n_work,) that lives for the
 whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugate momentum).
 The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure time, steps,
-iterations, energy and |L| drift) are filled here, by name.
+iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
+here, by name.
 
 `integrate_body_inplace` below runs one body through all its steps; `make_entry` compiles,
 for one scheme, the loop over a range of batch rows that calls it with the scheme's kernels;
@@ -50,7 +51,7 @@ from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
 from rbstudy.numerics.jit import entry_jit, jit
-from rbstudy.numerics.rotation import read3
+from rbstudy.numerics.rotation import dot, read3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
@@ -119,7 +120,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     drift_bound : float, relative energy / |L| drift that flags a moment-free body unstable.
     samples : (B, T, N_STATE) output, T = n_steps // every + 1; row b is written.
     results : (B, N_RESULT) output, row b written by name (`rbstudy.numerics.state`): the
-        drifts are NaN under moments, the failure time NaN when the body finished.
+        drifts are NaN under moments, the failure time NaN when the body finished; the
+        largest step angle dt |w| and the Radioss flag cover every step taken.
     halt : (1,) int64, the halt flag: the body stops early when it is nonzero (its numbers
         are then discarded by `run_batch`).
     """
@@ -130,6 +132,7 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     energy0 = rotational_energy(w0, inertia_)
     momentum0 = math.sqrt(momentum_squared(w0, inertia_))
     check_invariants = is_moment_free(p)
+    largest_spin = dot(w0, w0)  # the largest |w|^2, for the Radioss check
 
     for k in range(S.N_STATE):
         samples[b, 0, k] = y[k]
@@ -150,6 +153,9 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
             total += y[k]
         if status == OK and not math.isfinite(total):
             status = UNSTABLE
+        spin = dot(read3(y, S.OMEGA), read3(y, S.OMEGA))
+        if spin > largest_spin:
+            largest_spin = spin
         if status == OK and check_invariants:
             w = read3(y, S.OMEGA)
             d_energy = _relative_drift(rotational_energy(w, inertia_), energy0)
@@ -173,6 +179,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     results[b, Result.iterations] = iterations
     results[b, Result.max_energy_error] = max_energy if check_invariants else math.nan
     results[b, Result.max_momentum_magnitude_error] = max_momentum if check_invariants else math.nan
+    results[b, Result.max_step_angle] = h * math.sqrt(largest_spin)
+    results[b, Result.radioss_dt_limit] = h * math.sqrt(largest_spin) > S.RADIOSS_STEP_ANGLE
 
 
 def make_entry(step, init, n_work):

@@ -10,8 +10,8 @@ from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3
 
 __all__ = [
-    "inertia", "to_momentum", "to_omega", "body_moment", "space_force", "euler_rates", "momentum_rates",
-    "rotational_energy", "momentum_squared", "is_moment_free",
+    "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "body_moment",
+    "space_force", "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
 ]
 
 
@@ -34,9 +34,32 @@ def to_omega(m, inertia_):
 
 
 @jit
+def lever_moment(q, p):
+    """Body-frame moment of space-fixed forces at body-fixed points (`S.LEVER`):
+    ``sum_b e_b x R^T k_b`` with ``e_b x v`` written out."""
+    a = quat_rotate_inverse(q, read3(p, S.LEVER))
+    b = quat_rotate_inverse(q, read3(p, S.LEVER + 3))
+    c = quat_rotate_inverse(q, read3(p, S.LEVER + 6))
+    return (b[2] - c[1], c[0] - a[2], a[1] - b[0])
+
+
+@jit
+def has_lever(p):
+    """True when space-fixed forces act at points off the centre of mass."""
+    for k in range(9):
+        if p[S.LEVER + k] != 0.0:
+            return True
+    return False
+
+
+@jit
 def body_moment(q, p):
-    """Total moment in the body frame: body-fixed moment plus the space moment turned in."""
-    return add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, read3(p, S.MOMENT_SPACE)))
+    """Total moment in the body frame: body-fixed moment, the space moment turned in, and the
+    moment of space-fixed forces at body-fixed points (skipped, three rotations, when none)."""
+    moment = add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, read3(p, S.MOMENT_SPACE)))
+    if has_lever(p):
+        moment = add(moment, lever_moment(q, p))
+    return moment
 
 
 @jit
@@ -75,4 +98,4 @@ def is_moment_free(p):
     for k in range(3):
         if p[S.MOMENT_BODY + k] != 0.0 or p[S.MOMENT_SPACE + k] != 0.0:
             return False
-    return True
+    return not has_lever(p)

@@ -14,7 +14,11 @@ State row (SI units):
 
 Parameter row:
     MASS 1, INERTIA 3 (principal, kg m^2), FORCE_SPACE 3 (N), FORCE_BODY 3 (N, body axes),
-    MOMENT_SPACE 3 (N m), MOMENT_BODY 3 (N m, body axes), GRAVITY 3 (m/s^2, space).
+    MOMENT_SPACE 3 (N m), MOMENT_BODY 3 (N m, body axes), GRAVITY 3 (m/s^2, space),
+    LEVER 9 (N m): space-fixed forces ``F_i`` at body-fixed points ``d_i`` (principal axes,
+    from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
+    their moment ``sum_i d_i x R^T F_i = sum_b e_b x R^T k_b`` turns with the body
+    (`rbstudy.numerics.dynamics.body_moment`). Their sum ``F`` is part of FORCE_SPACE.
 
 Results row: `RESULT_FIELDS`, by name; kernels index it with ``Result.<name>``. Numba-free:
 the layers above read this layout and the status codes without compiling anything.
@@ -25,7 +29,7 @@ import enum
 __all__ = [
     "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
     "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
-    "N_PARAM", "N_OPTION", "RESULT_FIELDS", "Result", "N_RESULT",
+    "LEVER", "N_PARAM", "N_OPTION", "RESULT_FIELDS", "RADIOSS_STEP_ANGLE", "Result", "N_RESULT",
     "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
 ]
 
@@ -48,7 +52,8 @@ FORCE_BODY = 7
 MOMENT_SPACE = 10
 MOMENT_BODY = 13
 GRAVITY = 16
-N_PARAM = 19
+LEVER = 19
+N_PARAM = 28
 
 # Scheme options (e.g. HHT alpha, splitting axis order) travel per body in a row of this width,
 # so that a batch may mix option values and a sweep over an option needs no recompilation.
@@ -64,7 +69,12 @@ RESULT_FIELDS = (
     ("iterations", "i8"),           # Newton iterations (an adaptive scheme: rhs evaluations)
     ("max_energy_error", "f8"),     # largest relative rotational-energy drift over the steps
     ("max_momentum_magnitude_error", "f8"),  # largest relative drift of |L| over the steps
+    ("max_step_angle", "f8"),       # rad; largest dt |w| over the steps, t = 0 included
+    ("radioss_dt_limit", "i1"),     # 1 where (dt |w|)^2 > 1 at some step (OpenRadioss aborts)
 )
+# OpenRadioss aborts a rigid body as unstable when (dt |w|)^2 > 1: past this step angle (rad)
+# a case is flagged `radioss_dt_limit`, and runs on (the study shows what happens past it).
+RADIOSS_STEP_ANGLE = 1.0
 Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
 N_RESULT = len(RESULT_FIELDS)
 

@@ -150,16 +150,22 @@ def _axial_indices(omega0, moment_body):
     return np.where(support.sum(axis=-1) == 1, support.argmax(axis=-1), -1)
 
 
-def reference_kinds(inertia, omega_body, force_body, moment_space, moment_body):
+def reference_kinds(inertia, omega_body, loads):
     """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the closed form
     that applies to its rotation and centre of mass, else ``dop853``. Arguments are the
-    scenes' principal inertias, initial body angular velocities and loads, each (n, 3)."""
-    pushed = np.any(np.asarray(force_body) != 0.0, axis=-1)
-    turned_in_space = np.any(np.asarray(moment_space) != 0.0, axis=-1)
+    scenes' principal inertias and initial body angular velocities, each (n, 3), and their
+    loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3) (the
+    lever (n, 9))."""
+    force_body, moment_space, moment_body, lever = (
+        np.asarray(loads[name]) for name in ("force_body", "moment_space", "moment_body", "lever"))
+    # a body-fixed force, or a space force off the centre, turns with the body: translation
+    # and rotation couple
+    pushed = np.any(force_body != 0.0, axis=-1) | np.any(lever != 0.0, axis=-1)
+    turned_in_space = np.any(moment_space != 0.0, axis=-1)
     moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
     axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
     return np.where(
-        pushed, "dop853",  # the force turns with the body: translation and rotation couple
+        pushed, "dop853",
         np.where(moment_free & (symmetry_axes(inertia) >= 0), "symmetric_top",
                  np.where(axial, "axial_moment", "dop853")))
 

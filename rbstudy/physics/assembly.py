@@ -20,12 +20,15 @@ Every function takes any leading scene axes (a sweep builds all its bodies at on
 """
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from rbstudy.errors import SceneError
 from rbstudy.physics.columns import refuse, rows, symmetric_tensor
+from rbstudy.physics.node_table import RESERVED, read_node_table
 
-__all__ = ["Assembly", "assemble", "CENTRES", "REGULARISATION", "DEGENERATE"]
+__all__ = ["Assembly", "Secondaries", "assemble", "read_assembly", "CENTRES", "REGULARISATION", "DEGENERATE"]
 
 # Where the centre of mass is taken, Radioss's options.
 CENTRES = ("all", "secondaries", "master")
@@ -45,13 +48,17 @@ class Assembly:
     each secondary node's ``x_i - x_G`` in space axes. principal : (..., 3) the principal
     inertias before any regularisation, ascending. regularised : (...,) True where a principal
     inertia was raised. lopsided : (...,) True where one principal inertia exceeds the sum of
-    the other two (Radioss warns; the body is integrated as given).
+    the other two (Radioss warns; the body is integrated as given). master_offset : (..., 3) m,
+    the master's ``x_M - x_G``. first_moment : (..., 3) kg m, ``m_M d_M + sum m_i d_i``: zero
+    about the centre of mass, the lever of gravity about a centre taken elsewhere.
     """
 
     mass: np.ndarray
     centre: np.ndarray
     tensor: np.ndarray
     offsets: np.ndarray
+    master_offset: np.ndarray
+    first_moment: np.ndarray
     principal: np.ndarray
     regularised: np.ndarray
     lopsided: np.ndarray
@@ -73,37 +80,42 @@ def assemble(master_position, master_mass, master_inertia, positions, masses, in
     master_position : (..., 3) m. master_mass : (...,) kg, >= 0.
     master_inertia : (..., 3, 3) kg m^2, the master's added inertia tensor (symmetric).
     positions : (..., K, 3) m. masses : (..., K) kg, >= 0. inertias : (..., K, 3, 3) kg m^2.
-    centre : one of `CENTRES`. spherical : every principal inertia trace / 3.
+    centre : one of `CENTRES`, or (...,) of them. spherical : every principal inertia
+    trace / 3; a flag, or (...,) flags.
 
     The caller checks the input (finite, masses >= 0, a positive total): this is the formula.
     """
     total = master_mass + masses.sum(axis=-1)
-    if centre == "master":
-        centre_of_mass = master_position
-    elif centre == "secondaries":
-        centre_of_mass = (np.einsum("...k,...ki->...i", masses, positions)
-                          / masses.sum(axis=-1)[..., None])
-    else:
-        centre_of_mass = (master_mass[..., None] * master_position
-                          + np.einsum("...k,...ki->...i", masses, positions)) / total[..., None]
+    centre = np.broadcast_to(np.asarray(centre, dtype=object), total.shape)
+    spherical = np.broadcast_to(np.asarray(spherical, dtype=bool), total.shape)
+    weighted = np.einsum("...k,...ki->...i", masses, positions)
+    with np.errstate(invalid="ignore", divide="ignore"):  # the options a row does not take
+        by_secondaries = weighted / masses.sum(axis=-1)[..., None]
+        by_all = (master_mass[..., None] * master_position + weighted) / total[..., None]
+    centre_of_mass = np.where((centre == "master")[..., None], master_position,
+                              np.where((centre == "secondaries")[..., None], by_secondaries,
+                                       by_all))
     offsets = positions - centre_of_mass[..., None, :]
-    tensor = (master_inertia + _point_inertia(master_mass, master_position - centre_of_mass)
+    master_offset = master_position - centre_of_mass
+    # about the centre of mass it vanishes: exactly, not to round-off, so that gravity alone
+    # leaves a body moment-free (and its energy a conserved quantity)
+    first_moment = np.where((centre == "all")[..., None], 0.0,
+                            master_mass[..., None] * master_offset
+                            + np.einsum("...k,...ki->...i", masses, offsets))
+    tensor = (master_inertia + _point_inertia(master_mass, master_offset)
               + inertias.sum(axis=-3) + _point_inertia(masses, offsets).sum(axis=-3))
     tensor = 0.5 * (tensor + np.swapaxes(tensor, -1, -2))  # exactly symmetric
     principal, axes = np.linalg.eigh(tensor)
     largest = principal[..., 2:]
     lopsided = principal[..., 2] > principal[..., 0] + principal[..., 1]
-    if spherical:
-        trace = np.trace(tensor, axis1=-2, axis2=-1)
-        tensor = (trace / 3.0)[..., None, None] * np.eye(3)
-        regularised = np.zeros(total.shape, dtype=bool)
-    else:
-        floor = REGULARISATION * largest
-        regularised = (principal < floor).any(axis=-1)
-        raised = np.maximum(principal, floor)
-        tensor = np.where(regularised[..., None, None],
-                          np.einsum("...ij,...j,...kj->...ik", axes, raised, axes), tensor)
-    return Assembly(total, centre_of_mass, tensor, offsets, principal, regularised, lopsided)
+    floor = REGULARISATION * largest
+    regularised = ~spherical & (principal < floor).any(axis=-1)
+    raised = np.einsum("...ij,...j,...kj->...ik", axes, np.maximum(principal, floor), axes)
+    trace = np.trace(tensor, axis1=-2, axis2=-1)
+    tensor = np.where(spherical[..., None, None], (trace / 3.0)[..., None, None] * np.eye(3),
+                      np.where(regularised[..., None, None], raised, tensor))
+    return Assembly(total, centre_of_mass, tensor, offsets, master_offset, first_moment,
+                    principal, regularised, lopsided)
 
 
 # --- reading the ``scene.assembly`` block ----------------------------------------------------
@@ -113,9 +125,21 @@ _NODE_KEYS = ("position", "mass", "inertia")
 _MASTER_KEYS = ("position", "mass", "inertia")
 
 
-def _nodal_tensor(reader, value, key, size):
-    """A nodal inertia ``[Ixx, Iyy, Izz, Ixy, Iyz, Izx]`` -> (size, 3, 3)."""
-    xx, yy, zz, xy, yz, zx = rows(reader.vector(value, key, length=6), size).T
+@dataclass(frozen=True)
+class Secondaries:
+    """The secondary nodes of n scenes: ``names`` (K,), ``positions`` (n, K, 3) m, ``masses``
+    (n, K) kg, ``inertias`` (n, K, 3, 3) kg m^2, and the digests of the node tables read."""
+
+    names: tuple
+    positions: np.ndarray
+    masses: np.ndarray
+    inertias: np.ndarray
+    tables: tuple = ()
+
+
+def _tensor_of_six(six):
+    """Nodal inertias ``[Ixx, Iyy, Izz, Ixy, Iyz, Izx]`` (..., 6) -> (..., 3, 3)."""
+    xx, yy, zz, xy, yz, zx = np.moveaxis(six, -1, 0)
     return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1),
                      np.stack([zx, yz, zz], -1)], -2)
 
@@ -133,9 +157,81 @@ def _not_negative(reader, values, key, what):
            lambda row: f"{what} must be >= 0, got {float(values[row])!r}", "give a mass >= 0 kg")
 
 
+def _inline_nodes(reader, nodes, path, size):
+    """`Secondaries` of a mapping node name -> {position, mass, inertia}."""
+    names = tuple(str(name) for name in nodes)
+    if RESERVED in names:
+        reader.fail(f"{path}.{RESERVED}", f"{RESERVED!r} names the master node",
+                    "rename this node")
+    positions, masses, inertias = [], [], []
+    for name, node in nodes.items():
+        key = f"{path}.{name}"
+        node = reader.mapping(node, key, _NODE_KEYS)
+        for needed in ("position", "mass"):
+            if needed not in node:
+                reader.fail(f"{key}.{needed}", "missing", "give every node a position (m) and "
+                                                          "a mass (kg)")
+        positions.append(rows(reader.vector(node["position"], f"{key}.position"), size))
+        mass = np.broadcast_to(reader.number(node["mass"], f"{key}.mass"), (size,))
+        _not_negative(reader, mass, f"{key}.mass", "a node's mass")
+        masses.append(mass)
+        inertias.append(_tensor_of_six(rows(reader.vector(node["inertia"], f"{key}.inertia",
+                                                          length=6), size))
+                        if "inertia" in node else np.zeros((size, 3, 3)))
+    return Secondaries(names, np.stack(positions, 1), np.stack(masses, 1),
+                       np.stack(inertias, 1))
+
+
+def _tabled_nodes(reader, files, path, size):
+    """`Secondaries` of node table files (`rbstudy.physics.node_table`): one name, or a
+    column of n (a sweep), each relative to the config; every table must name the same nodes
+    in the same order, so that the scenes share their node axis."""
+    column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
+    distinct, inverse = np.unique(column, return_inverse=True)
+    folder = Path(reader.source).parent
+    tables = []
+    for k, name in enumerate(distinct):
+        row = int(np.argmax(inverse == k))
+        if not isinstance(name, str):
+            reader.fail(path, f"expected a node table file or a mapping of nodes, got "
+                              f"{name!r:.80}", row=row)
+        try:
+            table = read_node_table(folder / name)
+        except SceneError as error:
+            error.row = row if isinstance(files, np.ndarray) else None
+            raise
+        if tables and table.names != tables[0].names:
+            reader.fail(path, f"the node tables {distinct[0]} and {name} name different nodes",
+                        "a sweep over node tables needs the same node ids, in the same order, "
+                        "in every table", row=row)
+        tables.append(table)
+    positions, masses, inertias = (np.stack([getattr(t, field) for t in tables])[inverse]
+                                   for field in ("positions", "masses", "inertias"))
+    return Secondaries(tables[0].names, positions, masses, _tensor_of_six(inertias),
+                       tuple(sorted({t.digest for t in tables})))
+
+
+def _read_secondaries(reader, nodes, path, size):
+    if isinstance(nodes, dict) and nodes:
+        return _inline_nodes(reader, nodes, path, size)
+    if isinstance(nodes, (str, np.ndarray)):
+        return _tabled_nodes(reader, nodes, path, size)
+    reader.fail(path, f"expected a node table file or a mapping of node name -> "
+                      f"{{position, mass}}, got {nodes!r:.80}", "give the secondary nodes")
+
+
+def _read_centre(reader, value, key):
+    """`CENTRES` name, or a column of them (a sweep)."""
+    names = np.asarray(value, dtype=object).reshape(-1)
+    bad = np.array([not (isinstance(v, str) and v in CENTRES) for v in names])
+    refuse(reader, bad, key, lambda row: f"expected one of {', '.join(CENTRES)}, got "
+                                         f"{names[row]!r:.80}")
+    return value
+
+
 def read_assembly(reader, spec, path, size):
     """The `Assembly` of the ``scene.assembly`` block ``spec`` (columns of ``size``) and its
-    secondary node names; every bad value fails through ``reader``, naming the node."""
+    `Secondaries`; every bad value fails through ``reader``, naming the node."""
     spec = reader.mapping(spec, path, _KEYS)
     master = reader.mapping(spec.get("master"), f"{path}.master", _MASTER_KEYS)
     master_key = f"{path}.master"
@@ -146,46 +242,24 @@ def read_assembly(reader, spec, path, size):
     _not_negative(reader, master_mass, f"{master_key}.mass", "the master's added mass")
     master_inertia = (_master_tensor(reader, master["inertia"], f"{master_key}.inertia", size)
                       if "inertia" in master else np.zeros((size, 3, 3)))
-    nodes = spec.get("nodes")
-    if not isinstance(nodes, dict) or not nodes:
-        reader.fail(f"{path}.nodes", f"expected a mapping of node name -> {{position, mass}}, "
-                                     f"got {nodes!r:.80}", "give the secondary nodes")
-    names = tuple(str(name) for name in nodes)
-    positions, masses, inertias = [], [], []
-    for name, node in nodes.items():
-        key = f"{path}.nodes.{name}"
-        node = reader.mapping(node, key, _NODE_KEYS)
-        for needed in ("position", "mass"):
-            if needed not in node:
-                reader.fail(f"{key}.{needed}", "missing", "give every node a position (m) and "
-                                                          "a mass (kg)")
-        positions.append(rows(reader.vector(node["position"], f"{key}.position"), size))
-        mass = np.broadcast_to(reader.number(node["mass"], f"{key}.mass"), (size,))
-        _not_negative(reader, mass, f"{key}.mass", "a node's mass")
-        masses.append(mass)
-        inertias.append(_nodal_tensor(reader, node["inertia"], f"{key}.inertia", size)
-                        if "inertia" in node else np.zeros((size, 3, 3)))
-    positions, masses, inertias = (np.stack(positions, 1), np.stack(masses, 1),
-                                   np.stack(inertias, 1))
+    nodes = _read_secondaries(reader, spec.get("nodes"), f"{path}.nodes", size)
     scale = np.broadcast_to(reader.number(spec.get("scale", 1.0), f"{path}.scale",
                                           positive=True), (size,))
     positions = master_position[:, None, :] + scale[:, None, None] * (
-        positions - master_position[:, None, :])
-    centre = spec.get("centre_of_mass", "all")
-    if centre not in CENTRES:
-        reader.fail(f"{path}.centre_of_mass", f"expected one of {', '.join(CENTRES)}, got "
-                                              f"{centre!r:.80}")
+        nodes.positions - master_position[:, None, :])
+    centre = _read_centre(reader, spec.get("centre_of_mass", "all"), f"{path}.centre_of_mass")
     spherical = reader.flag(spec.get("spherical", False), f"{path}.spherical")
-    weighed = masses.sum(axis=1) + (0.0 if centre == "secondaries" else master_mass)
+    by_secondaries = np.broadcast_to(centre == "secondaries", (size,))
+    weighed = nodes.masses.sum(axis=1) + np.where(by_secondaries, 0.0, master_mass)
     refuse(reader, weighed <= 0.0, f"{path}.nodes",
-           lambda row: "the secondary nodes have no mass" if centre == "secondaries"
+           lambda row: "the secondary nodes have no mass" if by_secondaries[row]
            else "the body has no mass", "give a node (or the master) a mass > 0 kg")
-    body = assemble(master_position, master_mass, master_inertia, positions, masses, inertias,
-                    centre, spherical)
-    if not spherical:
-        refuse(reader, body.principal[:, 0] <= DEGENERATE * body.principal[:, 2],
-               f"{path}.nodes", lambda row: f"principal inertias {body.principal[row].tolist()}: "
-               "the nodes lie on one line (or at one point) and give no inertia about it",
-               "add a node off that line, a nodal inertia, or the master's inertia, or set "
-               "spherical: true")
-    return body, names
+    body = assemble(master_position, master_mass, master_inertia, positions, nodes.masses,
+                    nodes.inertias, centre, spherical)
+    refuse(reader, ~np.broadcast_to(spherical, (size,))
+           & (body.principal[:, 0] <= DEGENERATE * body.principal[:, 2]),
+           f"{path}.nodes", lambda row: f"principal inertias {body.principal[row].tolist()}: "
+           "the nodes lie on one line (or at one point) and give no inertia about it",
+           "add a node off that line, a nodal inertia, or the master's inertia, or set "
+           "spherical: true")
+    return body, nodes

@@ -94,8 +94,8 @@ def reference_solutions(scenes, times):
     times = np.asarray(times, dtype=float)
     kinds = reference_kinds(
         [scene.body.inertia for scene in scenes], [scene.omega_body for scene in scenes],
-        *([getattr(scene.loads, name) for scene in scenes]
-          for name in ("force_body", "moment_space", "moment_body")))
+        {name: [getattr(scene.loads, name) for scene in scenes]
+         for name in ("force_body", "moment_space", "moment_body", "lever")})
     found = {}
     for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]

@@ -27,6 +27,7 @@ from rbstudy.numerics import state as S
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.physics.assembly import REGULARISATION, read_assembly
 from rbstudy.physics.columns import refuse, rows, symmetric_tensor
+from rbstudy.physics.node_table import RESERVED
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
@@ -42,6 +43,8 @@ _LOADS = ("force_space", "force_body", "moment_space", "moment_body", "gravity")
 _FORCES = ("force_space", "force_body", "gravity")
 _MOMENTS = ("moment_space", "moment_body")
 _IN_BODY_AXES = ("force_body", "moment_body")
+# What may act at a node (`_add_nodal_loads`).
+_NODAL_LOADS = ("force_space", "force_body", "moment_space", "moment_body")
 
 
 def _acting(*vectors):
@@ -51,11 +54,13 @@ def _acting(*vectors):
 
 @dataclass(frozen=True)
 class Body:
-    """Mass (kg) and principal inertias (3,) in kg m^2."""
+    """Mass (kg) and principal inertias (3,) in kg m^2; ``regularised`` when an assembled
+    body's smallest inertia was raised (`rbstudy.physics.assembly.REGULARISATION`)."""
 
     mass: float
     inertia: tuple
     allow_unphysical: bool = False
+    regularised: bool = False
 
     @property
     def physical(self):
@@ -81,18 +86,21 @@ class Body:
 
 @dataclass(frozen=True)
 class Loads:
-    """Constant loads: forces (N) and moments (N m) in space or body axes, gravity (m/s^2)."""
+    """Constant loads at the centre of mass: forces (N) and moments (N m) in space or body
+    axes, gravity (m/s^2); and ``lever`` (9,) N m, the space forces that act at body-fixed
+    points off it, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is in
+    ``force_space``)."""
 
     force_space: tuple = (0.0, 0.0, 0.0)
     force_body: tuple = (0.0, 0.0, 0.0)
     moment_space: tuple = (0.0, 0.0, 0.0)
     moment_body: tuple = (0.0, 0.0, 0.0)
     gravity: tuple = (0.0, 0.0, 0.0)
+    lever: tuple = (0.0,) * 9
 
     @property
     def moment_free(self):
-        return not _acting(self.moment_space, self.moment_body)
-
+        return not (_acting(self.moment_space, self.moment_body) or _acting(self.lever))
 
 
 @dataclass(frozen=True)
@@ -134,8 +142,9 @@ class Scene:
         loads = self.loads
         for offset, value in ((S.FORCE_SPACE, loads.force_space), (S.FORCE_BODY, loads.force_body),
                               (S.MOMENT_SPACE, loads.moment_space),
-                              (S.MOMENT_BODY, loads.moment_body), (S.GRAVITY, loads.gravity)):
-            row[offset:offset + 3] = value
+                              (S.MOMENT_BODY, loads.moment_body), (S.GRAVITY, loads.gravity),
+                              (S.LEVER, loads.lever)):
+            row[offset:offset + len(value)] = value
         return row
 
     def with_changes(self, **changes):
@@ -151,9 +160,11 @@ class SceneTable:
     mass : (n,) kg. inertia : (n, 3) principal, kg m^2, as read or diagonalised (each
     `Scene`'s `Body` symmetrises its own, once). quaternion : (n, 4).
     omega_body, position, velocity : (n, 3), as in `Scene`. loads : name of a `Loads` field ->
-    (n, 3). nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves alone may be read-only
-    broadcast views. warnings : what the reading noticed but accepted (a regularised
-    assembled body), one line each.
+    (n, 3), (n, 9) for the lever. nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves
+    alone may be read-only broadcast views. warnings : what the reading noticed but accepted
+    (a regularised assembled body), one line each. regularised : (n,) True where an
+    assembled body's inertia was regularised, None for a body not assembled. tables : the
+    sha256 digests of the node table files read.
     """
 
     mass: np.ndarray
@@ -168,6 +179,8 @@ class SceneTable:
     node_names: tuple
     duration: float
     warnings: tuple = ()
+    regularised: np.ndarray = None
+    tables: tuple = ()
 
     def __len__(self):
         return len(self.mass)
@@ -176,7 +189,8 @@ class SceneTable:
         """The scene of row ``i``."""
         return Scene(
             body=Body(mass=float(self.mass[i]), inertia=tuple(self.inertia[i].tolist()),
-                      allow_unphysical=self.allow_unphysical),
+                      allow_unphysical=self.allow_unphysical,
+                      regularised=self.regularised is not None and bool(self.regularised[i])),
             quaternion=tuple(self.quaternion[i].tolist()),
             omega_body=tuple(self.omega_body[i].tolist()),
             position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
@@ -193,14 +207,12 @@ class SceneTable:
     @property
     def reference_kinds(self):
         """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
-        return reference_kinds(self.inertia, self.omega_body,
-                               *(self.loads[name] for name in ("force_body", "moment_space",
-                                                               "moment_body")))
+        return reference_kinds(self.inertia, self.omega_body, self.loads)
 
     @property
     def moment_free(self):
         """(n,) True where no moment acts."""
-        return ~_acting(*(self.loads[name] for name in _MOMENTS))
+        return ~(_acting(*(self.loads[name] for name in _MOMENTS)) | _acting(self.loads["lever"]))
 
     @property
     def translates(self):
@@ -268,15 +280,14 @@ _DERIVED = {"body": "an assembled body's mass and inertia come from its nodes",
 
 
 def _read_assembled(reader, spec, path, size):
-    """The body, centre of mass and nodes of ``scene.assembly``
-    (`rbstudy.physics.assembly`): mass (n,), principal inertias (n, 3), axes (n, 3, 3),
-    centre (n, 3), node names (K,), offsets (n, K, 3) in space axes, warnings."""
+    """The body of ``scene.assembly`` (`rbstudy.physics.assembly`): its `Assembly`, its
+    `Secondaries`, principal inertias (n, 3) and axes (n, 3, 3), and the warnings."""
     for given, why in _DERIVED.items():
         parent, _, leaf = given.rpartition(".")
         if leaf in ((spec.get(parent) or {}) if parent else spec):
             reader.fail(f"{path}.{given}", f"{why}", f"remove {path}.{given}")
     key = f"{path}.assembly"
-    body, names = read_assembly(reader, spec["assembly"], key, size)
+    body, nodes = read_assembly(reader, spec["assembly"], key, size)
     inertia, axes = _principal(reader, body.tensor, key)
     warnings = []
     if body.regularised.any():
@@ -287,8 +298,7 @@ def _read_assembled(reader, spec, path, size):
         warnings.append(f"{key}: one principal inertia exceeds the sum of the other two in "
                         f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
                         "masses has that: check the nodal inertias)")
-    return (body.mass, inertia, axes, body.centre, names, body.offsets,
-            tuple(warnings))
+    return body, nodes, inertia, axes, tuple(warnings)
 
 
 def _read_orientation(reader, spec, path, body_momentum, size):
@@ -372,6 +382,43 @@ def _read_nodes(reader, spec, path, size):
     return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
+def _lever(offsets, forces):
+    """The `Loads.lever` of space ``forces`` (n, 3) at principal ``offsets`` (n, 3): the rows
+    ``d[b] F`` of ``d F^T``, (n, 9)."""
+    return (offsets[:, :, None] * forces[:, None, :]).reshape(len(offsets), 9)
+
+
+def _add_nodal_loads(reader, spec, path, loads, points, axes, size):
+    """Add the loads at nodes ``spec`` (node name -> {force_space, ...}) to ``loads``,
+    aggregated to the centre of mass: ``F = sum F_i`` and ``M = sum M_i + sum d_i x F_i``
+    with ``d_i`` the node's offset (``points``: name -> (n, 3), principal axes). A body-axis
+    force gives a constant body moment; a space-axis force a moment that turns with the body
+    (the lever, evaluated every step by the kernels)."""
+    if not isinstance(spec, dict):
+        reader.fail(path, f"expected a mapping of node name -> loads, got {spec!r:.80}")
+    for name, node_spec in spec.items():
+        key = f"{path}.{name}"
+        if str(name) not in points:
+            reader.fail(key, "no such node in this body",
+                        "load a node of the scene's nodes (or master, for an assembled body)")
+        node_spec = reader.mapping(node_spec, key, _NODAL_LOADS)
+        given = {load: rows(reader.vector(node_spec[load], f"{key}.{load}"), size)
+                 for load in node_spec}
+        offset = points[str(name)]
+        if "force_space" in given:
+            loads["force_space"] = loads["force_space"] + given["force_space"]
+            loads["lever"] = loads["lever"] + _lever(offset, given["force_space"])
+        if "force_body" in given:
+            force = _in_principal(axes, given["force_body"])
+            loads["force_body"] = loads["force_body"] + force
+            loads["moment_body"] = loads["moment_body"] + np.cross(offset, force)
+        if "moment_space" in given:
+            loads["moment_space"] = loads["moment_space"] + given["moment_space"]
+        if "moment_body" in given:
+            loads["moment_body"] = loads["moment_body"] + _in_principal(axes,
+                                                                        given["moment_body"])
+
+
 def scene_table(spec, source="<scene>", path="scene", size=1):
     """Build a `SceneTable` of ``size`` scenes from one mapping such as the ``scene:`` block
     of a study YAML, whose swept leaves are columns of ``size`` (module docstring).
@@ -383,14 +430,16 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     reader = Reader(source, SceneError)
     spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads",
                                        "duration"))
+    assembled = None
     if "assembly" in spec:
-        mass, inertia, axes, centre, names, offsets, warnings = _read_assembled(
-            reader, spec, path, size)
+        assembled, secondaries, inertia, axes, warnings = _read_assembled(reader, spec, path, size)
+        mass, names, offsets = assembled.mass, secondaries.names, assembled.offsets
         allow = True  # Radioss warns of a lopsided body rather than refusing it
     else:
         mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
         names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
         warnings = ()
+    nodes = _in_principal(axes, offsets)
 
     initial_path = f"{path}.initial"
     initial = reader.mapping(spec.get("initial"), initial_path,
@@ -419,22 +468,34 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
         omega_principal = principal_rotation.inv().apply(given["space"])
 
     loads_path = f"{path}.loads"
-    loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS)
+    loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS + ("nodes",))
     loads = {name: (rows(reader.vector(loads_spec[name], f"{loads_path}.{name}"), size)
                     if name in loads_spec else np.zeros((size, 3))) for name in _LOADS}
     for name in _IN_BODY_AXES:
         loads[name] = _in_principal(axes, loads[name])
+    loads["lever"] = np.zeros((size, 9))
+    points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
+    if assembled is not None:
+        points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
+        # gravity pulls every mass point: about a centre that is not the centre of mass, its
+        # moment is (sum m_j d_j) x g
+        loads["lever"] = _lever(_in_principal(axes, assembled.first_moment[:, None, :])[:, 0],
+                                loads["gravity"])
+    if "nodes" in loads_spec:
+        _add_nodal_loads(reader, loads_spec["nodes"], f"{loads_path}.nodes", loads, points,
+                         axes, size)
     return SceneTable(
         mass=mass, inertia=inertia, allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
         omega_body=omega_principal,
-        position=centre if "assembly" in spec else rows(
+        position=assembled.centre if assembled is not None else rows(
             reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size),
         velocity=rows(reader.vector(initial.get("velocity", [0, 0, 0]),
                                      f"{initial_path}.velocity"), size),
-        loads=loads, nodes=_in_principal(axes, offsets), node_names=names,
+        loads=loads, nodes=nodes, node_names=names,
         duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),
-        warnings=warnings)
+        warnings=warnings, regularised=None if assembled is None else assembled.regularised,
+        tables=() if assembled is None else secondaries.tables)
 
 
 def scene_from_mapping(spec, source="<scene>", path="scene"):

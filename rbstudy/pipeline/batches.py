@@ -78,7 +78,8 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
 
     A batch's id hashes what its part holds and where it goes: the study's ``scene`` mapping
     and the grid (every dimension's axes and values), which with the cases' positions make
-    their scenes (with the order of the nodes, which the part's node axis follows); the runs
+    their scenes (with the order of the nodes, which the part's node axis follows, and the
+    contents of the node tables the scene names); the runs
     of its cases (scheme, dt and the options that scheme has, so that another scheme's
     option, unless swept, leaves it alone); the output grid and the stored variables; what
     the stored verdicts depend on (``verdict``: the accuracy bound); and the source digest of
@@ -87,7 +88,7 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
     """
     study_digest = canonical_id({
         "scene": scene,  # hashed with sorted keys: the node order goes in on its own
-        "nodes": list(cases.scenes.node_names),
+        "nodes": list(cases.scenes.node_names), "tables": list(cases.scenes.tables),
         "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
         "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
         "source": SOURCE_DIGEST})

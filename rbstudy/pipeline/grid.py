@@ -102,15 +102,18 @@ class Dimension:
 # --- the sweep block -> dimensions ---------------------------------------------------------
 
 def _scalar_values(reader, key, values):
-    """``values`` if each is a number or a string and none repeats."""
+    """``values`` if each is a number, a name or a flag and none repeats."""
     for i, value in enumerate(values):
-        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            reader.fail(f"{key}[{i}]", f"sweep values must be numbers or names, got {value!r}",
+        if not isinstance(value, (int, float, str)):  # a bool is an int
+            reader.fail(f"{key}[{i}]", f"sweep values must be numbers, names or true/false, "
+                                       f"got {value!r}",
                         "sweep a vector one entry at a time (path.0, path.1...)")
-        if not isinstance(value, str):
+        if not isinstance(value, (str, bool)):
             reader.number(value, f"{key}[{i}]")  # finite
-    counts = collections.Counter(float(v) if not isinstance(v, str) else v for v in values)
-    repeated = sorted(str(v) for v, n in counts.items() if n > 1)
+    # a flag is kept apart from the number it equals (true == 1)
+    counts = collections.Counter((type(v) is bool, v if isinstance(v, (str, bool)) else float(v))
+                                 for v in values)
+    repeated = sorted(str(v) for (_, v), n in counts.items() if n > 1)
     if repeated:
         reader.fail(key, f"{', '.join(repeated)} given twice", "each value once")
     return tuple(values)
@@ -252,8 +255,11 @@ def _list_index(dotted, node, part):
 
 
 def _column(values):
-    """Axis values as a column: floats, or objects when names are among them."""
-    if any(isinstance(v, str) for v in values):
+    """Axis values as a column: flags when all are true or false, objects when names are
+    among them, else floats."""
+    if all(isinstance(v, bool) for v in values):
+        return np.array(values, dtype=bool)
+    if any(isinstance(v, (str, bool)) for v in values):
         return np.array(values, dtype=object)
     return np.array(values, dtype=float)
 
@@ -327,8 +333,8 @@ def _inside(mapping, *keys):
 
 def _short_numbers(name, column):
     """A short name's column (n,) as floats: every value a finite number (spin > 0)."""
-    if column.dtype == object:
-        _fail_at(np.array([isinstance(v, str) for v in column]),
+    if column.dtype.kind in "bO":
+        _fail_at(np.array([isinstance(v, (str, bool, np.bool_)) for v in column]),
                  lambda row: f"{name} takes a number, got {_entry(column, row)!r}")
     numbers = column.astype(float)
     if name == "spin":

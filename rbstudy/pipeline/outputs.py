@@ -246,5 +246,9 @@ def node_offset(batch):
     return batch.node_offsets
 
 
+def regularised_inertia(batch):
+    return np.array([scene.body.regularised for scene in batch.scenes], dtype=np.int8)
+
+
 def physical_body(batch):
     return np.array([scene.body.physical for scene in batch.scenes], dtype=np.int8)

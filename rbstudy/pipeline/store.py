@@ -168,6 +168,10 @@ def _fixed_coords(layout):
 
 
 def _coordinate_values(axis):
+    """An axis's values as its coordinate: names as text, flags as the text ``true`` and
+    ``false`` (netCDF has no booleans, and 0 and 1 would read as numbers), else floats."""
+    if all(isinstance(v, bool) for v in axis.values):
+        return np.array([str(v).lower() for v in axis.values], dtype=object)
     if all(isinstance(v, str) for v in axis.values):
         return np.array(axis.values, dtype=object)
     return np.array([float(v) for v in axis.values])

@@ -39,6 +39,8 @@ FEATURES = {
                   "a moment-free symmetric body (precession frequency)"),
     "asymmetric": (lambda scenes: scenes.moment_free & (scenes.symmetry_axes < 0),
                    "a moment-free body with three different inertias (flip interval)"),
+    "assembled": (lambda scenes: np.full(len(scenes), scenes.regularised is not None),
+                  "a body assembled from a master node and secondary nodes"),
 }
 
 
@@ -112,6 +114,11 @@ VARIABLES = {v.name: v for v in (
     _result("max_momentum_magnitude_error", "1",
             "largest relative drift of the magnitude |L| over every step (the vector's drift, "
             "sampled, is momentum_error)", "moment_free"),
+    _result("max_step_angle", "rad", "largest dt |w| over every step (an adaptive scheme: its "
+            "own steps)"),
+    _result("radioss_dt_limit", "1", "whether (dt |w|)^2 > 1 at some step, where OpenRadioss "
+            "aborts a rigid body as unstable (the run goes on)",
+            flags=("within", "exceeded")),
     _v("final_orientation_error", (), "rad", "orientation error at the last output time",
        "reference"),
     _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its "
@@ -126,6 +133,9 @@ VARIABLES = {v.name: v for v in (
     _v("initial_spin", (), "rad s-1", "initial angular speed |w(0)|"),
     _v("node_offset", ("node", "axis"), "m", "node offsets from the centre of mass, principal axes",
        "nodes"),
+    _v("regularised_inertia", (), "1", "whether a principal inertia below 1e-3 of the largest "
+       "was raised to that (Radioss regularisation of an assembled body)", "assembled",
+       flags=("as_assembled", "regularised"), dtype="i1"),
     _v("physical_body", (), "1",
        "whether the principal inertias meet the triangle inequality (a real rigid body)",
        flags=("unphysical_stress_body", "physical"), dtype="i1"),
@@ -211,7 +221,7 @@ def scene_features(scenes):
 # Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
 # the report read them (a few numbers per case).
 BOOKKEEPING = ("status", "accuracy", "failure_time", "n_steps", "iterations", "run_time",
-               "reference", "physical_body", "inertia", "initial_spin")
+               "reference", "physical_body", "inertia", "initial_spin", "radioss_dt_limit")
 
 
 def selected(features):

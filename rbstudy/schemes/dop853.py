@@ -64,13 +64,15 @@ def _drifts(samples, p):
 class Trajectory:
     """One body's DOP853 run sampled at T times: ``samples`` (T, N_STATE), NaN past
     ``reached`` (s); accepted ``steps`` and right-hand-side ``evaluations``; ``finished``
-    when it reached the last time (a run that stopped at ``max_steps`` first did not)."""
+    when it reached the last time (a run that stopped at ``max_steps`` first did not);
+    ``max_step_angle``, the largest accepted step times |w| at its end (rad)."""
 
     samples: np.ndarray
     reached: float
     steps: int
     evaluations: int
     finished: bool
+    max_step_angle: float
 
 
 def integrate(y0, p, times, max_steps=None, halt=None):
@@ -85,7 +87,7 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     samples[0] = y0
     solver = DOP853(lambda t, y: derivative(t, y, p), 0.0, np.array(y0, dtype=float),
                     float(times[-1]), rtol=RTOL, atol=ATOL)
-    filled, steps = 1, 0
+    filled, steps, max_step_angle = 1, 0, 0.0
     while solver.status == "running" and filled < len(times):
         if halt is not None and halt[0]:
             break
@@ -95,6 +97,8 @@ def integrate(y0, p, times, max_steps=None, halt=None):
         if solver.status == "failed":  # the step was rejected for good: not an accepted one
             break
         steps += 1
+        max_step_angle = max(max_step_angle,
+                             solver.step_size * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
         covered = np.searchsorted(times, solver.t, side="right")
         if covered > filled:
             samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
@@ -102,7 +106,8 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     quaternions = samples[:filled, S.STATE_FIELDS["quaternion"]]
     quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
     finished = filled == len(times) and np.all(np.isfinite(samples))
-    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished))
+    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished),
+                      max_step_angle)
 
 
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
@@ -133,7 +138,9 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         samples[b] = out
         row = {"status": status, "failure_time": failure, "n_steps": run.steps,
                "iterations": run.evaluations, "max_energy_error": max_energy,
-               "max_momentum_magnitude_error": max_momentum}
+               "max_momentum_magnitude_error": max_momentum,
+               "max_step_angle": run.max_step_angle,
+               "radioss_dt_limit": run.max_step_angle > S.RADIOSS_STEP_ANGLE}
         for name, value in row.items():
             results[b, Result[name]] = value
 

@@ -1,0 +1,113 @@
+"""Node tables: the secondary nodes of an assembled body, read from a file.
+
+A body of thousands of nodes is given as a table rather than inline (docs/config.md): one node
+per line, columns ``id x y z mass`` and optionally the nodal inertia
+``Ixx Iyy Izz Ixy Iyz Izx``, separated by commas (CSV) or by white space. Lines starting with
+``#`` and blank lines are skipped; a first line of column names is allowed and must name these
+columns in this order. Units are those of the inline form: m, kg, kg m^2.
+
+Every bad line fails as a `SceneError` placed in the table file at its line, naming the node,
+so that the config that refers to the table need not be searched.
+"""
+
+import hashlib
+import math
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rbstudy.errors import SceneError
+from rbstudy.reader import Reader
+
+__all__ = ["NodeTable", "read_node_table", "COLUMNS", "INERTIA_COLUMNS", "RESERVED"]
+
+COLUMNS = ("id", "x", "y", "z", "mass")
+INERTIA_COLUMNS = ("Ixx", "Iyy", "Izz", "Ixy", "Iyz", "Izx")
+# The master node's name where loads are placed by node (`rbstudy.physics.scenes`).
+RESERVED = "master"
+_FORMAT = "id x y z mass [Ixx Iyy Izz Ixy Iyz Izx]"
+
+
+@dataclass(frozen=True)
+class NodeTable:
+    """K nodes: ``names`` (K,), ``positions`` (K, 3) m, ``masses`` (K,) kg, ``inertias``
+    (K, 6) kg m^2 as ``Ixx Iyy Izz Ixy Iyz Izx`` (zero where the table has no inertia
+    columns), and the sha256 ``digest`` of the file's bytes (batch ids change when the table
+    does)."""
+
+    names: tuple
+    positions: np.ndarray
+    masses: np.ndarray
+    inertias: np.ndarray
+    digest: str
+
+
+def _fields(line):
+    return [field.strip() for field in line.split(",")] if "," in line else line.split()
+
+
+def _is_header(fields):
+    try:
+        [float(field) for field in fields[1:]]
+    except ValueError:
+        return True
+    return False
+
+
+def read_node_table(path):
+    """The `NodeTable` of the file ``path``; a `SceneError` at the first bad line."""
+    reader = Reader(str(path), SceneError)
+    try:
+        data = Path(path).read_bytes()
+        text = data.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        reason = getattr(error, "strerror", None) or error
+        reader.fail("table", f"cannot read the node table: {reason}",
+                    "give the path of a text file, relative to the config")
+    names, values, width = [], [], None
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = _fields(line)
+        where = f"line {number}"
+        if width is None and not names and _is_header(fields):
+            expected = [c.lower() for c in COLUMNS + INERTIA_COLUMNS][:len(fields)]
+            if [f.lower() for f in fields] != expected or len(fields) not in (5, 11):
+                reader.fail(where, f"the column names {' '.join(fields)!r:.80} are not {_FORMAT}",
+                            "name the columns in that order, or leave the names out")
+            width = len(fields)
+            continue
+        if len(fields) not in (5, 11) or (width is not None and len(fields) != width):
+            reader.fail(where, f"expected {width or '5 or 11'} columns ({_FORMAT}), got "
+                               f"{len(fields)}", "give every node the same columns")
+        width = len(fields)
+        name = fields[0]
+        where = f"line {number} (node {name})"
+        if name == RESERVED:
+            reader.fail(where, f"{RESERVED!r} names the master node", "rename this node")
+        row = []
+        # 4 or 10 fields: the inertia columns are optional
+        for column, field in zip(COLUMNS[1:] + INERTIA_COLUMNS, fields[1:], strict=False):
+            try:
+                value = float(field)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                reader.fail(where, f"{column} = {field!r:.40} is not a finite number",
+                            "give finite numbers in m, kg, kg m^2")
+            row.append(value)
+        if row[3] < 0.0:
+            reader.fail(where, f"mass = {row[3]!r} must be >= 0", "give a mass >= 0 kg")
+        names.append(name)
+        values.append(row)
+    if not names:
+        reader.fail("table", "the node table has no nodes", f"give one line per node: {_FORMAT}")
+    duplicate = next((name for name, count in Counter(names).items() if count > 1), None)
+    if duplicate is not None:
+        reader.fail("table", f"node {duplicate} is given twice", "give each node one line")
+    table = np.array(values)
+    inertias = table[:, 4:] if width == 11 else np.zeros((len(names), 6))
+    return NodeTable(tuple(names), table[:, :3], table[:, 3], inertias,
+                     hashlib.sha256(data).hexdigest())
