@@ -22,6 +22,7 @@ shown=(
     high_spin:stability_map stiff_inertia:stability_map
     long_run:invariant_drift intermediate_axis:convergence_orientation
     hht_damping:convergence_orientation spin_tilt:stability_map
+    radioss_body:convergence_orientation radioss_spin_limit:stability_map
 )
 mkdir -p docs/figures
 for pair in "${shown[@]}"; do

@@ -43,7 +43,7 @@ ERROR_MEASURES = {
 # the samples: a time series per case).
 SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orientation_error",
                      "max_energy_error", "max_momentum_magnitude_error", "momentum_error",
-                     "initial_spin", "physical_body")
+                     "initial_spin", "physical_body", "radioss_dt_limit")
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
@@ -139,8 +139,9 @@ def scheme_rows(ds):
     Keys: scheme; nominal (the scheme's nominal order as archived, None if the archive does
     not record it); cases, unstable (cases that failed), inaccurate (cases that finished but
     were judged inaccurate, None for an archive without the verdict), unjudged (finished
-    without a reference); order ((min, max) over
-    the successful fits, or None) and finest ((min, max) of the fits' finest-pair slopes),
+    without a reference), radioss (cases past the OpenRadioss limit dt |w| = 1); order
+    ((min, max) over the successful fits, or None) and finest ((min, max) of the fits'
+    finest-pair slopes),
     fits and tries (how many of the other axes' values gave an asymptotic range), fit_dt
     ((smallest, largest) dt fitted); error_dt / error at the largest dt and error_small_dt /
     error_small at the smallest, the worst over the other axes (NaN when a case there failed:
@@ -167,7 +168,10 @@ def scheme_rows(ds):
                "inaccurate": int(inaccurate.sum()) if judged else None,
                "unjudged": int(unjudged.sum()),
                "order": None, "finest": None, "fits": 0, "tries": 0, "fit_dt": (),
-               "error": None, "error_small": None}
+               "error": None, "error_small": None,
+               # archives older than the flag do not say
+               "radioss": (int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum())
+                           if "radioss_dt_limit" in ds else 0)}
         row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
                                    / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
         # dt |w0| is the step parameter of physical bodies only (for a stress body beyond the
@@ -256,8 +260,10 @@ def table_columns(rows):
          else f"{row['inaccurate']}/{row['cases']}"
          + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else "")),
         ("failed", lambda row: f"{row['unstable']}/{row['cases']}"),
-        ("kept", lambda row: ", ".join(row["kept"]) or "-"),
     ]
+    if any(row["radioss"] for row in rows):  # only where the limit was passed
+        columns.append(("past Radioss limit", lambda row: f"{row['radioss']}/{row['cases']}"))
+    columns.append(("kept", lambda row: ", ".join(row["kept"]) or "-"))
     return columns
 
 
@@ -269,7 +275,9 @@ TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other s
               "slope between the two finest fitted steps; inaccurate: cases that finished "
               "but whose orientation error at some sample or energy or |L| drift passed the "
               "study's accuracy bound (unjudged: finished without a reference, and no "
-              "drift past the bound); failed: cases that blew up or did not converge; "
+              "drift past the bound); failed: cases that blew up or did not converge; past "
+              "Radioss limit (shown when some case was): cases whose dt |w| passed 1 at some "
+              "step, where OpenRadioss aborts a rigid body (rbstudy runs on); "
               "dt|w0|: over physical bodies only, accurate up to: the largest accurate case "
               "below the first that is not; kept: energy and |L| drift over every step, and L (the "
               f"vector) at the samples, below {KEPT_TOLERANCE:g} in every stable case")

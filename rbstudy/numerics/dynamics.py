@@ -6,7 +6,7 @@ moments enter Euler's equations in the body frame, forces the translation in spa
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3
 
 __all__ = [
@@ -35,12 +35,14 @@ def to_omega(m, inertia_):
 
 @jit
 def lever_moment(q, p):
-    """Body-frame moment of space-fixed forces at body-fixed points (`S.LEVER`):
-    ``sum_b e_b x R^T k_b`` with ``e_b x v`` written out."""
-    a = quat_rotate_inverse(q, read3(p, S.LEVER))
-    b = quat_rotate_inverse(q, read3(p, S.LEVER + 3))
-    c = quat_rotate_inverse(q, read3(p, S.LEVER + 6))
-    return (b[2] - c[1], c[0] - a[2], a[1] - b[0])
+    """Space-frame moment of space-fixed forces at body-fixed points (`S.LEVER`):
+    ``sum_b c_b x k_b`` with ``c_b = R e_b`` the columns of the body's rotation."""
+    x, y, z, w = q
+    c1 = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y))
+    c2 = (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x))
+    c3 = (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+    return add(add(cross(c1, read3(p, S.LEVER)), cross(c2, read3(p, S.LEVER + 3))),
+               cross(c3, read3(p, S.LEVER + 6)))
 
 
 @jit
@@ -52,14 +54,15 @@ def has_lever(p):
     return False
 
 
-@jit
+@inline_jit
 def body_moment(q, p):
-    """Total moment in the body frame: body-fixed moment, the space moment turned in, and the
-    moment of space-fixed forces at body-fixed points (skipped, three rotations, when none)."""
-    moment = add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, read3(p, S.MOMENT_SPACE)))
+    """Total moment in the body frame: the body-fixed moment, and the space moment with the
+    moment of space-fixed forces at body-fixed points (skipped when there is none) turned in.
+    Inlined by numba (`rbstudy.numerics.jit.inline_jit` says why)."""
+    space = read3(p, S.MOMENT_SPACE)
     if has_lever(p):
-        moment = add(moment, lever_moment(q, p))
-    return moment
+        space = add(space, lever_moment(q, p))
+    return add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space))
 
 
 @jit

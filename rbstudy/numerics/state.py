@@ -17,8 +17,8 @@ Parameter row:
     MOMENT_SPACE 3 (N m), MOMENT_BODY 3 (N m, body axes), GRAVITY 3 (m/s^2, space),
     LEVER 9 (N m): space-fixed forces ``F_i`` at body-fixed points ``d_i`` (principal axes,
     from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
-    their moment ``sum_i d_i x R^T F_i = sum_b e_b x R^T k_b`` turns with the body
-    (`rbstudy.numerics.dynamics.body_moment`). Their sum ``F`` is part of FORCE_SPACE.
+    their moment ``sum_i (R d_i) x F_i = sum_b (R e_b) x k_b`` in space turns with the body
+    (`rbstudy.numerics.dynamics.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
 
 Results row: `RESULT_FIELDS`, by name; kernels index it with ``Result.<name>``. Numba-free:
 the layers above read this layout and the status codes without compiling anything.
