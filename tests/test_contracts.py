@@ -86,7 +86,7 @@ def test_a_dotted_path_through_a_number_is_one_line(tmp_path):
     path = write_study(tmp_path, sweep={"scene.body.mass.x": [1.0]})
     with pytest.raises(ConfigError) as error:
         load_study(path)
-    assert str(error.value) == (f"{path}: sweep (body_mass_x[0] = 1.0): scene.body.mass.x: "
+    assert str(error.value) == (f"{path}: sweep: scene.body.mass.x: "
                                 "scene.body.mass holds 1.0, not a mapping or list; sweep a "
                                 "path that exists in the study")
 
@@ -94,6 +94,5 @@ def test_a_dotted_path_through_a_number_is_one_line(tmp_path):
 def test_a_short_axis_names_the_key_it_needs(tmp_path):
     scene = {"body": {"inertia": [1.0, 2.0, 3.0]}, "duration": 0.5}
     path = write_study(tmp_path, scene=scene, sweep={"spin": [1.0]})
-    with pytest.raises(ConfigError, match=r"sweep \(spin\[0\] = 1.0\): "
-                                          r"scene.initial.angular_velocity: spin needs"):
+    with pytest.raises(ConfigError, match=r"sweep: scene.initial.angular_velocity: spin needs"):
         load_study(path)

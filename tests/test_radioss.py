@@ -151,12 +151,17 @@ def test_a_couple_of_nodal_forces_about_a_principal_axis_is_the_axial_closed_for
 
 
 def test_gravity_on_a_body_centred_elsewhere_pulls_at_the_mass():
-    """Gravity acts on every mass: about the centre of mass it gives no moment (the free
-    closed form applies), about a centre pinned at the master its moment is
-    (sum m_j d_j) x g, as if each node were pulled by m_j g."""
+    """Gravity acts on every mass: about the centre of mass it gives no moment, nor about the
+    secondaries' own centre when the master has no mass (exactly: the body stays
+    moment-free); about a centre taken at the master its moment is (sum m_j d_j) x g, as if
+    each node were pulled by m_j g."""
     gravity = [0.0, 0.0, -9.81]
     free = loaded({"gravity": gravity}, spin=(0.0, 0.0, 2.0))
     assert free.loads.moment_free
+    massless_master = scene_from_mapping({
+        "assembly": {"nodes": NODES, "centre_of_mass": "secondaries"},
+        "loads": {"gravity": gravity}}, source="test")
+    assert massless_master.loads.moment_free
     assert reference_solution(free, np.linspace(0.0, 1.0, 3)).name == "dop853"  # asymmetric
     pinned = loaded({"gravity": gravity}, centre_of_mass="master")
     assert not pinned.loads.moment_free
@@ -169,20 +174,36 @@ def test_gravity_on_a_body_centred_elsewhere_pulls_at_the_mass():
 def test_the_radioss_step_limit_is_a_flag_of_its_own():
     """A symmetric top spinning at |w| = 10 rad/s about its axis: dt |w| = 0.5 is within
     the OpenRadioss limit, dt |w| = 2 past it; the flag says so for every scheme, and the
-    run goes on (its status is its own: a spin about a principal axis stays finite)."""
+    run goes on (its status is its own: a spin about a principal axis stays finite).
+    dop853 takes its own steps, far smaller: within the limit at both output grids."""
     scene = scene_from_mapping({"body": {"inertia": [1.0, 1.0, 2.0]},
                                 "initial": {"angular_velocity": {"body": [0.0, 0.0, 10.0]}},
                                 "duration": 2.0}, source="test")
     for name in SCHEMES:
         within, past = (simulate([scene], name, dt, 0.2) for dt in (0.05, 0.2))
-        if not SCHEMES[name].adaptive:
-            assert math.isclose(within.results["max_step_angle"][0], 0.5, rel_tol=1e-12)
-            assert math.isclose(past.results["max_step_angle"][0], 2.0, rel_tol=1e-12)
-            assert past.results["radioss_dt_limit"][0] == 1, name
-            assert past.status_names == ["ok"], name
         assert within.results["radioss_dt_limit"][0] == 0, name
-        assert past.results["n_steps"][0] == (10 if not SCHEMES[name].adaptive
-                                              else past.results["n_steps"][0])
+        if SCHEMES[name].adaptive:
+            assert 0.0 < past.results["max_step_angle"][0] < 0.5, name
+            assert past.results["radioss_dt_limit"][0] == 0, name
+            continue
+        assert math.isclose(within.results["max_step_angle"][0], 0.5, rel_tol=1e-12)
+        assert math.isclose(past.results["max_step_angle"][0], 2.0, rel_tol=1e-12)
+        assert past.results["radioss_dt_limit"][0] == 1, name
+        assert past.status_names == ["ok"] and past.results["n_steps"][0] == 10, name
+
+
+def test_the_radioss_flag_follows_the_largest_spin_not_the_first():
+    """Spun up about its axis by a constant axial moment from |w| = 5 to 15 rad/s at
+    dt = 0.1 s: dt |w0| = 0.5, but the flag takes the largest |w| over the steps, dt |w| =
+    1.5 at the end (every fixed-step scheme integrates the linear spin-up exactly)."""
+    scene = scene_from_mapping({"body": {"inertia": [1.0, 1.0, 2.0]},
+                                "initial": {"angular_velocity": {"body": [0.0, 0.0, 5.0]}},
+                                "loads": {"moment_body": [0.0, 0.0, 10.0]},
+                                "duration": 2.0}, source="test")
+    for name in FIXED_STEP:
+        run = simulate([scene], name, 0.1, 0.2)
+        assert math.isclose(run.results["max_step_angle"][0], 1.5, rel_tol=1e-12), name
+        assert run.results["radioss_dt_limit"][0] == 1, name
 
 
 def test_leapfrog_grows_m_squared_by_dt2_m_cross_w_squared_each_step():
@@ -244,7 +265,9 @@ def test_a_node_table_file_is_the_inline_nodes(tmp_path):
     ("1 1 0 0 1\n2 0 1 0 1 0 0 0 0 0 0\n", "nodes.csv: line 2: expected 5 columns"),
     ("1, 1, nan, 0, 1\n", "nodes.csv: line 1 (node 1): y = 'nan' is not a finite number"),
     ("1, 1, 0, 0, -2\n", "nodes.csv: line 1 (node 1): mass = -2.0 must be >= 0"),
-    ("1, 1, 0, 0, 1\n1, 0, 1, 0, 1\n", "nodes.csv: table: node 1 is given twice"),
+    ("1, 1, 0, 0, 1\n# a comment\n1, 0, 1, 0, 1\n",
+     "nodes.csv: line 3 (node 1): node 1 is given again (first on line 1)"),
+    ("1, 1, abc, 0, 1\n", "nodes.csv: line 1 (node 1): y = 'abc' is not a finite number"),
     ("master, 1, 0, 0, 1\n", "names the master node; rename this node"),
     ("id, x, z, y, mass\n", "nodes.csv: line 1: the column names"),
     ("# nothing\n", "nodes.csv: table: the node table has no nodes"),
@@ -276,6 +299,8 @@ def test_a_study_sweeps_node_tables_and_radioss_options(tmp_path):
     assert masses == [6.0] * 4 + [8.0] * 4
     spherical = [case.scene.body.symmetry_axis is not None for case in study.cases]
     assert spherical == [False, True] * 4
+    centres = [case.scene.position for case in study.cases]
+    assert centres[2] == tuple(MASTER["position"]) != centres[0]  # pinned at the master
     first = {batch.id for batch in study.batches}
     (tmp_path / "b.csv").write_text(TABLE.replace("0.5\n", "3.5\n"))
     assert not first & {batch.id for batch in load_study(tmp_path / "study.yaml").batches}
@@ -283,3 +308,45 @@ def test_a_study_sweeps_node_tables_and_radioss_options(tmp_path):
     with pytest.raises(InputError, match=r"sweep \(assembly_nodes\[1\] = 'b.csv'.*: the node "
                                          "tables a.csv and b.csv name different nodes"):
         load_study(tmp_path / "study.yaml")
+
+
+def test_a_spreadsheet_export_reads_as_the_table(tmp_path):
+    """A byte-order mark, Windows line ends, column names in capitals, quoted ids and a
+    trailing comma on every line: the same nodes as the plain table."""
+    lines = ['ID,X,Y,Z,Mass,'] + [f'"{k}",{",".join(map(str, n["position"]))},{n["mass"]},'
+                                  for k, n in NODES.items()]
+    (tmp_path / "export.csv").write_bytes(("\ufeff" + "\r\n".join(lines) + "\r\n").encode())
+    (tmp_path / "plain.csv").write_text(TABLE)
+    read = {name: scene_table({"assembly": {"master": MASTER, "nodes": name}},
+                              source=str(tmp_path / "study.yaml")).scene(0)
+            for name in ("export.csv", "plain.csv")}
+    assert read["export.csv"].node_names == read["plain.csv"].node_names == ("1", "2", "3", "4")
+    assert np.array_equal(read["export.csv"].nodes, read["plain.csv"].nodes)
+
+
+def test_the_archive_of_a_radioss_study(tmp_path):
+    """A swept Radioss option is a coordinate of names ("false", "true"); every case says
+    whether it passed the OpenRadioss limit and whether its inertia was regularised; the
+    summary counts the cases past the limit, and the stability map is drawn."""
+    from rbstudy.analysis.plots import stability_map
+    from rbstudy.analysis.summary import format_table, scheme_rows
+    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.store import open_results
+
+    scene = {"assembly": {"master": MASTER, "nodes": NODES},
+             "initial": {"angular_velocity": {"space": [0.0, 0.0, 1.0]}}, "duration": 0.4}
+    sweep = {"scheme": ["rk4", "midpoint"], "scene.assembly.spherical": [False, True],
+             "spin": [5.0, 15.0]}  # dt |w0| = 0.5 and 1.5
+    path = write_study(tmp_path, scene=scene, sweep=sweep, run={"scheme": "rk4", "dt": 0.1},
+                       output={"interval": 0.1})
+    ds = open_results(run_study(load_study(path), tmp_path / "out", quiet=True).path)
+    assert list(ds["assembly_spherical"].values) == ["false", "true"]
+    assert ds["radioss_dt_limit"].attrs["flag_meanings"] == "within exceeded"
+    assert (ds["radioss_dt_limit"].sel(spin=15.0) == 1).all()
+    assert (ds["max_step_angle"].sel(spin=5.0) < 1.0).all()
+    assert ds["regularised_inertia"].attrs["flag_meanings"] == "as_assembled regularised"
+    assert (ds["regularised_inertia"] == 0).all()
+    rows = scheme_rows(ds)
+    assert [row["radioss"] for row in rows] == [2, 2]  # spin 15 rad/s, both bodies
+    assert "past Radioss limit" in format_table(rows).splitlines()[0]
+    assert stability_map(ds, tmp_path / "figures").written

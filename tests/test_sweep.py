@@ -254,14 +254,14 @@ def test_numbers_with_bare_exponents_are_numbers(tmp_path):
 
 
 @pytest.mark.parametrize("axis, message", [
-    ("inertia_ratio", "sweep (inertia_ratio[0] = 1.5): scene.body.inertia: inertia_ratio needs "
-                      "a body symmetric about axis 3, got None"),
-    ("spin", "sweep (spin[0] = 1.5): scene.initial.angular_velocity: spin needs the initial "
-             "angular velocity"),
+    ("inertia_ratio", "sweep: scene.body.inertia: inertia_ratio needs a body symmetric about "
+                      "axis 3, got None"),
+    ("spin", "sweep: scene.initial.angular_velocity: spin needs the initial angular velocity"),
 ])
 def test_a_short_name_over_a_malformed_scene_is_one_line(tmp_path, axis, message):
     """A body or initial state that is not a mapping: the short name says what it needs (it
-    used to end in an AttributeError)."""
+    used to end in an AttributeError), under the sweep but naming no value of it (every
+    value fails alike)."""
     path = write_study(tmp_path, scene={"body": [1, 2], "initial": 5, "duration": 0.5},
                        sweep={axis: [1.5]})
     with pytest.raises(ConfigError) as error:

@@ -153,9 +153,6 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
             total += y[k]
         if status == OK and not math.isfinite(total):
             status = UNSTABLE
-        spin = dot(read3(y, S.OMEGA), read3(y, S.OMEGA))
-        if spin > largest_spin:
-            largest_spin = spin
         if status == OK and check_invariants:
             w = read3(y, S.OMEGA)
             d_energy = _relative_drift(rotational_energy(w, inertia_), energy0)
@@ -165,6 +162,10 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
             # written so that NaN drifts also fail the test
             if not (d_energy <= drift_bound and d_momentum <= drift_bound):
                 status = UNSTABLE
+        if status == OK:  # the spin of accepted states only: a blow-up flags nothing
+            spin = dot(read3(y, S.OMEGA), read3(y, S.OMEGA))
+            if spin > largest_spin:
+                largest_spin = spin
         if status == OK and steps_done % every == 0:
             for k in range(S.N_STATE):
                 samples[b, sample, k] = y[k]

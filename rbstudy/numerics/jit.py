@@ -46,6 +46,6 @@ jit = numba.njit(cache=True, **_COMMON)
 # into its callers before LLVM sees them. Left to LLVM, the loads' `body_moment` with its
 # lever branch grew past LLVM's inlining threshold and was called instead, which cost the
 # free body 20-35% of its steps per second (rk4 1.45e7 -> 9.5e6, measured); inlined, the
-# free body runs as before and a body with a lever pays only for the lever.
+# free body is within 5-10% of its speed without loads at nodes (docs/performance.md).
 inline_jit = numba.njit(cache=True, inline="always", **_COMMON)
 entry_jit = numba.njit(cache=False, **_COMMON)

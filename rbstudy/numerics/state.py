@@ -69,7 +69,9 @@ RESULT_FIELDS = (
     ("iterations", "i8"),           # Newton iterations (an adaptive scheme: rhs evaluations)
     ("max_energy_error", "f8"),     # largest relative rotational-energy drift over the steps
     ("max_momentum_magnitude_error", "f8"),  # largest relative drift of |L| over the steps
-    ("max_step_angle", "f8"),       # rad; largest dt |w| over the steps, t = 0 included
+    ("max_step_angle", "f8"),       # rad; largest dt |w| over the accepted states (t = 0
+                                    # included; an adaptive scheme: each step's own dt and
+                                    # the |w| it ends with)
     ("radioss_dt_limit", "i1"),     # 1 where (dt |w|)^2 > 1 at some step (OpenRadioss aborts)
 )
 # OpenRadioss aborts a rigid body as unstable when (dt |w|)^2 > 1: past this step angle (rad)

@@ -97,11 +97,13 @@ def assemble(master_position, master_mass, master_inertia, positions, masses, in
                                        by_all))
     offsets = positions - centre_of_mass[..., None, :]
     master_offset = master_position - centre_of_mass
-    # about the centre of mass it vanishes: exactly, not to round-off, so that gravity alone
-    # leaves a body moment-free (and its energy a conserved quantity)
-    first_moment = np.where((centre == "all")[..., None], 0.0,
-                            master_mass[..., None] * master_offset
-                            + np.einsum("...k,...ki->...i", masses, offsets))
+    # written so that what vanishes vanishes exactly, not to round-off, and gravity alone
+    # leaves such a body moment-free (its energy a conserved quantity): the whole first
+    # moment about the centre of mass, the secondaries' about their own centre
+    first_moment = np.where(
+        (centre == "all")[..., None], 0.0,
+        np.where((centre == "secondaries")[..., None], master_mass[..., None] * master_offset,
+                 np.einsum("...k,...ki->...i", masses, offsets)))
     tensor = (master_inertia + _point_inertia(master_mass, master_offset)
               + inertias.sum(axis=-3) + _point_inertia(masses, offsets).sum(axis=-3))
     tensor = 0.5 * (tensor + np.swapaxes(tensor, -1, -2))  # exactly symmetric
@@ -160,6 +162,8 @@ def _not_negative(reader, values, key, what):
 def _inline_nodes(reader, nodes, path, size):
     """`Secondaries` of a mapping node name -> {position, mass, inertia}."""
     names = tuple(str(name) for name in nodes)
+    if len(set(names)) < len(names):  # 56 and "56" in the YAML
+        reader.fail(path, "a node is given twice (as a number and as text)", "give it once")
     if RESERVED in names:
         reader.fail(f"{path}.{RESERVED}", f"{RESERVED!r} names the master node",
                     "rename this node")
@@ -187,14 +191,14 @@ def _tabled_nodes(reader, files, path, size):
     column of n (a sweep), each relative to the config; every table must name the same nodes
     in the same order, so that the scenes share their node axis."""
     column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
-    distinct, inverse = np.unique(column, return_inverse=True)
+    refuse(reader, np.array([not isinstance(name, str) for name in column]), path,
+           lambda row: f"expected a node table file or a mapping of nodes, got "
+                       f"{column[row]!r:.80}")
+    distinct, inverse = np.unique(column.astype(str), return_inverse=True)
     folder = Path(reader.source).parent
     tables = []
     for k, name in enumerate(distinct):
         row = int(np.argmax(inverse == k))
-        if not isinstance(name, str):
-            reader.fail(path, f"expected a node table file or a mapping of nodes, got "
-                              f"{name!r:.80}", row=row)
         try:
             table = read_node_table(folder / name)
         except SceneError as error:

@@ -3,8 +3,9 @@
 A body of thousands of nodes is given as a table rather than inline (docs/config.md): one node
 per line, columns ``id x y z mass`` and optionally the nodal inertia
 ``Ixx Iyy Izz Ixy Iyz Izx``, separated by commas (CSV) or by white space. Lines starting with
-``#`` and blank lines are skipped; a first line of column names is allowed and must name these
-columns in this order. Units are those of the inline form: m, kg, kg m^2.
+``#`` and blank lines are skipped; a first line starting with ``id`` names the columns and must
+name these, in this order (any case). Fields may be quoted, a CSV line may end with a comma,
+and a UTF-8 byte-order mark is skipped. Units are those of the inline form: m, kg, kg m^2.
 
 Every bad line fails as a `SceneError` placed in the table file at its line, naming the node,
 so that the config that refers to the table need not be searched.
@@ -45,15 +46,15 @@ class NodeTable:
 
 
 def _fields(line):
-    return [field.strip() for field in line.split(",")] if "," in line else line.split()
-
-
-def _is_header(fields):
-    try:
-        [float(field) for field in fields[1:]]
-    except ValueError:
-        return True
-    return False
+    """The fields of a line: by commas (one trailing comma allowed) or by white space, each
+    without surrounding quotes (a spreadsheet's export quotes text)."""
+    if "," in line:
+        fields = [field.strip() for field in line.split(",")]
+        if len(fields) > 1 and not fields[-1]:
+            fields.pop()
+    else:
+        fields = line.split()
+    return [field.strip('"').strip("'") for field in fields]
 
 
 def read_node_table(path):
@@ -61,18 +62,18 @@ def read_node_table(path):
     reader = Reader(str(path), SceneError)
     try:
         data = Path(path).read_bytes()
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a spreadsheet's export may start with a BOM
     except (OSError, UnicodeDecodeError) as error:
         reason = getattr(error, "strerror", None) or error
         reader.fail("table", f"cannot read the node table: {reason}",
                     "give the path of a text file, relative to the config")
-    names, values, width = [], [], None
+    names, lines, values, width = [], [], [], None
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = _fields(line)
         where = f"line {number}"
-        if width is None and not names and _is_header(fields):
+        if width is None and fields[0].lower() == COLUMNS[0]:
             expected = [c.lower() for c in COLUMNS + INERTIA_COLUMNS][:len(fields)]
             if [f.lower() for f in fields] != expected or len(fields) not in (5, 11):
                 reader.fail(where, f"the column names {' '.join(fields)!r:.80} are not {_FORMAT}",
@@ -101,12 +102,15 @@ def read_node_table(path):
         if row[3] < 0.0:
             reader.fail(where, f"mass = {row[3]!r} must be >= 0", "give a mass >= 0 kg")
         names.append(name)
+        lines.append(number)
         values.append(row)
     if not names:
         reader.fail("table", "the node table has no nodes", f"give one line per node: {_FORMAT}")
     duplicate = next((name for name, count in Counter(names).items() if count > 1), None)
     if duplicate is not None:
-        reader.fail("table", f"node {duplicate} is given twice", "give each node one line")
+        twice = [line for line, name in zip(lines, names, strict=True) if name == duplicate]
+        reader.fail(f"line {twice[1]} (node {duplicate})", f"node {duplicate} is given again "
+                    f"(first on line {twice[0]})", "give each node one line")
     table = np.array(values)
     inertias = table[:, 4:] if width == 11 else np.zeros((len(names), 6))
     return NodeTable(tuple(names), table[:, :3], table[:, 3], inertias,

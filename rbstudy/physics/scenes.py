@@ -48,7 +48,8 @@ _NODAL_LOADS = ("force_space", "force_body", "moment_space", "moment_body")
 
 
 def _acting(*vectors):
-    """Whether any of ``vectors`` (each (..., 3)) has a non-zero entry: a bool, or (...,)."""
+    """Whether any of ``vectors`` (each (..., k), one k for all) has a non-zero entry: a bool,
+    or (...,)."""
     return np.any(np.stack(np.broadcast_arrays(*vectors)) != 0.0, axis=(0, -1))
 
 
@@ -396,6 +397,8 @@ def _add_nodal_loads(reader, spec, path, loads, points, axes, size):
     (the lever, evaluated every step by the kernels)."""
     if not isinstance(spec, dict):
         reader.fail(path, f"expected a mapping of node name -> loads, got {spec!r:.80}")
+    if len({str(name) for name in spec}) < len(spec):  # 56 and "56" in the YAML
+        reader.fail(path, "a node is loaded twice (as a number and as text)", "load it once")
     for name, node_spec in spec.items():
         key = f"{path}.{name}"
         if str(name) not in points:

@@ -525,8 +525,10 @@ def expand(reader, base, dimensions, output_interval):
         scenes = _scene_table(reader, base, scene_dimensions)
     except InputError as error:
         where = None
-        if scene_dimensions:
-            at = np.unravel_index(error.row or 0, [d.size for d in scene_dimensions])
+        if scene_dimensions and error.row is None:  # not one scene's value: every scene's
+            where = "sweep"
+        elif scene_dimensions:
+            at = np.unravel_index(error.row, [d.size for d in scene_dimensions])
             where = _where(scene_dimensions, tuple(int(i) for i in at))
         raise reader.locate(error, where) from None
     run_dimensions = [dimensions[k] for k in of_runs]

@@ -114,8 +114,8 @@ VARIABLES = {v.name: v for v in (
     _result("max_momentum_magnitude_error", "1",
             "largest relative drift of the magnitude |L| over every step (the vector's drift, "
             "sampled, is momentum_error)", "moment_free"),
-    _result("max_step_angle", "rad", "largest dt |w| over every step (an adaptive scheme: its "
-            "own steps)"),
+    _result("max_step_angle", "rad", "largest dt |w| over the accepted states, t = 0 included "
+            "(an adaptive scheme: each step's own dt and the |w| it ends with)"),
     _result("radioss_dt_limit", "1", "whether (dt |w|)^2 > 1 at some step, where OpenRadioss "
             "aborts a rigid body as unstable (the run goes on)",
             flags=("within", "exceeded")),

@@ -122,6 +122,9 @@ def step_inplace(y, p, opt, h, work):
         if size <= NEWTON_RESIDUAL_RTOL * scale_:
             converged = True
             break
+        # the Jacobian leaves out how a moment that turns with the body (a space moment, a
+        # space force at a node) changes with q_new: a quasi-Newton step, converging all the
+        # same at the steps where the scheme is accurate
         jw = to_momentum(w_new, inertia_)
         k = skew_matmul(w_new, inertia_)
         c, d = 1.0 + alpha, h * gamma
