@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from rbstudy.cli import main
 from rbstudy.errors import ConfigError, SceneError
 from rbstudy.physics.assembly import REGULARISATION
-from rbstudy.physics.scenes import Body, Scene, scene_from_mapping, scene_table
+from rbstudy.physics.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import SCHEMES
@@ -241,13 +241,16 @@ def test_the_radioss_regression_models():
         assert np.max(np.linalg.norm(back - starts, axis=1)) < 0.015, name
 
 
+@pytest.mark.parametrize("loaded", [False, True], ids=["free", "loaded"])
 @pytest.mark.parametrize("scheme", FIXED_STEP)
-def test_the_body_built_from_nodes_and_given_by_its_inertia_move_alike(scheme):
+def test_the_body_built_from_nodes_and_given_by_its_inertia_move_alike(scheme, loaded):
     """Six nodes of 1 kg on the axes of a box (half sides 1, 2, 3 m along x, y, z) make the
     principal inertias 2 (a^2 + b^2) = 10 about z, 2 (a^2 + c^2) = 20 about y and
     2 (b^2 + c^2) = 26 about x. The same body given by its mass and principal inertias
     (10, 20, 26), its axes turned onto z, y and -x, spun alike, moves every node through
-    space alike over 1,000 steps, to round-off.
+    space alike over 1,000 steps, to round-off: free, and loaded by a space-fixed force at
+    one node, a body force at another and gravity (each scene working out their moments in
+    its own principal frame).
 
     The principal axes of an assembled body come in ascending order of inertia; the
     splitting schemes' ``axis_order`` counts in that order, so a body given with its
@@ -257,22 +260,32 @@ def test_the_body_built_from_nodes_and_given_by_its_inertia_move_alike(scheme):
                                "mass": 1.0}
              for axis in "xyz" for sign, s in (("p", 1.0), ("m", -1.0))}
     omega = np.array([0.3, 1.1, -0.7])
-    built = scene_from_mapping({"assembly": {"nodes": nodes},
-                                "initial": {"angular_velocity": {"space": omega.tolist()}},
-                                "duration": 1.0})
     axes = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # columns z, y, -x
     positions = np.array([node["position"] for node in nodes.values()])
-    given_body = Scene(body=Body(mass=6.0, inertia=(10.0, 20.0, 26.0)),
-                       quaternion=tuple(Rotation.from_matrix(axes).as_quat()),
-                       omega_body=tuple(axes.T @ omega), nodes=positions @ axes,
-                       node_names=tuple(nodes), duration=1.0)
+    push, turn = np.array([0.5, -1.0, 2.0]), np.array([0.0, 0.8, 0.3])  # N
+    # the body force in each body's own axes: space axes at t = 0 for the built one
+    loads = {given: {"gravity": [0.0, 0.0, -9.81],
+                     "nodes": {"px": {"force_space": push.tolist()},
+                               "mz": {"force_body": (axes.T @ turn if given else turn).tolist()}}}
+             for given in (False, True)} if loaded else {False: {}, True: {}}
+    built = scene_from_mapping({"assembly": {"nodes": nodes},
+                                "initial": {"angular_velocity": {"space": omega.tolist()}},
+                                "loads": loads[False], "duration": 1.0})
+    given_body = scene_from_mapping({
+        "body": {"mass": 6.0, "inertia": [10.0, 20.0, 26.0]},
+        "nodes": {name: row.tolist() for name, row in zip(nodes, positions @ axes, strict=True)},
+        "initial": {"angular_velocity": {"body": (axes.T @ omega).tolist()},
+                    "orientation": {"quaternion": Rotation.from_matrix(axes).as_quat().tolist()}},
+        "loads": loads[True], "duration": 1.0})
     paths = []
     for scene in (built, given_body):
         run = simulate([scene], scheme, 1e-3, 0.1)
         turns = Rotation.from_quat(run.quaternion[0])
-        paths.append(np.array([turn.apply(scene.nodes) for turn in turns]))
+        paths.append(np.array([turn.apply(scene.nodes) + x
+                               for turn, x in zip(turns, run.position[0], strict=True)]))
     assert np.allclose(paths[1][0], positions, atol=1e-15)
-    assert np.max(np.abs(paths[0] - paths[1])) <= 1e-12 * 3.0, scheme
+    size = np.max(np.abs(paths[1]))
+    assert np.max(np.abs(paths[0] - paths[1])) <= 1e-12 * size, scheme
 
 
 def test_a_study_sweeps_node_masses_and_the_cloud_and_says_what_it_regularised(
