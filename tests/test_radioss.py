@@ -9,6 +9,8 @@ from conftest import FIXED_STEP, ROUND_OFF_FLOOR, write_study
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
+from rbstudy.analysis.plots import stability_map
+from rbstudy.analysis.summary import format_table, scheme_rows
 from rbstudy.errors import InputError, SceneError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import body_moment
@@ -17,6 +19,8 @@ from rbstudy.physics.references import reference_solution
 from rbstudy.physics.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import SCHEMES
 
 # An asymmetric body of four nodes (a skewed tetrahedron) with a master of its own mass.
@@ -328,11 +332,6 @@ def test_the_archive_of_a_radioss_study(tmp_path):
     """A swept Radioss option is a coordinate of names ("false", "true"); every case says
     whether it passed the OpenRadioss limit and whether its inertia was regularised; the
     summary counts the cases past the limit, and the stability map is drawn."""
-    from rbstudy.analysis.plots import stability_map
-    from rbstudy.analysis.summary import format_table, scheme_rows
-    from rbstudy.pipeline.execute import run_study
-    from rbstudy.pipeline.store import open_results
-
     scene = {"assembly": {"master": MASTER, "nodes": NODES},
              "initial": {"angular_velocity": {"space": [0.0, 0.0, 1.0]}}, "duration": 0.4}
     sweep = {"scheme": ["rk4", "midpoint"], "scene.assembly.spherical": [False, True],

@@ -426,8 +426,10 @@ def stability_map(ds, folder, formats=FORMATS):
         return figures
     load = step_load(ds)
     parameter = _parameter(ds)
-    # the limit is drawn where some case passed it (at any step), not on every map
-    past_radioss_limit = "radioss_dt_limit" in ds and bool((ds["radioss_dt_limit"] == 1).any())
+    # the limit is drawn where some case passed it and it lies among the plotted dt |w0|: a
+    # case flagged for the spin it reached later must not stretch a map of small dt |w0|
+    past_radioss_limit = ("radioss_dt_limit" in ds and bool((ds["radioss_dt_limit"] == 1).any())
+                          and bool((load >= RADIOSS_STEP_ANGLE).any()))
     schemes = schemes_of(ds)
     bound = ds.attrs.get("accuracy_bound")
     inaccurate_label = ("finished, inaccurate" + (f" (error or drift > {bound:g})"

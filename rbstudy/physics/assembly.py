@@ -227,8 +227,7 @@ def _read_secondaries(reader, nodes, path, size):
 def _read_centre(reader, value, key):
     """`CENTRES` name, or a column of them (a sweep)."""
     names = np.asarray(value, dtype=object).reshape(-1)
-    bad = np.array([not (isinstance(v, str) and v in CENTRES) for v in names])
-    refuse(reader, bad, key, lambda row: f"expected one of {', '.join(CENTRES)}, got "
+    refuse(reader, ~np.isin(names, CENTRES), key, lambda row: f"expected one of {', '.join(CENTRES)}, got "
                                          f"{names[row]!r:.80}")
     return value
 

@@ -53,6 +53,11 @@ def _acting(*vectors):
     return np.any(np.stack(np.broadcast_arrays(*vectors)) != 0.0, axis=(0, -1))
 
 
+def _moments_act(moment_space, moment_body, lever):
+    """Whether a moment acts: a moment, or space forces off the centre (the lever)."""
+    return _acting(moment_space, moment_body) | _acting(lever)
+
+
 @dataclass(frozen=True)
 class Body:
     """Mass (kg) and principal inertias (3,) in kg m^2; ``regularised`` when an assembled
@@ -101,7 +106,7 @@ class Loads:
 
     @property
     def moment_free(self):
-        return not (_acting(self.moment_space, self.moment_body) or _acting(self.lever))
+        return not _moments_act(self.moment_space, self.moment_body, self.lever)
 
 
 @dataclass(frozen=True)
@@ -213,7 +218,7 @@ class SceneTable:
     @property
     def moment_free(self):
         """(n,) True where no moment acts."""
-        return ~(_acting(*(self.loads[name] for name in _MOMENTS)) | _acting(self.loads["lever"]))
+        return ~_moments_act(*(self.loads[name] for name in _MOMENTS + ("lever",)))
 
     @property
     def translates(self):
