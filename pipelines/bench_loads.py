@@ -1,11 +1,12 @@
 """Print the loads figures of docs/performance.md: body-steps per second of a few schemes on
-the free Abaqus top, and on the same top pushed by a space-fixed force at a node off its
-centre of mass (whose moment the kernels turn with the body at every evaluation).
+the free Abaqus top; on the same top pushed by a space-fixed force at a node off its centre
+of mass (whose moment the kernels turn with the body at every evaluation); and on that top
+with the force tabulated in time (interpolated by the kernels at every evaluation).
 
 Usage: python pipelines/bench_loads.py [--free-only] [--bodies 10000] [--steps 1000]
 
 Each figure is ``bodies x steps`` over the kernel time of one `run_batch` call on every core
-(compilation done first), three runs each. ``--free-only`` skips the loaded top, so that the
+(compilation done first), three runs each. ``--free-only`` skips the loaded tops, so that the
 script also runs on a revision older than loads at nodes (``PYTHONPATH=<that checkout>``):
 compare before and after in one sitting.
 """
@@ -24,6 +25,10 @@ FREE = {"body": {"inertia": [1.0, 1.0, 2.0]},
 # a small force, so that the top stays close to the free one over the run
 PUSHED = {**FREE, "nodes": {"a": [0.5, 0.2, 0.1]},
           "loads": {"nodes": {"a": {"force_space": [0.0, 0.0, -1e-3]}}}}
+# the same force, ramped up over a table of 11 knots that spans the run
+TIMED = {**FREE, "nodes": {"a": [0.5, 0.2, 0.1]},
+         "loads": {"nodes": {"a": {"force_space": {"table": [[0.01 * k, 0.0, 0.0, -1e-4 * k]
+                                                             for k in range(11)]}}}}}
 DT = 1e-4
 RUNS = 3
 
@@ -32,7 +37,7 @@ def rates(scene, name, bodies, steps):
     """Body-steps per second of ``RUNS`` batches of ``bodies`` copies of ``scene``."""
     scheme = get_scheme(name)
     state0 = np.repeat(scene.state_row()[None], bodies, axis=0)
-    params = np.repeat(scene.param_row()[None], bodies, axis=0)
+    params = np.repeat(scene.param_row()[None], bodies, axis=0)  # the same width each
     options = np.repeat(scheme.option_row(None)[None], bodies, axis=0)
     run_batch(scheme, state0[:1], params[:1], options[:1], DT, 1, 1)  # compile
     return [bodies * steps / run_batch(scheme, state0, params, options, DT, steps,
@@ -45,7 +50,8 @@ def main():
     parser.add_argument("--bodies", type=int, default=10_000)
     parser.add_argument("--steps", type=int, default=1000)
     args = parser.parse_args()
-    scenes = {"free top": FREE} if args.free_only else {"free top": FREE, "pushed": PUSHED}
+    scenes = ({"free top": FREE} if args.free_only
+              else {"free top": FREE, "pushed": PUSHED, "timed": TIMED})
     for label, spec in scenes.items():
         scene = scene_from_mapping(spec)
         for name in SCHEMES:

@@ -50,7 +50,7 @@ def _bench(args):
 
 
 def _costed(study, args, disk):
-    """The study's one-line estimate (and a line per warning of its scenes), after refusing
+    """The study's one-line estimate (and a line per warning of the study), after refusing
     it past the limits of ``args`` (and past the free disk under ``args.out`` when ``disk``:
     a sweep checks it once it knows which parts are already there)."""
     from rbstudy.pipeline.estimate import (
@@ -67,9 +67,9 @@ def _costed(study, args, disk):
     check_limits(study, cost, args.max_body_steps, max_memory)
     if disk:
         check_disk(study, forecast_disk(study, args.out), args.out)
-    # what the scenes' reading accepted but a user should know (a regularised body)
+    # what the reading accepted but a user should know (a regularised body, a knot mid-step)
     return describe(study, cost) + "".join(f"\n{study.path}: warning: {warning}"
-                                           for warning in study.cases.scenes.warnings)
+                                           for warning in study.warnings)
 
 
 def _each_file(paths, say):

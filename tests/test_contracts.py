@@ -49,6 +49,7 @@ def test_a_result_left_unset_is_a_bug_not_a_number():
     state0 = np.zeros((2, S.N_STATE))
     state0[:, S.QUATERNION + 3] = 1.0
     params = np.ones((2, S.N_PARAM))
+    params[:, S.KNOTS] = 0.0  # constant loads
     with pytest.raises(RuntimeError, match="scheme 'silent' left the result 'status' unset"):
         run_batch(silent, state0, params, np.zeros((2, S.N_OPTION)), 0.1, 2, 1, threads=1)
 

@@ -4,11 +4,13 @@ How a scheme plugs in
 ---------------------
 A scheme supplies two compiled single-body kernels,
 
-    init_inplace(y, p, opt, h, work) -> status
-    step_inplace(y, p, opt, h, work) -> (status, newton_iterations)
+    init_inplace(y, p, opt, t, h, work) -> status
+    step_inplace(y, p, opt, t, h, work) -> (status, newton_iterations)
 
-with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (N_PARAM,), ``opt`` its
-scheme options (N_OPTION,), and ``work`` a scratch/carry array (n_work,) that lives for the
+with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (at least N_PARAM wide:
+loads tabulated in time follow it, `rbstudy.numerics.state.KNOTS`), ``opt`` its scheme
+options (N_OPTION,), ``t`` the time at the start of the step (s; the loads at a stage of the
+step are taken at that stage's time), and ``work`` a scratch/carry array (n_work,) that lives for the
 whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugate momentum).
 The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure time, steps,
 iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
@@ -96,7 +98,7 @@ def n_samples(n_steps, every):
 
 
 @jit
-def init_nothing(y, p, opt, h, work):
+def init_nothing(y, p, opt, t, h, work):
     """The ``init_inplace`` of schemes that carry nothing between steps."""
     return OK
 
@@ -115,7 +117,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     b : int, the body's row in the batch arrays.
     y : (N_STATE,) the body's initial state, a fresh array owned by this call (mutated).
     work : (n_work,) zeroed work array of the scheme (mutated).
-    params : (B, N_PARAM) parameters; options : (B, N_OPTION) scheme options (read only).
+    params : (B, W) parameters, W >= N_PARAM (`rbstudy.numerics.state.row_width`);
+    options : (B, N_OPTION) scheme options (read only).
     h : float, time step (s); n_steps : int; every : int, steps between samples.
     drift_bound : float, relative energy / |L| drift that flags a moment-free body unstable.
     samples : (B, T, N_STATE) output, T = n_steps // every + 1; row b is written.
@@ -136,7 +139,7 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
 
     for k in range(S.N_STATE):
         samples[b, 0, k] = y[k]
-    status = init(y, p, opt, h, work)
+    status = init(y, p, opt, 0.0, h, work)
     iterations = 0
     steps_done = 0
     max_energy = 0.0
@@ -145,7 +148,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     while status == OK and steps_done < n_steps:
         if (steps_done & _HALT_MASK) == 0 and halt[0] != 0:
             break
-        status, iters = step(y, p, opt, h, work)
+        # the time as a product, not a running sum: no drift over 1e9 steps
+        status, iters = step(y, p, opt, steps_done * h, h, work)
         iterations += iters
         steps_done += 1
         total = 0.0
@@ -221,11 +225,22 @@ class BatchOutput:
     kernel_cpu_seconds: float
 
 
-def _as_rows(array, width, name):
+def _as_rows(array, width, name, wider=False):
+    """``array`` as C-ordered float rows (B, width), or at least ``width`` wide."""
     rows = np.ascontiguousarray(array, dtype=np.float64)
-    if rows.ndim != 2 or rows.shape[1] != width:
-        raise ValueError(f"`{name}` must have shape (B, {width}), got {rows.shape}")
+    if rows.ndim != 2 or rows.shape[1] < width or (rows.shape[1] != width and not wider):
+        raise ValueError(f"`{name}` must have shape (B, {width}{' or more' if wider else ''}), "
+                         f"got {rows.shape}")
     return rows
+
+
+def _check_knots(params):
+    """Refuse parameter rows too narrow for the knots they announce (`S.KNOTS`)."""
+    knots = params[:, S.KNOTS]
+    if np.any((knots < 0) | (knots != np.round(knots))) or np.any(
+            S.row_width(knots) > params.shape[1]):
+        raise ValueError(f"`params` rows of width {params.shape[1]} cannot hold the knots "
+                         f"{sorted(set(knots.tolist()))} they announce")
 
 
 def _chunks(n_bodies, threads):
@@ -247,7 +262,7 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     Parameters
     ----------
     scheme : `rbstudy.schemes.Scheme`.
-    state0 : (B, N_STATE); params : (B, N_PARAM); options : (B, N_OPTION).
+    state0 : (B, N_STATE); params : (B, W >= N_PARAM); options : (B, N_OPTION).
     h : float, time step (s); n_steps : int >= 0; every : int >= 1, steps per sample.
     drift_bound : float, see `DRIFT_BOUND`.
     threads : int, threads to spread the bodies over (default: all cores; 1 under a
@@ -258,7 +273,8 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     called before the batch ended.
     """
     state0 = _as_rows(state0, S.N_STATE, "state0")
-    params = _as_rows(params, S.N_PARAM, "params")
+    params = _as_rows(params, S.N_PARAM, "params", wider=True)
+    _check_knots(params)
     options = _as_rows(options, S.N_OPTION, "options")
     if not (state0.shape[0] == params.shape[0] == options.shape[0]):
         raise ValueError("`state0`, `params` and `options` must have the same number of rows")

@@ -1,17 +1,20 @@
 """Rigid-body physics on scalars: loads, Euler's equations, invariants.
 
 Shared by every scheme so that all of them see the same loads (docs/theory.md, section 1):
-moments enter Euler's equations in the body frame, forces the translation in space.
+moments enter Euler's equations in the body frame, forces the translation in space. Loads
+may be tabulated in time (`rbstudy.numerics.state.KNOTS`), so every evaluation of them takes
+the time ``t`` at which the scheme asks.
 """
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.jit import inline_jit, jit
-from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3
+from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3, sub
 
 __all__ = [
-    "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "body_moment",
-    "space_force", "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
+    "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "knot_segment",
+    "tabulated3", "tabulated_moment", "tabulated_force", "body_moment", "space_force",
+    "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
 ]
 
 
@@ -34,43 +37,104 @@ def to_omega(m, inertia_):
 
 
 @jit
-def lever_moment(q, p):
-    """Space-frame moment of space-fixed forces at body-fixed points (`S.LEVER`):
-    ``sum_b c_b x k_b`` with ``c_b = R e_b`` the columns of the body's rotation."""
+def lever_moment(q, k1, k2, k3):
+    """Space-frame moment of space-fixed forces at body-fixed points, given as the rows
+    ``k_b`` of `S.LEVER`: ``sum_b c_b x k_b`` with ``c_b = R e_b`` the columns of the body's
+    rotation."""
     x, y, z, w = q
     c1 = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y))
     c2 = (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x))
     c3 = (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
-    return add(add(cross(c1, read3(p, S.LEVER)), cross(c2, read3(p, S.LEVER + 3))),
-               cross(c3, read3(p, S.LEVER + 6)))
+    return add(add(cross(c1, k1), cross(c2, k2)), cross(c3, k3))
 
 
 @jit
 def has_lever(p):
-    """True when space-fixed forces act at points off the centre of mass."""
+    """True when constant space-fixed forces act at points off the centre of mass."""
     for k in range(9):
         if p[S.LEVER + k] != 0.0:
             return True
     return False
 
 
-@inline_jit
-def body_moment(q, p):
-    """Total moment in the body frame: the body-fixed moment, and the space moment with the
-    moment of space-fixed forces at body-fixed points (skipped when there is none) turned in.
-    Inlined by numba (`rbstudy.numerics.jit.inline_jit` says why)."""
-    space = read3(p, S.MOMENT_SPACE)
-    if has_lever(p):
-        space = add(space, lever_moment(q, p))
-    return add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space))
+@jit
+def knot_segment(p, t):
+    """Where time ``t`` falls among the knots of the tabulated loads of row ``p``: ``(k, s)``
+    with ``t = (1 - s) t_k + s t_k+1``, ``0 <= s < 1``; ``s = 0`` at the first knot for
+    earlier times and at the last knot for later ones (the loads are held there). Bisection:
+    the knots are few, and a step may ask at any time."""
+    count = int(p[S.KNOTS])
+    first = S.N_PARAM
+    if t <= p[first]:
+        return 0, 0.0
+    if t >= p[first + count - 1]:
+        return count - 1, 0.0
+    low, high = 0, count - 1  # t_low < t < t_high
+    while high - low > 1:
+        middle = (low + high) // 2
+        if p[first + middle] <= t:
+            low = middle
+        else:
+            high = middle
+    start = p[first + low]
+    return low, (t - start) / (p[first + low + 1] - start)
 
 
 @jit
-def space_force(q, p):
-    """Total force in space: space force, body-fixed force turned out, and weight."""
+def tabulated3(p, k, s, field):
+    """The tabulated load ``field`` (a row index from FORCE_SPACE to LEVER + 6) at ``(k, s)``
+    of `knot_segment`, a 3-vector."""
+    at = S.N_PARAM + int(p[S.KNOTS]) + k * S.LOAD_RECORD + field - S.FORCE_SPACE
+    value = read3(p, at)
+    if s == 0.0:  # at or past a knot: the next record may not exist
+        return value
+    return axpy(s, sub(read3(p, at + S.LOAD_RECORD), value), value)
+
+
+@jit
+def tabulated_moment(q, p, t):
+    """Body-frame moment of the loads tabulated in time (`S.KNOTS`) at time ``t``."""
+    k, s = knot_segment(p, t)
+    space = add(tabulated3(p, k, s, S.MOMENT_SPACE),
+                lever_moment(q, tabulated3(p, k, s, S.LEVER), tabulated3(p, k, s, S.LEVER + 3),
+                             tabulated3(p, k, s, S.LEVER + 6)))
+    return add(tabulated3(p, k, s, S.MOMENT_BODY), quat_rotate_inverse(q, space))
+
+
+@jit
+def tabulated_force(q, p, t):
+    """Space force of the loads tabulated in time at time ``t``, weight included."""
+    k, s = knot_segment(p, t)
+    force = add(tabulated3(p, k, s, S.FORCE_SPACE), quat_rotate(q, tabulated3(p, k, s, S.FORCE_BODY)))
+    return axpy(p[S.MASS], tabulated3(p, k, s, S.GRAVITY), force)
+
+
+@inline_jit
+def body_moment(q, p, t):
+    """Total moment in the body frame at time ``t``: the body-fixed moment, the space moment
+    with the moment of space-fixed forces at body-fixed points (skipped when there is none)
+    turned in, and the loads tabulated in time (skipped when there are none). Inlined by
+    numba (`rbstudy.numerics.jit.inline_jit` says why)."""
+    space = read3(p, S.MOMENT_SPACE)
+    if has_lever(p):
+        space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3),
+                                        read3(p, S.LEVER + 6)))
+    moment = add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space))
+    if p[S.KNOTS] != 0.0:
+        moment = add(moment, tabulated_moment(q, p, t))
+    return moment
+
+
+@jit
+def space_force(q, p, t):
+    """Total force in space at time ``t``: space force, body-fixed force turned out, weight,
+    and the tabulated loads."""
     mass = p[S.MASS]
-    f = add(read3(p, S.FORCE_SPACE), quat_rotate(q, read3(p, S.FORCE_BODY)))
-    return axpy(mass, read3(p, S.GRAVITY), f)
+    f = axpy(mass, read3(p, S.GRAVITY),
+             add(read3(p, S.FORCE_SPACE), quat_rotate(q, read3(p, S.FORCE_BODY))))
+    if p[S.KNOTS] != 0.0:
+        f = add(f, tabulated_force(q, p, t))
+    return f
 
 
 @jit
@@ -96,9 +160,26 @@ momentum_squared = jit(algebra.momentum_squared)
 
 
 @jit
-def is_moment_free(p):
-    """True when no moment acts, so that energy and angular momentum must be conserved."""
-    for k in range(3):
-        if p[S.MOMENT_BODY + k] != 0.0 or p[S.MOMENT_SPACE + k] != 0.0:
+def _moment_fields_free(p, at):
+    """True when the moment fields (MOMENT_SPACE, MOMENT_BODY, LEVER) of the load record that
+    starts at ``at`` (FORCE_SPACE of the constant loads or of a knot) are all zero."""
+    for field in range(S.MOMENT_SPACE, S.MOMENT_BODY + 3):
+        if p[at + field - S.FORCE_SPACE] != 0.0:
             return False
-    return not has_lever(p)
+    for field in range(S.LEVER, S.LEVER + 9):
+        if p[at + field - S.FORCE_SPACE] != 0.0:
+            return False
+    return True
+
+
+@jit
+def is_moment_free(p):
+    """True when no moment acts, constant or tabulated, so that energy and angular momentum
+    must be conserved."""
+    if not _moment_fields_free(p, S.FORCE_SPACE):
+        return False
+    count = int(p[S.KNOTS])
+    for k in range(count):
+        if not _moment_fields_free(p, S.N_PARAM + count + k * S.LOAD_RECORD):
+            return False
+    return True

@@ -19,6 +19,13 @@ Parameter row:
     from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
     their moment ``sum_i (R d_i) x F_i = sum_b (R e_b) x k_b`` in space turns with the body
     (`rbstudy.numerics.dynamics.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
+    KNOTS 1: the number K of knots of the loads tabulated in time (0: all loads constant).
+    The row then goes on past N_PARAM with the K knot times (s, increasing) and, at each knot,
+    a record of the tabulated loads laid out as the constant ones from FORCE_SPACE to LEVER
+    (`LOAD_RECORD` values, principal body axes). Between knots the record is interpolated
+    linearly, before the first and after the last it is held; it adds to the constant loads
+    (`rbstudy.numerics.dynamics.tabulated_moment`). Rows of one batch may hold different K:
+    the batch is as wide as its widest row (`row_width`).
 
 Results row: `RESULT_FIELDS`, by name; kernels index it with ``Result.<name>``. Numba-free:
 the layers above read this layout and the status codes without compiling anything.
@@ -29,7 +36,8 @@ import enum
 __all__ = [
     "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
     "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
-    "LEVER", "N_PARAM", "N_OPTION", "RESULT_FIELDS", "RADIOSS_STEP_ANGLE", "Result", "N_RESULT",
+    "LEVER", "KNOTS", "N_PARAM", "LOAD_RECORD", "row_width", "N_OPTION", "RESULT_FIELDS",
+    "RADIOSS_STEP_ANGLE", "Result", "N_RESULT",
     "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
 ]
 
@@ -53,7 +61,16 @@ MOMENT_SPACE = 10
 MOMENT_BODY = 13
 GRAVITY = 16
 LEVER = 19
-N_PARAM = 28
+KNOTS = 28
+N_PARAM = 29
+# Values of one knot's record of tabulated loads: FORCE_SPACE to LEVER, as in the row.
+LOAD_RECORD = KNOTS - FORCE_SPACE
+
+
+def row_width(knots):
+    """Width of a parameter row whose loads are tabulated at ``knots`` times."""
+    return N_PARAM + knots * (1 + LOAD_RECORD)
+
 
 # Scheme options (e.g. HHT alpha, splitting axis order) travel per body in a row of this width,
 # so that a batch may mix option values and a sweep over an option needs no recompilation.

@@ -150,17 +150,19 @@ def _axial_indices(omega0, moment_body):
     return np.where(support.sum(axis=-1) == 1, support.argmax(axis=-1), -1)
 
 
-def reference_kinds(inertia, omega_body, loads):
+def reference_kinds(inertia, omega_body, loads, timed=False):
     """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the closed form
     that applies to its rotation and centre of mass, else ``dop853``. Arguments are the
-    scenes' principal inertias and initial body angular velocities, each (n, 3), and their
-    loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3) (the
-    lever (n, 9))."""
+    scenes' principal inertias and initial body angular velocities, each (n, 3), their
+    constant loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3)
+    (the lever (n, 9)), and ``timed`` (n,) (or one bool), True where a load varies in time
+    (the closed forms here hold for constant loads only)."""
     force_body, moment_space, moment_body, lever = (
         np.asarray(loads[name]) for name in ("force_body", "moment_space", "moment_body", "lever"))
     # a body-fixed force, or a space force off the centre, turns with the body: translation
     # and rotation couple
-    pushed = np.any(force_body != 0.0, axis=-1) | np.any(lever != 0.0, axis=-1)
+    pushed = (np.any(force_body != 0.0, axis=-1) | np.any(lever != 0.0, axis=-1)
+              | np.asarray(timed, dtype=bool))
     turned_in_space = np.any(moment_space != 0.0, axis=-1)
     moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
     axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)

@@ -20,12 +20,10 @@ Every function takes any leading scene axes (a sweep builds all its bodies at on
 """
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from rbstudy.errors import SceneError
-from rbstudy.physics.columns import refuse, rows, symmetric_tensor
+from rbstudy.physics.columns import read_files, refuse, rows, symmetric_tensor
 from rbstudy.physics.node_table import RESERVED, read_node_table
 
 __all__ = ["Assembly", "Secondaries", "assemble", "read_assembly", "CENTRES", "REGULARISATION", "DEGENERATE"]
@@ -190,25 +188,13 @@ def _tabled_nodes(reader, files, path, size):
     """`Secondaries` of node table files (`rbstudy.physics.node_table`): one name, or a
     column of n (a sweep), each relative to the config; every table must name the same nodes
     in the same order, so that the scenes share their node axis."""
-    column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
-    refuse(reader, np.array([not isinstance(name, str) for name in column]), path,
-           lambda row: f"expected a node table file or a mapping of nodes, got "
-                       f"{column[row]!r:.80}")
-    distinct, inverse = np.unique(column.astype(str), return_inverse=True)
-    folder = Path(reader.source).parent
-    tables = []
-    for k, name in enumerate(distinct):
-        row = int(np.argmax(inverse == k))
-        try:
-            table = read_node_table(folder / name)
-        except SceneError as error:
-            error.row = row if isinstance(files, np.ndarray) else None
-            raise
-        if tables and table.names != tables[0].names:
-            reader.fail(path, f"the node tables {distinct[0]} and {name} name different nodes",
-                        "a sweep over node tables needs the same node ids, in the same order, "
-                        "in every table", row=row)
-        tables.append(table)
+    distinct, tables, inverse = read_files(reader, files, path, size, read_node_table,
+                                           "a node table file or a mapping of nodes")
+    for k in range(1, len(tables)):
+        if tables[k].names != tables[0].names:
+            reader.fail(path, f"the node tables {distinct[0]} and {distinct[k]} name different "
+                        "nodes", "a sweep over node tables needs the same node ids, in the same "
+                        "order, in every table", row=int(np.argmax(inverse == k)))
     positions, masses, inertias = (np.stack([getattr(t, field) for t in tables])[inverse]
                                    for field in ("positions", "masses", "inertias"))
     return Secondaries(tables[0].names, positions, masses, _tensor_of_six(inertias),

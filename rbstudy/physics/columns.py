@@ -6,9 +6,11 @@ scenes first and refuse a row by a condition, naming the row
 (`rbstudy.physics.scenes`, `rbstudy.physics.assembly`).
 """
 
+from pathlib import Path
+
 import numpy as np
 
-__all__ = ["rows", "refuse", "symmetric_tensor"]
+__all__ = ["rows", "refuse", "symmetric_tensor", "read_files"]
 
 
 def rows(vector, size):
@@ -33,3 +35,24 @@ def symmetric_tensor(reader, value, key, size):
                                       atol=0.0), axis=(-2, -1)),
            key, lambda row: "the inertia tensor must be symmetric")
     return tensor
+
+
+def read_files(reader, files, key, size, read, what):
+    """Read the files named at ``key``, one name or a column of n (a sweep), each relative to
+    the config: ``(names, contents, index)`` with each distinct name once, what ``read(path)``
+    returns for it, and which one each of the n scenes takes (n,). A name that is no text
+    fails as not ``what`` ("a node table file"); an error inside a file keeps its place there
+    and gains the first swept row that names the file."""
+    column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
+    refuse(reader, np.array([not isinstance(name, str) for name in column]), key,
+           lambda row: f"expected {what}, got {column[row]!r:.80}")
+    names, index = np.unique(column.astype(str), return_inverse=True)
+    folder = Path(reader.source).parent
+    contents = []
+    for k, name in enumerate(names):
+        try:
+            contents.append(read(folder / name))
+        except reader.kind as error:
+            error.row = int(np.argmax(index == k)) if isinstance(files, np.ndarray) else None
+            raise
+    return names, contents, index

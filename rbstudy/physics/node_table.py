@@ -2,24 +2,21 @@
 
 A body of thousands of nodes is given as a table rather than inline (docs/config.md): one node
 per line, columns ``id x y z mass`` and optionally the nodal inertia
-``Ixx Iyy Izz Ixy Iyz Izx``, separated by commas (CSV) or by white space. Lines starting with
-``#`` and blank lines are skipped; a first line starting with ``id`` names the columns and must
-name these, in this order (any case). Fields may be quoted, a CSV line may end with a comma,
-and a UTF-8 byte-order mark is skipped. Units are those of the inline form: m, kg, kg m^2.
+``Ixx Iyy Izz Ixy Iyz Izx``, as `rbstudy.physics.text_table` splits them (CSV or white
+space, ``#`` comments); a first line starting with ``id`` names the columns and must name
+these, in this order (any case). Units are those of the inline form: m, kg, kg m^2.
 
 Every bad line fails as a `SceneError` placed in the table file at its line, naming the node,
 so that the config that refers to the table need not be searched.
 """
 
-import hashlib
-import math
 from collections import Counter
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from rbstudy.errors import SceneError
+from rbstudy.physics.text_table import finite, table_lines
 from rbstudy.reader import Reader
 
 __all__ = ["NodeTable", "read_node_table", "COLUMNS", "INERTIA_COLUMNS", "RESERVED"]
@@ -45,33 +42,13 @@ class NodeTable:
     digest: str
 
 
-def _fields(line):
-    """The fields of a line: by commas (one trailing comma allowed) or by white space, each
-    without surrounding quotes (a spreadsheet's export quotes text)."""
-    if "," in line:
-        fields = [field.strip() for field in line.split(",")]
-        if len(fields) > 1 and not fields[-1]:
-            fields.pop()
-    else:
-        fields = line.split()
-    return [field.strip('"').strip("'") for field in fields]
-
-
 def read_node_table(path):
     """The `NodeTable` of the file ``path``; a `SceneError` at the first bad line."""
     reader = Reader(str(path), SceneError)
-    try:
-        data = Path(path).read_bytes()
-        text = data.decode("utf-8-sig")  # a spreadsheet's export may start with a BOM
-    except (OSError, UnicodeDecodeError) as error:
-        reason = getattr(error, "strerror", None) or error
-        reader.fail("table", f"cannot read the node table: {reason}",
-                    "give the path of a text file, relative to the config")
+    digest, records = table_lines(path, reader, "the node table",
+                                  "give the path of a text file, relative to the config")
     names, lines, values, width = [], [], [], None
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        fields = _fields(line)
+    for number, fields in records:
         where = f"line {number}"
         if width is None and fields[0].lower() == COLUMNS[0]:
             expected = [c.lower() for c in COLUMNS + INERTIA_COLUMNS][:len(fields)]
@@ -91,11 +68,8 @@ def read_node_table(path):
         row = []
         # 4 or 10 fields: the inertia columns are optional
         for column, field in zip(COLUMNS[1:] + INERTIA_COLUMNS, fields[1:], strict=False):
-            try:
-                value = float(field)
-            except ValueError:
-                value = math.nan
-            if not math.isfinite(value):
+            value = finite(field)
+            if value is None:
                 reader.fail(where, f"{column} = {field!r:.40} is not a finite number",
                             "give finite numbers in m, kg, kg m^2")
             row.append(value)
@@ -113,5 +87,4 @@ def read_node_table(path):
                     f"(first on line {twice[0]})", "give each node one line")
     table = np.array(values)
     inertias = table[:, 4:] if width == 11 else np.zeros((len(names), 6))
-    return NodeTable(tuple(names), table[:, :3], table[:, 3], inertias,
-                     hashlib.sha256(data).hexdigest())
+    return NodeTable(tuple(names), table[:, :3], table[:, 3], inertias, digest)

@@ -95,7 +95,8 @@ def reference_solutions(scenes, times):
     kinds = reference_kinds(
         [scene.body.inertia for scene in scenes], [scene.omega_body for scene in scenes],
         {name: [getattr(scene.loads, name) for scene in scenes]
-         for name in ("force_body", "moment_space", "moment_body", "lever")})
+         for name in ("force_body", "moment_space", "moment_body", "lever")},
+        [scene.loads.timed for scene in scenes])
     found = {}
     for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]

@@ -26,12 +26,13 @@ from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.physics.assembly import REGULARISATION, read_assembly
-from rbstudy.physics.columns import refuse, rows, symmetric_tensor
+from rbstudy.physics.columns import read_files, refuse, rows, symmetric_tensor
+from rbstudy.physics.load_table import inline_load_table, read_load_file
 from rbstudy.physics.node_table import RESERVED
 from rbstudy.reader import Reader
 
 __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
-           "TRIANGLE_RTOL"]
+           "param_rows", "TRIANGLE_RTOL"]
 
 # Inertias that meet the triangle inequality with equality (the thin flat disk I3 = I1 + I2 of
 # the Abaqus benchmark) are physical; this relative slack absorbs the round-off of a
@@ -45,6 +46,12 @@ _MOMENTS = ("moment_space", "moment_body")
 _IN_BODY_AXES = ("force_body", "moment_body")
 # What may act at a node (`_add_nodal_loads`).
 _NODAL_LOADS = ("force_space", "force_body", "moment_space", "moment_body")
+# Where each load starts in a parameter row (`rbstudy.numerics.state`), and in a knot's
+# record of the loads tabulated in time (the same layout, from FORCE_SPACE on).
+_FIELDS = {"force_space": S.FORCE_SPACE, "force_body": S.FORCE_BODY,
+           "moment_space": S.MOMENT_SPACE, "moment_body": S.MOMENT_BODY, "gravity": S.GRAVITY,
+           "lever": S.LEVER}
+_WIDTHS = {name: 9 if name == "lever" else 3 for name in _FIELDS}
 
 
 def _acting(*vectors):
@@ -56,6 +63,18 @@ def _acting(*vectors):
 def _moments_act(moment_space, moment_body, lever):
     """Whether a moment acts: a moment, or space forces off the centre (the lever)."""
     return _acting(moment_space, moment_body) | _acting(lever)
+
+
+def _tabulated_acting(record, names):
+    """Whether any of the loads ``names`` has a non-zero entry at some knot of ``record``
+    (..., K, LOAD_RECORD), the loads tabulated in time: a bool, or (...,)."""
+    record = np.asarray(record, dtype=float)
+    chosen = [record[..., _FIELDS[name] - S.FORCE_SPACE:][..., :_WIDTHS[name]] for name in names]
+    return np.any(np.concatenate(chosen, axis=-1) != 0.0, axis=(-2, -1))
+
+
+# The loads that turn the body, and those that move its centre of mass.
+_TURNING = _MOMENTS + ("lever",)
 
 
 @dataclass(frozen=True)
@@ -92,10 +111,12 @@ class Body:
 
 @dataclass(frozen=True)
 class Loads:
-    """Constant loads at the centre of mass: forces (N) and moments (N m) in space or body
-    axes, gravity (m/s^2); and ``lever`` (9,) N m, the space forces that act at body-fixed
-    points off it, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is in
-    ``force_space``)."""
+    """Loads at the centre of mass: forces (N) and moments (N m) in space or body axes,
+    gravity (m/s^2); and ``lever`` (9,) N m, the space forces that act at body-fixed points
+    off it, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is in ``force_space``).
+    These are constant; loads tabulated in time add to them: their ``knots`` (K,) s and, at
+    each knot, a record ``tabulated`` (K, LOAD_RECORD) of the same loads in the parameter
+    row's layout (`rbstudy.numerics.state.KNOTS`)."""
 
     force_space: tuple = (0.0, 0.0, 0.0)
     force_body: tuple = (0.0, 0.0, 0.0)
@@ -103,10 +124,21 @@ class Loads:
     moment_body: tuple = (0.0, 0.0, 0.0)
     gravity: tuple = (0.0, 0.0, 0.0)
     lever: tuple = (0.0,) * 9
+    knots: tuple = ()
+    tabulated: tuple = ()
 
     @property
     def moment_free(self):
-        return not _moments_act(self.moment_space, self.moment_body, self.lever)
+        return not (_moments_act(self.moment_space, self.moment_body, self.lever)
+                    or self._tabulated(_TURNING))
+
+    @property
+    def timed(self):
+        """True when a load varies in time."""
+        return self._tabulated(_FIELDS)
+
+    def _tabulated(self, names):
+        return bool(_tabulated_acting(self.tabulated, names)) if self.knots else False
 
 
 @dataclass(frozen=True)
@@ -131,7 +163,8 @@ class Scene:
     @property
     def translates(self):
         """True when the centre of mass moves (initial velocity or a force)."""
-        return bool(_acting(self.velocity, *(getattr(self.loads, name) for name in _FORCES)))
+        return bool(_acting(self.velocity, *(getattr(self.loads, name) for name in _FORCES))
+                    or self.loads._tabulated(_FORCES))
 
     def state_row(self):
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
@@ -141,16 +174,18 @@ class Scene:
         return row
 
     def param_row(self):
-        """The parameters as a (N_PARAM,) row (see `rbstudy.numerics.state`)."""
-        row = np.zeros(S.N_PARAM)
+        """The parameters as a row of `rbstudy.numerics.state.row_width` (N_PARAM when no
+        load is tabulated in time; see `rbstudy.numerics.state`)."""
+        loads = self.loads
+        count = len(loads.knots)
+        row = np.zeros(S.row_width(count))
         row[S.MASS] = self.body.mass
         row[S.INERTIA:S.INERTIA + 3] = self.body.inertia
-        loads = self.loads
-        for offset, value in ((S.FORCE_SPACE, loads.force_space), (S.FORCE_BODY, loads.force_body),
-                              (S.MOMENT_SPACE, loads.moment_space),
-                              (S.MOMENT_BODY, loads.moment_body), (S.GRAVITY, loads.gravity),
-                              (S.LEVER, loads.lever)):
-            row[offset:offset + len(value)] = value
+        for name, offset in _FIELDS.items():
+            row[offset:offset + _WIDTHS[name]] = getattr(loads, name)
+        row[S.KNOTS] = count
+        row[S.N_PARAM:S.N_PARAM + count] = loads.knots
+        row[S.N_PARAM + count:] = np.reshape(loads.tabulated, -1)
         return row
 
     def with_changes(self, **changes):
@@ -166,11 +201,12 @@ class SceneTable:
     mass : (n,) kg. inertia : (n, 3) principal, kg m^2, as read or diagonalised (each
     `Scene`'s `Body` symmetrises its own, once). quaternion : (n, 4).
     omega_body, position, velocity : (n, 3), as in `Scene`. loads : name of a `Loads` field ->
-    (n, 3), (n, 9) for the lever. nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves
-    alone may be read-only broadcast views. warnings : what the reading noticed but accepted
+    (n, 3), (n, 9) for the lever, (n, K) knots and (n, K, LOAD_RECORD) tabulated.
+    nodes : (n, N, 3). node_names : (N,). Columns a sweep leaves alone may be read-only
+    broadcast views. warnings : what the reading noticed but accepted
     (a regularised assembled body), one line each. regularised : (n,) True where an
     assembled body's inertia was regularised, None for a body not assembled. tables : the
-    sha256 digests of the node table files read.
+    sha256 digests of the node and load table files read.
     """
 
     mass: np.ndarray
@@ -201,7 +237,7 @@ class SceneTable:
             omega_body=tuple(self.omega_body[i].tolist()),
             position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
             nodes=np.array(self.nodes[i]), node_names=self.node_names,
-            loads=Loads(**{name: tuple(column[i].tolist()) for name, column in self.loads.items()}),
+            loads=Loads(**{name: _tuples(column[i]) for name, column in self.loads.items()}),
             duration=self.duration)
 
     @property
@@ -213,17 +249,36 @@ class SceneTable:
     @property
     def reference_kinds(self):
         """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
-        return reference_kinds(self.inertia, self.omega_body, self.loads)
+        return reference_kinds(self.inertia, self.omega_body, self.loads,
+                               _tabulated_acting(self.loads["tabulated"], _FIELDS))
 
     @property
     def moment_free(self):
         """(n,) True where no moment acts."""
-        return ~_moments_act(*(self.loads[name] for name in _MOMENTS + ("lever",)))
+        return ~(_moments_act(*(self.loads[name] for name in _TURNING))
+                 | _tabulated_acting(self.loads["tabulated"], _TURNING))
 
     @property
     def translates(self):
         """(n,) True where the centre of mass moves (initial velocity or a force)."""
-        return _acting(self.velocity, *(self.loads[name] for name in _FORCES))
+        return (_acting(self.velocity, *(self.loads[name] for name in _FORCES))
+                | _tabulated_acting(self.loads["tabulated"], _FORCES))
+
+
+def _tuples(values):
+    """An array as nested tuples (a frozen `Loads` field)."""
+    values = np.asarray(values)
+    return tuple(map(_tuples, values)) if values.ndim > 1 else tuple(values.tolist())
+
+
+def param_rows(scenes):
+    """The parameter rows of ``scenes``, (n, W) with W the widest row's width: each row is
+    zero past its own width (`rbstudy.numerics.state.row_width`)."""
+    rows_ = [scene.param_row() for scene in scenes]
+    table = np.zeros((len(rows_), max((len(row) for row in rows_), default=S.N_PARAM)))
+    for k, row in enumerate(rows_):
+        table[k, :len(row)] = row
+    return table
 
 
 def _triangle_ok(inertia):
@@ -389,17 +444,101 @@ def _read_nodes(reader, spec, path, size):
 
 
 def _lever(offsets, forces):
-    """The `Loads.lever` of space ``forces`` (n, 3) at principal ``offsets`` (n, 3): the rows
-    ``d[b] F`` of ``d F^T``, (n, 9)."""
-    return (offsets[:, :, None] * forces[:, None, :]).reshape(len(offsets), 9)
+    """The `Loads.lever` of space ``forces`` (n, ..., 3) at principal ``offsets`` (n, 3): the
+    rows ``d[b] F`` of ``d F^T``, (n, ..., 9)."""
+    return np.einsum("na,n...b->n...ab", offsets, forces).reshape(forces.shape[:-1] + (9,))
 
 
-def _add_nodal_loads(reader, spec, path, loads, points, axes, size):
-    """Add the loads at nodes ``spec`` (node name -> {force_space, ...}) to ``loads``,
-    aggregated to the centre of mass: ``F = sum F_i`` and ``M = sum M_i + sum d_i x F_i``
-    with ``d_i`` the node's offset (``points``: name -> (n, 3), principal axes). A body-axis
-    force gives a constant body moment; a space-axis force a moment that turns with the body
-    (the lever, evaluated every step by the kernels)."""
+def _along(offsets, vectors):
+    """``offsets`` (n, 3) shaped to broadcast against ``vectors`` (n, ..., 3)."""
+    return offsets.reshape(offsets.shape[:1] + (1,) * (vectors.ndim - 2) + (3,))
+
+
+@dataclass(frozen=True)
+class _Timed:
+    """A load tabulated in time in n scenes: the distinct `LoadTable`s, which one each scene
+    takes (n,), and the scale (n,) of its values."""
+
+    tables: list
+    index: np.ndarray
+    scale: np.ndarray
+
+    def at(self, knots):
+        """The load (n, K, 3) at ``knots`` (K,)."""
+        values = np.stack([table.at(knots) for table in self.tables])[self.index]
+        return values * self.scale[:, None, None]
+
+
+def _read_timed(reader, spec, key, size):
+    """The `_Timed` load of ``{table: rows or file, scale: s}`` at ``key``."""
+    spec = reader.mapping(spec, key, ("table", "scale"))
+    if "table" not in spec:
+        reader.fail(f"{key}.table", "missing",
+                    "give rows [t, x, y, z] or a table file, or a constant [x, y, z] for the load")
+    scale = np.broadcast_to(reader.number(spec.get("scale", 1.0), f"{key}.scale"), (size,))
+    table = spec["table"]
+    if isinstance(table, list):
+        return _Timed([inline_load_table(reader, table, f"{key}.table")], np.zeros(size, int),
+                      scale)
+    _, tables, index = read_files(reader, table, f"{key}.table", size, read_load_file,
+                                  "rows [t, x, y, z] or a load table file")
+    return _Timed(tables, index, scale)
+
+
+def _timed_loads(reader, spec, path, size):
+    """The loads tabulated in time under ``scene.loads`` (``spec``, at ``path``), at the
+    centre and at nodes: key -> `_Timed`. Everything else is read where it is used."""
+    found = {f"{path}.{name}": spec[name] for name in _LOADS if isinstance(spec.get(name), dict)}
+    nodes = spec.get("nodes")
+    for node, node_spec in (nodes.items() if isinstance(nodes, dict) else ()):
+        for name, value in (node_spec.items() if isinstance(node_spec, dict) else ()):
+            if isinstance(value, dict):
+                found[f"{path}.nodes.{node}.{name}"] = value
+    return {key: _read_timed(reader, value, key, size) for key, value in found.items()}
+
+
+class _LoadSets:
+    """The loads of n scenes while they are read: the constant ones (name -> (n, 3), (n, 9)
+    for the lever) and those tabulated in time at the ``knots`` (K,) (name -> (n, K, 3),
+    (n, K, 9)), each added to as it is read."""
+
+    def __init__(self, reader, timed, size):
+        self.reader, self.timed, self.size = reader, timed, size
+        self.knots = np.unique(np.concatenate([np.zeros(0)] + [table.times for load in
+                                                               timed.values()
+                                                               for table in load.tables]))
+        self.constant = {name: np.zeros((size, _WIDTHS[name])) for name in _FIELDS}
+        self.tabulated = {name: np.zeros((size, len(self.knots), _WIDTHS[name]))
+                          for name in _FIELDS}
+
+    def read(self, value, key):
+        """The load at ``key``, constant (n, 3) or tabulated at the knots (n, K, 3)."""
+        if key in self.timed:
+            return self.timed[key].at(self.knots)
+        return rows(self.reader.vector(value, key), self.size)
+
+    def add(self, name, value):
+        """Add ``value`` ((n, w) or (n, K, w), as `read` gives it) to the load ``name``."""
+        loads = self.constant if value.ndim == 2 else self.tabulated
+        loads[name] = loads[name] + value
+
+    def columns(self):
+        """The `SceneTable.loads` columns: the constant loads, the knots and the records."""
+        record = np.zeros((self.size, len(self.knots), S.LOAD_RECORD))
+        for name, offset in _FIELDS.items():
+            start = offset - S.FORCE_SPACE
+            record[..., start:start + _WIDTHS[name]] = self.tabulated[name]
+        return {**self.constant, "knots": np.broadcast_to(self.knots, (self.size, len(self.knots))),
+                "tabulated": record}
+
+
+def _add_nodal_loads(reader, spec, path, loads, points, axes):
+    """Add the loads at nodes ``spec`` (node name -> {force_space, ...}) to ``loads`` (a
+    `_LoadSets`), aggregated to the centre of mass: ``F = sum F_i`` and
+    ``M = sum M_i + sum d_i x F_i`` with ``d_i`` the node's offset (``points``: name -> (n, 3),
+    principal axes). A body-axis force gives a body moment; a space-axis force a moment that
+    turns with the body (the lever, evaluated every step by the kernels). Constant and
+    tabulated loads aggregate alike (each is linear in the nodal loads)."""
     if not isinstance(spec, dict):
         reader.fail(path, f"expected a mapping of node name -> loads, got {spec!r:.80}")
     if len({str(name) for name in spec}) < len(spec):  # 56 and "56" in the YAML
@@ -410,21 +549,16 @@ def _add_nodal_loads(reader, spec, path, loads, points, axes, size):
             reader.fail(key, "no such node in this body",
                         "load a node of the scene's nodes (or master, for an assembled body)")
         node_spec = reader.mapping(node_spec, key, _NODAL_LOADS)
-        given = {load: rows(reader.vector(node_spec[load], f"{key}.{load}"), size)
-                 for load in node_spec}
         offset = points[str(name)]
-        if "force_space" in given:
-            loads["force_space"] = loads["force_space"] + given["force_space"]
-            loads["lever"] = loads["lever"] + _lever(offset, given["force_space"])
-        if "force_body" in given:
-            force = _in_principal(axes, given["force_body"])
-            loads["force_body"] = loads["force_body"] + force
-            loads["moment_body"] = loads["moment_body"] + np.cross(offset, force)
-        if "moment_space" in given:
-            loads["moment_space"] = loads["moment_space"] + given["moment_space"]
-        if "moment_body" in given:
-            loads["moment_body"] = loads["moment_body"] + _in_principal(axes,
-                                                                        given["moment_body"])
+        for load, value in node_spec.items():
+            given = loads.read(value, f"{key}.{load}")
+            if load.endswith("_body"):
+                given = _in_principal(axes, given)
+            loads.add(load, given)
+            if load == "force_space":
+                loads.add("lever", _lever(offset, given))
+            elif load == "force_body":
+                loads.add("moment_body", np.cross(_along(offset, given), given))
 
 
 def scene_table(spec, source="<scene>", path="scene", size=1):
@@ -477,21 +611,24 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
 
     loads_path = f"{path}.loads"
     loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS + ("nodes",))
-    loads = {name: (rows(reader.vector(loads_spec[name], f"{loads_path}.{name}"), size)
-                    if name in loads_spec else np.zeros((size, 3))) for name in _LOADS}
-    for name in _IN_BODY_AXES:
-        loads[name] = _in_principal(axes, loads[name])
-    loads["lever"] = np.zeros((size, 9))
+    loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, size), size)
+    for name in _LOADS:
+        if name in loads_spec:
+            given = loads.read(loads_spec[name], f"{loads_path}.{name}")
+            loads.add(name, _in_principal(axes, given) if name in _IN_BODY_AXES else given)
     points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
     if assembled is not None:
         points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
-        loads["lever"] = _lever(_in_principal(axes, assembled.first_moment[:, None, :])[:, 0],
-                                loads["gravity"])
+        first_moment = _in_principal(axes, assembled.first_moment[:, None, :])[:, 0]
+        for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
+            loads.add("lever", _lever(first_moment, gravity))
     if "nodes" in loads_spec:
-        _add_nodal_loads(reader, loads_spec["nodes"], f"{loads_path}.nodes", loads, points,
-                         axes, size)
+        _add_nodal_loads(reader, loads_spec["nodes"], f"{loads_path}.nodes", loads, points, axes)
+    tables = () if assembled is None else secondaries.tables
+    tables += tuple(sorted({table.digest for load in loads.timed.values()
+                            for table in load.tables if table.digest is not None}))
     return SceneTable(
         mass=mass, inertia=inertia, allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
@@ -500,10 +637,10 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
             reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size),
         velocity=rows(reader.vector(initial.get("velocity", [0, 0, 0]),
                                      f"{initial_path}.velocity"), size),
-        loads=loads, nodes=nodes, node_names=names,
+        loads=loads.columns(), nodes=nodes, node_names=names,
         duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),
         warnings=warnings, regularised=None if assembled is None else assembled.regularised,
-        tables=() if assembled is None else secondaries.tables)
+        tables=tables)
 
 
 def scene_from_mapping(spec, source="<scene>", path="scene"):

@@ -13,6 +13,7 @@ from rbstudy.errors import InputError, RbstudyError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import DRIFT_BOUND, BatchOutput, run_batch
 from rbstudy.numerics.state import STATUS_NAMES
+from rbstudy.physics.scenes import param_rows
 from rbstudy.schemes import get_scheme
 
 __all__ = ["Simulation", "simulate", "steps_per", "STEP_RTOL"]
@@ -102,7 +103,7 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
     else:
         rows = np.array([chosen.option_row(o) for o in options])
     output = run_batch(chosen, np.array([s.state_row() for s in scenes]),
-                       np.array([s.param_row() for s in scenes]), rows, dt, n_steps, every,
+                       param_rows(scenes), rows, dt, n_steps, every,
                        drift_bound, threads=threads)
     return Simulation(scheme=scheme, dt=dt, time=np.arange(output.samples.shape[1]) * (every * dt),
                       output=output)

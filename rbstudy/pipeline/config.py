@@ -90,6 +90,33 @@ class StudyConfig:
         """Bytes a case holds while its batch runs: sampled states plus outputs."""
         return self.bytes_per_case() + N_STATE * np.dtype("f8").itemsize * self.n_times
 
+    @property
+    def warnings(self):
+        """What reading the study noticed but accepted, one line each: its scenes' (a
+        regularised body) and knots of load tables inside the steps of a high-order scheme."""
+        return self.cases.scenes.warnings + _knot_warnings(self.cases, self.duration)
+
+
+def _knot_warnings(cases, duration):
+    """A warning when a knot of the loads tabulated in time falls inside a step of a fixed-step
+    scheme of order above 2: the kink of the load there costs that scheme its order (rk4
+    converges at order 2 only, measured), while knots on multiples of dt keep it."""
+    knots = np.asarray(cases.scenes.loads["knots"])[0]
+    knots = knots[(knots > 0.0) & (knots < duration)]
+    for run in cases.runs:
+        scheme = get_scheme(run.scheme)
+        if scheme.order <= 2 or scheme.adaptive:
+            continue
+        steps = knots / run.dt
+        inside = knots[np.abs(steps - np.round(steps)) > 1e-9 * np.maximum(steps, 1.0)]
+        if inside.size:
+            more = f" (and {inside.size - 1} more)" if inside.size > 1 else ""
+            return (f"scene.loads: the load tables' knot at t = {inside[0]:g} s{more} "
+                    f"falls inside a step of dt = {run.dt:g} s: "
+                    f"{run.scheme} (order {scheme.order}) converges at order 2 only across it; "
+                    "put the knots on multiples of dt",)
+    return ()
+
 
 def _variables(reader, requested, scenes):
     """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when

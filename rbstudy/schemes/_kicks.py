@@ -3,7 +3,9 @@
 Loads enter these schemes by Strang splitting: a kick of length d applies the loads at the
 current orientation, ``m += d M_b``, ``v += d F / mass``; the free flow in between moves the
 frame and the centre of mass. The composition kick(h/2) free(h) kick(h/2) is symmetric, so a
-second-order free step stays second order under loads.
+second-order free step stays second order under loads. Loads tabulated in time are taken at
+the time of each kick, the start and the end of the step (time is a coordinate that the
+free flow advances and the kicks hold), which keeps the composition symmetric.
 """
 
 from rbstudy.numerics import state as S
@@ -13,13 +15,14 @@ from rbstudy.numerics.rotation import axpy, read3, read4, write3
 
 
 @jit
-def kick_inplace(y, p, d):
-    """Apply the loads for a time ``d`` to the velocities of state row ``y`` (N_STATE,)."""
+def kick_inplace(y, p, t, d):
+    """Apply the loads at time ``t`` for a time ``d`` to the velocities of state row ``y``
+    (N_STATE,)."""
     q = read4(y, S.QUATERNION)
     inertia_ = inertia(p)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
-    write3(y, S.OMEGA, to_omega(axpy(d, body_moment(q, p), m), inertia_))
-    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p), read3(y, S.VELOCITY)))
+    write3(y, S.OMEGA, to_omega(axpy(d, body_moment(q, p, t), m), inertia_))
+    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
 
 
 @jit

@@ -39,7 +39,8 @@ RTOL = ATOL = 1e-13
 @jit
 def derivative(t, y, p):
     """Right-hand side for scipy's DOP853: ``dy/dt`` of a state row ``y`` (N_STATE,)."""
-    dx, dq, dv, dw = rates(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p)
+    dx, dq, dv, dw = rates(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p,
+                           t)
     out = np.empty(S.N_STATE)
     write3(out, S.POSITION, dx)
     write4(out, S.QUATERNION, dq)
@@ -75,38 +76,54 @@ class Trajectory:
     max_step_angle: float
 
 
+def _segment_ends(p, end):
+    """Where the runs of one integration end: the knots of the loads tabulated in time inside
+    (0, ``end``) (the loads have a kink there, which an 8th-order step must not straddle),
+    then ``end``."""
+    count = int(p[S.KNOTS])
+    knots = np.asarray(p[S.N_PARAM:S.N_PARAM + count])
+    return [*knots[(knots > 0.0) & (knots < end)].tolist(), float(end)]
+
+
 def integrate(y0, p, times, max_steps=None, halt=None):
-    """Integrate state row ``y0`` (N_STATE,) with parameters ``p`` (N_PARAM,) over ``times``
-    (T,), 0 first, step by step, sampling the dense output of each step that covers a sample
-    time (so memory stays (T, N_STATE) however many steps a fast spin takes).
+    """Integrate state row ``y0`` (N_STATE,) with parameters ``p`` (a parameter row) over
+    ``times`` (T,), 0 first, step by step, sampling the dense output of each step that covers
+    a sample time (so memory stays (T, N_STATE) however many steps a fast spin takes). The
+    solver restarts at every knot of loads tabulated in time, so that no step straddles a
+    kink of the loads.
 
     ``max_steps`` bounds the accepted steps (None: no bound); ``halt`` (a (1,) array, see
     `rbstudy.numerics.driver.request_halt`) is read every step.
     """
     samples = np.full((len(times), S.N_STATE), np.nan)
     samples[0] = y0
-    solver = DOP853(lambda t, y: derivative(t, y, p), 0.0, np.array(y0, dtype=float),
-                    float(times[-1]), rtol=RTOL, atol=ATOL)
-    filled, steps, max_step_angle = 1, 0, 0.0
-    while solver.status == "running" and filled < len(times):
-        if halt is not None and halt[0]:
+    y, start = np.array(y0, dtype=float), 0.0
+    filled, steps, evaluations, max_step_angle = 1, 0, 0, 0.0
+    stopped = False
+    for end in _segment_ends(p, float(times[-1])):
+        solver = DOP853(lambda t, y: derivative(t, y, p), start, y, end, rtol=RTOL, atol=ATOL)
+        while solver.status == "running" and filled < len(times):
+            if (halt is not None and halt[0]) or (max_steps is not None and steps >= max_steps):
+                stopped = True
+                break
+            solver.step()
+            if solver.status == "failed":  # the step was rejected for good: not an accepted one
+                break
+            steps += 1
+            max_step_angle = max(max_step_angle, solver.step_size
+                                 * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
+            covered = np.searchsorted(times, solver.t, side="right")
+            if covered > filled:
+                samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
+                filled = covered
+        evaluations += solver.nfev
+        if stopped or solver.status == "failed":
             break
-        if max_steps is not None and steps >= max_steps:
-            break
-        solver.step()
-        if solver.status == "failed":  # the step was rejected for good: not an accepted one
-            break
-        steps += 1
-        max_step_angle = max(max_step_angle,
-                             solver.step_size * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
-        covered = np.searchsorted(times, solver.t, side="right")
-        if covered > filled:
-            samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
-            filled = covered
+        y, start = solver.y, end
     quaternions = samples[:filled, S.STATE_FIELDS["quaternion"]]
     quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
     finished = filled == len(times) and np.all(np.isfinite(samples))
-    return Trajectory(samples, float(solver.t), steps, solver.nfev, bool(finished),
+    return Trajectory(samples, float(solver.t), steps, evaluations, bool(finished),
                       max_step_angle)
 
 

@@ -41,14 +41,14 @@ N_WORK = 0
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
     v = read3(y, S.VELOCITY)
     inertia_ = inertia(p)
     m = to_momentum(w, inertia_)
-    m_next = axpy(h, momentum_rates(m, w, body_moment(q, p)), m)
-    acceleration = scale(1.0 / p[S.MASS], space_force(q, p))
+    m_next = axpy(h, momentum_rates(m, w, body_moment(q, p, t)), m)
+    acceleration = scale(1.0 / p[S.MASS], space_force(q, p, t))
     write3(y, S.POSITION, axpy(h, v, read3(y, S.POSITION)))
     write3(y, S.VELOCITY, axpy(h, acceleration, v))
     write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp(scale(h, w)))))

@@ -6,7 +6,7 @@ moment ``T(R)`` (Simo & Vu-Quoc 1988; docs/theory.md s5):
     Theta   = h W_n + h^2 ((1/2 - beta) A_n + beta A_n+1)
     R_n+1   = R_n exp([Theta]x)
     W_n+1   = W_n + h ((1 - gamma) A_n + gamma A_n+1)
-    r_k     = J A_k + W_k x J W_k - T(R_k)                  (dynamic equilibrium residual)
+    r_k     = J A_k + W_k x J W_k - T(R_k, t_k)             (dynamic equilibrium residual)
     (1 + alpha) r_n+1 - alpha r_n = 0                       (HHT-alpha; solved for A_n+1)
 
 with ``gamma = 1/2 - alpha`` and ``beta = (1 - alpha)^2 / 4``. Newton on ``A_n+1`` with the
@@ -87,23 +87,23 @@ def residual(a, w, inertia_, moment):
 
 
 @jit
-def init_inplace(y, p, opt, h, work):
+def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
-    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, p)))
-    write3(work, _LINEAR, scale(1.0 / p[S.MASS], space_force(q, p)))
+    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, p, t)))
+    write3(work, _LINEAR, scale(1.0 / p[S.MASS], space_force(q, p, t)))
     return OK
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     alpha = opt[0]
     gamma = 0.5 - alpha
     beta = 0.25 * (1.0 - alpha) ** 2
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
-    moment_old = body_moment(q, p)
+    moment_old = body_moment(q, p, t)
     r_old = residual(a_old, w, inertia_, moment_old)
     scale_ = norm(to_momentum(w, inertia_)) * norm(w) + norm(to_momentum(a_old, inertia_)) \
         + norm(moment_old) + 1e-300
@@ -114,7 +114,7 @@ def step_inplace(y, p, opt, h, work):
         w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
         q_new = quat_mul(q, quat_exp(theta))
-        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, body_moment(q_new, p))),
+        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, body_moment(q_new, p, t + h))),
                 scale(alpha, r_old))
         size = norm(g)
         if not math.isfinite(size):
@@ -141,9 +141,9 @@ def step_inplace(y, p, opt, h, work):
     # translation: the same Newmark weights; HHT gives a_n+1 = F/m + alpha/(1+alpha) (a_n - F_n/m)
     v, x = read3(y, S.VELOCITY), read3(y, S.POSITION)
     lin_old = read3(work, _LINEAR)
-    f_old = scale(1.0 / p[S.MASS], space_force(q, p))
+    f_old = scale(1.0 / p[S.MASS], space_force(q, p, t))
     lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old),
-                   scale(1.0 / p[S.MASS], space_force(q_new, p)))
+                   scale(1.0 / p[S.MASS], space_force(q_new, p, t + h)))
     write3(y, S.POSITION, axpy(h * h * beta, lin_new,
                                axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
     write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))

@@ -2,7 +2,8 @@
 
 Velocities live at half steps; the stored ``v`` and ``w`` are ``v(n-1/2)`` and ``w(n-1/2)``
 (the initial velocities are taken as those at ``-1/2``, as an explicit code starts).
-With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` (docs/theory.md s4):
+With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` and ``t_n``
+(docs/theory.md s4):
 
     alpha_i   = (M_i - (I_k - I_j) w_j w_k) / I_i     with w = w(n-1/2): lagged gyroscopic term
     w(n+1/2)  = w(n-1/2) + h alpha
@@ -39,11 +40,11 @@ N_WORK = 0
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
-    w_half = axpy(h, euler_rates(read3(y, S.OMEGA), inertia(p), body_moment(q, p)),
+    w_half = axpy(h, euler_rates(read3(y, S.OMEGA), inertia(p), body_moment(q, p, t)),
                   read3(y, S.OMEGA))
-    v_half = axpy(h / p[S.MASS], space_force(q, p), read3(y, S.VELOCITY))
+    v_half = axpy(h / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY))
     write3(y, S.OMEGA, w_half)
     write3(y, S.VELOCITY, v_half)
     write3(y, S.POSITION, axpy(h, v_half, read3(y, S.POSITION)))

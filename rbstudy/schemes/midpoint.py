@@ -71,8 +71,8 @@ def solve_midpoint(m, inertia_, h):
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
-    kick_inplace(y, p, 0.5 * h)
+def step_inplace(y, p, opt, t, h, work):
+    kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
     mbar, iterations, converged = solve_midpoint(m, inertia_, h)
@@ -83,7 +83,7 @@ def step_inplace(y, p, opt, h, work):
            quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_))))))
     write3(y, S.OMEGA, to_omega(sub(scale(2.0, mbar), m), inertia_))
     drift_inplace(y, h)
-    kick_inplace(y, p, 0.5 * h)
+    kick_inplace(y, p, t + h, 0.5 * h)
     return OK, iterations
 
 

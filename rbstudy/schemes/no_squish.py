@@ -72,30 +72,31 @@ def axis_flow(q, momentum, inertia_, k, d):
 
 
 @jit
-def kick_inplace(y, p, momentum, d):
-    """Loads for a time ``d``: ``P += 2 d q * (M_b, 0)``, ``v += d F / mass``; returns P."""
+def kick_inplace(y, p, momentum, t, d):
+    """Loads at time ``t`` for a time ``d``: ``P += 2 d q * (M_b, 0)``, ``v += d F / mass``;
+    returns P."""
     q = read4(y, S.QUATERNION)
-    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p), read3(y, S.VELOCITY)))
-    return axpy4(1.0, conjugate_momentum(q, scale(d, body_moment(q, p))), momentum)
+    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
+    return axpy4(1.0, conjugate_momentum(q, scale(d, body_moment(q, p, t))), momentum)
 
 
 @jit
-def init_inplace(y, p, opt, h, work):
+def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     write4(work, 0, conjugate_momentum(q, to_momentum(read3(y, S.OMEGA), inertia(p))))
     return OK
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     inertia_ = inertia(p)
-    momentum = kick_inplace(y, p, read4(work, 0), 0.5 * h)
+    momentum = kick_inplace(y, p, read4(work, 0), t, 0.5 * h)
     q = read4(y, S.QUATERNION)
     for k, fraction in flow_sequence(opt):
         q, momentum = axis_flow(q, momentum, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, q)
     drift_inplace(y, h)
-    momentum = kick_inplace(y, p, momentum, 0.5 * h)
+    momentum = kick_inplace(y, p, momentum, t + h, 0.5 * h)
     write4(work, 0, momentum)
     write3(y, S.OMEGA, to_omega(body_momentum(q, momentum), inertia_))
     return OK, 0

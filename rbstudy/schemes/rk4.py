@@ -34,22 +34,25 @@ N_WORK = 0
 
 
 @jit
-def rates(q, v, w, p):
-    """Time derivatives ``(dx, dq, dv, dw)`` at orientation ``q``, velocity ``v``, spin ``w``."""
+def rates(q, v, w, p, t):
+    """Time derivatives ``(dx, dq, dv, dw)`` at orientation ``q``, velocity ``v``, spin ``w``
+    and time ``t``."""
     dq = quat_mul(q, (0.5 * w[0], 0.5 * w[1], 0.5 * w[2], 0.0))
-    dv = scale(1.0 / p[S.MASS], space_force(q, p))
-    dw = euler_rates(w, inertia(p), body_moment(q, p))
+    dv = scale(1.0 / p[S.MASS], space_force(q, p, t))
+    dw = euler_rates(w, inertia(p), body_moment(q, p, t))
     return v, dq, dv, dw
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v, w = read3(y, S.VELOCITY), read3(y, S.OMEGA)
-    k1 = rates(q, v, w, p)
-    k2 = rates(axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p)
-    k3 = rates(axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p)
-    k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p)
+    k1 = rates(q, v, w, p, t)
+    k2 = rates(axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p,
+               t + 0.5 * h)
+    k3 = rates(axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p,
+               t + 0.5 * h)
+    k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p, t + h)
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write4(y, S.QUATERNION, quat_normalize(rk4_sum4(h, q, k1[1], k2[1], k3[1], k4[1])))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[2], k2[2], k3[2], k4[2]))

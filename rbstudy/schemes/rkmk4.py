@@ -47,27 +47,30 @@ N_WORK = 0
 
 
 @jit
-def rates(q_start, v, u, m, p):
-    """``(dx, dv, du, dm)`` at the stage ``R = R_n exp([u]x)``, velocity ``v``, momentum ``m``."""
+def rates(q_start, v, u, m, p, t):
+    """``(dx, dv, du, dm)`` at the stage ``R = R_n exp([u]x)``, velocity ``v``, momentum ``m``,
+    time ``t``."""
     q = quat_mul(q_start, quat_exp(u))
     w = to_omega(m, inertia(p))
     du = add(add(w, scale(0.5, cross(u, w))), scale(1.0 / 12.0, cross(u, cross(u, w))))
-    dm = momentum_rates(m, w, body_moment(q, p))
-    dv = scale(1.0 / p[S.MASS], space_force(q, p))
+    dm = momentum_rates(m, w, body_moment(q, p, t))
+    dv = scale(1.0 / p[S.MASS], space_force(q, p, t))
     return v, dv, du, dm
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
+def step_inplace(y, p, opt, t, h, work):
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v = read3(y, S.VELOCITY)
     inertia_ = inertia(p)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
     u = (0.0, 0.0, 0.0)
-    k1 = rates(q, v, u, m, p)
-    k2 = rates(q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p)
-    k3 = rates(q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p)
-    k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p)
+    k1 = rates(q, v, u, m, p, t)
+    k2 = rates(q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p,
+               t + 0.5 * h)
+    k3 = rates(q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p,
+               t + 0.5 * h)
+    k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, t + h)
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[1], k2[1], k3[1], k4[1]))
     u_next = rk4_sum3(h, u, k1[2], k2[2], k3[2], k4[2])

@@ -51,8 +51,8 @@ def axis_flow(q, m, inertia_, k, d):
 
 
 @jit
-def step_inplace(y, p, opt, h, work):
-    kick_inplace(y, p, 0.5 * h)
+def step_inplace(y, p, opt, t, h, work):
+    kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
     q = read4(y, S.QUATERNION)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
@@ -61,7 +61,7 @@ def step_inplace(y, p, opt, h, work):
     write4(y, S.QUATERNION, quat_normalize(q))
     write3(y, S.OMEGA, to_omega(m, inertia_))
     drift_inplace(y, h)
-    kick_inplace(y, p, 0.5 * h)
+    kick_inplace(y, p, t + h, 0.5 * h)
     return OK, 0
 
 
