@@ -42,7 +42,7 @@ def test_every_driver_result_is_stored_under_its_name_and_type():
 def test_a_result_left_unset_is_a_bug_not_a_number():
     """NaN cast to int8 is 0, the code of "ok": a scheme that fills no status must fail."""
     def run_nothing(start, stop, state0, params, options, h, n_steps, every, bound, samples,
-                    results, halt):
+                    results, halt, clock):
         samples[:] = 0.0
 
     silent = dataclasses.replace(SCHEMES["euler"], name="silent", run_bodies_inplace=run_nothing)

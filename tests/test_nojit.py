@@ -8,16 +8,24 @@ import sys
 
 SCRIPT = r"""
 import json, math
-from rbstudy.physics.scenes import Body, Scene
+from rbstudy.physics.scenes import Body, Scene, scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import SCHEMES
 scene = Scene(body=Body(mass=2.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.1, 0.2, 0.3, 0.927),
               omega_body=(0.6, 1.5, 0.9), velocity=(1.0, 0.0, 0.0), duration=0.2)
+# and one under loads tabulated in time, at a node and at the centre
+timed = scene_from_mapping({"body": {"inertia": [1.0, 2.0, 3.0]},
+                            "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}},
+                            "nodes": {"a": [0.5, 0.2, 0.1]}, "duration": 0.2,
+                            "loads": {"moment_body": {"table": [[0, 0, 0, 0], [0.1, 1, 0, 2]]},
+                                      "nodes": {"a": {"force_space": {"table": [
+                                          [0.05, 0, 0, 0], [0.3, 0, 3, 0]]}}}}})
 out = {}
 for name, scheme in SCHEMES.items():
     if not scheme.adaptive:
-        run = simulate([scene], name, 0.02, 0.1)
-        out[name] = run.quaternion[0, -1].tolist() + run.omega_body[0, -1].tolist()
+        for label, body in (("", scene), (" timed", timed)):
+            run = simulate([body], name, 0.02, 0.1)
+            out[name + label] = run.quaternion[0, -1].tolist() + run.omega_body[0, -1].tolist()
 print(json.dumps(out))
 """
 

@@ -10,7 +10,8 @@ A scheme supplies two compiled single-body kernels,
 with ``y`` the body's state row (N_STATE,), ``p`` its parameter row (at least N_PARAM wide:
 loads tabulated in time follow it, `rbstudy.numerics.state.KNOTS`), ``opt`` its scheme
 options (N_OPTION,), ``t`` the time at the start of the step (s; the loads at a stage of the
-step are taken at that stage's time), and ``work`` a scratch/carry array (n_work,) that lives for the
+step are taken at that stage's time, ``later(t, d)``; ``t`` is None in a batch without loads
+tabulated in time, `rbstudy.numerics.clock`), and ``work`` a scratch/carry array (n_work,) that lives for the
 whole run of that body (HHT keeps its acceleration there, NO_SQUISH its conjugate momentum).
 The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure time, steps,
 iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
@@ -51,6 +52,7 @@ import numpy as np
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import step_time
 from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
 from rbstudy.numerics.jit import entry_jit, jit
 from rbstudy.numerics.rotation import dot, read3
@@ -108,7 +110,7 @@ _relative_drift = jit(algebra.relative_drift)
 
 @entry_jit
 def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, every,
-                           drift_bound, samples, results, halt):
+                           drift_bound, samples, results, halt, clock):
     """Integrate body ``b`` of a batch from state ``y``; write its samples and results.
 
     Parameters
@@ -127,6 +129,8 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
         largest step angle dt |w| and the Radioss flag cover every step taken.
     halt : (1,) int64, the halt flag: the body stops early when it is nonzero (its numbers
         are then discarded by `run_batch`).
+    clock : 0.0 to give the kernels the time, None to compile them without it
+        (`rbstudy.numerics.clock`).
     """
     p = params[b]
     opt = options[b]
@@ -139,7 +143,7 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
 
     for k in range(S.N_STATE):
         samples[b, 0, k] = y[k]
-    status = init(y, p, opt, 0.0, h, work)
+    status = init(y, p, opt, step_time(0, h, clock), h, work)
     iterations = 0
     steps_done = 0
     max_energy = 0.0
@@ -148,8 +152,7 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     while status == OK and steps_done < n_steps:
         if (steps_done & _HALT_MASK) == 0 and halt[0] != 0:
             break
-        # the time as a product, not a running sum: no drift over 1e9 steps
-        status, iters = step(y, p, opt, steps_done * h, h, work)
+        status, iters = step(y, p, opt, step_time(steps_done, h, clock), h, work)
         iterations += iters
         steps_done += 1
         total = 0.0
@@ -190,18 +193,19 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
 
 def make_entry(step, init, n_work):
     """The compiled entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
-    options, h, n_steps, every, drift_bound, samples, results, halt)`` integrates rows
-    [start, stop)."""
+    options, h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows
+    [start, stop); numba compiles it for each type of ``clock`` (None or a float) when first
+    called with it."""
 
     @entry_jit
     def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every,
-                           drift_bound, samples, results, halt):
+                           drift_bound, samples, results, halt, clock):
         for b in range(start, stop):
             if halt[0] != 0:
                 return
             integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
                                    options, h, n_steps, every, drift_bound, samples, results,
-                                   halt)
+                                   halt, clock)
 
     return run_bodies_inplace
 
@@ -281,12 +285,15 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     n_steps, every = int(n_steps), int(every)
     if n_steps < 0 or every < 1:
         raise ValueError(f"need n_steps >= 0 and every >= 1, got {n_steps}, {every}")
-    scheme.ensure_compiled()
     n_bodies = state0.shape[0]
     samples = np.empty((n_bodies, n_samples(n_steps, every), S.N_STATE))
     results = np.full((n_bodies, S.N_RESULT), np.nan)
+    # the kernels take the time only where some body has loads tabulated in time: a batch of
+    # constant loads runs kernels compiled without it (`rbstudy.numerics.clock`)
+    clock = 0.0 if np.any(params[:, S.KNOTS] != 0.0) else None
+    scheme.ensure_compiled(timed=clock is not None)
     arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
-                 results, HALT_FLAG)
+                 results, HALT_FLAG, clock)
     chunks = _chunks(n_bodies, threads or default_threads())
 
     def run_chunk(rows):

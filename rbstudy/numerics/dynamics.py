@@ -3,8 +3,12 @@
 Shared by every scheme so that all of them see the same loads (docs/theory.md, section 1):
 moments enter Euler's equations in the body frame, forces the translation in space. Loads
 may be tabulated in time (`rbstudy.numerics.state.KNOTS`), so every evaluation of them takes
-the time ``t`` at which the scheme asks.
+the time ``t`` at which the scheme asks, or None in a batch without such loads
+(`rbstudy.numerics.clock` says why).
 """
+
+from numba import types
+from numba.extending import overload
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
@@ -13,7 +17,8 @@ from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate
 
 __all__ = [
     "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "knot_segment",
-    "tabulated3", "tabulated_moment", "tabulated_force", "body_moment", "space_force",
+    "tabulated3", "tabulated_moment", "tabulated_force", "timed_moment", "timed_force",
+    "body_moment", "space_force",
     "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
 ]
 
@@ -93,7 +98,10 @@ def tabulated3(p, k, s, field):
 
 @jit
 def tabulated_moment(q, p, t):
-    """Body-frame moment of the loads tabulated in time (`S.KNOTS`) at time ``t``."""
+    """Body-frame moment of the loads tabulated in time (`S.KNOTS`) at time ``t``; zero for
+    a row without."""
+    if p[S.KNOTS] == 0.0:
+        return (0.0, 0.0, 0.0)
     k, s = knot_segment(p, t)
     space = add(tabulated3(p, k, s, S.MOMENT_SPACE),
                 lever_moment(q, tabulated3(p, k, s, S.LEVER), tabulated3(p, k, s, S.LEVER + 3),
@@ -103,38 +111,61 @@ def tabulated_moment(q, p, t):
 
 @jit
 def tabulated_force(q, p, t):
-    """Space force of the loads tabulated in time at time ``t``, weight included."""
+    """Space force of the loads tabulated in time at time ``t``, weight included; zero for a
+    row without."""
+    if p[S.KNOTS] == 0.0:
+        return (0.0, 0.0, 0.0)
     k, s = knot_segment(p, t)
     force = add(tabulated3(p, k, s, S.FORCE_SPACE), quat_rotate(q, tabulated3(p, k, s, S.FORCE_BODY)))
     return axpy(p[S.MASS], tabulated3(p, k, s, S.GRAVITY), force)
+
+
+def timed_moment(q, p, t):
+    """`tabulated_moment`; nothing at all when there is no time (``t`` None:
+    `rbstudy.numerics.clock`, whose compiled variants the overload below gives)."""
+    return (0.0, 0.0, 0.0) if t is None else tabulated_moment(q, p, t)
+
+
+def timed_force(q, p, t):
+    """`tabulated_force`; nothing at all when there is no time (``t`` None)."""
+    return (0.0, 0.0, 0.0) if t is None else tabulated_force(q, p, t)
+
+
+@overload(timed_moment, inline="always")
+def _timed_moment(q, p, t):
+    if isinstance(t, types.NoneType):
+        return lambda q, p, t: (0.0, 0.0, 0.0)
+    return lambda q, p, t: tabulated_moment(q, p, t)
+
+
+@overload(timed_force, inline="always")
+def _timed_force(q, p, t):
+    if isinstance(t, types.NoneType):
+        return lambda q, p, t: (0.0, 0.0, 0.0)
+    return lambda q, p, t: tabulated_force(q, p, t)
 
 
 @inline_jit
 def body_moment(q, p, t):
     """Total moment in the body frame at time ``t``: the body-fixed moment, the space moment
     with the moment of space-fixed forces at body-fixed points (skipped when there is none)
-    turned in, and the loads tabulated in time (skipped when there are none). Inlined by
-    numba (`rbstudy.numerics.jit.inline_jit` says why)."""
+    turned in, and the loads tabulated in time (`timed_moment`). Inlined by numba
+    (`rbstudy.numerics.jit.inline_jit` says why)."""
     space = read3(p, S.MOMENT_SPACE)
     if has_lever(p):
         space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3),
                                         read3(p, S.LEVER + 6)))
-    moment = add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space))
-    if p[S.KNOTS] != 0.0:
-        moment = add(moment, tabulated_moment(q, p, t))
-    return moment
+    return add(add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space)),
+               timed_moment(q, p, t))
 
 
-@jit
+@inline_jit
 def space_force(q, p, t):
     """Total force in space at time ``t``: space force, body-fixed force turned out, weight,
-    and the tabulated loads."""
-    mass = p[S.MASS]
-    f = axpy(mass, read3(p, S.GRAVITY),
+    and the loads tabulated in time (`timed_force`). Inlined, as `body_moment` is."""
+    f = axpy(p[S.MASS], read3(p, S.GRAVITY),
              add(read3(p, S.FORCE_SPACE), quat_rotate(q, read3(p, S.FORCE_BODY))))
-    if p[S.KNOTS] != 0.0:
-        f = add(f, tabulated_force(q, p, t))
-    return f
+    return add(f, timed_force(q, p, t))
 
 
 @jit

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import types
 
 from rbstudy.errors import SchemeError
 from rbstudy.numerics import state as S
@@ -85,14 +86,17 @@ class Scheme:
             row[option.slot:option.slot + len(packed)] = packed
         return row
 
-    def ensure_compiled(self):
-        """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run.
+    def ensure_compiled(self, timed=False):
+        """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run:
+        its variant with the time when ``timed`` (a batch with loads tabulated in time), else
+        its variant without (`rbstudy.numerics.clock`).
 
         A Python entry point (dop853) is warmed up the same way, which compiles its
         right-hand side; that costs a millisecond per call.
         """
         kernel = self.run_bodies_inplace
-        if getattr(kernel, "signatures", None):
+        if any((signature[-1] == types.none) != timed
+               for signature in getattr(kernel, "signatures", None) or ()):
             return
         state0 = np.zeros((1, S.N_STATE))
         state0[0, S.QUATERNION + 3] = 1.0
@@ -101,4 +105,4 @@ class Scheme:
         params[0, S.INERTIA:S.INERTIA + 3] = 1.0
         options = self.option_row()[None, :]
         kernel(0, 1, state0, params, options, 0.1, 1, 1, 1.0, np.empty((1, 2, S.N_STATE)),
-               np.empty((1, S.N_RESULT)), np.zeros(1, dtype=np.int64))
+               np.empty((1, S.N_RESULT)), np.zeros(1, dtype=np.int64), 0.0 if timed else None)

@@ -128,12 +128,12 @@ def integrate(y0, p, times, max_steps=None, halt=None):
 
 
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, results, halt):
+                       samples, results, halt, clock=None):
     """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
-    a time; a sample whose energy or |L| drift passes ``drift_bound`` (a moment-free body)
-    counts as the failure. Results are written by name: a result added to
-    `rbstudy.numerics.state.RESULT_FIELDS` must be added here too (`run_batch` refuses an
-    integer result left unset)."""
+    a time (``clock`` unused: the right-hand side always takes the time); a sample whose
+    energy or |L| drift passes ``drift_bound`` (a moment-free body) counts as the failure.
+    Results are written by name: a result added to `rbstudy.numerics.state.RESULT_FIELDS`
+    must be added here too (`run_batch` refuses an integer result left unset)."""
     times = h * every * np.arange(samples.shape[1])
     for b in range(start, stop):
         if halt[0]:

@@ -31,6 +31,7 @@ Taylor, Earthq. Eng. Struct. Dyn. 5 (1977) 283.
 import math
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
 from rbstudy.numerics.jit import jit
@@ -114,7 +115,8 @@ def step_inplace(y, p, opt, t, h, work):
         w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
         q_new = quat_mul(q, quat_exp(theta))
-        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, body_moment(q_new, p, t + h))),
+        moment_new = body_moment(q_new, p, later(t, h))
+        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
                 scale(alpha, r_old))
         size = norm(g)
         if not math.isfinite(size):
@@ -143,7 +145,7 @@ def step_inplace(y, p, opt, t, h, work):
     lin_old = read3(work, _LINEAR)
     f_old = scale(1.0 / p[S.MASS], space_force(q, p, t))
     lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old),
-                   scale(1.0 / p[S.MASS], space_force(q_new, p, t + h)))
+                   scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h))))
     write3(y, S.POSITION, axpy(h * h * beta, lin_new,
                                axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
     write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))

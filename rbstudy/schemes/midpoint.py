@@ -19,6 +19,7 @@ Reference: Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105.
 import math
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import jit
@@ -83,7 +84,7 @@ def step_inplace(y, p, opt, t, h, work):
            quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_))))))
     write3(y, S.OMEGA, to_omega(sub(scale(2.0, mbar), m), inertia_))
     drift_inplace(y, h)
-    kick_inplace(y, p, t + h, 0.5 * h)
+    kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, iterations
 
 

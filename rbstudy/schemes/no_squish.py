@@ -22,6 +22,7 @@ Reference: Miller, Eleftheriou, Pattnaik, Ndirango, Newns & Martyna, J. Chem. Ph
 import math
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import jit
@@ -96,7 +97,7 @@ def step_inplace(y, p, opt, t, h, work):
         q, momentum = axis_flow(q, momentum, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, q)
     drift_inplace(y, h)
-    momentum = kick_inplace(y, p, momentum, t + h, 0.5 * h)
+    momentum = kick_inplace(y, p, momentum, later(t, h), 0.5 * h)
     write4(work, 0, momentum)
     write3(y, S.OMEGA, to_omega(body_momentum(q, momentum), inertia_))
     return OK, 0

@@ -12,6 +12,7 @@ integration of rotational motion".
 
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.numerics.jit import jit
@@ -49,10 +50,10 @@ def step_inplace(y, p, opt, t, h, work):
     v, w = read3(y, S.VELOCITY), read3(y, S.OMEGA)
     k1 = rates(q, v, w, p, t)
     k2 = rates(axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p,
-               t + 0.5 * h)
+               later(t, 0.5 * h))
     k3 = rates(axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p,
-               t + 0.5 * h)
-    k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p, t + h)
+               later(t, 0.5 * h))
+    k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p, later(t, h))
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write4(y, S.QUATERNION, quat_normalize(rk4_sum4(h, q, k1[1], k2[1], k3[1], k4[1])))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[2], k2[2], k3[2], k4[2]))

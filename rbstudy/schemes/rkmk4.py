@@ -16,6 +16,7 @@ Numerica 9 (2000) 215.
 
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import (
     body_moment,
@@ -67,10 +68,10 @@ def step_inplace(y, p, opt, t, h, work):
     u = (0.0, 0.0, 0.0)
     k1 = rates(q, v, u, m, p, t)
     k2 = rates(q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p,
-               t + 0.5 * h)
+               later(t, 0.5 * h))
     k3 = rates(q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p,
-               t + 0.5 * h)
-    k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, t + h)
+               later(t, 0.5 * h))
+    k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, later(t, h))
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[1], k2[1], k3[1], k4[1]))
     u_next = rk4_sum3(h, u, k1[2], k2[2], k3[2], k4[2])

@@ -20,6 +20,7 @@ Comput. Phys. 189 (2003) 527.
 import math
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import jit
@@ -61,7 +62,7 @@ def step_inplace(y, p, opt, t, h, work):
     write4(y, S.QUATERNION, quat_normalize(q))
     write3(y, S.OMEGA, to_omega(m, inertia_))
     drift_inplace(y, h)
-    kick_inplace(y, p, t + h, 0.5 * h)
+    kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, 0
 
 

@@ -1,0 +1,43 @@
+"""The time a kernel is at, or no time at all: two compiled variants of every kernel.
+
+Loads tabulated in time need the time of every evaluation; constant loads do not. A branch
+"are there tabulated loads?" inside the moment that every stage evaluates cost the free body
+20-35% of its steps per second even though it was never taken (numba 0.68, measured with
+`pipelines/bench_loads.py`: rk4 1.45e7 -> 1.19e7, leapfrog 3.0e7 -> 2.4e7). So the decision is
+made by type, once per batch: the driver passes the time ``t`` as a float when some body of
+the batch has tabulated loads, and as None otherwise (`rbstudy.numerics.driver.run_batch`).
+numba compiles each kernel once per type of ``t``; under None the functions below resolve,
+while typing, to code without the time, and the tabulated loads vanish from the kernels.
+
+Kernels therefore write a stage's time as ``later(t, d)``, never ``t + d``.
+"""
+
+from numba import types
+from numba.extending import overload
+
+__all__ = ["later", "step_time"]
+
+
+def later(t, d):
+    """The time ``d`` after ``t``; None when there is no time (``t`` None)."""
+    return None if t is None else t + d
+
+
+def step_time(steps, h, clock):
+    """The time after ``steps`` steps of ``h`` (a product: no drift of a running sum over 1e9
+    steps) when ``clock`` is a number; None when it is None."""
+    return None if clock is None else steps * h
+
+
+@overload(later, inline="always")
+def _later(t, d):
+    if isinstance(t, types.NoneType):
+        return lambda t, d: None
+    return lambda t, d: t + d
+
+
+@overload(step_time, inline="always")
+def _step_time(steps, h, clock):
+    if isinstance(clock, types.NoneType):
+        return lambda steps, h, clock: None
+    return lambda steps, h, clock: steps * h
