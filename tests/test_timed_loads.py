@@ -8,13 +8,14 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import InputError, SceneError
+from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import body_moment, space_force
 from rbstudy.physics.metrics import asymptotic_order, orientation_error
 from rbstudy.physics.references import reference_solution
-from rbstudy.physics.scenes import scene_from_mapping, scene_table
+from rbstudy.physics.scenes import param_rows, scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import SCHEMES, dop853
 
 NODES = {"a": [0.5, 0.2, 0.1], "b": [-0.3, 0.4, -0.2]}
 # Knots at multiples of 0.05 s, the coarsest step of the order test: no step straddles a kink.
@@ -77,7 +78,7 @@ def test_the_kernels_interpolate_the_tables_at_any_time_and_orientation():
     sum r x F node by node: before the first knot, at knots, between, after the last."""
     scene = scene_from_mapping(spec(LOADS))
     p = scene.param_row()
-    assert scene.loads.knots == (0.0, 0.25, 0.5, 1.0, 1.5, 2.0)
+    assert scene.loads.knots.tolist() == [0.0, 0.25, 0.5, 1.0, 1.5, 2.0]
     times = [-1.0, 0.0, 0.1, 0.25, 0.37, 0.5, 0.99, 1.0, 1.2, 1.5, 1.75, 2.0, 7.0]
     for t, turn in zip(times, Rotation.random(len(times), random_state=3), strict=True):
         force, moment = loads_at(scene, turn, t)
@@ -232,7 +233,7 @@ def test_a_study_sweeps_table_files_and_scales(tmp_path):
     path = write_study(tmp_path, scene=scene, sweep=sweep, run={"scheme": "rk4", "dt": 0.01})
     study = load_study(path)
     loads = [case.scene.loads for case in study.cases]
-    assert {load.knots for load in loads} == {(0.0, 0.1, 0.3, 0.4)}
+    assert {tuple(load.knots) for load in loads} == {(0.0, 0.1, 0.3, 0.4)}
     ends = [np.asarray(load.tabulated)[-1, 9:12].tolist() for load in loads]  # moment_body
     assert ends == [[0, 0, 1], [0, 0, -3], [0, 0, 0], [0, 0, 0]]
     middles = [np.asarray(load.tabulated)[2, 11] for load in loads]  # at t = 0.3
@@ -261,3 +262,77 @@ def test_what_a_tabulated_load_changes_in_the_classification():
                                                                   "scale": 0.0}}})
     assert zeros.loads.moment_free and not zeros.translates and not zeros.loads.timed
     assert reference_solution(zeros, np.array([0.0, 0.5])).name == "symmetric_top"
+
+
+def test_dop853_restarts_at_the_knots_inside_the_run():
+    """The reference's runs end at each knot strictly inside (0, end), then at the end; a
+    step budget spent at a knot leaves the run unfinished, never a sample past it."""
+    p = scene_from_mapping(spec(LOADS)).param_row()
+    assert dop853._segment_ends(p, 1.2) == [0.25, 0.5, 1.0, 1.2]
+    assert dop853._segment_ends(p, 2.0) == [0.25, 0.5, 1.0, 1.5, 2.0]
+    times = np.linspace(0.0, 2.0, 9)
+    whole = dop853.integrate(scene_from_mapping(spec(LOADS)).state_row(), p, times)
+    assert whole.finished and whole.reached == 2.0
+    cut = dop853.integrate(scene_from_mapping(spec(LOADS)).state_row(), p, times,
+                           max_steps=whole.steps // 2)
+    assert not cut.finished and cut.steps == whole.steps // 2
+    done = np.isfinite(cut.samples[:, 0])
+    assert np.array_equal(cut.samples[done], whole.samples[done])
+    assert times[done][-1] <= cut.reached < 2.0
+
+
+def test_tabulated_loads_equal_constant_ones_in_every_frame():
+    """A table that holds one value is that constant load: the same moment and force at any
+    time and orientation, for a body given by a full inertia tensor (body loads turned into
+    its principal axes) and for an assembled body centred at its master, whose tabulated
+    gravity has a lever."""
+    tensor = {"body": {"mass": 2.0, "inertia": [[2.0, 0.3, -0.1], [0.3, 1.5, 0.2],
+                                                [-0.1, 0.2, 1.0]]}, "nodes": NODES}
+    assembled = {"assembly": {"master": {"position": [0.3, 0.0, 0.1], "mass": 1.0},
+                              "nodes": {"a": {"position": [1.0, 0.2, 0.0], "mass": 2.0},
+                                        "b": {"position": [-0.5, 0.6, 0.3], "mass": 1.0},
+                                        "c": {"position": [0.1, -0.9, 0.4], "mass": 1.5}},
+                              "centre_of_mass": "master"}}
+    constant = {"gravity": [0.0, -2.0, -9.81], "moment_body": [0.1, 0.2, 0.3],
+                "nodes": {"a": {"force_body": [1.0, -1.0, 0.5],
+                                "force_space": [0.0, 3.0, -1.0]},
+                          "b": {"moment_space": [0.4, 0.0, -0.2]}}}
+
+    def held(value):
+        return {"table": [[0.0, *value], [1.0, *value]]}
+
+    tabulated = {name: held(value) for name, value in constant.items() if name != "nodes"}
+    tabulated["nodes"] = {node: {name: held(value) for name, value in loads.items()}
+                          for node, loads in constant["nodes"].items()}
+    for body in (tensor, assembled):
+        fixed = scene_from_mapping({**body, "loads": constant}).param_row()
+        timed = scene_from_mapping({**body, "loads": tabulated}).param_row()
+        for t, turn in zip((0.0, 0.4, 3.0), Rotation.random(3, random_state=5), strict=True):
+            q = turn.as_quat()
+            assert np.allclose(body_moment(q, timed, t), body_moment(q, fixed, t),
+                               rtol=1e-13, atol=1e-13)
+            assert np.allclose(space_force(q, timed, t), space_force(q, fixed, t),
+                               rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("name", FIXED_STEP)
+def test_the_kernels_with_and_without_the_time_agree_on_constant_loads(name):
+    """The two compiled variants of a scheme (numerics/clock.py) give the same bits for
+    constant loads, in a batch mixed with rows of tabulated loads (wider rows)."""
+    scheme = SCHEMES[name]
+    loaded = scene_from_mapping(spec({"moment_space": [0.2, -0.1, 0.4],
+                                      "nodes": {"a": {"force_space": [1.0, 0.0, -2.0]}}}))
+    timed = scene_from_mapping(spec(LOADS))
+    params = param_rows([loaded, timed])
+    state0 = np.array([loaded.state_row(), timed.state_row()])
+    options = np.repeat(scheme.option_row()[None], 2, axis=0)
+    runs = {}
+    for clock in (None, 0.0):
+        scheme.ensure_compiled(timed=clock is not None)
+        samples, results = np.empty((2, 11, S.N_STATE)), np.full((2, S.N_RESULT), np.nan)
+        rows = (0, 1) if clock is None else (0, 2)  # without the time: the constant row only
+        scheme.run_bodies_inplace(*rows, state0, params, options, 0.01, 50, 5, 0.5, samples,
+                                  results, np.zeros(1, dtype=np.int64), clock)
+        runs[clock] = samples[0].copy(), results[0].copy()
+    assert np.array_equal(runs[None][0], runs[0.0][0])
+    assert np.array_equal(runs[None][1], runs[0.0][1], equal_nan=True)

@@ -1,9 +1,10 @@
 """The time a kernel is at, or no time at all: two compiled variants of every kernel.
 
 Loads tabulated in time need the time of every evaluation; constant loads do not. A branch
-"are there tabulated loads?" inside the moment that every stage evaluates cost the free body
-20-35% of its steps per second even though it was never taken (numba 0.68, measured with
-`pipelines/bench_loads.py`: rk4 1.45e7 -> 1.19e7, leapfrog 3.0e7 -> 2.4e7). So the decision is
+"are there tabulated loads?" inside the moment and the force that every stage evaluates cost
+the free body 18-35% of its steps per second even though it was never taken (numba 0.68,
+measured with `pipelines/bench_loads.py`: rk4 1.45e7 -> 0.93-1.19e7, leapfrog 3.0e7 ->
+2.2-2.4e7, the lower figures with the force function not inlined). So the decision is
 made by type, once per batch: the driver passes the time ``t`` as a float when some body of
 the batch has tabulated loads, and as None otherwise (`rbstudy.numerics.driver.run_batch`).
 numba compiles each kernel once per type of ``t``; under None the functions below resolve,

@@ -241,10 +241,12 @@ def _as_rows(array, width, name, wider=False):
 def _check_knots(params):
     """Refuse parameter rows too narrow for the knots they announce (`S.KNOTS`)."""
     knots = params[:, S.KNOTS]
-    if np.any((knots < 0) | (knots != np.round(knots))) or np.any(
-            S.row_width(knots) > params.shape[1]):
-        raise ValueError(f"`params` rows of width {params.shape[1]} cannot hold the knots "
-                         f"{sorted(set(knots.tolist()))} they announce")
+    if np.any((knots < 0) | (knots != np.round(knots))):
+        raise ValueError(f"`params` announce knot counts {sorted(set(knots.tolist()))}: "
+                         "each must be a whole number >= 0")
+    if np.any(S.row_width(knots) > params.shape[1]):
+        raise ValueError(f"`params` rows of width {params.shape[1]} cannot hold the "
+                         f"{int(knots.max())} knots they announce")
 
 
 def _chunks(n_bodies, threads):

@@ -25,7 +25,7 @@ __all__ = [
 
 @jit
 def inertia(p):
-    """Principal inertias ``(I1, I2, I3)`` of a parameter row ``p`` (N_PARAM,)."""
+    """Principal inertias ``(I1, I2, I3)`` of a parameter row ``p`` (N_PARAM or wider)."""
     return read3(p, S.INERTIA)
 
 

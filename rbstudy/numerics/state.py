@@ -1,7 +1,7 @@
 """Memory layout of the per-body rows: the only place that knows indices.
 
 A batch of B bodies is C-ordered float64 arrays with one row per body: ``state`` (B, N_STATE),
-``params`` (B, N_PARAM), scheme ``options`` (B, N_OPTION) in, and per-body ``results``
+``params`` (B, W >= N_PARAM), scheme ``options`` (B, N_OPTION) in, and per-body ``results``
 (B, N_RESULT) out. A body's row is contiguous, so each thread of the batch driver streams
 through its own body's data while it integrates all steps of that body.
 

@@ -43,9 +43,12 @@ def read_files(reader, files, key, size, read, what):
     returns for it, and which one each of the n scenes takes (n,). A name that is no text
     fails as not ``what`` ("a node table file"); an error inside a file keeps its place there
     and gains the first swept row that names the file."""
+    fix = "give a file name, relative to the config's folder"
+    if not isinstance(files, (str, np.ndarray)):  # one value, the same in every swept case
+        reader.fail(key, f"expected {what}, got {files!r:.80}", fix)
     column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
     refuse(reader, np.array([not isinstance(name, str) for name in column]), key,
-           lambda row: f"expected {what}, got {column[row]!r:.80}")
+           lambda row: f"expected {what}, got {column[row]!r:.80}", fix)
     names, index = np.unique(column.astype(str), return_inverse=True)
     folder = Path(reader.source).parent
     contents = []

@@ -76,7 +76,8 @@ def read_load_file(path):
         values = [finite(field) for field in fields]
         for column, field, value in zip(COLUMNS, fields, values, strict=True):
             if value is None:
-                reader.fail(where, f"{column} = {field!r:.40} is not a finite number", _FIX)
+                reader.fail(where, f"{column} = {field!r:.40} is not a finite number",
+                            f"{_FIX}; a first line may name the columns t x y z or time x y z")
         rows.append(values)
         lines.append(number)
     return _checked(reader, rows, lambda k: f"line {lines[k]}", "table", digest)

@@ -73,8 +73,9 @@ def _tabulated_acting(record, names):
     return np.any(np.concatenate(chosen, axis=-1) != 0.0, axis=(-2, -1))
 
 
-# The loads that turn the body, and those that move its centre of mass.
+# The loads that turn the body; the `Loads` fields of the loads tabulated in time.
 _TURNING = _MOMENTS + ("lever",)
+_TABLES = ("knots", "tabulated")
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,9 @@ class Loads:
     off it, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is in ``force_space``).
     These are constant; loads tabulated in time add to them: their ``knots`` (K,) s and, at
     each knot, a record ``tabulated`` (K, LOAD_RECORD) of the same loads in the parameter
-    row's layout (`rbstudy.numerics.state.KNOTS`)."""
+    row's layout (`rbstudy.numerics.state.KNOTS`); arrays, views of the `SceneTable`'s (a
+    long table is held once, not once per scene), left out of comparisons as `Scene.nodes`
+    is."""
 
     force_space: tuple = (0.0, 0.0, 0.0)
     force_body: tuple = (0.0, 0.0, 0.0)
@@ -124,8 +127,9 @@ class Loads:
     moment_body: tuple = (0.0, 0.0, 0.0)
     gravity: tuple = (0.0, 0.0, 0.0)
     lever: tuple = (0.0,) * 9
-    knots: tuple = ()
-    tabulated: tuple = ()
+    knots: np.ndarray = field(default_factory=lambda: np.zeros(0), compare=False)
+    tabulated: np.ndarray = field(default_factory=lambda: np.zeros((0, S.LOAD_RECORD)),
+                                  compare=False)
 
     @property
     def moment_free(self):
@@ -138,7 +142,7 @@ class Loads:
         return self._tabulated(_FIELDS)
 
     def _tabulated(self, names):
-        return bool(_tabulated_acting(self.tabulated, names)) if self.knots else False
+        return bool(_tabulated_acting(self.tabulated, names)) if len(self.knots) else False
 
 
 @dataclass(frozen=True)
@@ -237,7 +241,8 @@ class SceneTable:
             omega_body=tuple(self.omega_body[i].tolist()),
             position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
             nodes=np.array(self.nodes[i]), node_names=self.node_names,
-            loads=Loads(**{name: _tuples(column[i]) for name, column in self.loads.items()}),
+            loads=Loads(**{name: column[i] if name in _TABLES else tuple(column[i].tolist())
+                           for name, column in self.loads.items()}),
             duration=self.duration)
 
     @property
@@ -263,12 +268,6 @@ class SceneTable:
         """(n,) True where the centre of mass moves (initial velocity or a force)."""
         return (_acting(self.velocity, *(self.loads[name] for name in _FORCES))
                 | _tabulated_acting(self.loads["tabulated"], _FORCES))
-
-
-def _tuples(values):
-    """An array as nested tuples (a frozen `Loads` field)."""
-    values = np.asarray(values)
-    return tuple(map(_tuples, values)) if values.ndim > 1 else tuple(values.tolist())
 
 
 def param_rows(scenes):
@@ -485,15 +484,29 @@ def _read_timed(reader, spec, key, size):
     return _Timed(tables, index, scale)
 
 
-def _timed_loads(reader, spec, path, size):
+def _loaded_nodes(reader, spec, path, points):
+    """The loads at nodes ``spec`` (node name -> {force_space, ...}, at ``path``), checked:
+    ``(key, node name, its loads)`` for each node, which must be one of ``points``."""
+    if not isinstance(spec, dict):
+        reader.fail(path, f"expected a mapping of node name -> loads, got {spec!r:.80}")
+    if len({str(name) for name in spec}) < len(spec):  # 56 and "56" in the YAML
+        reader.fail(path, "a node is loaded twice (as a number and as text)", "load it once")
+    checked = []
+    for name, node_spec in spec.items():
+        key = f"{path}.{name}"
+        if str(name) not in points:
+            reader.fail(key, "no such node in this body",
+                        "load a node of the scene's nodes (or master, for an assembled body)")
+        checked.append((key, str(name), reader.mapping(node_spec, key, _NODAL_LOADS)))
+    return checked
+
+
+def _timed_loads(reader, spec, path, nodal, size):
     """The loads tabulated in time under ``scene.loads`` (``spec``, at ``path``), at the
-    centre and at nodes: key -> `_Timed`. Everything else is read where it is used."""
+    centre and at the ``nodal`` loads (`_loaded_nodes`): key -> `_Timed`."""
     found = {f"{path}.{name}": spec[name] for name in _LOADS if isinstance(spec.get(name), dict)}
-    nodes = spec.get("nodes")
-    for node, node_spec in (nodes.items() if isinstance(nodes, dict) else ()):
-        for name, value in (node_spec.items() if isinstance(node_spec, dict) else ()):
-            if isinstance(value, dict):
-                found[f"{path}.nodes.{node}.{name}"] = value
+    found.update({f"{key}.{name}": value for key, _, node_loads in nodal
+                  for name, value in node_loads.items() if isinstance(value, dict)})
     return {key: _read_timed(reader, value, key, size) for key, value in found.items()}
 
 
@@ -528,28 +541,20 @@ class _LoadSets:
         for name, offset in _FIELDS.items():
             start = offset - S.FORCE_SPACE
             record[..., start:start + _WIDTHS[name]] = self.tabulated[name]
+        record.setflags(write=False)  # each scene's `Loads` holds a view of it
         return {**self.constant, "knots": np.broadcast_to(self.knots, (self.size, len(self.knots))),
                 "tabulated": record}
 
 
-def _add_nodal_loads(reader, spec, path, loads, points, axes):
-    """Add the loads at nodes ``spec`` (node name -> {force_space, ...}) to ``loads`` (a
-    `_LoadSets`), aggregated to the centre of mass: ``F = sum F_i`` and
-    ``M = sum M_i + sum d_i x F_i`` with ``d_i`` the node's offset (``points``: name -> (n, 3),
-    principal axes). A body-axis force gives a body moment; a space-axis force a moment that
-    turns with the body (the lever, evaluated every step by the kernels). Constant and
-    tabulated loads aggregate alike (each is linear in the nodal loads)."""
-    if not isinstance(spec, dict):
-        reader.fail(path, f"expected a mapping of node name -> loads, got {spec!r:.80}")
-    if len({str(name) for name in spec}) < len(spec):  # 56 and "56" in the YAML
-        reader.fail(path, "a node is loaded twice (as a number and as text)", "load it once")
-    for name, node_spec in spec.items():
-        key = f"{path}.{name}"
-        if str(name) not in points:
-            reader.fail(key, "no such node in this body",
-                        "load a node of the scene's nodes (or master, for an assembled body)")
-        node_spec = reader.mapping(node_spec, key, _NODAL_LOADS)
-        offset = points[str(name)]
+def _add_nodal_loads(nodal, loads, points, axes):
+    """Add the loads at nodes ``nodal`` (`_loaded_nodes`) to ``loads`` (a `_LoadSets`),
+    aggregated to the centre of mass: ``F = sum F_i`` and ``M = sum M_i + sum d_i x F_i``
+    with ``d_i`` the node's offset (``points``: name -> (n, 3), principal axes). A body-axis
+    force gives a body moment; a space-axis force a moment that turns with the body (the
+    lever, evaluated every step by the kernels). Constant and tabulated loads aggregate
+    alike (each is linear in the nodal loads)."""
+    for key, name, node_spec in nodal:
+        offset = points[name]
         for load, value in node_spec.items():
             given = loads.read(value, f"{key}.{load}")
             if load.endswith("_body"):
@@ -611,21 +616,23 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
 
     loads_path = f"{path}.loads"
     loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS + ("nodes",))
-    loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, size), size)
+    points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
+    if assembled is not None:
+        points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
+    nodal = (_loaded_nodes(reader, loads_spec["nodes"], f"{loads_path}.nodes", points)
+             if "nodes" in loads_spec else [])
+    loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, nodal, size), size)
     for name in _LOADS:
         if name in loads_spec:
             given = loads.read(loads_spec[name], f"{loads_path}.{name}")
             loads.add(name, _in_principal(axes, given) if name in _IN_BODY_AXES else given)
-    points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
     if assembled is not None:
-        points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
         first_moment = _in_principal(axes, assembled.first_moment[:, None, :])[:, 0]
         for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
             loads.add("lever", _lever(first_moment, gravity))
-    if "nodes" in loads_spec:
-        _add_nodal_loads(reader, loads_spec["nodes"], f"{loads_path}.nodes", loads, points, axes)
+    _add_nodal_loads(nodal, loads, points, axes)
     tables = () if assembled is None else secondaries.tables
     tables += tuple(sorted({table.digest for load in loads.timed.values()
                             for table in load.tables if table.digest is not None}))

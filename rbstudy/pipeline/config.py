@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import ConfigError, InputError
-from rbstudy.numerics.state import N_STATE
+from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
 from rbstudy.pipeline.grid import MAX_CASES, Cases, expand, parse_sweep
@@ -87,8 +87,11 @@ class StudyConfig:
                    * math.prod(sizes[d] for d in VARIABLES[name].dims) for name in self.variables)
 
     def working_bytes_per_case(self):
-        """Bytes a case holds while its batch runs: sampled states plus outputs."""
-        return self.bytes_per_case() + N_STATE * np.dtype("f8").itemsize * self.n_times
+        """Bytes a case holds while its batch runs: sampled states, outputs, and its
+        parameter row (long with long load tables)."""
+        knots = self.cases.scenes.loads["knots"].shape[-1]
+        return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times
+                                                                  + row_width(knots))
 
     @property
     def warnings(self):

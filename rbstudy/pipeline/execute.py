@@ -110,12 +110,13 @@ def compute_batch(job, reference_chunks, threads):
                                              [per_case] * len(job.scenes), job.accuracy_bound))
 
 
-def compile_schemes(names):
-    """Compile the schemes ``names`` one after the other, before any batch runs: a compiling
-    thread holds the GIL for long stretches, and a batch beside it would stall (run on every
-    worker of a cluster too)."""
-    for name in sorted(names):
-        get_scheme(name).ensure_compiled()
+def compile_schemes(variants):
+    """Compile the schemes of ``variants``, pairs (name, timed), one after the other, before
+    any batch runs: a compiling thread holds the GIL for long stretches, and a batch beside
+    it would stall (run on every worker of a cluster too). ``timed`` asks for the variant
+    that takes the time (loads tabulated in time, `rbstudy.numerics.clock`)."""
+    for name, timed in sorted(variants):
+        get_scheme(name).ensure_compiled(timed=timed)
 
 
 def store_part(values, layout, batch, path):
@@ -361,7 +362,9 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
         tasks = _graph(study, pending, parts_dir, threads, token)
         sizes = {f"store-{token}-{batch.id}": len(batch.cases) for batch in pending}
         progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
-        schemes = {batch.scheme for batch in pending}
+        # the kernels take the time where the scenes have load tables (numerics/clock.py)
+        timed = study.cases.scenes.loads["knots"].shape[-1] > 0
+        schemes = {(batch.scheme, timed) for batch in pending}
         written = []  # the digest each store task computed of the part it wrote
         if tasks:
             if distributed:

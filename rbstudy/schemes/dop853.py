@@ -51,7 +51,8 @@ def derivative(t, y, p):
 
 def _drifts(samples, p):
     """Relative drifts (T,) of the rotational energy and of |L| at each sample (T, N_STATE)
-    of the parameter row ``p`` (N_PARAM,), by the formulas the compiled driver uses."""
+    of the parameter row ``p`` (at least N_PARAM wide), by the formulas the compiled driver
+    uses."""
     inertia_ = p[S.INERTIA:S.INERTIA + 3]
     w = samples[:, S.OMEGA:S.OMEGA + 3].T  # components first, as `algebra` takes them
     energy = algebra.rotational_energy(w, inertia_)
