@@ -245,6 +245,9 @@ def test_a_study_sweeps_table_files_and_scales(tmp_path):
     with pytest.raises(InputError, match="cannot be swept; write each table to a file"):
         load_study(write_study(tmp_path, scene=inline, sweep={
             "scene.loads.moment_body.table.1.3": [1.0, 2.0]}))
+    with pytest.raises(InputError, match="sweep load tables by file name"):
+        load_study(write_study(tmp_path, scene=inline, sweep={
+            "scene.loads.moment_body.table": [PULL, TWIST]}))
 
 
 def test_what_a_tabulated_load_changes_in_the_classification():

@@ -106,7 +106,9 @@ def _scalar_values(reader, key, values):
     for i, value in enumerate(values):
         if not isinstance(value, (int, float, str)):  # a bool is an int
             reader.fail(f"{key}[{i}]", f"sweep values must be numbers, names or true/false, "
-                                       f"got {value!r}",
+                                       f"got {value!r:.80}",
+                        "sweep load tables by file name (write each table to a file)"
+                        if ".table" in key else
                         "sweep a vector one entry at a time (path.0, path.1...)")
         if not isinstance(value, (str, bool)):
             reader.number(value, f"{key}[{i}]")  # finite
