@@ -11,6 +11,7 @@ has gone (``| head -1``): the command stops there.
 """
 
 import argparse
+import functools
 import os
 import pathlib
 import sys
@@ -134,7 +135,9 @@ def _plot(args):
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
     if len(args.files) > 1:  # every file checked before any is drawn, one in memory at a time
-        studies = [str(_select(_open(path, open_results), args.select, path)
+        from rbstudy.pipeline.variables import BOOKKEEPING
+        checked = functools.partial(open_results, variables=BOOKKEEPING)  # not trajectories
+        studies = [str(_select(_open(path, checked), args.select, path)
                        .attrs.get("study", "results")) for path in args.files]
         for path, study in zip(args.files, studies, strict=True):
             if args.out and studies.count(study) > 1:

@@ -428,7 +428,7 @@ def stability_map(ds, folder, formats=FORMATS):
     parameter = _parameter(ds)
     # the limit is drawn where some case passed it and it lies among the plotted dt |w0|: a
     # case flagged for the spin it reached later must not stretch a map of small dt |w0|
-    past_radioss_limit = ("radioss_dt_limit" in ds and bool((ds["radioss_dt_limit"] == 1).any())
+    past_radioss_limit = (bool((ds["radioss_dt_limit"] == 1).any())
                           and bool((load >= RADIOSS_STEP_ANGLE).any()))
     schemes = schemes_of(ds)
     bound = ds.attrs.get("accuracy_bound")

@@ -169,9 +169,7 @@ def scheme_rows(ds):
                "unjudged": int(unjudged.sum()),
                "order": None, "finest": None, "fits": 0, "tries": 0, "fit_dt": (),
                "error": None, "error_small": None,
-               # archives older than the flag do not say
-               "radioss": (int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum())
-                           if "radioss_dt_limit" in ds else 0)}
+               "radioss": int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum())}
         row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
                                    / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
         # dt |w0| is the step parameter of physical bodies only (for a stress body beyond the

@@ -11,7 +11,8 @@ measures and the reference scheme cannot disagree by the way they are written.
 This module imports nothing: importing it compiles nothing.
 """
 
-__all__ = ["hamilton_product", "rotational_energy", "momentum_squared", "relative_drift"]
+__all__ = ["hamilton_product", "rotation_columns", "rotational_energy", "momentum_squared",
+           "relative_drift"]
 
 
 def hamilton_product(a, b):
@@ -24,6 +25,15 @@ def hamilton_product(a, b):
         aw * bz + ax * by - ay * bx + az * bw,
         aw * bw - ax * bx - ay * by - az * bz,
     )
+
+
+def rotation_columns(q):
+    """The columns ``R e_1, R e_2, R e_3`` of the rotation of a unit quaternion ``q``
+    (scalar last), three 3-tuples of components."""
+    x, y, z, w = q
+    return ((1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+            (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+            (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)))
 
 
 def rotational_energy(w, inertia):

@@ -10,13 +10,14 @@ the batch has tabulated loads, and as None otherwise (`rbstudy.numerics.driver.r
 numba compiles each kernel once per type of ``t``; under None the functions below resolve,
 while typing, to code without the time, and the tabulated loads vanish from the kernels.
 
-Kernels therefore write a stage's time as ``later(t, d)``, never ``t + d``.
+Kernels therefore write a stage's time as ``later(t, d)``, never ``t + d``, and reach a
+function of the time through `without_time`.
 """
 
 from numba import types
 from numba.extending import overload
 
-__all__ = ["later", "step_time"]
+__all__ = ["later", "step_time", "without_time"]
 
 
 def later(t, d):
@@ -42,3 +43,20 @@ def _step_time(steps, h, clock):
     if isinstance(clock, types.NoneType):
         return lambda steps, h, clock: None
     return lambda steps, h, clock: steps * h
+
+
+def without_time(of_time):
+    """``of_time(q, p, t)``, a compiled function of the time that gives a 3-vector, as a
+    function that compiled code may also call with ``t`` None, and that gives zero then."""
+
+    def timed(q, p, t):
+        return (0.0, 0.0, 0.0) if t is None else of_time(q, p, t)
+
+    @overload(timed, inline="always")
+    def _timed(q, p, t):
+        if isinstance(t, types.NoneType):
+            return lambda q, p, t: (0.0, 0.0, 0.0)
+        return lambda q, p, t: of_time(q, p, t)
+
+    timed.__name__ = timed.__qualname__ = f"timed_{of_time.__name__}"
+    return timed

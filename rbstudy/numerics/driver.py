@@ -187,8 +187,9 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     results[b, Result.iterations] = iterations
     results[b, Result.max_energy_error] = max_energy if check_invariants else math.nan
     results[b, Result.max_momentum_magnitude_error] = max_momentum if check_invariants else math.nan
-    results[b, Result.max_step_angle] = h * math.sqrt(largest_spin)
-    results[b, Result.radioss_dt_limit] = h * math.sqrt(largest_spin) > S.RADIOSS_STEP_ANGLE
+    step_angle = h * math.sqrt(largest_spin)
+    results[b, Result.max_step_angle] = step_angle
+    results[b, Result.radioss_dt_limit] = step_angle > S.RADIOSS_STEP_ANGLE
 
 
 def make_entry(step, init, n_work):

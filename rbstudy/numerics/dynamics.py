@@ -7,11 +7,9 @@ the time ``t`` at which the scheme asks, or None in a batch without such loads
 (`rbstudy.numerics.clock` says why).
 """
 
-from numba import types
-from numba.extending import overload
-
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import without_time
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3, sub
 
@@ -41,15 +39,16 @@ def to_omega(m, inertia_):
     return (m[0] / inertia_[0], m[1] / inertia_[1], m[2] / inertia_[2])
 
 
+# The rotation's columns, as `rbstudy.numerics.algebra` writes them for numpy code too.
+rotation_columns = jit(algebra.rotation_columns)
+
+
 @jit
 def lever_moment(q, k1, k2, k3):
     """Space-frame moment of space-fixed forces at body-fixed points, given as the rows
     ``k_b`` of `S.LEVER`: ``sum_b c_b x k_b`` with ``c_b = R e_b`` the columns of the body's
     rotation."""
-    x, y, z, w = q
-    c1 = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y))
-    c2 = (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x))
-    c3 = (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+    c1, c2, c3 = rotation_columns(q)
     return add(add(cross(c1, k1), cross(c2, k2)), cross(c3, k3))
 
 
@@ -120,29 +119,9 @@ def tabulated_force(q, p, t):
     return axpy(p[S.MASS], tabulated3(p, k, s, S.GRAVITY), force)
 
 
-def timed_moment(q, p, t):
-    """`tabulated_moment`; nothing at all when there is no time (``t`` None:
-    `rbstudy.numerics.clock`, whose compiled variants the overload below gives)."""
-    return (0.0, 0.0, 0.0) if t is None else tabulated_moment(q, p, t)
-
-
-def timed_force(q, p, t):
-    """`tabulated_force`; nothing at all when there is no time (``t`` None)."""
-    return (0.0, 0.0, 0.0) if t is None else tabulated_force(q, p, t)
-
-
-@overload(timed_moment, inline="always")
-def _timed_moment(q, p, t):
-    if isinstance(t, types.NoneType):
-        return lambda q, p, t: (0.0, 0.0, 0.0)
-    return lambda q, p, t: tabulated_moment(q, p, t)
-
-
-@overload(timed_force, inline="always")
-def _timed_force(q, p, t):
-    if isinstance(t, types.NoneType):
-        return lambda q, p, t: (0.0, 0.0, 0.0)
-    return lambda q, p, t: tabulated_force(q, p, t)
+# The tabulated loads where the kernels are given the time, nothing where they are not.
+timed_moment = without_time(tabulated_moment)
+timed_force = without_time(tabulated_force)
 
 
 @inline_jit

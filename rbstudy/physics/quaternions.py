@@ -7,7 +7,7 @@ batches. The Hamilton product is the kernels' own formula (`rbstudy.numerics.alg
 
 import numpy as np
 
-from rbstudy.numerics.algebra import hamilton_product
+from rbstudy.numerics.algebra import hamilton_product, rotation_columns
 
 __all__ = ["quat_mul", "quat_to_matrix", "quat_from_rotvec"]
 
@@ -20,12 +20,8 @@ def quat_mul(a, b):
 
 def quat_to_matrix(q):
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
-    x, y, z, w = np.moveaxis(np.asarray(q), -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
+    columns = rotation_columns(np.moveaxis(np.asarray(q), -1, 0))
+    return np.stack([np.stack(column, axis=-1) for column in columns], axis=-1)
 
 
 def quat_from_rotvec(v):

@@ -60,15 +60,12 @@ def _acting(*vectors):
     return np.any(np.stack(np.broadcast_arrays(*vectors)) != 0.0, axis=(0, -1))
 
 
-def _moments_act(moment_space, moment_body, lever):
-    """Whether a moment acts: a moment, or space forces off the centre (the lever)."""
-    return _acting(moment_space, moment_body) | _acting(lever)
-
-
 def _tabulated_acting(record, names):
     """Whether any of the loads ``names`` has a non-zero entry at some knot of ``record``
     (..., K, LOAD_RECORD), the loads tabulated in time: a bool, or (...,)."""
     record = np.asarray(record, dtype=float)
+    if record.ndim == 3 and len(record) > 1 and record.strides[0] == 0:  # one row, broadcast
+        return np.broadcast_to(_tabulated_acting(record[:1], names), record.shape[:1])
     chosen = [record[..., _FIELDS[name] - S.FORCE_SPACE:][..., :_WIDTHS[name]] for name in names]
     return np.any(np.concatenate(chosen, axis=-1) != 0.0, axis=(-2, -1))
 
@@ -76,6 +73,26 @@ def _tabulated_acting(record, names):
 # The loads that turn the body; the `Loads` fields of the loads tabulated in time.
 _TURNING = _MOMENTS + ("lever",)
 _TABLES = ("knots", "tabulated")
+
+
+# What loads do, asked of one scene's `Loads` fields (``vars(loads)``) or of a `SceneTable`'s
+# columns alike: a bool, or (n,).
+def _turning(loads):
+    """Whether a moment acts: a moment, or space forces off the centre (the lever), constant
+    or tabulated."""
+    return (_acting(*(loads[name] for name in _MOMENTS)) | _acting(loads["lever"])
+            | _tabulated_acting(loads["tabulated"], _TURNING))
+
+
+def _moving(velocity, loads):
+    """Whether the centre of mass moves: an initial velocity, or a force."""
+    return (_acting(velocity, *(loads[name] for name in _FORCES))
+            | _tabulated_acting(loads["tabulated"], _FORCES))
+
+
+def _timed(loads):
+    """Whether some load varies in time."""
+    return _tabulated_acting(loads["tabulated"], _FIELDS)
 
 
 @dataclass(frozen=True)
@@ -133,16 +150,12 @@ class Loads:
 
     @property
     def moment_free(self):
-        return not (_moments_act(self.moment_space, self.moment_body, self.lever)
-                    or self._tabulated(_TURNING))
+        return not _turning(vars(self))
 
     @property
     def timed(self):
         """True when a load varies in time."""
-        return self._tabulated(_FIELDS)
-
-    def _tabulated(self, names):
-        return bool(_tabulated_acting(self.tabulated, names)) if len(self.knots) else False
+        return bool(_timed(vars(self)))
 
 
 @dataclass(frozen=True)
@@ -167,8 +180,7 @@ class Scene:
     @property
     def translates(self):
         """True when the centre of mass moves (initial velocity or a force)."""
-        return bool(_acting(self.velocity, *(getattr(self.loads, name) for name in _FORCES))
-                    or self.loads._tabulated(_FORCES))
+        return bool(_moving(self.velocity, vars(self.loads)))
 
     def state_row(self):
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
@@ -210,7 +222,8 @@ class SceneTable:
     broadcast views. warnings : what the reading noticed but accepted
     (a regularised assembled body), one line each. regularised : (n,) True where an
     assembled body's inertia was regularised, None for a body not assembled. tables : the
-    sha256 digests of the node and load table files read.
+    sha256 digests of the node and load table files read. What the scenes are (symmetry,
+    reference, loads acting) is worked out once, when first asked.
     """
 
     mass: np.ndarray
@@ -245,29 +258,26 @@ class SceneTable:
                            for name, column in self.loads.items()}),
             duration=self.duration)
 
-    @property
+    @cached_property
     def symmetry_axes(self):
         """(n,) the symmetry axis of each body, -1 for an asymmetric one
         (`rbstudy.physics.analytic.symmetry_axes`)."""
         return symmetry_axes(symmetrised(self.inertia))  # as each Body decides it
 
-    @property
+    @cached_property
     def reference_kinds(self):
         """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
-        return reference_kinds(self.inertia, self.omega_body, self.loads,
-                               _tabulated_acting(self.loads["tabulated"], _FIELDS))
+        return reference_kinds(self.inertia, self.omega_body, self.loads, _timed(self.loads))
 
-    @property
+    @cached_property
     def moment_free(self):
         """(n,) True where no moment acts."""
-        return ~(_moments_act(*(self.loads[name] for name in _TURNING))
-                 | _tabulated_acting(self.loads["tabulated"], _TURNING))
+        return ~_turning(self.loads)
 
-    @property
+    @cached_property
     def translates(self):
         """(n,) True where the centre of mass moves (initial velocity or a force)."""
-        return (_acting(self.velocity, *(self.loads[name] for name in _FORCES))
-                | _tabulated_acting(self.loads["tabulated"], _FORCES))
+        return _moving(self.velocity, self.loads)
 
 
 def param_rows(scenes):
@@ -289,10 +299,11 @@ def _triangle_ok(inertia):
 
 def _in_principal(axes, vectors):
     """Input-frame vectors (n, ..., 3) in the principal frame (``axes`` (n, 3, 3) as columns,
-    None for the identity)."""
+    None for the identity); either may have one row for all n."""
     if axes is None:
         return vectors
-    return np.einsum("nji,n...j->n...i", axes, vectors)
+    turn = axes.reshape(axes.shape[:1] + (1,) * (vectors.ndim - 2) + (3, 3))
+    return (vectors[..., None, :] @ turn)[..., 0, :]
 
 
 def _principal(reader, tensor, key):
@@ -444,8 +455,17 @@ def _read_nodes(reader, spec, path, size):
 
 def _lever(offsets, forces):
     """The `Loads.lever` of space ``forces`` (n, ..., 3) at principal ``offsets`` (n, 3): the
-    rows ``d[b] F`` of ``d F^T``, (n, ..., 9)."""
-    return np.einsum("na,n...b->n...ab", offsets, forces).reshape(forces.shape[:-1] + (9,))
+    rows ``d[b] F`` of ``d F^T``, (n, ..., 9) (either may have one row for all n)."""
+    product = _along(offsets, forces)[..., :, None] * forces[..., None, :]
+    return product.reshape(product.shape[:-2] + (9,))
+
+
+def _alike(array):
+    """``array`` (n, ...) as one row when every row equals the first (the scenes share it),
+    else as it is: loads tabulated at K knots are then computed once, not n times."""
+    if array is None or len(array) <= 1 or not (array == array[:1]).all():
+        return array
+    return array[:1]
 
 
 def _along(offsets, vectors):
@@ -463,9 +483,9 @@ class _Timed:
     scale: np.ndarray
 
     def at(self, knots):
-        """The load (n, K, 3) at ``knots`` (K,)."""
-        values = np.stack([table.at(knots) for table in self.tables])[self.index]
-        return values * self.scale[:, None, None]
+        """The load (n, K, 3) at ``knots`` (K,); (1, K, 3) when the scenes share it."""
+        values = np.stack([table.at(knots) for table in self.tables])[_alike(self.index)]
+        return values * _alike(self.scale)[:, None, None]
 
 
 def _read_timed(reader, spec, key, size):
@@ -513,7 +533,8 @@ def _timed_loads(reader, spec, path, nodal, size):
 class _LoadSets:
     """The loads of n scenes while they are read: the constant ones (name -> (n, 3), (n, 9)
     for the lever) and those tabulated in time at the ``knots`` (K,) (name -> (n, K, 3),
-    (n, K, 9)), each added to as it is read."""
+    (n, K, 9), or one row (1, K, ...) while every scene has the same), each added to as it
+    is read."""
 
     def __init__(self, reader, timed, size):
         self.reader, self.timed, self.size = reader, timed, size
@@ -521,29 +542,32 @@ class _LoadSets:
                                                                timed.values()
                                                                for table in load.tables]))
         self.constant = {name: np.zeros((size, _WIDTHS[name])) for name in _FIELDS}
-        self.tabulated = {name: np.zeros((size, len(self.knots), _WIDTHS[name]))
+        self.tabulated = {name: np.zeros((1, len(self.knots), _WIDTHS[name]))
                           for name in _FIELDS}
 
     def read(self, value, key):
-        """The load at ``key``, constant (n, 3) or tabulated at the knots (n, K, 3)."""
+        """The load at ``key``, constant (n, 3) or tabulated at the knots (n or 1, K, 3)."""
         if key in self.timed:
             return self.timed[key].at(self.knots)
         return rows(self.reader.vector(value, key), self.size)
 
     def add(self, name, value):
-        """Add ``value`` ((n, w) or (n, K, w), as `read` gives it) to the load ``name``."""
+        """Add ``value`` ((n, w) or (n or 1, K, w), as `read` gives it) to the load ``name``."""
         loads = self.constant if value.ndim == 2 else self.tabulated
         loads[name] = loads[name] + value
 
     def columns(self):
-        """The `SceneTable.loads` columns: the constant loads, the knots and the records."""
-        record = np.zeros((self.size, len(self.knots), S.LOAD_RECORD))
+        """The `SceneTable.loads` columns: the constant loads, the knots and the records
+        (read-only views, of one row when every scene has the same)."""
+        shape = (self.size, len(self.knots))
+        record = np.zeros((max(len(value) for value in self.tabulated.values()), shape[1],
+                           S.LOAD_RECORD))
         for name, offset in _FIELDS.items():
             start = offset - S.FORCE_SPACE
             record[..., start:start + _WIDTHS[name]] = self.tabulated[name]
         record.setflags(write=False)  # each scene's `Loads` holds a view of it
-        return {**self.constant, "knots": np.broadcast_to(self.knots, (self.size, len(self.knots))),
-                "tabulated": record}
+        return {**self.constant, "knots": np.broadcast_to(self.knots, shape),
+                "tabulated": np.broadcast_to(record, shape + (S.LOAD_RECORD,))}
 
 
 def _add_nodal_loads(nodal, loads, points, axes):
@@ -554,7 +578,7 @@ def _add_nodal_loads(nodal, loads, points, axes):
     lever, evaluated every step by the kernels). Constant and tabulated loads aggregate
     alike (each is linear in the nodal loads)."""
     for key, name, node_spec in nodal:
-        offset = points[name]
+        offset = _alike(points[name])
         for load, value in node_spec.items():
             given = loads.read(value, f"{key}.{load}")
             if load.endswith("_body"):
@@ -625,14 +649,15 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     for name in _LOADS:
         if name in loads_spec:
             given = loads.read(loads_spec[name], f"{loads_path}.{name}")
-            loads.add(name, _in_principal(axes, given) if name in _IN_BODY_AXES else given)
+            loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES
+                      else given)
     if assembled is not None:
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
-        first_moment = _in_principal(axes, assembled.first_moment[:, None, :])[:, 0]
+        first_moment = _alike(_in_principal(axes, assembled.first_moment[:, None, :])[:, 0])
         for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
             loads.add("lever", _lever(first_moment, gravity))
-    _add_nodal_loads(nodal, loads, points, axes)
+    _add_nodal_loads(nodal, loads, points, _alike(axes))
     tables = () if assembled is None else secondaries.tables
     tables += tuple(sorted({table.digest for load in loads.timed.values()
                             for table in load.tables if table.digest is not None}))

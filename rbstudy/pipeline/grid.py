@@ -62,6 +62,16 @@ _SHORT_ORDER = ("scheme", "dt", "inertia_ratio", "tilt", "spin")
 
 # Swept values must leave one output grid for every case.
 _NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
+
+
+def _list_fix(key):
+    """How to sweep what is a list rather than one value: a load's table by its file, a
+    vector entry by entry."""
+    if ".loads." in key and key.endswith(".table"):
+        return "sweep load tables by file name (write each table to a file)"
+    return "sweep a vector one entry at a time (path.0, path.1...)"
+
+
 # Names the dataset already uses: a zipped dimension may not take them.
 RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
     frozenset(VARIABLES)
@@ -107,9 +117,7 @@ def _scalar_values(reader, key, values):
         if not isinstance(value, (int, float, str)):  # a bool is an int
             reader.fail(f"{key}[{i}]", f"sweep values must be numbers, names or true/false, "
                                        f"got {value!r:.80}",
-                        "sweep load tables by file name (write each table to a file)"
-                        if ".table" in key else
-                        "sweep a vector one entry at a time (path.0, path.1...)")
+                        _list_fix(key))
         if not isinstance(value, (str, bool)):
             reader.number(value, f"{key}[{i}]")  # finite
     # a flag is kept apart from the number it equals (true == 1)
