@@ -12,9 +12,11 @@ only (nothing here integrates, so the figures may draw a closed form without a c
 - the flip interval of a free asymmetric body and the precession frequency of a free
   symmetric one.
 
-`reference_kinds` names the reference of each scene: one of the closed forms, or ``dop853``
-(scipy's DOP853 at rtol = atol = 1e-13, computed by `rbstudy.physics.references`) for
-everything else (asymmetric bodies, body-fixed forces, space moments).
+`reference_kinds` names the reference of each scene: one of the closed forms,
+``exact_asymmetric`` for a free asymmetric body (Jacobi's elliptic functions, evaluated by
+the compiled `rbstudy.numerics.free_flow`), or ``dop853`` (scipy's DOP853 at rtol = atol =
+1e-13, computed by `rbstudy.physics.references`) for everything else (moments other than an
+axial one, body-fixed forces, forces off the centre, loads that vary in time).
 """
 
 import math
@@ -32,8 +34,9 @@ __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis",
 # Every reference an archive can name, in the order of their codes in the archive's
 # `reference` flag (append only: archives store the codes). ``dop853`` is integrated, not
 # closed; ``none`` marks a case whose DOP853 reference passed its step budget (or failed):
-# its errors against a reference are NaN.
-REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none")
+# its errors against a reference are NaN. ``exact_asymmetric`` (added in 0.4) is the exact
+# free motion of any body, used where the body is not symmetric.
+REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asymmetric")
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
 # symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of
@@ -151,7 +154,7 @@ def _axial_indices(omega0, moment_body):
 
 
 def reference_kinds(inertia, omega_body, loads, timed=False):
-    """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the closed form
+    """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the exact solution
     that applies to its rotation and centre of mass, else ``dop853``. Arguments are the
     scenes' principal inertias and initial body angular velocities, each (n, 3), their
     constant loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3)
@@ -166,9 +169,10 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     turned_in_space = np.any(moment_space != 0.0, axis=-1)
     moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
     axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
+    symmetric = symmetry_axes(inertia) >= 0
     return np.where(
         pushed, "dop853",
-        np.where(moment_free & (symmetry_axes(inertia) >= 0), "symmetric_top",
+        np.where(moment_free, np.where(symmetric, "symmetric_top", "exact_asymmetric"),
                  np.where(axial, "axial_moment", "dop853")))
 
 

@@ -1,8 +1,9 @@
 """References: the best available solution of each scene on an output grid, and its name.
 
-A closed form where one applies (`rbstudy.physics.analytic.reference_kinds`), scipy's DOP853
-at rtol = atol = 1e-13 otherwise, within a step budget. This module sits above the schemes
-because the fallback integrates; the closed forms themselves stay numba-free in `analytic`.
+An exact solution where one applies (`rbstudy.physics.analytic.reference_kinds`), scipy's
+DOP853 at rtol = atol = 1e-13 otherwise, within a step budget. This module sits above the
+schemes because the fallback integrates; the closed forms of `analytic` stay numba-free, and
+the exact free asymmetric body is the compiled `rbstudy.numerics.free_flow`.
 """
 
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ import numpy as np
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import HALT_FLAG, Halted
+from rbstudy.numerics.free_flow import free_flow_batch
 from rbstudy.physics.analytic import (
     axial_moment,
     parabola,
@@ -53,6 +55,19 @@ def _symmetric_tops(scenes, times):
             for k, scene in enumerate(scenes)]
 
 
+def _free_bodies(scenes, times):
+    """The free asymmetric bodies, every body and time in one compiled call (each time from
+    the initial state: nothing accumulates along the run)."""
+    quaternion = np.empty((len(scenes), times.size, 4))
+    omega = np.empty((len(scenes), times.size, 3))
+    free_flow_batch(np.array([scene.body.inertia for scene in scenes], dtype=float),
+                    np.array([scene.quaternion for scene in scenes], dtype=float),
+                    np.array([scene.omega_body for scene in scenes], dtype=float),
+                    times, quaternion, omega)
+    return [Reference("exact_asymmetric", quaternion[k], omega[k], *parabola(scene, times))
+            for k, scene in enumerate(scenes)]
+
+
 def _axial_moments(scenes, times):
     references = []
     for scene in scenes:
@@ -81,7 +96,8 @@ def _dop853(scenes, times):
 
 # How each reference kind (`rbstudy.physics.analytic.REFERENCE_KINDS`) is computed, for a
 # list of scenes at once (a test checks that every kind has its computation).
-COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments, "dop853": _dop853}
+COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments, "dop853": _dop853,
+           "exact_asymmetric": _free_bodies}
 
 
 def reference_solutions(scenes, times):
