@@ -20,7 +20,8 @@ shown=(
     abaqus_top:convergence_precession
     convergence_asymmetric:convergence_orientation convergence_asymmetric:work_precision
     high_spin:stability_map stiff_inertia:stability_map
-    long_run:invariant_drift intermediate_axis:convergence_orientation
+    long_run:invariant_drift long_run_convergence:convergence_orientation
+    intermediate_axis:convergence_orientation
     hht_damping:convergence_orientation spin_tilt:stability_map
     radioss_body:convergence_orientation radioss_spin_limit:stability_map
 )

@@ -34,8 +34,8 @@ __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis",
 # Every reference an archive can name, in the order of their codes in the archive's
 # `reference` flag (append only: archives store the codes). ``dop853`` is integrated, not
 # closed; ``none`` marks a case whose DOP853 reference passed its step budget (or failed):
-# its errors against a reference are NaN. ``exact_asymmetric`` (added in 0.4) is the exact
-# free motion of any body, used where the body is not symmetric.
+# its errors against a reference are NaN. ``exact_asymmetric`` (appended after 0.3) is the
+# exact free motion of any body, used where the body is not symmetric.
 REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asymmetric")
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
