@@ -91,9 +91,9 @@ def test_jacobi_functions_and_the_third_kind_keep_their_accuracy_up_to_the_separ
             turns = mp.nint(amplitude / mp.pi)
             exact_third = 2 * turns * mp.ellippi(n, m) + mp.ellippi(n, amplitude - turns * mp.pi, m)
             worst_third = max(worst_third, abs(third - float(exact_third)))
-    # measured: 2e-12 relative at m1 = 1e-20 (cn ~ 1e-9 next to K, where the rounding of
-    # K - u itself is 1e-23 of 1e-9 wide), 3e-14 at m1 = 1e-12; Pi within 4e-14 up to
-    # m1 = 1e-12 and 1e-12 at 1e-20 (eps / sqrt(k'), docs/theory.md)
+    # measured: relative 8e-14 up to m1 = 1e-6, 4e-13 at 1e-12, 2e-12 at 1e-20 (next to
+    # the zeros, where the rounding of u itself shows); Pi within 2e-15 up to m1 = 1e-6,
+    # 3e-14 at 1e-12 and 1.3e-12 at 1e-20 (~ eps / sqrt(k'), docs/theory.md)
     assert worst_relative < 5e-12
     assert worst_third < max(1e-14, 3e-16 / float(m1) ** 0.25)
 
