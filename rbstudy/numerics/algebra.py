@@ -8,11 +8,15 @@ an array over bodies and times: ``np.moveaxis(q, -1, 0)``) in the error measures
 adaptive reference. One formula, so the kernels' invariant checks, the archive's error
 measures and the reference scheme cannot disagree by the way they are written.
 
+The last two, the relabelling of a free body's axes (docs/theory.md s3), branch and take
+three floats: the exact flow compiles them (`free_flow`) and the numba-free flip interval
+(`rbstudy.physics.analytic`) calls them as Python.
+
 This module imports nothing: importing it compiles nothing.
 """
 
 __all__ = ["hamilton_product", "rotation_columns", "rotational_energy", "momentum_squared",
-           "relative_drift"]
+           "relative_drift", "momentum_excess", "circulation_axes"]
 
 
 def hamilton_product(a, b):
@@ -54,3 +58,34 @@ def relative_drift(value, initial):
     if initial > 0.0:
         return abs(value - initial) / initial
     return abs(value - initial)
+
+
+def momentum_excess(inertia, m, j):
+    """``G^2 - 2 E I_j`` of a body with principal inertias ``inertia`` and body angular
+    momentum ``m``, summed term by term (``sum_{n != j} m_n^2 (I_n - I_j) / I_n``): free of the
+    cancellation of ``|m|^2 - I_j m . w`` when two moments nearly agree."""
+    total = 0.0
+    for k in range(3):
+        if k != j:
+            total += m[k] * m[k] * (inertia[k] - inertia[j]) / inertia[k]
+    return total
+
+
+def circulation_axes(inertia, excess):
+    """The relabelling of a free body's principal axes (docs/theory.md s3), given the
+    body's ``excess = (G^2 - 2 E I_j for j = 0, 1, 2)`` (`momentum_excess`): the indices
+    ``(first, mid, third)``, ``third`` the axis the body circulates about (its largest when
+    the excess of the intermediate axis ``mid`` is positive, else its smallest), and the sign
+    (1.0 or -1.0) that ``first`` takes to keep the frame right-handed."""
+    lo, mid, hi = 0, 1, 2
+    if inertia[lo] > inertia[mid]:
+        lo, mid = mid, lo
+    if inertia[mid] > inertia[hi]:
+        mid, hi = hi, mid
+    if inertia[lo] > inertia[mid]:
+        lo, mid = mid, lo
+    if excess[mid] > 0.0:
+        first, third = lo, hi
+    else:
+        first, third = hi, lo
+    return first, mid, third, (1.0 if mid == (first + 1) % 3 else -1.0)

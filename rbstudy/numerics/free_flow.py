@@ -34,6 +34,11 @@ advances by the same amount. The time is reduced modulo the period and the whole
 are added as a multiple of that advance, computed once: nothing is integrated, and the
 error grows no faster than linearly with ``t`` (the rounding of ``t`` and of the period).
 
+`free_body` computes a body's constants once (the relabelling, amplitudes, rate, the complete
+integrals, ``u0``, the period and its advance); `free_motion` evaluates them at a time. The
+batch of the references takes the constants once per body; a step of a splitting scheme once
+per step.
+
 Permanent rotations (``m x w = 0``: about a principal axis, any axis of a spherical body, an
 axis in the plane of equal moments of a symmetric one) turn at constant ``w``. The
 separatrix (``k' = 0``) takes ``sn = tanh``, ``cn = dn = sech`` and the closed form
@@ -41,7 +46,9 @@ separatrix (``k' = 0``) takes ``sn = tanh``, ``cn = dn = sech`` and the closed f
 """
 
 import math
+from collections import namedtuple
 
+from rbstudy.numerics import algebra
 from rbstudy.numerics.elliptic import (
     complete_first,
     complete_third,
@@ -62,37 +69,19 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 
-__all__ = ["free_flow", "free_flow_batch"]
+__all__ = ["FreeBody", "free_body", "free_motion", "free_flow", "free_flow_batch"]
 
+momentum_excess = jit(algebra.momentum_excess)
+circulation_axes = jit(algebra.circulation_axes)
 
-@jit
-def _excess(inertia, m, j):
-    """``G^2 - 2 E I_j = sum_{n != j} m_n^2 (I_n - I_j) / I_n``, term by term."""
-    total = 0.0
-    for k in range(3):
-        if k != j:
-            total += m[k] * m[k] * (inertia[k] - inertia[j]) / inertia[k]
-    return total
-
-
-@jit
-def _sorted_axes(inertia):
-    """Indices of the smallest, intermediate and largest principal moment."""
-    lo, mid, hi = 0, 1, 2
-    if inertia[lo] > inertia[mid]:
-        lo, mid = mid, lo
-    if inertia[mid] > inertia[hi]:
-        mid, hi = hi, mid
-    if inertia[lo] > inertia[mid]:
-        lo, mid = mid, lo
-    return lo, mid, hi
-
-
-@jit
-def _permanent(q, omega, t):
-    """Rotation at constant ``omega`` about a fixed axis."""
-    turn = (omega[0] * t, omega[1] * t, omega[2] * t)
-    return quat_mul(q, quat_exp(turn)), omega
+# The constants of one body's free motion, in the relabelled frame (module docstring).
+# ``steady``: a permanent rotation at ``omega0``, the other fields unused. ``first, mid,
+# third, sign``: the relabelling. ``quarter``, ``whole``: K and Pi(n), inf on the separatrix
+# (``k2c = 0``), where ``period`` and ``advance`` are unused. ``tilt0``: B(0) as a quaternion.
+FreeBody = namedtuple("FreeBody", [
+    "steady", "omega0", "first", "mid", "third", "sign", "i1", "i2", "i3", "a1", "a2", "a3",
+    "rate", "k2", "k2c", "n", "g", "coefficient", "u0", "third_start", "quarter", "whole",
+    "period", "advance", "tilt0"])
 
 
 @jit
@@ -104,6 +93,101 @@ def _tilt(i1, i2, i3, a1, a2, a3, sn, cn, dn):
                      math.sqrt(i2 * abs(i3 - i1)) * sn)
     tilt = (math.sin(0.5 * theta), 0.0, 0.0, math.cos(0.5 * theta))
     return quat_mul_axis_rotation(tilt, 2, math.sin(0.5 * psi), math.cos(0.5 * psi))
+
+
+@jit
+def _separatrix_third(n, u):
+    """``Pi(n; am u | 1) = (u + sqrt(a) atan(sqrt(a) tanh u)) / (1 + a)``, ``a = -n``."""
+    root = math.sqrt(-n)
+    return (u + root * math.atan(root * math.tanh(u))) / (1.0 - n)
+
+
+@jit
+def _steady(omega):
+    return FreeBody(True, omega, 0, 1, 2, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+                    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0, 1.0))
+
+
+@jit
+def free_body(inertia, omega):
+    """The constants of the free motion of a body with principal inertias ``inertia`` (3-tuple,
+    kg m^2, any order, positive) from body angular velocity ``omega`` (3-tuple, rad/s): a
+    `FreeBody`."""
+    m = (inertia[0] * omega[0], inertia[1] * omega[1], inertia[2] * omega[2])
+    if cross(m, omega) == (0.0, 0.0, 0.0):
+        return _steady(omega)
+    excess = (momentum_excess(inertia, m, 0), momentum_excess(inertia, m, 1),
+              momentum_excess(inertia, m, 2))
+    first, mid, third, sign = circulation_axes(inertia, excess)
+    i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
+    w1, w2, w3 = sign * omega[first], omega[mid], omega[third]
+    d1, d2, d3 = excess[first], excess[mid], excess[third]
+    rate2 = (i3 - i2) * d1 / (i1 * i2 * i3)
+    if not rate2 > 0.0:
+        # moments equal to the last bits: the wobble has no measurable rate
+        return _steady(omega)
+    a1 = math.copysign(math.sqrt(-d3 / (i1 * (i3 - i1))), w1)
+    a2 = math.sqrt(-d3 / (i2 * (i3 - i2)))
+    a3 = math.copysign(math.sqrt(d1 / (i3 * (i3 - i1))), w3)
+    rate = math.copysign(math.sqrt(rate2), (i3 - i2) * a3 * a1)
+    k2 = (i2 - i1) * -d3 / ((i3 - i2) * d1)
+    k2c = (i3 - i1) * d2 / ((i3 - i2) * d1)
+    n = -i3 * (i2 - i1) / (i1 * (i3 - i2))
+    g = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    coefficient = g * (i3 - i1) / (i1 * i3 * rate)
+    sn0, cn0, dn0 = w2 / a2, w1 / a1, w3 / a3
+    u0 = first_kind(sn0, cn0, dn0)
+    if k2c > 0.0:
+        quarter = complete_first(k2c)
+        whole = complete_third(n, k2c, quarter)
+        period = 4.0 * quarter / abs(rate)
+        advance = g / i3 * period + coefficient * math.copysign(4.0 * whole, rate)
+        third_start = third_kind(n, sn0, cn0, dn0, u0, whole)
+    else:  # on the separatrix: no period
+        quarter, whole, period, advance = math.inf, math.inf, math.inf, 0.0
+        third_start = _separatrix_third(n, u0)
+    return FreeBody(False, omega, first, mid, third, sign, i1, i2, i3, a1, a2, a3, rate, k2,
+                    k2c, n, g, coefficient, u0, third_start, quarter, whole, period, advance,
+                    _tilt(i1, i2, i3, a1, a2, a3, sn0, cn0, dn0))
+
+
+@jit
+def free_motion(body, q, t):
+    """The state a time ``t`` (s, any sign) after orientation ``q`` (4-tuple, scalar-last,
+    body to space) of the free body ``body`` (`free_body`, from the angular velocity at that
+    same instant): ``(q, omega)``, a 4-tuple and a 3-tuple."""
+    if body.steady:
+        omega = body.omega0
+        return quat_mul(q, quat_exp((omega[0] * t, omega[1] * t, omega[2] * t))), omega
+    if body.k2c > 0.0:
+        periods = math.floor(t / body.period + 0.5)
+        tau = t - periods * body.period
+        u = body.u0 + body.rate * tau
+        turns = math.floor(u / (4.0 * body.quarter) + 0.5)
+        u -= 4.0 * body.quarter * turns
+        sn, cn, dn = jacobi(u, body.k2, body.k2c, body.quarter)
+        third_now = third_kind(body.n, sn, cn, dn, u, body.whole) + 4.0 * body.whole * turns
+    else:
+        periods, tau = 0.0, t
+        u = body.u0 + body.rate * tau
+        sn, cn, dn = jacobi(u, 1.0, 0.0, math.inf)
+        third_now = _separatrix_third(body.n, u)
+    precession = (periods * body.advance + body.g / body.i3 * tau
+                  + body.coefficient * (third_now - body.third_start))
+
+    half = 0.5 * precession
+    relative = quat_mul(
+        quat_mul_axis_rotation(quat_conj(body.tilt0), 2, math.sin(half), math.cos(half)),
+        _tilt(body.i1, body.i2, body.i3, body.a1, body.a2, body.a3, sn, cn, dn))
+    # back to the body's own axes: the vector part of the relative rotation, and w
+    vector = [0.0, 0.0, 0.0]
+    velocity = [0.0, 0.0, 0.0]
+    first, mid, third, sign = body.first, body.mid, body.third, body.sign
+    vector[first], vector[mid], vector[third] = sign * relative[0], relative[1], relative[2]
+    velocity[first], velocity[mid], velocity[third] = (sign * body.a1 * cn, body.a2 * sn,
+                                                       body.a3 * dn)
+    q_t = quat_mul(q, (vector[0], vector[1], vector[2], relative[3]))
+    return q_t, (velocity[0], velocity[1], velocity[2])
 
 
 @jit
@@ -121,72 +205,13 @@ def free_flow(inertia, q, omega, t):
     -------
     (q, omega) after ``t``: a 4-tuple and a 3-tuple.
     """
-    m = (inertia[0] * omega[0], inertia[1] * omega[1], inertia[2] * omega[2])
-    if cross(m, omega) == (0.0, 0.0, 0.0):
-        return _permanent(q, omega, t)
-    lo, mid, hi = _sorted_axes(inertia)
-    d2 = _excess(inertia, m, mid)
-    first, third = (lo, hi) if d2 > 0.0 else (hi, lo)
-    # the relabelled axes (first, mid, third), the first negated if that order is odd
-    s1 = 1.0 if mid == (first + 1) % 3 else -1.0
-    i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
-    w1, w2, w3 = s1 * omega[first], omega[mid], omega[third]
-    d1, d3 = _excess(inertia, m, first), _excess(inertia, m, third)
-    rate2 = (i3 - i2) * d1 / (i1 * i2 * i3)
-    if not rate2 > 0.0:
-        # moments equal to the last bits: the wobble has no measurable rate
-        return _permanent(q, omega, t)
-    a1 = math.copysign(math.sqrt(-d3 / (i1 * (i3 - i1))), w1)
-    a2 = math.sqrt(-d3 / (i2 * (i3 - i2)))
-    a3 = math.copysign(math.sqrt(d1 / (i3 * (i3 - i1))), w3)
-    rate = math.copysign(math.sqrt(rate2), (i3 - i2) * a3 * a1)
-    k2 = (i2 - i1) * -d3 / ((i3 - i2) * d1)
-    k2c = (i3 - i1) * d2 / ((i3 - i2) * d1)
-    n = -i3 * (i2 - i1) / (i1 * (i3 - i2))
-    g = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
-    coefficient = g * (i3 - i1) / (i1 * i3 * rate)
-    sn0, cn0, dn0 = w2 / a2, w1 / a1, w3 / a3
-    u0 = first_kind(sn0, cn0, dn0)
-
-    if k2c > 0.0:
-        quarter = complete_first(k2c)
-        whole = complete_third(n, k2c, quarter)
-        period = 4.0 * quarter / abs(rate)
-        periods = math.floor(t / period + 0.5)
-        tau = t - periods * period
-        advance = g / i3 * period + coefficient * math.copysign(4.0 * whole, rate)
-        u = u0 + rate * tau
-        turns = math.floor(u / (4.0 * quarter) + 0.5)
-        u -= 4.0 * quarter * turns
-        sn, cn, dn = jacobi(u, k2, k2c, quarter)
-        third_now = third_kind(n, sn, cn, dn, u, whole) + 4.0 * whole * turns
-        third_start = third_kind(n, sn0, cn0, dn0, u0, whole)
-    else:  # on the separatrix: no period
-        periods, advance, tau = 0.0, 0.0, t
-        u = u0 + rate * tau
-        sn, cn, dn = jacobi(u, 1.0, 0.0, math.inf)
-        a = -n
-        third_now = (u + math.sqrt(a) * math.atan(math.sqrt(a) * math.tanh(u))) / (1.0 + a)
-        third_start = (u0 + math.sqrt(a) * math.atan(math.sqrt(a) * math.tanh(u0))) / (1.0 + a)
-    precession = periods * advance + g / i3 * tau + coefficient * (third_now - third_start)
-
-    half = 0.5 * precession
-    relative = quat_mul(
-        quat_mul_axis_rotation(quat_conj(_tilt(i1, i2, i3, a1, a2, a3, sn0, cn0, dn0)), 2,
-                               math.sin(half), math.cos(half)),
-        _tilt(i1, i2, i3, a1, a2, a3, sn, cn, dn))
-    # back to the body's own axes: the vector part of the relative rotation, and w
-    vector = [0.0, 0.0, 0.0]
-    velocity = [0.0, 0.0, 0.0]
-    vector[first], vector[mid], vector[third] = s1 * relative[0], relative[1], relative[2]
-    velocity[first], velocity[mid], velocity[third] = s1 * a1 * cn, a2 * sn, a3 * dn
-    q_t = quat_mul(q, (vector[0], vector[1], vector[2], relative[3]))
-    return q_t, (velocity[0], velocity[1], velocity[2])
+    return free_motion(free_body(inertia, omega), q, t)
 
 
 @jit
 def free_flow_batch(inertia, quaternion, omega, times, quaternion_out, omega_out):
-    """`free_flow` of B bodies from their states at t = 0 to T times each, written in place.
+    """`free_flow` of B bodies from their states at t = 0 to T times each, written in place;
+    each body's constants computed once.
 
     Parameters
     ----------
@@ -198,11 +223,9 @@ def free_flow_batch(inertia, quaternion, omega, times, quaternion_out, omega_out
     omega_out : (B, T, 3), written.
     """
     for b in range(inertia.shape[0]):
-        body = read3(inertia[b], 0)
+        body = free_body(read3(inertia[b], 0), read3(omega[b], 0))
         q0 = read4(quaternion[b], 0)
-        w0 = read3(omega[b], 0)
         for k in range(times.size):
-            q_t, w_t = free_flow(body, q0, w0, times[k])
+            q_t, w_t = free_motion(body, q0, times[k])
             write4(quaternion_out[b, k], 0, q_t)
             write3(omega_out[b, k], 0, w_t)
-

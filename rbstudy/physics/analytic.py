@@ -23,8 +23,9 @@ import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.special import ellipk
+from scipy.special import ellipkm1
 
+from rbstudy.numerics import algebra
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
 __all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
@@ -189,36 +190,29 @@ def precession_frequency_exact(scene):
 def flip_interval_exact(scene):
     """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s.
 
-    ``w_mid = a2 sn(lambda t + u0 | k^2)`` (docs/theory.md s3) changes sign every ``2 K(k^2) /
-    |lambda|``: the Dzhanibekov flip interval near the intermediate axis, the half period of
-    the wobble elsewhere. With the axes sorted ``I1 < I2 < I3`` and ``m = I w``:
-    ``lambda^2 = (I3 - I2)(G^2 - 2E I1)/(I1 I2 I3)``,
-    ``k^2 = (I2 - I1)(2E I3 - G^2)/((I3 - I2)(G^2 - 2E I1))``, swapping the roles of I1 and
-    I3 when ``G^2 < 2E I2`` (circulation about the minimum axis). The differences
-    ``G^2 - 2E I_j`` are summed term by term, free of cancellation. None for symmetric or
-    loaded bodies, NaN when the body turns about a principal axis (no sign change).
+    ``w_mid = a2 sn(lambda t + u0 | k^2)`` (docs/theory.md s3) changes sign every
+    ``2 K(k^2) / |lambda|``: the Dzhanibekov flip interval near the intermediate axis, the
+    half period of the wobble elsewhere. In the relabelled axes of docs/theory.md s3 (the
+    circulation axis third, `algebra.circulation_axes`), with ``d_j = G^2 - 2E I_j`` summed
+    term by term (`algebra.momentum_excess`): ``lambda^2 = (I3 - I2) d1 / (I1 I2 I3)`` and
+    ``k'^2 = 1 - k^2 = (I3 - I1) d2 / ((I3 - I2) d1)``, from which ``K`` is taken
+    (``ellipkm1``: accurate as ``k' -> 0``). None for symmetric or loaded bodies, NaN when the
+    body turns about a principal axis (no sign change), inf on the separatrix.
     """
-    inertia = np.asarray(scene.body.inertia, dtype=float)
     if not scene.loads.moment_free or scene.body.symmetry_axis is not None:
         return None
-    order = np.argsort(inertia)
-    i = inertia[order]
-    m = i * np.asarray(scene.omega_body, dtype=float)[order]
-
-    def excess(j):  # G^2 - 2E I_j, term by term
-        return float(sum(m[n] ** 2 * (i[n] - i[j]) / i[n] for n in range(3) if n != j))
-
-    # G^2 > 2E I2: the body circulates about the maximum axis; else about the minimum one,
-    # and the formulas hold with I1 and I3 exchanged (all factors then change sign in pairs).
-    low, high = (0, 2) if excess(1) > 0 else (2, 0)
-    top, bottom = abs(excess(low)), abs(excess(high))
-    if top == 0.0 or bottom == 0.0:
+    inertia = tuple(float(v) for v in scene.body.inertia)
+    m = tuple(i * float(w) for i, w in zip(inertia, scene.omega_body, strict=True))
+    excess = tuple(algebra.momentum_excess(inertia, m, j) for j in range(3))
+    first, mid, third, _ = algebra.circulation_axes(inertia, excess)
+    if excess[first] == 0.0 or excess[third] == 0.0:
         return float("nan")  # a steady spin about a principal axis: no sign change
-    rate = math.sqrt(abs(i[high] - i[1]) * top / (i[0] * i[1] * i[2]))
-    parameter = abs(i[1] - i[low]) * bottom / (abs(i[high] - i[1]) * top)
-    if parameter >= 1.0:
+    i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
+    rate2 = (i3 - i2) * excess[first] / (i1 * i2 * i3)
+    complement = (i3 - i1) * excess[mid] / ((i3 - i2) * excess[first])
+    if complement <= 0.0:
         return float("inf")  # on the separatrix: one flip, never the next
-    return 2.0 * float(ellipk(parameter)) / rate
+    return 2.0 * float(ellipkm1(complement)) / math.sqrt(rate2)
 
 
 def parabola(scene, times):
