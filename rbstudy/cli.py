@@ -30,13 +30,17 @@ _SELECT_RTOL = 1e-12
 
 
 def _schemes(args):
-    from rbstudy.schemes import INVARIANTS, SCHEMES
-    print(f"{'scheme':10s} {'order':>5s} {'kind':9s} {'keeps':16s} options / summary")
+    from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES
+    width = max(map(len, SCHEMES))
+    print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
         keeps = ", ".join(INVARIANTS[name] for name in scheme.keeps) or "-"
         options = ", ".join(f"{o.name}={o.default}" for o in scheme.options)
-        print(f"{name:10s} {scheme.order:5d} {kind:9s} {keeps:16s} {scheme.summary}"
+        # a composition's orders: "2,4,6,8"
+        orders = next((",".join(map(str, COMPOSITION_ORDERS)) for o in scheme.options
+                       if o.sets_order), str(scheme.order))
+        print(f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} {scheme.summary}"
               + (f" [{options}]" if options else ""))
     return 0
 

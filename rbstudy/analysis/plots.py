@@ -86,6 +86,7 @@ SCHEME_STYLES = {
     "no_squish": ("tab:olive", "P", "--"),
     "rk4": ("tab:red", "o", "-"),
     "rkmk4": ("tab:pink", "X", "--"),
+    "exact_split": ("tab:cyan", "v", "-"),
     "dop853": ("black", "+", ":"),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.

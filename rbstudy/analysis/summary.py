@@ -134,6 +134,32 @@ def _kept(drifts, scheme, stable):
 
 
 def scheme_rows(ds):
+    """One dict per scheme (`_scheme_rows`), and per value of a swept composition.
+
+    Where the study sweeps an option that sets the nominal order (``composition``: the
+    archive's ``nominal_order`` runs along its dimension too), a scheme whose order changes
+    along it gets a row per value, named ``splitting, composition 4``, fitted over that
+    value's cases alone; a scheme the option does not apply to keeps one row.
+    """
+    dims = [d for d in ds["nominal_order"].dims if d != "scheme"] if "nominal_order" in ds.coords \
+        else []
+    if not dims:
+        return _scheme_rows(ds)
+    dim = dims[0]
+    per_value = [_scheme_rows(ds.isel({dim: k})) for k in range(ds.sizes[dim])]
+    rows = []
+    for i, scheme in enumerate(schemes_of(ds)):
+        if np.unique(per_scheme(ds["nominal_order"], scheme).values).size == 1:
+            rows.append(per_value[0][i])
+            continue
+        for k, value in enumerate(ds[dim].values):
+            row = per_value[k][i]
+            row["scheme"] = f"{scheme}, {dim} {value:g}"
+            rows.append(row)
+    return rows
+
+
+def _scheme_rows(ds):
     """One dict per scheme.
 
     Keys: scheme; nominal (the scheme's nominal order as archived, None if the archive does

@@ -29,7 +29,7 @@ from rbstudy.pipeline.variables import (
 )
 from rbstudy.pipeline.yaml_file import read_study_file
 from rbstudy.reader import Reader
-from rbstudy.schemes import get_scheme
+from rbstudy.schemes import SCHEMES, composition_reach, get_scheme
 
 __all__ = ["StudyConfig", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
 
@@ -51,7 +51,8 @@ class StudyConfig:
     of the dimensions (`rbstudy.pipeline.grid.Cases`: its distinct scenes and runs). variables : the stored
     variable names. batches : the `rbstudy.pipeline.batches.Batch`es. schemes : what the
     archive records of each scheme, name -> {coordinate: value}
-    (`rbstudy.pipeline.variables.SCHEME_COORDINATES`). n_times : output samples per case.
+    (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the nominal order a tuple along
+    `order_dimension` where a composition is swept). n_times : output samples per case.
     """
 
     path: str
@@ -67,6 +68,12 @@ class StudyConfig:
     variables: tuple
     batches: tuple
     schemes: dict
+
+    @property
+    def order_dimension(self):
+        """``(dimension name, option name, values)`` of a swept option that sets the nominal
+        order (a composition), or None."""
+        return order_dimension(self.dimensions)
 
     @property
     def n_times(self):
@@ -103,20 +110,32 @@ class StudyConfig:
 def _knot_warnings(cases, duration):
     """A warning when a knot of the loads tabulated in time falls inside a step of a fixed-step
     scheme of order above 2: the kink of the load there costs that scheme its order (rk4
-    converges at order 2 only, measured), while knots on multiples of dt keep it."""
-    knots = np.asarray(cases.scenes.loads["knots"])[0]
-    knots = knots[(knots > 0.0) & (knots < duration)]
+    converges at order 2 only, measured), while knots on multiples of dt keep it. A
+    composition whose stages reach outside the step (the triple jump) crosses every knot and
+    the tables' ends, wherever they are."""
+    tabulated = np.asarray(cases.scenes.loads["knots"])[0]
+    knots = tabulated[(tabulated > 0.0) & (tabulated < duration)]
     for run in cases.runs:
         scheme = get_scheme(run.scheme)
-        if scheme.order <= 2 or scheme.adaptive:
+        order = scheme.nominal_order(run.options)
+        if order <= 2 or scheme.adaptive:
             continue
+        composed = any(option.sets_order and option.name in run.options
+                       for option in scheme.options)
+        earliest, latest = composition_reach(order) if composed else (0.0, 1.0)
+        if tabulated.size and (earliest < 0.0 or latest > 1.0):
+            return (f"scene.loads: {run.scheme} with composition {order} takes the loads up to "
+                    f"{max(-earliest, latest - 1.0):.2f} dt outside each step, across the "
+                    "knots and ends of the load tables: it converges at order 2 only under "
+                    "loads tabulated in time; use composition 6 or 8, whose stages stay "
+                    "inside the step",)
         steps = knots / run.dt
         inside = knots[np.abs(steps - np.round(steps)) > 1e-9 * np.maximum(steps, 1.0)]
         if inside.size:
             more = f" (and {inside.size - 1} more)" if inside.size > 1 else ""
             return (f"scene.loads: the load tables' knot at t = {inside[0]:g} s{more} "
                     f"falls inside a step of dt = {run.dt:g} s: "
-                    f"{run.scheme} (order {scheme.order}) converges at order 2 only across it; "
+                    f"{run.scheme} (order {order}) converges at order 2 only across it; "
                     "put the knots on multiples of dt",)
     return ()
 
@@ -143,11 +162,35 @@ def _variables(reader, requested, scenes):
     return tuple(name for name in available if name in wanted or name in BOOKKEEPING)
 
 
-def _scheme_claims(cases):
-    """What the archive records of each scheme of the study: name -> {coordinate: value}."""
-    return {name: {coordinate: getattr(get_scheme(name), attribute)
-                   for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
-            for name in sorted({run.scheme for run in cases.runs})}
+def order_dimension(dimensions):
+    """``(dimension name, option name, values)`` of a swept scheme option that sets the
+    nominal order (``run.options.composition``), or None."""
+    setting = {option.name for scheme in SCHEMES.values() for option in scheme.options
+               if option.sets_order}
+    for dim in dimensions:
+        for axis in dim.axes:
+            option = axis.target.removeprefix("run.options.")
+            if axis.target.startswith("run.options.") and option in setting:
+                return dim.name, option, axis.values
+    return None
+
+
+def _scheme_claims(cases, dimensions):
+    """What the archive records of each scheme of the study: name -> {coordinate: value}.
+    The nominal order is that of the scheme's options (a composition sets it); where such an
+    option is swept, it is the tuple of orders along that option's dimension
+    (`order_dimension`)."""
+    swept = order_dimension(dimensions)
+    claims = {}
+    for name in sorted({run.scheme for run in cases.runs}):
+        scheme = get_scheme(name)
+        options = next(run.options for run in cases.runs if run.scheme == name)
+        claims[name] = {coordinate: getattr(scheme, attribute)
+                        for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
+        claims[name]["nominal_order"] = (
+            scheme.nominal_order(options) if swept is None else
+            tuple(scheme.nominal_order({**options, swept[1]: value}) for value in swept[2]))
+    return claims
 
 
 def _output_interval(reader, output, run, swept):
@@ -212,7 +255,7 @@ def load_study(path):
                         base=base, output_interval=interval, accuracy_bound=accuracy_bound,
                         duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=(),
-                        schemes=_scheme_claims(cases))
+                        schemes=_scheme_claims(cases, dimensions))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, base["scene"], dimensions, interval, variables, max_cases,
                            verdict={"accuracy_bound": accuracy_bound})

@@ -98,6 +98,8 @@ def estimate(study, cores=None):
     cores = cores or default_threads()
     cases = study.cases
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
+    run_seconds = np.array([get_scheme(run.scheme).seconds_per_step(run.options)
+                            for run in cases.runs])  # per distinct run, per body-step
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
@@ -106,11 +108,13 @@ def estimate(study, cores=None):
         else:
             steps = len(batch.cases) * round(study.duration / batch.dt)
         body_steps += steps
-        seconds += steps * scheme.step_seconds
+        # the cases of a batch may differ in options (a composition's stages)
+        batch_seconds = steps * float(np.mean(run_seconds[cases.run_rows[list(batch.cases)]]))
+        seconds += batch_seconds
         # a batch spreads its bodies over at most as many threads as it has bodies; dop853
         # is Python and holds the interpreter: one core
         spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
-        longest = max(longest, steps * scheme.step_seconds / spread)
+        longest = max(longest, batch_seconds / spread)
     # the references integrated: one per distinct scene without a closed form
     needs_dop853 = cases.scenes.reference_kinds == "dop853"
     over_budget = int(np.sum((needs_dop853 & (dop853_steps > REFERENCE_MAX_STEPS))

@@ -210,13 +210,17 @@ def _scheme_claims(study, dims):
     none for a one-scheme study); invariants as space-separated names, "none" for none."""
     schemes = (list(next(a.values for d in study.dimensions for a in d.axes
                          if a.target == "scheme")) if dims else [study.cases[0].scheme])
+    swept_order = study.order_dimension
     coords = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
         values = [study.schemes[scheme][name] for scheme in schemes]
+        along = dims
         if name == "claimed_invariants":
             values = np.array([" ".join(v) or "none" for v in values], dtype=object)
-        values = np.asarray(values).reshape(len(values) if dims else ())
-        coords[name] = (dims, values, cf_attrs(units, long_name))
+        if name == "nominal_order" and swept_order is not None:
+            along = dims + (swept_order[0],)  # the orders of a swept composition
+        shape = (len(values),) * bool(dims) + np.shape(values)[1:]
+        coords[name] = (along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
     return coords
 
 

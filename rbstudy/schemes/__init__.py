@@ -8,9 +8,12 @@ import importlib
 import pkgutil
 
 from rbstudy.errors import SchemeError
+from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
+from rbstudy.schemes._composition import stage_reach as composition_reach
 from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
-__all__ = ["SCHEMES", "INVARIANTS", "Option", "Scheme", "get_scheme"]
+__all__ = ["SCHEMES", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme", "composition_reach",
+           "get_scheme"]
 
 
 def _discover():

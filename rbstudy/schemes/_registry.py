@@ -21,6 +21,9 @@ class Option:
 
     ``parse(value) -> tuple of floats`` validates a user value and returns the floats stored at
     ``slot`` onward in the body's option row; it raises ``ValueError`` with the expectation.
+    ``sets_order``: the option's value is the scheme's nominal order (a composition).
+    ``cost(value)``: how many times the scheme's step its step costs with that value (the
+    stages of a composition); None for an option that does not change the cost.
     """
 
     name: str
@@ -28,6 +31,8 @@ class Option:
     description: str
     slot: int
     parse: Callable[[Any], tuple]
+    sets_order: bool = False
+    cost: Callable[[Any], int] | None = None
 
 
 @dataclass(frozen=True)
@@ -38,7 +43,7 @@ class Scheme:
     ----------
     name : registry name used in configs and on the command line.
     summary : one line for `rbstudy schemes`.
-    order : nominal global order of accuracy.
+    order : nominal global order of accuracy with the options' defaults (`nominal_order`).
     step_seconds : core-seconds one body-step takes, as `rbstudy bench` measured it on the
         development machine (one core, 1e4 bodies; dop853: per accepted step); the run-time
         forecast of `rbstudy validate` starts from it.
@@ -65,6 +70,22 @@ class Scheme:
         unknown = set(self.keeps) - set(INVARIANTS)
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
+
+    def nominal_order(self, values: Mapping | None = None):
+        """The nominal order with options ``values``: that of an option that sets it (a
+        composition), else `order`."""
+        for option in self.options:
+            if option.sets_order and values and option.name in values:
+                return int(values[option.name])
+        return self.order
+
+    def seconds_per_step(self, values: Mapping | None = None):
+        """`step_seconds` with options ``values``: a composition's step costs its stages."""
+        seconds = self.step_seconds
+        for option in self.options:
+            if option.cost is not None:
+                seconds *= option.cost((values or {}).get(option.name, option.default))
+        return seconds
 
     def option_row(self, values: Mapping | None = None):
         """Validate option ``values`` and pack them (defaults filled) into a (N_OPTION,) row."""
