@@ -269,15 +269,30 @@ def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
     return line
 
 
-def _reference_slopes(ax, dts, errors):
+def _guide_orders(ds, facet, value):
+    """`REFERENCE_ORDERS` and the nominal orders of a panel's schemes (a composition's 6, 8)."""
+    if "nominal_order" not in ds.coords:
+        return REFERENCE_ORDERS
+    nominal = ds["nominal_order"]
+    if facet in nominal.dims:
+        nominal = nominal.sel({facet: value})
+    return tuple(sorted(set(REFERENCE_ORDERS) | {int(o) for o in np.ravel(nominal.values)}))
+
+
+def _reference_slopes(ax, dts, errors, orders):
     finite = errors[np.isfinite(errors) & (errors > 0)]
     if finite.size == 0:
         return
     anchor_dt, anchor = dts.max(), np.median(finite)
-    for order in REFERENCE_ORDERS:
-        ax.plot(dts, anchor * (dts / anchor_dt) ** order, color="0.6", linestyle=":",
+    for order in orders:
+        # a steep guide stops at the smallest error shown: it never stretches the axis
+        # (order 8 over six halvings would add 15 empty decades)
+        shown = dts[anchor * (dts / anchor_dt) ** order >= finite.min()]
+        if shown.size < 2:
+            continue
+        ax.plot(shown, anchor * (shown / anchor_dt) ** order, color="0.6", linestyle=":",
                 linewidth=1, zorder=1)
-        ax.annotate(f"order {order}", (dts.min(), anchor * (dts.min() / anchor_dt) ** order),
+        ax.annotate(f"order {order}", (shown.min(), anchor * (shown.min() / anchor_dt) ** order),
                     fontsize=7, color="0.4")
 
 
@@ -350,7 +365,7 @@ def convergence(ds, folder, formats=FORMATS):
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
                             color=style["color"], zorder=1)
-                _reference_slopes(ax, dts, panel.values.ravel())
+                _reference_slopes(ax, dts, panel.values.ravel(), _guide_orders(ds, facet, value))
                 _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")

@@ -1,5 +1,5 @@
-"""Batches and identity: cases of one scheme and time step grouped into bounded batches, each
-named by a hash of what its part file holds.
+"""Batches and identity: cases of one scheme, time step and cost per step grouped into bounded
+batches, each named by a hash of what its part file holds.
 
 A batch is the unit of work for dask and of storage. Its id is ``<scheme>_dt<dt>_<hash>``, the
 hash of the canonical JSON (numbers normalised) of what makes its cases: the study's scene
@@ -49,7 +49,8 @@ def canonical_id(payload):
 
 @dataclass(frozen=True)
 class Batch:
-    """Cases of one scheme and time step, run as one dask task and stored as one part.
+    """Cases of one scheme, time step and cost per step, run as one dask task and stored as
+    one part.
 
     id : ``<scheme>_dt<dt>_<hash>`` (module docstring). cases : positions in the study's case
     list.
@@ -72,9 +73,12 @@ def ids_digest(ids):
 
 
 def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases,
-                 verdict=None):
-    """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt), in case order, into
-    batches of at most ``max_cases``.
+                 verdict=None, run_costs=None):
+    """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt) and, where the runs
+    differ in it, by their cost per step (``run_costs``, one number per run of ``cases.runs``:
+    a composition of order 8 takes 17 steps a step), in case order, into batches of at most
+    ``max_cases``. Cases of one batch share its kernel time equally, so a batch never mixes
+    costs.
 
     A batch's id hashes what its part holds and where it goes: the study's ``scene`` mapping
     and the grid (every dimension's axes and values), which with the cases' positions make
@@ -92,14 +96,15 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
         "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
         "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
         "source": SOURCE_DIGEST})
-    keys = {}  # (scheme, dt) -> group, in order of first use
-    group_of_run = np.array([keys.setdefault((run.scheme, run.dt), len(keys))
-                             for run in cases.runs])
+    costs = run_costs if run_costs is not None else [None] * len(cases.runs)
+    keys = {}  # (scheme, dt, cost) -> group, in order of first use
+    group_of_run = np.array([keys.setdefault((run.scheme, run.dt, cost), len(keys))
+                             for run, cost in zip(cases.runs, costs, strict=True)])
     groups = group_of_run[cases.run_rows]
     order = np.argsort(groups, kind="stable")  # each group's cases in case order
     starts = np.searchsorted(groups[order], np.arange(len(keys) + 1))
     batches = []
-    for (scheme, dt), group in keys.items():
+    for (scheme, dt, _), group in keys.items():
         members = order[starts[group]:starts[group + 1]]
         for start in range(0, len(members), max_cases):
             chunk = members[start:start + max_cases]

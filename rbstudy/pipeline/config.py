@@ -258,7 +258,9 @@ def load_study(path):
                         schemes=_scheme_claims(cases, dimensions))
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(cases, base["scene"], dimensions, interval, variables, max_cases,
-                           verdict={"accuracy_bound": accuracy_bound})
+                           verdict={"accuracy_bound": accuracy_bound},
+                           run_costs=[get_scheme(run.scheme).seconds_per_step(run.options)
+                                      for run in cases.runs])
     return dataclasses.replace(study, batches=batches)
 
 
