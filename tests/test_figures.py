@@ -38,7 +38,10 @@ def shrunk_config(name, folder):
     sweep = study.get("sweep", {})
     for axis, values in list(sweep.items()):
         if axis == "scheme":
-            sweep[axis] = SHRUNK_SCHEMES
+            # and the first scheme listed, so that a swept option (composition) keeps a
+            # scheme that has it
+            listed = [values[0]] if isinstance(values, list) else []
+            sweep[axis] = SHRUNK_SCHEMES + [s for s in listed if s not in SHRUNK_SCHEMES]
         elif axis == "zip":
             sweep[axis] = {dim: {a: _shrink(v) for a, v in group.items()}
                            for dim, group in values.items()}
