@@ -53,13 +53,15 @@ class Batch:
     one part.
 
     id : ``<scheme>_dt<dt>_<hash>`` (module docstring). cases : positions in the study's case
-    list.
+    list. step_seconds : the cost of a body-step of its run (`plan_batches`' ``run_costs``;
+    None when planned without them).
     """
 
     id: str
     scheme: str
     dt: float
     cases: tuple
+    step_seconds: float | None = None
 
 
 def batches_digest(batches):
@@ -104,7 +106,7 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
     order = np.argsort(groups, kind="stable")  # each group's cases in case order
     starts = np.searchsorted(groups[order], np.arange(len(keys) + 1))
     batches = []
-    for (scheme, dt, _), group in keys.items():
+    for (scheme, dt, cost), group in keys.items():
         members = order[starts[group]:starts[group + 1]]
         for start in range(0, len(members), max_cases):
             chunk = members[start:start + max_cases]
@@ -113,5 +115,5 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
                 "positions": chunk.tolist(), "study": study_digest,
                 "runs": [[run.scheme, run.dt, run.options] for run in runs]})
             batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt,
-                                 tuple(chunk.tolist())))
+                                 tuple(chunk.tolist()), cost))
     return tuple(batches)

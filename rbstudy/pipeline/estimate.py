@@ -98,8 +98,6 @@ def estimate(study, cores=None):
     cores = cores or default_threads()
     cases = study.cases
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
-    run_seconds = np.array([get_scheme(run.scheme).seconds_per_step(run.options)
-                            for run in cases.runs])  # per distinct run, per body-step
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
@@ -108,8 +106,8 @@ def estimate(study, cores=None):
         else:
             steps = len(batch.cases) * round(study.duration / batch.dt)
         body_steps += steps
-        # the cases of a batch may differ in options (a composition's stages)
-        batch_seconds = steps * float(np.mean(run_seconds[cases.run_rows[list(batch.cases)]]))
+        # a batch holds one cost per body-step (a composition's stages: `plan_batches`)
+        batch_seconds = steps * batch.step_seconds
         seconds += batch_seconds
         # a batch spreads its bodies over at most as many threads as it has bodies; dop853
         # is Python and holds the interpreter: one core

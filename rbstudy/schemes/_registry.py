@@ -22,8 +22,8 @@ class Option:
     ``parse(value) -> tuple of floats`` validates a user value and returns the floats stored at
     ``slot`` onward in the body's option row; it raises ``ValueError`` with the expectation.
     ``sets_order``: the option's value is the scheme's nominal order (a composition).
-    ``cost(value)``: how many times the scheme's step its step costs with that value (the
-    stages of a composition); None for an option that does not change the cost.
+    ``cost(value)``: how many plain steps one step takes with that value (the stages of a
+    composition); None for an option that does not change the cost.
     """
 
     name: str
