@@ -61,7 +61,7 @@ def candidate_figures(ds):
     names = {"stability_map"}
     if "dt" in ds.dims:
         names.add("work_precision")
-        names |= {f"convergence_{key}" for key, (*_, variable) in ERROR_MEASURES.items()
+        names |= {f"convergence_{key}" for key, (*_, variable, _) in ERROR_MEASURES.items()
                   if variable in ds}
     if "energy_error" in ds:
         names.add("invariant_drift")

@@ -42,11 +42,13 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: 
 
 from rbstudy.analysis.summary import (  # noqa: E402
     ERROR_MEASURES,
+    UNCERTAINTY_FACTOR,
     error_measure,
     fitted_order,
     per_scheme,
     schemes_of,
     step_load,
+    uncertainty_of,
     verdicts,
 )
 from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
@@ -241,6 +243,28 @@ def zero_floor(values):
     return 10.0 ** (decade - 0.5)
 
 
+def _uncertainty_limit(uncertainty, facet, value, reduced, like):
+    """`UNCERTAINTY_FACTOR` times the reference's uncertainty of a panel's points, the
+    largest over the ``reduced`` dims (cases whose reference is exact do not count), like
+    the panel ``like``: NaN where no case's reference is uncertain."""
+    if uncertainty is None:
+        return like.copy(data=np.full(like.shape, np.nan))
+    picked = uncertainty.sel({facet: value}) if facet else uncertainty
+    return UNCERTAINTY_FACTOR * (picked.max(reduced, skipna=True) if reduced else picked)
+
+
+def _mark_uncertainty(ax, limits):
+    """A dashed line at the largest of a panel's ``limits``, below which no order is fitted
+    (nothing when no reference of the panel is uncertain)."""
+    finite = limits[np.isfinite(limits)]
+    if not finite.size:
+        return
+    ax.axhline(finite.max(), color="0.35", linewidth=0.8, linestyle="--", zorder=1)
+    ax.annotate(f"{UNCERTAINTY_FACTOR:g} x reference uncertainty: not fitted below",
+                (0.99, finite.max()), xycoords=("axes fraction", "data"), xytext=(0, 3),
+                textcoords="offset points", fontsize=7, color="0.3", ha="right")
+
+
 def _mark_floor(ax, floor):
     """Draw and label the floor line (after the data, so that the limits know the data)."""
     if floor is None:
@@ -296,10 +320,12 @@ def _reference_slopes(ax, dts, errors, orders):
                     fontsize=7, color="0.4")
 
 
-def _fit_label(name, errors, fit, round_off, failed):
+def _fit_label(name, errors, fit, round_off, failed, limits):
     """``rk4 (order 4.00, finest 4.01)``, or why a line has no order: failed (``failed``: a
     case of the line did; else it had no reference), exact, at round-off (an invariant kept:
-    errors at or below ``round_off``), or no asymptotic range."""
+    errors at or below ``round_off``), within the reference's uncertainty (every error at or
+    below its ``limits``, `UNCERTAINTY_FACTOR` times the uncertainty), or no asymptotic
+    range."""
     finite = errors[np.isfinite(errors)]
     if np.isfinite(fit.order):
         text = f"order {fit.order:.2f}, finest {fit.finest_slope:.2f}"
@@ -309,6 +335,8 @@ def _fit_label(name, errors, fit, round_off, failed):
         text = "exact at every dt"
     elif np.all(finite <= round_off):
         text = "at round-off at every dt"
+    elif np.all(errors[np.isfinite(errors)] <= limits[np.isfinite(errors)]):
+        text = f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty at every dt"
     else:
         text = "no asymptotic range"
     return f"{name} ({text})".strip()
@@ -329,20 +357,25 @@ def convergence(ds, folder, formats=FORMATS):
             continue  # not stored: not a figure this study could have
         panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced)
                   for value in values]
+        uncertainty = uncertainty_of(ds, key, measure)
+        limits = [_uncertainty_limit(uncertainty, facet, value, reduced, panel)
+                  for value, panel in zip(values, panels, strict=True)]
         failures = [_worst((ds["status"] != 0).sel({facet: value}) if facet
                            else ds["status"] != 0, reduced) for value in values]
         # a panel whose every case finished without a reference has nothing to show
         shown = [k for k, (panel, failed) in enumerate(zip(panels, failures, strict=True))
                  if np.isfinite(panel.values).any() or failed.values.any()] or list(range(len(values)))
         unreferenced = [values[k] for k in range(len(values)) if k not in shown]
-        facet_values, panels, failures = ([items[k] for k in shown]
-                                          for items in (values, panels, failures))
-        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key),
-                  bool(failed.values.any()))
-                 for (line_name, style, data), (*_, failed) in zip(
-                     _lines(panel, line_dim), _lines(failures_of_panel, line_dim), strict=True)]
-                for panel, failures_of_panel in zip(panels, failures, strict=True)]
-        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _ in panel):
+        facet_values, panels, failures, limits = ([items[k] for k in shown]
+                                                  for items in (values, panels, failures, limits))
+        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key, limit.values),
+                  bool(failed.values.any()), limit.values)
+                 for (line_name, style, data), (*_, failed), (*_, limit) in zip(
+                     _lines(panel, line_dim), _lines(failures_of_panel, line_dim),
+                     _lines(panel_limits, line_dim), strict=True)]
+                for panel, failures_of_panel, panel_limits in zip(panels, failures, limits,
+                                                                  strict=True)]
+        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _, _ in panel):
             figures.absent[name] = (
                 f"no case has a reference to measure the {label} against (reference = none)"
                 if _unreferenced(ds).all() else
@@ -352,20 +385,23 @@ def convergence(ds, folder, formats=FORMATS):
         with plt.rc_context(_RC):
             fig, axes = _grid(len(facet_values), width=6.4)
             floors = []
-            for ax, value, panel, lines in zip(axes, facet_values, panels, fits, strict=True):
+            for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits,
+                                                      strict=True):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for line_name, style_key, errors, fit, failed in lines:
+                for line_name, style_key, errors, fit, failed, line_limits in lines:
                     style = _style(style_key)
                     plot_with_zeros(ax, dts, errors, floor,
-                                    _fit_label(line_name, errors, fit, round_off, failed),
+                                    _fit_label(line_name, errors, fit, round_off, failed,
+                                               line_limits),
                                     style)
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
                             color=style["color"], zorder=1)
                 _reference_slopes(ax, dts, panel.values.ravel(), _guide_orders(ds, facet, value))
+                _mark_uncertainty(ax, limit.values)
                 _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
@@ -375,7 +411,7 @@ def convergence(ds, folder, formats=FORMATS):
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
                 else ""
             unjudged_gap = any(not failed and not np.isfinite(errors).all()
-                               for panel in fits for _, _, errors, _, failed in panel)
+                               for panel in fits for _, _, errors, _, failed, _ in panel)
             gaps = ("failed cases, or cases without a reference"
                     if unjudged_gap and _unreferenced(ds).any() else "failed cases")
             left_out = ("; not shown, without a reference: "

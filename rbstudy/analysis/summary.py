@@ -16,34 +16,45 @@ from rbstudy.numerics.state import INVARIANTS
 from rbstudy.physics.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TABLE_NOTE",
-           "error_measure", "fitted_order", "scheme_rows", "format_table", "order_text",
+           "error_measure", "fitted_order", "uncertainty_of", "UNCERTAINTY_FACTOR",
+           "scheme_rows", "format_table", "order_text",
            "table_columns", "schemes_of", "per_scheme", "step_load"]
 
-# name -> (label, units, floor, ceiling, stored variable). Below the floor an error is
-# round-off: a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
-# to 1); energy and |L| are relative to their exact start values and sit lower. Above the
-# ceiling it is not asymptotic (or the run failed). `metrics.asymptotic_order` also cuts the
-# range where the local slopes stop agreeing, so a floor set a little low costs nothing.
+# name -> (label, units, floor, ceiling, stored variable, uncertainty of its reference or
+# None). Below the floor an error is round-off: a few hundred ulps of the quantity (rounding
+# summed over 1e3-1e4 steps, relative to 1); energy and |L| are relative to their exact start
+# values and sit lower. Above the ceiling it is not asymptotic (or the run failed).
+# `metrics.asymptotic_order` also cuts the range where the local slopes stop agreeing, so a
+# floor set a little low costs nothing. A measure taken against an integrated reference also
+# has a floor of `UNCERTAINTY_FACTOR` times that reference's uncertainty, case by case.
 ERROR_MEASURES = {
-    "orientation": ("final orientation error", "rad", 1e-13, 1e-1, "final_orientation_error"),
-    "omega": ("max relative angular velocity error", "1", 1e-13, 1e-1, "omega_error"),
-    "nodes": ("max node position error", "m", 1e-13, 1e-1, "node_error"),
-    "energy": ("max relative energy error", "1", 1e-15, 1e-1, "max_energy_error"),
+    "orientation": ("final orientation error", "rad", 1e-13, 1e-1, "final_orientation_error",
+                    "reference_uncertainty"),
+    "omega": ("max relative angular velocity error", "1", 1e-13, 1e-1, "omega_error",
+              "reference_omega_uncertainty"),
+    "nodes": ("max node position error", "m", 1e-13, 1e-1, "node_error",
+              "reference_node_uncertainty"),
+    "energy": ("max relative energy error", "1", 1e-15, 1e-1, "max_energy_error", None),
     "momentum_magnitude": ("max relative error of |L| (magnitude)", "1", 1e-15, 1e-1,
-                           "max_momentum_magnitude_error"),
+                           "max_momentum_magnitude_error", None),
     # the vector L = R m at the samples carries the rounding of R and m over thousands of
     # steps: 1e-14 to 1e-13 for the schemes that keep it
-    "momentum_vector": ("max relative |L - L0| (vector)", "1", 1e-12, 1e-1, "momentum_error"),
+    "momentum_vector": ("max relative |L - L0| (vector)", "1", 1e-12, 1e-1, "momentum_error",
+                        None),
     "precession": ("|precession frequency error|", "rad/s", 1e-13, 1e-1,
-                   "precession_frequency_error"),
+                   "precession_frequency_error", None),
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
-    "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error"),
+    "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error", None),
 }
+# An error within this factor of its reference's uncertainty says as much about the reference
+# as about the scheme: no order is fitted through it.
+UNCERTAINTY_FACTOR = 10.0
 # What `scheme_rows` reads: per-case scalars, and momentum_error (the vector L is checked at
 # the samples: a time series per case).
 SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orientation_error",
                      "max_energy_error", "max_momentum_magnitude_error", "momentum_error",
-                     "initial_spin", "physical_body", "radioss_dt_limit")
+                     "initial_spin", "physical_body", "radioss_dt_limit",
+                     "reference_uncertainty")
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
@@ -60,10 +71,21 @@ def error_measure(ds, key):
     return abs(value.max(reduce, skipna=False) if reduce else value)
 
 
-def fitted_order(dts, errors, key):
+def uncertainty_of(ds, key, like):
+    """The uncertainty of the reference of measure ``key`` per case, broadcast like the
+    measure ``like``; None where the archive has none (closed-form references)."""
+    name = ERROR_MEASURES[key][5]
+    return ds[name].broadcast_like(like) if name is not None and name in ds else None
+
+
+def fitted_order(dts, errors, key, uncertainty=None):
     """Observed order of measure ``key`` over its asymptotic range, an
-    `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope)."""
-    _, _, floor, ceiling, _ = ERROR_MEASURES[key]
+    `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope). A point whose
+    error is below `UNCERTAINTY_FACTOR` times its reference's ``uncertainty`` (per point;
+    NaN or None: none known) is not fitted."""
+    _, _, floor, ceiling, *_ = ERROR_MEASURES[key]
+    if uncertainty is not None:
+        floor = np.fmax(floor, UNCERTAINTY_FACTOR * np.asarray(uncertainty, dtype=float))
     return asymptotic_order(dts, errors, floor, ceiling)
 
 
@@ -82,15 +104,22 @@ def step_load(ds):
     return (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"])
 
 
-def _orders(errors):
+def _orders(errors, uncertainty):
     """Observed orders over ``dt`` for every value of the other swept axes: the successful
-    fits, how many were tried, and the union of the dt values fitted."""
+    fits, how many were tried, and the union of the dt values fitted. ``uncertainty``: the
+    reference's, like ``errors``, or None."""
     others = [d for d in errors.dims if d != "dt"]
-    stacked = errors.stack(other=others) if others else errors.expand_dims(other=[0])
+
+    def stack(values):
+        return values.stack(other=others) if others else values.expand_dims(other=[0])
+
+    stacked = stack(errors)
+    limits = None if uncertainty is None else stack(uncertainty.transpose(*errors.dims))
     dts = errors["dt"].values
     fits, used = [], np.zeros(dts.shape, dtype=bool)
     for k in range(stacked.sizes["other"]):
-        fit = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE)
+        fit = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE,
+                           None if limits is None else limits.isel(other=k).values)
         if np.isfinite(fit.order):
             fits.append(fit)
             used |= fit.used
@@ -186,6 +215,7 @@ def _scheme_rows(ds):
     # every case's error measures, once for all schemes
     drifts = {label: error_measure(ds, key) for key, label in INVARIANTS.items()}
     orientation = error_measure(ds, _ORDER_MEASURE)
+    uncertainty = None if orientation is None else uncertainty_of(ds, _ORDER_MEASURE, orientation)
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         accurate, inaccurate, failed, unjudged = verdicts(ds, scheme)
@@ -212,7 +242,8 @@ def _scheme_rows(ds):
         if orientation is not None:
             errors = per_scheme(orientation, scheme)
             if "dt" in errors.dims:
-                fits, row["tries"], fitted = _orders(errors)
+                fits, row["tries"], fitted = _orders(
+                    errors, None if uncertainty is None else per_scheme(uncertainty, scheme))
                 row["fits"] = len(fits)
                 if fits:
                     row["order"] = (min(f.order for f in fits), max(f.order for f in fits))
@@ -293,9 +324,11 @@ def table_columns(rows):
 
 TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other swept axes "
               "(\"failed\" when a case there blew up, \"-\" when one had no reference: its "
-              "DOP853 reference passed its step budget); order: fitted per value of the other "
+              "integrations passed their step budgets); order: fitted per value of the other "
               "axes over its asymptotic range, (k/n) when only k of the n values had one (a "
-              "value where the scheme failed at most steps has none); finest pair: the local "
+              "value where the scheme failed at most steps has none), never through an error "
+              f"below {UNCERTAINTY_FACTOR:g}x its integrated reference's uncertainty "
+              "(reference_uncertainty); finest pair: the local "
               "slope between the two finest fitted steps; inaccurate: cases that finished "
               "but whose orientation error at some sample or energy or |L| drift passed the "
               "study's accuracy bound (unjudged: finished without a reference, and no "

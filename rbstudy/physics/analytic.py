@@ -14,9 +14,12 @@ only (nothing here integrates, so the figures may draw a closed form without a c
 
 `reference_kinds` names the reference of each scene: one of the closed forms,
 ``exact_asymmetric`` for a free asymmetric body (Jacobi's elliptic functions, evaluated by
-the compiled `rbstudy.numerics.free_flow`), or ``dop853`` (scipy's DOP853 at rtol = atol =
-1e-13, computed by `rbstudy.physics.references`) for everything else (moments other than an
-axial one, body-fixed forces, forces off the centre, loads that vary in time).
+the compiled `rbstudy.numerics.free_flow`), or ``exact_split_composition`` for everything
+else (moments other than an axial one, body-fixed forces, forces off the centre, loads that
+vary in time): two integrations by `rbstudy.physics.references`, the exact-flow splitting
+composed to order 8 at a fine step and scipy's DOP853 at rtol = atol = 1e-13, whose
+difference is the reference's uncertainty (DOP853 is the reference where the composition
+cannot be had).
 """
 
 import math
@@ -28,16 +31,22 @@ from scipy.special import ellipkm1
 from rbstudy.numerics import algebra
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
-__all__ = ["REFERENCE_KINDS", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
+__all__ = ["REFERENCE_KINDS", "INTEGRATED", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
            "reference_kinds", "symmetric_top", "axial_moment", "parabola",
            "precession_frequency_exact", "flip_interval_exact"]
 
 # Every reference an archive can name, in the order of their codes in the archive's
-# `reference` flag (append only: archives store the codes). ``dop853`` is integrated, not
-# closed; ``none`` marks a case whose DOP853 reference passed its step budget (or failed):
-# its errors against a reference are NaN. ``exact_asymmetric`` (appended after 0.3) is the
-# exact free motion of any body, used where the body is not symmetric.
-REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asymmetric")
+# `reference` flag (append only: archives store the codes). ``dop853`` and
+# ``exact_split_composition`` are integrated, not closed; ``none`` marks a case whose
+# integrated references both passed their step budgets (or failed): its errors against a
+# reference are NaN. ``exact_asymmetric`` (appended after 0.3) is the exact free motion of any
+# body, used where the body is not symmetric; ``exact_split_composition`` (appended after
+# 0.3) is the tight reference of a loaded body, which until then was DOP853.
+REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asymmetric",
+                   "exact_split_composition")
+# The reference planned for a scene no closed form covers (the integrations may end with
+# ``dop853`` or ``none`` instead).
+INTEGRATED = "exact_split_composition"
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
 # symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of
@@ -156,7 +165,7 @@ def _axial_indices(omega0, moment_body):
 
 def reference_kinds(inertia, omega_body, loads, timed=False):
     """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the exact solution
-    that applies to its rotation and centre of mass, else ``dop853``. Arguments are the
+    that applies to its rotation and centre of mass, else `INTEGRATED`. Arguments are the
     scenes' principal inertias and initial body angular velocities, each (n, 3), their
     constant loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3)
     (the lever (n, 9)), and ``timed`` (n,) (or one bool), True where a load varies in time
@@ -172,9 +181,9 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
     symmetric = symmetry_axes(inertia) >= 0
     return np.where(
-        pushed, "dop853",
+        pushed, INTEGRATED,
         np.where(moment_free, np.where(symmetric, "symmetric_top", "exact_asymmetric"),
-                 np.where(axial, "axial_moment", "dop853")))
+                 np.where(axial, "axial_moment", INTEGRATED)))
 
 
 def precession_frequency_exact(scene):

@@ -132,6 +132,9 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
     """Observed convergence order: the least-squares slope of log(error) against log(dt) over
     the asymptotic range only, as an `OrderFit`.
 
+    ``floor`` is one value or one per point (a point's error is not asymptotic below it: the
+    round-off, or what the reference's own uncertainty lets the point show).
+
     The asymptotic range is the longest run of at least `MIN_ASYMPTOTIC_POINTS` neighbouring
     time steps whose errors lie between ``floor`` (round-off) and ``ceiling``, whose local
     slopes all lie within ``spread`` of their fitted order (itself at least
@@ -144,6 +147,7 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
     """
     dts = np.asarray(dts, dtype=float)
     errors = np.asarray(errors, dtype=float)
+    floor = np.broadcast_to(np.asarray(floor, dtype=float), errors.shape)
     ascending = np.argsort(dts)
     usable = np.isfinite(errors) & (errors > floor) & (errors < ceiling)
     n = dts.size
@@ -157,8 +161,9 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
             local = np.diff(y) / np.diff(x)  # finest pair first
             positions = np.arange(local.size)
             drift = abs(np.polyfit(positions, local, 1)[0]) * (local.size - 1)
-            finer = errors[ascending[:start]]
-            rises = np.any(finer > max(errors[run[0]], ROUND_OFF_MARGIN * floor))
+            finer = ascending[:start]
+            rises = np.any(errors[finer] > np.maximum(errors[run[0]],
+                                                      ROUND_OFF_MARGIN * floor[finer]))
             if (order >= MIN_CONVERGENCE_ORDER and not rises and drift <= MAX_SLOPE_DRIFT
                     and np.all(np.abs(local - order) <= spread)):
                 used = np.zeros(n, dtype=bool)

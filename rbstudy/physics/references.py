@@ -1,28 +1,37 @@
 """References: the best available solution of each scene on an output grid, and its name.
 
-An exact solution where one applies (`rbstudy.physics.analytic.reference_kinds`), scipy's
-DOP853 at rtol = atol = 1e-13 otherwise, within a step budget. This module sits above the
-schemes because the fallback integrates; the closed forms of `analytic` stay numba-free, and
-the exact free asymmetric body is the compiled `rbstudy.numerics.free_flow`.
+An exact solution where one applies (`rbstudy.physics.analytic.reference_kinds`). A loaded
+body no closed form covers is integrated twice, independently, each within a step budget:
+by `exact_split` composed to order 8 at a fine step (the reference) and by scipy's DOP853 at
+rtol = atol = 1e-13 (its cross-check); how far apart they end up is the reference's
+``uncertainty``, which the archive keeps per case and the order fits respect. This module
+sits above the schemes because it integrates; the closed forms of `analytic` stay
+numba-free, and the exact free asymmetric body is the compiled `rbstudy.numerics.free_flow`.
 """
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import HALT_FLAG, Halted
 from rbstudy.numerics.free_flow import free_flow_batch
+from rbstudy.numerics.state import OK
+from rbstudy.physics import metrics
 from rbstudy.physics.analytic import (
+    INTEGRATED,
     axial_moment,
     parabola,
     reference_kinds,
     symmetric_top,
 )
+from rbstudy.physics.simulate import STEP_RTOL, simulate
 from rbstudy.schemes import dop853
 
 __all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",
-           "REFERENCE_MAX_STEPS", "REFERENCE_STEPS_PER_RADIAN"]
+           "REFERENCE_MAX_STEPS", "REFERENCE_STEPS_PER_RADIAN", "REFERENCE_SCHEME",
+           "REFERENCE_COMPOSITION", "COMPOSED_STEP_ANGLE", "composed_steps", "moment_bound"]
 
 # Accepted DOP853 steps one reference may take: about a minute (65 us a step, measured). A free
 # asymmetric body takes ~6.5 steps per radian of |w| T at rtol 1e-13 (measured for I = 1, 2, 3
@@ -31,19 +40,34 @@ __all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",
 REFERENCE_MAX_STEPS = 1_000_000
 # DOP853 steps per radian of |w| T, for that forecast.
 REFERENCE_STEPS_PER_RADIAN = 6.5
+# The composed reference: a momentum-exact, symmetric order-8 scheme whose free part is exact,
+# so that only the loads are approximated. Its step turns the body by at most this angle
+# (rad): measured on I = (1, 2, 3) under a space-fixed moment over 10 s against an
+# extended-precision solution, a step of 0.17 rad leaves 1e-13 rad of truncation error and
+# one of 0.085 rad 4e-14 (round-off: halving it again gains nothing, docs/theory.md s6).
+REFERENCE_SCHEME = "exact_split"
+REFERENCE_COMPOSITION = 8
+COMPOSED_STEP_ANGLE = 0.08
+# How far past the angle's step count `composed_steps` looks for one that puts the knots of
+# load tables on step boundaries (knots at decimal times find one within a few counts).
+_KNOT_SEARCH = 64
 
 
 @dataclass(frozen=True)
 class Reference:
     """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
     position and velocity (T, 3); ``name`` (one of the reference kinds of
-    `rbstudy.physics.analytic`) says where it comes from."""
+    `rbstudy.physics.analytic`) says where it comes from. ``uncertainty``: for an integrated
+    reference that a second, independent integration checked, how far that one lies from it
+    per error measure (orientation rad, omega relative, nodes m; `_differences`), else
+    empty."""
 
     name: str
     quaternion: np.ndarray
     omega_body: np.ndarray
     position: np.ndarray
     velocity: np.ndarray
+    uncertainty: dict = field(default_factory=dict)
 
 
 def _symmetric_tops(scenes, times):
@@ -77,27 +101,123 @@ def _axial_moments(scenes, times):
     return references
 
 
-def _dop853(scenes, times):
-    """DOP853 sampled at ``times``, case by case, each within `REFERENCE_MAX_STEPS` steps:
-    past them (or when DOP853 itself fails) the case has no reference ("none"), never a
-    hang."""
+def _dop853(scene, times):
+    """DOP853 at ``times``, or None past `REFERENCE_MAX_STEPS` steps (or when DOP853 itself
+    fails): no reference rather than a hang."""
+    run = dop853.integrate(scene.state_row(), scene.param_row(), times,
+                           max_steps=REFERENCE_MAX_STEPS, halt=HALT_FLAG)
+    if HALT_FLAG[0]:
+        raise Halted("the DOP853 references were halted")
+    if not run.finished:
+        return None
+    return Reference("dop853", **{name: run.samples[:, place]
+                                  for name, place in S.STATE_FIELDS.items()})
+
+
+def moment_bound(scene):
+    """An upper bound (N m) of the moment's magnitude at any time: every constant and
+    tabulated moment, and the lever of off-centre forces, added up."""
+    row = scene.param_row()
+    parts = [row[S.MOMENT_SPACE:S.MOMENT_BODY + 3], row[S.LEVER:S.LEVER + 9]]
+    records = np.reshape(row[S.N_PARAM + len(scene.loads.knots):], (-1, S.LOAD_RECORD))
+    first = S.MOMENT_SPACE - S.FORCE_SPACE
+    tabulated = np.abs(records[:, first:]).sum(axis=1).max(initial=0.0)
+    return float(sum(np.abs(part).sum() for part in parts) + tabulated)
+
+
+def composed_steps(scene, interval, least=None):
+    """The steps per output ``interval`` of the composed reference, at least ``least``, or
+    None when no step puts every knot of the scene's load tables on a step boundary (a
+    load's kink inside a step costs the composition its order; DOP853 restarts there
+    instead).
+
+    By default the step turns the body by at most `COMPOSED_STEP_ANGLE` at the rate
+    ``|w0| + sqrt(M / I_min)`` (M: `moment_bound`; the second term is the rate a moment of
+    that size swings the body at, as a pendulum's).
+    """
+    if least is None:
+        rate = (float(np.linalg.norm(scene.omega_body))
+                + np.sqrt(moment_bound(scene) / min(scene.body.inertia)))
+        least = max(1, math.ceil(interval * rate / COMPOSED_STEP_ANGLE))
+    knots = np.asarray(scene.loads.knots)
+    knots = knots[(knots > 0.0) & (knots < scene.duration)]
+    for count in range(least, least * _KNOT_SEARCH + 1):
+        steps = knots * (count / interval)
+        if np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0)):
+            return count
+    return None
+
+
+def _composed(scene, times):
+    """`REFERENCE_SCHEME` composed to order `REFERENCE_COMPOSITION` at `composed_steps` per
+    output interval of ``times`` (evenly spaced from 0), or None when it cannot be had: the
+    knots of the loads do not fit its steps, it fails, or it needs more than
+    `REFERENCE_MAX_STEPS` steps. A body that speeds up past the step's angle (a load pumps
+    it up) is run again at a step fitted to the fastest spin it reached."""
+    if times.size < 2 or not np.allclose(np.diff(times), times[1] - times[0]):
+        return None
+    interval = float(times[1] - times[0])
+    scene = replace(scene, duration=float(times[-1]))
+    count = composed_steps(scene, interval)
+    for _ in range(2):
+        if count is None or count * (times.size - 1) > REFERENCE_MAX_STEPS:
+            return None
+        run = simulate([scene], REFERENCE_SCHEME, interval / count, interval,
+                       {"composition": REFERENCE_COMPOSITION}, threads=1)
+        if run.results["status"][0] != OK:
+            return None
+        angle = float(run.results["max_step_angle"][0])
+        if angle <= 2.0 * COMPOSED_STEP_ANGLE:
+            break
+        count = composed_steps(scene, interval, math.ceil(count * angle / COMPOSED_STEP_ANGLE))
+    return Reference(INTEGRATED, **{name: run.field(name)[0] for name in S.STATE_FIELDS})
+
+
+def _largest(values):
+    """The largest finite value (NaN if none: a relative error against a body at rest)."""
+    values = np.asarray(values)[np.isfinite(values)]
+    return float(values.max()) if values.size else math.nan
+
+
+def _differences(scene, reference, check):
+    """How far ``check`` lies from ``reference`` in each error measure the references serve,
+    taken as the measures are: the orientation angle at the last output time (rad; the
+    fitted measure is the final orientation error, and DOP853's samples between its steps
+    are interpolated, ~1e-12 off), the largest relative angular velocity difference and the
+    largest node distance (m, 0 without nodes) over the output times."""
+    positions = [metrics.node_positions(r.quaternion, r.position, np.asarray(scene.nodes))
+                 for r in (check, reference)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return {"orientation": float(metrics.orientation_error(check.quaternion[-1],
+                                                               reference.quaternion[-1])),
+                "omega": _largest(metrics.omega_error(check.omega_body, reference.omega_body)),
+                "nodes": _largest(metrics.node_error(*positions)) if len(scene.nodes) else 0.0}
+
+
+def _integrated(scenes, times):
+    """Two independent integrations of each loaded scene: the exact-flow splitting composed to
+    order 8 at a fine step (`_composed`), which is the reference, and DOP853, its
+    cross-check; their difference is the reference's ``uncertainty``. Where knots of the load
+    tables cannot be put on the composition's steps, DOP853 is the reference and nothing
+    checks it; where one of the two is not had (a step budget passed, a failure) the other
+    is the reference, unchecked; where neither is, the case has no reference ("none"), never
+    a hang."""
     references = []
     for scene in scenes:
-        run = dop853.integrate(scene.state_row(), scene.param_row(), times,
-                               max_steps=REFERENCE_MAX_STEPS, halt=HALT_FLAG)
-        if HALT_FLAG[0]:
-            raise Halted("the DOP853 references were halted")
-        samples = run.samples if run.finished else np.full_like(run.samples, np.nan)
-        references.append(Reference("dop853" if run.finished else "none",
-                                    **{name: samples[:, place]
-                                       for name, place in S.STATE_FIELDS.items()}))
+        composed = _composed(scene, times)
+        peer = _dop853(scene, times)
+        if composed is not None and peer is not None:
+            composed = replace(composed, uncertainty=_differences(scene, composed, peer))
+        best = composed or peer
+        references.append(best or Reference("none", *(np.full((times.size, k), np.nan)
+                                                       for k in (4, 3, 3, 3))))
     return references
 
 
 # How each reference kind (`rbstudy.physics.analytic.REFERENCE_KINDS`) is computed, for a
 # list of scenes at once (a test checks that every kind has its computation).
-COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments, "dop853": _dop853,
-           "exact_asymmetric": _free_bodies}
+COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments,
+           "exact_asymmetric": _free_bodies, INTEGRATED: _integrated}
 
 
 def reference_solutions(scenes, times):

@@ -23,6 +23,7 @@ from rbstudy.pipeline.variables import (
     BOOKKEEPING,
     DEPRECATED,
     SCHEME_COORDINATES,
+    UNCERTAINTIES,
     VARIABLES,
     scene_features,
     selected,
@@ -142,7 +143,8 @@ def _knot_warnings(cases, duration):
 
 def _variables(reader, requested, scenes):
     """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when
-    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` is always kept,
+    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` and the
+    reference's `UNCERTAINTIES` are always kept,
     and a deprecated name brings its new name along)."""
     available = selected(scene_features(scenes))
     if requested is None:
@@ -159,7 +161,8 @@ def _variables(reader, requested, scenes):
                         f"{name} needs {needs}, which not every case of this study has",
                         "remove it")
     wanted = set(requested) | {DEPRECATED[name] for name in requested if name in DEPRECATED}
-    return tuple(name for name in available if name in wanted or name in BOOKKEEPING)
+    kept = set(wanted) | set(BOOKKEEPING) | set(UNCERTAINTIES)
+    return tuple(name for name in available if name in kept)
 
 
 def order_dimension(dimensions):

@@ -1,8 +1,9 @@
 """What a study will cost before it runs, and the limits past which it is refused.
 
 `estimate` forecasts, from the config alone: the body-steps of every case (duration / dt;
-for the adaptive dop853, its steps per radian turned), the DOP853 references and which of
-them would pass their step budget, the run time on this machine's cores (each scheme's
+for the adaptive dop853, its steps per radian turned), the two integrations of each
+reference no closed form gives (the composed exact-flow splitting and DOP853) and which
+cases would have neither within its step budget, the run time on this machine's cores (each scheme's
 measured seconds per body-step, `rbstudy.schemes.Scheme.step_seconds`), the process's peak
 memory (a measured baseline plus the batches in flight) and the bytes the parts and the
 archive need on disk. `check_limits` refuses a study past ``--max-body-steps``,
@@ -21,7 +22,14 @@ import numpy as np
 
 from rbstudy.errors import ConfigError
 from rbstudy.numerics.driver import default_threads
-from rbstudy.physics.references import REFERENCE_MAX_STEPS, REFERENCE_STEPS_PER_RADIAN
+from rbstudy.physics.analytic import INTEGRATED
+from rbstudy.physics.references import (
+    REFERENCE_COMPOSITION,
+    REFERENCE_MAX_STEPS,
+    REFERENCE_SCHEME,
+    REFERENCE_STEPS_PER_RADIAN,
+    composed_steps,
+)
 from rbstudy.schemes import get_scheme
 
 __all__ = ["Estimate", "estimate", "describe", "check_limits", "check_disk", "disk_needed",
@@ -54,6 +62,12 @@ def physical_memory():
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
+def _composed_total(scene, interval):
+    """The steps of a scene's composed reference (`composed_steps`), 0 when it has none."""
+    count = composed_steps(scene, interval)
+    return 0 if count is None else count * round(scene.duration / interval)
+
+
 def _dop853_steps(scenes):
     """Forecast of accepted DOP853 steps at rtol 1e-13 for each scene of a
     `rbstudy.physics.scenes.SceneTable` (n,): steps per radian of |w0| T, the radians the body
@@ -67,13 +81,14 @@ class Estimate:
     """A study's forecast cost.
 
     body_steps : steps over every case (the schemes studied). references : distinct scenes
-    that need a DOP853 reference; reference_steps : their forecast steps (each capped at the
-    budget); over_budget : cases whose reference would pass `REFERENCE_MAX_STEPS` (they get
-    reference "none"). core_seconds : schemes and references together; longest_seconds : the
-    longest batch or reference on its own (a batch spreads over at most its bodies, a
-    reference over one core), which no number of cores shortens; cores : this machine's.
-    peak_bytes : the process's peak memory. archive_bytes : the archive, uncompressed
-    (compression usually halves it); the disk a sweep needs is `disk_needed`.
+    whose reference is integrated; reference_steps : the forecast steps of their two
+    integrations (each capped at the budget); over_budget : cases whose integrations would
+    both pass `REFERENCE_MAX_STEPS` (they get reference "none"). core_seconds : schemes and
+    references together; longest_seconds : the longest batch or reference on its own (a
+    batch spreads over at most its bodies, a reference over one core), which no number of
+    cores shortens; cores : this machine's. peak_bytes : the process's peak memory.
+    archive_bytes : the archive, uncompressed (compression usually halves it); the disk a
+    sweep needs is `disk_needed`.
     """
 
     body_steps: int
@@ -113,19 +128,26 @@ def estimate(study, cores=None):
         # is Python and holds the interpreter: one core
         spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
         longest = max(longest, batch_seconds / spread)
-    # the references integrated: one per distinct scene without a closed form
-    needs_dop853 = cases.scenes.reference_kinds == "dop853"
-    over_budget = int(np.sum((needs_dop853 & (dop853_steps > REFERENCE_MAX_STEPS))
-                             [cases.scene_rows]))
-    integrated = np.minimum(dop853_steps[needs_dop853], REFERENCE_MAX_STEPS)
-    reference_steps = int(integrated.sum())
-    per_step = get_scheme("dop853").step_seconds
-    seconds += reference_steps * per_step
-    longest = max(longest, int(integrated.max(initial=0)) * per_step)
+    # the references integrated, twice each: one per distinct scene without a closed form
+    rows = np.flatnonzero(cases.scenes.reference_kinds == INTEGRATED)
+    peer = dop853_steps[rows]
+    composed = np.array([_composed_total(cases.scenes.scene(i), study.output_interval)
+                         for i in rows], dtype=np.int64)
+    neither = np.zeros(len(dop853_steps), dtype=bool)
+    neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
+    over_budget = int(np.sum(neither[cases.scene_rows]))
+    peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
+    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step(
+        {"composition": REFERENCE_COMPOSITION})
+    per_peer = get_scheme("dop853").step_seconds
+    each = peer * per_peer + composed * per_composed
+    seconds += float(each.sum())
+    longest = max(longest, float(each.max(initial=0.0)))
+    reference_steps = int(peer.sum() + composed.sum())
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
-    return Estimate(body_steps, len(integrated), reference_steps, over_budget, seconds, longest,
+    return Estimate(body_steps, len(rows), reference_steps, over_budget, seconds, longest,
                     cores, PROCESS_BYTES + in_flight, study.bytes_per_case() * len(study.cases))
 
 
@@ -158,12 +180,12 @@ def describe(study, cost):
             f"{_count(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
             f"{cost.body_steps:.2g} body-steps")
     if cost.references:
-        text += (f" and {cost.reference_steps:.2g} DOP853 reference steps "
-                 f"({_count(cost.references, 'scene')})")
+        text += (f" and {cost.reference_steps:.2g} reference steps "
+                 f"({_count(cost.references, 'scene')}, each integrated twice)")
     text += (f", kernels {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
              f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB")
     if cost.over_budget:
-        text += (f"; no DOP853 reference within {REFERENCE_MAX_STEPS:.0e} steps for "
+        text += (f"; no reference within {REFERENCE_MAX_STEPS:.0e} steps for "
                  f"{_count(cost.over_budget, 'case')} (too many turns): reference = none there")
     return text
 

@@ -234,6 +234,23 @@ def reference(batch):
                     dtype=np.int8)
 
 
+def _uncertainty(batch, measure):
+    """(B,) the reference's uncertainty in ``measure``: NaN where nothing checked it."""
+    return np.array([ref.uncertainty.get(measure, np.nan) for ref in batch.references])
+
+
+def reference_uncertainty(batch):
+    return _uncertainty(batch, "orientation")
+
+
+def reference_omega_uncertainty(batch):
+    return _uncertainty(batch, "omega")
+
+
+def reference_node_uncertainty(batch):
+    return _uncertainty(batch, "nodes")
+
+
 def inertia(batch):
     return batch.inertia[:, 0, :]
 

@@ -17,12 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
-from rbstudy.physics.analytic import REFERENCE_KINDS
+from rbstudy.physics.analytic import INTEGRATED, REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
 __all__ = ["Variable", "VARIABLES", "DEPRECATED", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
            "TIME_UNITS", "coordinate_units", "cf_attrs", "variable_attrs", "scene_features", "selected",
-           "evaluate", "BOOKKEEPING"]
+           "evaluate", "BOOKKEEPING", "UNCERTAINTIES"]
 
 # The scene features a variable may need: name -> (predicate on a
 # `rbstudy.physics.scenes.SceneTable`, true or false per scene, meaning).
@@ -31,7 +31,12 @@ FEATURES = {
               "the scene has nodes fixed to the body"),
     "translation": (lambda scenes: scenes.translates, "the centre of mass moves"),
     "reference": (lambda scenes: np.full(len(scenes), True),
-                  "a reference solution (closed form, or DOP853 where none exists)"),
+                  "a reference solution (closed form, or integrated where none exists)"),
+    # any scene of the study: the closed-form cases of a mixed study hold NaN
+    "integrated": (lambda scenes: np.full(len(scenes), bool(np.any(
+        scenes.reference_kinds == INTEGRATED))),
+                   "some scene has no closed-form reference: it is integrated twice, and the "
+                   "two are compared"),
     "moment_free": (lambda scenes: scenes.moment_free,
                     "no moment acts: energy and angular momentum are conserved, so their "
                     "drift is an error"),
@@ -129,6 +134,17 @@ VARIABLES = {v.name: v for v in (
        flags=outputs.VERDICTS, dtype="i1"),
     _v("reference", (), "1", "reference solution the errors are measured against", "reference",
        flags=REFERENCE_KINDS, dtype="i1"),
+    _v("reference_uncertainty", (), "rad", "orientation angle at the last output time "
+       "between the two independent integrations of the reference (exact_split composed to "
+       "order 8, and DOP853); NaN where the reference is a closed form or was not "
+       "cross-checked", "integrated"),
+    _v("reference_omega_uncertainty", (), "1", "largest relative difference of the angular "
+       "velocity between the two integrations of the reference over the output times (as "
+       "reference_uncertainty)",
+       "integrated"),
+    _v("reference_node_uncertainty", (), "m", "largest node distance between the two "
+       "integrations of the reference over the output times (as reference_uncertainty)",
+       "integrated", "nodes"),
     _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
     _v("initial_spin", (), "rad s-1", "initial angular speed |w(0)|"),
     _v("node_offset", ("node", "axis"), "m", "node offsets from the centre of mass, principal axes",
@@ -222,6 +238,9 @@ def scene_features(scenes):
 # the report read them (a few numbers per case).
 BOOKKEEPING = ("status", "accuracy", "failure_time", "n_steps", "iterations", "run_time",
                "reference", "physical_body", "inertia", "initial_spin", "radioss_dt_limit")
+# Kept whatever `output.variables` says wherever a study defines them: the order fits read them.
+UNCERTAINTIES = ("reference_uncertainty", "reference_omega_uncertainty",
+                 "reference_node_uncertainty")
 
 
 def selected(features):
