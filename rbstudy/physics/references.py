@@ -50,9 +50,9 @@ REFERENCE_STEPS_PER_RADIAN = 6.5
 REFERENCE_SCHEME = "exact_split"
 REFERENCE_COMPOSITION = 8
 COMPOSED_STEP_ANGLE = 0.15
-# How far past the angle's step count `composed_steps` looks for one that puts the knots of
-# load tables on step boundaries (knots at decimal times find one within a few counts).
-_KNOT_SEARCH = 64
+# How many step counts from the angle's `composed_steps` tries for one that puts the knots of
+# load tables on step boundaries (a knot given to three decimals finds one within 1000).
+_KNOT_SEARCH = 1000
 
 
 @dataclass(frozen=True)
@@ -143,11 +143,10 @@ def composed_steps(scene, interval, least=None):
         least = max(1, math.ceil(interval * rate / COMPOSED_STEP_ANGLE))
     knots = np.asarray(scene.loads.knots)
     knots = knots[(knots > 0.0) & (knots < scene.duration)]
-    for count in range(least, least * _KNOT_SEARCH + 1):
-        steps = knots * (count / interval)
-        if np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0)):
-            return count
-    return None
+    counts = np.arange(least, least + _KNOT_SEARCH)
+    steps = knots[:, None] * (counts / interval)  # (knots, counts)
+    fits = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0), axis=0)
+    return int(counts[fits.argmax()]) if fits.any() else None
 
 
 def _composed(scene, times):
