@@ -8,13 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from rbstudy.numerics.state import STATE_FIELDS
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.metrics import orientation_error
-from rbstudy.physics.references import REFERENCE_SCHEME, Reference, reference_solution
+from rbstudy.physics.references import REFERENCE_SCHEME, dop853_reference, reference_solution
 from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
-from rbstudy.schemes import SCHEMES, dop853
+from rbstudy.schemes import SCHEMES
 
 # Schemes with a fixed step, whose order in dt is observable (dop853 chooses its own steps).
 FIXED_STEP = [name for name, scheme in SCHEMES.items() if not scheme.adaptive]
@@ -85,18 +84,10 @@ def asymmetric_scene():
     }, source="test")
 
 
-def dop853_reference(scene, times):
-    """DOP853 at ``times`` as a `Reference`: the loaded body's reference independent of
-    `exact_split`, whose composition is the pipeline's reference."""
-    run = dop853.integrate(scene.state_row(), scene.param_row(), np.asarray(times))
-    assert run.finished
-    return Reference("dop853", **{name: run.samples[:, place]
-                                  for name, place in STATE_FIELDS.items()})
-
-
 def independent_reference(scene, times, scheme):
     """The scene's reference at ``times``, never computed by ``scheme`` itself: where it is
-    the composed `REFERENCE_SCHEME` and the scheme is that one, DOP853."""
+    the composed `REFERENCE_SCHEME` and the scheme is that one, DOP853 (the loaded body's
+    reference independent of `exact_split`)."""
     reference = reference_solution(scene, times)
     if reference.name == INTEGRATED and scheme == REFERENCE_SCHEME:
         return dop853_reference(scene, times)

@@ -326,7 +326,8 @@ def _fit_label(name, errors, fit, round_off, failed, limits):
     errors at or below ``round_off``), within the reference's uncertainty (every error at or
     below its ``limits``, `UNCERTAINTY_FACTOR` times the uncertainty), or no asymptotic
     range."""
-    finite = errors[np.isfinite(errors)]
+    present = np.isfinite(errors)
+    finite = errors[present]
     if np.isfinite(fit.order):
         text = f"order {fit.order:.2f}, finest {fit.finest_slope:.2f}"
     elif not finite.size:
@@ -335,7 +336,7 @@ def _fit_label(name, errors, fit, round_off, failed, limits):
         text = "exact at every dt"
     elif np.all(finite <= round_off):
         text = "at round-off at every dt"
-    elif np.all(errors[np.isfinite(errors)] <= limits[np.isfinite(errors)]):
+    elif np.all(finite <= limits[present]):
         text = f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty at every dt"
     else:
         text = "no asymptotic range"

@@ -31,7 +31,8 @@ from rbstudy.schemes import dop853
 
 __all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",
            "REFERENCE_MAX_STEPS", "REFERENCE_STEPS_PER_RADIAN", "REFERENCE_SCHEME",
-           "REFERENCE_COMPOSITION", "COMPOSED_STEP_ANGLE", "composed_steps", "moment_bound"]
+           "REFERENCE_COMPOSITION", "COMPOSED_STEP_ANGLE", "composed_steps", "moment_bound",
+           "planned_steps", "knot_steps", "dop853_reference"]
 
 # Accepted DOP853 steps one reference may take: about a minute (65 us a step, measured). A free
 # asymmetric body takes ~6.5 steps per radian of |w| T at rtol 1e-13 (measured for I = 1, 2, 3
@@ -103,7 +104,7 @@ def _axial_moments(scenes, times):
     return references
 
 
-def _dop853(scene, times):
+def dop853_reference(scene, times):
     """DOP853 at ``times``, or None past `REFERENCE_MAX_STEPS` steps (or when DOP853 itself
     fails): no reference rather than a hang."""
     run = dop853.integrate(scene.state_row(), scene.param_row(), times,
@@ -116,37 +117,57 @@ def _dop853(scene, times):
                                   for name, place in S.STATE_FIELDS.items()})
 
 
-def moment_bound(scene):
-    """An upper bound (N m) of the moment's magnitude at any time: every constant and
-    tabulated moment, and the lever of off-centre forces, added up."""
-    row = scene.param_row()
-    parts = [row[S.MOMENT_SPACE:S.MOMENT_BODY + 3], row[S.LEVER:S.LEVER + 9]]
-    records = np.reshape(row[S.N_PARAM + len(scene.loads.knots):], (-1, S.LOAD_RECORD))
-    first = S.MOMENT_SPACE - S.FORCE_SPACE
-    tabulated = np.abs(records[:, first:]).sum(axis=1).max(initial=0.0)
-    return float(sum(np.abs(part).sum() for part in parts) + tabulated)
+# The loads that turn the body, and where each sits in a knot's record of tabulated loads.
+_MOMENTS = {"moment_space": S.MOMENT_SPACE, "moment_body": S.MOMENT_BODY, "lever": S.LEVER}
+_WIDTHS = {"moment_space": 3, "moment_body": 3, "lever": 9}
 
 
-def composed_steps(scene, interval, least=None):
-    """The steps per output ``interval`` of the composed reference, at least ``least``, or
-    None when no step puts every knot of the scene's load tables on a step boundary (a
-    load's kink inside a step costs the composition its order; DOP853 restarts there
-    instead).
+def moment_bound(loads):
+    """An upper bound (N m) of the moment's magnitude at any time, (...,): every constant
+    and tabulated moment, and the lever of off-centre forces, added up. ``loads`` maps the
+    `rbstudy.physics.scenes.Loads` fields to arrays with the same leading dims (...) (a
+    `SceneTable`'s columns, or one scene's fields with a leading axis of one)."""
+    records = np.asarray(loads["tabulated"])  # (..., K, LOAD_RECORD)
+    bound = 0.0
+    for name, start in _MOMENTS.items():
+        place = slice(start - S.FORCE_SPACE, start - S.FORCE_SPACE + _WIDTHS[name])
+        bound = (bound + np.abs(loads[name]).sum(axis=-1)
+                 + np.abs(records[..., place]).sum(axis=-1).max(axis=-1, initial=0.0))
+    return bound
 
-    By default the step turns the body by at most `COMPOSED_STEP_ANGLE` at the rate
-    ``|w0| + sqrt(M / I_min)`` (M: `moment_bound`; the second term is the rate a moment of
-    that size swings the body at, as a pendulum's).
-    """
-    if least is None:
-        rate = (float(np.linalg.norm(scene.omega_body))
-                + np.sqrt(moment_bound(scene) / min(scene.body.inertia)))
-        least = max(1, math.ceil(interval * rate / COMPOSED_STEP_ANGLE))
-    knots = np.asarray(scene.loads.knots)
-    knots = knots[(knots > 0.0) & (knots < scene.duration)]
+
+def planned_steps(omega_body, inertia, loads, interval):
+    """(n,) steps per output ``interval`` that turn each body by at most
+    `COMPOSED_STEP_ANGLE` at the rate ``|w0| + sqrt(M / I_min)`` (M: `moment_bound`; the
+    second term is the rate a moment of that size swings the body at, as a pendulum's), for
+    (n, 3) angular velocities and inertias and their ``loads`` columns."""
+    rate = (np.linalg.norm(omega_body, axis=-1)
+            + np.sqrt(moment_bound(loads) / np.min(inertia, axis=-1)))
+    return np.maximum(1, np.ceil(interval * rate / COMPOSED_STEP_ANGLE)).astype(np.int64)
+
+
+def knot_steps(knots, duration, interval, least):
+    """The first step count per output ``interval`` from ``least`` that puts every knot
+    (K,) inside (0, ``duration``) on a step boundary, or None within `_KNOT_SEARCH` counts
+    (a load's kink inside a step costs the composition its order; DOP853 restarts there
+    instead)."""
+    knots = np.asarray(knots)
+    knots = knots[(knots > 0.0) & (knots < duration)]
     counts = np.arange(least, least + _KNOT_SEARCH)
     steps = knots[:, None] * (counts / interval)  # (knots, counts)
     fits = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0), axis=0)
     return int(counts[fits.argmax()]) if fits.any() else None
+
+
+def composed_steps(scene, interval, least=None):
+    """The steps per output ``interval`` of ``scene``'s composed reference: at least
+    ``least`` (default `planned_steps`), with every knot on a step boundary (`knot_steps`);
+    None when no such count is found."""
+    if least is None:
+        columns = {name: np.asarray(value)[None] for name, value in vars(scene.loads).items()}
+        least = int(planned_steps(np.array([scene.omega_body]), np.array([scene.body.inertia]),
+                                  columns, interval)[0])
+    return knot_steps(scene.loads.knots, scene.duration, interval, least)
 
 
 def _composed(scene, times):
@@ -206,7 +227,7 @@ def _integrated(scenes, times):
     references = []
     for scene in scenes:
         composed = _composed(scene, times)
-        peer = _dop853(scene, times)
+        peer = dop853_reference(scene, times)
         if composed is not None and peer is not None:
             composed = replace(composed, uncertainty=_differences(scene, composed, peer))
         best = composed or peer

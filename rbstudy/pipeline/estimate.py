@@ -28,7 +28,8 @@ from rbstudy.physics.references import (
     REFERENCE_MAX_STEPS,
     REFERENCE_SCHEME,
     REFERENCE_STEPS_PER_RADIAN,
-    composed_steps,
+    knot_steps,
+    planned_steps,
 )
 from rbstudy.schemes import get_scheme
 
@@ -62,10 +63,16 @@ def physical_memory():
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def _composed_total(scene, interval):
-    """The steps of a scene's composed reference (`composed_steps`), 0 when it has none."""
-    count = composed_steps(scene, interval)
-    return 0 if count is None else count * round(scene.duration / interval)
+def _composed_steps(scenes, rows, interval):
+    """Forecast steps of the composed reference of each scene ``rows`` of a `SceneTable`
+    (the first run, as planned), 0 where it has none: planned at once, and the knot search
+    only for the scenes whose load tables have knots inside the run."""
+    loads = {name: np.asarray(column)[rows] for name, column in scenes.loads.items()}
+    counts = planned_steps(scenes.omega_body[rows], scenes.inertia[rows], loads, interval)
+    knots = loads["knots"]
+    for k in np.flatnonzero(((knots > 0.0) & (knots < scenes.duration)).any(axis=-1)):
+        counts[k] = knot_steps(knots[k], scenes.duration, interval, int(counts[k])) or 0
+    return counts * round(scenes.duration / interval)
 
 
 def _dop853_steps(scenes):
@@ -131,8 +138,7 @@ def estimate(study, cores=None):
     # the references integrated, twice each: one per distinct scene without a closed form
     rows = np.flatnonzero(cases.scenes.reference_kinds == INTEGRATED)
     peer = dop853_steps[rows]
-    composed = np.array([_composed_total(cases.scenes.scene(i), study.output_interval)
-                         for i in rows], dtype=np.int64)
+    composed = _composed_steps(cases.scenes, rows, study.output_interval)
     neither = np.zeros(len(dop853_steps), dtype=bool)
     neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
     over_budget = int(np.sum(neither[cases.scene_rows]))
