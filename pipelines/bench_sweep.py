@@ -1,5 +1,6 @@
-"""Print the sweep figures of docs/performance.md: the default study cold and warm, and how
-wall time, the share outside the kernels and peak memory grow from 100 to 10,000 cases.
+"""Print the sweep figures of docs/performance.md: the time each scheme takes to get ready in
+a fresh process, the default study cold and warm, and how wall time, the share outside the
+kernels and peak memory grow from 100 to 10,000 cases.
 
 Usage: python pipelines/bench_sweep.py [--sizes 100 1000 10000]
 
@@ -12,7 +13,9 @@ memory are those a user sees) into a fresh results folder, with `--quiet`:
   kernels (compilation, references, outputs, files, scheduling);
 - peak RSS: the process's maximum resident set size.
 
-"Cold" points numba at an empty cache directory; "warm" reuses the cache filled by the cold
+"Ready": `Scheme.ensure_compiled()` of every scheme, one after the other, in a fresh process
+(what a sweep or a dask worker does before its first batch). "Cold" points numba at an
+empty cache directory; "warm" reuses the cache filled by the cold
 run. The scaling studies sweep ``inertia_ratio`` over N values with one scheme and one dt;
 the last line is a kernel-heavy study (1,000 cases of 2e5 rk4 steps).
 """
@@ -47,6 +50,25 @@ print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.s
 """
 
 
+# The child process: get every scheme ready and report the seconds each took.
+_READY = """
+import json, time
+from rbstudy.schemes import SCHEMES
+seconds = {}
+for name, scheme in SCHEMES.items():
+    start = time.perf_counter()
+    scheme.ensure_compiled()
+    seconds[name] = time.perf_counter() - start
+print(json.dumps(seconds))
+"""
+
+
+def ready(env):
+    done = subprocess.run([sys.executable, "-c", _READY], capture_output=True, text=True,
+                          env=env, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def measure(config, env=None):
     with tempfile.TemporaryDirectory() as out:
         done = subprocess.run([sys.executable, "-c", _CHILD, str(config), out],
@@ -78,6 +100,13 @@ def main():
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
     args = parser.parse_args()
     print(f"rbstudy sweep figures, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}")
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        cold, warm = ready(env), ready(env)
+    print(f"{'scheme ready in a fresh process':32s} {'cold s':>8s} {'warm s':>8s}")
+    for name in cold:
+        print(f"{name:32s} {cold[name]:8.3f} {warm[name]:8.3f}")
+    print(f"{'all':32s} {sum(cold.values()):8.2f} {sum(warm.values()):8.2f}")
     print(f"{'study':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} {'outside':>9s} "
           f"{'peak MiB':>9s}")
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as configs:

@@ -17,15 +17,13 @@ The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure ti
 iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
 here, by name.
 
-`integrate_body_inplace` below runs one body through all its steps; `make_entry` compiles,
-for one scheme, the loop over a range of batch rows that calls it with the scheme's kernels;
-`run_batch` spreads chunks of rows over threads (the kernels release the GIL).
-Numba (0.68, measured) cannot safely cache a function whose signature holds kernels: its
-cache index keeps references to them and a later process fails ("underlying object has
-vanished"). So this generic
-loop and each scheme's entry point are compiled once per process (0.6-2.5 s a scheme,
-docs/performance.md), never cached, while the kernels they call are cached. The loop writes
-element by element and allocates nothing; the entry point allocates the body's arrays.
+`integrate_body_inplace` below runs one body through all its steps and `run_rows` a range of
+batch rows; `make_entry` gives a scheme its entry point, a cached function that calls
+`run_rows` with the scheme's kernels (`rbstudy.numerics.entry`); `run_batch` spreads chunks of
+rows over threads (the kernels release the GIL). numba inlines `run_rows` and
+`integrate_body_inplace` into each entry point (`inline_jit`): the kernels are then never
+passed as values, which numba could not cache. The loop writes element by element and
+allocates nothing; `run_rows` allocates each body's arrays.
 Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
 threads at once and let the caller choose the number of cores.
 
@@ -54,12 +52,14 @@ from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import step_time
 from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
-from rbstudy.numerics.jit import entry_jit, jit
+from rbstudy.numerics.entry import CachedEntry
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import dot, read3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
-    "DRIFT_BOUND", "BatchOutput", "init_nothing", "integrate_body_inplace", "make_entry",
+    "DRIFT_BOUND", "BatchOutput", "init_nothing", "integrate_body_inplace", "run_rows",
+    "make_entry",
     "run_batch", "n_samples", "default_threads", "Halted", "request_halt", "clear_halt",
     "HALT_CHECK_STEPS", "HALT_FLAG",
 ]
@@ -108,7 +108,7 @@ def init_nothing(y, p, opt, t, h, work):
 _relative_drift = jit(algebra.relative_drift)
 
 
-@entry_jit
+@inline_jit
 def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, every,
                            drift_bound, samples, results, halt, clock):
     """Integrate body ``b`` of a batch from state ``y``; write its samples and results.
@@ -192,23 +192,25 @@ def integrate_body_inplace(step, init, b, y, work, params, options, h, n_steps, 
     results[b, Result.radioss_dt_limit] = step_angle > S.RADIOSS_STEP_ANGLE
 
 
+@inline_jit
+def run_rows(step, init, n_work, start, stop, state0, params, options, h, n_steps, every,
+             drift_bound, samples, results, halt, clock):
+    """Integrate the rows [start, stop) of a batch with a scheme's kernels ``step`` and
+    ``init`` and ``n_work`` floats of work per body (`integrate_body_inplace`)."""
+    for b in range(start, stop):
+        if halt[0] != 0:
+            return
+        integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
+                               options, h, n_steps, every, drift_bound, samples, results,
+                               halt, clock)
+
+
 def make_entry(step, init, n_work):
-    """The compiled entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
+    """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
     options, h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows
-    [start, stop); numba compiles it for each type of ``clock`` (None or a float) when first
-    called with it."""
-
-    @entry_jit
-    def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every,
-                           drift_bound, samples, results, halt, clock):
-        for b in range(start, stop):
-            if halt[0] != 0:
-                return
-            integrate_body_inplace(step, init, b, state0[b].copy(), np.zeros(n_work), params,
-                                   options, h, n_steps, every, drift_bound, samples, results,
-                                   halt, clock)
-
-    return run_bodies_inplace
+    [start, stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type
+    of ``clock`` (None or a float) when first called with it (`rbstudy.numerics.entry`)."""
+    return CachedEntry(step, init, n_work)
 
 
 @dataclass(frozen=True)

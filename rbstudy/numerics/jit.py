@@ -1,11 +1,9 @@
 """The one place numba is configured.
 
 `jit` compiles a kernel and caches it to disk, so that a second process starts without
-compiling it. `entry_jit` is for functions that take kernels as arguments (the generic
-driver loop) or pass them (each scheme's batch entry point): numba cannot cache those
-(it counts a kernel passed as a value as a "dynamic global"), so they compile once per
-process, under a second per scheme (docs/performance.md). Kernels release the GIL (`nogil`):
-`rbstudy.numerics.driver` runs chunks of a batch on several threads.
+compiling it; each scheme's batch entry point is such a kernel too (`rbstudy.numerics.entry`).
+Kernels release the GIL (`nogil`): `rbstudy.numerics.driver` runs chunks of a batch on
+several threads.
 `error_model="numpy"` makes a division by zero give inf/nan instead of raising: numerical
 failure must become a status code, never an exception (docs/architecture.md, numerics).
 `fastmath` stays off: batch results must be bit-identical to single-case results, and the
@@ -27,7 +25,7 @@ import numba
 
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
-__all__ = ["jit", "inline_jit", "entry_jit", "cache_dir"]
+__all__ = ["jit", "inline_jit", "cache_dir"]
 
 
 def cache_dir():
@@ -48,4 +46,3 @@ jit = numba.njit(cache=True, **_COMMON)
 # free body 20-35% of its steps per second (rk4 1.45e7 -> 9.5e6, measured); inlined, the
 # free body is within 5-10% of its speed without loads at nodes (docs/performance.md).
 inline_jit = numba.njit(cache=True, inline="always", **_COMMON)
-entry_jit = numba.njit(cache=False, **_COMMON)

@@ -1,0 +1,69 @@
+"""Compile once per machine: a second process loads each scheme's entry point from numba's
+cache and compiles nothing, and changed code never finds an old entry module."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+from rbstudy.numerics.entry import _module_text
+
+# Two schemes (one with an init kernel), both variants: with and without the time.
+GET_READY = textwrap.dedent("""
+    import json
+    from numba.core import event
+
+    compiled = []
+
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+
+        def on_end(self, ev):
+            pass
+
+    event.register("numba:compile", Compiles())
+    from rbstudy.schemes import SCHEMES
+
+    loaded = {}
+    for name in ("rk4", "hht"):
+        for timed in (False, True):
+            SCHEMES[name].ensure_compiled(timed=timed)
+        stats = SCHEMES[name].run_bodies_inplace.dispatcher.stats
+        loaded[name] = [sum(stats.cache_hits.values()), sum(stats.cache_misses.values())]
+    print(json.dumps({"compiled": compiled, "loaded": loaded}))
+""")
+
+
+def get_ready(cache):
+    done = subprocess.run([sys.executable, "-c", GET_READY], capture_output=True, text=True,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(cache)}, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_second_process_loads_every_entry_point_without_compiling(tmp_path):
+    first = get_ready(tmp_path)
+    assert "run_bodies_inplace" in first["compiled"]  # an empty cache: it compiled
+    assert first["loaded"] == {"rk4": [0, 2], "hht": [0, 2]}
+    second = get_ready(tmp_path)
+    assert second["compiled"] == []
+    assert second["loaded"] == {"rk4": [2, 0], "hht": [2, 0]}
+
+
+def test_changed_code_gets_another_entry_module(tmp_path):
+    kernels = tmp_path / "my_kernels.py"
+    source = "from rbstudy.numerics.jit import jit\n\n@jit\ndef step(y, p, opt, t, h, work):\n" \
+             "    return 0, 0\n"
+    kernels.write_text(source)
+    sys.path.insert(0, str(tmp_path))
+    try:
+        import my_kernels
+        text, name = _module_text(my_kernels.step, my_kernels.step, 0)
+        assert "from my_kernels import step as step" in text
+        assert _module_text(my_kernels.step, my_kernels.step, 3)[1] != name  # other work size
+        kernels.write_text(source + "# an edit\n")
+        assert _module_text(my_kernels.step, my_kernels.step, 0)[1] != name  # edited kernels
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop("my_kernels", None)
