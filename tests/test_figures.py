@@ -38,9 +38,10 @@ def shrunk_config(name, folder):
     sweep = study.get("sweep", {})
     for axis, values in list(sweep.items()):
         if axis == "scheme":
-            # and the first scheme listed, so that a swept option (composition) keeps a
-            # scheme that has it
-            listed = [values[0]] if isinstance(values, list) else []
+            # and the first scheme listed (splitting among `all`), so that a swept
+            # composition keeps a scheme that has it
+            composed = ["splitting"] if "run.options.composition" in sweep else []
+            listed = [values[0]] if isinstance(values, list) else composed
             sweep[axis] = SHRUNK_SCHEMES + [s for s in listed if s not in SHRUNK_SCHEMES]
         elif axis == "zip":
             sweep[axis] = {dim: {a: _shrink(v) for a, v in group.items()}

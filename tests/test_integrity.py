@@ -194,17 +194,17 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"],
                                                        "dt": [0.01, 0.005]})
     written = []
-    real_write = xr.Dataset.to_netcdf
+    real_write = store._write_part_file
     usage = collections.namedtuple("usage", "total used free")
 
-    def write_until_full(dataset, path, *args, **kwargs):
+    def write_until_full(nc, layout, batch, values):
         if len(written) == 2:
             monkeypatch.setattr(store.shutil, "disk_usage", lambda folder: usage(1, 1, 0))
             raise RuntimeError("NetCDF: HDF error")
-        written.append(path)
-        return real_write(dataset, path, *args, **kwargs)
+        written.append(batch.id)
+        return real_write(nc, layout, batch, values)
 
-    monkeypatch.setattr(xr.Dataset, "to_netcdf", write_until_full)
+    monkeypatch.setattr(store, "_write_part_file", write_until_full)
     monkeypatch.setattr("rbstudy.pipeline.execute.os.cpu_count", lambda: 1)  # one at a time
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()

@@ -62,8 +62,9 @@ def entries_folder():
 
 
 def _defined(kernel):
-    """(module, name, defining file) of a compiled kernel."""
-    function = kernel.py_func
+    """(module, name, defining file) of a compiled kernel (a plain function when numba's
+    JIT is disabled)."""
+    function = getattr(kernel, "py_func", kernel)
     return function.__module__, function.__name__, inspect.getsourcefile(function)
 
 

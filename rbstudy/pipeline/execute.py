@@ -25,6 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import dask
+import dask.threaded
 import numpy as np
 
 from rbstudy.errors import RbstudyError
@@ -41,7 +42,6 @@ from rbstudy.pipeline.store import (
     global_attrs,
     open_results,
     part_complete,
-    part_dataset,
     refresh_description,
     resolved_config,
     utc_now,
@@ -122,7 +122,7 @@ def compile_schemes(variants):
 def store_part(values, layout, batch, path):
     """Write one batch's part file atomically, its digest beside it (a dask task); returns
     the digest."""
-    return write_part(part_dataset(layout, batch, values), path)
+    return write_part(layout, batch, values, path)
 
 
 class Progress:
@@ -268,7 +268,10 @@ def _run_local(tasks, sizes, progress, workers, schemes):
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         with _Advance():
-            return dask.compute(*tasks, scheduler="threads", num_workers=workers, pool=pool)
+            # the threaded scheduler itself: by its name, dask would first import
+            # distributed (0.3 s) to look for a client
+            return dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers,
+                                pool=pool)
     except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
         request_halt()
         raise

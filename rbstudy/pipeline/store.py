@@ -50,7 +50,7 @@ from rbstudy.pipeline.variables import (
     variable_attrs,
 )
 
-__all__ = ["HDF5_LOCK", "Layout", "part_dataset", "write_text_atomic",
+__all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
            "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
            "decimal_grid", "COMPRESSION"]
@@ -224,14 +224,30 @@ def _scheme_claims(study, dims):
     return coords
 
 
-def part_dataset(layout, batch, values):
-    """The part file of ``batch``: its variables ``values`` (case first) along dim ``case``,
-    whose coordinate is each case's position in the study (C order of the grid)."""
-    data_vars = {name: (("case",) + VARIABLES[name].dims, values[name], variable_attrs(name))
-                 for name in layout.variables}
-    coords = {name: (name, v, a) for name, (v, a) in _fixed_coords(layout).items()}
-    coords["case"] = ("case", np.array(batch.cases), {"long_name": "case number in the study"})
-    return xr.Dataset(data_vars, coords=coords, attrs={"study": layout.study, "batch": batch.id})
+def _write_part_file(nc, layout, batch, values):
+    """The part file of ``batch`` into the open netCDF ``nc``: its variables ``values``
+    (case first) along dim ``case``, whose coordinate is each case's position in the study
+    (C order of the grid), uncompressed (a part lives until the archive is written). Written
+    with netCDF4 directly: through xarray a part took 2-3 times as long, and the default
+    study writes one per batch (docs/performance.md)."""
+    nc.setncatts({"study": layout.study, "batch": batch.id})
+    cases = np.array(batch.cases)
+    nc.createDimension("case", len(cases))
+    _create(nc, "case", ("case",), cases, {"long_name": "case number in the study"})
+    for name, (coordinate, attrs) in _fixed_coords(layout).items():
+        nc.createDimension(name, len(coordinate))
+        _create(nc, name, (name,), coordinate.astype(object) if coordinate.dtype.kind == "U"
+                else coordinate, attrs)
+    for name in layout.variables:
+        _create(nc, name, ("case",) + VARIABLES[name].dims,
+                np.asarray(values[name], dtype=VARIABLES[name].dtype), variable_attrs(name))
+
+
+def read_part(path, variables):
+    """The case numbers and ``variables`` of the part file at ``path``, name -> array."""
+    with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        return {name: nc[name][...] for name in ("case", *variables)}
 
 
 @contextmanager
@@ -344,11 +360,12 @@ def part_complete(path, batch):
     return digest if same else None
 
 
-def write_part(dataset, path):
-    """Write the part ``dataset`` to ``path`` through a temporary file and a rename, then its
-    digest beside it; returns the digest."""
+def write_part(layout, batch, values, path):
+    """Write the part of ``batch`` (its variables ``values``) to ``path`` through a temporary
+    file and a rename, then its digest beside it; returns the digest."""
     with _temporary_beside(path) as temporary, HDF5_LOCK:
-        dataset.to_netcdf(temporary)
+        with netCDF4.Dataset(temporary, "w", format="NETCDF4") as nc:
+            _write_part_file(nc, layout, batch, values)
         digest = file_digest(temporary)
     # after the rename: a kill between the two leaves a part without digest, recomputed
     write_text_atomic(sidecar_text(digest, path), sidecar(path))
@@ -407,8 +424,7 @@ def consolidate(study, parts, digests, target, attrs):
                 targets[name] = _create(nc, name, grid_dims + VARIABLES[name].dims,
                                         attrs=variable_attrs_, dtype=VARIABLES[name].dtype)
             for batch in study.batches:
-                part = open_results(parts[batch.id])
-                _write_part(targets, part, shape)
+                _write_part(targets, read_part(parts[batch.id], study.variables), shape)
         seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
 
 
@@ -428,15 +444,15 @@ def _block(cases, shape):
 
 
 def _write_part(targets, part, shape):
-    """Copy one part's cases into the consolidated variables ``targets``."""
-    cases = part["case"].values
+    """Copy one part's cases (`read_part`) into the consolidated variables ``targets``."""
+    cases = part["case"]
     if not shape:  # a one-case study
         for name, variable in targets.items():
-            variable[...] = part[name].values[0]
+            variable[...] = part[name][0]
         return
     block = _block(cases, shape)
     for name, variable in targets.items():
-        values = part[name].values
+        values = part[name]
         if block is not None:
             index, sizes = block
             variable[index] = values.reshape(sizes + values.shape[1:])
