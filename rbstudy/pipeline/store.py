@@ -386,7 +386,7 @@ def case_chunks(grid_shape, own_shape, itemsize):
     cases: chunks of whole cases are filled by one part, each compressed once. netCDF's
     default chunks cut across cases, so that every part decompressed and compressed again
     the chunks it shared with the others (10,000 cases: 35 s of 50 in consolidation)."""
-    chunk = list(own_shape)
+    chunk = [max(1, size) for size in own_shape]  # netCDF refuses a chunk of length 0
     room = max(1, CHUNK_BYTES // max(1, itemsize * math.prod(own_shape)))
     grid_chunk = []
     for size in reversed(grid_shape):
@@ -449,7 +449,7 @@ def consolidate(study, parts, digests, target, attrs):
                                         attrs=variable_attrs_, dtype=VARIABLES[name].dtype,
                                         grid_rank=len(grid_dims))
             for batch in study.batches:
-                _write_part(targets, read_part(parts[batch.id], study.variables), shape)
+                _copy_part(targets, read_part(parts[batch.id], study.variables), shape)
         seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
 
 
@@ -468,7 +468,7 @@ def _block(cases, shape):
                  for a in axes), tuple(len(a) for a in axes)
 
 
-def _write_part(targets, part, shape):
+def _copy_part(targets, part, shape):
     """Copy one part's cases (`read_part`) into the consolidated variables ``targets``."""
     cases = part["case"]
     if not shape:  # a one-case study
