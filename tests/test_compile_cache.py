@@ -9,7 +9,8 @@ import textwrap
 
 from rbstudy.numerics.entry import _module_text
 
-# Two schemes (one with an init kernel), both variants: with and without the time.
+# Three schemes (one with an init kernel, one composed), both variants: with and without
+# the time.
 GET_READY = textwrap.dedent("""
     import json
     from numba.core import event
@@ -27,7 +28,7 @@ GET_READY = textwrap.dedent("""
     from rbstudy.schemes import SCHEMES
 
     loaded = {}
-    for name in ("rk4", "hht"):
+    for name in ("rk4", "hht", "splitting"):
         for timed in (False, True):
             SCHEMES[name].ensure_compiled(timed=timed)
         stats = SCHEMES[name].run_bodies_inplace.dispatcher.stats
@@ -45,10 +46,10 @@ def get_ready(cache):
 def test_a_second_process_loads_every_entry_point_without_compiling(tmp_path):
     first = get_ready(tmp_path)
     assert "run_bodies_inplace" in first["compiled"]  # an empty cache: it compiled
-    assert first["loaded"] == {"rk4": [0, 2], "hht": [0, 2]}
+    assert first["loaded"] == {"rk4": [0, 2], "hht": [0, 2], "splitting": [0, 2]}
     second = get_ready(tmp_path)
     assert second["compiled"] == []
-    assert second["loaded"] == {"rk4": [2, 0], "hht": [2, 0]}
+    assert second["loaded"] == {"rk4": [2, 0], "hht": [2, 0], "splitting": [2, 0]}
 
 
 def test_changed_code_gets_another_entry_module(tmp_path):
@@ -61,6 +62,8 @@ def test_changed_code_gets_another_entry_module(tmp_path):
         import my_kernels
         text, name = _module_text(my_kernels.step, my_kernels.step, 0)
         assert "from my_kernels import step as step" in text
+        wrapped, other = _module_text(my_kernels.step, my_kernels.step, 0, my_kernels.step)
+        assert "return wrapper(stage, y, p, opt, t, h, work)" in wrapped and other != name
         assert _module_text(my_kernels.step, my_kernels.step, 3)[1] != name  # other work size
         kernels.write_text(source + "# an edit\n")
         assert _module_text(my_kernels.step, my_kernels.step, 0)[1] != name  # edited kernels

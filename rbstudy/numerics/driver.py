@@ -205,12 +205,14 @@ def run_rows(step, init, n_work, start, stop, state0, params, options, h, n_step
                                halt, clock)
 
 
-def make_entry(step, init, n_work):
+def make_entry(step, init, n_work, wrapper=None):
     """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
     options, h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows
-    [start, stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type
-    of ``clock`` (None or a float) when first called with it (`rbstudy.numerics.entry`)."""
-    return CachedEntry(step, init, n_work)
+    [start, stop) (`run_rows`) with the kernel ``step``, or with ``wrapper(step, ...)`` when
+    given (an inlined kernel that takes the step first: a composition); numba compiles it, or
+    loads it from its cache, for each type of ``clock`` (None or a float) when first called
+    with it (`rbstudy.numerics.entry`)."""
+    return CachedEntry(step, init, n_work, wrapper)
 
 
 @dataclass(frozen=True)

@@ -238,9 +238,10 @@ def scene_features(scenes):
 # the report read them (a few numbers per case).
 BOOKKEEPING = ("status", "accuracy", "failure_time", "n_steps", "iterations", "run_time",
                "reference", "physical_body", "inertia", "initial_spin", "radioss_dt_limit")
-# Kept whatever `output.variables` says wherever a study defines them: the order fits read them.
-UNCERTAINTIES = ("reference_uncertainty", "reference_omega_uncertainty",
-                 "reference_node_uncertainty")
+# The reference's uncertainties (the variables of integrated references), kept whatever
+# `output.variables` says wherever a study defines them: the order fits read them.
+UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items()
+                      if "integrated" in variable.needs)
 
 
 def selected(features):

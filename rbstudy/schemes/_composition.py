@@ -26,11 +26,13 @@ of the other two stay inside the step.
 import numpy as np
 
 from rbstudy.numerics.clock import later
+from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Option
 
-__all__ = ["COMPOSITION", "ORDERS", "stage_weights", "stage_reach", "composed_step"]
+__all__ = ["COMPOSITION", "ORDERS", "stage_weights", "stage_reach", "composed_step",
+           "composed_entry"]
 
 _TRIPLE_JUMP = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 # the weights from the outermost stage to the centre; the others mirror them
@@ -101,15 +103,15 @@ COMPOSITION = Option(
 )
 
 
-# Inlined into each scheme's step: called, it would receive ``step`` as a value, a "dynamic
-# global" that keeps numba from caching the scheme's step (numba 0.68). Each scheme inlines
+# Inlined into each scheme's step (`composed_entry`): called, it would receive ``step`` as a
+# value, a "dynamic global" that keeps numba from caching the step (numba 0.68). Each scheme inlines
 # its symmetric step as well (`inline_jit`): called from the two sites below, LLVM kept it a
 # call, which cost the plain step 8-12% of its speed (rbstudy bench: splitting 5.7e6 ->
 # 5.2e6 body-steps/s, midpoint 6.9e6 -> 6.0e6).
 @inline_jit
 def composed_step(step, y, p, opt, t, h, work):
     """Advance state row ``y`` (N_STATE,) by ``h`` with the composition of ``step`` (a compiled
-    symmetric step with the signature of ``step_inplace``) that option ``composition`` in
+    symmetric step ``step(y, p, opt, t, h, work)``) that option ``composition`` in
     ``opt`` (N_OPTION,) asks for (the default 0, and 2: the step itself). Returns ``(status,
     Newton iterations summed over the stages)``; a stage that fails ends the step with its
     status."""
@@ -126,3 +128,9 @@ def composed_step(step, y, p, opt, t, h, work):
             return status, iterations
         elapsed += d
     return OK, iterations
+
+
+def composed_entry(symmetric_step, init, n_work):
+    """The entry point (`rbstudy.numerics.driver.make_entry`) of a scheme whose step is its
+    ``symmetric_step`` composed as option ``composition`` asks (`composed_step`)."""
+    return make_entry(symmetric_step, init, n_work, wrapper=composed_step)

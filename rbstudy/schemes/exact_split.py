@@ -20,13 +20,13 @@ Reference: Celledoni, Fasso, Safstrom & Zanna, SIAM J. Sci. Comput. 30 (2008) 20
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import inertia
 from rbstudy.numerics.free_flow import free_body, free_motion
-from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.rotation import quat_normalize, read3, read4, write3, write4
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._composition import COMPOSITION, composed_step
+from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._registry import Scheme
 
@@ -45,12 +45,6 @@ def symmetric_step(y, p, opt, t, h, work):
     kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, 0
 
-
-@jit
-def step_inplace(y, p, opt, t, h, work):
-    return composed_step(symmetric_step, y, p, opt, t, h, work)
-
-
 SCHEME = Scheme(
     name="exact_split",
     summary="exact free flow (elliptic functions) between half kicks; exact for a free body",
@@ -58,7 +52,7 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("energy", "momentum_vector"),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
     reference="Celledoni, Fasso, Safstrom & Zanna, SIAM J. Sci. Comput. 30 (2008) 2084",
     options=(COMPOSITION,),
 )

@@ -21,7 +21,7 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
@@ -41,7 +41,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
-from rbstudy.schemes._composition import COMPOSITION, composed_step
+from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
 from rbstudy.schemes._registry import Scheme
@@ -91,12 +91,6 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, iterations
 
 
-
-@jit
-def step_inplace(y, p, opt, t, h, work):
-    return composed_step(symmetric_step, y, p, opt, t, h, work)
-
-
 SCHEME = Scheme(
     name="midpoint",
     summary="implicit midpoint on m with Cayley frame update; energy and L kept exactly",
@@ -104,7 +98,7 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=("energy", "momentum_vector"),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
     options=(COMPOSITION,),
 )

@@ -24,7 +24,6 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
@@ -40,7 +39,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._composition import COMPOSITION, composed_step
+from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
@@ -106,12 +105,6 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, 0
 
 
-
-@jit
-def step_inplace(y, p, opt, t, h, work):
-    return composed_step(symmetric_step, y, p, opt, t, h, work)
-
-
 SCHEME = Scheme(
     name="no_squish",
     summary="NO_SQUISH: DLM splitting on quaternion + conjugate momentum (LAMMPS form)",
@@ -119,7 +112,7 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum_vector",),
-    run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
+    run_bodies_inplace=composed_entry(symmetric_step, init_inplace, N_WORK),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=(AXIS_ORDER, COMPOSITION),
 )

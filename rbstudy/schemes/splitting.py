@@ -22,12 +22,12 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import quat_mul_axis_rotation, quat_normalize, read3, read4, write3, write4
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._composition import COMPOSITION, composed_step
+from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
@@ -69,12 +69,6 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, 0
 
 
-
-@jit
-def step_inplace(y, p, opt, t, h, work):
-    return composed_step(symmetric_step, y, p, opt, t, h, work)
-
-
 SCHEME = Scheme(
     name="splitting",
     summary="DLM symplectic splitting into exact axis rotations; |L| and L kept exactly",
@@ -82,7 +76,7 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum_vector",),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
     options=(AXIS_ORDER, COMPOSITION),
 )
