@@ -1,5 +1,3 @@
-import sys
+from rbstudy.cli import command
 
-from rbstudy.cli import main
-
-sys.exit(main())
+command()

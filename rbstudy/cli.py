@@ -11,7 +11,9 @@ has gone (``| head -1``): the command stops there.
 """
 
 import argparse
+import contextlib
 import functools
+import logging
 import os
 import pathlib
 import sys
@@ -19,7 +21,7 @@ import traceback
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError, first_line
 
-__all__ = ["main", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
+__all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
 EXIT_OK, EXIT_USER_ERROR, EXIT_USAGE = 0, 1, 2
 EXIT_BUG = 70  # EX_SOFTWARE of sysexits.h: an internal error
@@ -103,6 +105,13 @@ def _sweep(args):
     from rbstudy.pipeline.store import open_results
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
+    if not args.worker_wait > 0:
+        raise RbstudyError(f"--worker-wait: need a number of seconds above 0, got "
+                           f"{args.worker_wait}")
+    cluster = None
+    if args.cluster:
+        from rbstudy.pipeline.cluster import read_cluster_file
+        cluster = read_cluster_file(args.cluster)
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     names = [study.name for study in studies]
     for study in studies:
@@ -115,7 +124,8 @@ def _sweep(args):
         if not args.quiet:
             print(line)
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
-                         force=args.force, quiet=args.quiet, keep_parts=args.keep_parts)
+                         force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
+                         cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)
         if done.archive_problems:
             print(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
                   "rebuilt it")
@@ -128,6 +138,9 @@ def _sweep(args):
         else:
             print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
                   f"{done.wall_seconds:.1f} s; wrote {done.path}")
+        if done.returned:
+            print(f"{study.name}: {done.returned} parts written here from the values the "
+                  "workers sent back (they do not see the results folder)")
         print(format_table(scheme_rows(open_results(done.path, SUMMARY_VARIABLES))))
     return 0
 
@@ -233,6 +246,17 @@ def build_parser():
                        help="run on a running dask.distributed scheduler (tcp://host:8786)")
     where.add_argument("--workers", type=int, metavar="N",
                        help="start a local dask.distributed cluster of N worker processes")
+    where.add_argument("--cluster", metavar="FILE",
+                       help="start the cluster a cluster file describes (local, SLURM or PBS; "
+                            "docs/cluster.md)")
+    # choices and default named here so that parsing loads no dask (rbstudy.pipeline.cluster)
+    sweep.add_argument("--writer", choices=("auto", "workers", "client"), default="auto",
+                       help="on a cluster, who writes the part files: the workers, this "
+                            "process (from values the workers send back), or auto (the "
+                            "workers where they see the results folder; the default)")
+    sweep.add_argument("--worker-wait", type=float, default=600.0, metavar="SECONDS",
+                       help="end the run when a cluster has had no worker this long (default "
+                            "600: batch jobs may queue)")
     sweep.add_argument("--force", action="store_true",
                        help="recompute every batch, even those already stored")
     sweep.add_argument("--keep-parts", action="store_true",
@@ -325,5 +349,22 @@ def main(argv=None):
         return EXIT_BUG
 
 
+def command():
+    """The ``rbstudy`` command: `main`, then the process ends at once with its exit code.
+
+    Python's own shutdown would then spend 0.3-0.6 s tearing down the modules of numba,
+    scipy, xarray and dask (measured: docs/performance.md). Nothing is lost by skipping it:
+    every file rbstudy writes is closed and synced, and every thread pool and cluster shut
+    down, before `main` returns; the output streams are flushed here. argparse's own exits
+    (``--help``, bad usage) end the usual way.
+    """
+    code = main()
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError):  # a reader gone: main has said so already
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    command()

@@ -168,7 +168,7 @@ BOMB = "title:\n  a0: &a0 x\n" + "".join(
 
 @pytest.mark.parametrize("content, message", [
     (GOOD.replace("name: x", "name: x\ntitle: caf\xe9").encode("latin-1"),
-     "is not UTF-8 text (byte 0xe9 at offset 18); save the config as UTF-8"),
+     "is not UTF-8 text (byte 0xe9 at offset 18); save the file as UTF-8"),
     (GOOD.encode("utf-16"), "is not UTF-8 text"),
     (bytes(range(256)) * 4, "is not UTF-8 text"),
     (GOOD + "name: other\n", "line 5: malformed YAML: duplicate key 'name'"),

@@ -25,7 +25,8 @@ OUTSIDE = {
     "numerics": {"numpy", "numba"},
     "schemes": {"numpy", "numba"},
     "physics": {"numpy", "scipy"},
-    "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "yaml"},
+    "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
+                 "yaml"},
     "analysis": {"numpy", "xarray", "matplotlib"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once

@@ -27,7 +27,7 @@ from rbstudy.physics.analytic import REFERENCE_KINDS
 from rbstudy.physics.references import composed_steps
 from rbstudy.physics.scenes import Body
 from rbstudy.physics.simulate import simulate
-from rbstudy.pipeline import execute
+from rbstudy.pipeline import cluster, execute
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import Progress, run_study, study_lock
@@ -319,7 +319,7 @@ def test_a_failed_run_leaves_later_runs_free_to_finish(tmp_path, monkeypatch):
     def broken(*args):
         raise RbstudyError("the disk broke")
 
-    monkeypatch.setattr(execute, "store_part", broken)
+    monkeypatch.setattr(execute, "deliver_part", broken)
     with pytest.raises(RbstudyError, match="the disk broke"):
         run_study(load_study(config), tmp_path / "out", quiet=True)
     monkeypatch.undo()
@@ -362,7 +362,7 @@ def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(execute, "CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "1s")
     config = _small_study(tmp_path)
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet",
                  "--scheduler", "tcp://127.0.0.1:9"]) == 1

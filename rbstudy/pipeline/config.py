@@ -28,7 +28,7 @@ from rbstudy.pipeline.variables import (
     scene_features,
     selected,
 )
-from rbstudy.pipeline.yaml_file import read_study_file
+from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 from rbstudy.schemes import SCHEMES, composition_reach, get_scheme
 
@@ -208,7 +208,7 @@ def _output_interval(reader, output, run, swept):
 def load_study(path):
     """Read and validate the study config at ``path``; nothing is run or written."""
     path = str(path)
-    text, data = read_study_file(path)
+    text, data = read_yaml_file(path)
     reader = Reader(path, ConfigError)
     data = reader.mapping(data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key in ("name", "scene", "run"):

@@ -4,9 +4,10 @@ One dask task per batch runs the compiled driver on all its cases and returns th
 (small: decimated samples only, computed through the variables table); a second task writes
 them as the batch's part file. The references (closed form or DOP853) are tasks of their own,
 one per chunk of distinct scenes, shared by every batch that needs them. The default
-scheduler is dask's local threaded one (the kernels release the GIL); ``scheduler`` connects
-to a running ``dask.distributed`` cluster and ``workers`` starts a `LocalCluster` (workers
-must see the results folder).
+scheduler is dask's local threaded one (the kernels release the GIL); ``scheduler``,
+``workers`` and ``cluster`` run the tasks on a ``dask.distributed`` cluster
+(`rbstudy.pipeline.cluster`), whose workers write the parts where they see the results
+folder and send their values back to be written here where they do not.
 
 A study folder is locked while a sweep writes it; a rerun skips the batches whose part is intact,
 so a killed sweep resumes where it stopped.
@@ -14,7 +15,7 @@ so a killed sweep resumes where it stopped.
 
 import contextlib
 import fcntl
-import logging
+import functools
 import os
 import pathlib
 import shutil
@@ -32,6 +33,7 @@ from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, default_threads, request_halt
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
+from rbstudy.pipeline.cluster import WORKER_WAIT, connect, run_on_cluster
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
@@ -55,8 +57,6 @@ __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Prog
 
 # Seconds between two redraws of the progress bar.
 _REDRAW_SECONDS = 0.2
-# How long to wait for a --scheduler to answer: a cluster on a busy login node may be slow.
-CONNECT_TIMEOUT = "10s"
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,8 @@ class BatchJob:
 class StudyRun:
     """What a sweep did: the dataset path, batches computed and reused, wall time (s),
     whether the archive was already current (nothing to do), the parts found damaged (and
-    recomputed) and what was wrong with a damaged archive (rebuilt)."""
+    recomputed), what was wrong with a damaged archive (rebuilt), and how many parts this
+    process wrote from values a cluster's workers sent back (they did not see the folder)."""
 
     path: pathlib.Path
     computed: int
@@ -87,6 +88,7 @@ class StudyRun:
     up_to_date: bool = False
     damaged_parts: int = 0
     archive_problems: tuple = ()
+    returned: int = 0
 
 
 def compute_references(scenes, n_times, output_interval):
@@ -113,16 +115,41 @@ def compute_batch(job, reference_chunks, threads):
 def compile_schemes(variants):
     """Compile the schemes of ``variants``, pairs (name, timed), one after the other, before
     any batch runs: a compiling thread holds the GIL for long stretches, and a batch beside
-    it would stall (run on every worker of a cluster too). ``timed`` asks for the variant
-    that takes the time (loads tabulated in time, `rbstudy.numerics.clock`)."""
+    it would stall. ``timed`` asks for the variant that takes the time (loads tabulated in
+    time, `rbstudy.numerics.clock`). A cluster's workers compile at their first batch
+    instead: a worker that joins late is not missed, and with the cache warm
+    getting ready takes milliseconds."""
     for name, timed in sorted(variants):
         get_scheme(name).ensure_compiled(timed=timed)
 
 
-def store_part(values, layout, batch, path):
-    """Write one batch's part file atomically, its digest beside it (a dask task); returns
-    the digest."""
-    return write_part(layout, batch, values, path)
+def deliver_part(values, layout, batch, path, writer, probe):
+    """Write one batch's part file atomically, its digest beside it, and return (digest,
+    None); or return (None, values) for the client to write it (a dask task).
+
+    The worker writes when ``writer`` is "workers", or "auto" and it sees the results folder:
+    it reads ``probe`` (path, token), the file this run left there (None: the client's own
+    process, which sees it).
+    """
+    if writer == "client" or (writer == "auto" and not sees_folder(probe)):
+        return None, values
+    if not sees_folder(probe):
+        raise RbstudyError(f"{pathlib.Path(path).parent}: a worker on {os.uname().nodename} "
+                           "does not see this results folder; use --writer auto or client "
+                           "(the workers send the values back)")
+    return write_part(layout, batch, values, path), None
+
+
+@functools.lru_cache(maxsize=16)
+def sees_folder(probe):
+    """Whether this process reads ``probe`` = (path, token) as the client wrote it."""
+    if probe is None:
+        return True
+    path, token = probe
+    try:
+        return pathlib.Path(path).read_text() == token
+    except OSError:
+        return False
 
 
 class Progress:
@@ -133,6 +160,12 @@ class Progress:
         self.done = 0
         self.start = time.perf_counter()
         self._drawn = 0.0
+
+    def say(self, text):
+        """A line of its own, for what the bar cannot show (a cluster still without workers)."""
+        if self.enabled:
+            self.stream.write(f"{self.label}: {text}\n")
+            self.stream.flush()
 
     def advance(self, cases):
         self.done += cases
@@ -216,14 +249,15 @@ def _reference_chunks(study, pending):
     return chunks, where
 
 
-def _graph(study, pending, parts_dir, threads, token):
+def _graph(study, pending, parts_dir, threads, token, writer, probe):
     """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
-    distinct scenes (references do not depend on the scheme or dt, so batches share them).
+    distinct scenes (references do not depend on the scheme or dt, so batches share them);
+    and the targets of the store tasks, key -> (layout, batch, part path, cases).
 
     Arguments are wrapped as opaque leaves (``traverse=False``): dask would otherwise walk
     every scene and number of every job looking for collections.
     """
-    layout = dask.delayed(Layout.of(study), traverse=False)
+    layout = Layout.of(study)
     chunks, where = _reference_chunks(study, pending)
     reference_tasks = [
         dask.delayed(compute_references)(dask.delayed(tuple(scenes), traverse=False),
@@ -231,7 +265,7 @@ def _graph(study, pending, parts_dir, threads, token):
                                          dask_key_name=f"references-{token}-{k}")
         for k, scenes in enumerate(chunks)]
     runs = study.cases.runs
-    tasks = []
+    tasks, targets = [], {}
     for batch in pending:
         needed = sorted({where[i][0] for i in batch.cases})
         local = {chunk: k for k, chunk in enumerate(needed)}
@@ -243,16 +277,17 @@ def _graph(study, pending, parts_dir, threads, token):
         values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False),
                                              [reference_tasks[k] for k in needed], threads,
                                              dask_key_name=f"batch-{token}-{batch.id}")
-        tasks.append(dask.delayed(store_part)(values, layout,
-                                              dask.delayed(batch, traverse=False),
-                                              str(parts_dir / f"{batch.id}.nc"),
-                                              dask_key_name=f"store-{token}-{batch.id}"))
-    return tasks
+        key, path = f"store-{token}-{batch.id}", str(parts_dir / f"{batch.id}.nc")
+        tasks.append(dask.delayed(deliver_part)(
+            values, dask.delayed(layout, traverse=False), dask.delayed(batch, traverse=False),
+            path, writer, probe, dask_key_name=key))
+        targets[key] = (layout, batch, path, len(batch.cases))
+    return tasks, targets
 
 
-def _run_local(tasks, sizes, progress, workers, schemes):
-    """Run the tasks on this process's threads; their results, in order. On Ctrl-C (or when
-    a task fails) every running kernel and reference is halted
+def _run_local(tasks, targets, progress, workers, schemes):
+    """Run the tasks on this process's threads; {key: digest} of the parts they wrote. On
+    Ctrl-C (or when a task fails) every running kernel and reference is halted
     (`rbstudy.numerics.driver.request_halt`) and the threads are joined before the exception
     goes on: the study stays locked until nothing of this run is left working, and the
     process ends within a second."""
@@ -262,16 +297,17 @@ def _run_local(tasks, sizes, progress, workers, schemes):
 
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
-            if isinstance(key, str) and key.startswith("store-"):
-                progress.advance(sizes[key])
+            if key in targets:
+                progress.advance(targets[key][3])
 
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         with _Advance():
             # the threaded scheduler itself: by its name, dask would first import
             # distributed (0.3 s) to look for a client
-            return dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers,
-                                pool=pool)
+            written = dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers,
+                                   pool=pool)
+        return {key: digest for key, (digest, _) in zip(targets, written, strict=True)}
     except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
         request_halt()
         raise
@@ -280,32 +316,8 @@ def _run_local(tasks, sizes, progress, workers, schemes):
         clear_halt()  # nothing of this run works any more: later runs must not stop
 
 
-def _run_distributed(tasks, sizes, progress, scheduler, workers, schemes):
-    """Run the tasks on a cluster; their results, in order."""
-    from distributed import Client, LocalCluster, as_completed
-
-    with contextlib.ExitStack() as stack:
-        if scheduler:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
-            except (OSError, TimeoutError) as error:
-                raise RbstudyError(f"--scheduler {scheduler}: cannot connect ({error}); start "
-                                   "the cluster first or drop --scheduler") from None
-        else:
-            cluster = stack.enter_context(LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True,
-                dashboard_address=None, silence_logs=logging.ERROR))
-            client = stack.enter_context(Client(cluster))
-        client.run(compile_schemes, schemes)
-        futures = client.compute(tasks)
-        for future in as_completed(futures):
-            future.result()  # a failed task raises here; finished parts stay on disk
-            progress.advance(sizes[future.key])
-        return [future.result() for future in futures]
-
-
 def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False,
-              keep_parts=False):
+              keep_parts=False, cluster=None, writer="auto", worker_wait=WORKER_WAIT):
     """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
 
     Parameters
@@ -314,10 +326,15 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     root : results root folder.
     scheduler : address of a running dask.distributed scheduler, or None.
     workers : start a LocalCluster of this many single-threaded worker processes, or None.
+    cluster : start the cluster of a `rbstudy.pipeline.cluster.ClusterFile`, or None.
     force : recompute every batch even when its part or a current archive exists.
     quiet : no progress bar.
     keep_parts : keep ``parts/`` after the archive is written (else it is removed: the
         archive holds everything; until then the parts are what a rerun resumes from).
+    writer : on a cluster, who writes the part files: "workers", "client" (this process,
+        from the values the workers send back) or "auto" (the workers where they see the
+        results folder).
+    worker_wait : seconds a cluster may have no worker before the run ends (jobs queue).
     """
     started_clock = time.perf_counter()
     started = utc_now()
@@ -325,21 +342,37 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
             if not path.exists()]
     folder = _prepare(root, study)
     try:
-        return _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started,
-                       started_clock)
+        return _run_in(folder, study, _Where(scheduler, workers, cluster, writer, worker_wait),
+                       force, quiet, keep_parts, started, started_clock)
     except RbstudyError:
         if made and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
             shutil.rmtree(made[0])  # this run made the folder and left nothing worth keeping
         raise
 
 
-def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started,
-            started_clock):
+@dataclass(frozen=True)
+class _Where:
+    """Where `run_study` runs its tasks: this process's threads, or a cluster (its
+    arguments of the same names)."""
+
+    scheduler: str | None
+    workers: int | None
+    cluster: object
+    writer: str
+    worker_wait: float
+
+    @property
+    def distributed(self):
+        return (self.scheduler, self.workers, self.cluster) != (None, None, None)
+
+
+def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clock):
     """`run_study` inside its study folder."""
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
     with study_lock(folder):
-        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp")]:
+        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp"),
+                      *parts_dir.glob(".probe-*")]:
             stale.unlink()  # left by a killed sweep; the lock is ours
         state, archive_problems = archive_state(target, study)
         if not force and state == "current":
@@ -359,30 +392,28 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
         damaged = 0 if force else sum(sealed(parts[batch.id]) for batch in pending)
         check_disk(study, disk_needed(study, pending), folder)
         cores = default_threads()  # the cores this process may use (a SLURM share)
-        distributed = scheduler is not None or workers is not None
-        threads = 1 if distributed else max(1, cores // max(1, len(pending)))
+        threads = 1 if where.distributed else max(1, cores // max(1, len(pending)))
         token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
-        tasks = _graph(study, pending, parts_dir, threads, token)
-        sizes = {f"store-{token}-{batch.id}": len(batch.cases) for batch in pending}
-        progress = Progress(sum(sizes.values()), study.name, progress_wanted(quiet))
+        probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
+        tasks, targets = _graph(study, pending, parts_dir, threads, token, where.writer,
+                                (str(probe), token) if where.distributed else None)
+        progress = Progress(sum(cases for *_, cases in targets.values()), study.name,
+                            progress_wanted(quiet))
         # the kernels take the time where the scenes have load tables (numerics/clock.py)
         timed = study.cases.scenes.loads["knots"].shape[-1] > 0
         schemes = {(batch.scheme, timed) for batch in pending}
-        written = []  # the digest each store task computed of the part it wrote
-        if tasks:
-            if distributed:
-                written = _run_distributed(tasks, sizes, progress, scheduler, workers, schemes)
-            else:
-                written = _run_local(tasks, sizes, progress, cores, schemes)
-        # the archive is built from what the folder holds: on a cluster, workers that cannot
-        # see it leave nothing there (and their digests name no part here)
-        digests.update({batch.id: digest if parts[batch.id].exists() else None
-                        for batch, digest in zip(pending, written, strict=True)})
-        missing = [batch_id for batch_id, digest in digests.items() if digest is None]
-        if missing:
-            raise RbstudyError(f"{parts_dir}: {len(missing)} finished batches left no part "
-                               "there; the cluster's workers must see this results folder "
-                               "(give --out a shared path)")
+        written, returned = {}, 0  # the digest of each part, by its store task's key
+        if tasks and where.distributed:
+            probe.write_text(token)
+            try:
+                with connect(where.scheduler, where.workers, where.cluster) as client:
+                    written, returned = run_on_cluster(client, tasks, targets, progress,
+                                                       where.worker_wait)
+            finally:
+                probe.unlink()
+        elif tasks:
+            written = _run_local(tasks, targets, progress, cores, schemes)
+        digests.update({batch.id: written[key] for key, (_, batch, _, _) in targets.items()})
         consolidate(study, parts, digests, target, global_attrs(study, started=started))
         write_text_atomic(resolved_config(study), folder / "study.yaml")
         if keep_parts:
@@ -395,4 +426,4 @@ def _run_in(folder, study, scheduler, workers, force, quiet, keep_parts, started
     return StudyRun(path=target, computed=len(pending),
                     reused=len(study.batches) - len(pending), cases=len(study.cases),
                     wall_seconds=time.perf_counter() - started_clock, damaged_parts=damaged,
-                    archive_problems=tuple(archive_problems))
+                    archive_problems=tuple(archive_problems), returned=returned)

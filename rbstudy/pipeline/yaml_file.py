@@ -1,4 +1,5 @@
-"""Reading a study file: UTF-8 text -> YAML -> plain Python values, or a one-line `ConfigError`.
+"""Reading a YAML file (a study config, a cluster file): UTF-8 text -> YAML -> plain Python
+values, or a one-line `ConfigError`.
 
 Beyond PyYAML's safe loader, it reads floats as YAML 1.2 does (``1e-3`` is a number, not a
 string), keeps dates and other YAML 1.1 timestamps as text (a config has no dates),
@@ -16,7 +17,7 @@ import yaml
 
 from rbstudy.errors import ConfigError
 
-__all__ = ["read_study_file", "MAX_DEPTH", "MAX_VALUES"]
+__all__ = ["read_yaml_file", "MAX_DEPTH", "MAX_VALUES"]
 
 # A study config is a few hundred values a few levels deep (scene.initial.angular_velocity
 # .body is five): these bounds leave ample room.
@@ -106,16 +107,16 @@ def _check_extent(path, root):
                               "write the values out instead of nesting aliases", path, key)
 
 
-def read_study_file(path):
-    """The text of the study file at ``path`` and its values; a `ConfigError` names what is
+def read_yaml_file(path):
+    """The text of the YAML file at ``path`` and its values; a `ConfigError` names what is
     wrong with the file (unreadable, not UTF-8, malformed YAML, too deep or too large)."""
     try:
         text = pathlib.Path(path).read_text(encoding="utf-8")
     except OSError as error:
-        raise ConfigError(f"cannot read the config: {error.strerror}", source=path) from None
+        raise ConfigError(f"cannot read the file: {error.strerror}", source=path) from None
     except UnicodeDecodeError as error:
         raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
-                          f"offset {error.start})", "save the config as UTF-8", path) from None
+                          f"offset {error.start})", "save the file as UTF-8", path) from None
     loader = _Loader(text)
     try:
         root = loader.get_single_node()  # composed once: measured, then built

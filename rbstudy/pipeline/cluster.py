@@ -1,0 +1,239 @@
+"""Running a study's tasks on a dask.distributed cluster, and telling its failures in one line.
+
+Three ways to a cluster (`connect`): ``--scheduler ADDRESS`` joins a running one,
+``--workers N`` starts a `LocalCluster` of N single-threaded processes, and ``--cluster FILE``
+builds one from a cluster file (`read_cluster_file`): a `LocalCluster`, or batch jobs of
+SLURM or PBS through dask-jobqueue (the optional extra ``rbstudy[cluster]``).
+
+Who writes a batch's part file (``--writer``): a worker that sees the study's results folder
+writes it there; a worker that does not (another machine, another working directory) sends
+the values back and this process writes the part, with the same bytes and digest. ``auto``
+decides per task, by whether the worker can read the probe file this run left in the
+folder; ``workers`` and ``client`` force one way.
+
+The failures users of batch clusters meet end the run with one line, keeping every part
+written so far (a rerun resumes from them): a worker killed at its walltime or memory limit
+more often than the scheduler allows (``KilledWorker``); no worker joining, or every worker
+gone, for `worker_wait` seconds; the scheduler going away.
+"""
+
+import contextlib
+import logging
+import math
+import pathlib
+import time
+from concurrent.futures import CancelledError
+from dataclasses import dataclass
+
+from rbstudy.errors import ConfigError, RbstudyError, first_line
+from rbstudy.pipeline.integrity import sealed
+from rbstudy.pipeline.store import write_part
+from rbstudy.pipeline.yaml_file import read_yaml_file
+from rbstudy.reader import Reader
+
+__all__ = ["ClusterFile", "read_cluster_file", "connect", "run_on_cluster", "WRITERS",
+           "WORKER_WAIT", "CONNECT_TIMEOUT"]
+
+WRITERS = ("auto", "workers", "client")
+# Seconds to wait for a first worker (batch jobs queue) or for workers to come back.
+WORKER_WAIT = 600.0
+# How long to wait for a --scheduler to answer: a cluster on a busy login node may be slow.
+CONNECT_TIMEOUT = "10s"
+# Seconds between two looks at the cluster's workers, and between two looks for finished
+# batches when none has finished.
+POLL_SECONDS = 1.0
+_IDLE_SECONDS = 0.02
+# Seconds to fetch a finished batch's values from its worker; past it, the worker is taken
+# for dead (distributed then runs the batch again) and the batch is awaited anew.
+GATHER_SECONDS = 60.0
+# The dask-jobqueue class of each batch system a cluster file may name.
+JOB_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
+_KEYS = ("kind", "jobs", "adaptive", "options")
+
+
+@dataclass(frozen=True)
+class ClusterFile:
+    """A cluster to start for a sweep: ``kind`` (local, slurm, pbs), a fixed number of
+    ``jobs`` (worker processes for local) or ``adaptive`` bounds (minimum, maximum), and
+    the keyword ``options`` of its dask class, passed on as written."""
+
+    path: str
+    kind: str
+    jobs: int | None
+    adaptive: tuple | None
+    options: dict
+
+
+def read_cluster_file(path):
+    """The `ClusterFile` at ``path``, or a one-line `ConfigError` naming the key and the fix."""
+    path = str(path)
+    _, data = read_yaml_file(path)
+    reader = Reader(path, ConfigError)
+    data = reader.mapping(data, "", _KEYS)
+    kinds = ("local", *JOB_CLUSTERS)
+    kind = data.get("kind")
+    if kind not in kinds:
+        reader.fail("kind", f"expected one of {', '.join(kinds)}, got {kind!r}")
+    if ("jobs" in data) == ("adaptive" in data):
+        reader.fail("jobs", "give either jobs (a fixed number) or adaptive (minimum and "
+                            "maximum), not both or neither")
+    jobs = reader.count(data["jobs"], "jobs") if "jobs" in data else None
+    adaptive = None
+    if "adaptive" in data:
+        bounds = reader.mapping(data["adaptive"], "adaptive", ("minimum", "maximum"))
+        if set(bounds) != {"minimum", "maximum"}:
+            reader.fail("adaptive", "give minimum and maximum")
+        minimum, maximum = bounds["minimum"], bounds["maximum"]
+        if isinstance(minimum, bool) or not isinstance(minimum, int) or minimum < 0:
+            reader.fail("adaptive.minimum", f"expected a whole number >= 0, got {minimum!r}")
+        adaptive = (minimum, reader.count(maximum, "adaptive.maximum"))
+        if adaptive[1] < minimum:
+            reader.fail("adaptive.maximum", f"{adaptive[1]} is below the minimum {minimum}")
+    options = data.get("options") or {}
+    if not isinstance(options, dict) or not all(isinstance(key, str) for key in options):
+        reader.fail("options", f"expected a mapping of keyword arguments, got {options!r:.80}")
+    return ClusterFile(path, kind, jobs, adaptive, options)
+
+
+def _start(spec):
+    """The cluster ``spec`` describes, started and scaled (not yet connected)."""
+    if spec.kind == "local":
+        from distributed import LocalCluster
+        make = LocalCluster
+        options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
+                   "dashboard_address": None, "silence_logs": logging.CRITICAL,
+                   **spec.options}
+    else:
+        try:
+            import dask_jobqueue
+        except ImportError:
+            raise ConfigError(f"a {spec.kind} cluster needs dask-jobqueue",
+                              "pip install 'rbstudy[cluster]'", spec.path, "kind") from None
+        make = getattr(dask_jobqueue, JOB_CLUSTERS[spec.kind])
+        options = spec.options
+    try:
+        cluster = make(**options)
+    except (TypeError, ValueError, RuntimeError) as error:
+        # a worker that fails to start on a bad option says why in the cause
+        raise ConfigError(first_line(error.__cause__ or error),
+                          f"see the keyword arguments of {make.__name__}", spec.path,
+                          "options") from None
+    if spec.adaptive:
+        minimum, maximum = spec.adaptive
+        if spec.kind == "local":
+            cluster.adapt(minimum=minimum, maximum=maximum)
+        else:
+            cluster.adapt(minimum_jobs=minimum, maximum_jobs=maximum)
+    elif spec.kind != "local":
+        cluster.scale(jobs=spec.jobs)
+    return cluster
+
+
+@contextlib.contextmanager
+def connect(scheduler=None, workers=None, cluster=None):
+    """A `distributed.Client` of the running ``scheduler``, of a `LocalCluster` of
+    ``workers`` processes, or of the cluster a `ClusterFile` describes; the cluster this
+    started is closed (its jobs cancelled) on the way out.
+
+    distributed's own log lines are held back meanwhile: a failure ends the run with one
+    line of ours (`run_on_cluster`), not pages of reconnection tracebacks."""
+    from distributed import Client
+    # distributed's configuration gives some of its loggers levels of their own
+    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
+               if name.partition(".")[0] == "distributed"]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL)
+    try:
+        with contextlib.ExitStack() as stack:
+            if scheduler:
+                try:
+                    client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+                except (OSError, TimeoutError) as error:
+                    raise RbstudyError(f"--scheduler {scheduler}: cannot connect ({error}); "
+                                       "start the cluster first or drop --scheduler") from None
+            else:
+                spec = cluster or ClusterFile("--workers", "local", workers, None, {})
+                started = stack.enter_context(contextlib.closing(_start(spec)))
+                client = Client(started)
+            # a client whose scheduler has gone would retry for its whole timeout
+            stack.callback(client.close, timeout=2)
+            yield client
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
+def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
+    """Run the store ``tasks`` on ``client``'s cluster; ({key: digest}, number of parts this
+    process wrote from values sent back).
+
+    ``targets`` gives each task's key its (layout, batch, path, cases): a task returns
+    (digest, None) when its worker wrote the part, (None, values) when this process must.
+    Futures are released as they finish, so a worker holds no values once they are written.
+    """
+    from distributed import KilledWorker, as_completed
+
+    where = client.scheduler.address
+    futures = client.compute(tasks)
+    pending = set(futures)
+    finishing = as_completed(futures)  # bound to this client's loop, unlike distributed.wait
+    digests, returned = {}, 0
+    waiting_since, seen_workers, looked = None, False, -math.inf
+
+    def kept():  # counted on disk: a worker may have written a part whose news was lost
+        paths = [path for _, _, path, _ in targets.values()]
+        return (f"{sum(map(sealed, paths))} of {len(paths)} batches are kept in "
+                f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume")
+
+    try:
+        while pending:
+            now = time.monotonic()
+            if now - looked >= POLL_SECONDS:  # a look at the workers, once a second
+                looked = now
+                if client.nthreads():
+                    waiting_since, seen_workers = None, True
+                elif waiting_since is None:
+                    waiting_since = now
+                    if not seen_workers:
+                        progress.say(f"waiting up to {worker_wait:g} s for a worker to join "
+                                     f"{where}")
+                elif now - waiting_since > worker_wait:
+                    what = "every worker left" if seen_workers else "no worker joined"
+                    raise RbstudyError(f"{what} {where} for {worker_wait:g} s (are the "
+                                       "workers' jobs queued or ended? squeue, qstat); "
+                                       f"{kept()}, or wait longer with --worker-wait")
+            finished = finishing.next_batch(block=False)
+            if not finished:
+                time.sleep(_IDLE_SECONDS)
+            for future in finished:
+                try:
+                    digest, values = future.result(timeout=GATHER_SECONDS)
+                except TimeoutError:  # its worker died before it was gathered: run again
+                    finishing.add(future)
+                    continue
+                except KilledWorker as error:
+                    allowed = error.args[2] if len(error.args) > 2 else "?"
+                    raise RbstudyError(
+                        f"batch {targets[future.key][1].id}: its workers died while running "
+                        f"it, more often than {where} allows (KilledWorker, allowed-failures "
+                        f"= {allowed}: killed at their walltime or memory limit?); {kept()}, "
+                        "with a longer walltime or more memory per worker") from None
+                layout, batch, path, cases = targets[future.key]
+                if values is not None:
+                    digest = write_part(layout, batch, values, path)
+                    returned += 1
+                digests[future.key] = digest
+                pending.discard(future)
+                future.release()
+                progress.advance(cases)
+    except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
+        if client.status == "running" and not isinstance(error, CancelledError):
+            raise  # this machine's own trouble (a full disk writing a part)
+        raise RbstudyError(f"the scheduler {where} went away (or cancelled this run); "
+                           f"{kept()}") from None
+    finally:
+        with contextlib.suppress(Exception):  # nothing to tell a scheduler that has gone
+            client.cancel(list(pending))  # a shared cluster stops working for this run
+    return digests, returned
+
