@@ -1,8 +1,9 @@
 """Print the sweep figures of docs/performance.md: the time each scheme takes to get ready in
 a fresh process, the default study cold and warm, and how wall time, the share outside the
-kernels and peak memory grow from 100 to 10,000 cases.
+kernels and peak memory grow from 100 to 10,000 cases; with ``--scale``, studies of 200
+steps a case up to a million cases.
 
-Usage: python pipelines/bench_sweep.py [--sizes 100 1000 10000]
+Usage: python pipelines/bench_sweep.py [--sizes 100 1000 10000] [--scale 10000 100000 1000000]
 
 Every measurement runs `rbstudy sweep` in a fresh process (so that compilation and peak
 memory are those a user sees) into a fresh results folder, with `--quiet`:
@@ -18,6 +19,11 @@ memory are those a user sees) into a fresh results folder, with `--quiet`:
 empty cache directory; "warm" reuses the cache filled by the cold
 run. The scaling studies sweep ``inertia_ratio`` over N values with one scheme and one dt;
 the last line is a kernel-heavy study (1,000 cases of 2e5 rk4 steps).
+
+``--scale`` sweeps the default scene over 100 spins x N/100 tilts (each case its own scene),
+200 leapfrog steps a case (dt 0.01 s, 2 s), 11 output times, and prints besides the
+archive's size and the seconds xarray takes to open it lazily (``open_dataset``, nothing
+loaded).
 """
 
 import argparse
@@ -43,10 +49,16 @@ code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet"])
 wall = time.perf_counter() - start
 from rbstudy.pipeline.store import open_results
 import pathlib
-dataset = open_results(next(pathlib.Path(sys.argv[2]).glob("*/*.nc")), ["run_time", "status"])
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the sweep's, not ours
+archive = next(pathlib.Path(sys.argv[2]).glob("*/*.nc"))
+import xarray
+start = time.perf_counter()
+xarray.open_dataset(archive, decode_times=False).close()
+lazy = time.perf_counter() - start
+dataset = open_results(archive, ["run_time", "status"])
 print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.sum()),
-                  "cases": int(dataset.status.size),
-                  "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+                  "cases": int(dataset.status.size), "rss": rss, "lazy_open": lazy,
+                  "archive": archive.stat().st_size}))
 """
 
 
@@ -88,6 +100,19 @@ def scaling_config(folder, cases, scheme="leapfrog", dt=0.001):
     return path
 
 
+def scale_config(folder, cases):
+    """The default scene over 100 spins x ``cases``/100 tilts, 200 leapfrog steps a case."""
+    study = yaml.safe_load(DEFAULT.read_text())
+    study.update(name=f"spin_tilt{cases}", run={"scheme": "leapfrog", "dt": 0.01},
+                 output={"interval": 0.2})
+    study["scene"]["duration"] = 2.0
+    study["sweep"] = {"spin": {"logspace": [1, 100, 100]},
+                      "tilt": {"linspace": [1, 60, max(1, cases // 100)]}}
+    path = pathlib.Path(folder) / f"spin_tilt{cases}.yaml"
+    path.write_text(yaml.safe_dump(study))
+    return path
+
+
 def line(label, figures):
     cores = os.cpu_count() or 1
     outside = 1.0 - figures["kernel"] / (figures["wall"] * cores)
@@ -98,7 +123,12 @@ def line(label, figures):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
+    parser.add_argument("--scale", type=int, nargs="+", metavar="CASES",
+                        help="only the 200-step studies of these sizes (multiples of 100)")
     args = parser.parse_args()
+    if args.scale:
+        scale(args.scale)
+        return
     print(f"rbstudy sweep figures, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}")
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
@@ -119,6 +149,16 @@ def main():
         # Enough kernel work per case for the fixed costs to fade (2e5 steps a case).
         figures = measure(scaling_config(configs, 1000, "rk4", 1e-5), env)
         print(line("rk4, dt 1e-5, 2 s", figures), flush=True)
+
+
+def scale(sizes):
+    print(f"{'200 leapfrog steps a case':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} "
+          f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'lazy open s':>12s}")
+    with tempfile.TemporaryDirectory() as configs:
+        for cases in sizes:
+            figures = measure(scale_config(configs, cases))
+            print(f"{line('spin x tilt', figures)} {figures['archive'] / 2 ** 20:12.1f} "
+                  f"{figures['lazy_open']:12.2f}", flush=True)
 
 
 if __name__ == "__main__":

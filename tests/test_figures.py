@@ -308,3 +308,23 @@ def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
             assert main(verb) == 1
             error = capsys.readouterr().err.strip()
             assert "\n" not in error and f"{path}: {message}" in error, error
+
+
+def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
+    """`rbstudy plot` draws in as many processes as it has cores (2 in CI); the files are
+    the same, byte for byte, in the same order, with the same figures left out and why."""
+    import subprocess
+    import sys
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
+                     quiet=True)
+    serial = all_figures(open_results(done.path), tmp_path / "one")
+    forked = all_figures(open_results(done.path), tmp_path / "two", processes=2)
+    assert [path.name for path in forked.written] == [path.name for path in serial.written]
+    assert forked.absent == serial.absent
+    for one, two in zip(serial.written, forked.written, strict=True):
+        assert one.read_bytes() == two.read_bytes(), one.name
+    command = subprocess.run([sys.executable, "-m", "rbstudy", "plot", str(done.path), "--out",
+                              str(tmp_path / "cli")], capture_output=True, text=True, check=True)
+    assert f"{len(serial.written)} figures (PNG)" in command.stdout
+    for one in serial.written:
+        assert (tmp_path / "cli" / one.name).read_bytes() == one.read_bytes(), one.name

@@ -504,3 +504,19 @@ def test_every_file_is_synced_before_and_after_its_rename(tmp_path, monkeypatch)
     assert [kind for kind, _ in calls] == ["fsync", "replace", "fsync"]
     assert calls[0][1].endswith(".tmp") and calls[2][1] == str(tmp_path)
     assert target.read_text() == "data"
+
+
+@pytest.mark.parametrize("shape", [(7,), (3, 5), (4, 3, 5), (2, 3, 4, 2)])
+def test_every_run_of_consecutive_cases_is_written_as_few_slabs_in_order(shape):
+    """A part whose cases are not one block of the grid is written slab by slab: every run
+    of consecutive cases of every grid up to four dimensions is covered exactly, in order,
+    by at most 2 ndim - 1 slabs."""
+    from rbstudy.pipeline.store import _slabs
+    grid = np.arange(math.prod(shape)).reshape(shape)
+    for first in range(grid.size + 1):
+        for stop in range(first, grid.size + 1):
+            slabs = _slabs(first, stop, shape)
+            assert len(slabs) <= 2 * len(shape) - 1
+            covered = [grid[index].ravel() for index in slabs]
+            assert np.array_equal(np.concatenate(covered) if covered else [],
+                                  np.arange(first, stop))

@@ -207,8 +207,8 @@ def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, 
     ({"scene.body.mass": [1, 1.0]}, "sweep.scene.body.mass: 1.0 given twice"),
     ({"scene.initial.angular_velocity.body.x": [1.0]},
      "scene.initial.angular_velocity.body.x: 'x' is not an entry of a list of 3; use 0..2"),
-    ({"spin": {"linspace": [1, 2, 500]}, "tilt": {"linspace": [0, 60, 500]}},
-     "sweep: 250,000 cases (500 x 500); at most 200,000 per study"),
+    ({"spin": {"linspace": [1, 2, 1000]}, "tilt": {"linspace": [0, 60, 1001]}},
+     "sweep: 1,001,000 cases (1000 x 1001); at most 1,000,000 per study"),
 ])
 def test_bad_sweeps_name_file_key_value_and_fix(tmp_path, sweep, message):
     path = write_study(tmp_path, sweep=sweep)

@@ -68,12 +68,13 @@ def _claim(out, study):
     write_text_atomic(study + "\n", marker)
 
 
-def write_report(ds, out):
-    """Write ``out/index.html`` and ``out/figures/`` for dataset ``ds``; returns the index path."""
+def write_report(ds, out, processes=1):
+    """Write ``out/index.html`` and ``out/figures/`` for dataset ``ds``, the figures drawn in
+    ``processes`` processes (`rbstudy.analysis.plots.all_figures`); returns the index path."""
     out = pathlib.Path(out)
     study = str(ds.attrs.get("study", "results"))
     _claim(out, study)
-    figures = all_figures(ds, out / "figures", ALL_FORMATS)  # PNG shown, SVG linked
+    figures = all_figures(ds, out / "figures", ALL_FORMATS, processes)  # PNG shown, SVG linked
     rows = scheme_rows(ds)
     floor, ceiling = ERROR_MEASURES["orientation"][2:4]
     title = html.escape(ds.attrs.get("title", ds.attrs.get("study", "rbstudy results")))

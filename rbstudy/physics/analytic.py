@@ -164,8 +164,9 @@ def _axial_indices(omega0, moment_body):
 
 
 def reference_kinds(inertia, omega_body, loads, timed=False):
-    """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,): the exact solution
-    that applies to its rotation and centre of mass, else `INTEGRATED`. Arguments are the
+    """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,), an object array:
+    the exact solution that applies to its rotation and centre of mass, else `INTEGRATED`.
+    Arguments are the
     scenes' principal inertias and initial body angular velocities, each (n, 3), their
     constant loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3)
     (the lever (n, 9)), and ``timed`` (n,) (or one bool), True where a load varies in time
@@ -180,10 +181,12 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
     axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
     symmetric = symmetry_axes(inertia) >= 0
-    return np.where(
-        pushed, INTEGRATED,
-        np.where(moment_free, np.where(symmetric, "symmetric_top", "exact_asymmetric"),
-                 np.where(axial, "axial_moment", INTEGRATED)))
+    # an object array of the few names, each shared by its scenes: as fixed-width text, a
+    # million scenes' kinds took 88 MiB
+    names = np.array((INTEGRATED, "symmetric_top", "exact_asymmetric", "axial_moment"),
+                     dtype=object)
+    return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2),
+                                              np.where(axial, 3, 0)))]
 
 
 def precession_frequency_exact(scene):

@@ -77,7 +77,7 @@ RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme
     frozenset(VARIABLES)
 # A study has at most this many cases, and an axis at most this many values, checked before
 # any list is built, so that a count of 1e12 is an error, not an allocation.
-MAX_CASES = 200_000
+MAX_CASES = 1_000_000
 MAX_AXIS_VALUES = MAX_CASES
 # Halvings of a step: 60 divide it by 1e18, beyond any study (and a float by 2^1074 is 0).
 MAX_HALVINGS = 60
