@@ -147,6 +147,7 @@ def _sweep(args):
 
 def _plot(args):
     from rbstudy.analysis.plots import all_figures
+    from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.store import open_results
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
@@ -164,18 +165,12 @@ def _plot(args):
     for path in args.files:
         dataset = _select(_open(path, open_results), args.select, path)
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
-        figures = all_figures(dataset, folder, tuple(args.format), processes=_cores())
+        figures = all_figures(dataset, folder, tuple(args.format), processes=default_threads())
         kinds = " and ".join(kind.upper() for kind in args.format)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         for name, reason in figures.absent.items():
             print(f"  not drawn: {name}: {reason}")
     return 0
-
-
-def _cores():
-    """The cores this process may use (a SLURM share, a container's): figures are drawn in
-    as many processes."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 def _select(dataset, choices, path):
@@ -208,10 +203,11 @@ def _verify(args):
 
 def _report(args):
     from rbstudy.analysis.report import write_report
+    from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.store import open_results
     dataset = _open(args.file, open_results)
     index = write_report(dataset, args.out or pathlib.Path(args.file).parent / "report",
-                         processes=_cores())
+                         processes=default_threads())
     print(f"{args.file}: report in {index}")
     return 0
 

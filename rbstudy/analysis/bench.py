@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from rbstudy.numerics.driver import default_threads, run_batch
+from rbstudy.numerics.driver import run_batch
+from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.execute import progress_wanted
 from rbstudy.schemes import SCHEMES, get_scheme

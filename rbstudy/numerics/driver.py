@@ -41,7 +41,6 @@ body's numbers do not depend on which batch it ran in (no cross-body operations)
 """
 
 import math
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -54,13 +53,14 @@ from rbstudy.numerics.clock import step_time
 from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
 from rbstudy.numerics.entry import CachedEntry
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.machine import default_threads
 from rbstudy.numerics.rotation import dot, read3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
     "DRIFT_BOUND", "BatchOutput", "init_nothing", "integrate_body_inplace", "run_rows",
     "make_entry",
-    "run_batch", "n_samples", "default_threads", "Halted", "request_halt", "clear_halt",
+    "run_batch", "n_samples", "Halted", "request_halt", "clear_halt",
     "HALT_CHECK_STEPS", "HALT_FLAG",
 ]
 
@@ -259,11 +259,6 @@ def _chunks(n_bodies, threads):
     pieces = min(n_bodies, threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
     edges = np.linspace(0, n_bodies, pieces + 1).astype(int)
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
-
-
-def default_threads():
-    """Cores this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DRIFT_BOUND,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import ConfigError
-from rbstudy.numerics.driver import default_threads
+from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.references import (
     REFERENCE_COMPOSITION,

@@ -30,7 +30,8 @@ import dask.threaded
 import numpy as np
 
 from rbstudy.errors import RbstudyError
-from rbstudy.numerics.driver import clear_halt, default_threads, request_halt
+from rbstudy.numerics.driver import clear_halt, request_halt
+from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.cluster import WORKER_WAIT, connect, run_on_cluster
