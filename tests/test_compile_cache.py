@@ -70,3 +70,35 @@ def test_changed_code_gets_another_entry_module(tmp_path):
     finally:
         sys.path.remove(str(tmp_path))
         sys.modules.pop("my_kernels", None)
+
+
+# A sweep's first run on a machine: the schemes the cache lacks are compiled in child
+# processes, and this process then loads them (`rbstudy.schemes.get_ready`).
+IN_CHILDREN = textwrap.dedent("""
+    import json
+    from rbstudy.schemes import SCHEMES, get_ready
+
+    variants = [("leapfrog", False), ("rk4", False), ("rk4", True)]
+    before = [SCHEMES[name].is_cached(timed) for name, timed in variants]
+    in_children = get_ready(variants, processes=2)
+    stats = {name: SCHEMES[name].run_bodies_inplace.dispatcher.stats for name in ("leapfrog", "rk4")}
+    print(json.dumps({"before": before, "in_children": in_children,
+                      "hits": {name: sum(s.cache_hits.values()) for name, s in stats.items()},
+                      "misses": {name: sum(s.cache_misses.values()) for name, s in stats.items()},
+                      "after": [SCHEMES[name].is_cached(timed) for name, timed in variants]}))
+""")
+
+
+def test_a_cold_cache_is_filled_by_child_processes_and_loaded_here(tmp_path):
+    done = subprocess.run([sys.executable, "-c", IN_CHILDREN], capture_output=True, text=True,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}, check=True)
+    ready = json.loads(done.stdout.strip().splitlines()[-1])
+    assert ready["before"] == [False, False, False]
+    assert ready["in_children"] == 3
+    # this process compiled nothing: it loaded what the children wrote
+    assert ready["misses"] == {"leapfrog": 0, "rk4": 0}
+    assert ready["hits"] == {"leapfrog": 1, "rk4": 2}
+    assert ready["after"] == [True, True, True]
+    again = subprocess.run([sys.executable, "-c", IN_CHILDREN], capture_output=True, text=True,
+                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}, check=True)
+    assert json.loads(again.stdout.strip().splitlines()[-1])["in_children"] == 0  # all cached

@@ -52,7 +52,7 @@ from rbstudy.pipeline.store import (
     write_text_atomic,
 )
 from rbstudy.pipeline.variables import evaluate
-from rbstudy.schemes import get_scheme
+from rbstudy.schemes import get_ready
 
 __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Progress"]
 
@@ -114,17 +114,6 @@ def compute_batch(job, table, reference_chunks, threads):
     per_case = run.output.kernel_cpu_seconds / len(scenes)
     return evaluate(job.variables, BatchData(scenes, run, references, [per_case] * len(scenes),
                                              job.accuracy_bound))
-
-
-def compile_schemes(variants):
-    """Compile the schemes of ``variants``, pairs (name, timed), one after the other, before
-    any batch runs: a compiling thread holds the GIL for long stretches, and a batch beside
-    it would stall. ``timed`` asks for the variant that takes the time (loads tabulated in
-    time, `rbstudy.numerics.clock`). A cluster's workers compile at their first batch
-    instead: a worker that joins late is not missed, and with the cache warm
-    getting ready takes milliseconds."""
-    for name, timed in sorted(variants):
-        get_scheme(name).ensure_compiled(timed=timed)
 
 
 def deliver_part(values, layout, batch, path, writer, probe):
@@ -304,7 +293,10 @@ def _run_local(tasks, targets, progress, workers, schemes):
     process ends within a second."""
     from dask.callbacks import Callback
 
-    compile_schemes(schemes)
+    # before any batch: a compiling thread holds the GIL for long stretches, and a batch
+    # beside it would stall. A cluster's workers get ready at their first batch instead (a
+    # worker that joins late is not missed; with the cache warm that takes milliseconds).
+    get_ready(schemes, workers)
 
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):

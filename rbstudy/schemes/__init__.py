@@ -10,10 +10,11 @@ import pkgutil
 from rbstudy.errors import SchemeError
 from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
 from rbstudy.schemes._composition import stage_reach as composition_reach
+from rbstudy.schemes._ready import get_ready
 from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
 __all__ = ["SCHEMES", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme", "composition_reach",
-           "get_scheme"]
+           "get_scheme", "get_ready"]
 
 
 def _discover():

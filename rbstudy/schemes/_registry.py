@@ -107,6 +107,13 @@ class Scheme:
             row[option.slot:option.slot + len(packed)] = packed
         return row
 
+    def is_cached(self, timed=False):
+        """Whether numba's cache holds the batch kernel's variant with the time (``timed``)
+        or without, so that `ensure_compiled` only loads it. False where the kernel cannot
+        tell (the Python entry point of dop853, whose right-hand side is compiled)."""
+        check = getattr(self.run_bodies_inplace, "is_cached", None)
+        return bool(check and check(timed))
+
     def ensure_compiled(self, timed=False):
         """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run:
         its variant with the time when ``timed`` (a batch with loads tabulated in time), else

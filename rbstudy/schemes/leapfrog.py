@@ -59,6 +59,6 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK, lanes=2),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
 )
