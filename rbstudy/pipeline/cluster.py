@@ -199,12 +199,18 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
                         progress.say(f"waiting up to {worker_wait:g} s for a worker to join "
                                      f"{where}")
                 elif now - waiting_since > worker_wait:
+                    # a part this run wrote proves a worker, even one that came and went
+                    # between two looks
+                    seen_workers = seen_workers or any(
+                        sealed(path) for _, _, path, _ in targets.values())
                     what = "every worker left" if seen_workers else "no worker joined"
                     raise RbstudyError(f"{what} {where} for {worker_wait:g} s (are the "
                                        "workers' jobs queued or ended? squeue, qstat); "
                                        f"{kept()}, or wait longer with --worker-wait")
             finished = finishing.next_batch(block=False)
-            if not finished:
+            if finished:
+                seen_workers = True  # a finished batch had a worker (see above)
+            else:
                 time.sleep(_IDLE_SECONDS)
             for future in finished:
                 try:
