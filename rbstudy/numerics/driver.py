@@ -224,7 +224,7 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
     chain of dependent operations (the moment needs the orientation, the spin the moment,
     the rotation the spin: divisions, square roots, a sine), and one body's chain leaves the
     core idle while each result waits on the last. Two independent chains in one loop let
-    the core overlap them (leapfrog 1.9e7 -> 2.5e7 body-steps/s on one core,
+    the core overlap them (leapfrog 1.96e7 -> 2.5e7 body-steps/s on one core,
     docs/performance.md). Each body keeps its own state, work and tallies; nothing passes
     between the lanes, so a body's numbers are the same in any pair, or alone.
 

@@ -63,6 +63,6 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK, lanes=2),
+    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
 )
