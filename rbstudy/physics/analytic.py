@@ -25,8 +25,6 @@ cannot be had).
 import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from scipy.special import ellipkm1
 
 from rbstudy.numerics import algebra
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
@@ -149,6 +147,8 @@ def axial_moment(inertia, quaternion0, omega0, moment_body, times):
     times = np.asarray(times, dtype=float)
     rate = moment_body[k] / inertia[k]
     angle = omega0[k] * times + 0.5 * rate * times ** 2
+    from scipy.spatial.transform import Rotation  # here: the figures import this module (0.2 s)
+
     turn = np.zeros((times.size, 3))
     turn[:, k] = angle
     omega = np.zeros((times.size, 3))
@@ -224,6 +224,8 @@ def flip_interval_exact(scene):
     complement = (i3 - i1) * excess[mid] / ((i3 - i2) * excess[first])
     if complement <= 0.0:
         return float("inf")  # on the separatrix: one flip, never the next
+    from scipy.special import ellipkm1  # here: the figures import this module (0.25 s)
+
     return 2.0 * float(ellipkm1(complement)) / math.sqrt(rate2)
 
 
