@@ -99,10 +99,6 @@ def _validate(args):
 
 
 def _sweep(args):
-    from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
-    from rbstudy.pipeline.config import load_study
-    from rbstudy.pipeline.execute import run_study
-    from rbstudy.pipeline.store import open_results
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     if not args.worker_wait > 0:
@@ -112,6 +108,14 @@ def _sweep(args):
     if args.cluster:
         from rbstudy.pipeline.cluster import read_cluster_file
         cluster = read_cluster_file(args.cluster)
+    if not args.scheduler and (args.workers or (cluster and cluster.kind == "local")):
+        # the local workers' forkserver imports rbstudy while this process reads the studies
+        from rbstudy.pipeline.cluster import start_forkserver
+        start_forkserver()
+    from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.store import open_results
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     names = [study.name for study in studies]
     for study in studies:

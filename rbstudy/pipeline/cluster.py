@@ -49,7 +49,7 @@ GATHER_SECONDS = 60.0
 # The dask-jobqueue class of each batch system a cluster file may name.
 JOB_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
 _KEYS = ("kind", "jobs", "adaptive", "options")
-# The module of a study's tasks, which a local worker's nanny imports before it forks it.
+# The module of a study's tasks, which the forkserver of local workers imports.
 TASKS_MODULE = "rbstudy.pipeline.execute"
 
 
@@ -97,16 +97,34 @@ def read_cluster_file(path):
     return ClusterFile(path, kind, jobs, adaptive, options)
 
 
+def start_forkserver():
+    """Start the process from which a local cluster's workers are forked, importing
+    distributed and rbstudy's task module (`TASKS_MODULE`) once, where the system has one
+    (Linux, macOS); a no-op after the first call. Called as early as a command knows it
+    will start a local cluster, so that those imports overlap its own work."""
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        forkserver.set_forkserver_preload(["distributed", TASKS_MODULE])
+        forkserver.ensure_running()
+
+
 def _forked_local_cluster(**options):
-    """A `LocalCluster` whose nannies fork their workers rather than spawn them
-    (distributed's ``distributed.worker.multiprocessing-method``), where the system forks
-    (not on Windows)."""
+    """A `LocalCluster` whose workers are forked from the forkserver (`start_forkserver`),
+    which holds distributed and rbstudy imported, rather than spawned: a spawned worker
+    starts Python and imports both itself. A forkserver is one thread with no file of the
+    sweep open, unlike the sweep process, which a plain fork would copy with its scheduler's
+    threads and its study lock."""
     import multiprocessing
 
     import dask
     from distributed import LocalCluster
 
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    method = "spawn"
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        start_forkserver()
+        method = "forkserver"
     with dask.config.set({"distributed.worker.multiprocessing-method": method}):
         return LocalCluster(**options)
 
@@ -115,13 +133,9 @@ def _start(spec):
     """The cluster ``spec`` describes, started and scaled (not yet connected)."""
     if spec.kind == "local":
         make, name = _forked_local_cluster, "LocalCluster"
-        # each worker's nanny imports the tasks' module once, then forks its worker, which
-        # inherits it: a spawned worker would start Python and import distributed and
-        # rbstudy again (2 workers: 1.9 -> 1.0 core-seconds and 1.2 -> 0.86 s to start,
-        # import and close, measured)
         options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
                    "dashboard_address": None, "silence_logs": logging.CRITICAL,
-                   "preload_nanny": [TASKS_MODULE], **spec.options}
+                   **spec.options}
     else:
         try:
             import dask_jobqueue
