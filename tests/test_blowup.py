@@ -52,3 +52,21 @@ def test_every_scheme_gives_a_result_or_a_clean_unstable_at_huge_steps():
             assert np.all(np.isfinite(run.omega_body))
         else:
             assert np.isfinite(run.results["failure_time"][0])
+
+
+def test_bodies_run_side_by_side_equal_their_solo_runs_in_every_result():
+    """leapfrog runs two bodies of a batch per loop (`make_entry(..., lanes=2)`): a pair
+    whose first or second body blows up, a pair of two stable bodies and the odd body out
+    give every sample and every result a body gives alone."""
+    scenes = [spinner((0.0, 0.0, 0.5), duration=20.0), spinner((0.1, 10.0, 0.1), duration=20.0),
+              spinner((0.2, 12.0, 0.1), duration=20.0), spinner((0.02, 0.0, 0.3), duration=20.0),
+              spinner((0.3, 0.1, 0.2), duration=20.0)]
+    batch = simulate(scenes, "leapfrog", 0.1, 1.0, threads=1)  # rows (0,1), (2,3), (4)
+    assert list(batch.results["status"]) == [OK, UNSTABLE, UNSTABLE, OK, OK]
+    for i, scene in enumerate(scenes):
+        alone = simulate([scene], "leapfrog", 0.1, 1.0)
+        for field in ("quaternion", "omega_body", "position"):
+            assert np.array_equal(getattr(batch, field)[i], getattr(alone, field)[0],
+                                  equal_nan=True), (i, field)
+        for name, values in batch.results.items():
+            assert np.array_equal(values[i], alone.results[name][0], equal_nan=True), (i, name)

@@ -17,13 +17,14 @@ The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure ti
 iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
 here, by name.
 
-`integrate_body_inplace` below runs one body through all its steps and `run_rows` a range of
-batch rows; `make_entry` gives a scheme its entry point, a cached function that calls
-`run_rows` with the scheme's kernels (`rbstudy.numerics.entry`); `run_batch` spreads chunks of
-rows over threads (the kernels release the GIL). numba inlines `run_rows` and
-`integrate_body_inplace` into each entry point (`inline_jit`): the kernels are then never
-passed as values, which numba could not cache. The loop writes element by element and
-allocates nothing; `run_rows` allocates each body's arrays.
+`integrate_rows_inplace` below runs one body, or two side by side (a scheme's ``lanes``),
+through all their steps and `run_rows` a range of batch rows; `make_entry` gives a scheme its
+entry point, a cached function that calls `run_rows` with the scheme's kernels
+(`rbstudy.numerics.entry`); `run_batch` spreads chunks of rows over threads (the kernels
+release the GIL). numba inlines `run_rows` and `integrate_rows_inplace` into each entry point
+(`inline_jit`): the kernels are then never passed as values, which numba could not cache.
+The loop writes element by element and allocates nothing; `integrate_rows_inplace`
+allocates its bodies' state and work arrays before it.
 Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
 threads at once and let the caller choose the number of cores.
 
@@ -249,8 +250,9 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
         (`rbstudy.numerics.clock`).
     """
     paired = b >= 0
-    ya, yb = state0[a].copy(), state0[b if paired else a].copy()
-    work_a, work_b = np.zeros(n_work), np.zeros(n_work)
+    ya, work_a = state0[a].copy(), np.zeros(n_work)
+    # an idle second lane never steps: it may name the first lane's arrays
+    yb, work_b = (state0[b].copy(), np.zeros(n_work)) if paired else (ya, work_a)
     pa, pb = params[a], params[b if paired else a]
     oa, ob = options[a], options[b if paired else a]
     fixed_a, lane_a = _lane_start(a, ya, pa, samples)
@@ -361,9 +363,12 @@ def _check_knots(params):
 
 
 def _chunks(n_bodies, threads):
-    """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core."""
+    """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core;
+    each of an even length but the last, so that a scheme of two lanes leaves no body of a
+    range without its mate (`integrate_rows_inplace`)."""
     pieces = min(n_bodies, threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
     edges = np.linspace(0, n_bodies, pieces + 1).astype(int)
+    edges[1:-1] -= edges[1:-1] % 2
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 

@@ -3,7 +3,7 @@
 numba cannot cache a compiled function that receives kernels as arguments: it counts a
 kernel passed as a value as a "dynamic global", and the cache index of a later process then
 fails. A scheme's entry point therefore names its kernels as globals of a module. The module
-is three imports and one function; `_TEMPLATE` writes it the first time some process needs
+is a few imports and one function; `_TEMPLATE` writes it the first time some process needs
 it, into a folder beside numba's cache, and every process imports it from there. Its
 function hands the kernels to `driver.run_rows`, which numba inlines (`inline_jit`), so no
 kernel is ever passed as a value and the entry point caches like any kernel: a second
@@ -158,13 +158,18 @@ class CachedEntry:
 
     def is_cached(self, timed):
         """Whether numba's cache on disk holds this entry point's variant with the time
-        (``timed``) or without (`rbstudy.numerics.clock`), so that getting it ready takes
-        milliseconds: its cache index names that variant. Imports the generated module,
-        compiles nothing. Reads numba's index through its cache object (numba 0.59-0.62
-        spell it alike); where that fails, it says True, and the caller compiles as before."""
+        (``timed``) or without (`rbstudy.numerics.clock`) for this machine's processor, so
+        that getting it ready takes milliseconds: its cache index names that variant under
+        this processor's code generator (a folder shared with other machines may hold only
+        theirs). Imports the generated module, compiles nothing. Reads numba's index through
+        its cache object (private names, the same from numba 0.59 to 0.68); where that
+        fails, it says True, and the caller compiles in this process as before."""
         try:
-            index = self.dispatcher._cache._cache_file._load_index()
-            return any((key[0][-1] == types.none) != timed for key in index)
+            dispatcher = self.dispatcher
+            index = dispatcher._cache._cache_file._load_index()
+            processor = dispatcher.targetctx.codegen().magic_tuple()
+            return any((key[0][-1] == types.none) != timed and key[1] == processor
+                       for key in index)
         except Exception:  # noqa: BLE001 (numba's private cache API changed: compile here)
             return True
 

@@ -214,6 +214,8 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
     finishing = as_completed(futures)  # bound to this client's loop, unlike distributed.wait
     digests, returned = {}, 0
     waiting_since, seen_workers, looked = None, False, -math.inf
+    # parts already sealed (a --force run, a damaged part) prove nothing about this run
+    sealed_before = {path for _, _, path, _ in targets.values() if sealed(path)}
 
     def kept():  # counted on disk: a worker may have written a part whose news was lost
         paths = [path for _, _, path, _ in targets.values()]
@@ -236,15 +238,14 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
                     # a part this run wrote proves a worker, even one that came and went
                     # between two looks
                     seen_workers = seen_workers or any(
-                        sealed(path) for _, _, path, _ in targets.values())
+                        sealed(path) for _, _, path, _ in targets.values()
+                        if path not in sealed_before)
                     what = "every worker left" if seen_workers else "no worker joined"
                     raise RbstudyError(f"{what} {where} for {worker_wait:g} s (are the "
                                        "workers' jobs queued or ended? squeue, qstat); "
                                        f"{kept()}, or wait longer with --worker-wait")
             finished = finishing.next_batch(block=False)
-            if finished:
-                seen_workers = True  # a finished batch had a worker (see above)
-            else:
+            if not finished:
                 time.sleep(_IDLE_SECONDS)
             for future in finished:
                 try:
@@ -259,6 +260,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
                         f"it, more often than {where} allows (KilledWorker, allowed-failures "
                         f"= {allowed}: killed at their walltime or memory limit?); {kept()}, "
                         "with a longer walltime or more memory per worker") from None
+                seen_workers = True  # a batch that came back had a worker (see above)
                 layout, batch, path, cases = targets[future.key]
                 if values is not None:
                     digest = write_part(layout, batch, values, path)
