@@ -145,8 +145,8 @@ def space_force(q, p, t):
 
     A body without a body-fixed force skips its rotation (a rotated zero is zero: the same
     numbers): the force then no longer waits on the orientation, and the 30 operations of
-    the rotation leave every step (free top, one core: leapfrog 2.5e7 -> 2.56e7, euler
-    2.64e7 -> 2.96e7, rk4 1.03e7 -> 1.15e7 body-steps/s). The same branch on the space
+    the rotation leave every step (free top, one core: leapfrog 2.5e7 -> 2.58e7, euler
+    2.64e7 -> 2.95e7, rk4 1.03e7 -> 1.17e7 body-steps/s, docs/performance.md). The same branch on the space
     moment in `body_moment` made leapfrog and euler 25% slower (the compiled code was laid
     out worse) and was dropped."""
     if p[S.FORCE_BODY] != 0.0 or p[S.FORCE_BODY + 1] != 0.0 or p[S.FORCE_BODY + 2] != 0.0:

@@ -100,14 +100,17 @@ def read_cluster_file(path):
 def start_forkserver():
     """Start the process from which a local cluster's workers are forked, importing
     distributed and rbstudy's task module (`TASKS_MODULE`) once, where the system has one
-    (Linux, macOS); a no-op after the first call. Called as early as a command knows it
-    will start a local cluster, so that those imports overlap its own work."""
+    (Linux, macOS), and return the start method of local workers: "forkserver", else
+    "spawn". Running it again only returns the method. Called as early as a command knows
+    it will start a local cluster, so that those imports overlap its own work."""
     import multiprocessing
     from multiprocessing import forkserver
 
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        forkserver.set_forkserver_preload(["distributed", TASKS_MODULE])
-        forkserver.ensure_running()
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return "spawn"
+    forkserver.set_forkserver_preload(["distributed", TASKS_MODULE])
+    forkserver.ensure_running()
+    return "forkserver"
 
 
 def _forked_local_cluster(**options):
@@ -116,16 +119,10 @@ def _forked_local_cluster(**options):
     starts Python and imports both itself. A forkserver is one thread with no file of the
     sweep open, unlike the sweep process, which a plain fork would copy with its scheduler's
     threads and its study lock."""
-    import multiprocessing
-
     import dask
     from distributed import LocalCluster
 
-    method = "spawn"
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        start_forkserver()
-        method = "forkserver"
-    with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+    with dask.config.set({"distributed.worker.multiprocessing-method": start_forkserver()}):
         return LocalCluster(**options)
 
 
