@@ -32,8 +32,9 @@ _SELECT_RTOL = 1e-12
 
 
 def _schemes(args):
-    from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES
-    width = max(map(len, SCHEMES))
+    from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, unavailable_schemes
+    missing = unavailable_schemes()
+    width = max(map(len, [*SCHEMES, *missing]))
     print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
@@ -42,8 +43,12 @@ def _schemes(args):
         # a composition's orders: "2,4,6,8"
         orders = next((",".join(map(str, COMPOSITION_ORDERS)) for o in scheme.options
                        if o.sets_order), str(scheme.order))
+        origin = "" if scheme.origin == "rbstudy" else f" (plug-in: {scheme.origin})"
         print(f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} {scheme.summary}"
-              + (f" [{options}]" if options else ""))
+              + (f" [{options}]" if options else "") + origin)
+    for name, why in missing.items():
+        print(f"{name:{width}s} {'-':>7s} {'unavailable':26s} {why.reason}; "
+              f"fix: {why.fix} ({why.origin})")
     return 0
 
 

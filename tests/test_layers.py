@@ -47,6 +47,8 @@ def layer_of(parts):
         return parts[0]
     if parts == ("cli",) or parts == ("__main__",):
         return "cli"
+    if parts == ("extending",):  # the plug-ins' one import: the schemes' layer, re-exported
+        return "schemes"
     if parts[0] in SHARED or parts == ("__init__",):
         return "shared"
     raise AssertionError(f"rbstudy/{'/'.join(parts)}.py belongs to no layer: move it into one")

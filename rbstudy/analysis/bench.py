@@ -79,7 +79,8 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
     echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
          f"figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), {cores} cores; "
          "rates in body-steps/s")
-    header = f"{'scheme':10s} {'compile s':>9s}"
+    width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's name may be long
+    header = f"{'scheme':{width}s} {'compile s':>9s}"
     for size in batch_sizes:
         header += f" {f'B={size} 1 core':>14s} {f'B={size} {cores} cores':>14s}"
     echo(header)
@@ -89,7 +90,7 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
         start = time.perf_counter()
         scheme.ensure_compiled()
         compile_seconds = time.perf_counter() - start
-        line = f"{name:10s} {compile_seconds:9.2f}"
+        line = f"{name:{width}s} {compile_seconds:9.2f}"
         row = {"scheme": name, "compile_seconds": compile_seconds}
         for size in batch_sizes:
             steps = max(1, body_steps // size)

@@ -407,7 +407,9 @@ def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DR
     scheme.ensure_compiled(timed=clock is not None)
     arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
                  results, HALT_FLAG, clock)
-    chunks = _chunks(n_bodies, threads or default_threads())
+    # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
+    whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
+    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads())
 
     def run_chunk(rows):
         # CPU time of this thread: compute only, whatever the wait for the GIL around the call.

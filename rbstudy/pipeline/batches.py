@@ -75,7 +75,7 @@ def ids_digest(ids):
 
 
 def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases,
-                 verdict=None, run_costs=None):
+                 verdict=None, run_costs=None, code_digests=None):
     """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt) and, where the runs
     differ in it, by their cost per step (``run_costs``, one number per run of ``cases.runs``:
     a composition of order 8 takes 17 steps a step), in case order, into batches of at most
@@ -89,8 +89,10 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
     of its cases (scheme, dt and the options that scheme has, so that another scheme's
     option, unless swept, leaves it alone); the output grid and the stored variables; what
     the stored verdicts depend on (``verdict``: the accuracy bound); and the source digest of
-    rbstudy (a fixed bug never reuses old numbers). Reordering or extending an axis therefore
-    gives new ids, never a part in the wrong cells. Planning is linear in the cases.
+    rbstudy (a fixed bug never reuses old numbers), and for a plug-in's scheme the digest of
+    its package's sources (``code_digests``: scheme -> digest or None). Reordering or
+    extending an axis therefore gives new ids, never a part in the wrong cells. Planning is
+    linear in the cases.
     """
     study_digest = canonical_id({
         "scene": scene,  # hashed with sorted keys: the node order goes in on its own
@@ -111,9 +113,12 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
         for start in range(0, len(members), max_cases):
             chunk = members[start:start + max_cases]
             runs = [cases.runs[row] for row in np.unique(cases.run_rows[chunk])]
-            digest = canonical_id({
-                "positions": chunk.tolist(), "study": study_digest,
-                "runs": [[run.scheme, run.dt, run.options] for run in runs]})
+            identity = {"positions": chunk.tolist(), "study": study_digest,
+                        "runs": [[run.scheme, run.dt, run.options] for run in runs]}
+            code = (code_digests or {}).get(scheme)
+            if code is not None:  # only then: the ids of rbstudy's own schemes stay as they were
+                identity["code"] = code
+            digest = canonical_id(identity)
             batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt,
                                  tuple(chunk.tolist()), cost))
     return tuple(batches)

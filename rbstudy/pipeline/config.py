@@ -263,7 +263,9 @@ def load_study(path):
     batches = plan_batches(cases, base["scene"], dimensions, interval, variables, max_cases,
                            verdict={"accuracy_bound": accuracy_bound},
                            run_costs=[get_scheme(run.scheme).seconds_per_step(run.options)
-                                      for run in cases.runs])
+                                      for run in cases.runs],
+                           code_digests={name: get_scheme(name).code_digest
+                                         for name in study.schemes})
     return dataclasses.replace(study, batches=batches)
 
 

@@ -40,7 +40,7 @@ from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable, scene_table
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.variables import VARIABLES, coordinate_units
-from rbstudy.schemes import SCHEMES, get_scheme
+from rbstudy.schemes import BUILTIN, get_scheme
 
 __all__ = ["Axis", "Dimension", "Case", "Cases", "Run", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
            "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand"]
@@ -151,8 +151,9 @@ def _values(reader, key, spec):
         start = reader.number(spec["halving"], f"{key}.halving")
         count = reader.count(spec["count"], f"{key}.count", MAX_HALVINGS)
         return tuple(start * 0.5 ** i for i in range(count))
-    if spec == ALL_SCHEMES and key.endswith("scheme"):
-        return tuple(name for name, scheme in SCHEMES.items() if not scheme.adaptive)
+    if spec == ALL_SCHEMES and key.endswith("scheme"):  # rbstudy's own: a config means the
+        # same study whatever plug-ins are installed; those are named one by one
+        return tuple(name for name, scheme in BUILTIN.items() if not scheme.adaptive)
     reader.fail(key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
                      f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
                      f"got {spec!r}")

@@ -222,6 +222,8 @@ def _scheme_claims(study, dims):
         along = dims
         if name == "claimed_invariants":
             values = np.array([" ".join(v) or "none" for v in values], dtype=object)
+        elif name == "scheme_origin":
+            values = np.array(values, dtype=object)
         if name == "nominal_order" and swept_order is not None:
             along = dims + (swept_order[0],)  # the orders of a swept composition
         shape = (len(values),) * bool(dims) + np.shape(values)[1:]

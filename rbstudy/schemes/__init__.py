@@ -1,20 +1,29 @@
-"""The scheme registry: every module of this package that defines ``SCHEME`` is a scheme.
+"""The scheme registry: rbstudy's own schemes and those other packages register.
 
-Adding a scheme means adding one file here; config validation, `rbstudy schemes`, the docs
-table and the tests all read `SCHEMES`.
+Every module of this package that defines ``SCHEME`` is one of rbstudy's schemes: adding a
+scheme means adding one file here; config validation, `rbstudy schemes`, the docs table and
+the tests all read `SCHEMES`. Other packages add theirs through the entry-point group
+``rbstudy.schemes`` (`rbstudy.schemes._plugins`, docs/extending.md); those that cannot run
+here are listed by `unavailable_schemes`, with why and the fix.
+
+The plug-ins are loaded the first time the registry is read, not when this package is
+imported: a plug-in's module imports this package for `Scheme`, and must find it complete.
 """
 
 import importlib
 import pkgutil
+from collections.abc import Mapping
 
 from rbstudy.errors import SchemeError
 from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
 from rbstudy.schemes._composition import stage_reach as composition_reach
+from rbstudy.schemes._plugins import SchemeUnavailable, Unavailable, load_plugins
 from rbstudy.schemes._ready import get_ready
 from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
-__all__ = ["SCHEMES", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme", "composition_reach",
-           "get_scheme", "get_ready"]
+__all__ = ["SCHEMES", "BUILTIN", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme",
+           "SchemeUnavailable", "Unavailable", "composition_reach", "get_scheme", "get_ready",
+           "unavailable_schemes"]
 
 
 def _discover():
@@ -28,13 +37,54 @@ def _discover():
     return dict(sorted(found.items()))
 
 
-SCHEMES = _discover()
+class _Registry(Mapping):
+    """name -> `Scheme`: rbstudy's own, then the plug-ins', loaded on first reading."""
+
+    def __init__(self, builtin):
+        self._builtin = builtin
+        self._all = None
+        self._unavailable = {}
+
+    def _schemes(self):
+        if self._all is None:
+            self._all = dict(self._builtin)  # a plug-in reading the registry meanwhile sees these
+            plugins, self._unavailable = load_plugins(self._builtin)
+            self._all.update(plugins)
+        return self._all
+
+    def unavailable(self):
+        self._schemes()
+        return self._unavailable
+
+    def __getitem__(self, name):
+        return self._schemes()[name]
+
+    def __iter__(self):
+        return iter(self._schemes())
+
+    def __len__(self):
+        return len(self._schemes())
+
+
+BUILTIN = _discover()
+SCHEMES = _Registry(BUILTIN)
+
+
+def unavailable_schemes():
+    """name -> `Unavailable`: the registered schemes that cannot run here."""
+    return SCHEMES.unavailable()
 
 
 def get_scheme(name):
-    """The registered scheme ``name``; an unknown name raises `SchemeError` listing the valid ones."""
+    """The registered scheme ``name``; an unknown name raises `SchemeError` listing the valid
+    ones, an unavailable one says why and how to make it available."""
     try:
         return SCHEMES[name]
     except (KeyError, TypeError):
-        valid = ", ".join(SCHEMES)
-        raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}") from None
+        pass
+    if isinstance(name, str) and name in unavailable_schemes():
+        missing = unavailable_schemes()[name]
+        raise SchemeError(f"scheme {name!r} ({missing.origin}) is not available here: "
+                          f"{missing.reason}", missing.fix) from None
+    valid = ", ".join(SCHEMES)
+    raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}") from None

@@ -51,8 +51,12 @@ class Scheme:
     keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
     options : the scheme's options.
-    run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.numerics.driver`).
+    run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.numerics.driver`),
+        or that of a vectorised step (`rbstudy.numerics.batch_driver`).
     reference : literature reference.
+    origin : who provides it: "rbstudy", or a plug-in's package and version (set on loading).
+    code_digest : a plug-in's digest of its package's sources, which enters its batch ids
+        (None for rbstudy's own schemes: rbstudy's source digest covers them).
     """
 
     name: str
@@ -65,6 +69,8 @@ class Scheme:
     reference: str
     adaptive: bool = False
     options: tuple = field(default=())
+    origin: str = "rbstudy"
+    code_digest: str | None = None
 
     def __post_init__(self):
         unknown = set(self.keeps) - set(INVARIANTS)

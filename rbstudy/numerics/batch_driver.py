@@ -1,0 +1,171 @@
+"""The driver of a vectorised scheme: one numpy step advances every running body of a batch.
+
+The second kind of scheme a plug-in may bring (docs/extending.md): no compiled kernel, but a
+Python function over arrays,
+
+    init(y, p, opt, t, h, work) -> status (n,)
+    step(y, p, opt, t, h, work) -> (status (n,), iterations (n,))
+
+with ``y`` the state rows (n, N_STATE) of the n bodies still running, updated in place,
+``p`` their parameter rows (n, W >= N_PARAM), ``opt`` their options (n, N_OPTION), ``t``
+the time at the start of the step (s; None in a batch without loads tabulated in time, as
+for the compiled kernels), ``h`` the step (s) and ``work`` their scratch and carry
+(n, n_work), also updated in place. Statuses are `rbstudy.numerics.state`'s codes; a scalar
+iteration count applies to every body. It is slower than a kernel, but wraps foreign code
+(an engine's batch rollout, a prototype) in the studies of the built-in schemes.
+
+`BatchStepEntry` gives it the entry point of `rbstudy.numerics.driver`'s contract, with the
+same bookkeeping, written with numpy over the bodies: the samples, the blow-up test (a
+non-finite state, or an energy or |L| drift past ``drift_bound`` while no moment acts), the
+status and failure time, the step and iteration counts, the largest drifts and step angle.
+A body's numbers are what the compiled driver would give for the same step arithmetic
+(tests/test_plugins.py runs `euler` both ways, blow-ups included), and do not depend on the
+other bodies of its batch: a stopped body leaves the arrays handed to the step.
+"""
+
+import numpy as np
+
+from rbstudy.numerics import algebra
+from rbstudy.numerics import state as S
+from rbstudy.numerics.clock import step_time
+from rbstudy.numerics.dynamics import body_moment, is_moment_free, space_force
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.rotation import read4, write3
+from rbstudy.numerics.state import OK, UNSTABLE, Result
+
+__all__ = ["BatchStepEntry", "make_batch_entry", "batch_loads"]
+
+# Steps between two reads of the halt flag: as often as the compiled driver reads it.
+_HALT_CHECK_STEPS = 1024
+
+
+def _invariants(y, p):
+    """Rotational energy and |L| (n,) of the state rows ``y`` by `algebra`'s formulas."""
+    w = y[:, S.OMEGA:S.OMEGA + 3].T
+    inertia = p[:, S.INERTIA:S.INERTIA + 3].T
+    return algebra.rotational_energy(w, inertia), np.sqrt(algebra.momentum_squared(w, inertia))
+
+
+def _drift(value, initial):
+    """`algebra.relative_drift` over arrays: relative, or absolute where ``initial`` is 0
+    (dividing by 1.0 is exact, so the numbers are the compiled driver's)."""
+    return np.abs(value - initial) / np.where(initial > 0.0, initial, 1.0)
+
+
+def _as_counts(value, n, dtype):
+    """A kernel's per-body answer (a scalar or (n,)) as an (n,) array."""
+    return np.broadcast_to(np.asarray(value, dtype=dtype), (n,))
+
+
+class BatchStepEntry:
+    """The entry point ``run_bodies_inplace(start, stop, state0, params, options, h, n_steps,
+    every, drift_bound, samples, results, halt, clock)`` of a vectorised scheme (see the
+    module docstring): rows [start, stop) of a batch, all at once.
+
+    ``whole_batch``: `rbstudy.numerics.driver.run_batch` hands it every row in one call
+    (numpy's per-call overhead is what a vectorised step amortises, and the step holds the
+    GIL, so threads would not share it out)."""
+
+    whole_batch = True
+
+    def __init__(self, step, init=None, n_work=0):
+        self.step, self.init, self.n_work = step, init, int(n_work)
+
+    def is_cached(self, timed=False):
+        """Nothing to compile: always ready (`rbstudy.schemes.Scheme.is_cached`)."""
+        return True
+
+    def __call__(self, start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                 samples, results, halt, clock=None):
+        rows = slice(start, stop)
+        y = state0[rows].copy()
+        p, opt = params[rows], options[rows]
+        n = y.shape[0]
+        work = np.zeros((n, self.n_work))
+        energy0, momentum0 = _invariants(y, p)
+        checked = np.array([is_moment_free(row) for row in p], dtype=bool)
+        samples[rows, 0] = y
+        status = np.full(n, OK, dtype=np.int64)
+        if self.init is not None:
+            status[:] = _as_counts(self.init(y, p, opt, step_time(0, h, clock), h, work), n,
+                                   np.int64)
+        steps_done = np.zeros(n, dtype=np.int64)
+        iterations = np.zeros(n, dtype=np.int64)
+        max_energy, max_momentum = np.zeros(n), np.zeros(n)
+        w0 = y[:, S.OMEGA:S.OMEGA + 3]
+        largest_spin = np.einsum("ij,ij->i", w0, w0)
+        next_sample = np.ones(n, dtype=np.int64)
+        for k in range(n_steps):
+            running = np.flatnonzero(status == OK)
+            if running.size == 0 or (k % _HALT_CHECK_STEPS == 0 and halt[0] != 0):
+                break
+            due = (k + 1) % every == 0
+            t = step_time(k, h, clock)
+            if running.size == n:  # all running: the step works on the batch's own arrays
+                code, iters = self.step(y, p, opt, t, h, work)
+            else:
+                y_run, work_run = y[running], work[running]
+                code, iters = self.step(y_run, p[running], opt[running], t, h, work_run)
+                y[running], work[running] = y_run, work_run
+            code = _as_counts(code, running.size, np.int64).copy()
+            iterations[running] += _as_counts(iters, running.size, np.int64)
+            steps_done[running] += 1
+            y_new = y[running]
+            code[(code == OK) & ~np.isfinite(y_new.sum(axis=1))] = UNSTABLE
+            energy, momentum = _invariants(y_new, p[running])
+            watch = (code == OK) & checked[running]
+            d_energy = _drift(energy, energy0[running])
+            d_momentum = _drift(momentum, momentum0[running])
+            watched = running[watch]
+            max_energy[watched] = np.maximum(max_energy[watched], d_energy[watch])
+            max_momentum[watched] = np.maximum(max_momentum[watched], d_momentum[watch])
+            # written so that NaN drifts fail too
+            code[watch & ~((d_energy <= drift_bound) & (d_momentum <= drift_bound))] = UNSTABLE
+            accepted = running[code == OK]
+            w = y[accepted, S.OMEGA:S.OMEGA + 3]
+            largest_spin[accepted] = np.maximum(largest_spin[accepted],
+                                                np.einsum("ij,ij->i", w, w))
+            if due:
+                samples[start + accepted, next_sample[accepted]] = y[accepted]
+                next_sample[accepted] += 1
+            status[running] = code
+        for body in range(n):  # NaN after each body's last sample
+            samples[start + body, next_sample[body]:] = np.nan
+        failed = status != OK
+        step_angle = h * np.sqrt(largest_spin)
+        columns = {
+            "status": status,
+            "failure_time": np.where(failed, steps_done * h, np.nan),
+            "n_steps": steps_done,
+            "iterations": iterations,
+            "max_energy_error": np.where(checked, max_energy, np.nan),
+            "max_momentum_magnitude_error": np.where(checked, max_momentum, np.nan),
+            "max_step_angle": step_angle,
+            "radioss_dt_limit": step_angle > S.RADIOSS_STEP_ANGLE,
+        }
+        for name, _ in S.RESULT_FIELDS:  # a result added there must be computed here
+            results[rows, Result[name]] = columns[name]
+
+
+@jit
+def _loads_of_rows(y, p, t, force, moment):
+    for b in range(y.shape[0]):
+        q = read4(y[b], S.QUATERNION)
+        write3(force[b], 0, space_force(q, p[b], t))
+        write3(moment[b], 0, body_moment(q, p[b], t))
+
+
+def batch_loads(y, p, t):
+    """The loads on the bodies of state rows ``y`` (n, N_STATE) with parameter rows ``p`` at
+    time ``t`` (s, or None without loads tabulated in time): the total force in space (n, 3),
+    N, and the total moment in the body frame (n, 3), N m, by the compiled kernels of the
+    built-in schemes, so that a vectorised scheme meets every load a scene can carry."""
+    force, moment = np.empty((y.shape[0], 3)), np.empty((y.shape[0], 3))
+    _loads_of_rows(y, p, t, force, moment)
+    return force, moment
+
+
+def make_batch_entry(step, init=None, n_work=0):
+    """The entry point of a vectorised scheme: ``step`` and ``init`` (None: nothing to
+    start) over arrays of bodies, ``n_work`` floats of carry per body (module docstring)."""
+    return BatchStepEntry(step, init, n_work)

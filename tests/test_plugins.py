@@ -1,0 +1,227 @@
+"""Schemes from other packages (docs/extending.md): the example plug-in installed and swept,
+the vectorised driver against the compiled one, and every way a plug-in can fail to load."""
+
+import importlib.metadata
+import os
+import pathlib
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import CONFIGS, LOADED, abaqus_mapping, write_study
+
+from rbstudy.errors import InputError, SchemeError
+from rbstudy.extending import Scheme, make_batch_entry
+from rbstudy.numerics.driver import run_batch
+from rbstudy.physics.scenes import param_rows, scene_from_mapping
+from rbstudy.pipeline.batches import plan_batches
+from rbstudy.pipeline.config import load_study
+from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme, unavailable_schemes
+from rbstudy.schemes._plugins import GROUP, load_plugins, package_digest
+from rbstudy.schemes.euler import step_inplace as euler_step
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "semi_implicit"
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """The example plug-in installed by pip into a folder of its own (not into this
+    environment, which the other tests share); the environment of a process that sees it."""
+    target = tmp_path_factory.mktemp("site")
+    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
+                    "--disable-pip-version-check", "--target", str(target), str(EXAMPLE)],
+                   check=True, capture_output=True, text=True)
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), str(ROOT)])}
+
+
+def _rbstudy(env, *args, cwd):
+    return subprocess.run([sys.executable, "-m", "rbstudy", *args], env=env, cwd=cwd,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_installed_example_is_listed_as_a_plugin(installed, tmp_path):
+    listed = _rbstudy(installed, "schemes", cwd=tmp_path)
+    assert listed.returncode == 0, listed.stderr
+    lines = {line.split()[0]: line for line in listed.stdout.splitlines()[1:]}
+    for name in ("semi_implicit", "semi_implicit_numpy"):
+        assert "(plug-in: rbstudy-semi-implicit 0.1.0)" in lines[name]
+    assert "plug-in" not in lines["euler"]
+
+
+def test_installed_example_sweeps_with_its_nominal_order(installed, tmp_path):
+    """Both kinds of the example sweep like built-ins; they show order 1 on the Abaqus top,
+    agree with each other to round-off, and the archive names where they come from."""
+    swept = _rbstudy(installed, "sweep", str(EXAMPLE / "semi_implicit_top.yaml"), "--out",
+                     str(tmp_path), "--quiet", cwd=tmp_path)
+    assert swept.returncode == 0, swept.stderr
+    archive = tmp_path / "semi_implicit_top" / "semi_implicit_top.nc"
+    with xr.open_dataset(archive) as ds:
+        assert (ds["status"] == 0).all()
+        origin = dict(zip(ds["scheme"].values, ds["scheme_origin"].values, strict=True))
+        assert origin["semi_implicit"] == "rbstudy-semi-implicit 0.1.0"
+        assert origin["euler"] == "rbstudy"
+        errors = ds["final_orientation_error"]
+        dts = ds["dt"].values
+        for scheme in ("semi_implicit", "semi_implicit_numpy"):
+            assert int(ds["nominal_order"].sel(scheme=scheme)) == 1
+            for ratio in ds["inertia_ratio"].values:
+                error = errors.sel(scheme=scheme, inertia_ratio=ratio).values
+                slope = np.polyfit(np.log(dts), np.log(error), 1)[0]
+                assert abs(slope - 1.0) < 0.1, (scheme, ratio, slope)
+        compiled, vectorised = (ds["quaternion"].sel(scheme=name).values
+                                for name in ("semi_implicit", "semi_implicit_numpy"))
+        assert np.max(np.abs(compiled - vectorised)) < 1e-12
+        # the vectorised kind is timed the same way, and is the slower
+        assert (ds["run_time"].sel(scheme="semi_implicit_numpy")
+                > ds["run_time"].sel(scheme="semi_implicit")).all()
+
+
+def _row_by_row_euler(y, p, opt, t, h, work):
+    """`euler`'s compiled step applied to each body in turn: the vectorised driver then sees
+    the very arithmetic of the compiled one."""
+    status = np.empty(len(y), dtype=np.int64)
+    for body in range(len(y)):
+        status[body], _ = euler_step(y[body], p[body], opt[body], t, h, work[body])
+    return status, 0
+
+
+def test_vectorised_driver_books_like_the_compiled_driver():
+    """Samples, statuses, failure times, step counts, drifts and step angles of every body,
+    blow-ups included, equal those of the compiled driver, bit for bit."""
+    fast = {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+            "initial": {"angular_velocity": {"body": [4.0, 0.3, 4.0]}}, "duration": 10.0}
+    scenes = [scene_from_mapping(mapping, "test") for mapping in (
+        {**abaqus_mapping(), "duration": 10.0}, fast, {**LOADED, "duration": 10.0},
+        {**fast, "initial": {"angular_velocity": {"body": [0.0, 0.0, 0.0]}}},
+        {**fast, "initial": {"angular_velocity": {"body": [6.0, 0.1, 2.0]}}})]
+    row_by_row = Scheme(name="euler_rows", summary="", step_seconds=1e-6, order=1,
+                        implicit=False, keeps=(), reference="",
+                        run_bodies_inplace=make_batch_entry(_row_by_row_euler))
+    euler = get_scheme("euler")
+    arguments = (np.array([scene.state_row() for scene in scenes]), param_rows(scenes),
+                 np.repeat(euler.option_row()[None, :], len(scenes), axis=0), 0.02, 500, 5)
+    compiled, vectorised = run_batch(euler, *arguments), run_batch(row_by_row, *arguments)
+    statuses = compiled.results["status"]
+    assert 0 < np.count_nonzero(statuses) < len(scenes)  # blow-ups beside finished bodies
+    np.testing.assert_array_equal(vectorised.samples, compiled.samples)
+    for name, column in compiled.results.items():
+        np.testing.assert_array_equal(vectorised.results[name], column, err_msg=name)
+
+
+def _plugin_module(folder, name, text):
+    (folder / f"{name}.py").write_text(textwrap.dedent(text))
+
+
+@pytest.fixture
+def fake_plugins(tmp_path, monkeypatch):
+    """Register entry points (name -> "module:attribute") for a fresh registry."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    def register(points):
+        entries = importlib.metadata.EntryPoints(
+            importlib.metadata.EntryPoint(name, value, GROUP) for name, value in points.items())
+        monkeypatch.setattr(importlib.metadata, "entry_points",
+                            lambda group=None: entries if group == GROUP else ())
+        monkeypatch.setattr(SCHEMES, "_all", None)  # read again on first use
+    return tmp_path, register
+
+
+def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
+    folder, register = fake_plugins
+    _plugin_module(folder, "engine_plugin", """
+        from rbstudy.extending import SchemeUnavailable
+        raise SchemeUnavailable("needs the mujoco package", 'pip install "rbstudy[engines]"')
+        """)
+    _plugin_module(folder, "broken_plugin", "import a_module_nobody_has\n")
+    _plugin_module(folder, "odd_plugin", """
+        from rbstudy.schemes import BUILTIN
+        NOT_A_SCHEME = 3
+        EULER = BUILTIN["euler"]
+        """)
+    register({"engine_rk4": "engine_plugin:SCHEME", "broken": "broken_plugin:SCHEME",
+              "odd": "odd_plugin:NOT_A_SCHEME", "renamed": "odd_plugin:EULER",
+              "euler": "odd_plugin:EULER"})
+    missing = unavailable_schemes()
+    assert set(missing) == {"engine_rk4", "broken", "odd", "renamed", "euler"}
+    assert missing["engine_rk4"].fix == 'pip install "rbstudy[engines]"'
+    assert "a_module_nobody_has" in missing["broken"].reason
+    assert "not a Scheme" in missing["odd"].reason
+    assert "is the scheme 'euler'" in missing["renamed"].reason
+    assert "taken by rbstudy's own scheme" in missing["euler"].reason
+    assert get_scheme("euler") is BUILTIN["euler"]  # the built-in keeps its name
+    with pytest.raises(SchemeError, match=r"not available here: needs the mujoco package; "
+                                          r'pip install "rbstudy\[engines\]"'):
+        get_scheme("engine_rk4")
+    from rbstudy.cli import main
+    assert main(["schemes"]) == 0
+    listed = capsys.readouterr().out
+    assert "engine_rk4" in listed and 'fix: pip install "rbstudy[engines]"' in listed
+
+
+def test_a_config_naming_an_unavailable_scheme_fails_in_one_line(fake_plugins, tmp_path):
+    folder, register = fake_plugins
+    _plugin_module(folder, "engine_plugin2", """
+        from rbstudy.extending import SchemeUnavailable
+        raise SchemeUnavailable("needs the mujoco package", 'pip install "rbstudy[engines]"')
+        """)
+    register({"engine_euler": "engine_plugin2:SCHEME"})
+    config = tmp_path / "study.yaml"
+    config.write_text(textwrap.dedent("""
+        name: study
+        scene: {body: {mass: 1.0, inertia: [1.0, 2.0, 3.0]}, duration: 0.1,
+                initial: {angular_velocity: {body: [1.0, 0.0, 0.0]}}}
+        output: {interval: 0.01}
+        run: {scheme: engine_euler, dt: 0.01}
+        """))
+    with pytest.raises(InputError) as raised:
+        load_study(config)
+    message = str(raised.value)
+    assert "\n" not in message and "study.yaml" in message and "run.scheme" in message
+    assert 'pip install "rbstudy[engines]"' in message
+
+
+def test_a_working_plugin_joins_the_registry_but_not_scheme_all(fake_plugins):
+    folder, register = fake_plugins
+    (folder / "good_plugin").mkdir()
+    _plugin_module(folder / "good_plugin", "__init__", """
+        from dataclasses import replace
+        from rbstudy.schemes import BUILTIN
+        SCHEME = replace(BUILTIN["rk4"], name="my_rk4")
+        """)
+    register({"my_rk4": "good_plugin:SCHEME"})
+    found, missing = load_plugins(BUILTIN)
+    assert missing == {} and found["my_rk4"].origin == "good_plugin:SCHEME"  # no distribution
+    assert found["my_rk4"].code_digest == package_digest("good_plugin")
+    assert "my_rk4" in SCHEMES and SCHEMES["my_rk4"].order == 4
+    # `scheme: all` stays rbstudy's own: a config means the same whatever is installed
+    config = write_study(folder, sweep={"scheme": "all"})
+    assert "my_rk4" not in load_study(config).schemes
+    assert "rk4" in load_study(config).schemes
+
+
+def test_a_plugins_code_enters_its_batch_ids(tmp_path, monkeypatch):
+    """Edited plug-in code never reuses the parts of the old; rbstudy's own schemes keep
+    their ids."""
+    package = tmp_path / "digest_plugin"
+    package.mkdir()
+    (package / "__init__.py").write_text("STEP = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = package_digest("digest_plugin.kernels")
+    (package / "kernels.py").write_text("# a helper module of the plug-in\n")
+    assert package_digest("digest_plugin.kernels") != before
+    study = load_study(CONFIGS / "abaqus_top.yaml")
+    plan = dict(cases=study.cases, scene=study.base["scene"], dimensions=study.dimensions,
+                output_interval=study.output_interval, variables=study.variables,
+                max_cases=64, verdict={"accuracy_bound": study.accuracy_bound})
+    plain = [batch.id for batch in plan_batches(**plan)]
+    unchanged = [batch.id for batch in plan_batches(**plan, code_digests={"rk4": None})]
+    assert unchanged == plain
+    marked = plan_batches(**plan, code_digests={"rk4": before})
+    changed = {batch.id for batch in marked if batch.scheme == "rk4"}
+    assert changed.isdisjoint(plain) and len(changed) == sum(b.scheme == "rk4" for b in marked)
+    again = plan_batches(**plan, code_digests={"rk4": package_digest("digest_plugin")})
+    assert changed.isdisjoint(batch.id for batch in again)
