@@ -43,7 +43,9 @@ def _schemes(args):
         # a composition's orders: "2,4,6,8"
         orders = next((",".join(map(str, COMPOSITION_ORDERS)) for o in scheme.options
                        if o.sets_order), str(scheme.order))
-        origin = "" if scheme.origin == "rbstudy" else f" (plug-in: {scheme.origin})"
+        # "rbstudy's adapter of mujoco 4.0.0" (`rbstudy.engines`), or a plug-in's package
+        origin = ("" if scheme.origin == "rbstudy" else f" ({scheme.origin})"
+                  if scheme.origin.startswith("rbstudy's ") else f" (plug-in: {scheme.origin})")
         print(f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} {scheme.summary}"
               + (f" [{options}]" if options else "") + origin)
     for name, why in missing.items():

@@ -13,10 +13,10 @@ from rbstudy.physics.metrics import orientation_error
 from rbstudy.physics.references import REFERENCE_SCHEME, dop853_reference, reference_solution
 from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN
 
 # Schemes with a fixed step, whose order in dt is observable (dop853 chooses its own steps).
-FIXED_STEP = [name for name, scheme in SCHEMES.items() if not scheme.adaptive]
+FIXED_STEP = [name for name, scheme in BUILTIN.items() if not scheme.adaptive]
 
 # Schemes that integrate a free body exactly at any step: on one, their error is round-off
 # at every dt, with no order to observe (their order shows under loads).

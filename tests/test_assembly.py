@@ -17,9 +17,9 @@ from rbstudy.physics.assembly import REGULARISATION
 from rbstudy.physics.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN
 
-FIXED_STEP = [name for name, scheme in SCHEMES.items() if not scheme.adaptive]
+FIXED_STEP = [name for name, scheme in BUILTIN.items() if not scheme.adaptive]
 
 
 def assembled(nodes, **options):

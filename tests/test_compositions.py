@@ -16,11 +16,11 @@ from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
-from rbstudy.schemes import COMPOSITION_ORDERS, SCHEMES, composition_reach, get_scheme
+from rbstudy.schemes import BUILTIN, COMPOSITION_ORDERS, composition_reach, get_scheme
 from rbstudy.schemes._composition import stage_weights
 
 ORDER_TOLERANCE = 0.3  # the bound on a composition's observed order
-COMPOSABLE = [name for name, scheme in SCHEMES.items()
+COMPOSABLE = [name for name, scheme in BUILTIN.items()
               if any(option.name == "composition" for option in scheme.options)]
 
 

@@ -15,7 +15,7 @@ from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN, SCHEMES
 
 SHIPPED = sorted(path.name for path in CONFIGS.glob("*.yaml"))
 SHRUNK_SCHEMES = ["hht", "leapfrog"]  # hht takes the option some configs set
@@ -143,7 +143,7 @@ def test_report_parses_and_every_image_exists(tmp_path, capsys):
 def test_the_shipped_convergence_study_shows_every_nominal_order(tmp_path):
     done = run_study(load_study(CONFIGS / "convergence_asymmetric.yaml"), tmp_path, quiet=True)
     rows = scheme_rows(open_results(done.path))
-    assert {row["scheme"] for row in rows} == {n for n, s in SCHEMES.items() if not s.adaptive}
+    assert {row["scheme"] for row in rows} == {n for n, s in BUILTIN.items() if not s.adaptive}
     for row in rows:
         if row["scheme"] in EXACT_FOR_FREE_BODIES:  # round-off at every dt: no order
             assert row["order"] is None and row["error"] <= EXACT_FLOW_TOLERANCE, row
@@ -212,11 +212,15 @@ def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path
 
 
 def test_every_scheme_has_a_style_of_its_own():
+    """rbstudy's own schemes and MuJoCo's (plug-ins take the styles of other lines)."""
     from rbstudy.analysis.plots import SCHEME_STYLES
-    assert set(SCHEMES) <= set(SCHEME_STYLES)
-    styles = [SCHEME_STYLES[name] for name in SCHEMES]
+    from rbstudy.schemes._plugins import ENGINES
+    own = [*BUILTIN, *ENGINES]
+    assert set(own) == set(SCHEME_STYLES)
+    styles = [SCHEME_STYLES[name] for name in own]
     assert len({color for color, _, _ in styles}) == len(styles)
-    for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4")):
+    for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4"),
+                 ("mujoco_implicitfast", "mujoco_implicit")):
         # curves that coincide: another marker and another dash, so that both show
         assert SCHEME_STYLES[a][1:] != SCHEME_STYLES[b][1:]
         assert SCHEME_STYLES[a][2] != SCHEME_STYLES[b][2]

@@ -1,7 +1,7 @@
 """The import contract of docs/architecture.md, per folder: imports point downwards only, each
 layer uses only the outside packages its job needs, and the analysis layer never loads numba.
 
-    cli.py -> analysis/ -> pipeline/ -> physics/ -> schemes/ -> numerics/
+    cli.py -> analysis/ -> pipeline/ -> physics/ -> engines/ -> schemes/ -> numerics/
 
 `errors.py` and `reader.py` at the top of the package hold the user-facing errors and the one
 input reader; every layer from the schemes up may use them, and they import nothing of
@@ -16,7 +16,7 @@ import sys
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 
 # Layers from the bottom up: a module may import its own layer and the layers below it.
-LAYERS = ("numerics", "schemes", "physics", "pipeline", "analysis", "cli")
+LAYERS = ("numerics", "schemes", "engines", "physics", "pipeline", "analysis", "cli")
 SHARED = ("errors", "reader")  # rbstudy/<name>.py, below every layer but numerics
 RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 
@@ -24,6 +24,7 @@ RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 OUTSIDE = {
     "numerics": {"numpy", "numba"},
     "schemes": {"numpy", "numba"},
+    "engines": {"numpy", "mujoco"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
                  "yaml"},

@@ -10,7 +10,7 @@ SCRIPT = r"""
 import json, math
 from rbstudy.physics.scenes import Body, Scene, scene_from_mapping
 from rbstudy.physics.simulate import simulate
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN, SCHEMES
 scene = Scene(body=Body(mass=2.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.1, 0.2, 0.3, 0.927),
               omega_body=(0.6, 1.5, 0.9), velocity=(1.0, 0.0, 0.0), duration=0.2)
 # and one under loads tabulated in time, at a node and at the centre
@@ -21,7 +21,7 @@ timed = scene_from_mapping({"body": {"inertia": [1.0, 2.0, 3.0]},
                                       "nodes": {"a": {"force_space": {"table": [
                                           [0.05, 0, 0, 0], [0.3, 0, 3, 0]]}}}}})
 out = {}
-for name, scheme in SCHEMES.items():
+for name, scheme in BUILTIN.items():
     if not scheme.adaptive:
         for label, body in (("", scene), (" timed", timed)):
             run = simulate([body], name, 0.02, 0.1)

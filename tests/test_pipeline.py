@@ -33,7 +33,7 @@ from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import Progress, run_study, study_lock
 from rbstudy.pipeline.outputs import VERDICTS
 from rbstudy.pipeline.store import open_results
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN, SCHEMES
 
 # Timings differ between runs; everything else must not.
 TIMINGS = ["run_time"]
@@ -48,7 +48,7 @@ def abaqus_results(tmp_path_factory):
 
 def test_default_study_follows_the_dataset_contract(abaqus_results):
     ds = open_results(abaqus_results)
-    fixed = [name for name, s in SCHEMES.items() if not s.adaptive]
+    fixed = [name for name, s in BUILTIN.items() if not s.adaptive]
     assert list(ds.sizes) == ["scheme", "dt", "inertia_ratio", "time", "axis", "component",
                               "node"]
     assert list(ds.scheme.values) == fixed

@@ -1,6 +1,8 @@
 """Schemes from other packages (docs/extending.md): the example plug-in installed and swept,
 the vectorised driver against the compiled one, and every way a plug-in can fail to load."""
 
+import dataclasses
+import importlib
 import importlib.metadata
 import os
 import pathlib
@@ -14,14 +16,14 @@ import xarray as xr
 from conftest import CONFIGS, LOADED, abaqus_mapping, write_study
 
 from rbstudy.errors import InputError, SchemeError
-from rbstudy.extending import Scheme, make_batch_entry
+from rbstudy.extending import make_batch_entry
 from rbstudy.numerics.driver import run_batch
+from rbstudy.numerics.sources import package_digest
 from rbstudy.physics.scenes import param_rows, scene_from_mapping
 from rbstudy.pipeline.batches import plan_batches
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme, unavailable_schemes
-from rbstudy.schemes._plugins import GROUP, load_plugins, package_digest
-from rbstudy.schemes.euler import step_inplace as euler_step
+from rbstudy.schemes._plugins import GROUP, load_plugins
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "semi_implicit"
@@ -80,36 +82,46 @@ def test_installed_example_sweeps_with_its_nominal_order(installed, tmp_path):
                 > ds["run_time"].sel(scheme="semi_implicit")).all()
 
 
-def _row_by_row_euler(y, p, opt, t, h, work):
-    """`euler`'s compiled step applied to each body in turn: the vectorised driver then sees
-    the very arithmetic of the compiled one."""
-    status = np.empty(len(y), dtype=np.int64)
-    for body in range(len(y)):
-        status[body], _ = euler_step(y[body], p[body], opt[body], t, h, work[body])
-    return status, 0
+def _row_by_row(module):
+    """A scheme's compiled ``init`` and ``step`` applied to each body in turn, as a
+    vectorised scheme: the vectorised driver then sees the very arithmetic of the compiled
+    one (the carry in ``work`` included)."""
+    init = getattr(module, "init_inplace", None)
+
+    def each_init(y, p, opt, t, h, work):
+        return [init(y[b], p[b], opt[b], t, h, work[b]) for b in range(len(y))]
+
+    def each_step(y, p, opt, t, h, work):
+        done = [module.step_inplace(y[b], p[b], opt[b], t, h, work[b]) for b in range(len(y))]
+        return [status for status, _ in done], [iterations for _, iterations in done]
+
+    return make_batch_entry(each_step, each_init if init else None, module.N_WORK)
 
 
-def test_vectorised_driver_books_like_the_compiled_driver():
-    """Samples, statuses, failure times, step counts, drifts and step angles of every body,
-    blow-ups included, equal those of the compiled driver, bit for bit."""
+@pytest.mark.parametrize("name", ["euler", "hht"])
+def test_vectorised_driver_books_like_the_compiled_driver(name):
+    """Samples, statuses, failure times, step and iteration counts, drifts and step angles of
+    every body, blow-ups included, equal those of the compiled driver, bit for bit; `hht`
+    starts its carry in ``init`` and iterates Newton."""
     fast = {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
             "initial": {"angular_velocity": {"body": [4.0, 0.3, 4.0]}}, "duration": 10.0}
     scenes = [scene_from_mapping(mapping, "test") for mapping in (
         {**abaqus_mapping(), "duration": 10.0}, fast, {**LOADED, "duration": 10.0},
         {**fast, "initial": {"angular_velocity": {"body": [0.0, 0.0, 0.0]}}},
         {**fast, "initial": {"angular_velocity": {"body": [6.0, 0.1, 2.0]}}})]
-    row_by_row = Scheme(name="euler_rows", summary="", step_seconds=1e-6, order=1,
-                        implicit=False, keeps=(), reference="",
-                        run_bodies_inplace=make_batch_entry(_row_by_row_euler))
-    euler = get_scheme("euler")
+    compiled = get_scheme(name)
+    row_by_row = dataclasses.replace(compiled, name=f"{name}_rows",
+                                     run_bodies_inplace=_row_by_row(
+                                         importlib.import_module(f"rbstudy.schemes.{name}")))
+    dt = {"euler": 0.02, "hht": 1.0}[name]
     arguments = (np.array([scene.state_row() for scene in scenes]), param_rows(scenes),
-                 np.repeat(euler.option_row()[None, :], len(scenes), axis=0), 0.02, 500, 5)
-    compiled, vectorised = run_batch(euler, *arguments), run_batch(row_by_row, *arguments)
-    statuses = compiled.results["status"]
+                 np.repeat(compiled.option_row()[None, :], len(scenes), axis=0), dt, 500, 3)
+    expected, got = run_batch(compiled, *arguments), run_batch(row_by_row, *arguments)
+    statuses = expected.results["status"]
     assert 0 < np.count_nonzero(statuses) < len(scenes)  # blow-ups beside finished bodies
-    np.testing.assert_array_equal(vectorised.samples, compiled.samples)
-    for name, column in compiled.results.items():
-        np.testing.assert_array_equal(vectorised.results[name], column, err_msg=name)
+    np.testing.assert_array_equal(got.samples, expected.samples)
+    for result, column in expected.results.items():
+        np.testing.assert_array_equal(got.results[result], column, err_msg=result)
 
 
 def _plugin_module(folder, name, text):
@@ -225,3 +237,90 @@ def test_a_plugins_code_enters_its_batch_ids(tmp_path, monkeypatch):
     assert changed.isdisjoint(plain) and len(changed) == sum(b.scheme == "rk4" for b in marked)
     again = plan_batches(**plan, code_digests={"rk4": package_digest("digest_plugin")})
     assert changed.isdisjoint(batch.id for batch in again)
+
+
+def test_a_namespace_package_plugin_loads_with_a_digest(fake_plugins):
+    folder, register = fake_plugins
+    (folder / "spread" / "part").mkdir(parents=True)  # no __init__.py: a namespace package
+    _plugin_module(folder / "spread" / "part", "mod", """
+        from dataclasses import replace
+        from rbstudy.schemes import BUILTIN
+        SCHEME = replace(BUILTIN["rk4"], name="spread_rk4")
+        """)
+    register({"spread_rk4": "spread.part.mod:SCHEME"})
+    assert unavailable_schemes() == {}
+    assert get_scheme("spread_rk4").code_digest == package_digest("spread.part.mod")
+
+
+def test_threads_reading_the_registry_first_wait_for_the_plugins(fake_plugins):
+    """A second thread that reads the registry while the first is loading a slow plug-in
+    finds the plug-in, not a registry of rbstudy's own schemes only."""
+    import threading
+    folder, register = fake_plugins
+    _plugin_module(folder, "slow_plugin", """
+        import time
+        from dataclasses import replace
+        from rbstudy.schemes import BUILTIN
+        time.sleep(0.5)
+        SCHEME = replace(BUILTIN["rk4"], name="slow_rk4")
+        """)
+    register({"slow_rk4": "slow_plugin:SCHEME"})
+    found = []
+    readers = [threading.Thread(target=lambda: found.append(get_scheme("slow_rk4").name))
+               for _ in range(2)]
+    for reader in readers:
+        reader.start()
+    for reader in readers:
+        reader.join()
+    assert found == ["slow_rk4", "slow_rk4"]
+
+
+_EDITED_HELPER = """
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from edited_plugin import SCHEME
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import run_batch
+state = np.zeros((1, S.N_STATE))
+state[0, S.QUATERNION + 3] = 1.0
+params = np.zeros((1, S.N_PARAM))
+params[0, S.MASS] = 1.0
+params[0, S.INERTIA:S.INERTIA + 3] = 1.0
+out = run_batch(SCHEME, state, params, np.zeros((1, S.N_OPTION)), 0.1, 1, 1)
+print(out.samples[0, -1, S.POSITION])
+"""
+
+
+def test_an_edited_helper_of_a_plugin_is_compiled_again(tmp_path):
+    """numba checks only the file that defines a kernel: a plug-in's kernels are cached
+    under a digest of its whole package, so a changed helper module is not run stale."""
+    package = tmp_path / "edited_plugin"
+    package.mkdir()
+    (package / "__init__.py").write_text(textwrap.dedent("""
+        from dataclasses import replace
+        from rbstudy.extending import init_nothing, make_entry
+        from rbstudy.schemes import BUILTIN
+        from edited_plugin.kernel import step_inplace
+        SCHEME = replace(BUILTIN["euler"], name="edited",
+                         run_bodies_inplace=make_entry(step_inplace, init_nothing, 0))
+        """))
+    (package / "kernel.py").write_text(textwrap.dedent("""
+        from rbstudy.extending import OK, jit
+        from edited_plugin.helper import shift
+        @jit
+        def step_inplace(y, p, opt, t, h, work):
+            y[0] += shift()
+            return OK, 0
+        """))
+    helper = package / "helper.py"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    moved = []
+    for value in (1.0, 2.0):
+        helper.write_text(f"from rbstudy.extending import jit\n@jit\ndef shift():\n"
+                          f"    return {value}\n")
+        run = subprocess.run([sys.executable, "-c", _EDITED_HELPER, str(tmp_path)], env=env,
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr
+        moved.append(float(run.stdout))
+    assert moved == [1.0, 2.0]

@@ -12,7 +12,7 @@ from rbstudy.errors import ConfigError
 from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline import estimate
 from rbstudy.pipeline.config import load_study
-from rbstudy.schemes import SCHEMES
+from rbstudy.schemes import BUILTIN
 
 
 def test_value_forms_expand_as_documented(tmp_path):
@@ -34,7 +34,7 @@ def test_value_forms_expand_as_documented(tmp_path):
 def test_all_means_every_fixed_step_scheme(tmp_path):
     study = load_study(write_study(tmp_path, sweep={"scheme": "all"}))
     assert study.dimensions[0].axes[0].values == tuple(
-        name for name, s in SCHEMES.items() if not s.adaptive)
+        name for name, s in BUILTIN.items() if not s.adaptive)
     assert "dop853" not in study.dimensions[0].axes[0].values
 
 

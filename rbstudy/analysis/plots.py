@@ -32,7 +32,6 @@ case makes the worst case a gap, never hidden), and the panel title says so.
 
 import multiprocessing
 import pathlib
-import textwrap
 from dataclasses import dataclass, field
 
 import matplotlib
@@ -93,6 +92,11 @@ SCHEME_STYLES = {
     "rkmk4": ("tab:pink", "X", "--"),
     "exact_split": ("tab:cyan", "v", "-"),
     "dop853": ("black", "+", ":"),
+    # MuJoCo's (rbstudy.engines): implicitfast and implicit coincide on one free body
+    "mujoco_euler": ("navy", "<", "-."),
+    "mujoco_implicitfast": ("tab:gray", ">", "-"),
+    "mujoco_implicit": ("darkgoldenrod", "x", "--"),
+    "mujoco_rk4": ("magenta", "*", "-."),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
@@ -224,13 +228,32 @@ def _grid(count, width=5.4, height=4.2, columns=2):
     return fig, list(axes.flat[:count])
 
 
+# Widths of DejaVu Sans characters in em, rounded up (`_em_width`): matplotlib's own wrapping
+# measures the text word by word at every draw, a sixteenth of a figure's drawing time.
+_NARROW, _WIDE = set(" .,;:'|!()[]ijlft-"), set("MWmw")
+
+
+def _em_width(text):
+    return sum(0.35 if c in _NARROW else 1.0 if c in _WIDE else 0.75 if c.isupper()
+               else 0.64 for c in text)
+
+
+def _wrapped(text, width_em):
+    """``text`` broken at spaces into lines of at most ``width_em`` (by `_em_width`)."""
+    lines = []
+    for word in text.split(" "):
+        if lines and _em_width(f"{lines[-1]} {word}") <= width_em:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return "\n".join(lines)
+
+
 def _title(fig, ds, what):
     """The study's title and what the figure shows, each wrapped to the figure's width."""
-    # Wrapped by a count of characters, 0.6 em each (DejaVu Sans averages ~0.55 em): matplotlib's
-    # own wrapping measures the text word by word, a sixteenth of a figure's drawing time.
     size = FontProperties(size=plt.rcParams["figure.titlesize"]).get_size_in_points()
-    width = int(fig.get_figwidth() * 72 / (0.6 * size))
-    fig.suptitle("\n".join(textwrap.fill(line, width)
+    width_em = 0.97 * fig.get_figwidth() * 72 / size
+    fig.suptitle("\n".join(_wrapped(line, width_em)
                            for line in (ds.attrs.get("title", ""), what)))
 
 

@@ -10,9 +10,10 @@ kernel is ever passed as a value and the entry point caches like any kernel: a s
 process loads it instead of compiling it (docs/architecture.md, "What is cached").
 
 Why it is safe across processes:
-- the module's name holds a digest of its text, of rbstudy's sources (`SOURCE_DIGEST`) and of
-  the files that define the two kernels (a scheme from outside rbstudy is covered too), so
-  changed code never finds an old module;
+- the module's name holds a digest of its text, of rbstudy's sources (`SOURCE_DIGEST`), of
+  the files that define the two kernels and, for kernels of another package (a plug-in),
+  of all that package's sources (`package_digest`: its kernels are cached apart under that
+  digest too, `rbstudy.numerics.jit`), so changed code never finds an old module;
 - a module is written once, to a temporary name and then linked to its final name, which
   fails if the name exists: it is never rewritten, and numba, which keys a cached function
   on its file's modification time, never sees it change. Two processes that race write the
@@ -32,7 +33,7 @@ import numba
 from numba.core import types
 
 from rbstudy.numerics import jit  # noqa: F401 (points numba.config.CACHE_DIR at our cache)
-from rbstudy.numerics.sources import SOURCE_DIGEST
+from rbstudy.numerics.sources import SOURCE_DIGEST, package_digest
 
 __all__ = ["CachedEntry", "entries_folder"]
 
@@ -96,6 +97,12 @@ def _module_text(step, init, n_work, wrapper=None, lanes=1):
     for path in sorted({path for *_, path in defined.values()}):
         with open(path, "rb") as source:
             digest.update(source.read())
+    for module in sorted({module for module, *_ in defined.values()
+                          if not module.startswith("rbstudy.")}):
+        try:
+            digest.update(package_digest(module).encode())  # a plug-in's helpers too
+        except ValueError:  # no source files (a script): its defining file is in already
+            pass
     step_module = defined["step" if wrapper is None else "stage"][0]
     return text, f"{step_module.replace('.', '_')}_{digest.hexdigest()[:16]}"
 

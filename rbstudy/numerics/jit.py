@@ -15,15 +15,17 @@ kernels and numpy code share one written expression.
 The cache lives in a folder named after a hash of this package's sources (`sources.py`). numba checks only
 the timestamp of the file that defines a cached function, not of the files whose kernels it
 inlines: after an edit of `algebra.py` alone, a cached scheme step would still run the old
-formula. A new source tree gets a new, empty cache instead. ``NUMBA_CACHE_DIR``, when
-set, is respected as it is.
+formula. A new source tree gets a new, empty cache instead. The kernels of other packages
+(plug-ins, docs/extending.md) get the same protection from a subfolder named after their
+package's digest. ``NUMBA_CACHE_DIR``, when set, is respected as it is.
 """
 
 import os
+import threading
 
 import numba
 
-from rbstudy.numerics.sources import SOURCE_DIGEST
+from rbstudy.numerics.sources import SOURCE_DIGEST, package_digest
 
 __all__ = ["jit", "inline_jit", "cache_dir"]
 
@@ -38,11 +40,39 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     numba.config.CACHE_DIR = cache_dir()
 
 _COMMON = dict(error_model="numpy", nogil=True)
+# numba reads its cache folder when a function is decorated: `_cached` changes it meanwhile.
+_FOLDER_LOCK = threading.Lock()
 
-jit = numba.njit(cache=True, **_COMMON)
+
+def _cached(decorator):
+    """``decorator``, with the kernels of other packages (plug-ins) cached in a folder named
+    after a digest of their package's sources: numba checks only the file that defines a
+    kernel, so a plug-in's edited helper module would otherwise leave its kernels' cache as
+    it was, as rbstudy's own source digest prevents for rbstudy's kernels."""
+
+    def decorate(function):
+        package = function.__module__.split(".")[0]
+        try:
+            digest = None if package == "rbstudy" else package_digest(function.__module__)
+        except ValueError:  # no source files to read (a script, a zipped install)
+            digest = None
+        if digest is None:
+            return decorator(function)
+        with _FOLDER_LOCK:
+            folder = numba.config.CACHE_DIR
+            numba.config.CACHE_DIR = os.path.join(folder, "plug-ins", f"{package}-{digest}")
+            try:
+                return decorator(function)
+            finally:
+                numba.config.CACHE_DIR = folder
+
+    return decorate
+
+
+jit = _cached(numba.njit(cache=True, **_COMMON))
 # For a kernel on every scheme's hot path that has a rarely taken branch: numba inlines it
 # into its callers before LLVM sees them. Left to LLVM, the loads' `body_moment` with its
 # lever branch grew past LLVM's inlining threshold and was called instead, which cost the
 # free body 20-35% of its steps per second (rk4 1.45e7 -> 9.5e6, measured); inlined, the
 # free body is within 5-10% of its speed without loads at nodes (docs/performance.md).
-inline_jit = numba.njit(cache=True, inline="always", **_COMMON)
+inline_jit = _cached(numba.njit(cache=True, inline="always", **_COMMON))

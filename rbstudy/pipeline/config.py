@@ -30,7 +30,7 @@ from rbstudy.pipeline.variables import (
 )
 from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
-from rbstudy.schemes import SCHEMES, composition_reach, get_scheme
+from rbstudy.schemes import composition_reach, get_scheme
 
 __all__ = ["StudyConfig", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
 
@@ -74,7 +74,7 @@ class StudyConfig:
     def order_dimension(self):
         """``(dimension name, option name, values)`` of a swept option that sets the nominal
         order (a composition), or None."""
-        return order_dimension(self.dimensions)
+        return order_dimension(self.dimensions, self.schemes)
 
     @property
     def n_times(self):
@@ -165,10 +165,10 @@ def _variables(reader, requested, scenes):
     return tuple(name for name in available if name in kept)
 
 
-def order_dimension(dimensions):
-    """``(dimension name, option name, values)`` of a swept scheme option that sets the
-    nominal order (``run.options.composition``), or None."""
-    setting = {option.name for scheme in SCHEMES.values() for option in scheme.options
+def order_dimension(dimensions, schemes):
+    """``(dimension name, option name, values)`` of a swept option that sets the nominal
+    order (``run.options.composition``) of one of ``schemes`` (the study's), or None."""
+    setting = {option.name for name in schemes for option in get_scheme(name).options
                if option.sets_order}
     for dim in dimensions:
         for axis in dim.axes:
@@ -183,9 +183,10 @@ def _scheme_claims(cases, dimensions):
     The nominal order is that of the scheme's options (a composition sets it); where such an
     option is swept, it is the tuple of orders along that option's dimension
     (`order_dimension`)."""
-    swept = order_dimension(dimensions)
+    names = sorted({run.scheme for run in cases.runs})
+    swept = order_dimension(dimensions, names)
     claims = {}
-    for name in sorted({run.scheme for run in cases.runs}):
+    for name in names:
         scheme = get_scheme(name)
         options = next(run.options for run in cases.runs if run.scheme == name)
         claims[name] = {coordinate: getattr(scheme, attribute)

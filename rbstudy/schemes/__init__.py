@@ -12,6 +12,7 @@ imported: a plug-in's module imports this package for `Scheme`, and must find it
 
 import importlib
 import pkgutil
+import threading
 from collections.abc import Mapping
 
 from rbstudy.errors import SchemeError
@@ -38,18 +39,30 @@ def _discover():
 
 
 class _Registry(Mapping):
-    """name -> `Scheme`: rbstudy's own, then the plug-ins', loaded on first reading."""
+    """name -> `Scheme`: rbstudy's own, then the engine adapters' and plug-ins', loaded on
+    the first reading. Other threads wait for that loading; a plug-in that reads the
+    registry while it is loaded (the same thread) sees rbstudy's own schemes."""
 
     def __init__(self, builtin):
         self._builtin = builtin
         self._all = None
         self._unavailable = {}
+        self._lock = threading.RLock()
+        self._loading = False
 
     def _schemes(self):
-        if self._all is None:
-            self._all = dict(self._builtin)  # a plug-in reading the registry meanwhile sees these
-            plugins, self._unavailable = load_plugins(self._builtin)
-            self._all.update(plugins)
+        if self._all is not None:
+            return self._all
+        with self._lock:
+            if self._all is None:
+                if self._loading:
+                    return self._builtin
+                self._loading = True
+                try:
+                    plugins, self._unavailable = load_plugins(self._builtin)
+                finally:
+                    self._loading = False
+                self._all = {**self._builtin, **plugins}
         return self._all
 
     def unavailable(self):

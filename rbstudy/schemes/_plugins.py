@@ -4,30 +4,41 @@ A package registers a scheme by naming a `Scheme` object under the scheme's name
 metadata (docs/extending.md):
 
     [project.entry-points."rbstudy.schemes"]
-    semi_implicit_euler = "rbstudy_semi_implicit.compiled:SCHEME"
+    semi_implicit = "rbstudy_semi_implicit.compiled:SCHEME"
 
-`load_plugins` loads each one. A plug-in that cannot be loaded here never stops rbstudy: it
-is listed as unavailable, with why and what to do (`Unavailable`). A package whose scheme
-needs something absent (an engine's Python bindings) says so by raising `SchemeUnavailable`
-when its module is imported, with the install command as the fix.
+`load_plugins` loads each one, after rbstudy's own adapters of other engines (`ENGINES`,
+`rbstudy.engines`), which are loaded the same way. A plug-in that cannot be loaded here
+never stops rbstudy: it is listed as unavailable, with why and what to do (`Unavailable`).
+A package whose scheme needs something absent (an engine's Python bindings) says so by
+raising `SchemeUnavailable` when its module is imported, with the install command as the fix.
 
-Each plug-in scheme carries a digest of its package's sources (`Scheme.code_digest`), which
-enters the ids of its batches: parts computed by older code of the plug-in are never reused,
-as rbstudy's own source digest does for the built-in schemes.
+Each plug-in scheme carries a digest of its package's sources (`Scheme.code_digest`,
+`rbstudy.numerics.sources.package_digest`), which enters the ids of its batches: parts
+computed by older code of the plug-in are never reused, as rbstudy's own source digest
+ensures for the built-in schemes. A plug-in's module must not read the registry when it is
+imported (`BUILTIN` is there for that): imported first by a user, it would find itself
+half-initialised and be listed unavailable.
 """
 
-import hashlib
 import importlib.metadata
-import importlib.util
-import pathlib
 from dataclasses import dataclass, replace
 
 from rbstudy.errors import first_line
+from rbstudy.numerics.sources import package_digest
 from rbstudy.schemes._registry import Scheme
 
-__all__ = ["GROUP", "SchemeUnavailable", "Unavailable", "load_plugins", "package_digest"]
+__all__ = ["GROUP", "ENGINES", "SchemeUnavailable", "Unavailable", "load_plugins"]
 
 GROUP = "rbstudy.schemes"
+# rbstudy's own adapters of other engines (`rbstudy.engines`), loaded as plug-ins are:
+# name -> "module:attribute". Each names its engine and version in its `origin` and
+# `code_digest`, so that another version of the engine never reuses a part.
+ENGINES = {
+    "mujoco_euler": "rbstudy.engines.mujoco:EULER",
+    "mujoco_implicitfast": "rbstudy.engines.mujoco:IMPLICITFAST",
+    "mujoco_implicit": "rbstudy.engines.mujoco:IMPLICIT",
+    "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
+}
 
 
 class SchemeUnavailable(ImportError):  # noqa: N818 (read as "raise SchemeUnavailable(...)")
@@ -50,20 +61,14 @@ class Unavailable:
     origin: str
 
 
-def package_digest(module_name):
-    """A digest of the Python sources of the top-level package of ``module_name`` (its
-    helpers included), or of the module alone when it is not in a package."""
-    spec = importlib.util.find_spec(module_name.split(".")[0])
-    origin = pathlib.Path(spec.origin)
-    files = sorted(origin.parent.rglob("*.py")) if spec.submodule_search_locations else [origin]
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(path.relative_to(origin.parent).as_posix().encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
+def _own(entry_point):
+    """An engine adapter of rbstudy's own (`ENGINES`)."""
+    return entry_point.module.startswith("rbstudy.")
 
 
 def _origin(entry_point):
+    if _own(entry_point):
+        return "rbstudy"
     dist = getattr(entry_point, "dist", None)
     return f"{dist.name} {dist.version}" if dist is not None else entry_point.value
 
@@ -74,6 +79,7 @@ def _load(entry_point, taken):
     package = origin.split()[0]
     try:
         scheme = entry_point.load()
+        digest = None if _own(entry_point) else package_digest(entry_point.module)
     except SchemeUnavailable as error:
         return Unavailable(entry_point.name, error.reason, error.fix, origin)
     except Exception as error:  # a plug-in's bug must not stop the other schemes
@@ -91,16 +97,21 @@ def _load(entry_point, taken):
     if entry_point.name in taken:
         return Unavailable(entry_point.name, f"the name is taken by {taken[entry_point.name]}",
                            f"rename the scheme in {package}", origin)
-    return replace(scheme, origin=origin, code_digest=package_digest(entry_point.module))
+    if _own(entry_point):  # rbstudy's source digest covers the adapter; it names the engine
+        return scheme
+    return replace(scheme, origin=origin, code_digest=digest)
 
 
 def load_plugins(builtin):
-    """The plug-in schemes of this environment: (name -> `Scheme`, name -> `Unavailable`).
-    ``builtin`` are rbstudy's own schemes, whose names a plug-in may not take."""
+    """The engine adapters' and plug-ins' schemes of this environment: (name -> `Scheme`,
+    name -> `Unavailable`). ``builtin`` are rbstudy's own schemes, whose names a plug-in may
+    not take."""
     taken = {name: "rbstudy's own scheme" for name in builtin}
     found, unavailable = {}, {}
-    for entry_point in sorted(importlib.metadata.entry_points(group=GROUP),
-                              key=lambda point: point.name):
+    engines = [importlib.metadata.EntryPoint(name, value, GROUP)
+               for name, value in ENGINES.items()]
+    for entry_point in [*engines, *sorted(importlib.metadata.entry_points(group=GROUP),
+                                          key=lambda point: point.name)]:
         loaded = _load(entry_point, taken)
         if isinstance(loaded, Unavailable):
             unavailable[loaded.name] = loaded
