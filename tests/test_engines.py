@@ -25,6 +25,7 @@ def test_without_mujoco_each_scheme_is_unavailable_with_the_install_hint(monkeyp
     monkeypatch.setitem(sys.modules, "mujoco", None)  # import mujoco raises ImportError
     monkeypatch.delitem(sys.modules, "rbstudy.engines.mujoco", raising=False)
     monkeypatch.setattr(SCHEMES, "_all", None)
+    monkeypatch.setattr(SCHEMES, "_unavailable", {})
     missing = unavailable_schemes()
     for name in MUJOCO:
         assert name not in SCHEMES
@@ -51,8 +52,8 @@ def _run(scheme, scenes, dt, n_steps):
 
 @pytest.mark.parametrize("scheme", MUJOCO)
 def test_a_body_at_rest_stays_where_it_is(scheme):
-    """At rest, at an arbitrary place and orientation: every step leaves the state as it was,
-    so position and quaternion cross the two conventions unchanged."""
+    """At rest, at an arbitrary place and orientation: every step leaves the state as it was
+    (the quaternion's order is checked by the constant spins below)."""
     turned = Rotation.from_rotvec([0.3, -1.1, 0.7])
     scene = _scene(body={"mass": 2.0, "inertia": [1.0, 2.0, 3.0]}, duration=1.0,
                    initial={"position": [1.0, -2.0, 0.5],
@@ -162,3 +163,21 @@ def test_mujoco_schemes_sweep_into_the_archive(tmp_path):
         for scheme, order in (("mujoco_rk4", 4), ("mujoco_implicitfast", 1)):
             e = errors.sel(scheme=scheme).values
             assert abs(np.log2(e[-2] / e[-1]) - order) < 0.2, scheme
+
+
+@pytest.mark.parametrize("scheme", MUJOCO)
+def test_a_state_mujoco_refuses_is_a_blow_up_of_that_body_alone(scheme, tmp_path, monkeypatch):
+    """A body whose velocity MuJoCo judges unusable stops as unstable at its first step; the
+    body beside it runs on, and MuJoCo leaves no log file behind."""
+    monkeypatch.chdir(tmp_path)
+    fine = _scene(**{**abaqus_mapping(), "duration": 1.0})
+    wild = _scene(body={"mass": 1.0, "inertia": [1.0, 2.0, 3.0]}, duration=1.0,
+                  initial={"angular_velocity": {"body": [0.0, 0.0, 0.0]},
+                           "velocity": [2e10, 0.0, 0.0]})
+    chosen = get_scheme(scheme)
+    output = run_batch(chosen, np.array([fine.state_row(), wild.state_row()]),
+                       param_rows([fine, wild]), np.zeros((2, S.N_OPTION)), 0.01, 50, 1)
+    assert list(output.results["status"]) == [0, 1]
+    assert output.results["failure_time"][1] == pytest.approx(0.01)
+    assert np.all(np.isfinite(output.samples[0]))
+    assert not list(tmp_path.iterdir())  # no MUJOCO_LOG.TXT

@@ -42,6 +42,7 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
 _COMMON = dict(error_model="numpy", nogil=True)
 # numba reads its cache folder when a function is decorated: `_cached` changes it meanwhile.
 _FOLDER_LOCK = threading.Lock()
+_digests = {}  # a plug-in package's digest, read once per process
 
 
 def _cached(decorator):
@@ -52,12 +53,16 @@ def _cached(decorator):
 
     def decorate(function):
         package = function.__module__.split(".")[0]
-        try:
-            digest = None if package == "rbstudy" else package_digest(function.__module__)
-        except ValueError:  # no source files to read (a script, a zipped install)
-            digest = None
-        if digest is None:
+        # rbstudy's own kernels and generated entry modules (whose names hold every digest)
+        if (package == "rbstudy" or package.startswith("rbstudy_entry_")
+                or not numba.config.CACHE_DIR):
             return decorator(function)
+        digest = _digests.get(package)
+        if digest is None:
+            try:
+                digest = _digests[package] = package_digest(function.__module__)
+            except ValueError:  # no source files to read (a script, a zipped install)
+                return decorator(function)
         with _FOLDER_LOCK:
             folder = numba.config.CACHE_DIR
             numba.config.CACHE_DIR = os.path.join(folder, "plug-ins", f"{package}-{digest}")
