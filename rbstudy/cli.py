@@ -184,6 +184,56 @@ def _plot(args):
     return 0
 
 
+def _conformance(args):
+    import time
+
+    from rbstudy.pipeline.golden import GOLDEN
+    from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
+    from rbstudy.schemes._plugins import ENGINES
+    started = time.perf_counter()
+    known = {case.name: case for case in GOLDEN}
+    unknown = [name for name in args.cases or () if name not in known]
+    if unknown:
+        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}",
+                           f"the cases: {', '.join(known)}")
+    if args.steps < 3:
+        raise RbstudyError(f"--steps: an order needs at least 3 time steps, got {args.steps}")
+    schemes = args.schemes or [*(name for name, s in BUILTIN.items() if not s.adaptive),
+                               *(name for name in ENGINES if name in SCHEMES)]
+    for name in schemes:
+        if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
+            raise RbstudyError(f"--schemes: {name} chooses its own steps: it has no order "
+                               "in dt to judge", "leave it out")
+    cases = [known[name] for name in args.cases] if args.cases else list(GOLDEN)
+    from rbstudy.analysis.conformance import (
+        format_scorecard,
+        score_case,
+        scorecard_dataset,
+        scorecard_html,
+    )
+    from rbstudy.pipeline.golden import run_golden, write_golden
+    from rbstudy.pipeline.store import open_results, write_dataset_atomic, write_text_atomic
+    out = pathlib.Path(args.out)
+    paths = write_golden(out / "golden", schemes, cases, args.steps)
+    cells = {}
+    for case, archive in zip(cases, run_golden(paths, out, quiet=args.quiet), strict=True):
+        cells[case.name] = score_case(open_results(archive), case.rules)
+    names = [case.name for case in cases]
+    seconds = time.perf_counter() - started
+    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
+              f"{seconds:.0f} s of wall time (reruns reuse the golden archives)",
+              f"studies and archives: {out}"]
+    print(format_scorecard(cells, names))
+    print("\n".join(header))
+    attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
+             "steps": args.steps, "source": f"rbstudy {_version()}"}
+    write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
+    write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
+                                     header), out / "conformance.html")
+    print(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
+    return 0
+
+
 def _select(dataset, choices, path):
     """Narrow ``dataset`` to ``DIM=VALUE`` choices (each dimension kept, of length one)."""
     for choice in choices or ():
@@ -312,6 +362,21 @@ def build_parser():
                        help="body-steps per figure (default 1e7; fewer for a quick look)")
     bench.add_argument("--quiet", action="store_true", help="no progress line")
     bench.set_defaults(run=_bench)
+    conformance = commands.add_parser(
+        "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
+    conformance.add_argument("--schemes", nargs="+", metavar="SCHEME",
+                             help="schemes to judge (default: rbstudy's fixed-step schemes "
+                                  "and MuJoCo's where it is installed)")
+    conformance.add_argument("--cases", nargs="+", metavar="CASE",
+                             help="golden cases to run (default: all)")
+    conformance.add_argument("--steps", type=int, default=4, metavar="N",
+                             help="time steps per case, each half the one before (default "
+                                  "4; at least 3)")
+    conformance.add_argument("--out", default="conformance",
+                             help="folder of the golden studies, their archives and the "
+                                  "scorecard (default: conformance/)")
+    conformance.add_argument("--quiet", action="store_true", help="no progress lines")
+    conformance.set_defaults(run=_conformance)
     return parser
 
 

@@ -386,6 +386,13 @@ def write_text_atomic(text, path):
         pathlib.Path(temporary).write_text(text)
 
 
+def write_dataset_atomic(dataset, path):
+    """Write an xarray ``dataset`` to the netCDF file ``path`` through a temporary beside it:
+    a reader never sees half a file (the conformance scorecard)."""
+    with _temporary_beside(path) as temporary, HDF5_LOCK:
+        dataset.to_netcdf(temporary)
+
+
 def case_chunks(grid_shape, own_shape, itemsize):
     """Chunk shape of an archive variable: whole along its own dimensions (time, node,
     axis, ...), and along the grid's dimensions, from the last, as many cases as keep a

@@ -1,0 +1,285 @@
+"""The conformance scorecard: each scheme judged on the golden set, from the archives alone.
+
+`rbstudy conformance` sweeps the golden studies (`rbstudy.pipeline.golden`) and then judges
+every scheme in every case by the rules that case names (`RULES`):
+
+- ``order``: the observed order of the final orientation error is within `ORDER_TOLERANCE`
+  of the scheme's nominal order. The observed order is the summary's fit over the
+  asymptotic range (`rbstudy.analysis.summary`); where the golden steps leave no such range,
+  it is the slope between the two finest steps, if both errors lie between round-off and
+  `SLOPE_CEILING`. A scheme whose errors are all at round-off (exact for a free body)
+  passes as exact.
+- ``invariants``: every invariant the scheme claims (`claimed_invariants`) is kept below
+  `rbstudy.analysis.summary.KEPT_TOLERANCE` in every case that finished.
+- ``energy``: the rotational energy never exceeds its start by more than `ENERGY_GAIN`
+  (relative), at any sample of any finished case. A scheme that loses energy passes; the
+  cell's details give the largest loss too.
+- ``flip``: the interval between flips of a body turning about its intermediate axis is
+  within one time step of the exact one, at every step of the sweep where the case
+  finished; a finished case that never flips fails.
+- ``failure``: no case fails (blows up, or does not converge) at a step where another
+  scheme of the same nominal order in this scorecard finished. The rule depends on which
+  schemes are judged together; the details name the survivor.
+
+A cell passes when every rule of its case passes; its number is the observed order (none
+for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
+cases in it are its time steps. `scorecard` returns the cells;
+`format_scorecard` prints them; `scorecard_dataset` is the archive of the scorecard
+(``passed`` and ``value`` per scheme and case, and per rule); `scorecard_html` the page.
+"""
+
+import html
+from dataclasses import dataclass
+
+import numpy as np
+
+from rbstudy.analysis.summary import (
+    ERROR_MEASURES,
+    KEPT_TOLERANCE,
+    error_measure,
+    per_scheme,
+    scheme_rows,
+    schemes_of,
+)
+from rbstudy.numerics.state import INVARIANTS
+
+__all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "Verdict", "Cell",
+           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
+
+ORDER_TOLERANCE = 0.3
+ENERGY_GAIN = 1e-3
+# A finest-pair slope is taken only through errors below this (rad): past it the error no
+# longer shrinks as a power of dt.
+SLOPE_CEILING = 0.5
+# Errors at or below this at every step: exact for this body (round-off).
+EXACT = 1e-9
+RULES = {
+    "order": f"observed order within {ORDER_TOLERANCE} of the nominal order",
+    "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
+    "energy": f"energy never above its start by more than {ENERGY_GAIN:g} (relative)",
+    "flip": "flip interval within one time step of the exact one",
+    "failure": "no failure where a scheme of the same nominal order finished",
+}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One rule on one scheme in one case: ``passed`` (None: does not apply), the measured
+    ``value`` and a line of ``text``."""
+
+    passed: bool | None
+    value: float
+    text: str
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A scheme in a case: ``passed`` (all applicable rules), its number ``value`` and the
+    ``verdicts`` per rule name."""
+
+    passed: bool
+    value: float
+    verdicts: dict
+
+    def short(self):
+        """``pass 4.00`` / ``FAIL order 2.95``."""
+        if self.passed:
+            return f"pass {self.value:.3g}" if np.isfinite(self.value) else "pass"
+        failed = [name for name, verdict in self.verdicts.items() if verdict.passed is False]
+        return f"FAIL {', '.join(failed)}"
+
+
+def _order(ds, scheme, row):
+    errors = per_scheme(error_measure(ds, "orientation"), scheme)
+    finished = per_scheme(ds["status"], scheme) == 0
+    values = errors.where(finished)
+    nominal = row["nominal"]
+    if bool((values <= EXACT).all()):
+        return Verdict(True, np.nan, "exact for this body: round-off at every step")
+    if row["order"] is not None:
+        low, high = row["order"]
+        observed, how = 0.5 * (low + high), "fitted over the asymptotic range"
+    else:
+        fine = values.sortby("dt").isel(dt=slice(0, 2))
+        floor = ERROR_MEASURES["orientation"][2]
+        pair = fine.values.reshape(2, -1)
+        usable = np.all(np.isfinite(pair) & (pair > floor) & (pair < SLOPE_CEILING), axis=0)
+        if not usable.any():
+            return Verdict(False, np.nan, "no order shows at these steps (failed, or "
+                                          f"errors past {SLOPE_CEILING} rad)")
+        dts = fine["dt"].values
+        slopes = np.log(pair[1, usable] / pair[0, usable]) / np.log(dts[1] / dts[0])
+        observed, how = float(np.mean(slopes)), "the slope of the two finest steps"
+    passed = nominal is not None and abs(observed - nominal) <= ORDER_TOLERANCE
+    return Verdict(passed, observed, f"order {observed:.2f} ({how}), nominal {nominal}")
+
+
+def _invariants(ds, scheme, row):
+    claimed = str(per_scheme(ds["claimed_invariants"], scheme).values).split()
+    claimed = [name for name in claimed if name != "none"]
+    if not claimed:
+        return Verdict(None, np.nan, "claims no invariant")
+    labels = [INVARIANTS[name] for name in claimed]
+    lost = [label for label in labels if label not in row["kept"]]
+    return Verdict(not lost, np.nan, f"claims {', '.join(labels)}; "
+                   + (f"lost {', '.join(lost)}" if lost else "all kept"))
+
+
+def _energy(ds, scheme, row):
+    change = per_scheme(ds["energy_error"], scheme).where(per_scheme(ds["status"], scheme) == 0)
+    gain = float(change.max()) if bool(change.notnull().any()) else np.nan
+    loss = float(-change.min()) if bool(change.notnull().any()) else np.nan
+    if not np.isfinite(gain):
+        return Verdict(None, np.nan, "no finished case")
+    return Verdict(gain <= ENERGY_GAIN, gain,
+                   f"largest gain {max(gain, 0.0) + 0.0:.2g}, largest loss "
+                   f"{max(loss, 0.0) + 0.0:.2g} (relative)")  # + 0.0: no "-0"
+
+
+def _flip(ds, scheme, row):
+    errors = per_scheme(ds["flip_interval_error"], scheme)
+    finished = (per_scheme(ds["status"], scheme) == 0).values
+    dts = errors["dt"].values
+    values = np.abs(errors.values)
+    judged = finished & np.isfinite(dts)
+    missing = judged & ~np.isfinite(values)
+    worst = float(np.nanmax(np.where(judged, values / dts, np.nan))) if judged.any() else np.nan
+    if missing.any():
+        return Verdict(False, np.nan, "a finished case never flipped")
+    if not np.isfinite(worst):
+        return Verdict(None, np.nan, "no finished case")
+    return Verdict(worst <= 1.0, float(np.nanmax(np.where(judged, values, np.nan))),
+                   f"flip interval error up to {worst:.2g} time steps")
+
+
+def _failure(ds, scheme, row):
+    status = ds["status"]
+    failed = (per_scheme(status, scheme) != 0).values
+    if not failed.any():
+        return Verdict(True, 0.0, "no case failed")
+    nominal = row["nominal"]
+    peers = [other for other in schemes_of(ds) if other != scheme
+             and int(per_scheme(ds["nominal_order"], other)) == nominal]
+    for peer in peers:
+        survived = (per_scheme(status, peer) == 0).values
+        if np.any(failed & survived):
+            dt = float(ds["dt"].values[np.argmax(failed & survived)])
+            return Verdict(False, float(failed.sum()),
+                           f"{_cases(failed.sum())} failed; {peer} (order {nominal}) "
+                           f"finished at dt = {dt:g} s")
+    return Verdict(True, float(failed.sum()), f"{_cases(failed.sum())} failed, where no "
+                   f"scheme of order {nominal} here finished")
+
+
+def _cases(count):
+    return f"{int(count)} case{'s' if count != 1 else ''}"
+
+
+_JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip": _flip,
+           "failure": _failure}
+
+
+def score_case(ds, rules):
+    """The `Cell` of every scheme of the golden study ``ds`` under ``rules`` (names of
+    `RULES`): scheme -> cell."""
+    rows = {row["scheme"]: row for row in scheme_rows(ds)}
+    cells = {}
+    for scheme in schemes_of(ds):
+        verdicts = {rule: _JUDGES[rule](ds, scheme, rows[scheme]) for rule in rules}
+        cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),
+                             verdicts["order"].value, verdicts)
+    return cells
+
+
+def format_scorecard(cells, cases):
+    """The printed table: a row per scheme, a column per case (``cells``: case -> scheme ->
+    `Cell`), and the count of cases passed."""
+    schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
+    texts = {(s, c): cells[c][s].short() if s in cells[c] else "-" for s in schemes
+             for c in cases}
+    widths = {c: max(len(c), *(len(texts[s, c]) for s in schemes)) for c in cases}
+    width = max(len("scheme"), *map(len, schemes))
+    lines = [f"{'scheme':{width}s}  {'passed':>6s}  "
+             + "  ".join(f"{c:{widths[c]}s}" for c in cases)]
+    for s in schemes:
+        passed = sum(cells[c][s].passed for c in cases if s in cells[c])
+        lines.append(f"{s:{width}s}  {f'{passed}/{len(cases)}':>6s}  "
+                     + "  ".join(f"{texts[s, c]:{widths[c]}s}" for c in cases))
+    return "\n".join(lines)
+
+
+def scorecard_dataset(cells, cases, attrs):
+    """The scorecard as an xarray dataset over (scheme, case) and (scheme, case, rule):
+    ``passed`` (1 pass, 0 fail; -1 where a rule does not apply), ``value`` and the rules'
+    texts, with ``attrs`` (provenance) and each rule's meaning."""
+    import xarray as xr
+
+    schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
+    rules = list(RULES)
+    passed = np.full((len(schemes), len(cases)), -1, dtype=np.int8)
+    value = np.full((len(schemes), len(cases)), np.nan)
+    rule_passed = np.full((len(schemes), len(cases), len(rules)), -1, dtype=np.int8)
+    rule_value = np.full((len(schemes), len(cases), len(rules)), np.nan)
+    text = np.full((len(schemes), len(cases), len(rules)), "", dtype=object)
+    for i, s in enumerate(schemes):
+        for j, c in enumerate(cases):
+            cell = cells[c].get(s)
+            if cell is None:
+                continue
+            passed[i, j], value[i, j] = cell.passed, cell.value
+            for k, rule in enumerate(rules):
+                verdict = cell.verdicts.get(rule)
+                if verdict is not None:
+                    rule_passed[i, j, k] = -1 if verdict.passed is None else verdict.passed
+                    rule_value[i, j, k], text[i, j, k] = verdict.value, verdict.text
+    return xr.Dataset(
+        {"passed": (("scheme", "case"), passed,
+                    {"long_name": "the scheme passed every rule of the case",
+                     "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                     "flag_meanings": "not_run fail pass"}),
+         "value": (("scheme", "case"), value,
+                   {"long_name": "observed order of the final orientation error"}),
+         "rule_passed": (("scheme", "case", "rule"), rule_passed,
+                         {"long_name": "the scheme passed the rule",
+                          "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                          "flag_meanings": "not_applicable fail pass"}),
+         "rule_value": (("scheme", "case", "rule"), rule_value,
+                        {"long_name": "the rule's measured number"}),
+         "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"})},
+        coords={"scheme": np.array(schemes, dtype=object), "case": np.array(cases, dtype=object),
+                "rule": np.array(rules, dtype=object),
+                "rule_meaning": ("rule", np.array([RULES[r] for r in rules], dtype=object))},
+        attrs=attrs)
+
+
+def scorecard_html(cells, cases, titles, header):
+    """The scorecard as one HTML page: a cell per scheme and case, green or red, with every
+    rule's measurement in it; ``titles`` (case -> title) and ``header`` (lines said above
+    the table)."""
+    schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
+    head = "".join(f"<th title='{html.escape(titles[c])}'>{html.escape(c)}</th>" for c in cases)
+    rows = []
+    for s in schemes:
+        tds = []
+        for c in cases:
+            cell = cells[c].get(s)
+            if cell is None:
+                tds.append("<td>-</td>")
+                continue
+            details = "<br>".join(
+                f"{'&#10003;' if v.passed else '&#10007;' if v.passed is False else '&middot;'}"
+                f" {html.escape(rule)}: {html.escape(v.text)}" for rule, v in cell.verdicts.items())
+            tds.append(f"<td class='{'pass' if cell.passed else 'fail'}'>"
+                       f"<b>{html.escape(cell.short())}</b><br><small>{details}</small></td>")
+        rows.append(f"<tr><th>{html.escape(s)}</th>{''.join(tds)}</tr>")
+    rules = "".join(f"<li><b>{html.escape(r)}</b>: {html.escape(m)}</li>" for r, m in RULES.items())
+    lines = "".join(f"<p>{html.escape(line)}</p>" for line in header)
+    page = f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>rbstudy conformance scorecard</title>
+<style>body{{font-family:sans-serif;margin:1.5em}} table{{border-collapse:collapse}}
+td,th{{border:1px solid #999;padding:4px;vertical-align:top}} td.pass{{background:#dff0d8}}
+td.fail{{background:#f2dede}} small{{color:#333}}</style></head><body>
+<h1>Conformance scorecard</h1>{lines}<h2>Rules</h2><ul>{rules}</ul>
+<table><tr><th>scheme</th>{head}</tr>{''.join(rows)}</table></body></html>
+"""
+    return page
