@@ -29,9 +29,9 @@ def test_without_mujoco_each_scheme_is_unavailable_with_the_install_hint(monkeyp
     missing = unavailable_schemes()
     for name in MUJOCO:
         assert name not in SCHEMES
-        assert missing[name].fix == 'pip install "rbstudy[engines]"'
+        assert missing[name].fix == 'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")'
         with pytest.raises(SchemeError, match=r'needs the mujoco package; '
-                                              r'pip install "rbstudy\[engines\]"'):
+                                              r'pip install "mujoco>=4.0"'):
             get_scheme(name)
 
 

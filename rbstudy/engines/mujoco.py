@@ -1,7 +1,7 @@
 """MuJoCo's four integrators as rbstudy schemes: a peer engine on the same scenes.
 
 `mujoco_euler`, `mujoco_implicitfast`, `mujoco_implicit` and `mujoco_rk4` step a scene's body
-with MuJoCo itself (the `mujoco` package, ``pip install "rbstudy[engines]"``). They are
+with MuJoCo itself (the `mujoco` package: rbstudy's extra ``engines``). They are
 vectorised schemes (`rbstudy.numerics.batch_driver`): rbstudy's driver samples, judges and
 times them exactly as it does its own schemes. One file for the four, because they differ
 only in MuJoCo's ``opt.integrator``.
@@ -67,7 +67,7 @@ try:
     import mujoco
 except ImportError:
     raise SchemeUnavailable("needs the mujoco package",
-                            'pip install "rbstudy[engines]"') from None
+                            'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")') from None
 
 __all__ = ["EULER", "IMPLICITFAST", "IMPLICIT", "RK4"]
 

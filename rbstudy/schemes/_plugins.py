@@ -43,7 +43,7 @@ ENGINES = {
 
 class SchemeUnavailable(ImportError):  # noqa: N818 (read as "raise SchemeUnavailable(...)")
     """Raised by a plug-in's module when its scheme cannot run here: ``reason`` says why,
-    ``fix`` what to run (``pip install "rbstudy[engines]"``)."""
+    ``fix`` what to run (``pip install "mujoco>=4.0"``)."""
 
     def __init__(self, reason, fix):
         super().__init__(reason)
