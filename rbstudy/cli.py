@@ -29,6 +29,9 @@ EXIT_PIPE = 141  # 128 + SIGPIPE, as other tools end when their reader has gone
 
 # `--select dt=0.0003125` finds the stored dt although decimal text and binary floats differ.
 _SELECT_RTOL = 1e-12
+# `rbstudy conformance --steps`: 8 halvings take the golden set's work 32 times past the
+# default 4 (~20 minutes for 13 schemes on 2 cores).
+MAX_GOLDEN_STEPS = 8
 
 
 def _schemes(args):
@@ -194,16 +197,21 @@ def _conformance(args):
     known = {case.name: case for case in GOLDEN}
     unknown = [name for name in args.cases or () if name not in known]
     if unknown:
-        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}",
-                           f"the cases: {', '.join(known)}")
-    if args.steps < 3:
-        raise RbstudyError(f"--steps: an order needs at least 3 time steps, got {args.steps}")
+        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}; the cases: "
+                           f"{', '.join(known)}")
+    if not 3 <= args.steps <= MAX_GOLDEN_STEPS:
+        raise RbstudyError(f"--steps: give 3 to {MAX_GOLDEN_STEPS} time steps (an order needs "
+                           f"3; each more doubles the work), got {args.steps}")
+    for option, given in (("--cases", args.cases), ("--schemes", args.schemes)):
+        twice = [name for name in given or () if given.count(name) > 1]
+        if twice:
+            raise RbstudyError(f"{option}: {twice[0]} is given twice; name it once")
     schemes = args.schemes or [*(name for name, s in BUILTIN.items() if not s.adaptive),
                                *(name for name in ENGINES if name in SCHEMES)]
     for name in schemes:
         if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
             raise RbstudyError(f"--schemes: {name} chooses its own steps: it has no order "
-                               "in dt to judge", "leave it out")
+                               "in dt to judge; leave it out")
     cases = [known[name] for name in args.cases] if args.cases else list(GOLDEN)
     from rbstudy.analysis.conformance import (
         format_scorecard,
@@ -221,8 +229,8 @@ def _conformance(args):
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
-              f"{seconds:.0f} s of wall time (reruns reuse the golden archives)",
-              f"studies and archives: {out}"]
+              f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
+              "archives it finds)", f"studies and archives: {out}"]
     print(format_scorecard(cells, names))
     print("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,

@@ -77,15 +77,97 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
 
 
 def test_bad_options_are_one_line_errors(tmp_path, capsys):
-    for argv, said in ((["--cases", "nope"], "no golden case 'nope'"),
-                       (["--steps", "2"], "at least 3 time steps"),
-                       (["--schemes", "dop853"], "chooses its own steps"),
-                       (["--schemes", "nope"], "unknown scheme 'nope'")):
+    for argv, said in (
+            (["--cases", "nope"], "--cases: no golden case 'nope'; the cases: abaqus_top, "),
+            (["--steps", "2"], "--steps: give 3 to 8 time steps"),
+            (["--steps", "9"], "--steps: give 3 to 8 time steps"),
+            (["--schemes", "rk4", "rk4"], "--schemes: rk4 is given twice; name it once"),
+            (["--cases", "t_handle", "t_handle"], "--cases: t_handle is given twice"),
+            (["--schemes", "dop853"], "--schemes: dop853 chooses its own steps: it has no "
+                                      "order in dt to judge; leave it out"),
+            (["--schemes", "nope"], "unknown scheme 'nope'")):
         assert main(["conformance", "--out", str(tmp_path), *argv]) == 1
         error = capsys.readouterr().err
-        assert said in error and error.count("\n") == 1
+        assert error.startswith(f"rbstudy: error: {said}") or said in error, error
+        assert error.count("\n") == 1 and "('" not in error
+    assert not list(tmp_path.iterdir())  # nothing written
 
 
 def test_every_golden_case_names_known_rules():
     assert {rule for case in GOLDEN for rule in case.rules} <= set(RULES)
     assert len({case.name for case in GOLDEN}) == len(GOLDEN) == 8
+
+
+# Each rule on a golden archive with one thing made wrong, so that the rule must see it.
+
+def _golden(scorecard, case="t_handle"):
+    from rbstudy.pipeline.store import open_results
+    out, _ = scorecard
+    return open_results(out / f"conformance_{case}" / f"conformance_{case}.nc")
+
+
+def _judge(ds, case="t_handle"):
+    from rbstudy.analysis.conformance import score_case
+    return score_case(ds, next(c for c in GOLDEN if c.name == case).rules)
+
+
+def test_the_order_rule_falls_back_on_the_finest_usable_pair(scorecard):
+    """rk4's errors made too large at the coarsest steps for an asymptotic fit: the finest
+    pair of usable steps still shows order 4; the coarsest pair would not."""
+    ds = _golden(scorecard)
+    errors = ds["final_orientation_error"]
+    dts = ds["dt"].values  # coarsest first: 0.05, 0.025, 0.0125
+    errors.loc[{"scheme": "rk4"}] = [0.9, 3e-4, 3e-4 / 16]
+    verdict = _judge(ds)["rk4"].verdicts["order"]
+    assert verdict.passed and verdict.value == pytest.approx(4.0)
+    assert f"between dt = {dts[2]:g} and {dts[1]:g} s" in verdict.text
+
+
+def test_round_off_at_every_step_passes_as_exact_but_a_falling_error_does_not(scorecard):
+    ds = _golden(scorecard)
+    errors = ds["final_orientation_error"]
+    errors.loc[{"scheme": "rk4"}] = [2e-12, 5e-12, 1.5e-9]  # round-off, growing with steps
+    assert "exact" in _judge(ds)["rk4"].verdicts["order"].text
+    errors.loc[{"scheme": "rk4"}] = [8e-10, 4e-10, 2e-10]  # small, but falling as h: order 1
+    verdict = _judge(ds)["rk4"].verdicts["order"]
+    assert verdict.passed is False and "exact" not in verdict.text
+
+
+def test_a_lost_invariant_a_missing_flip_and_an_energy_gain_each_fail(scorecard):
+    ds = _golden(scorecard)
+    ds["max_energy_error"].loc[{"scheme": "midpoint", "dt": ds["dt"].values[0]}] = 1e-6
+    ds["flip_interval_error"].loc[{"scheme": "rk4", "dt": ds["dt"].values[1]}] = np.nan
+    ds["energy_error"].loc[{"scheme": "rk4", "dt": ds["dt"].values[2]}] = 2e-3
+    cells = _judge(ds)
+    assert cells["midpoint"].verdicts["invariants"].passed is False
+    assert "lost energy" in cells["midpoint"].verdicts["invariants"].text
+    assert cells["rk4"].verdicts["flip"].passed is False
+    assert cells["rk4"].verdicts["energy"].passed is False
+    assert cells["rk4"].verdicts["energy"].value == pytest.approx(2e-3)
+
+
+def test_a_failure_fails_beside_a_survivor_of_the_same_order(scorecard):
+    """midpoint given euler's order for the test: it finished every step where euler blew
+    up, so euler's failure now fails the rule, and the verdict names the survivor."""
+    ds = _golden(scorecard)
+    ds["nominal_order"].loc[{"scheme": "midpoint"}] = 1
+    verdict = _judge(ds)["euler"].verdicts["failure"]
+    assert verdict.passed is False and "midpoint (order 1) finished at dt = 0.05 s" in verdict.text
+
+
+def test_invariants_are_not_judged_where_no_case_finished(scorecard):
+    ds = _golden(scorecard)
+    ds["status"].loc[{"scheme": "midpoint"}] = 1  # as an archive holds a blow-up: no error
+    ds["final_orientation_error"].loc[{"scheme": "midpoint"}] = np.nan
+    cell = _judge(ds)["midpoint"]
+    assert cell.verdicts["invariants"].passed is None
+    assert cell.verdicts["order"].passed is False and not cell.passed
+
+
+def test_an_unwritable_out_is_a_one_line_error(tmp_path, capsys):
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    assert main(["conformance", "--cases", "abaqus_top", "--schemes", "rk4", "--out",
+                 str(blocked / "sub")]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "choose another folder with --out" in error

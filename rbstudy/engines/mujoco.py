@@ -42,9 +42,9 @@ body and a loaded body; tests/test_engines.py):
 - MuJoCo's Euler is semi-implicit: velocities first, then positions and orientation with
   the new velocities. rbstudy's `euler` turns the frame with the old angular velocity. Both
   are of order 1 and differ by O(h): 1.5e-3 at dt = 0.01 s, 6.8e-4 at 0.005 s.
-- MuJoCo's RK4 is of order 4 like rbstudy's `rk4` (both integrate Euler's equations and the
-  quaternion; MuJoCo's error is ~3x smaller on the top) and differs from it by O(h^4) on a
-  free body (4.6e-8, then 2.8e-9). On a loaded body it is of order 1: the loads are held
+- MuJoCo's RK4 is of order 4 like rbstudy's `rk4` and differs from it by O(h^4) on a free
+  body (4.6e-8, then 2.8e-9); its errors are those of `rkmk4` (RK4 on the rotation group)
+  to 3-5 digits, ~3x smaller than `rk4`'s on the top. On a loaded body it is of order 1: the loads are held
   over the step (step 2 above), which is how a caller of an engine applies them.
 
 The time measured for a batch (`rbstudy.numerics.driver.run_batch`) is the CPU time of the
