@@ -11,15 +11,17 @@ along the principal axes (``<inertial pos="0 0 0" diaginertia=...>``), no geomet
 contact and no constraint. Nodes are points of that frame: their positions follow from the
 state as they would from MuJoCo's sites (``site_xpos = xpos + R offset``). Every step:
 
-1. rbstudy's state row is written into MuJoCo's (conventions below), the body's mass and
-   principal inertias into the model, with MuJoCo's constants derived from them again;
+1. rbstudy's state rows are written into MuJoCo's (conventions below); each body has a
+   model of its own, with its mass and principal inertias and MuJoCo's constants derived
+   from them (kept per thread, copied from one template);
 2. the loads at the start of the step, `batch_loads` (every load a scene can carry,
    gravity included as a force), go into ``xfrc_applied`` as a force and a moment in the
    world frame at the centre of mass, and are held over the step, as an engine's caller
    applies forces (gravity is switched off in the model: it is in the force);
-3. ``mj_step``, and the new state is read back. A state MuJoCo judges unusable (a value
-   past 1e10, or not finite: its warning counters) stops the body as ``UNSTABLE``, where
-   rbstudy's own driver waits for a non-finite value or the drift bound.
+3. MuJoCo's batch ``rollout`` takes one step of every running body in one call, in this
+   thread, and the new states are read back. A state MuJoCo would judge unusable (a value
+   past 1e10) stops the body as ``UNSTABLE``, where rbstudy's own driver waits for a
+   non-finite value or the drift bound.
 
 MuJoCo carries nothing else from step to step here (no contact warm start, no actuator
 state), so writing the state each step is the same as letting MuJoCo run on.
@@ -44,15 +46,19 @@ body and a loaded body; tests/test_engines.py):
   are of order 1 and differ by O(h): 1.5e-3 at dt = 0.01 s, 6.8e-4 at 0.005 s.
 - MuJoCo's RK4 is of order 4 like rbstudy's `rk4` and differs from it by O(h^4) on a free
   body (4.6e-8, then 2.8e-9); its errors are those of `rkmk4` (RK4 on the rotation group)
-  to 3-5 digits, ~3x smaller than `rk4`'s on the top. On a loaded body it is of order 1: the loads are held
-  over the step (step 2 above), which is how a caller of an engine applies them.
+  to 3-5 digits, ~3x smaller than `rk4`'s on the top. On a loaded body it is of order 1:
+  the loads are held over the step (step 2 above), which is how a caller of an engine
+  applies them.
 
 The time measured for a batch (`rbstudy.numerics.driver.run_batch`) is the CPU time of the
-whole per-step work above, Python included: ~15 us a body-step in batches of 100 or more
-(~18 us for RK4), of which ``mj_step`` of one free body is ~4 us; a batch of one body pays
-~95 us a step, numpy's and the loads' fixed cost (docs/performance.md).
+whole per-step work above, Python included, in the calling thread (the rollout runs there:
+threads of its own would escape the clock). Per body-step in a batch of 10,000: 2.8 us
+(Euler) to 5.7 us (RK4); a batch of one body pays ~90 us a step, the fixed cost of numpy,
+the loads and the call (docs/performance.md). Stepping the bodies one ``mj_step`` at a time
+from Python cost ~15 us a body-step: the rollout is what makes MuJoCo's cost its own.
 """
 
+import copy
 import threading
 
 import numpy as np
@@ -65,6 +71,7 @@ from rbstudy.schemes._registry import Scheme
 
 try:
     import mujoco
+    from mujoco import rollout
 except ImportError:
     raise SchemeUnavailable("needs the mujoco package",
                             'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")') from None
@@ -73,7 +80,7 @@ __all__ = ["EULER", "IMPLICITFAST", "IMPLICIT", "RK4"]
 
 # MuJoCo reports a state it judges unusable (a value past 1e10, or not finite) by printing
 # a warning and appending it to MUJOCO_LOG.TXT in the working directory. Studies blow up on
-# purpose: the adapter reads the warning counters instead (`_BAD`), so the messages are
+# purpose: the adapter checks the states itself (`_MAX_VALUE`), so the messages are
 # silenced, for this process (MuJoCo's handler is process-wide).
 mujoco.set_mju_user_warning(lambda message: None)
 
@@ -86,32 +93,59 @@ _MODEL = """
   </worldbody>
 </mujoco>
 """
-# MuJoCo's reports of a state it judged unusable (a non-finite or huge value).
-_BAD = tuple(getattr(mujoco.mjtWarning, name) for name in ("mjWARN_BADQPOS", "mjWARN_BADQVEL",
-                                                   "mjWARN_BADQACC"))
-# A model and its data per thread and integrator: dask may step batches in several threads.
+# Per thread: a model per body (its integrator, step, mass and inertias), and the rollout
+# that steps them all at once. dask may step batches in several threads.
 _LOCAL = threading.local()
+# Models kept per thread: a batch's bodies (at most a few hundred) and room for the next.
+_MAX_MODELS = 4096
+# MuJoCo's bound on a usable value (mjMAXVAL): past it MuJoCo itself judges a state bad.
+_MAX_VALUE = 1e10
+# A state as rollout takes it (time, qpos (7), qvel (6)), and the applied wrenches (the
+# world body's six, then the body's: force and torque in the world frame at its centre).
+_STATE, _WIDTH = mujoco.mjtState.mjSTATE_FULLPHYSICS, 14
+_WRENCH = mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
-def _model_and_data(integrator):
-    models = _LOCAL.__dict__.setdefault("models", {})
-    if integrator not in models:
-        model = mujoco.MjModel.from_xml_string(_MODEL)
-        model.opt.integrator = integrator
-        # a blown-up state stays blown up (rbstudy records it), not reset to rest
-        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
-        models[integrator] = (model, mujoco.MjData(model))
-    return models[integrator]
+def _template():
+    model = mujoco.MjModel.from_xml_string(_MODEL)
+    # a blown-up state stays blown up (rbstudy records it), not reset to rest
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+    return model, mujoco.MjData(model)
 
 
-def _set_body(model, data, mass, inertia):
-    """Give the model's body ``mass`` and principal ``inertia``, and recompute what MuJoCo
-    derives from them (``mj_setConst``, ~1 us): without it, a body given (1, 2, 3) in place
-    of the compiled (1, 1, 1) kept a constant orientation error of 0.02 rad under RK4."""
-    if model.body_mass[1] != mass or np.any(model.body_inertia[1] != inertia):
-        model.body_mass[1] = mass
-        model.body_inertia[1] = inertia
+if mujoco.mj_stateSize(_template()[0], _STATE) != _WIDTH:  # another MuJoCo's layout
+    raise SchemeUnavailable(f"mujoco {mujoco.__version__} lays out a free body's state "
+                            "otherwise than 4.0", 'pip install "mujoco>=4.0"')
+
+
+def _model(integrator, h, mass, inertia):
+    """This thread's model of a body: copied from the template, given its integrator, step,
+    mass and principal inertias, with MuJoCo's derived constants recomputed (``mj_setConst``:
+    without it, a body given (1, 2, 3) in place of the template's (1, 1, 1) kept a constant
+    orientation error of 0.02 rad under RK4)."""
+    local = _LOCAL.__dict__
+    if "template" not in local:
+        local["template"], local["models"] = _template(), {}
+    key = (int(integrator), h, mass, *inertia)
+    models = local["models"]
+    if key not in models:
+        if len(models) >= _MAX_MODELS:
+            models.clear()
+        template, data = local["template"]
+        model = copy.copy(template)  # a deep copy: ~0.15 ms, against ~0.9 ms to compile
+        model.opt.integrator, model.opt.timestep = integrator, h
+        model.body_mass[1], model.body_inertia[1] = mass, inertia
         mujoco.mj_setConst(model, data)
+        models[key] = model
+    return models[key]
+
+
+def _rollout():
+    local = _LOCAL.__dict__
+    if "rollout" not in local:
+        local["rollout"] = rollout.Rollout(nthread=0)  # this thread; dask spreads batches
+        local.setdefault("template", _template())
+    return local["rollout"], local["template"][1]
 
 
 def _rotate(q, v):
@@ -125,34 +159,33 @@ def _stepper(integrator):
     """The vectorised step of MuJoCo's ``integrator`` (module docstring)."""
 
     def step(y, p, opt, t, h, work):
-        model, data = _model_and_data(integrator)
-        model.opt.timestep = h
+        n = len(y)
+        models = [_model(integrator, h, float(row[S.MASS]), tuple(row[S.INERTIA:S.INERTIA + 3]))
+                  for row in p]
         force, moment = batch_loads(y, p, t)
-        quaternion = y[:, S.QUATERNION:S.QUATERNION + 4]
-        torque = _rotate(quaternion, moment)  # body frame -> world
-        status = np.full(len(y), OK)
-        for body in range(len(y)):
-            row = y[body]
-            _set_body(model, data, p[body, S.MASS], p[body, S.INERTIA:S.INERTIA + 3])
-            data.qpos[:3] = row[S.POSITION:S.POSITION + 3]
-            data.qpos[3] = row[S.QUATERNION + 3]
-            data.qpos[4:] = row[S.QUATERNION:S.QUATERNION + 3]
-            data.qvel[:3] = row[S.VELOCITY:S.VELOCITY + 3]
-            data.qvel[3:] = row[S.OMEGA:S.OMEGA + 3]
-            data.xfrc_applied[1, :3] = force[body]
-            data.xfrc_applied[1, 3:] = torque[body]
-            data.time = 0.0 if t is None else t
-            for kind in _BAD:
-                data.warning[kind].number = 0
-            mujoco.mj_step(model, data)
-            if any(data.warning[kind].number for kind in _BAD):
-                status[body] = UNSTABLE
-            row[S.POSITION:S.POSITION + 3] = data.qpos[:3]
-            row[S.QUATERNION + 3] = data.qpos[3]
-            row[S.QUATERNION:S.QUATERNION + 3] = data.qpos[4:]
-            row[S.VELOCITY:S.VELOCITY + 3] = data.qvel[:3]
-            row[S.OMEGA:S.OMEGA + 3] = data.qvel[3:]
-        return status, 0
+        state = np.empty((n, _WIDTH))
+        state[:, 0] = 0.0 if t is None else t
+        state[:, 1:4] = y[:, S.POSITION:S.POSITION + 3]
+        state[:, 4] = y[:, S.QUATERNION + 3]  # scalar first
+        state[:, 5:8] = y[:, S.QUATERNION:S.QUATERNION + 3]
+        state[:, 8:11] = y[:, S.VELOCITY:S.VELOCITY + 3]
+        state[:, 11:14] = y[:, S.OMEGA:S.OMEGA + 3]
+        wrench = np.zeros((n, 1, 12))  # the world body's, then the body's: force, torque
+        wrench[:, 0, 6:9] = force
+        wrench[:, 0, 9:12] = _rotate(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
+        after = np.empty((n, 1, _WIDTH))
+        runner, data = _rollout()
+        runner.rollout(models, [data], state, wrench, control_spec=_WRENCH, nstep=1,
+                       skip_checks=True, state=after)
+        after = after[:, 0, :]
+        y[:, S.POSITION:S.POSITION + 3] = after[:, 1:4]
+        y[:, S.QUATERNION + 3] = after[:, 4]
+        y[:, S.QUATERNION:S.QUATERNION + 3] = after[:, 5:8]
+        y[:, S.VELOCITY:S.VELOCITY + 3] = after[:, 8:11]
+        y[:, S.OMEGA:S.OMEGA + 3] = after[:, 11:14]
+        # what MuJoCo would have judged unusable (its own counters are per data, not per body)
+        bad = ~np.all(np.abs(after[:, 1:]) < _MAX_VALUE, axis=1)
+        return np.where(bad, UNSTABLE, OK), 0
 
     return step
 
@@ -174,11 +207,11 @@ def _scheme(name, integrator, order, summary, step_seconds):
 
 
 EULER = _scheme("mujoco_euler", mujoco.mjtIntegrator.mjINT_EULER, 1,
-                "Euler: semi-implicit, velocities then positions", 1.5e-05)
+                "Euler: semi-implicit, velocities then positions", 2.8e-06)
 IMPLICITFAST = _scheme("mujoco_implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST, 1,
                        "implicitfast: velocity-implicit; on one free body the same as "
-                       "implicit", 1.5e-05)
+                       "implicit", 3.0e-06)
 IMPLICIT = _scheme("mujoco_implicit", mujoco.mjtIntegrator.mjINT_IMPLICIT, 1,
-                   "implicit: the gyroscopic term linearised-implicit", 1.6e-05)
+                   "implicit: the gyroscopic term linearised-implicit", 3.3e-06)
 RK4 = _scheme("mujoco_rk4", mujoco.mjtIntegrator.mjINT_RK4, 4,
-              "RK4 on (qpos, qvel), loads held over the step", 1.8e-05)
+              "RK4 on (qpos, qvel), loads held over the step", 5.7e-06)
