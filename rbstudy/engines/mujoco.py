@@ -118,14 +118,21 @@ if mujoco.mj_stateSize(_template()[0], _STATE) != _WIDTH:  # another MuJoCo's la
                             "otherwise than 4.0", 'pip install "mujoco>=4.0"')
 
 
+def _thread():
+    """This thread's template (a model and its data), its models by body, and its rollout,
+    which steps in this thread (dask spreads the batches over threads)."""
+    local = _LOCAL.__dict__
+    if "template" not in local:
+        local.update(template=_template(), models={}, rollout=rollout.Rollout(nthread=0))
+    return local
+
+
 def _model(integrator, h, mass, inertia):
     """This thread's model of a body: copied from the template, given its integrator, step,
     mass and principal inertias, with MuJoCo's derived constants recomputed (``mj_setConst``:
     without it, a body given (1, 2, 3) in place of the template's (1, 1, 1) kept a constant
     orientation error of 0.02 rad under RK4)."""
-    local = _LOCAL.__dict__
-    if "template" not in local:
-        local["template"], local["models"] = _template(), {}
+    local = _thread()
     key = (int(integrator), h, mass, *inertia)
     models = local["models"]
     if key not in models:
@@ -138,14 +145,6 @@ def _model(integrator, h, mass, inertia):
         mujoco.mj_setConst(model, data)
         models[key] = model
     return models[key]
-
-
-def _rollout():
-    local = _LOCAL.__dict__
-    if "rollout" not in local:
-        local["rollout"] = rollout.Rollout(nthread=0)  # this thread; dask spreads batches
-        local.setdefault("template", _template())
-    return local["rollout"], local["template"][1]
 
 
 def _rotate(q, v):
@@ -174,9 +173,9 @@ def _stepper(integrator):
         wrench[:, 0, 6:9] = force
         wrench[:, 0, 9:12] = _rotate(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
         after = np.empty((n, 1, _WIDTH))
-        runner, data = _rollout()
-        runner.rollout(models, [data], state, wrench, control_spec=_WRENCH, nstep=1,
-                       skip_checks=True, state=after)
+        local = _thread()
+        local["rollout"].rollout(models, [local["template"][1]], state, wrench,
+                                 control_spec=_WRENCH, nstep=1, skip_checks=True, state=after)
         after = after[:, 0, :]
         y[:, S.POSITION:S.POSITION + 3] = after[:, 1:4]
         y[:, S.QUATERNION + 3] = after[:, 4]
