@@ -13,13 +13,15 @@
   `later(t, d)` is the time of a stage ``d`` into a step that starts at ``t``.
 - A vectorised scheme: the same two functions over arrays of bodies, in numpy, given their
   entry point by `make_batch_entry(step, init, n_work)`; `batch_loads` gives them every
-  load a scene can carry (force in space, moment in the body frame).
+  load a scene can carry (force in space, moment in the body frame), and `algebra` the
+  formulas rbstudy writes once for scalars and arrays alike (the Hamilton product, the
+  rotation's columns, the invariants).
 - `state`: the layout of the state, parameter and option rows, and the status codes.
 
 This module is the contract: what it names keeps its meaning between releases.
 """
 
-from rbstudy.numerics import dynamics, rotation, state
+from rbstudy.numerics import algebra, dynamics, rotation, state
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
@@ -28,5 +30,5 @@ from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes import Option, Scheme, SchemeUnavailable
 
 __all__ = ["Scheme", "Option", "SchemeUnavailable", "jit", "make_entry", "init_nothing",
-           "make_batch_entry", "batch_loads", "later", "state", "rotation", "dynamics", "OK", "UNSTABLE",
-           "NOT_CONVERGED"]
+           "make_batch_entry", "batch_loads", "later", "algebra", "state", "rotation",
+           "dynamics", "OK", "UNSTABLE", "NOT_CONVERGED"]

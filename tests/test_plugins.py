@@ -6,6 +6,7 @@ import importlib
 import importlib.metadata
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -34,8 +35,12 @@ def installed(tmp_path_factory):
     """The example plug-in installed by pip into a folder of its own (not into this
     environment, which the other tests share); the environment of a process that sees it."""
     target = tmp_path_factory.mktemp("site")
+    # built from a copy: setuptools leaves build/ and *.egg-info in the folder it builds
+    source = tmp_path_factory.mktemp("example") / "semi_implicit"
+    shutil.copytree(EXAMPLE, source,
+                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
-                    "--disable-pip-version-check", "--target", str(target), str(EXAMPLE)],
+                    "--disable-pip-version-check", "--target", str(target), str(source)],
                    check=True, capture_output=True, text=True)
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), str(ROOT)])}
 

@@ -136,10 +136,9 @@ def _invariants(ds, scheme, row):
 
 def _energy(ds, scheme, row):
     change = per_scheme(ds["energy_error"], scheme).where(per_scheme(ds["status"], scheme) == 0)
-    gain = float(change.max()) if bool(change.notnull().any()) else np.nan
-    loss = float(-change.min()) if bool(change.notnull().any()) else np.nan
-    if not np.isfinite(gain):
+    if not bool(change.notnull().any()):
         return Verdict(None, np.nan, "no finished case")
+    gain, loss = float(change.max()), float(-change.min())
     return Verdict(gain <= ENERGY_GAIN, gain,
                    f"largest gain {max(gain, 0.0) + 0.0:.2g}, largest loss "
                    f"{max(loss, 0.0) + 0.0:.2g} (relative)")  # + 0.0: no "-0"

@@ -28,16 +28,13 @@ import numpy as np
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import step_time
+from rbstudy.numerics.driver import HALT_CHECK_STEPS
 from rbstudy.numerics.dynamics import body_moment, is_moment_free, space_force
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import read4, write3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = ["BatchStepEntry", "make_batch_entry", "batch_loads"]
-
-# Steps between two reads of the halt flag: as often as the compiled driver reads it.
-_HALT_CHECK_STEPS = 1024
-
 
 def _invariants(y, p):
     """Rotational energy and |L| (n,) of the state rows ``y`` by `algebra`'s formulas."""
@@ -102,7 +99,7 @@ class BatchStepEntry:
         next_sample = np.ones(n, dtype=np.int64)
         for k in range(n_steps):
             running = np.flatnonzero(status == OK)
-            if running.size == 0 or (k % _HALT_CHECK_STEPS == 0 and halt[0] != 0):
+            if running.size == 0 or (k % HALT_CHECK_STEPS == 0 and halt[0] != 0):
                 break
             due = (k + 1) % every == 0
             t = step_time(k, h, clock)
@@ -115,7 +112,7 @@ class BatchStepEntry:
             code = _as_counts(code, running.size, np.int64).copy()
             iterations[running] += _as_counts(iters, running.size, np.int64)
             steps_done[running] += 1
-            y_new = y[running]
+            y_new = y if running.size == n else y[running]
             code[(code == OK) & ~np.isfinite(y_new.sum(axis=1))] = UNSTABLE
             energy, momentum = _invariants(y_new, p[running])
             watch = (code == OK) & checked[running]
