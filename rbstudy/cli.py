@@ -125,7 +125,7 @@ def _sweep(args):
     from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study
-    from rbstudy.pipeline.store import open_results
+    from rbstudy.pipeline.store import folder_claim, open_results
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     names = [study.name for study in studies]
     for study in studies:
@@ -133,10 +133,14 @@ def _sweep(args):
             raise ConfigError(f"{study.name!r} is also the name of another config of this "
                               "command", "study names pick the results folder: rename one",
                               source=study.path, key="name")
+    # a folder of another config of the same name is refused before any study runs
+    replaces = [folder_claim(args.out, study, args.force) for study in studies]
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
-    for study, line in zip(studies, lines, strict=True):
+    for study, line, replaced in zip(studies, lines, replaces, strict=True):
         if not args.quiet:
             print(line)
+        if replaced:  # even when quiet: it says whose results the run deletes
+            print(replaced)
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
                          force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
                          cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.physics.columns import read_files, refuse, rows, symmetric_tensor
+from rbstudy.physics.columns import file_bindings, read_files, refuse, rows, symmetric_tensor
 from rbstudy.physics.node_table import RESERVED, read_node_table
 
 __all__ = ["Assembly", "Secondaries", "assemble", "read_assembly", "CENTRES", "REGULARISATION", "DEGENERATE"]
@@ -128,7 +128,8 @@ _MASTER_KEYS = ("position", "mass", "inertia")
 @dataclass(frozen=True)
 class Secondaries:
     """The secondary nodes of n scenes: ``names`` (K,), ``positions`` (n, K, 3) m, ``masses``
-    (n, K) kg, ``inertias`` (n, K, 3, 3) kg m^2, and the digests of the node tables read."""
+    (n, K) kg, ``inertias`` (n, K, 3, 3) kg m^2, and the node table files read
+    (`rbstudy.physics.columns.file_bindings`)."""
 
     names: tuple
     positions: np.ndarray
@@ -198,7 +199,7 @@ def _tabled_nodes(reader, files, path, size):
     positions, masses, inertias = (np.stack([getattr(t, field) for t in tables])[inverse]
                                    for field in ("positions", "masses", "inertias"))
     return Secondaries(tables[0].names, positions, masses, _tensor_of_six(inertias),
-                       tuple(sorted({t.digest for t in tables})))
+                       file_bindings(path, distinct, tables))
 
 
 def _read_secondaries(reader, nodes, path, size):

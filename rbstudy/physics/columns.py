@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["rows", "refuse", "symmetric_tensor", "read_files"]
+__all__ = ["rows", "refuse", "symmetric_tensor", "read_files", "file_bindings"]
 
 
 def rows(vector, size):
@@ -59,3 +59,12 @@ def read_files(reader, files, key, size, read, what):
             error.row = int(np.argmax(index == k)) if isinstance(files, np.ndarray) else None
             raise
     return names, contents, index
+
+
+def file_bindings(key, names, contents):
+    """``(key, file name, sha256 digest)`` of each file that `read_files` read at ``key``
+    (``names`` and their ``contents``, each with a ``digest``): what a study's identity holds
+    of its table files. Each name is bound to its own content: as a set of digests, two swept
+    files whose contents were swapped looked unchanged, and their old results were reused."""
+    return tuple((key, str(name), content.digest)
+                 for name, content in zip(names, contents, strict=True))

@@ -26,7 +26,7 @@ from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.physics.assembly import REGULARISATION, read_assembly
-from rbstudy.physics.columns import read_files, refuse, rows, symmetric_tensor
+from rbstudy.physics.columns import file_bindings, read_files, refuse, rows, symmetric_tensor
 from rbstudy.physics.load_table import inline_load_table, read_load_file
 from rbstudy.physics.node_table import RESERVED
 from rbstudy.reader import Reader
@@ -222,8 +222,8 @@ class SceneTable:
     broadcast views. warnings : what the reading noticed but accepted
     (a regularised assembled body), one line each. regularised : (n,) True where an
     assembled body's inertia was regularised, None for a body not assembled. tables : the
-    sha256 digests of the node and load table files read. What the scenes are (symmetry,
-    reference, loads acting) is worked out once, when first asked.
+    node and load table files read, each as (key, file name, sha256 digest). What the scenes
+    are (symmetry, reference, loads acting) is worked out once, when first asked.
     """
 
     mass: np.ndarray
@@ -476,11 +476,13 @@ def _along(offsets, vectors):
 @dataclass(frozen=True)
 class _Timed:
     """A load tabulated in time in n scenes: the distinct `LoadTable`s, which one each scene
-    takes (n,), and the scale (n,) of its values."""
+    takes (n,), the scale (n,) of its values, and the table files read
+    (`rbstudy.physics.columns.file_bindings`; none for a table given inline)."""
 
     tables: list
     index: np.ndarray
     scale: np.ndarray
+    files: tuple = ()
 
     def at(self, knots):
         """The load (n, K, 3) at ``knots`` (K,); (1, K, 3) when the scenes share it."""
@@ -499,9 +501,9 @@ def _read_timed(reader, spec, key, size):
     if isinstance(table, list):
         return _Timed([inline_load_table(reader, table, f"{key}.table")], np.zeros(size, int),
                       scale)
-    _, tables, index = read_files(reader, table, f"{key}.table", size, read_load_file,
-                                  "rows [t, x, y, z] or a load table file")
-    return _Timed(tables, index, scale)
+    names, tables, index = read_files(reader, table, f"{key}.table", size, read_load_file,
+                                      "rows [t, x, y, z] or a load table file")
+    return _Timed(tables, index, scale, file_bindings(f"{key}.table", names, tables))
 
 
 def _loaded_nodes(reader, spec, path, points):
@@ -658,9 +660,8 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
         for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
             loads.add("lever", _lever(first_moment, gravity))
     _add_nodal_loads(nodal, loads, points, _alike(axes))
-    tables = () if assembled is None else secondaries.tables
-    tables += tuple(sorted({table.digest for load in loads.timed.values()
-                            for table in load.tables if table.digest is not None}))
+    tables = (() if assembled is None else secondaries.tables) + tuple(
+        binding for load in loads.timed.values() for binding in load.files)
     return SceneTable(
         mass=_shared(mass), inertia=_shared(inertia), allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),

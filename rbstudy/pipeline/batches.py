@@ -84,8 +84,9 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
 
     A batch's id hashes what its part holds and where it goes: the study's ``scene`` mapping
     and the grid (every dimension's axes and values), which with the cases' positions make
-    their scenes (with the order of the nodes, which the part's node axis follows, and the
-    contents of the node tables the scene names); the runs
+    their scenes (with the order of the nodes, which the part's node axis follows, and each
+    node and load table file the scenes name, its name bound to its content's digest, so
+    that swapping the contents of two swept files changes the ids); the runs
     of its cases (scheme, dt and the options that scheme has, so that another scheme's
     option, unless swept, leaves it alone); the output grid and the stored variables; what
     the stored verdicts depend on (``verdict``: the accuracy bound); and the source digest of

@@ -41,7 +41,9 @@ from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.store import (
     Layout,
     archive_state,
+    claim_folder,
     consolidate,
+    folder_claim,
     global_attrs,
     open_results,
     part_complete,
@@ -374,6 +376,10 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
     with study_lock(folder):
+        # again under the lock, before anything is written or deleted: the command line
+        # checks every study before it runs any, but another sweep may claim the folder since
+        folder_claim(folder.parent, study, force)
+        claim_folder(folder, study)
         for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp"),
                       *parts_dir.glob(".probe-*")]:
             stale.unlink()  # left by a killed sweep; the lock is ours

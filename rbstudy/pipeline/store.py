@@ -1,10 +1,11 @@
 """Results on disk: part files per batch and the consolidated CF-1.11 dataset of a study.
 
 Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved config),
-``parts/<batch-id>.nc`` (one finished batch, dimension ``case``) and ``<study>.nc`` (every
-case on the study's grid). Every file is written under a temporary name in the same folder and
-renamed (the file and then its folder synced to disk first), so a reader, or a rerun after a
-kill or a machine crash, never sees half a file; every part and the archive carry checksums
+``parts/<batch-id>.nc`` (one finished batch, dimension ``case``), ``<study>.nc`` (every
+case on the study's grid) and `OWNER` (the config file whose study the folder holds). Every
+file is written under a temporary name in the same folder and renamed (the file and then its
+folder synced to disk first), so a reader, or a rerun after a kill or a machine crash, never
+sees half a file; every part and the archive carry checksums
 (`rbstudy.pipeline.integrity`), so that a file damaged later is never reused.
 
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
@@ -31,7 +32,7 @@ import netCDF4
 import numpy as np
 import yaml
 
-from rbstudy.errors import RbstudyError
+from rbstudy.errors import ConfigError, RbstudyError
 from rbstudy.pipeline.batches import batches_digest
 from rbstudy.pipeline.integrity import (
     file_digest,
@@ -52,7 +53,7 @@ from rbstudy.pipeline.variables import (
 __all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
            "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
-           "decimal_grid", "COMPRESSION"]
+           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
                  "matplotlib", "PyYAML")
@@ -75,6 +76,9 @@ CHUNK_CACHE_CHUNKS = 8
 CHUNK_CACHE_SLOTS = 521
 # Free bytes below which a failed write is put down to a full disk.
 _FULL_BYTES = 2 ** 20
+# The file of a study folder that names the config file (resolved path) whose study the
+# folder holds: another config of the same name would replace its archive and parts.
+OWNER = ".rbstudy-study"
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
 _MAX_DECIMALS = 15
@@ -347,6 +351,43 @@ def archive_state(path, study):
     with HDF5_LOCK:
         problems = verify_archive(path).problems
     return ("damaged", list(problems)) if problems else ("current", [])
+
+
+def _config_file(study):
+    return str(pathlib.Path(study.path).resolve())
+
+
+def folder_claim(root, study, force=False):
+    """Whether ``<root>/<study.name>`` may take ``study``'s results; reads only.
+
+    A study folder belongs to the config file that made it (`OWNER`). Edited, that file is
+    still the same study: its rerun resumes or rebuilds as it always has. A new folder, or
+    one from before folders named their config, takes any. A folder of another config file
+    of the same name is refused (a `ConfigError` naming both files), unless ``force``: then
+    the line saying what the run replaces is returned; else None.
+    """
+    folder = pathlib.Path(root) / study.name
+    record = folder / OWNER
+    owner = record.read_text().strip() if record.is_file() else None
+    if owner in (None, _config_file(study)):
+        return None
+    if not force:
+        raise ConfigError(f"{folder} holds the study of another config of this name, {owner}",
+                          "give this study another name or another --out (--force replaces "
+                          "that study)", source=study.path, key="name")
+    kept = len(list((folder / "parts").glob("*.nc")))
+    archive = "its archive and " if (folder / f"{study.name}.nc").exists() else ""
+    return (f"{study.name}: --force replaces the study of {owner} in {folder} ({archive}"
+            f"{kept} kept part{'' if kept == 1 else 's'})")
+
+
+def claim_folder(folder, study):
+    """Record ``study``'s config file as the one whose study ``folder`` holds
+    (`folder_claim` must have let it)."""
+    text = _config_file(study) + "\n"
+    path = pathlib.Path(folder) / OWNER
+    if not path.is_file() or path.read_text() != text:
+        write_text_atomic(text, path)
 
 
 def part_complete(path, batch):

@@ -1,0 +1,106 @@
+"""What a study folder holds is the study's: table files bound by name to their contents, and
+one study (one config file) per folder."""
+
+import pytest
+import xarray as xr
+from conftest import write_study
+
+from rbstudy.cli import main
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.store import open_results
+
+# The kernel's clock time: the one stored value that two runs of one case do not share.
+TIMINGS = ["run_time"]
+
+NODE_TABLE = "id, x, y, z, mass\n1, 1.0, 0.2, 0.0, 2.0\n2, -0.8, 0.5, 0.1, 1.0\n3, 0.1, -1.2, 0.3, {}\n"
+# Two tables of the same node ids that make different bodies, and two load tables of
+# different knots: each swapped pair gives every case other numbers.
+TABLES = {
+    "nodes": ("scene.assembly.nodes", NODE_TABLE.format(1.5), NODE_TABLE.format(4.0),
+              {"assembly": {"master": {"position": [0.1, 0.0, 0.2], "mass": 1.0}, "nodes": "a.csv"},
+               "initial": {"angular_velocity": {"space": [0.4, 1.1, -0.6]}}, "duration": 0.2}),
+    "loads": ("scene.loads.moment_body.table", "0 0 0 0\n0.1 0 0 1\n",
+              "0 0 0 0\n0.1 0.5 0 0\n0.2 0 -1 0\n",
+              {"body": {"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
+               "initial": {"angular_velocity": {"body": [0.3, 1.0, 0.2]}},
+               "loads": {"moment_body": {"table": "a.csv"}}, "duration": 0.2}),
+}
+
+
+def _table_study(folder, kind, swapped=False):
+    """A study of two cases sweeping the two table files ``a.csv`` and ``b.csv`` of ``kind``
+    in ``folder`` (their contents swapped when ``swapped``); returns the config's path."""
+    folder.mkdir(exist_ok=True)
+    key, first, second, scene = TABLES[kind]
+    (folder / "a.csv").write_text(second if swapped else first)
+    (folder / "b.csv").write_text(first if swapped else second)
+    return write_study(folder, scene=scene, sweep={key: ["a.csv", "b.csv"]},
+                       run={"scheme": "rk4", "dt": 0.02}, output={"interval": 0.1})
+
+
+def _same_numbers(path_a, path_b):
+    a, b = open_results(path_a), open_results(path_b)
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
+
+
+@pytest.mark.parametrize("kind", sorted(TABLES))
+@pytest.mark.parametrize("keep_parts", [False, True], ids=["archive", "kept-parts"])
+def test_swapped_table_contents_are_recomputed(tmp_path, kind, keep_parts):
+    """Swap the contents of two swept table files: the rerun recomputes every batch and
+    stores what a fresh run of the swapped files stores, whether it finds the old archive or,
+    with the archive deleted, the old parts."""
+    config = _table_study(tmp_path / "study", kind)
+    out = tmp_path / "out"
+    first = run_study(load_study(config), out, quiet=True, keep_parts=keep_parts)
+    _table_study(tmp_path / "study", kind, swapped=True)
+    if keep_parts:
+        first.path.unlink()
+    again = run_study(load_study(config), out, quiet=True, keep_parts=keep_parts)
+    assert (again.up_to_date, again.reused, again.computed) == (False, 0, first.computed)
+    fresh = run_study(load_study(_table_study(tmp_path / "fresh", kind, swapped=True)),
+                      tmp_path / "fresh_out", quiet=True)
+    _same_numbers(again.path, fresh.path)
+    with pytest.raises(AssertionError):  # the swap changed the numbers: the check can fail
+        _same_numbers(again.path, run_study(load_study(_table_study(tmp_path / "old", kind)),
+                                            tmp_path / "old_out", quiet=True).path)
+
+
+def _folder_bytes(folder):
+    return {path.relative_to(folder): path.read_bytes() for path in sorted(folder.rglob("*"))
+            if path.is_file() and path.name != ".lock"}
+
+
+def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp_path, capsys):
+    """Two config files of one name into one --out: the second is refused in one line naming
+    both files and the fix, the first's archive and kept parts untouched; with --force it
+    replaces them and says what it replaced. The first config, edited, is still its study."""
+    (tmp_path / "first").mkdir()
+    (tmp_path / "second").mkdir()
+    first = write_study(tmp_path / "first", name="top")
+    second = write_study(tmp_path / "second", name="top", run={"scheme": "leapfrog", "dt": 0.01})
+    out = tmp_path / "out"
+    assert main(["sweep", str(first), "--out", str(out), "--keep-parts", "--quiet"]) == 0
+    folder = out / "top"
+    kept = _folder_bytes(folder)
+    assert any(name.suffix == ".nc" and name.parent.name == "parts" for name in kept)
+    capsys.readouterr()
+    assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert str(second) in err and str(first.resolve()) in err
+    assert "another name" in err and "--out" in err and "--force" in err
+    assert _folder_bytes(folder) == kept
+
+    assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet",
+                 "--force"]) == 0
+    said = capsys.readouterr().out
+    assert (f"top: --force replaces the study of {first.resolve()} in {folder} (its archive and "
+            "1 kept part)\n") in said
+    assert open_results(folder / "top.nc").attrs["config_path"] == str(second)
+    first_parts = {name for name in kept if name.parent.name == "parts"}
+    assert not first_parts & set(_folder_bytes(folder))  # the first's kept parts are gone
+    assert main(["sweep", str(first), "--out", str(out), "--quiet"]) == 1  # now the second's
+    capsys.readouterr()
+    write_study(tmp_path / "second", name="top", run={"scheme": "leapfrog", "dt": 0.005})  # edited
+    assert main(["sweep", str(second), "--out", str(out), "--quiet"]) == 0
