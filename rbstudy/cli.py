@@ -14,6 +14,7 @@ import argparse
 import contextlib
 import functools
 import logging
+import math
 import os
 import pathlib
 import sys
@@ -58,9 +59,10 @@ def _schemes(args):
 
 
 def _bench(args):
-    from rbstudy.analysis.bench import BODY_STEPS, run_bench
-    if args.body_steps is not None and args.body_steps < 1:
-        raise RbstudyError(f"--body-steps: need at least 1, got {args.body_steps}")
+    from rbstudy.analysis.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
+        raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
+                           f"{args.body_steps:.3g}")
     run_bench(schemes=args.schemes or None, body_steps=args.body_steps or BODY_STEPS,
               progress=not args.quiet)
     return 0
@@ -370,8 +372,9 @@ def build_parser():
     verify.set_defaults(run=_verify)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
     bench.add_argument("schemes", nargs="*", help="schemes to measure (default: all)")
-    bench.add_argument("--body-steps", type=int, metavar="N",
-                       help="body-steps per figure (default 1e7; fewer for a quick look)")
+    bench.add_argument("--body-steps", type=_whole_number, metavar="N",
+                       help="body-steps per figure (default 1e7, at most 1e9; fewer for a "
+                            "quick look)")
     bench.add_argument("--quiet", action="store_true", help="no progress line")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
@@ -390,6 +393,17 @@ def build_parser():
     conformance.add_argument("--quiet", action="store_true", help="no progress lines")
     conformance.set_defaults(run=_conformance)
     return parser
+
+
+def _whole_number(text):
+    """A whole number written as digits or as ``1e7``, as the help gives it."""
+    try:
+        number = float(text) if "e" in text.lower() or "." in text else int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if not math.isfinite(number) or number != round(number):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
+    return int(number)
 
 
 def _limit_arguments(parser):

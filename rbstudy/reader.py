@@ -7,15 +7,72 @@ key path, the value received and what is expected.
 A swept value arrives as a column: a numpy array with one entry per scene of a table
 (`rbstudy.physics.scenes.SceneTable`). Numbers are checked for the whole column at once; the
 first bad entry fails exactly as a single value would, with its row on the error.
+
+The files themselves (a study config, a cluster file, a node or load table) are read by
+`read_input_file`: regular files only, of bounded size, so that a path to a FIFO, a device or
+a huge file fails in one line instead of hanging or exhausting the memory.
 """
 
 import math
+import os
+import stat
 
 import numpy as np
 
 from rbstudy.errors import InputError
 
-__all__ = ["Reader"]
+__all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES"]
+
+# The largest input file read: a config is kilobytes, a node table of a million nodes with
+# their inertias ~130 MiB. A larger file is not one written for rbstudy (a log, a mesh, a
+# disk image), and parsing it would take gigabytes.
+MAX_INPUT_BYTES = 256 * 2 ** 20
+_MIB = 2 ** 20
+# What a path that is no regular file names, by its `stat` kind.
+_KINDS = {stat.S_IFDIR: "a folder", stat.S_IFIFO: "a FIFO (named pipe)",
+          stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
+          stat.S_IFSOCK: "a socket"}
+
+
+def _check_file(info, path, what, fix):
+    """Refuse the file of ``os.stat`` result ``info`` unless it is a regular file within
+    `MAX_INPUT_BYTES`."""
+    if not stat.S_ISREG(info.st_mode):
+        kind = _KINDS.get(stat.S_IFMT(info.st_mode), "not a file")
+        raise InputError(f"cannot read {what}: it is {kind}, not a regular file", fix, str(path))
+    if info.st_size > MAX_INPUT_BYTES:
+        _too_large(info.st_size, path, what)
+
+
+def _too_large(size, path, what):
+    raise InputError(f"{what} is {size / _MIB:,.0f} MiB, larger than the {MAX_INPUT_BYTES // _MIB} "
+                     "MiB an input file may be", "give the right file, or a smaller one", str(path))
+
+
+def read_input_file(path, what, fix):
+    """The bytes of the regular file ``path`` (a link is followed), at most `MAX_INPUT_BYTES`;
+    anything else is an `InputError` at ``path`` (no key: the caller places it) saying
+    "cannot read ``what``" ("the node table") and why, with ``fix``.
+
+    A FIFO blocks whoever opens it and a device such as /dev/zero never ends, so the kind and
+    size are checked before the file is opened, and again on the opened file (opened
+    non-blocking, so that a path swapped for a FIFO in between cannot hang it); at most one
+    byte past the bound is read, so that a file growing meanwhile is refused too.
+    """
+    try:
+        _check_file(os.stat(path), path, what, fix)
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as error:
+        raise InputError(f"cannot read {what}: {error.strerror}", fix, str(path)) from None
+    with os.fdopen(descriptor, "rb") as file:
+        try:
+            _check_file(os.fstat(descriptor), path, what, fix)
+            data = file.read(MAX_INPUT_BYTES + 1)
+        except OSError as error:
+            raise InputError(f"cannot read {what}: {error.strerror}", fix, str(path)) from None
+    if len(data) > MAX_INPUT_BYTES:
+        _too_large(len(data), path, what)
+    return data
 
 
 class Reader:

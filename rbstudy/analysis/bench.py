@@ -25,10 +25,14 @@ from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.execute import progress_wanted
 from rbstudy.schemes import SCHEMES, get_scheme
 
-__all__ = ["run_bench", "abaqus_top_scene"]
+__all__ = ["run_bench", "abaqus_top_scene", "BODY_STEPS", "MAX_BODY_STEPS"]
 
 BATCH_SIZES = (1, 100, 10_000)
 BODY_STEPS = 10_000_000
+# The most --body-steps may ask for: a figure of 1e9 body-steps takes ~40 s for the fastest
+# scheme (six figures a scheme), and its single body keeps 1e6 samples (~100 MiB); 1e18 asked
+# for 92 PiB of samples.
+MAX_BODY_STEPS = 1_000_000_000
 BENCH_DT = 1e-4
 SAMPLE_EVERY = 1_000
 # dop853 is per case in Python: a short run says enough about its cost.

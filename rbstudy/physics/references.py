@@ -54,6 +54,8 @@ COMPOSED_STEP_ANGLE = 0.15
 # How many step counts from the angle's `composed_steps` tries for one that puts the knots of
 # load tables on step boundaries (a knot given to three decimals finds one within 1000).
 _KNOT_SEARCH = 1000
+# Knots the search checks at once: arrays of at most this many by `_KNOT_SEARCH` floats (8 MB).
+_KNOT_CHUNK = 1000
 
 
 @dataclass(frozen=True)
@@ -150,13 +152,20 @@ def knot_steps(knots, duration, interval, least):
     """The first step count per output ``interval`` from ``least`` that puts every knot
     (K,) inside (0, ``duration``) on a step boundary, or None within `_KNOT_SEARCH` counts
     (a load's kink inside a step costs the composition its order; DOP853 restarts there
-    instead)."""
+    instead). The knots are tried `_KNOT_CHUNK` at a time against the counts that still fit,
+    so that a table of 1e5 knots needs megabytes, not the gigabytes of all knots by all
+    counts at once (the counts found are the same)."""
     knots = np.asarray(knots)
     knots = knots[(knots > 0.0) & (knots < duration)]
     counts = np.arange(least, least + _KNOT_SEARCH)
-    steps = knots[:, None] * (counts / interval)  # (knots, counts)
-    fits = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0), axis=0)
-    return int(counts[fits.argmax()]) if fits.any() else None
+    fits = np.ones(counts.size, dtype=bool)
+    for start in range(0, knots.size, _KNOT_CHUNK):
+        steps = knots[start:start + _KNOT_CHUNK, None] * (counts[fits] / interval)  # (knots, counts)
+        fits[fits] = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0),
+                            axis=0)
+        if not fits.any():
+            return None
+    return int(counts[fits.argmax()])
 
 
 def composed_steps(scene, interval, least=None):

@@ -9,7 +9,9 @@ byte-order mark is skipped. What the fields mean is the reader's of each table
 
 import hashlib
 import math
-from pathlib import Path
+
+from rbstudy.errors import InputError
+from rbstudy.reader import read_input_file
 
 __all__ = ["fields", "table_lines", "finite"]
 
@@ -28,16 +30,20 @@ def fields(line):
 
 def table_lines(path, reader, what, fix):
     """The sha256 digest of the file ``path`` (batch ids change when a table does) and its
-    records, ``(line number, fields)``; a file that cannot be read fails through ``reader``
-    at the key "table", as ``what`` ("the node table"), with ``fix``."""
+    records, ``(line number, fields)``, one at a time; a file that cannot be read fails through ``reader``
+    at the key "table", as ``what`` ("the node table"), with ``fix`` (a FIFO, a device or a
+    file past `rbstudy.reader.MAX_INPUT_BYTES` too)."""
     try:
-        data = Path(path).read_bytes()
+        data = read_input_file(path, what, fix)
+    except InputError as error:
+        raise reader.locate(error, "table") from None
+    try:
         text = data.decode("utf-8-sig")  # a spreadsheet's export may start with a BOM
-    except (OSError, UnicodeDecodeError) as error:
-        reason = getattr(error, "strerror", None) or error
-        reader.fail("table", f"cannot read {what}: {reason}", fix)
-    records = [(number, fields(line)) for number, line in enumerate(text.splitlines(), start=1)
-               if line.strip() and not line.lstrip().startswith("#")]
+    except UnicodeDecodeError as error:
+        reader.fail("table", f"cannot read {what}: {error}", fix)
+    # split as they are read: a million lines held split at once took ~300 MiB
+    records = ((number, fields(line)) for number, line in enumerate(text.splitlines(), start=1)
+               if line.strip() and not line.lstrip().startswith("#"))
     return hashlib.sha256(data).hexdigest(), records
 
 

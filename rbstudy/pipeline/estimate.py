@@ -77,10 +77,14 @@ def _composed_steps(scenes, rows, interval):
 
 def _dop853_steps(scenes):
     """Forecast of accepted DOP853 steps at rtol 1e-13 for each scene of a
-    `rbstudy.physics.scenes.SceneTable` (n,): steps per radian of |w0| T, the radians the body
-    turns at its initial spin, plus the few a slow run still takes."""
+    `rbstudy.physics.scenes.SceneTable` (n,), as floats (a spin of 1e20 rad/s forecasts
+    steps past any integer): steps per radian of |w0| T, the radians the body turns at its
+    initial spin, plus the few a slow run still takes, plus one per knot of its load tables
+    inside the run (DOP853 restarts at each)."""
     turned = np.linalg.norm(scenes.omega_body, axis=-1) * scenes.duration
-    return np.ceil(REFERENCE_STEPS_PER_RADIAN * turned).astype(np.int64) + 16
+    knots = np.asarray(scenes.loads["knots"])
+    restarts = ((knots > 0.0) & (knots < scenes.duration)).sum(axis=-1)
+    return np.ceil(REFERENCE_STEPS_PER_RADIAN * turned) + 16 + restarts
 
 
 @dataclass(frozen=True)
@@ -166,10 +170,11 @@ def disk_needed(study, pending):
 
 
 def _duration(seconds):
-    """``~17 h``, ``~3 min``, ``~2.5 s`` or ``under 0.1 s``."""
+    """``~17 h`` (``~3.2e+12 h``), ``~3 min``, ``~2.5 s`` or ``under 0.1 s``."""
     for unit, size in (("h", 3600.0), ("min", 60.0)):
-        if seconds >= 2 * size:
-            return f"~{seconds / size:,.0f} {unit}"
+        if seconds >= 2 * size:  # digits past a million hours say nothing more
+            count = seconds / size
+            return f"~{count:,.0f} {unit}" if count < 1e6 else f"~{count:.1e} {unit}"
     if seconds < 0.1:
         return "under 0.1 s"
     return f"~{seconds:.1f} s" if seconds < 10 else f"~{seconds:,.0f} s"

@@ -10,12 +10,12 @@ under one key are 490 million values: every later step that walks the config, fr
 message to a scene's identity, would exhaust the memory).
 """
 
-import pathlib
 import re
 
 import yaml
 
-from rbstudy.errors import ConfigError
+from rbstudy.errors import ConfigError, InputError
+from rbstudy.reader import read_input_file
 
 __all__ = ["read_yaml_file", "MAX_DEPTH", "MAX_VALUES"]
 
@@ -109,11 +109,12 @@ def _check_extent(path, root):
 
 def read_yaml_file(path):
     """The text of the YAML file at ``path`` and its values; a `ConfigError` names what is
-    wrong with the file (unreadable, not UTF-8, malformed YAML, too deep or too large)."""
+    wrong with the file (unreadable, no regular file, larger than
+    `rbstudy.reader.MAX_INPUT_BYTES`, not UTF-8, malformed YAML, too deep or too large)."""
     try:
-        text = pathlib.Path(path).read_text(encoding="utf-8")
-    except OSError as error:
-        raise ConfigError(f"cannot read the file: {error.strerror}", source=path) from None
+        text = read_input_file(path, "the file", "give the path of a YAML file").decode("utf-8")
+    except InputError as error:
+        raise error.located(kind=ConfigError) from None
     except UnicodeDecodeError as error:
         raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
                           f"offset {error.start})", "save the file as UTF-8", path) from None

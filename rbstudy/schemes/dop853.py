@@ -5,7 +5,8 @@ Integrates the same ODE as `rk4` (``dx/dt = v``, ``dq/dt = 1/2 q * (w, 0)``,
 after another (it is not compiled and not batched), stepping scipy's solver itself and sampling each
 step's dense output at the output times it covers (no interpolant is kept, so a run of
 millions of steps needs no more memory than its samples); the quaternion is normalised at the
-samples. `integrate` is the same run with an optional step budget, for the references.
+samples. `integrate` is the same run with an optional step budget, for the references; as a
+scheme a body takes at most `MAX_STEPS` (then it is not converged).
 ``dt`` only sets the output grid here: the steps are chosen by the error control, and
 ``n_steps`` reports the accepted steps and ``iterations`` the right-hand-side evaluations
 (including those of the dense output at the steps that cover a sample).
@@ -27,13 +28,19 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import is_moment_free
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import read3, read4, write3, write4
-from rbstudy.numerics.state import OK, UNSTABLE, Result
+from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE, Result
 from rbstudy.schemes._registry import Scheme
 from rbstudy.schemes.rk4 import rates
 
 # Tight enough that the reference error (~1e-12) sits below every compiled scheme's error at
 # the time steps studied; scipy itself floors rtol near 100 eps = 2.2e-14.
 RTOL = ATOL = 1e-13
+# Accepted steps one body may take as a scheme: about 11 minutes of one core (65 us a step),
+# |w0| T up to ~1.5e6 rad at the ~6.5 steps per radian it takes. A study forecast past the
+# --max-body-steps budget is refused before it runs; this bounds a run the forecast could
+# not see (a load that spins the body up, a budget raised past any sense): such a body
+# stops as not converged.
+MAX_STEPS = 10_000_000
 
 
 @jit
@@ -101,26 +108,29 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     y, start = np.array(y0, dtype=float), 0.0
     filled, steps, evaluations, max_step_angle = 1, 0, 0, 0.0
     stopped = False
-    for end in _segment_ends(p, float(times[-1])):
-        solver = DOP853(lambda t, y: derivative(t, y, p), start, y, end, rtol=RTOL, atol=ATOL)
-        while solver.status == "running" and filled < len(times):
-            if (halt is not None and halt[0]) or (max_steps is not None and steps >= max_steps):
-                stopped = True
+    # a spin past ~1e154 rad/s squares past the float range inside scipy: the run turns
+    # non-finite and is reported so (not finished), without numpy's warnings on the terminal
+    with np.errstate(all="ignore"):
+        for end in _segment_ends(p, float(times[-1])):
+            solver = DOP853(lambda t, y: derivative(t, y, p), start, y, end, rtol=RTOL, atol=ATOL)
+            while solver.status == "running" and filled < len(times):
+                if (halt is not None and halt[0]) or (max_steps is not None and steps >= max_steps):
+                    stopped = True
+                    break
+                solver.step()
+                if solver.status == "failed":  # the step was rejected for good: not an accepted one
+                    break
+                steps += 1
+                max_step_angle = max(max_step_angle, solver.step_size
+                                     * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
+                covered = np.searchsorted(times, solver.t, side="right")
+                if covered > filled:
+                    samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
+                    filled = covered
+            evaluations += solver.nfev
+            if stopped or solver.status == "failed":
                 break
-            solver.step()
-            if solver.status == "failed":  # the step was rejected for good: not an accepted one
-                break
-            steps += 1
-            max_step_angle = max(max_step_angle, solver.step_size
-                                 * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
-            covered = np.searchsorted(times, solver.t, side="right")
-            if covered > filled:
-                samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
-                filled = covered
-        evaluations += solver.nfev
-        if stopped or solver.status == "failed":
-            break
-        y, start = solver.y, end
+            y, start = solver.y, end
     quaternions = samples[:filled, S.STATE_FIELDS["quaternion"]]
     quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
     finished = filled == len(times) and np.all(np.isfinite(samples))
@@ -140,9 +150,10 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         if halt[0]:
             return
         p = params[b]
-        run = integrate(state0[b], p, times, halt=halt)
+        run = integrate(state0[b], p, times, max_steps=MAX_STEPS, halt=halt)
         out = run.samples
-        status = OK if run.finished else UNSTABLE
+        status = (OK if run.finished else NOT_CONVERGED if run.steps >= MAX_STEPS
+                  else UNSTABLE)
         failure = np.nan if status == OK else run.reached
         max_energy = max_momentum = np.nan
         if is_moment_free(p):

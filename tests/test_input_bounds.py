@@ -1,0 +1,160 @@
+"""Inputs that would hang the command or exhaust the memory are refused in one line: a config
+or table path that is a FIFO, a device or too large a file; a load table of many knots past
+--max-memory; bench and dop853 asked for more steps than any run could take.
+
+Each case runs the command in a child process, measured by a parent of its own (the peak
+resident memory of its only child), under a timeout that a hang would hit.
+"""
+
+import json
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from rbstudy.reader import MAX_INPUT_BYTES
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+# Far above the seconds these commands take, far below "never": a hang fails the test, and
+# its command is killed.
+TIMEOUT = 90
+# The address space a command may take: a reader gone wrong fails here instead of taking the
+# machine's memory (the old reader of a link to /dev/zero reached 17 GB in a minute).
+ADDRESS_SPACE = 8 * 2 ** 30
+# What a refused command may hold: the interpreter and the libraries it loads (validate of a
+# plain config peaks at ~170 MB); the old readers grew past 1.4 GB on these inputs.
+REFUSED_PEAK_BYTES = 600 * 2 ** 20
+# The command, run by a parent of its own: its peak is then the parent's only child's, and
+# the parent kills it past the timeout (an orphan would go on reading a FIFO or a device).
+_MEASURED = """
+import json, resource, subprocess, sys
+limit = int(sys.argv[2])
+bounded = lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+try:
+    done = subprocess.run(sys.argv[3:], capture_output=True, text=True,
+                          timeout=float(sys.argv[1]), preexec_fn=bounded)
+    code, out, err = done.returncode, done.stdout, done.stderr
+except subprocess.TimeoutExpired:
+    code, out, err = None, "", "timed out"
+print(json.dumps({"code": code, "out": out, "err": err,
+                  "peak": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024}))
+"""
+
+
+def rbstudy(*args):
+    """Run ``rbstudy args`` from this checkout: its exit code (None past `TIMEOUT`), stdout,
+    stderr and peak resident bytes."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", _MEASURED, str(TIMEOUT), str(ADDRESS_SPACE),
+                           sys.executable, "-m", "rbstudy", *map(str, args)],
+                          capture_output=True, text=True, timeout=TIMEOUT + 30, env=env,
+                          check=True)
+    result = json.loads(done.stdout)
+    return result["code"], result["out"], result["err"], result["peak"]
+
+
+def study(folder, name="study", loads=None, spin=(0.3, 1.0, 0.2), scheme="rk4", duration=0.5):
+    """A small study config in ``folder`` (an asymmetric body, 0.5 s), its path."""
+    scene = {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+             "initial": {"angular_velocity": {"body": list(spin)}}, "duration": duration}
+    if loads:
+        scene["loads"] = loads
+    path = pathlib.Path(folder) / f"{name}.yaml"
+    path.write_text(yaml.safe_dump({"name": name, "scene": scene, "output": {"interval": 0.01},
+                                    "run": {"scheme": scheme, "dt": 0.01}}))
+    return path
+
+
+def one_error_line(code, err):
+    """The single error line of a refused command (exit 1, no traceback, no warning)."""
+    assert code == 1, err
+    assert err.count("\n") == 1 and err.startswith("rbstudy: error: "), err
+    return err
+
+
+def table_study(folder, table="load.csv"):
+    return study(folder, loads={"moment_body": {"table": table}})
+
+
+@pytest.mark.parametrize("command", ["validate", "sweep"])
+def test_a_fifo_config_or_table_is_refused_without_opening_it(tmp_path, command):
+    os.mkfifo(tmp_path / "load.csv")
+    os.mkfifo(tmp_path / "fifo.yaml")
+    for config, where in ((table_study(tmp_path), "load.csv: table: cannot read the load table"),
+                          (tmp_path / "fifo.yaml", "fifo.yaml: cannot read the file")):
+        code, _, err, _ = rbstudy(command, config, "--out", tmp_path / "out")
+        line = one_error_line(code, err)
+        assert f"{where}: it is a FIFO (named pipe), not a regular file" in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_link_to_a_device_is_refused_in_bounded_memory(tmp_path):
+    (tmp_path / "load.csv").symlink_to("/dev/zero")
+    (tmp_path / "zero.yaml").symlink_to("/dev/zero")
+    for config, where in ((table_study(tmp_path), "load.csv: table: cannot read the load table"),
+                          (tmp_path / "zero.yaml", "zero.yaml: cannot read the file")):
+        code, _, err, peak = rbstudy("validate", config)
+        assert f"{where}: it is a character device" in one_error_line(code, err)
+        assert peak < REFUSED_PEAK_BYTES
+
+
+def test_a_table_or_config_past_the_size_bound_is_refused(tmp_path):
+    config = table_study(tmp_path)
+    with open(tmp_path / "load.csv", "wb") as table:  # sparse: no disk, no time
+        table.truncate(MAX_INPUT_BYTES + 2 ** 20)
+    code, _, err, peak = rbstudy("validate", config)
+    assert ("load.csv: table: the load table is 257 MiB, larger than the 256 MiB an input "
+            "file may be") in one_error_line(code, err)
+    assert peak < REFUSED_PEAK_BYTES
+    with open(config, "ab") as padded:
+        padded.truncate(MAX_INPUT_BYTES + 1)
+    code, _, err, _ = rbstudy("validate", config)
+    assert "study.yaml: the file is 256 MiB, larger than" in one_error_line(code, err)
+
+
+def write_knots(path, count):
+    """A load table of ``count`` rows 10 us apart (half of them inside a 0.5 s run)."""
+    times = np.arange(count) * 1e-5
+    np.savetxt(path, np.column_stack([times, np.zeros((count, 2)), 0.1 * np.sin(times * 100)]),
+               fmt="%.5f")
+
+
+def test_a_table_of_many_knots_is_forecast_within_twice_its_peak(tmp_path):
+    write_knots(tmp_path / "load.csv", 100_000)
+    code, out, err, peak = rbstudy("sweep", table_study(tmp_path), "--out", tmp_path / "out")
+    assert code == 0, err
+    forecast = float(re.search(r"peak memory ~([\d,]+) MiB", out)[1].replace(",", "")) * 2 ** 20
+    # measured: forecast 457 MiB, peak ~450 MiB (2,277 MiB before the knot search was bounded)
+    assert forecast / 2 < peak < 2 * forecast
+
+
+def test_a_table_past_max_memory_is_refused_before_anything_is_built(tmp_path):
+    write_knots(tmp_path / "load.csv", 100_000)
+    code, _, err, peak = rbstudy("validate", table_study(tmp_path), "--max-memory", 420)
+    assert "(limit 420 MiB, --max-memory)" in one_error_line(code, err)
+    assert peak < REFUSED_PEAK_BYTES
+
+
+@pytest.mark.parametrize("steps", ["1000000000000000000", "1e30"])
+def test_bench_refuses_more_body_steps_than_it_can_hold(steps):
+    code, _, err, _ = rbstudy("bench", "--body-steps", steps, "euler")
+    assert "--body-steps: need 1 to 1e+09, got 1e+" in one_error_line(code, err)
+
+
+def test_dop853_at_an_extreme_spin_is_forecast_and_refused(tmp_path):
+    code, _, err, _ = rbstudy("validate", study(tmp_path, spin=(1e20, 1.0, 0.2),
+                                                scheme="dop853"))
+    assert "run.dt: needs 3.2e+20 body-steps" in one_error_line(code, err)
+
+
+@pytest.mark.parametrize("scheme", ["dop853", "rk4"])
+def test_a_spin_past_the_float_range_of_its_square_warns_nothing(tmp_path, scheme):
+    code, out, err, _ = rbstudy("validate", "--max-body-steps", 1e300,
+                                study(tmp_path, spin=(1e150, 1.0, 0.2), scheme=scheme))
+    assert code == 0 and err == "", err
+    assert "1 case" in out
