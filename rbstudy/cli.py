@@ -20,7 +20,7 @@ import pathlib
 import sys
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError, first_line
+from rbstudy.errors import ConfigError, InputError, RbstudyError
 
 __all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -125,9 +125,10 @@ def _sweep(args):
         from rbstudy.pipeline.cluster import start_forkserver
         start_forkserver()
     from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
+    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study
-    from rbstudy.pipeline.store import folder_claim, open_results
+    from rbstudy.pipeline.store import folder_claim
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     names = [study.name for study in studies]
     for study in studies:
@@ -161,29 +162,32 @@ def _sweep(args):
         if done.returned:
             print(f"{study.name}: {done.returned} parts written here from the values the "
                   "workers sent back (they do not see the results folder)")
-        print(format_table(scheme_rows(open_results(done.path, SUMMARY_VARIABLES))))
+        # proven by this run: sealed as written, or verified before it was reused
+        print(format_table(scheme_rows(open_archive(done.path, SUMMARY_VARIABLES,
+                                                    verify=False))))
     return 0
 
 
 def _plot(args):
     from rbstudy.analysis.plots import all_figures
     from rbstudy.numerics.machine import default_threads
-    from rbstudy.pipeline.store import open_results
+    from rbstudy.pipeline.archive import open_archive
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
+    opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) > 1:  # every file checked before any is drawn, one in memory at a time
         from rbstudy.pipeline.variables import BOOKKEEPING
-        checked = functools.partial(open_results, variables=BOOKKEEPING)  # not trajectories
-        studies = [str(_select(_open(path, checked), args.select, path)
-                       .attrs.get("study", "results")) for path in args.files]
+        studies = [str(_select(opened(path, BOOKKEEPING), args.select, path).attrs["study"])
+                   for path in args.files]  # not the trajectories
+        opened = functools.partial(open_archive, verify=False)  # each one verified just now
         for path, study in zip(args.files, studies, strict=True):
             if args.out and studies.count(study) > 1:
                 raise InputError(f"another file of this command is also study {study!r}: "
                                  "their figures would overwrite each other in --out",
                                  "plot them one at a time, each with its own --out", path)
     for path in args.files:
-        dataset = _select(_open(path, open_results), args.select, path)
+        dataset = _select(opened(path), args.select, path)
         folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
         figures = all_figures(dataset, folder, tuple(args.format), processes=default_threads())
         kinds = " and ".join(kind.upper() for kind in args.format)
@@ -225,13 +229,14 @@ def _conformance(args):
         scorecard_dataset,
         scorecard_html,
     )
+    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import run_golden, write_golden
-    from rbstudy.pipeline.store import open_results, write_dataset_atomic, write_text_atomic
+    from rbstudy.pipeline.store import write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells = {}
     for case, archive in zip(cases, run_golden(paths, out, quiet=args.quiet), strict=True):
-        cells[case.name] = score_case(open_results(archive), case.rules)
+        cells[case.name] = score_case(open_archive(archive), case.rules)
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
@@ -272,43 +277,19 @@ def _select(dataset, choices, path):
 
 
 def _verify(args):
-    from rbstudy.pipeline.integrity import verify_file
+    from rbstudy.pipeline.archive import verify_file
     return _each_file(args.files, verify_file)
 
 
 def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.numerics.machine import default_threads
-    from rbstudy.pipeline.store import open_results
-    dataset = _open(args.file, open_results)
+    from rbstudy.pipeline.archive import open_archive
+    dataset = open_archive(args.file, verify=not args.no_verify)
     index = write_report(dataset, args.out or pathlib.Path(args.file).parent / "report",
                          processes=default_threads())
     print(f"{args.file}: report in {index}")
     return 0
-
-
-def _open(path, open_results):
-    """A results file with the bookkeeping the figures read, or a one-line error naming it."""
-    from rbstudy.pipeline.integrity import is_part
-    from rbstudy.pipeline.variables import BOOKKEEPING
-    try:
-        dataset = open_results(path)
-    except (OSError, ValueError) as error:
-        raise InputError(f"cannot read it as an rbstudy results file ({first_line(error)})",
-                         "give the <study>.nc written by rbstudy sweep", path) from None
-    if is_part(dataset.attrs, dataset.dims):
-        raise InputError("is one batch's part file, not a study's archive",
-                         "give the <study>.nc written beside parts/", path)
-    if "study" not in dataset.attrs:
-        held = ", ".join(list(dataset.data_vars)[:6]) or "no variables"
-        raise InputError(f"is not an rbstudy archive (no study attribute; it holds {held})",
-                         "give the <study>.nc written by rbstudy sweep", path)
-    missing = [name for name in BOOKKEEPING if name not in dataset]
-    if missing:
-        written_by = dataset.attrs.get("source", "an unknown writer")
-        raise InputError(f"lacks {', '.join(missing)} (written by {written_by})",
-                         "rerun its sweep with this rbstudy (--force) to rebuild it", path)
-    return dataset
 
 
 def build_parser():
@@ -361,10 +342,12 @@ def build_parser():
     # the formats of rbstudy.analysis.plots, named here so that parsing loads no matplotlib
     plot.add_argument("--format", nargs="+", choices=("png", "svg"), default=["png"],
                       help="file formats (default: png; an SVG takes as long again)")
+    _no_verify_argument(plot)
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of a results file")
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
     report.add_argument("--out", help="report folder (default: report/ beside the file)")
+    _no_verify_argument(report)
     report.set_defaults(run=_report)
     verify = commands.add_parser("verify", help="prove results files intact by their checksums")
     verify.add_argument("files", nargs="+", metavar="RESULTS.nc",
@@ -404,6 +387,12 @@ def _whole_number(text):
     if not math.isfinite(number) or number != round(number):
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     return int(number)
+
+
+def _no_verify_argument(parser):
+    parser.add_argument("--no-verify", action="store_true",
+                        help="read the archive without proving it intact by its checksums "
+                             "(rbstudy verify): for one known to be damaged")
 
 
 def _limit_arguments(parser):

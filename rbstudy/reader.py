@@ -21,7 +21,7 @@ import numpy as np
 
 from rbstudy.errors import InputError
 
-__all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES"]
+__all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES", "is_folder_name", "FOLDER_NAME_RULE"]
 
 # The largest input file read: a config is kilobytes, a node table of a million nodes with
 # their inertias ~130 MiB. A larger file is not one written for rbstudy (a log, a mesh, a
@@ -73,6 +73,16 @@ def read_input_file(path, what, fix):
     if len(data) > MAX_INPUT_BYTES:
         _too_large(len(data), path, what)
     return data
+
+
+# What a name that becomes a folder or file name may hold (a study's, from a config or read
+# back from an archive): no path separator and no "..", so it can never point elsewhere.
+FOLDER_NAME_RULE = "letters, digits, '-' and '_' only"
+
+
+def is_folder_name(value):
+    """Whether ``value`` is a string that keeps `FOLDER_NAME_RULE`."""
+    return isinstance(value, str) and value.replace("_", "").replace("-", "").isalnum()
 
 
 class Reader:
@@ -171,6 +181,12 @@ class Reader:
             return value
         if not isinstance(value, bool):
             self.fail(key, f"expected true or false, got {value!r}")
+        return value
+
+    def folder_name(self, value, key):
+        """``value`` as a name that keeps `FOLDER_NAME_RULE`."""
+        if not is_folder_name(value):
+            self.fail(key, f"use {FOLDER_NAME_RULE} (it names a folder), got {value!r}")
         return value
 
     def line(self, value, key):

@@ -158,7 +158,7 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
     bogus.write_text("not netCDF")
     assert main(["plot", str(bogus)]) == 1
     error = capsys.readouterr().err.strip()
-    assert "cannot read it as an rbstudy results file" in error and "\n" not in error
+    assert "not an rbstudy archive: not a netCDF file" in error and "\n" not in error
 
 
 def test_plot_select_narrows_the_cases(tmp_path, capsys):
@@ -304,9 +304,10 @@ def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
     stripped = tmp_path / "stripped.nc"
     open_results(done.path).drop_vars(["accuracy", "run_time"]).to_netcdf(stripped)
     for path, message in ((part, "is one batch's part file, not a study's archive"),
-                          (foreign, "is not an rbstudy archive (no study attribute; it holds "
-                                    "status, omega_body)"),
-                          (stripped, "lacks accuracy, run_time (written by rbstudy ")):
+                          (foreign, "not an rbstudy archive: no study attribute; it holds "
+                                    "status, omega_body"),
+                          (stripped, "not an rbstudy archive: it lacks accuracy, run_time (written by "
+                                     "rbstudy ")):
         for verb in (["plot", str(path), "--out", str(tmp_path / "figs")],
                      ["report", str(path), "--out", str(tmp_path / "rep")]):
             assert main(verb) == 1

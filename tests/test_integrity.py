@@ -157,8 +157,7 @@ def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meanin
     part = sorted((folder / "parts").glob("*.nc"))[0]
     pathlib.Path(f"{part}{SIDECAR_SUFFIX}").unlink()
     assert main(["verify", str(part)]) == 1
-    assert "cannot be proven intact: it is a part file without its digest" in (
-        capsys.readouterr().err)
+    assert f"{part}: is one batch's part file, not a study's archive" in capsys.readouterr().err
 
 
 def test_a_part_without_its_digest_is_unfinished_not_damaged(study):
@@ -177,8 +176,13 @@ def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):
     plain = tmp_path / "plain.nc"
     xr.Dataset({"x": ("t", np.arange(3.0))}).to_netcdf(plain)
     assert main(["verify", str(plain)]) == 1
-    assert "carries no checksums" in capsys.readouterr().err
+    assert "not an rbstudy archive: no study attribute; it holds x" in capsys.readouterr().err
     archive = folder / "small.nc"
+    unsealed = tmp_path / "unsealed.nc"
+    shutil.copyfile(archive, unsealed)
+    _edit(unsealed, lambda nc: nc.delncattr("checksums"))
+    assert main(["verify", str(unsealed)]) == 1
+    assert "cannot be proven intact: it carries no checksums" in capsys.readouterr().err
     _edit(archive, lambda nc: nc.setncattr("part_checksums", '[["other", "sha256:0"]]'))
     assert main(["verify", str(archive)]) == 1
     assert "do not name the batches" in capsys.readouterr().err

@@ -39,7 +39,8 @@ SCIPY_SCHEME = "schemes/dop853.py"
 # figures, tables and reports start in a moment and need no compiler.
 NUMBA_FREE = ("rbstudy.analysis.plots", "rbstudy.analysis.summary", "rbstudy.analysis.report",
               "rbstudy.analysis.conformance",
-              "rbstudy.pipeline.store", "rbstudy.pipeline.variables", "rbstudy.pipeline.outputs",
+              "rbstudy.pipeline.archive", "rbstudy.pipeline.store", "rbstudy.pipeline.variables",
+              "rbstudy.pipeline.outputs",
               "rbstudy.pipeline.batches", "rbstudy.physics.analytic", "rbstudy.reader")
 
 

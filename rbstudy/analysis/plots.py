@@ -57,6 +57,7 @@ from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
+from rbstudy.pipeline.store import inside  # noqa: E402
 
 __all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
            "Figures", "convergence",
@@ -211,7 +212,7 @@ def _save(fig, folder, ds, name, formats):
     _plain_log_labels(fig)
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    paths = [folder / f"{figure_name(ds, name)}.{suffix}" for suffix in formats]
+    paths = [inside(folder, f"{figure_name(ds, name)}.{suffix}") for suffix in formats]
     for path in paths:  # constrained layout fits the labels: no second "tight" pass
         fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -770,6 +771,7 @@ def all_figures(ds, folder, formats=FORMATS, processes=1):
     """
     global _INHERITED
     folder = pathlib.Path(folder)
+    inside(folder, figure_name(ds, "*"))  # earlier drawings are deleted: only inside it
     for old in folder.glob(f"{figure_name(ds, '*')}.*"):  # an earlier drawing of this study
         if old.suffix.lstrip(".") in ALL_FORMATS:
             old.unlink()

@@ -215,10 +215,7 @@ def load_study(path):
     for key in ("name", "scene", "run"):
         if key not in data:
             reader.fail(key, "missing")
-    name = data["name"]
-    if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
-        reader.fail("name", f"use letters, digits, '-' and '_' only (it names a folder), got "
-                            f"{name!r}")
+    name = reader.folder_name(data["name"], "name")
     title = reader.line(data.get("title", name), "title")
     run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
     dimensions = parse_sweep(reader, data.get("sweep"))

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import netCDF4
 import numpy as np
 
-from rbstudy.errors import InputError, first_line
+from rbstudy.errors import first_line
 from rbstudy.pipeline.batches import ids_digest
 
 __all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
-           "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive", "verify_file",
+           "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive",
            "SIDECAR_SUFFIX", "ALGORITHM"]
 
 ALGORITHM = "sha256"
@@ -190,28 +190,3 @@ def verify_archive(path):
         return ArchiveCheck(("its checksums attributes are not what rbstudy writes (edited?)",))
     return ArchiveCheck(tuple(problems), variables=len(stored) - (MEANING in stored),
                         parts=len(parts))
-
-
-def verify_file(path):
-    """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
-    its digest beside it); an `InputError` naming the first problems when it is not."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise InputError("no such file", "give the <study>.nc written by rbstudy sweep", path)
-    if sidecar(path).exists():
-        if part_digest(path) is None:
-            raise InputError("damaged: its bytes do not match the digest stored beside it",
-                             "rerun its sweep: the part is recomputed", path)
-        return "intact (a part; its bytes match its digest)"
-    check = verify_archive(path)
-    if check.problems:
-        problems = check.problems
-        shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more"
-                                           if len(problems) > 3 else "")
-        if not check.provable:
-            raise InputError(f"cannot be proven intact: {shown}",
-                             "rerun its sweep with this rbstudy", path)
-        raise InputError(f"damaged: {shown}", "rerun its sweep: a damaged archive is rebuilt",
-                         path)
-    return (f"intact ({check.variables} variables match their SHA-256 checksums; built from "
-            f"{check.parts} parts)")

@@ -32,7 +32,7 @@ import netCDF4
 import numpy as np
 import yaml
 
-from rbstudy.errors import ConfigError, RbstudyError
+from rbstudy.errors import ConfigError, InputError, RbstudyError
 from rbstudy.pipeline.batches import batches_digest
 from rbstudy.pipeline.integrity import (
     file_digest,
@@ -53,7 +53,7 @@ from rbstudy.pipeline.variables import (
 __all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
            "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
-           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder"]
+           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder", "inside"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
                  "matplotlib", "PyYAML")
@@ -322,6 +322,18 @@ def open_results(path, variables=None):
     skip = None if variables is None else [name for name in VARIABLES if name not in variables]
     with HDF5_LOCK, xr.open_dataset(path, decode_times=False, drop_variables=skip) as dataset:
         return dataset.load()
+
+
+def inside(folder, name):
+    """``folder / name``, refused unless it resolves inside ``folder``: the last guard of
+    every file a command names after what it read (a figure is named after the archive's
+    study), whatever let such a name through."""
+    folder = pathlib.Path(folder)
+    path = folder / name
+    if not path.resolve().is_relative_to(folder.resolve()):
+        raise InputError(f"{name!r} would be written outside it, at {path.resolve()}",
+                         "a study name holds letters, digits, '-' and '_' only", str(folder))
+    return path
 
 
 def refresh_description(path, attrs):

@@ -1,0 +1,165 @@
+"""Opening an archive for reading: the one door of every command that reads one (``plot``,
+``report``, ``verify``, ``conformance`` and the summary a sweep prints).
+
+An archive is input like a config. It may be damaged (a bit flipped on a disk, a value edited
+by hand, a block zeroed), not rbstudy's (a YAML file, another tool's netCDF, one with the
+right names but other shapes), or crafted (a ``study`` attribute of ``../../escaped``, which
+names the figure files). `open_archive` checks, in this order, that the file is netCDF, that
+it has the layout the summary, the figures and the report read (`check_layout`), and unless
+told not to that every variable matches its checksum (`rbstudy.pipeline.integrity`). Each
+failure is one `InputError` naming the file, the attribute or variable, and the fix; a
+netCDF or HDF5 error while reading becomes "damaged", never a traceback.
+"""
+
+import pathlib
+
+import netCDF4
+import numpy as np
+
+from rbstudy.errors import InputError, first_line
+from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
+from rbstudy.pipeline.store import HDF5_LOCK, open_results
+from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
+from rbstudy.reader import FOLDER_NAME_RULE, is_folder_name
+
+__all__ = ["open_archive", "check_layout", "verify_file", "NOT_AN_ARCHIVE", "GIVE_AN_ARCHIVE"]
+
+NOT_AN_ARCHIVE = "not an rbstudy archive"
+GIVE_AN_ARCHIVE = "give the <study>.nc written by rbstudy sweep"
+_REBUILD = "rerun its sweep (rbstudy sweep <config>): a damaged archive is rebuilt"
+# The first bytes of a netCDF file: classic, 64-bit offset, 64-bit data, netCDF-4 (HDF5).
+_SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
+# The coordinates every archive has, as a swept dimension or a single value, and the type of
+# their values (numpy's dtype kinds, "O" for netCDF strings): the summary picks rows by them.
+_CASE_COORDINATES = {"scheme": "O", "dt": "f"}
+_KIND_NAMES = {"O": "text", "f": "numbers"}
+# Variables named in an error that lists what a foreign file holds.
+_SHOWN = 6
+
+
+def _kind(variable):
+    return "O" if variable.dtype is str else np.dtype(variable.dtype).kind
+
+
+def _type_name(variable):
+    return "text" if variable.dtype is str else np.dtype(variable.dtype).name
+
+
+def _foreign(path, key, what):
+    return InputError(f"{NOT_AN_ARCHIVE}: {what}", GIVE_AN_ARCHIVE, str(path), key)
+
+
+def _check_netcdf(path):
+    """Refuse a missing file, and one that is not netCDF at all (text, YAML, an image)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise InputError("no such file", GIVE_AN_ARCHIVE, str(path))
+    with open(path, "rb") as handle:
+        head = handle.read(max(map(len, _SIGNATURES)))
+    if not head.startswith(_SIGNATURES):
+        raise _foreign(path, None, "not a netCDF file")
+
+
+def _layout_problem(path, nc):
+    """The first way the open netCDF4 dataset ``nc`` differs from an archive's layout, as
+    an `InputError`; None when it has it."""
+    attributes = nc.ncattrs()
+    if is_part(attributes, nc.dimensions):
+        return InputError("is one batch's part file, not a study's archive",
+                          "give the <study>.nc written beside parts/", str(path))
+    if "study" not in attributes:
+        held = ", ".join(list(nc.variables)[:_SHOWN]) or "no variables"
+        return _foreign(path, None, f"no study attribute; it holds {held}")
+    study = nc.getncattr("study")
+    if not is_folder_name(study):  # it names the figure files: the config's rule
+        return _foreign(path, "study", f"the study attribute {study!r:.80} is not a study name "
+                                       f"({FOLDER_NAME_RULE})")
+    missing = [name for name in (*BOOKKEEPING, *_CASE_COORDINATES) if name not in nc.variables]
+    if missing:
+        written_by = nc.getncattr("source") if "source" in attributes else "an unknown writer"
+        return InputError(f"{NOT_AN_ARCHIVE}: it lacks {', '.join(missing)} (written by "
+                          f"{written_by})",
+                          "rerun its sweep with this rbstudy (--force) to rebuild it", str(path))
+    grid = nc["status"].dimensions
+    for name, kind in _CASE_COORDINATES.items():
+        variable = nc[name]
+        swept = name in grid
+        if variable.dimensions != ((name,) if swept else ()):
+            wanted = f"({name})" if swept else f"a single value (swept: {', '.join(grid) or 'none'})"
+            return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), "
+                                        f"not {wanted}")
+        if _kind(variable) != kind:
+            return _foreign(path, name, f"{name} holds {_type_name(variable)}, not "
+                                        f"{_KIND_NAMES[kind]}")
+    for name, variable in nc.variables.items():
+        if name not in VARIABLES:
+            continue
+        expected = (*grid, *VARIABLES[name].dims)
+        if variable.dimensions != expected:
+            return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), "
+                                        f"not ({', '.join(expected)})")
+        if _kind(variable) != np.dtype(VARIABLES[name].dtype).kind:
+            return _foreign(path, name, f"{name} holds {_type_name(variable)}, not "
+                                        f"{np.dtype(VARIABLES[name].dtype).name}")
+    return None
+
+
+def check_layout(path):
+    """Refuse the file at ``path`` unless it is netCDF with an archive's layout: the study
+    attribute (a study name), the bookkeeping variables and the ``scheme`` and ``dt``
+    coordinates, and every output variable along the swept dimensions then its own, of its
+    type. Reads the file's header only."""
+    _check_netcdf(path)
+    try:
+        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+            problem = _layout_problem(path, nc)
+    except (OSError, RuntimeError) as error:
+        raise InputError(f"damaged: it cannot be read as netCDF ({first_line(error)})",
+                         _REBUILD, str(path)) from None
+    if problem is not None:
+        raise problem
+
+
+def _verified(path, bypass=None):
+    """The `ArchiveCheck` of an intact archive at ``path``; an `InputError` naming the first
+    problems (and ``bypass``, how a caller reads it anyway) when it is not."""
+    with HDF5_LOCK:
+        check = verify_archive(path)
+    if not check.problems:
+        return check
+    problems = check.problems
+    shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more"
+                                       if len(problems) > 3 else "")
+    fix = "rerun its sweep with this rbstudy" if not check.provable else _REBUILD
+    fix += f", or {bypass}" if bypass else ""
+    if not check.provable:
+        raise InputError(f"cannot be proven intact: {shown}", fix, str(path))
+    raise InputError(f"damaged: {shown}", fix, str(path))
+
+
+def open_archive(path, variables=None, verify=True):
+    """The archive at ``path`` as a loaded xarray dataset (`rbstudy.pipeline.store
+    .open_results`: ``variables`` only, when given), after `check_layout` and, when
+    ``verify``, after proving every variable intact by its checksum."""
+    check_layout(path)
+    if verify:
+        _verified(path, bypass="give --no-verify to read it as it is")
+    try:
+        return open_results(path, variables)
+    except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block
+        raise InputError(f"damaged: it cannot be read ({first_line(error)})", _REBUILD,
+                         str(path)) from None
+
+
+def verify_file(path):
+    """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
+    its digest beside it); an `InputError` naming the first problems when it is not."""
+    if sidecar(path).exists() and pathlib.Path(path).is_file():
+        if part_digest(path) is None:
+            raise InputError("damaged: its bytes do not match the digest stored beside it",
+                             "rerun its sweep: the part is recomputed", str(path))
+        return "intact (a part; its bytes match its digest)"
+    check_layout(path)
+    check = _verified(path)
+    return (f"intact ({check.variables} variables match their SHA-256 checksums; built from "
+            f"{check.parts} parts)")
