@@ -104,3 +104,21 @@ def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp
     capsys.readouterr()
     write_study(tmp_path / "second", name="top", run={"scheme": "leapfrog", "dt": 0.005})  # edited
     assert main(["sweep", str(second), "--out", str(out), "--quiet"]) == 0
+
+
+def test_the_same_config_moved_to_another_file_is_the_same_study(tmp_path, capsys):
+    """The folder is the config's, not only its file's: the same text moved to another file
+    finds its results up to date (and that file owns the folder from then on), while another
+    text of that name in the old place is refused."""
+    (tmp_path / "here").mkdir()
+    (tmp_path / "there").mkdir()
+    first = write_study(tmp_path / "here", name="top")
+    out = tmp_path / "out"
+    assert main(["sweep", str(first), "--out", str(out), "--quiet"]) == 0
+    moved = tmp_path / "there" / first.name
+    moved.write_text(first.read_text())
+    capsys.readouterr()
+    assert main(["sweep", str(moved), "--out", str(out)]) == 0
+    assert "is up to date" in capsys.readouterr().out
+    write_study(tmp_path / "here", name="top", run={"scheme": "leapfrog", "dt": 0.01})
+    assert main(["sweep", str(first), "--out", str(out), "--quiet"]) == 1

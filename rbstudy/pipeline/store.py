@@ -16,6 +16,7 @@ the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y,
 
 import datetime
 import decimal
+import hashlib
 import math
 import os
 import pathlib
@@ -76,8 +77,9 @@ CHUNK_CACHE_CHUNKS = 8
 CHUNK_CACHE_SLOTS = 521
 # Free bytes below which a failed write is put down to a full disk.
 _FULL_BYTES = 2 ** 20
-# The file of a study folder that names the config file (resolved path) whose study the
-# folder holds: another config of the same name would replace its archive and parts.
+# The file of a study folder that names the config (its file's resolved path and its text's
+# SHA-256) whose study the folder holds: another config of the same name would replace its
+# archive and parts.
 OWNER = ".rbstudy-study"
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
@@ -365,38 +367,47 @@ def archive_state(path, study):
     return ("damaged", list(problems)) if problems else ("current", [])
 
 
-def _config_file(study):
-    return str(pathlib.Path(study.path).resolve())
+def _owner_lines(study):
+    """What `OWNER` holds for ``study``: its config file (resolved path) and the SHA-256 of
+    the config's text."""
+    return [str(pathlib.Path(study.path).resolve()),
+            hashlib.sha256(study.text.encode()).hexdigest()]
 
 
 def folder_claim(root, study, force=False):
     """Whether ``<root>/<study.name>`` may take ``study``'s results; reads only.
 
-    A study folder belongs to the config file that made it (`OWNER`). Edited, that file is
-    still the same study: its rerun resumes or rebuilds as it always has. A new folder, or
-    one from before folders named their config, takes any. A folder of another config file
-    of the same name is refused (a `ConfigError` naming both files), unless ``force``: then
-    the line saying what the run replaces is returned; else None.
+    A study folder belongs to the config that made it (`OWNER`: its file and its text's
+    digest). Edited, that file is still the same study: its rerun resumes or rebuilds as it
+    always has; so is the same text moved or copied to another file. A new folder, or one
+    from before folders named their config, takes any. A folder of another config of the same
+    name is refused (a `ConfigError` naming both files), unless ``force``: then the line
+    saying what the run replaces is returned; else None.
     """
     folder = pathlib.Path(root) / study.name
     record = folder / OWNER
-    owner = record.read_text().strip() if record.is_file() else None
-    if owner in (None, _config_file(study)):
+    try:
+        owner = record.read_text().split("\n") if record.is_file() else None
+    except (OSError, UnicodeDecodeError) as error:
+        raise RbstudyError(f"{record}: cannot read the study folder's owner record "
+                           f"({getattr(error, 'strerror', None) or error}); remove it, or give "
+                           "another --out") from None
+    if owner is None or set(owner[:2]) & set(_owner_lines(study)):
         return None
     if not force:
-        raise ConfigError(f"{folder} holds the study of another config of this name, {owner}",
-                          "give this study another name or another --out (--force replaces "
-                          "that study)", source=study.path, key="name")
+        raise ConfigError(f"{folder} holds the study of another config of this name, "
+                          f"{owner[0]}", "give this study another name or another --out "
+                          "(--force replaces that study)", source=study.path, key="name")
     kept = len(list((folder / "parts").glob("*.nc")))
     archive = "its archive and " if (folder / f"{study.name}.nc").exists() else ""
-    return (f"{study.name}: --force replaces the study of {owner} in {folder} ({archive}"
+    return (f"{study.name}: --force replaces the study of {owner[0]} in {folder} ({archive}"
             f"{kept} kept part{'' if kept == 1 else 's'})")
 
 
 def claim_folder(folder, study):
-    """Record ``study``'s config file as the one whose study ``folder`` holds
-    (`folder_claim` must have let it)."""
-    text = _config_file(study) + "\n"
+    """Record ``study``'s config as the one whose study ``folder`` holds (`folder_claim`
+    must have let it)."""
+    text = "\n".join(_owner_lines(study)) + "\n"
     path = pathlib.Path(folder) / OWNER
     if not path.is_file() or path.read_text() != text:
         write_text_atomic(text, path)
