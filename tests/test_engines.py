@@ -24,8 +24,7 @@ EXAMPLE = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
 def test_without_mujoco_each_scheme_is_unavailable_with_the_install_hint(monkeypatch):
     monkeypatch.setitem(sys.modules, "mujoco", None)  # import mujoco raises ImportError
     monkeypatch.delitem(sys.modules, "rbstudy.engines.mujoco", raising=False)
-    monkeypatch.setattr(SCHEMES, "_all", None)
-    monkeypatch.setattr(SCHEMES, "_unavailable", {})
+    monkeypatch.setattr(SCHEMES, "_groups", {})  # loaded again on first use
     missing = unavailable_schemes()
     for name in MUJOCO:
         assert name not in SCHEMES

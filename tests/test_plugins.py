@@ -143,7 +143,7 @@ def fake_plugins(tmp_path, monkeypatch):
             importlib.metadata.EntryPoint(name, value, GROUP) for name, value in points.items())
         monkeypatch.setattr(importlib.metadata, "entry_points",
                             lambda group=None: entries if group == GROUP else ())
-        monkeypatch.setattr(SCHEMES, "_all", None)  # read again on first use
+        monkeypatch.setattr(SCHEMES, "_groups", {})  # loaded again on first use
     return tmp_path, register
 
 
@@ -177,6 +177,18 @@ def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
     assert main(["schemes"]) == 0
     listed = capsys.readouterr().out
     assert "engine_rk4" in listed and 'fix: pip install "rbstudy[engines]"' in listed
+
+
+def test_builtin_and_engine_names_import_no_plugin(fake_plugins):
+    """A study of rbstudy's own schemes, or of MuJoCo's, never runs another package's code
+    (before: the first reading of the registry imported every plug-in)."""
+    folder, register = fake_plugins
+    _plugin_module(folder, "never_plugin", "raise SystemExit('imported')\n")
+    register({"never": "never_plugin:SCHEME"})
+    assert get_scheme("euler") is BUILTIN["euler"]
+    assert SCHEMES.find("mujoco_euler").name == "mujoco_euler"  # a Scheme, or Unavailable
+    assert "never_plugin" not in sys.modules
+    assert "its import called sys.exit('imported')" in unavailable_schemes()["never"].reason
 
 
 def test_a_config_naming_an_unavailable_scheme_fails_in_one_line(fake_plugins, tmp_path):

@@ -28,7 +28,7 @@ import numpy as np
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import step_time
-from rbstudy.numerics.driver import HALT_CHECK_STEPS
+from rbstudy.numerics.driver import HALT_CHECK_STEPS, check_statuses
 from rbstudy.numerics.dynamics import body_moment, is_moment_free, space_force
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import read4, write3
@@ -58,6 +58,13 @@ def _spin_squared(w):
 def _as_counts(value, n, dtype):
     """A kernel's per-body answer (a scalar or (n,)) as an (n,) array."""
     return np.broadcast_to(np.asarray(value, dtype=dtype), (n,))
+
+
+def _as_statuses(value, n):
+    """A kernel's statuses (a scalar or (n,)) as an (n,) array, refused (`StatusError`)
+    before the cast where one is not a status code."""
+    check_statuses(value)
+    return _as_counts(value, n, np.int64)
 
 
 class BatchStepEntry:
@@ -91,8 +98,7 @@ class BatchStepEntry:
         largest_spin = _spin_squared(y[:, S.OMEGA:S.OMEGA + 3])  # before init, as compiled
         status = np.full(n, OK, dtype=np.int64)
         if self.init is not None:
-            status[:] = _as_counts(self.init(y, p, opt, step_time(0, h, clock), h, work), n,
-                                   np.int64)
+            status[:] = _as_statuses(self.init(y, p, opt, step_time(0, h, clock), h, work), n)
         steps_done = np.zeros(n, dtype=np.int64)
         iterations = np.zeros(n, dtype=np.int64)
         max_energy, max_momentum = np.zeros(n), np.zeros(n)
@@ -109,7 +115,7 @@ class BatchStepEntry:
                 y_run, work_run = y[running], work[running]
                 code, iters = self.step(y_run, p[running], opt[running], t, h, work_run)
                 y[running], work[running] = y_run, work_run
-            code = _as_counts(code, running.size, np.int64).copy()
+            code = _as_statuses(code, running.size).copy()
             iterations[running] += _as_counts(iters, running.size, np.int64)
             steps_done[running] += 1
             y_new = y if running.size == n else y[running]

@@ -63,7 +63,7 @@ __all__ = [
     "run_rows",
     "make_entry",
     "run_batch", "n_samples", "Halted", "request_halt", "clear_halt",
-    "HALT_CHECK_STEPS", "HALT_FLAG",
+    "HALT_CHECK_STEPS", "HALT_FLAG", "StatusError", "check_statuses",
 ]
 
 # Relative drift of the rotational energy or of |L| beyond which a moment-free body counts as
@@ -83,6 +83,27 @@ HALT_FLAG = np.zeros(1, dtype=np.int64)
 
 class Halted(Exception):
     """A batch stopped by `request_halt` before its end: it has no results."""
+
+
+class StatusError(ValueError):
+    """A scheme gave a body a status that is none of the codes of `state.STATUS_NAMES`."""
+
+
+def check_statuses(codes):
+    """Raise `StatusError` naming the first of ``codes`` (a scalar or an array of any type)
+    that is not a status code: cast to an integer, NaN and codes past the table would be
+    read as another status (NaN to ``int8`` is 0, "ok")."""
+    codes = np.asarray(codes)
+    # integers, the usual answer, in two reductions: 1.5 us a step of a vectorised scheme
+    # where np.isin takes 12 us (of a step's ~140 us for one body)
+    if codes.dtype.kind in "iu" and (codes.size == 0 or (
+            codes.min() >= 0 and codes.max() < len(S.STATUS_NAMES))):
+        return
+    known = np.isin(codes, np.arange(len(S.STATUS_NAMES)))
+    if not known.all():
+        listed = ", ".join(f"{code} ({name})" for code, name in enumerate(S.STATUS_NAMES))
+        raise StatusError(f"returned the status {codes[~known].ravel().tolist()[0]!r}, which "
+                          f"is not a status code: {listed}")
 
 
 def request_halt():

@@ -6,8 +6,10 @@ the tests all read `SCHEMES`. Other packages add theirs through the entry-point 
 ``rbstudy.schemes`` (`rbstudy.schemes._plugins`, docs/extending.md); those that cannot run
 here are listed by `unavailable_schemes`, with why and the fix.
 
-The plug-ins are loaded the first time the registry is read, not when this package is
-imported: a plug-in's module imports this package for `Scheme`, and must find it complete.
+The engine adapters and the plug-ins are loaded when a name asks for them (`_Registry`), not
+when this package is imported: a plug-in's module imports this package for `Scheme`, and
+must find it complete; and a study of rbstudy's own schemes must not wait for, nor be
+stopped by, another package's code.
 """
 
 import importlib
@@ -18,7 +20,13 @@ from collections.abc import Mapping
 from rbstudy.errors import SchemeError
 from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
 from rbstudy.schemes._composition import stage_reach as composition_reach
-from rbstudy.schemes._plugins import SchemeUnavailable, Unavailable, load_plugins
+from rbstudy.schemes._plugins import (
+    ENGINES,
+    SchemeUnavailable,
+    Unavailable,
+    load_engines,
+    load_plugins,
+)
 from rbstudy.schemes._ready import get_ready
 from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
@@ -39,44 +47,62 @@ def _discover():
 
 
 class _Registry(Mapping):
-    """name -> `Scheme`: rbstudy's own, then the engine adapters' and plug-ins', loaded on
-    the first reading. Other threads wait for that loading; a plug-in that reads the
-    registry while it is loaded (the same thread) sees rbstudy's own schemes."""
+    """name -> `Scheme`: rbstudy's own, then the engine adapters' and the plug-ins', each
+    group loaded the first time a name is looked up that only it may hold, or the whole
+    registry is read (listed, iterated). So a study of rbstudy's own schemes never imports
+    another package's code, and one of MuJoCo's imports MuJoCo and no plug-in.
+
+    Other threads wait for a group's loading; a plug-in that reads the registry while it is
+    loaded (the same thread) sees rbstudy's own schemes and what is loaded already."""
 
     def __init__(self, builtin):
         self._builtin = builtin
-        self._all = None
-        self._unavailable = {}
+        self._groups = {}  # loader -> (name -> Scheme, name -> Unavailable), once loaded
         self._lock = threading.RLock()
-        self._loading = False
+        self._loading = set()
 
-    def _schemes(self):
-        if self._all is not None:
-            return self._all
+    def _group(self, load):
+        """The schemes of ``load`` (`load_engines` or `load_plugins`): (found, unavailable)."""
+        if load in self._groups:
+            return self._groups[load]
         with self._lock:
-            if self._all is None:
-                if self._loading:
-                    return self._builtin
-                self._loading = True
+            if load not in self._groups:
+                if load in self._loading:
+                    return {}, {}
+                self._loading.add(load)
                 try:
-                    plugins, self._unavailable = load_plugins(self._builtin)
+                    self._groups[load] = load(self._builtin)
                 finally:
-                    self._loading = False
-                self._all = {**self._builtin, **plugins}
-        return self._all
+                    self._loading.discard(load)
+        return self._groups[load]
+
+    def _loader(self, name):
+        return load_engines if name in ENGINES else load_plugins
+
+    def find(self, name):
+        """The `Scheme` or the `Unavailable` registered as ``name`` (None: neither), loading
+        only the group that may hold it."""
+        if name in self._builtin:
+            return self._builtin[name]
+        found, unavailable = self._group(self._loader(name))
+        return found.get(name) or unavailable.get(name)
 
     def unavailable(self):
-        self._schemes()
-        return self._unavailable
+        return {name: why for load in (load_engines, load_plugins)
+                for name, why in self._group(load)[1].items()}
 
     def __getitem__(self, name):
-        return self._schemes()[name]
+        scheme = self.find(name) if isinstance(name, str) else None
+        if not isinstance(scheme, Scheme):
+            raise KeyError(name)
+        return scheme
 
     def __iter__(self):
-        return iter(self._schemes())
+        return iter({**self._builtin, **self._group(load_engines)[0],
+                     **self._group(load_plugins)[0]})
 
     def __len__(self):
-        return len(self._schemes())
+        return sum(1 for _ in self)
 
 
 BUILTIN = _discover()
@@ -91,13 +117,11 @@ def unavailable_schemes():
 def get_scheme(name):
     """The registered scheme ``name``; an unknown name raises `SchemeError` listing the valid
     ones, an unavailable one says why and how to make it available."""
-    try:
-        return SCHEMES[name]
-    except (KeyError, TypeError):
-        pass
-    if isinstance(name, str) and name in unavailable_schemes():
-        missing = unavailable_schemes()[name]
-        raise SchemeError(f"scheme {name!r} ({missing.origin}) is not available here: "
-                          f"{missing.reason}", missing.fix) from None
-    valid = ", ".join(SCHEMES)
-    raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}") from None
+    found = SCHEMES.find(name) if isinstance(name, str) else None
+    if isinstance(found, Scheme):
+        return found
+    if isinstance(found, Unavailable):
+        raise SchemeError(f"scheme {name!r} ({found.origin}) is not available here: "
+                          f"{found.reason}", found.fix)
+    valid = ", ".join(SCHEMES)  # every group loaded: the list is whole
+    raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}")

@@ -6,11 +6,21 @@ metadata (docs/extending.md):
     [project.entry-points."rbstudy.schemes"]
     semi_implicit = "rbstudy_semi_implicit.compiled:SCHEME"
 
-`load_plugins` loads each one, after rbstudy's own adapters of other engines (`ENGINES`,
-`rbstudy.engines`), which are loaded the same way. A plug-in that cannot be loaded here
-never stops rbstudy: it is listed as unavailable, with why and what to do (`Unavailable`).
-A package whose scheme needs something absent (an engine's Python bindings) says so by
-raising `SchemeUnavailable` when its module is imported, with the install command as the fix.
+`load_engines` loads rbstudy's own adapters of other engines (`ENGINES`, `rbstudy.engines`),
+`load_plugins` the other packages' schemes; the registry calls each only when it needs a name
+it may give. A plug-in that cannot be loaded here never stops rbstudy: it is listed as
+unavailable, with why and what to do (`Unavailable`). A package whose scheme needs something
+absent (an engine's Python bindings) says so by raising `SchemeUnavailable` when its module
+is imported, with the install command as the fix.
+
+Other packages' code runs in this process only once it has shown it can: each plug-in
+module is first imported in a child process (`_probe`), and one whose import does not finish
+within `IMPORT_SECONDS` or ends the process (``os._exit``) is listed unavailable and never
+imported here. The child is a fork of this process where that is safe (no other thread),
+which costs milliseconds, else a fresh interpreter. A module that raises, even
+``SystemExit``, is imported here and caught. A plug-in's scheme runs through `Guarded`: an
+exception from its step, or a status that is none of rbstudy's codes, ends the batch with
+one `RbstudyError` naming the scheme and its package, not as a bug of rbstudy.
 
 Each plug-in scheme carries a digest of its package's sources (`Scheme.code_digest`,
 `rbstudy.numerics.sources.package_digest`), which enters the ids of its batches: parts
@@ -20,14 +30,26 @@ imported (`BUILTIN` is there for that): imported first by a user, it would find 
 half-initialised and be listed unavailable.
 """
 
+import contextlib
+import importlib
 import importlib.metadata
+import os
+import select
+import signal
+import sys
+import threading
 from dataclasses import dataclass, replace
 
-from rbstudy.errors import first_line
+import numpy as np
+
+from rbstudy.errors import RbstudyError, first_line
+from rbstudy.numerics.driver import StatusError, check_statuses
 from rbstudy.numerics.sources import package_digest
+from rbstudy.numerics.state import Result
 from rbstudy.schemes._registry import Scheme
 
-__all__ = ["GROUP", "ENGINES", "SchemeUnavailable", "Unavailable", "load_plugins"]
+__all__ = ["GROUP", "ENGINES", "IMPORT_SECONDS", "SchemeUnavailable", "Unavailable", "Guarded",
+           "load_engines", "load_plugins"]
 
 GROUP = "rbstudy.schemes"
 # rbstudy's own adapters of other engines (`rbstudy.engines`), loaded as plug-ins are:
@@ -39,6 +61,20 @@ ENGINES = {
     "mujoco_implicit": "rbstudy.engines.mujoco:IMPLICIT",
     "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
 }
+# A plug-in module whose import takes longer is taken for hung and listed unavailable.
+# Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
+# takes seconds; rbstudy's own import with numba, 0.7 s.
+IMPORT_SECONDS = 30.0
+# After this long, the plug-in being imported is named on stderr: a slow import is seen as
+# such, not taken for a frozen command.
+NOTICE_SECONDS = 2.0
+# The probing child in a fresh interpreter (`_start`): it imports the modules given after the
+# number of the file descriptor it writes its bytes to (`_import_each`).
+_CHILD = """
+import sys
+from rbstudy.schemes._plugins import _import_each
+_import_each(sys.argv[2:], int(sys.argv[1]))
+"""
 
 
 class SchemeUnavailable(ImportError):  # noqa: N818 (read as "raise SchemeUnavailable(...)")
@@ -61,6 +97,39 @@ class Unavailable:
     origin: str
 
 
+class Guarded:
+    """A plug-in scheme's entry point (`rbstudy.numerics.driver`'s contract), run so that what
+    goes wrong in it is told as the plug-in's fault: an exception, or a status that is none of
+    rbstudy's codes, becomes one `RbstudyError` naming the scheme and its package. Its other
+    attributes (`is_cached`, `whole_batch`, numba's `signatures`) are the entry point's."""
+
+    def __init__(self, entry, name, origin):
+        self._entry, self._name, self._origin = entry, name, origin
+
+    def __getattr__(self, attribute):
+        if attribute.startswith("_"):  # its own (copy and pickle ask before they exist)
+            raise AttributeError(attribute)
+        return getattr(self._entry, attribute)
+
+    def __call__(self, start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                 samples, results, halt, clock=None):
+        try:
+            self._entry(start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                        samples, results, halt, clock)
+            codes = results[start:stop, Result.status]
+            check_statuses(codes[~np.isnan(codes)])  # NaN: a body a halt left unfinished
+        except StatusError as error:
+            raise self._failure(f"its step {error}") from error
+        except Exception as error:  # noqa: BLE001 (whatever a plug-in raises is its own)
+            raise self._failure(f"its step raised {type(error).__name__}: "
+                                f"{first_line(error)}") from error
+
+    def _failure(self, what):
+        return RbstudyError(f"scheme {self._name!r} (plug-in: {self._origin}) failed: {what}; "
+                            f"fix or report it in {_package(self._origin)}, or leave the "
+                            "scheme out")
+
+
 def _own(entry_point):
     """An engine adapter of rbstudy's own (`ENGINES`)."""
     return entry_point.module.startswith("rbstudy.")
@@ -73,15 +142,29 @@ def _origin(entry_point):
     return f"{dist.name} {dist.version}" if dist is not None else entry_point.value
 
 
-def _load(entry_point, taken):
-    """The `Scheme` of one entry point (with its code digest and origin), or why not."""
+def _package(origin):
+    """The package of an origin ("rbstudy-semi-implicit 0.1.0")."""
+    return origin.split()[0]
+
+
+def _load(entry_point, taken, refusal=None):
+    """The `Scheme` of one entry point (with its code digest and origin), or why not:
+    ``refusal`` is why its module is not to be imported here (`_probe`)."""
     origin = _origin(entry_point)
-    package = origin.split()[0]
+    package = _package(origin)
+    if entry_point.name in taken:
+        return Unavailable(entry_point.name, f"the name is taken by {taken[entry_point.name]}",
+                           f"rename the scheme in {package}", origin)
+    if refusal:
+        return Unavailable(entry_point.name, refusal, f"reinstall or fix {package}", origin)
     try:
         scheme = entry_point.load()
         digest = None if _own(entry_point) else package_digest(entry_point.module)
     except SchemeUnavailable as error:
         return Unavailable(entry_point.name, error.reason, error.fix, origin)
+    except SystemExit as error:  # a module that ends the program must not end rbstudy
+        return Unavailable(entry_point.name, f"its import called sys.exit({error.code!r})",
+                           f"reinstall or fix {package}", origin)
     except Exception as error:  # a plug-in's bug must not stop the other schemes
         return Unavailable(entry_point.name, f"cannot be loaded ({first_line(error)})",
                            f"reinstall or fix {package}", origin)
@@ -94,28 +177,136 @@ def _load(entry_point, taken):
         return Unavailable(entry_point.name,
                            f"{entry_point.value} is the scheme {scheme.name!r}",
                            "name the entry point as its scheme", origin)
-    if entry_point.name in taken:
-        return Unavailable(entry_point.name, f"the name is taken by {taken[entry_point.name]}",
-                           f"rename the scheme in {package}", origin)
     if _own(entry_point):  # rbstudy's source digest covers the adapter; it names the engine
         return scheme
-    return replace(scheme, origin=origin, code_digest=digest)
+    return replace(scheme, origin=origin, code_digest=digest,
+                   run_bodies_inplace=Guarded(scheme.run_bodies_inplace, scheme.name, origin))
 
 
-def load_plugins(builtin):
-    """The engine adapters' and plug-ins' schemes of this environment: (name -> `Scheme`,
-    name -> `Unavailable`). ``builtin`` are rbstudy's own schemes, whose names a plug-in may
-    not take."""
-    taken = {name: "rbstudy's own scheme" for name in builtin}
+def _load_all(entry_points, taken, refused):
+    """(name -> `Scheme`, name -> `Unavailable`) of ``entry_points``; ``taken``: name -> who
+    holds it already; ``refused``: name -> why its module is not to be imported."""
+    taken = dict(taken)
     found, unavailable = {}, {}
-    engines = [importlib.metadata.EntryPoint(name, value, GROUP)
-               for name, value in ENGINES.items()]
-    for entry_point in [*engines, *sorted(importlib.metadata.entry_points(group=GROUP),
-                                          key=lambda point: point.name)]:
-        loaded = _load(entry_point, taken)
+    for entry_point in entry_points:
+        loaded = _load(entry_point, taken, refused.get(entry_point.name))
         if isinstance(loaded, Unavailable):
             unavailable[loaded.name] = loaded
         else:
             found[loaded.name] = loaded
             taken[loaded.name] = loaded.origin
     return found, unavailable
+
+
+def load_engines(builtin):
+    """rbstudy's adapters of other engines (`ENGINES`): (name -> `Scheme`, name ->
+    `Unavailable`), imported here (rbstudy's own code, whose engine may be absent).
+    ``builtin``: rbstudy's own schemes."""
+    return _load_all([importlib.metadata.EntryPoint(name, value, GROUP)
+                      for name, value in ENGINES.items()],
+                     {name: "rbstudy's own scheme" for name in builtin}, {})
+
+
+def load_plugins(builtin):
+    """The plug-ins' schemes of this environment: (name -> `Scheme`, name -> `Unavailable`).
+    ``builtin`` are rbstudy's own schemes, whose names, and those of `ENGINES`, a plug-in may
+    not take. Each module is imported in a child process first (`_probe`)."""
+    taken = {**{name: "rbstudy's own scheme" for name in builtin},
+             **{name: "rbstudy's adapter of an engine" for name in ENGINES}}
+    entry_points = sorted(importlib.metadata.entry_points(group=GROUP),
+                          key=lambda point: point.name)
+    return _load_all(entry_points, taken,
+                     _probe([point for point in entry_points if point.name not in taken]))
+
+
+def _probe(entry_points):
+    """name -> why not, for each of ``entry_points`` whose module, imported in a child
+    process, did not finish within `IMPORT_SECONDS` or ended the process. A module already
+    imported here is not probed again. A child that ends or is stopped is followed by another
+    for the modules after its own."""
+    first = {}  # module -> the first entry point in it: the plug-in the notice names
+    for point in entry_points:
+        if point.module not in sys.modules:
+            first.setdefault(point.module, point)
+    modules, refused = list(first), {}
+    while modules:
+        read_end, pid = _start(modules)
+        answer, done = b".", 0
+        try:
+            for module in modules:
+                answer = _answer(read_end, NOTICE_SECONDS)
+                if answer is None:  # a slow import: say which, then wait for the rest
+                    print(f"rbstudy: loading plug-in {first[module].name} from "
+                          f"{_package(_origin(first[module]))}...", file=sys.stderr, flush=True)
+                    answer = _answer(read_end, IMPORT_SECONDS - NOTICE_SECONDS)
+                if answer != b".":
+                    break
+                done += 1
+        finally:
+            os.close(read_end)
+            code = _end(pid, kill=answer != b"")
+        if done < len(modules):
+            refused[modules[done]] = (
+                f"its import did not finish within {IMPORT_SECONDS:g} s" if answer is None
+                else f"its import ended the process (exit code {code})" if code >= 0
+                else f"its import ended the process (signal {-code})")
+        modules = modules[done + 1:]
+    return {point.name: refused[point.module] for point in entry_points
+            if point.module in refused}
+
+
+def _import_each(modules, out):
+    """The probing child: import each of ``modules``, and write a byte to the file
+    descriptor ``out`` after each, whatever its outcome (this process, importing it again,
+    tells how it failed)."""
+    for module in modules:
+        with contextlib.suppress(BaseException):
+            importlib.import_module(module)
+        os.write(out, b".")
+
+
+def _start(modules):
+    """A child process that imports ``modules`` (`_import_each`): (the read end of the pipe
+    it writes to, its pid). Nothing it prints reaches this process's output."""
+    read_end, write_end = os.pipe()
+    try:
+        # a fork copies this process in milliseconds, but not the other threads, which may
+        # hold locks the child would wait for: with threads, a fresh interpreter (~1 s)
+        if hasattr(os, "fork") and threading.active_count() == 1:
+            pid = os.fork()
+            if pid == 0:
+                try:
+                    os.close(read_end)
+                    silent = os.open(os.devnull, os.O_WRONLY)
+                    os.dup2(silent, 1)  # the descriptors: sys.stdout may be a test's buffer
+                    os.dup2(silent, 2)
+                    _import_each(modules, write_end)
+                finally:
+                    os._exit(0)  # never this process's code after the fork, nor its teardown
+            return read_end, pid
+        out = write_end + 1  # the child's copy of the write end (a number of its own)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(path for path in sys.path if path),
+               "PYTHONWARNINGS": "ignore"}
+        pid = os.posix_spawn(sys.executable, [sys.executable, "-c", _CHILD, str(out), *modules],
+                             env, file_actions=[
+                                 (os.POSIX_SPAWN_DUP2, write_end, out),
+                                 (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
+                                 (os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0)])
+        return read_end, pid
+    finally:
+        os.close(write_end)
+
+
+def _answer(read_end, seconds):
+    """The child's next byte (b"" when it has ended), or None when none came in
+    ``seconds``."""
+    ready, _, _ = select.select([read_end], [], [], seconds)
+    return os.read(read_end, 1) if ready else None
+
+
+def _end(pid, kill):
+    """Wait for the child ``pid``, stopped first when ``kill``; its exit code (-N: signal N)."""
+    if kill:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])

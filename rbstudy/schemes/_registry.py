@@ -1,5 +1,7 @@
 """What a scheme is, as the rest of rbstudy sees it: capabilities, options, compiled entry."""
 
+import math
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,7 +48,7 @@ class Scheme:
     order : nominal global order of accuracy with the options' defaults (`nominal_order`).
     step_seconds : core-seconds one body-step takes, as `rbstudy bench` measured it on the
         development machine (one core, 1e4 bodies; dop853: per accepted step); the run-time
-        forecast of `rbstudy validate` starts from it.
+        forecast of `rbstudy validate` starts from it. A number above 0 and finite.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
     keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
@@ -76,6 +78,11 @@ class Scheme:
         unknown = set(self.keeps) - set(INVARIANTS)
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
+        # NaN, infinity or a negative number would reach the forecast ("kernels ~nan s")
+        if not (isinstance(self.step_seconds, numbers.Real) and 0 < self.step_seconds < math.inf):
+            raise ValueError(f"scheme {self.name!r}: step_seconds is {self.step_seconds!r}; "
+                             "give the core-seconds per body-step `rbstudy bench` measures, "
+                             "a number above 0")
 
     def nominal_order(self, values: Mapping | None = None):
         """The nominal order with options ``values``: that of an option that sets it (a
