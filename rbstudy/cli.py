@@ -91,6 +91,41 @@ def _costed(study, args, disk):
                                            for warning in study.warnings)
 
 
+def _check_out(folder, given=True):
+    """Refuse an output folder rbstudy could not write (a file, a path under one, /proc, a
+    read-only or immutable folder) in one line, before a command prints or computes anything;
+    ``given``: the folder is the user's --out (else a command's default folder)."""
+    from rbstudy.pipeline.store import check_output_folder
+    check_output_folder(folder, "--out " if given else "")
+
+
+def _study_folders(studies, args):
+    """Check --out and each study's folder in it before a sweep prints anything, and return
+    the names of the studies whose folder cannot be written but holds an archive: a rerun
+    may still find it up to date, which needs no write (`run_study` tells, or refuses in
+    one line naming the folder). A folder that cannot be written is refused at once under
+    --force, and where it holds no archive."""
+    from rbstudy.pipeline.store import UnwritableFolder
+    root = pathlib.Path(args.out)
+    try:
+        _check_out(root)
+        refused = None
+    except UnwritableFolder as error:
+        if not root.is_dir():  # a file, under a file: no archive to find there
+            raise
+        refused = error  # read-only: each study's folder decides
+    read_only = set()
+    for study in studies:
+        folder = root / study.name
+        try:
+            _check_out(folder, given=False)
+        except UnwritableFolder as error:
+            if args.force or not (folder / f"{study.name}.nc").is_file():
+                raise (refused or error) from None
+            read_only.add(study.name)
+    return read_only
+
+
 def _each_file(paths, say):
     """``path: say(path)`` for every path; a file that fails gets its one-line error and the
     others are still done; exit 1 if any failed."""
@@ -136,11 +171,12 @@ def _sweep(args):
             raise ConfigError(f"{study.name!r} is also the name of another config of this "
                               "command", "study names pick the results folder: rename one",
                               source=study.path, key="name")
+    read_only = _study_folders(studies, args)
     # a folder of another config of the same name is refused before any study runs
     replaces = [folder_claim(args.out, study, args.force) for study in studies]
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
     for study, line, replaced in zip(studies, lines, replaces, strict=True):
-        if not args.quiet:
+        if not args.quiet and study.name not in read_only:  # nothing to forecast there
             print(line)
         if replaced:  # even when quiet: it says whose results the run deletes
             print(replaced)
@@ -175,6 +211,10 @@ def _plot(args):
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
+    folders = {path: pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
+               for path in args.files}
+    for folder in dict.fromkeys(folders.values()):
+        _check_out(folder, given=bool(args.out))
     opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) > 1:  # every file checked before any is drawn, one in memory at a time
         from rbstudy.pipeline.variables import BOOKKEEPING
@@ -188,7 +228,7 @@ def _plot(args):
                                  "plot them one at a time, each with its own --out", path)
     for path in args.files:
         dataset = _select(opened(path), args.select, path)
-        folder = pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
+        folder = folders[path]
         figures = all_figures(dataset, folder, tuple(args.format), processes=default_threads())
         kinds = " and ".join(kind.upper() for kind in args.format)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
@@ -204,6 +244,7 @@ def _conformance(args):
     from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
     from rbstudy.schemes._plugins import ENGINES
     started = time.perf_counter()
+    _check_out(args.out)
     known = {case.name: case for case in GOLDEN}
     unknown = [name for name in args.cases or () if name not in known]
     if unknown:
@@ -285,9 +326,10 @@ def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
+    folder = args.out or pathlib.Path(args.file).parent / "report"
+    _check_out(folder, given=bool(args.out))
     dataset = open_archive(args.file, verify=not args.no_verify)
-    index = write_report(dataset, args.out or pathlib.Path(args.file).parent / "report",
-                         processes=default_threads())
+    index = write_report(dataset, folder, processes=default_threads())
     print(f"{args.file}: report in {index}")
     return 0
 

@@ -13,7 +13,6 @@ A study folder is locked while a sweep writes it; a rerun skips the batches whos
 so a killed sweep resumes where it stopped.
 """
 
-import contextlib
 import fcntl
 import functools
 import os
@@ -39,7 +38,9 @@ from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.store import (
+    WRITE_REFUSALS,
     Layout,
+    UnwritableFolder,
     archive_state,
     claim_folder,
     consolidate,
@@ -49,6 +50,7 @@ from rbstudy.pipeline.store import (
     part_complete,
     refresh_description,
     resolved_config,
+    unwritable,
     utc_now,
     write_part,
     write_text_atomic,
@@ -184,15 +186,18 @@ def progress_wanted(quiet):
     return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
 
 
-@contextlib.contextmanager
 def study_lock(folder):
-    """Hold ``folder/.lock`` for the sweep; a second sweep of the same study refuses clearly.
+    """Take ``folder/.lock`` for the sweep and return it (closing it releases the lock); a
+    second sweep of the same study refuses clearly, and so does a folder that cannot be
+    written (`rbstudy.pipeline.store.UnwritableFolder`, or the full disk's error).
 
     The lock is an advisory ``flock``: the system releases it when the process dies, so a
     killed sweep never leaves a stale lock.
     """
-    path = folder / ".lock"
-    handle = open(path, "a+")
+    try:
+        handle = open(folder / ".lock", "a+")
+    except OSError as error:
+        raise unwritable(folder, error) from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -204,11 +209,12 @@ def study_lock(folder):
     try:
         handle.seek(0)
         handle.truncate()
-        handle.write(str(os.getpid()))
-        handle.flush()
-        yield
-    finally:
+        # past the file object's buffer, whose close would fail again on a full disk
+        os.write(handle.fileno(), str(os.getpid()).encode())
+    except OSError as error:  # a full disk: the pid needs a block
         handle.close()
+        raise unwritable(folder, error) from None
+    return handle
 
 
 def _prepare(root, study):
@@ -216,8 +222,7 @@ def _prepare(root, study):
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise RbstudyError(f"{folder}: cannot write results there ({error.strerror}); choose "
-                           "another folder with --out") from None
+        raise unwritable(folder, error) from None
     return folder
 
 
@@ -347,8 +352,15 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
             if not path.exists()]
     folder = _prepare(root, study)
     try:
-        return _run_in(folder, study, _Where(scheduler, workers, cluster, writer, worker_wait),
-                       force, quiet, keep_parts, started, started_clock)
+        try:
+            return _run_in(folder, study, _Where(scheduler, workers, cluster, writer,
+                                                 worker_wait),
+                           force, quiet, keep_parts, started, started_clock)
+        except OSError as error:  # the folder refused a write (an immutable one under --force)
+            if (error.errno not in WRITE_REFUSALS or error.filename is None
+                    or not pathlib.Path(error.filename).is_relative_to(folder)):
+                raise  # not a refusal of the study folder: a bug
+            raise unwritable(folder, error) from None
     except RbstudyError:
         if made and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
             shutil.rmtree(made[0])  # this run made the folder and left nothing worth keeping
@@ -375,7 +387,17 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
     """`run_study` inside its study folder."""
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
-    with study_lock(folder):
+    try:
+        lock = study_lock(folder)
+    except UnwritableFolder:
+        # A read-only folder can still answer a rerun of its study: every file in it is
+        # replaced whole by a rename, so reading needs no lock. Only when there is nothing
+        # to write: the archive current and intact, and described by this very text.
+        if (force or archive_state(target, study)[0] != "current"
+                or _described_by(target) != study.text):
+            raise
+        return _up_to_date(target, study, started_clock)
+    with lock:
         # again under the lock, before anything is written or deleted: the command line
         # checks every study before it runs any, but another sweep may claim the folder since
         folder_claim(folder.parent, study, force)
@@ -385,13 +407,11 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
             stale.unlink()  # left by a killed sweep; the lock is ours
         state, archive_problems = archive_state(target, study)
         if not force and state == "current":
-            if open_results(target, ()).attrs.get("config") != study.text:
+            if _described_by(target) != study.text:
                 # the same cases and code, another text (a title, a comment): redescribe
                 refresh_description(target, global_attrs(study, started=started))
                 write_text_atomic(resolved_config(study), folder / "study.yaml")
-            return StudyRun(path=target, computed=0, reused=len(study.batches),
-                            cases=len(study.cases), up_to_date=True,
-                            wall_seconds=time.perf_counter() - started_clock)
+            return _up_to_date(target, study, started_clock)
         parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         digests = {} if force else {batch.id: part_complete(parts[batch.id], batch)
@@ -436,3 +456,14 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
                     reused=len(study.batches) - len(pending), cases=len(study.cases),
                     wall_seconds=time.perf_counter() - started_clock, damaged_parts=damaged,
                     archive_problems=tuple(archive_problems), returned=returned)
+
+
+def _described_by(target):
+    """The config text the archive at ``target`` was written from."""
+    return open_results(target, ()).attrs.get("config")
+
+
+def _up_to_date(target, study, started_clock):
+    """The `StudyRun` of a sweep that found its archive current: nothing run."""
+    return StudyRun(path=target, computed=0, reused=len(study.batches), cases=len(study.cases),
+                    up_to_date=True, wall_seconds=time.perf_counter() - started_clock)

@@ -17,8 +17,10 @@ The global attributes (title, history, config text) are not in the per-variable 
 a changed title is redescribed in place without touching the data (`store.refresh_description`).
 """
 
+import contextlib
 import hashlib
 import json
+import os
 import pathlib
 from dataclasses import dataclass
 
@@ -30,7 +32,7 @@ from rbstudy.pipeline.batches import ids_digest
 
 __all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
            "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive",
-           "SIDECAR_SUFFIX", "ALGORITHM"]
+           "SIDECAR_SUFFIX", "ALGORITHM", "netcdf_writer"]
 
 ALGORITHM = "sha256"
 SIDECAR_SUFFIX = ".sha256"
@@ -45,6 +47,9 @@ _CACHE_SLOTS = 521
 # is redescribed in place.
 MEANING_ATTRIBUTES = ("study", "batches", "accuracy_bound")
 MEANING = "(global attributes)"
+# Closes of a netCDF file whose flush met a full disk, once its temporary is truncated
+# (`netcdf_writer`): measured on a full tmpfs, the first fails and the second succeeds.
+_CLOSE_ATTEMPTS = 3
 
 
 def file_digest(path):
@@ -133,11 +138,34 @@ def archive_checksums(nc):
     return found
 
 
+@contextlib.contextmanager
+def netcdf_writer(temporary, mode="w"):
+    """``netCDF4.Dataset(temporary, mode)`` (NETCDF4) of a temporary file, closed on the way
+    out even when a full disk fails its close. HDF5 keeps a file it could not flush open, and
+    every further close fails flushing it too: a long-lived process (a cluster's worker, a
+    test) would hold the removed temporary's space after the user freed the disk. So the
+    temporary, worthless by then, is truncated: its space lets HDF5 finish the close."""
+    nc = netCDF4.Dataset(temporary, mode, format="NETCDF4")
+    try:
+        yield nc
+    finally:
+        try:
+            nc.close()
+        except (OSError, RuntimeError):
+            os.truncate(temporary, 0)
+            for _ in range(_CLOSE_ATTEMPTS):
+                with contextlib.suppress(OSError, RuntimeError):
+                    nc.close()
+                if not nc.isopen():
+                    break
+            raise
+
+
 def seal_archive(path, part_digests):
     """Store the checksums of the written archive at ``path`` (still under its temporary
     name) and the digests of the parts it was built from (``[batch id, digest]`` pairs, in
     the study's batch order)."""
-    with netCDF4.Dataset(path, "a") as nc:
+    with netcdf_writer(path, "a") as nc:
         checksums = archive_checksums(nc)
         nc.setncatts({"checksums": json.dumps(checksums, sort_keys=True),
                       "part_checksums": json.dumps(part_digests)})

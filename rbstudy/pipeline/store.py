@@ -17,6 +17,7 @@ the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y,
 import datetime
 import decimal
 import hashlib
+import errno
 import math
 import os
 import pathlib
@@ -33,10 +34,11 @@ import netCDF4
 import numpy as np
 import yaml
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError
+from rbstudy.errors import ConfigError, InputError, RbstudyError, first_line
 from rbstudy.pipeline.batches import batches_digest
 from rbstudy.pipeline.integrity import (
     file_digest,
+    netcdf_writer,
     part_digest,
     seal_archive,
     sidecar,
@@ -51,7 +53,8 @@ from rbstudy.pipeline.variables import (
     variable_attrs,
 )
 
-__all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic",
+__all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic", "UnwritableFolder",
+           "unwritable", "check_output_folder", "WRITE_REFUSALS",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
            "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
            "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder", "inside"]
@@ -273,9 +276,7 @@ def _temporary_beside(path):
                                              suffix=".tmp")
         os.close(handle)
     except OSError as error:
-        _raise_if_full(path.parent)
-        raise RbstudyError(f"{path.parent}: cannot write results there ({error.strerror}); "
-                           "choose another folder with --out") from None
+        raise unwritable(path.parent, error) from None
     try:
         yield temporary
         os.chmod(temporary, _FILE_MODE)
@@ -290,13 +291,68 @@ def _temporary_beside(path):
             os.remove(temporary)
 
 
+# What a file system answers a write it refuses: read-only, immutable, not ours, full.
+WRITE_REFUSALS = frozenset({errno.EROFS, errno.EPERM, errno.EACCES, errno.ENOSPC, errno.EDQUOT})
+
+
+class UnwritableFolder(RbstudyError):
+    """A folder whose file system refuses rbstudy's files (read-only, immutable, a path
+    under a file, a system file system such as /proc)."""
+
+
+def unwritable(folder, error, label=""):
+    """The one-line error of ``folder`` refusing a write with the `OSError` ``error``:
+    "no space left" (raised here) when its file system is (nearly) full, else an
+    `UnwritableFolder` with the system's reason, to raise. ``label`` goes before the
+    folder (``"--out "``)."""
+    if error.errno != errno.EROFS:  # read-only media (an ISO image) report no free space
+        _raise_if_full(folder)
+    # a system file system (/proc) answers a new name with "No such file or directory"
+    reason = ("its file system takes no new files" if error.errno == errno.ENOENT
+              else error.strerror or first_line(error))
+    return UnwritableFolder(f"{label}{folder}: cannot write results there ({reason}); "
+                            "choose another folder with --out")
+
+
+def check_output_folder(folder, label="--out "):
+    """Refuse ``folder``, in one line, when rbstudy could not write there: a path that is, or
+    lies under, a file, or a folder whose file system refuses a new file (read-only,
+    immutable, /proc). Called before a command prints or computes anything; it leaves
+    nothing behind: the folders it makes to try are removed again."""
+    folder = pathlib.Path(folder)
+    place, missing = folder.absolute(), []
+    while not place.exists():
+        missing.append(place)
+        place = place.parent
+    if not place.is_dir():
+        what = "is a file" if not missing else f"lies under the file {place}"
+        raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder "
+                               "with --out")
+    made = []
+    try:
+        for path in reversed(missing):
+            path.mkdir()
+            made.append(path)
+        handle, probe = tempfile.mkstemp(dir=folder, prefix=".rbstudy-probe-")
+        os.close(handle)
+        os.remove(probe)
+    except OSError as error:
+        raise unwritable(folder, error, label) from None
+    finally:
+        for path in reversed(made):
+            path.rmdir()
+
+
 def _raise_if_full(folder):
-    """The one-line error of a full disk, when the file system of ``folder`` is (nearly)
-    full. HDF5 reports a full disk as "HDF error" or even "Permission denied", so the free
-    space, not the error, tells."""
-    if shutil.disk_usage(folder).free >= _FULL_BYTES:
-        return
+    """The one-line error of a full disk, when the file system of ``folder`` (or of its
+    nearest existing ancestor) is (nearly) full. HDF5 reports a full disk as "HDF error" or
+    even "Permission denied", so the free space, not the error, tells."""
     mount = pathlib.Path(folder).absolute()
+    while not mount.is_dir():
+        mount = mount.parent
+    usage = shutil.disk_usage(mount)
+    if usage.free >= _FULL_BYTES or usage.total == 0:  # /proc and /sys have no blocks at all
+        return
     while not os.path.ismount(mount):
         mount = mount.parent
     raise RbstudyError(f"{folder}: no space left on the file system at {mount}; finished parts "
@@ -344,7 +400,7 @@ def refresh_description(path, attrs):
     Written through a copy and a rename, like every other write."""
     with _temporary_beside(path) as temporary, HDF5_LOCK:
         shutil.copyfile(path, temporary)
-        with netCDF4.Dataset(temporary, "a") as nc:
+        with netcdf_writer(temporary, "a") as nc:
             nc.setncatts(attrs)
 
 
@@ -437,11 +493,15 @@ def write_part(layout, batch, values, path):
     """Write the part of ``batch`` (its variables ``values``) to ``path`` through a temporary
     file and a rename, then its digest beside it; returns the digest."""
     with _temporary_beside(path) as temporary, HDF5_LOCK:
-        with netCDF4.Dataset(temporary, "w", format="NETCDF4") as nc:
+        with netcdf_writer(temporary) as nc:
             _write_part_file(nc, layout, batch, values)
         digest = file_digest(temporary)
     # after the rename: a kill between the two leaves a part without digest, recomputed
-    write_text_atomic(sidecar_text(digest, path), sidecar(path))
+    try:
+        write_text_atomic(sidecar_text(digest, path), sidecar(path))
+    except RbstudyError:  # a full disk: no part is left without its digest, half finished
+        os.remove(path)
+        raise
     return digest
 
 
@@ -512,7 +572,7 @@ def consolidate(study, parts, digests, target, attrs):
     auxiliary = " ".join(name for name, (dims, _, _) in grid.items()
                          if dims != (name,))
     with _temporary_beside(target) as temporary, HDF5_LOCK:
-        with netCDF4.Dataset(temporary, "w", format="NETCDF4") as nc:
+        with netcdf_writer(temporary) as nc:
             nc.setncatts(attrs)
             for dim in study.dimensions:
                 nc.createDimension(dim.name, dim.size)

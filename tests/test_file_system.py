@@ -1,0 +1,237 @@
+"""Faults of the file system: an output folder that is a file, lies under one, or is /proc, a
+read-only mount, an immutable folder and a full disk each end in one line naming the folder
+(exit 1), with nothing printed before it and nothing half written; a read-only folder still
+answers a rerun whose archive is current, and a sweep that filled its disk resumes.
+
+The mounts and attributes need root (CI runs as root); where they cannot be made, the tests
+that need them are skipped with the reason. Every mount and attribute is undone."""
+
+import contextlib
+import os
+import subprocess
+
+import pytest
+import xarray as xr
+from conftest import write_study
+
+from rbstudy.cli import main
+from rbstudy.pipeline import execute
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.store import open_results
+
+TIMINGS = ["run_time"]  # differ between runs; nothing else may
+PAGE = 4096  # tmpfs counts whole pages: a sidecar of 100 bytes takes one
+# /proc takes no new files, even from root
+PROC_FOLDER = "/proc/rbstudy-results"
+
+
+def _system(*command):
+    """Run a mount or chattr command, or skip the test with the reason it could not."""
+    if os.geteuid() != 0:
+        pytest.skip(f"{command[0]} needs root")
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode:
+        pytest.skip(f"{' '.join(map(str, command))} failed here: {done.stderr.strip()}")
+
+
+@contextlib.contextmanager
+def _read_only(folder):
+    """``folder`` mounted read-only over itself (a read-only mount: root cannot write either)."""
+    _system("mount", "--bind", folder, folder)
+    try:
+        _system("mount", "-o", "remount,ro,bind", folder)
+        yield folder
+    finally:
+        subprocess.run(["umount", folder], check=True)
+
+
+@contextlib.contextmanager
+def _immutable(folder):
+    """``folder`` with the immutable attribute: no entry made, removed or renamed in it."""
+    _system("chattr", "+i", folder)
+    try:
+        yield folder
+    finally:
+        subprocess.run(["chattr", "-i", folder], check=True)
+
+
+@contextlib.contextmanager
+def _tmpfs(folder, size):
+    """A file system of ``size`` bytes mounted at ``folder``."""
+    folder.mkdir()
+    _system("mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", folder)
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", folder], check=True)
+
+
+def _one_line_only(capsys):
+    """The error line of a command that must have printed nothing else, on either stream."""
+    captured = capsys.readouterr()
+    assert captured.out == "", captured.out
+    error = captured.err.strip()
+    assert "\n" not in error and "Traceback" not in error, error
+    return error
+
+
+def _points_into(link, folder):
+    """Whether the open file descriptor ``link`` (/proc/self/fd/N) is a file in ``folder``."""
+    with contextlib.suppress(OSError):  # closed since listed
+        return os.readlink(link).startswith(f"{folder}/")
+    return False
+
+
+def _same_numbers(path_a, path_b):
+    a, b = open_results(path_a), open_results(path_b)
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
+                                b.drop_vars(TIMINGS).drop_attrs())
+
+
+def _verbs(tmp_path, out):
+    """Every command that takes --out, pointed at ``out``; the results files need not exist:
+    the folder is checked first."""
+    config = write_study(tmp_path, name="small")
+    absent = str(tmp_path / "small.nc")
+    return [["sweep", str(config), "--out", out], ["plot", absent, "--out", out],
+            ["report", absent, "--out", out],
+            ["conformance", "--cases", "t_handle", "--schemes", "euler", "--out", out]]
+
+
+def test_an_out_that_is_a_file_lies_under_one_or_is_proc_is_one_line_first(tmp_path, capsys):
+    """Before, sweep printed its forecast line before the error, and plot and report ended in
+    a traceback (exit 70)."""
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    cases = {str(blocker): f"--out {blocker}: is a file, not a folder",
+             str(blocker / "sub"): f"--out {blocker}/sub: lies under the file {blocker}, not "
+                                   "a folder",
+             PROC_FOLDER: f"--out {PROC_FOLDER}: cannot write results there (its file system "
+                          "takes no new files)"}
+    for out, message in cases.items():
+        for verb in _verbs(tmp_path, out):
+            assert main(verb) == 1, verb
+            error = _one_line_only(capsys)
+            assert error == f"rbstudy: error: {message}; choose another folder with --out", verb
+    assert blocker.read_text() == "not a folder"
+
+
+def test_a_read_only_or_immutable_out_is_one_line_first(tmp_path, capsys):
+    for kind, protect, reason in (("read-only", _read_only, "Read-only file system"),
+                                  ("immutable", _immutable, "Operation not permitted")):
+        out = tmp_path / kind
+        out.mkdir()
+        with protect(out):
+            for verb in _verbs(tmp_path, str(out)):
+                assert main(verb) == 1, verb
+                assert _one_line_only(capsys) == (
+                    f"rbstudy: error: --out {out}: cannot write results there ({reason}); "
+                    "choose another folder with --out"), verb
+        assert list(out.iterdir()) == []
+
+
+@pytest.fixture
+def swept(tmp_path):
+    """A one-batch study swept into ``out``: (config, its folder, the archive's bytes)."""
+    config = write_study(tmp_path, name="small")
+    done = run_study(load_study(config), tmp_path / "out", quiet=True)
+    return config, done.path.parent, done.path.read_bytes()
+
+
+def test_force_on_an_immutable_study_folder_is_one_line(swept, capsys):
+    """Before: a PermissionError traceback making parts/ (exit 70)."""
+    config, folder, archive = swept
+    with _immutable(folder):
+        assert main(["sweep", str(config), "--out", str(folder.parent), "--force"]) == 1
+        assert _one_line_only(capsys) == (
+            f"rbstudy: error: {folder}: cannot write results there (Operation not permitted); "
+            "choose another folder with --out")
+    assert (folder / "small.nc").read_bytes() == archive
+
+
+def test_a_read_only_study_folder_answers_an_up_to_date_rerun(swept, capsys):
+    """Reading is all an up-to-date rerun needs: it no longer dies taking its lock (exit 70).
+    What would have to write (--force, another title to record) is one line, exit 1."""
+    config, folder, archive = swept
+    (folder / ".lock").unlink()  # as a copy of the results would come, or their first read
+    retitled = config.with_name("retitled.yaml")
+    retitled.write_text(config.read_text() + "title: another title\n")
+    sweep = ["sweep", "--out", str(folder.parent), "--quiet"]
+    with _read_only(folder):
+        assert main([*sweep, str(config)]) == 0
+        out = capsys.readouterr().out
+        assert f"small: {folder}/small.nc is up to date (the same config and code)" in out
+        for refused in ([*sweep, str(config), "--force"], [*sweep, str(retitled)]):
+            assert main(refused) == 1
+            assert _one_line_only(capsys) == (
+                f"rbstudy: error: {folder}: cannot write results there (Read-only file "
+                "system); choose another folder with --out")
+    assert (folder / "small.nc").read_bytes() == archive
+
+
+def test_a_full_disk_before_the_first_write_is_one_line_and_leaves_nothing(tmp_path, capsys):
+    """Before: the lock's pid met the full disk, a traceback (exit 70), and the study folder
+    was left behind."""
+    config = write_study(tmp_path, name="small")
+    with _tmpfs(tmp_path / "disk", 16 * PAGE) as disk:
+        (disk / "filler").write_bytes(bytes(16 * PAGE))
+        assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1
+        error = capsys.readouterr().err.strip()
+        assert error == (f"rbstudy: error: {disk}/out/small: no space left on the file system "
+                         f"at {disk}; finished parts are kept: free space and rerun the same "
+                         "command to resume")
+        assert sorted(path.name for path in disk.iterdir()) == ["filler"]
+
+
+def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, capsys,
+                                                                     monkeypatch):
+    """A real file system fills at the third of four parts: one line, the two finished
+    parts kept and sealed, no temporary left; once the disk is larger the rerun reuses them,
+    and the archive holds the numbers of an uninterrupted run."""
+    config = write_study(tmp_path, name="small", sweep={"scheme": ["euler", "midpoint"],
+                                                        "dt": [0.01, 0.005]})
+    whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
+    part = max(path.stat().st_size for path in (whole.path.parent / "parts").glob("*.nc"))
+    pages = -(-part // PAGE) + 1  # a part and its digest
+    # the sweep's forecast would refuse the study on this disk: here another writer takes
+    # the space once the forecast has passed
+    monkeypatch.setattr(execute, "check_disk", lambda *args: None)
+    monkeypatch.setattr(execute, "default_threads", lambda: 1)  # the parts one after another
+    with _tmpfs(tmp_path / "disk", (1 + 2 * pages) * PAGE + part // 2) as disk:
+        sweep = ["sweep", str(config), "--out", str(disk / "out")]
+        assert main(sweep) == 1
+        error = capsys.readouterr().err.strip()
+        assert error.endswith(f": no space left on the file system at {disk}; finished parts "
+                              "are kept: free space and rerun the same command to resume")
+        assert "\n" not in error
+        parts = disk / "out" / "small" / "parts"
+        kept = sorted(parts.glob("*.nc"))
+        assert len(kept) == 2 and len(list(parts.glob("*.sha256"))) == 2
+        assert not list(parts.glob(".*"))  # no temporary
+        assert all(main(["verify", str(path)]) == 0 for path in kept)  # sealed, intact
+        # HDF5 kept a failed temporary open, and its space taken (`netcdf_writer`)
+        assert not [fd for fd in os.listdir("/proc/self/fd")
+                    if _points_into(f"/proc/self/fd/{fd}", disk)]
+        kept_times = [path.stat().st_mtime_ns for path in kept]
+        capsys.readouterr()
+        subprocess.run(["mount", "-o", "remount,size=4m", disk], check=True)
+        assert main([*sweep, "--keep-parts"]) == 0
+        assert "small: 2 batches run, 2 reused" in capsys.readouterr().out
+        assert [path.stat().st_mtime_ns for path in kept] == kept_times  # reused, not rewritten
+        _same_numbers(whole.path, disk / "out" / "small" / "small.nc")
+
+
+def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, capsys,
+                                                                     monkeypatch):
+    """The disk holds the first part but not its digest: before, the part stayed without its
+    digest (a rerun recomputes it, but it was left behind half finished, and with it the
+    folders); now it goes too."""
+    config = write_study(tmp_path, name="small")
+    whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
+    part = next((whole.path.parent / "parts").glob("*.nc")).stat().st_size
+    monkeypatch.setattr(execute, "check_disk", lambda *args: None)  # as above
+    with _tmpfs(tmp_path / "disk", (1 + -(-part // PAGE)) * PAGE) as disk:  # the lock, a part
+        assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1
+        assert "no space left on the file system" in _one_line_only(capsys)
+        assert list(disk.iterdir()) == []  # and so the folders this run made
