@@ -16,8 +16,8 @@ the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y,
 
 import datetime
 import decimal
-import hashlib
 import errno
+import hashlib
 import math
 import os
 import pathlib
