@@ -52,6 +52,11 @@ IN_FLIGHT_FACTOR = 3
 # part's digest beside it: 32-34 KiB measured for a part, rounded up.
 _FILE_OVERHEAD = 40 * 2 ** 10
 _MIB = 2 ** 20
+# Each load evaluation of a scene with tables in time bisects the study's K knots
+# (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
+# log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike:
+# 1.06-1.12x the 2-knot cost at K = 100 and 1.33-1.45x at K = 1e5 (0.02-0.027 a level).
+KNOT_LEVEL_SHARE = 0.025
 
 
 def _mib(size):
@@ -119,10 +124,18 @@ class Estimate:
         return max(self.core_seconds / self.cores, self.longest_seconds)
 
 
+def _knot_factor(scenes):
+    """How much dearer a kernel step is for the bisection of the knots of ``scenes``' load
+    tables in time (1 without; `KNOT_LEVEL_SHARE`)."""
+    knots = scenes.loads["knots"].shape[-1]
+    return 1.0 + KNOT_LEVEL_SHARE * float(np.log2(knots)) if knots > 1 else 1.0
+
+
 def estimate(study, cores=None):
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
     cores = cores or default_threads()
     cases = study.cases
+    knot_factor = _knot_factor(cases.scenes)
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
@@ -133,7 +146,7 @@ def estimate(study, cores=None):
             steps = len(batch.cases) * round(study.duration / batch.dt)
         body_steps += steps
         # a batch holds one cost per body-step (a composition's stages: `plan_batches`)
-        batch_seconds = steps * batch.step_seconds
+        batch_seconds = steps * batch.step_seconds * knot_factor
         seconds += batch_seconds
         # a batch spreads its bodies over at most as many threads as it has bodies; dop853
         # is Python and holds the interpreter: one core
