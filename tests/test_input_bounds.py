@@ -158,3 +158,19 @@ def test_a_spin_past_the_float_range_of_its_square_warns_nothing(tmp_path, schem
                                 study(tmp_path, spin=(1e150, 1.0, 0.2), scheme=scheme))
     assert code == 0 and err == "", err
     assert "1 case" in out
+
+
+def test_dop853_as_a_scheme_stops_at_its_step_cap_as_not_converged(monkeypatch, asymmetric_scene):
+    """A body that would take more than `dop853.MAX_STEPS` accepted steps stops there as not
+    converged (a run the forecast could not see never runs on); the cap is lowered here, the
+    shipped one takes ~11 minutes to reach."""
+    from rbstudy.numerics.state import STATUS_NAMES
+    from rbstudy.physics.simulate import simulate
+    from rbstudy.schemes import dop853
+    monkeypatch.setattr(dop853, "MAX_STEPS", 20)
+    capped = simulate([asymmetric_scene], "dop853", 0.05)
+    assert STATUS_NAMES[int(capped.results["status"][0])] == "not_converged"
+    assert int(capped.results["n_steps"][0]) == 20
+    monkeypatch.setattr(dop853, "MAX_STEPS", 10 ** 7)
+    assert STATUS_NAMES[int(simulate([asymmetric_scene], "dop853", 0.05)
+                             .results["status"][0])] == "ok"

@@ -160,7 +160,10 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
             energy, momentum = _drifts(out, p)
             with np.errstate(invalid="ignore"):
                 max_energy, max_momentum = float(np.nanmax(energy)), float(np.nanmax(momentum))
-            bad = np.flatnonzero(~((energy <= drift_bound) & (momentum <= drift_bound)))
+            kept = (energy <= drift_bound) & (momentum <= drift_bound)
+            if status == NOT_CONVERGED:  # stopped at the cap: the samples past it are NaN
+                kept |= np.isnan(energy) | np.isnan(momentum)
+            bad = np.flatnonzero(~kept)
             if bad.size:
                 status, failure = UNSTABLE, float(times[bad[0]])
                 out[bad[0]:] = np.nan
