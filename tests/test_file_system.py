@@ -179,8 +179,8 @@ def test_a_full_disk_before_the_first_write_is_one_line_and_leaves_nothing(tmp_p
         assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1
         error = capsys.readouterr().err.strip()
         assert error == (f"rbstudy: error: {disk}/out/small: no space left on the file system "
-                         f"at {disk}; finished parts are kept: free space and rerun the same "
-                         "command to resume")
+                         f"at {disk}; free space and rerun the same command (a sweep keeps its "
+                         "finished parts and resumes)")
         assert sorted(path.name for path in disk.iterdir()) == ["filler"]
 
 
@@ -202,8 +202,9 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         sweep = ["sweep", str(config), "--out", str(disk / "out")]
         assert main(sweep) == 1
         error = capsys.readouterr().err.strip()
-        assert error.endswith(f": no space left on the file system at {disk}; finished parts "
-                              "are kept: free space and rerun the same command to resume")
+        assert error.endswith(f": no space left on the file system at {disk}; free space "
+                              "and rerun the same command (a sweep keeps its finished parts "
+                              "and resumes)")
         assert "\n" not in error
         parts = disk / "out" / "small" / "parts"
         kept = sorted(parts.glob("*.nc"))

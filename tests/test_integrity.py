@@ -213,8 +213,8 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()
     assert "\n" not in error and "/full/parts: no space left on the file system at /" in error
-    assert error.endswith("finished parts are kept: free space and rerun the same command to "
-                          "resume")
+    assert error.endswith("free space and rerun the same command (a sweep keeps its finished "
+                          "parts and resumes)")
     parts = tmp_path / "out" / "full" / "parts"
     assert len(list(parts.glob("*.nc.sha256"))) == 2 and not list(parts.glob(".*"))
     monkeypatch.undo()

@@ -355,8 +355,9 @@ def _raise_if_full(folder):
         return
     while not os.path.ismount(mount):
         mount = mount.parent
-    raise RbstudyError(f"{folder}: no space left on the file system at {mount}; finished parts "
-                       "are kept: free space and rerun the same command to resume") from None
+    raise RbstudyError(f"{folder}: no space left on the file system at {mount}; free space and "
+                       "rerun the same command (a sweep keeps its finished parts and resumes)"
+                       ) from None
 
 
 def _sync(path):
