@@ -13,6 +13,7 @@ import xarray as xr
 from conftest import abaqus_mapping, write_study
 
 from rbstudy.analysis.plots import all_figures
+from rbstudy.analysis.report import write_report
 from rbstudy.cli import main
 from rbstudy.errors import InputError
 from rbstudy.pipeline.config import load_study
@@ -183,3 +184,6 @@ def test_no_figure_is_written_or_deleted_outside_its_folder(archive, tmp_path):
     with pytest.raises(InputError, match="would be written outside it"):
         all_figures(dataset, folder)
     assert _files(tmp_path) == [victim] and victim.read_bytes() == b"a user's file"
+    with pytest.raises(InputError, match="it names a folder"):  # not even the report's marker
+        write_report(dataset, folder / "report")
+    assert _files(tmp_path) == [victim]

@@ -22,6 +22,7 @@ from rbstudy.physics.metrics import (
     ORDER_SPREAD,
 )
 from rbstudy.pipeline.store import write_text_atomic
+from rbstudy.reader import Reader
 
 __all__ = ["write_report", "MARKER"]
 
@@ -72,7 +73,8 @@ def write_report(ds, out, processes=1):
     """Write ``out/index.html`` and ``out/figures/`` for dataset ``ds``, the figures drawn in
     ``processes`` processes (`rbstudy.analysis.plots.all_figures`); returns the index path."""
     out = pathlib.Path(out)
-    study = str(ds.attrs.get("study", "results"))
+    # before the folder is claimed: the study names the figure files
+    study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
     _claim(out, study)
     figures = all_figures(ds, out / "figures", ALL_FORMATS, processes)  # PNG shown, SVG linked
     rows = scheme_rows(ds)
