@@ -14,16 +14,20 @@ folder; ``workers`` and ``client`` force one way.
 The failures users of batch clusters meet end the run with one line, keeping every part
 written so far (a rerun resumes from them): a worker killed at its walltime or memory limit
 more often than the scheduler allows (``KilledWorker``); no worker joining, or every worker
-gone, for `worker_wait` seconds; the scheduler going away.
+gone, for `worker_wait` seconds; the scheduler going away. On a SLURM cluster it started, the
+line says what squeue says of the jobs (pending and why, past their walltime, cancelled), and
+a fixed number of jobs that have all ended ends the run at once.
 """
 
 import contextlib
 import logging
 import math
 import pathlib
+import subprocess
 import time
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from rbstudy.errors import ConfigError, RbstudyError, first_line
 from rbstudy.pipeline.integrity import sealed
@@ -49,6 +53,19 @@ GATHER_SECONDS = 60.0
 # The dask-jobqueue class of each batch system a cluster file may name.
 JOB_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
 _KEYS = ("kind", "jobs", "adaptive", "options")
+# Seconds to wait for the batch system to describe a cluster's jobs: a slow controller must
+# not hold back the run's last line for long.
+JOB_QUERY_SECONDS = 10
+# Job ids named per state in that line (an adaptive cluster may have hundreds of jobs).
+_JOBS_NAMED = 3
+# Seconds between two questions to the batch system while a cluster of fixed jobs has no
+# worker: each is a call to the controller, which a busy cluster's admins ask not to be made
+# often.
+JOBS_LOOK_SECONDS = 5.0
+# The SLURM states of a job that has ended for good (a preempted or requeued job may run
+# again; a completing one may still be requeued).
+_SLURM_ENDED = frozenset({"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED",
+                          "NODE_FAIL", "OUT_OF_MEMORY", "TIMEOUT"})
 # The module of a study's tasks, which the forkserver of local workers imports.
 TASKS_MODULE = "rbstudy.pipeline.execute"
 
@@ -126,8 +143,10 @@ def _forked_local_cluster(**options):
         return LocalCluster(**options)
 
 
-def _start(spec):
-    """The cluster ``spec`` describes, started and scaled (not yet connected)."""
+def _start(spec, logs=None):
+    """The cluster ``spec`` describes, started and scaled (not yet connected); a job
+    cluster's jobs write their output into ``logs`` unless the cluster file or dask's
+    configuration names a ``log_directory``."""
     if spec.kind == "local":
         make, name = _forked_local_cluster, "LocalCluster"
         options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
@@ -139,9 +158,21 @@ def _start(spec):
         except ImportError:
             raise ConfigError(f"a {spec.kind} cluster needs dask-jobqueue",
                               "pip install 'rbstudy[cluster]'", spec.path, "kind") from None
+        import dask
+
         name = JOB_CLUSTERS[spec.kind]
         make = getattr(dask_jobqueue, name)
         options = spec.options
+        # else SLURM and PBS write each job's output where the sweep was started
+        if logs is not None and dask.config.get(f"jobqueue.{spec.kind}.log-directory",
+                                                None) is None:
+            options = {"log_directory": str(logs), **options}
+        # the dashboard on a free port unless the file names one: dask-jobqueue's 8787, taken
+        # (by another sweep, a notebook), made distributed print a warning
+        scheduler = options.get("scheduler_options", dask.config.get(
+            f"jobqueue.{spec.kind}.scheduler-options", None) or {})
+        if isinstance(scheduler, dict):
+            options = {**options, "scheduler_options": {"dashboard_address": ":0", **scheduler}}
     try:
         cluster = make(**options)
     except (TypeError, ValueError, RuntimeError) as error:
@@ -161,10 +192,11 @@ def _start(spec):
 
 
 @contextlib.contextmanager
-def connect(scheduler=None, workers=None, cluster=None):
+def connect(scheduler=None, workers=None, cluster=None, logs=None):
     """A `distributed.Client` of the running ``scheduler``, of a `LocalCluster` of
-    ``workers`` processes, or of the cluster a `ClusterFile` describes; the cluster this
-    started is closed (its jobs cancelled) on the way out.
+    ``workers`` processes, or of the cluster a `ClusterFile` describes, whose batch jobs
+    write their output into the folder ``logs`` (unless the file names another); the
+    cluster this started is closed (its jobs cancelled) on the way out.
 
     distributed's own log lines are held back meanwhile: a failure ends the run with one
     line of ours (`run_on_cluster`), not pages of reconnection tracebacks."""
@@ -185,7 +217,7 @@ def connect(scheduler=None, workers=None, cluster=None):
                                        "start the cluster first or drop --scheduler") from None
             else:
                 spec = cluster or ClusterFile("--workers", "local", workers, None, {})
-                started = stack.enter_context(contextlib.closing(_start(spec)))
+                started = stack.enter_context(contextlib.closing(_start(spec, logs)))
                 client = Client(started)
             # a client whose scheduler has gone would retry for its whole timeout
             stack.callback(client.close, timeout=2)
@@ -195,13 +227,16 @@ def connect(scheduler=None, workers=None, cluster=None):
             logger.setLevel(level)
 
 
-def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
+def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fixed_jobs=False):
     """Run the store ``tasks`` on ``client``'s cluster; ({key: digest}, number of parts this
     process wrote from values sent back).
 
     ``targets`` gives each task's key its (layout, batch, path, cases): a task returns
     (digest, None) when its worker wrote the part, (None, values) when this process must.
     Futures are released as they finish, so a worker holds no values once they are written.
+    ``fixed_jobs``: the cluster's batch jobs were submitted once (a cluster file's ``jobs``),
+    so when the batch system says every one has ended while no worker is there, none can
+    come back and the run ends at once rather than after ``worker_wait``.
     """
     from distributed import KilledWorker, as_completed
 
@@ -210,7 +245,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
     pending = set(futures)
     finishing = as_completed(futures)  # bound to this client's loop, unlike distributed.wait
     digests, returned = {}, 0
-    waiting_since, seen_workers, looked = None, False, -math.inf
+    waiting_since, seen_workers, looked, asked = None, False, -math.inf, -math.inf
     # parts already sealed (a --force run, a damaged part) prove nothing about this run
     sealed_before = {path for _, _, path, _ in targets.values() if sealed(path)}
 
@@ -231,16 +266,21 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
                     if not seen_workers:
                         progress.say(f"waiting up to {worker_wait:g} s for a worker to join "
                                      f"{where}")
-                elif now - waiting_since > worker_wait:
-                    # a part this run wrote proves a worker, even one that came and went
-                    # between two looks
-                    seen_workers = seen_workers or any(
-                        sealed(path) for _, _, path, _ in targets.values()
-                        if path not in sealed_before)
-                    what = "every worker left" if seen_workers else "no worker joined"
-                    raise RbstudyError(f"{what} {where} for {worker_wait:g} s (are the "
-                                       "workers' jobs queued or ended? squeue, qstat); "
-                                       f"{kept()}, or wait longer with --worker-wait")
+                else:
+                    word = None
+                    if fixed_jobs and now - asked >= JOBS_LOOK_SECONDS:
+                        asked, word = now, _jobs_said(client)
+                    waited = now - waiting_since > worker_wait
+                    if waited or (word and word.ended):
+                        # a part this run wrote proves a worker, even one that came and went
+                        # between two looks
+                        seen_workers = seen_workers or any(
+                            sealed(path) for _, _, path, _ in targets.values()
+                            if path not in sealed_before)
+                        what = "every worker left" if seen_workers else "no worker joined"
+                        when = f"for {worker_wait:g} s" if waited else "and every job ended"
+                        said, fix, _ = word or _jobs_said(client) or _UNASKED
+                        raise RbstudyError(f"{what} {where} {when} ({said}); {kept()}{fix}")
             finished = finishing.next_batch(block=False)
             if not finished:
                 time.sleep(_IDLE_SECONDS)
@@ -276,3 +316,69 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT):
             client.cancel(list(pending))  # a shared cluster stops working for this run
     return digests, returned
 
+
+class JobsWord(NamedTuple):
+    """What a batch system says of a cluster's jobs: the words for the line, the fix that
+    follows its count of the parts kept, and whether every job has ended for good."""
+
+    said: str
+    fix: str
+    ended: bool
+
+
+# What the worker-wait line says when the batch system was not asked (a --scheduler or a local
+# cluster, PBS) or did not answer.
+_UNASKED = JobsWord("are the workers' jobs queued or ended? squeue, qstat",
+                    ", or wait longer with --worker-wait", False)
+
+
+def _slurm_jobs(ids):
+    """SLURM's word on the jobs ``ids`` (squeue, every state: a finished job is known for
+    the controller's MinJobAge, 300 s by default), a `JobsWord`, or None when squeue does
+    not answer.
+
+    Jobs alike are named together: ``SLURM: job 7 PENDING (PartitionDown)``, ``SLURM: job 8
+    TIMEOUT (walltime 1:00)``, ``SLURM: job 9 CANCELLED``."""
+    answer = subprocess.run(["squeue", "--noheader", "--states=all", f"--jobs={','.join(ids)}",
+                             "--format=%i %T %r %l"], capture_output=True, text=True,
+                            timeout=JOB_QUERY_SECONDS, check=False)
+    rows = [line.split() for line in answer.stdout.splitlines()]
+    if answer.returncode or not rows or any(len(row) != 4 for row in rows):
+        return None
+    alike, timed_out = {}, False
+    for job, state, reason, limit in rows:
+        # a pending job's reason is why it waits; an ended job keeps its last one (a job
+        # cancelled while pending still says Resources), so only a passed walltime is told
+        # (TIMEOUT, or TimeLimit while its processes are being ended)
+        passed = state == "TIMEOUT" or reason == "TimeLimit"
+        timed_out |= passed
+        why = reason if state == "PENDING" else f"walltime {limit}" if passed else ""
+        alike.setdefault((state, why), []).append(job)
+    said = []
+    for (state, why), jobs in alike.items():
+        named = ", ".join(jobs[:_JOBS_NAMED]) + (", ..." if len(jobs) > _JOBS_NAMED else "")
+        said.append(f"job{'s' * (len(jobs) > 1)} {named} {state}" + (f" ({why})" if why else ""))
+    fix = (", with a longer walltime in the cluster file" if timed_out else
+           ", or wait longer with --worker-wait" if any(state == "PENDING" for state, _ in alike)
+           else "")
+    return JobsWord("SLURM: " + ", ".join(said), fix,
+                    all(state in _SLURM_ENDED for state, _ in alike))
+
+
+# How to ask each batch system about its jobs, by dask-jobqueue class.
+_ASK_JOBS = {"SLURMCluster": _slurm_jobs}
+
+
+def _jobs_said(client):
+    """What the batch system says of the jobs of ``client``'s cluster (a `JobsWord`), or None
+    when rbstudy did not start that cluster, cannot ask its batch system, or got no answer."""
+    cluster = getattr(client, "cluster", None)
+    ask = _ASK_JOBS.get(type(cluster).__name__)
+    ids = [job.job_id for job in getattr(cluster, "workers", {}).values()
+           if getattr(job, "job_id", None)]
+    if ask is None or not ids:
+        return None
+    try:
+        return ask(ids)
+    except (OSError, subprocess.SubprocessError):  # squeue missing here, or too slow
+        return None

@@ -62,6 +62,10 @@ __all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Prog
 
 # Seconds between two redraws of the progress bar.
 _REDRAW_SECONDS = 0.2
+# The folder, among the part files, where batch jobs write their output (else SLURM writes
+# slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
+# with them when it succeeds.
+_JOB_LOGS = "jobs"
 
 
 @dataclass(frozen=True)
@@ -435,9 +439,11 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
         if tasks and where.distributed:
             probe.write_text(token)
             try:
-                with connect(where.scheduler, where.workers, where.cluster) as client:
-                    written, returned = run_on_cluster(client, tasks, targets, progress,
-                                                       where.worker_wait)
+                with connect(where.scheduler, where.workers, where.cluster,
+                             logs=parts_dir / _JOB_LOGS) as client:
+                    written, returned = run_on_cluster(
+                        client, tasks, targets, progress, where.worker_wait,
+                        fixed_jobs=where.cluster is not None and where.cluster.jobs is not None)
             finally:
                 probe.unlink()
         elif tasks:
