@@ -1,7 +1,9 @@
-"""Command line: ``rbstudy sweep | validate | schemes | plot | report | bench | verify``.
+"""Command line: ``rbstudy sweep | validate | schemes | plot | report | summary | bench |
+verify``.
 
 ``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
-per-scheme summary; ``validate`` checks configs without running anything.
+study's findings and per-scheme summary; ``summary`` prints them again from archives;
+``validate`` checks configs without running anything.
 
 Exit codes, as the command-line tools users know have them: 0 success; 1 a user's mistake
 (`RbstudyError`), told in one line naming the file, the key and the fix; 2 bad usage (from
@@ -159,7 +161,7 @@ def _sweep(args):
         # the local workers' forkserver imports rbstudy while this process reads the studies
         from rbstudy.pipeline.cluster import start_forkserver
         start_forkserver()
-    from rbstudy.analysis.summary import SUMMARY_VARIABLES, format_table, scheme_rows
+    from rbstudy.analysis.findings import FINDINGS_VARIABLES
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study
@@ -199,8 +201,38 @@ def _sweep(args):
             print(f"{study.name}: {done.returned} parts written here from the values the "
                   "workers sent back (they do not see the results folder)")
         # proven by this run: sealed as written, or verified before it was reused
-        print(format_table(scheme_rows(open_archive(done.path, SUMMARY_VARIABLES,
-                                                    verify=False))))
+        print(_summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False)))
+    return 0
+
+
+def _summary_text(dataset):
+    """The findings, then the per-scheme table."""
+    from rbstudy.analysis.findings import finding_lines, findings
+    from rbstudy.analysis.summary import format_table, scheme_rows
+    return "\n".join(finding_lines(findings(dataset)) + ["", format_table(scheme_rows(dataset))])
+
+
+def _summary(args):
+    import csv
+    import json
+
+    from rbstudy.analysis.findings import csv_rows, markdown_summary, summary_document
+    from rbstudy.pipeline.archive import open_archive
+    datasets = [open_archive(path, verify=not args.no_verify) for path in args.files]  # all
+    if args.format == "json":  # checked before anything is printed
+        documents = [summary_document(dataset) for dataset in datasets]
+        print(json.dumps(documents[0] if len(documents) == 1 else documents, indent=1,
+                         allow_nan=False))
+    elif args.format == "csv":
+        rows = [row for dataset in datasets for row in csv_rows(dataset)]
+        writer = csv.DictWriter(sys.stdout, fieldnames=list(rows[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+    else:
+        render = markdown_summary if args.format == "md" else _summary_text
+        print("\n\n".join(render(dataset) if len(datasets) == 1 or args.format == "md"
+                           else f"== {path}\n{render(dataset)}"
+                           for path, dataset in zip(args.files, datasets, strict=True)))
     return 0
 
 
@@ -391,6 +423,14 @@ def build_parser():
     report.add_argument("--out", help="report folder (default: report/ beside the file)")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
+    summary = commands.add_parser("summary", help="print the findings and the per-scheme "
+                                                  "table of results files (no rerun)")
+    summary.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
+    summary.add_argument("--format", choices=("text", "md", "csv", "json"), default="text",
+                         help="text (default), Markdown, CSV (the table) or JSON (everything, "
+                              "for scripts: docs/outputs.md)")
+    _no_verify_argument(summary)
+    summary.set_defaults(run=_summary)
     verify = commands.add_parser("verify", help="prove results files intact by their checksums")
     verify.add_argument("files", nargs="+", metavar="RESULTS.nc",
                         help="archives (or part files) written by rbstudy sweep")

@@ -40,7 +40,7 @@ def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
     assert str(ds.scheme.values) == "splitting" and float(ds.dt) == 0.005
     assert ds.omega_body.dims == ("time", "axis") and int(ds.n_steps) == 100
     row = next(line.split() for line in capsys.readouterr().out.splitlines()
-               if line.startswith("splitting"))
+               if line.startswith("splitting "))  # the table row, not the verdict
     assert row[2] == "-" and row[-3:] == ["0/1", "|L|,", "L"]  # no dt axis: no order; L kept
 
 

@@ -38,7 +38,7 @@ SCIPY_SCHEME = "schemes/dop853.py"
 # Modules the archive readers rely on: none of them may load numba (or the schemes), so that
 # figures, tables and reports start in a moment and need no compiler.
 NUMBA_FREE = ("rbstudy.analysis.plots", "rbstudy.analysis.summary", "rbstudy.analysis.report",
-              "rbstudy.analysis.conformance",
+              "rbstudy.analysis.conformance", "rbstudy.analysis.findings",
               "rbstudy.pipeline.archive", "rbstudy.pipeline.store", "rbstudy.pipeline.variables",
               "rbstudy.pipeline.outputs",
               "rbstudy.pipeline.batches", "rbstudy.physics.analytic", "rbstudy.reader")

@@ -383,7 +383,7 @@ def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
     assert int(euler.status) == 1 and 0 < float(euler.failure_time) <= 2.0
     assert int(ds.status.sel(scheme="midpoint", dt=0.01)) == 0
     euler_row = next(line.split() for line in capsys.readouterr().out.splitlines()
-                     if line.startswith("euler"))
+                     if line.startswith("euler "))  # the table row
     assert "1/2" in euler_row  # one of its two cases unstable
     assert (ds.reference.attrs["flag_meanings"].split()[int(euler.reference)]
             == "exact_asymmetric")

@@ -1,0 +1,473 @@
+"""The study's answer in words: ranked findings read from its dataset (never from a rerun).
+
+`findings(ds)` returns `Finding` records, most important first:
+
+1. the recommendation: the cheapest scheme and step that meet the study's accuracy bound
+   (the archive's per-case ``accuracy`` verdict: orientation error at every sample, energy and
+   ``|L|`` drift), costed by the kernel time per case (``run_time``); one for the whole
+   study, then one per distinct answer where the values of the other swept axes disagree, or
+   a statement that no case meets the bound;
+2. coincidences: schemes whose final orientation errors agree to 3 digits in every case;
+3. the study's own question, for every swept axis other than scheme and ``dt`` (a scheme
+   option, a body parameter): the order and energy change per value where ``dt`` is swept,
+   the accuracy verdicts per value where it is not;
+4. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`.
+
+Orders, invariants kept and the ``dt |w0|`` ranges are the summary's own: nothing here fits
+or measures anything the table does not, so the words and the table cannot disagree.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from rbstudy.analysis.summary import (
+    ERROR_MEASURES,
+    KEPT_TOLERANCE,
+    SUMMARY_VARIABLES,
+    error_measure,
+    order_text,
+    per_scheme,
+    scheme_rows,
+    schemes_of,
+)
+from rbstudy.numerics.state import INVARIANTS
+
+__all__ = ["Finding", "Recommendation", "findings", "recommendations", "COINCIDENCE_RTOL",
+           "table_records", "VERDICT_ACCURATE", "MAX_FINDING_LINES", "summary_document",
+           "finding_lines", "markdown_summary", "csv_rows", "agree", "energy_rates",
+           "FINDINGS_VARIABLES"]
+
+# What `findings` reads: the table's per-case scalars, and the energy series whose last value
+# says whether a scheme gains or loses energy.
+FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error")
+# Two errors "agree to 3 digits" when they differ by at most half a unit of the third
+# significant digit, relative to the larger.
+COINCIDENCE_RTOL = 5e-4
+# The archive's accuracy verdict of a case that met the bound (pipeline/outputs.py VERDICTS).
+VERDICT_ACCURATE = 0
+# The findings a terminal shows before the table (text and md); the JSON form has them all.
+MAX_FINDING_LINES = 12
+# The per-value lines of the study's question name at most this many values; more are cut
+# with "..." (JSON carries them all).
+_SHOWN_VALUES = 6
+_SWEPT_BY_SUMMARY = ("scheme", "dt")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Finding:
+    """One statement about a study.
+
+    kind: ``recommendation``, ``no_recommendation``, ``coincidence``, ``question`` or
+    ``verdict``; text: the statement, one line; numbers: the values it states, by name (units
+    in the names); cases: the cases it rests on, each a mapping of coordinate names to values
+    (a coordinate not named: every value of it).
+    """
+    kind: str
+    text: str
+    numbers: dict
+    cases: tuple
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Recommendation:
+    """The cheapest accurate scheme and step for one value of the other swept axes.
+
+    axes: those values (coordinate name -> value; empty when nothing else is swept);
+    error: the case's final orientation error (rad); seconds_per_case: its kernel time.
+    """
+    scheme: str
+    dt: float
+    error: float
+    seconds_per_case: float
+    axes: dict
+
+
+def _g(value, digits=3):
+    """A number with ``digits`` significant digits, as text."""
+    return f"{value:.{digits}g}"
+
+
+def _plain(value):
+    """A coordinate value as a JSON-friendly Python scalar."""
+    value = value.item() if isinstance(value, np.generic) else value
+    return str(value) if isinstance(value, bytes | np.str_) else value
+
+
+def _other_dims(ds):
+    return [d for d in ds["status"].dims if d not in _SWEPT_BY_SUMMARY]
+
+
+def _labels(ds, dim, index):
+    """The coordinates of position ``index`` along ``dim``: every coordinate that runs along
+    ``dim`` alone (a zipped axis has several), else the position."""
+    names = [name for name, coord in ds.coords.items() if coord.dims == (dim,)]
+    if not names:
+        return {dim: index}
+    return {name: _plain(ds[name].values[index]) for name in names}
+
+
+def _label_text(labels):
+    return ", ".join(f"{name}={_g(v) if isinstance(v, float) else v}"
+                     for name, v in labels.items())
+
+
+def _cases(ds):
+    """The cases of every value of the other swept axes: (labels, isel indexer) pairs."""
+    dims = _other_dims(ds)
+    shape = [ds.sizes[d] for d in dims]
+    for index in np.ndindex(*shape):
+        labels = {}
+        for dim, k in zip(dims, index, strict=True):
+            labels.update(_labels(ds, dim, k))
+        yield labels, dict(zip(dims, index, strict=True))
+
+
+def recommendations(ds):
+    """The cheapest accurate (scheme, dt) for every value of the other swept axes: a list of
+    `Recommendation`, with None where no case of that value meets the bound. Cheapest: the
+    smallest ``run_time``; ties go to the earlier scheme, then the larger dt (archive order)."""
+    if "accuracy" not in ds:
+        return []
+    order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
+    meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
+    cost = ds["run_time"].broadcast_like(ds["status"])
+    error = error_measure(ds, "orientation")
+    schemes = np.array(schemes_of(ds))
+    dts = np.atleast_1d(ds["dt"].values)
+    found = []
+    for labels, where in _cases(ds):
+        good = meets.isel(where).transpose(*order).values
+        seconds = np.where(good, cost.isel(where).transpose(*order).values, np.inf)
+        if not good.any():
+            found.append(None)
+            continue
+        flat = int(np.argmin(seconds))
+        position = np.unravel_index(flat, seconds.shape) if seconds.ndim else ()
+        pick = dict(zip(order, position, strict=True))
+        found.append(Recommendation(
+            scheme=str(schemes[pick.get("scheme", 0)]), dt=float(dts[pick.get("dt", 0)]),
+            error=float(error.isel(where).isel(pick)) if error is not None else math.nan,
+            seconds_per_case=float(seconds.flat[flat]), axes=labels))
+    return found
+
+
+def _uniform(ds):
+    """The cheapest (scheme, dt) that meets the bound in every case of the other axes, by
+    total kernel time: (scheme, dt, seconds per case, worst error) or None."""
+    order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
+    others = _other_dims(ds)
+    meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)).all(others)
+    cost = ds["run_time"].broadcast_like(ds["status"]).mean(others)
+    seconds = np.where(meets.transpose(*order).values, cost.transpose(*order).values, np.inf)
+    if not np.isfinite(seconds).any():
+        return None
+    flat = int(np.argmin(seconds))
+    pick = dict(zip(order, np.unravel_index(flat, seconds.shape) if seconds.ndim else (),
+                    strict=True))
+    error = error_measure(ds, "orientation")
+    worst = float(error.isel(pick).max()) if error is not None else math.nan
+    return (schemes_of(ds)[pick.get("scheme", 0)], float(np.atleast_1d(ds["dt"].values)[
+        pick.get("dt", 0)]), float(seconds.flat[flat]), worst)
+
+
+def _recommendation_findings(ds):
+    bound = ds.attrs.get("accuracy_bound")
+    if "accuracy" not in ds:
+        return [Finding(kind="no_recommendation", numbers={}, cases=(),
+                        text="no recommendation: the archive has no accuracy verdict")]
+    found = recommendations(ds)
+    if not any(found):
+        return [Finding(kind="no_recommendation", numbers={"accuracy_bound": bound}, cases=(),
+                        text=f"no scheme and step meet the accuracy bound {_g(bound)} in any "
+                             "case")]
+    result = []
+    uniform = _uniform(ds)
+    if uniform is not None:
+        scheme, dt, seconds, worst = uniform
+        everywhere = " in every case" if _other_dims(ds) else ""
+        result.append(Finding(
+            kind="recommendation", cases=({"scheme": scheme, "dt": dt},),
+            numbers={"dt_s": dt, "seconds_per_case": seconds, "error_rad": worst,
+                     "accuracy_bound": bound},
+            text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s per case, "
+                 f"error {_g(worst, 2)} rad: meets the bound {_g(bound)}{everywhere}"))
+    answers = {(r.scheme, r.dt) for r in found if r is not None}
+    if uniform is None or len(answers) > 1 or None in found:
+        groups = {}
+        for labels, pick in zip((labels for labels, _ in _cases(ds)), found, strict=True):
+            groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append(
+                (labels, pick))
+        for answer, members in groups.items():
+            where = "; ".join(_label_text(labels) for labels, _ in members)
+            if answer is None:
+                result.append(Finding(
+                    kind="no_recommendation", numbers={"accuracy_bound": bound},
+                    cases=tuple(labels for labels, _ in members),
+                    text=f"no scheme and step meet the bound {_g(bound)} at {where}"))
+                continue
+            seconds = [pick.seconds_per_case for _, pick in members]
+            errors = [pick.error for _, pick in members]
+            result.append(Finding(
+                kind="recommendation",
+                cases=tuple({"scheme": answer[0], "dt": answer[1], **labels}
+                            for labels, _ in members),
+                numbers={"dt_s": answer[1], "seconds_per_case": max(seconds),
+                         "error_rad": max(errors), "accuracy_bound": bound},
+                text=f"at {where}: {answer[0]} at dt={_g(answer[1])} s, "
+                     f"{_g(max(seconds), 2)} s per case, error {_g(max(errors), 2)} rad"))
+    return result
+
+
+def agree(first, second):
+    """Whether two arrays of errors agree to 3 digits case by case (`COINCIDENCE_RTOL`; both
+    NaN counts as agreeing: the same failure); at least one case must be finite in both."""
+    both = np.isfinite(first) & np.isfinite(second)
+    same_gap = np.isnan(first) == np.isnan(second)
+    close = np.abs(first - second) <= COINCIDENCE_RTOL * np.fmax(np.abs(first), np.abs(second))
+    return bool(both.any() and same_gap.all() and np.all(close | ~both))
+
+
+def _coincidences(ds):
+    error = error_measure(ds, "orientation")
+    if error is None or "scheme" not in error.dims:
+        return []
+    schemes = schemes_of(ds)
+    values = {s: per_scheme(error, s).values for s in schemes}
+    result = []
+    for i, first in enumerate(schemes):
+        for second in schemes[i + 1:]:
+            if agree(values[first], values[second]):
+                both = np.isfinite(values[first]) & np.isfinite(values[second])
+                gap = np.abs(values[first] - values[second])[both] / np.fmax(
+                    np.abs(values[first]), np.abs(values[second]))[both]
+                gap = float(np.nanmax(gap)) if gap.size else 0.0
+                result.append(Finding(
+                    kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
+                    numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
+                    text=f"{second} gives {first}'s final orientation errors to 3 digits in "
+                         f"all {int(both.sum())} cases: their lines overlap"))
+    return result
+
+
+def energy_rates(ds):
+    """The relative energy change per second of every case, (T_end - T0) / T0 / t_end, from
+    the stored ``energy_error`` series; None where the archive does not store it."""
+    if "energy_error" not in ds or "time" not in ds["energy_error"].dims:
+        return None
+    end = float(ds["time"].values[-1])
+    rates = ds["energy_error"].isel(time=-1) / end
+    rates.attrs["duration"] = end
+    return rates
+
+
+def _energy_text(rates, stable):
+    """(the largest rate, ``loses energy, up to 0.0012/s``) over the ``stable`` cases, or
+    (None, None) when their energy ends within `KEPT_TOLERANCE` of its start (kept)."""
+    values = rates.values[stable]
+    # a case that ends within round-off of its start energy neither gains nor loses
+    values = values[np.abs(values) * rates.attrs["duration"] >= KEPT_TOLERANCE]
+    if not values.size:
+        return None, None
+    largest = float(values[np.argmax(np.abs(values))])
+    trend = "gains" if np.all(values > 0) else "loses" if np.all(values < 0) else \
+        "gains or loses"
+    return largest, f"{trend} energy, up to {_g(abs(largest), 2)}/s"
+
+
+def _row_scheme(row):
+    return row["scheme"].split(",")[0]
+
+
+def _verdict(ds, row, rates):
+    name, numbers = row["scheme"], {}
+    floor = ERROR_MEASURES["orientation"][2]
+    largest = row.get("error")
+    if row["order"] is None and largest is not None and np.isfinite(largest) and \
+            largest <= floor:
+        parts = ["exact to round-off"]
+        numbers["error_rad"] = largest
+    elif row["order"] is not None:
+        numbers["order_low"], numbers["order_high"] = row["order"]
+        parts = [f"order {order_text(row)}"
+                 + (f" (nominal {row['nominal']})" if row["nominal"] is not None else "")]
+    else:
+        parts = ["no order fitted"]
+    if row["nominal"] is not None:
+        numbers["nominal_order"] = row["nominal"]
+    if np.isfinite(row["accurate_hw"]):
+        numbers["accurate_up_to_dt_w0"] = row["accurate_hw"]
+        parts.append(f"accurate up to dt|w0| {_g(row['accurate_hw'])}")
+    parts.append("keeps " + ", ".join(row["kept"]) if row["kept"] else "keeps no invariant")
+    scheme = _row_scheme(row)
+    if rates is not None and INVARIANTS["energy"] not in row["kept"]:
+        status = per_scheme(ds["status"], scheme).values
+        rate, text = _energy_text(per_scheme(rates, scheme), status == 0)
+        if text:
+            numbers["energy_rate_per_s"] = rate
+            parts.append(text)
+    if row["unstable"]:
+        numbers["failed_cases"] = row["unstable"]
+        start = f" from dt|w0| {_g(row['unstable_hw'])}" if np.isfinite(row["unstable_hw"]) \
+            else ""
+        numbers["first_failed_dt_w0"] = row["unstable_hw"]
+        parts.append(f"blows up in {row['unstable']}/{row['cases']}{start}")
+    if row["radioss"]:
+        numbers["past_radioss_limit"] = row["radioss"]
+        parts.append(f"past the Radioss limit in {row['radioss']}/{row['cases']}")
+    numbers["cases"] = row["cases"]
+    return Finding(kind="verdict", text=f"{name}: " + "; ".join(parts), numbers=numbers,
+                   cases=({"scheme": scheme},))
+
+
+def _series(values):
+    shown = [v if isinstance(v, str) else _g(v) for v in values[:_SHOWN_VALUES]]
+    return ", ".join(shown) + (", ..." if len(values) > _SHOWN_VALUES else "")
+
+
+def _questions(ds, rates):
+    """Per swept axis other than scheme and dt, per scheme: how the order and the energy
+    change (dt swept) or the accuracy verdicts change (dt fixed) along it."""
+    result = []
+    for dim in _other_dims(ds):
+        size = ds.sizes[dim]
+        values = ["/".join(_g(v) if isinstance(v, float) else str(v)
+                           for v in _labels(ds, dim, k).values()) for k in range(size)]
+        axis = "/".join(_labels(ds, dim, 0))
+        per_value = [scheme_rows(ds.isel({dim: k})) for k in range(size)]
+        for scheme in schemes_of(ds):
+            rows = [next(r for r in rows if _row_scheme(r) == scheme) for rows in per_value]
+            numbers = {"values": [_labels(ds, dim, k) for k in range(size)]}
+            if "dt" in ds["status"].dims:
+                numbers["order"] = [None if r["order"] is None else r["order"][0]
+                                    for r in rows]
+                parts = [f"order {_series([order_text(r) for r in rows])}"]
+                if rates is not None:
+                    along = per_scheme(rates, scheme)
+                    status = per_scheme(ds["status"], scheme)
+                    changes = [_energy_text(along.isel({dim: k}),
+                                            status.isel({dim: k}).values == 0)[0]
+                               for k in range(size)]
+                    if any(c is not None for c in changes):
+                        numbers["energy_rate_per_s"] = changes
+                        parts.append("energy " + _series(
+                            ["kept" if c is None else f"{c:+.1e}/s" for c in changes]))
+            else:
+                numbers["accurate_cases"] = [r["cases"] - r["unstable"] - (r["inaccurate"] or 0)
+                                             - r["unjudged"] for r in rows]
+                numbers["failed_cases"] = [r["unstable"] for r in rows]
+                parts = ["accurate " + _series([f"{a}/{r['cases']}" for a, r in
+                                                zip(numbers["accurate_cases"], rows,
+                                                    strict=True)]),
+                         "failed " + _series([f"{r['unstable']}/{r['cases']}" for r in rows])]
+            result.append(Finding(
+                kind="question", numbers=numbers, cases=({"scheme": scheme},),
+                text=f"{scheme} over {axis} {_series(values)}: " + "; ".join(parts)))
+    return result
+
+
+def findings(ds):
+    """The findings of a study dataset, most important first: a list of `Finding`."""
+    rates = energy_rates(ds)
+    return (_recommendation_findings(ds) + _coincidences(ds) + _questions(ds, rates)
+            + [_verdict(ds, row, rates) for row in scheme_rows(ds)])
+
+
+# The table's fields for scripts: (JSON/CSV name, row key). Units are in the names.
+_RECORD_FIELDS = (
+    ("scheme", "scheme"), ("nominal_order", "nominal"), ("cases", "cases"),
+    ("failed_cases", "unstable"), ("inaccurate_cases", "inaccurate"),
+    ("unjudged_cases", "unjudged"), ("past_radioss_limit_cases", "radioss"),
+    ("order_low", None), ("order_high", None), ("fits", "fits"), ("fit_tries", "tries"),
+    ("error_rad", "error"), ("error_dt_s", "error_dt"),
+    ("error_small_dt_rad", "error_small"), ("small_dt_s", "error_small_dt"),
+    ("ns_per_body_step", "ns_per_step"), ("accurate_up_to_dt_w0", "accurate_hw"),
+    ("first_inaccurate_dt_w0", "inaccurate_hw"), ("first_failed_dt_w0", "unstable_hw"),
+    ("kept", "kept"),
+)
+
+
+def _json_value(value):
+    """``value`` with every non-finite number as None (JSON has no NaN), tuples as lists and
+    numpy scalars as Python's."""
+    if isinstance(value, dict):
+        return {str(k): _json_value(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_value(v) for v in value]
+    value = _plain(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def table_records(rows):
+    """The per-scheme rows (`scheme_rows`) as flat records of named fields, units in the
+    names; a value the row lacks or that is not finite (a failed case) is None."""
+    records = []
+    for row in rows:
+        record = {}
+        for name, key in _RECORD_FIELDS:
+            if key is None:  # the fitted order's range
+                order = row["order"]
+                value = None if order is None else order[0 if name == "order_low" else 1]
+            else:
+                value = row.get(key)
+            record[name] = _json_value(value)
+        records.append(record)
+    return records
+
+
+def summary_document(ds):
+    """The JSON form of `rbstudy summary` (docs/outputs.md): study, findings, recommended
+    (one record per value of the other swept axes; scheme and dt None where no case there
+    meets the bound) and schemes (`table_records`)."""
+    recommended = []
+    for (labels, _), pick in zip(_cases(ds), recommendations(ds), strict=True):
+        fields = dict.fromkeys(("scheme", "dt", "error", "seconds_per_case")) if pick is None \
+            else {"scheme": pick.scheme, "dt": pick.dt, "error": pick.error,
+                  "seconds_per_case": pick.seconds_per_case}
+        recommended.append({**fields, **labels})
+    return _json_value({
+        "study": str(ds.attrs["study"]),
+        "findings": [dataclasses.asdict(finding) for finding in findings(ds)],
+        "recommended": recommended,
+        "schemes": table_records(scheme_rows(ds)),
+    })
+
+
+def finding_lines(found):
+    """The texts of ``found``, at most `MAX_FINDING_LINES` lines: the last says how many more
+    the JSON form holds."""
+    texts = [finding.text for finding in found]
+    if len(texts) <= MAX_FINDING_LINES:
+        return texts
+    kept = MAX_FINDING_LINES - 1
+    return texts[:kept] + [f"({len(texts) - kept} more findings: --format json lists them all)"]
+
+
+def _cell(value):
+    if value is None:
+        return "-"
+    if isinstance(value, list):
+        return ", ".join(map(str, value)) or "-"
+    return _g(value) if isinstance(value, float) else str(value)
+
+
+def markdown_summary(ds):
+    """The findings as a list and the table's records as a Markdown table."""
+    records = table_records(scheme_rows(ds))
+    names = list(records[0])
+    lines = [f"## {ds.attrs['study']}", ""] + [f"- {text}" for text in
+                                                finding_lines(findings(ds))] + ["",
+             "| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
+    lines += ["| " + " | ".join(_cell(record[name]).replace("|", "\\|") for name in names)
+              + " |" for record in records]  # |L| would end a cell
+    return "\n".join(lines)
+
+
+def csv_rows(ds):
+    """The table's records with the study's name first, as rows for `csv.DictWriter`."""
+    return [{"study": str(ds.attrs["study"]), **{name: _cell(value) if isinstance(value, list)
+                                                 else value for name, value in record.items()}}
+            for record in table_records(scheme_rows(ds))]

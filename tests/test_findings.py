@@ -1,0 +1,232 @@
+"""The findings (`rbstudy.analysis.findings`) and `rbstudy summary`, on every shipped study.
+
+Every shipped config is swept as a reduced copy (five schemes, three steps, two values of
+every other axis, five output intervals), and each finding is recomputed here from the
+archive's variables with numpy alone: the recommendation, the coincidences and the verdicts'
+numbers. A finding that is not true is as wrong as a wrong error value.
+"""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from conftest import CONFIGS, copy_node_tables
+
+from rbstudy.analysis.findings import findings, recommendations
+from rbstudy.cli import main
+from rbstudy.pipeline.archive import open_archive
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+
+SHIPPED = sorted(path.stem for path in CONFIGS.glob("*.yaml"))
+# What a reduced copy keeps of each swept axis.
+# "all" becomes these: cheap ones, and those with the shipped configs' options (alpha, composition)
+_SCHEMES = ["euler", "leapfrog", "rk4", "hht", "splitting"]
+_STEPS, _VALUES, _INTERVALS = 3, 2, 5
+
+
+def _reduced_axis(name, axis):
+    if name == "scheme":
+        return _SCHEMES if axis == "all" else axis[:3]
+    if isinstance(axis, list):
+        return axis[:_STEPS if name == "dt" else _VALUES]
+    if "halving" in axis:
+        return {**axis, "count": _STEPS}
+    if "zip" == name:
+        return {key: {inner: _reduced_axis(inner, value) for inner, value in zipped.items()}
+                for key, zipped in axis.items()}
+    kind, (low, high, _) = next(iter(axis.items()))  # logspace / linspace
+    return {kind: [low, high, _VALUES]}
+
+
+def _reduced(config):
+    config["sweep"] = {name: _reduced_axis(name, axis)
+                       for name, axis in config.get("sweep", {}).items()}
+    config["scene"]["duration"] = _INTERVALS * config["output"]["interval"]
+    return config
+
+
+@pytest.fixture(scope="module")
+def archives(tmp_path_factory):
+    """Study name -> the archive of its reduced copy."""
+    folder = tmp_path_factory.mktemp("shipped")
+    copy_node_tables(folder)
+    paths = {}
+    for name in SHIPPED:
+        config = _reduced(yaml.safe_load((CONFIGS / f"{name}.yaml").read_text()))
+        path = folder / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(config, sort_keys=False))
+        paths[name] = run_study(load_study(path), folder / "out", quiet=True).path
+    return paths
+
+
+def _others(ds):
+    return [d for d in ds["status"].dims if d not in ("scheme", "dt")]
+
+
+def _first_axes(ds):
+    """The scheme and dt dimensions that are swept, in that order."""
+    return [d for d in ("scheme", "dt") if d in ds["status"].dims]
+
+
+def _expected_picks(ds):
+    """The cheapest accurate (scheme, dt, run_time) per value of the other axes, numpy only."""
+    status, accuracy = ds["status"], ds["accuracy"]
+    order = _first_axes(ds) + _others(ds)
+    good = ((accuracy.values == 0) & (status.values == 0))
+    good = np.moveaxis(good, [status.dims.index(d) for d in order], range(len(order)))
+    cost = np.moveaxis(np.broadcast_to(ds["run_time"].values, status.shape),
+                       [status.dims.index(d) for d in order], range(len(order)))
+    lead = len(_first_axes(ds))
+    schemes = np.atleast_1d(ds["scheme"].values)
+    dts = np.atleast_1d(ds["dt"].values)
+    picks = []
+    for index in np.ndindex(*good.shape[lead:]):
+        here = (Ellipsis, *index)
+        seconds = np.where(good[here], cost[here], np.inf)
+        if not np.isfinite(seconds).any():
+            picks.append(None)
+            continue
+        at = dict(zip(_first_axes(ds), np.unravel_index(np.argmin(seconds), seconds.shape),
+                      strict=True))
+        picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]),
+                      float(seconds.min())))
+    return picks
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_recommendation_is_the_cheapest_accurate_case(archives, name):
+    ds = open_archive(archives[name])
+    expected = _expected_picks(ds)
+    found = recommendations(ds)
+    assert [None if r is None else (r.scheme, r.dt, r.seconds_per_case) for r in found] \
+        == expected
+    first = findings(ds)[0]
+    if not any(expected):
+        assert first.kind == "no_recommendation"
+        assert "no scheme and step meet" in first.text
+        return
+    # the whole study's answer: every case of the other axes accurate, least mean run_time
+    axes = _first_axes(ds)
+    ok = ((ds["accuracy"] == 0) & (ds["status"] == 0)).all(_others(ds)).transpose(*axes).values
+    mean = ds["run_time"].broadcast_like(ds["status"]).mean(_others(ds)).transpose(*axes).values
+    if ok.any():
+        at = np.unravel_index(np.argmin(np.where(ok, mean, np.inf)), ok.shape)
+        pick = dict(zip(axes, at, strict=True))
+        scheme = str(np.atleast_1d(ds["scheme"].values)[pick.get("scheme", 0)])
+        assert first.kind == "recommendation"
+        assert first.cases[0]["scheme"] == scheme
+        assert first.numbers["dt_s"] == float(np.atleast_1d(ds["dt"].values)[pick.get("dt", 0)])
+        assert first.text.startswith(f"recommended: {scheme} at dt=")
+
+
+def _agree(a, b):
+    finite = np.isfinite(a) & np.isfinite(b)
+    if not finite.any() or (np.isnan(a) != np.isnan(b)).any():
+        return False
+    return bool(np.all(np.abs(a[finite] - b[finite])
+                       <= 5e-4 * np.maximum(np.abs(a[finite]), np.abs(b[finite]))))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_coincidences_are_exactly_the_schemes_agreeing_to_three_digits(archives, name):
+    ds = open_archive(archives[name])
+    found = {tuple(case["scheme"] for case in f.cases) for f in findings(ds)
+             if f.kind == "coincidence"}
+    expected = set()
+    if "final_orientation_error" in ds and "scheme" in ds["status"].dims:
+        errors = ds["final_orientation_error"].transpose("scheme", ...).values
+        schemes = [str(s) for s in ds["scheme"].values]
+        expected = {(schemes[i], schemes[j]) for i in range(len(schemes))
+                    for j in range(i + 1, len(schemes))
+                    if _agree(np.abs(errors[i]), np.abs(errors[j]))}
+    assert found == expected
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
+    ds = open_archive(archives[name])
+    verdicts = {f.cases[0]["scheme"]: f for f in findings(ds) if f.kind == "verdict"}
+    for scheme in np.atleast_1d(ds["scheme"].values):
+        scheme = str(scheme)
+        pick = {"scheme": scheme} if "scheme" in ds["status"].dims else {}
+        status = ds["status"].sel(pick).values
+        found = verdicts[scheme]
+        assert found.text.startswith(scheme)
+        failed = int((status != 0).sum())
+        assert ("blows up" in found.text) == (failed > 0)
+        assert found.numbers.get("failed_cases", 0) == failed
+        radioss = int((ds["radioss_dt_limit"].sel(pick).values == 1).sum())
+        assert found.numbers.get("past_radioss_limit", 0) == radioss
+        if failed:
+            load = (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"]).sel(pick).values
+            real = (ds["physical_body"].broadcast_like(ds["status"]).sel(pick).values == 1)
+            first = load[(status != 0) & real]
+            assert found.numbers["first_failed_dt_w0"] == pytest.approx(first.min()) \
+                if first.size else np.isnan(found.numbers["first_failed_dt_w0"])
+        kept = np.nanmax(ds["max_energy_error"].sel(pick).values[status == 0], initial=0) \
+            < 1e-10 if "max_energy_error" in ds else True
+        if "energy_error" in ds and not kept:
+            end = ds["energy_error"].sel(pick).isel(time=-1).values[status == 0]
+            end = end[np.abs(end) >= 1e-10]  # NaN and round-off left out
+            if end.size:
+                largest = end[np.argmax(np.abs(end))] / float(ds["time"][-1])
+                assert found.numbers["energy_rate_per_s"] == pytest.approx(largest)
+                word = "gains" if np.all(end > 0) else "loses" if np.all(end < 0) else \
+                    "gains or loses"
+                assert f"; {word} energy, up to " in found.text
+
+
+def test_the_study_question_states_the_order_per_value_of_the_swept_option(archives):
+    ds = open_archive(archives["hht_damping"])
+    question = next(f for f in findings(ds) if f.kind == "question")
+    assert question.text.startswith("hht over alpha 0, -0.05: order ")
+    assert len(question.numbers["order"]) == 2  # one per alpha, not a folded range
+
+
+def test_summary_json_keeps_its_contract(archives, capsys):
+    assert main(["summary", str(archives["abaqus_top"]), "--format", "json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert set(document) == {"study", "findings", "recommended", "schemes"}
+    assert document["study"] == "abaqus_top"
+    assert all(set(f) == {"kind", "text", "numbers", "cases"} for f in document["findings"])
+    ds = open_archive(archives["abaqus_top"])
+    expected = _expected_picks(ds)
+    ratios = ds["inertia_ratio"].values
+    assert [(r["scheme"], r["dt"], r["seconds_per_case"], r["inertia_ratio"])
+            for r in document["recommended"]] == [(*pick, float(ratio))
+                                                  for pick, ratio in zip(expected, ratios,
+                                                                         strict=True)]
+    for record in document["recommended"]:
+        case = ds["final_orientation_error"].sel(scheme=record["scheme"], dt=record["dt"],
+                                                 inertia_ratio=record["inertia_ratio"])
+        assert record["error"] == float(abs(case))
+    assert [row["scheme"] for row in document["schemes"]] == _SCHEMES
+    assert {"error_rad", "ns_per_body_step", "accurate_up_to_dt_w0"} <= set(
+        document["schemes"][0])
+
+
+def test_no_recommendation_when_no_case_meets_the_bound(tmp_path, capsys):
+    config = _reduced(yaml.safe_load((CONFIGS / "abaqus_top.yaml").read_text()))
+    config["sweep"]["inertia_ratio"] = [2.0]
+    config["output"]["accuracy_bound"] = 1e-12  # below every scheme's error at these steps
+    path = tmp_path / "abaqus_top.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    archive = run_study(load_study(path), tmp_path / "out", quiet=True).path
+    assert main(["summary", str(archive)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "no scheme and step meet the accuracy bound 1e-12 in any case"
+    assert "recommended" not in out
+    assert main(["summary", str(archive), "--format", "json"]) == 0
+    assert all(r["scheme"] is None for r in json.loads(capsys.readouterr().out)["recommended"])
+
+
+def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys):
+    text = tmp_path / "notes.nc"
+    text.write_text("not netCDF\n")
+    assert main(["summary", str(text), "--format", "json"]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err == (f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
+                            "file; give the <study>.nc written by rbstudy sweep\n")
