@@ -4,7 +4,7 @@
 
 1. the recommendation: the cheapest scheme and step that meet the study's accuracy bound
    (the archive's per-case ``accuracy`` verdict: orientation error at every sample, energy and
-   ``|L|`` drift), costed by the kernel time per case (``run_time``); one for the whole
+   ``|L|`` drift), costed by the kernel time per case (`case_seconds`); one for the whole
    study, then one per distinct answer where the values of the other swept axes disagree, or
    a statement that no case meets the bound;
 2. coincidences: schemes whose final orientation errors agree to 3 digits in every case;
@@ -37,7 +37,7 @@ from rbstudy.numerics.state import INVARIANTS
 __all__ = ["Finding", "Recommendation", "findings", "recommendations", "COINCIDENCE_RTOL",
            "table_records", "VERDICT_ACCURATE", "MAX_FINDING_LINES", "summary_document",
            "finding_lines", "markdown_summary", "csv_rows", "agree", "energy_rates",
-           "FINDINGS_VARIABLES"]
+           "FINDINGS_VARIABLES", "case_seconds"]
 
 # What `findings` reads: the table's per-case scalars, and the energy series whose last value
 # says whether a scheme gains or loses energy.
@@ -124,15 +124,29 @@ def _cases(ds):
         yield labels, dict(zip(dims, index, strict=True))
 
 
+def case_seconds(ds):
+    """The kernel seconds of every case (the shape of ``status``): its steps (``n_steps``)
+    at its scheme's seconds per step, pooled over the swept ``dt`` (the summed ``run_time``
+    over the summed steps, at the same values of the other axes). One case's ``run_time`` of
+    microseconds is mostly timer noise, and picked the cheapest of two schemes by chance; the
+    pooled rate is measured over the longest runs, and keeps the cost proportional to the
+    steps along ``dt``."""
+    run_time = ds["run_time"].broadcast_like(ds["status"])
+    steps = ds["n_steps"].broadcast_like(ds["status"]).astype(float)
+    if "dt" not in run_time.dims:
+        return run_time
+    return steps * (run_time.sum("dt") / steps.sum("dt"))
+
+
 def recommendations(ds):
     """The cheapest accurate (scheme, dt) for every value of the other swept axes: a list of
     `Recommendation`, with None where no case of that value meets the bound. Cheapest: the
-    smallest ``run_time``; ties go to the earlier scheme, then the larger dt (archive order)."""
+    least `case_seconds`; ties go to the earlier scheme, then the larger dt (archive order)."""
     if "accuracy" not in ds:
         return []
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
-    cost = ds["run_time"].broadcast_like(ds["status"])
+    cost = case_seconds(ds)
     error = error_measure(ds, "orientation")
     schemes = np.array(schemes_of(ds))
     dts = np.atleast_1d(ds["dt"].values)
@@ -159,7 +173,7 @@ def _uniform(ds):
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     others = _other_dims(ds)
     meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)).all(others)
-    cost = ds["run_time"].broadcast_like(ds["status"]).mean(others)
+    cost = case_seconds(ds).mean(others)
     seconds = np.where(meets.transpose(*order).values, cost.transpose(*order).values, np.inf)
     if not np.isfinite(seconds).any():
         return None
