@@ -8,10 +8,11 @@
    study, then one per distinct answer where the values of the other swept axes disagree, or
    a statement that no case meets the bound;
 2. coincidences: schemes whose final orientation errors agree to 3 digits in every case;
-3. the study's own question, for every swept axis other than scheme and ``dt`` (a scheme
+3. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`;
+4. the study's own question, for every swept axis other than scheme and ``dt`` (a scheme
    option, a body parameter): the order and energy change per value where ``dt`` is swept,
-   the accuracy verdicts per value where it is not;
-4. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`.
+   the accuracy verdicts per value where it is not. A scheme along which nothing changes is
+   left to its verdict; a line wider than `MAX_LINE` is told a part a line.
 
 Orders, invariants kept and the ``dt |w0|`` ranges are the summary's own: nothing here fits
 or measures anything the table does not, so the words and the table cannot disagree.
@@ -19,6 +20,7 @@ or measures anything the table does not, so the words and the table cannot disag
 
 import dataclasses
 import math
+import textwrap
 
 import numpy as np
 
@@ -52,6 +54,9 @@ MAX_FINDING_LINES = 12
 # The per-value lines of the study's question name at most this many values; more are cut
 # with "..." (JSON carries them all).
 _SHOWN_VALUES = 6
+# A finding's line is at most this wide where it can be (a terminal of 100 columns): a
+# question whose parts do not fit together is told in a line per part.
+MAX_LINE = 100
 _SWEPT_BY_SUMMARY = ("scheme", "dt")
 
 
@@ -111,6 +116,19 @@ def _labels(ds, dim, index):
 def _label_text(labels):
     return ", ".join(f"{name}={_g(v) if isinstance(v, float) else v}"
                      for name, v in labels.items())
+
+
+def _where(labels):
+    """Where a recommendation holds, short: the values of each coordinate named in ``labels``
+    (a list of `_labels` mappings), ``inertia_ratio 0.5, 1.5, 2``; a zipped axis's index is
+    left out beside its coordinates, and more than `_SHOWN_VALUES` values are cut."""
+    names = list(labels[0])
+    if len(names) > 1:  # a zipped axis: its index (the axis's own name) says nothing
+        names = [name for name in names if not any(name == f"{a}_{b}" or "_" in name
+                                                   and name.split("_")[0] in names
+                                                   for a in names for b in names)] or names
+    return "; ".join(f"{name} " + _series([label[name] for label in labels])
+                     for name in names)
 
 
 def _cases(ds):
@@ -200,13 +218,13 @@ def _recommendation_findings(ds):
     uniform = _uniform(ds)
     if uniform is not None:
         scheme, dt, seconds, worst = uniform
-        everywhere = " in every case" if _other_dims(ds) else ""
+        everywhere = ", every case" if _other_dims(ds) else ""
         result.append(Finding(
             kind="recommendation", cases=({"scheme": scheme, "dt": dt},),
             numbers={"dt_s": dt, "seconds_per_case": seconds, "error_rad": worst,
                      "accuracy_bound": bound},
-            text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s per case, "
-                 f"error {_g(worst, 2)} rad: meets the bound {_g(bound)}{everywhere}"))
+            text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s a case, error "
+                 f"{_g(worst)} rad (bound {_g(bound)}{everywhere})"))
     answers = {(r.scheme, r.dt) for r in found if r is not None}
     if uniform is None or len(answers) > 1 or None in found:
         groups = {}
@@ -214,7 +232,7 @@ def _recommendation_findings(ds):
             groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append(
                 (labels, pick))
         for answer, members in groups.items():
-            where = "; ".join(_label_text(labels) for labels, _ in members)
+            where = _where([labels for labels, _ in members])
             if answer is None:
                 result.append(Finding(
                     kind="no_recommendation", numbers={"accuracy_bound": bound},
@@ -230,7 +248,7 @@ def _recommendation_findings(ds):
                 numbers={"dt_s": answer[1], "seconds_per_case": max(seconds),
                          "error_rad": max(errors), "accuracy_bound": bound},
                 text=f"at {where}: {answer[0]} at dt={_g(answer[1])} s, "
-                     f"{_g(max(seconds), 2)} s per case, error {_g(max(errors), 2)} rad"))
+                     f"{_g(max(seconds), 2)} s a case, error {_g(max(errors))} rad"))
     return result
 
 
@@ -260,8 +278,8 @@ def _coincidences(ds):
                 result.append(Finding(
                     kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
                     numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
-                    text=f"{second} gives {first}'s final orientation errors to 3 digits in "
-                         f"all {int(both.sum())} cases: their lines overlap"))
+                    text=f"{second} gives {first}'s errors to 3 digits in all "
+                         f"{int(both.sum())} cases (their lines overlap)"))
     return result
 
 
@@ -312,8 +330,8 @@ def _verdict(ds, row, rates):
         numbers["nominal_order"] = row["nominal"]
     if np.isfinite(row["accurate_hw"]):
         numbers["accurate_up_to_dt_w0"] = row["accurate_hw"]
-        parts.append(f"accurate up to dt|w0| {_g(row['accurate_hw'])}")
-    parts.append("keeps " + ", ".join(row["kept"]) if row["kept"] else "keeps no invariant")
+        parts.append(f"accurate to dt|w0| {_g(row['accurate_hw'])}")
+    parts.append("keeps " + (", ".join(row["kept"]) or "none"))
     scheme = _row_scheme(row)
     if rates is not None and INVARIANTS["energy"] not in row["kept"]:
         status = per_scheme(ds["status"], scheme).values
@@ -326,10 +344,10 @@ def _verdict(ds, row, rates):
         start = f" from dt|w0| {_g(row['unstable_hw'])}" if np.isfinite(row["unstable_hw"]) \
             else ""
         numbers["first_failed_dt_w0"] = row["unstable_hw"]
-        parts.append(f"blows up in {row['unstable']}/{row['cases']}{start}")
+        parts.append(f"fails {row['unstable']}/{row['cases']}{start}")
     if row["radioss"]:
         numbers["past_radioss_limit"] = row["radioss"]
-        parts.append(f"past the Radioss limit in {row['radioss']}/{row['cases']}")
+        parts.append(f"past Radioss limit {row['radioss']}/{row['cases']}")
     numbers["cases"] = row["cases"]
     return Finding(kind="verdict", text=f"{name}: " + "; ".join(parts), numbers=numbers,
                    cases=({"scheme": scheme},))
@@ -342,7 +360,8 @@ def _series(values):
 
 def _questions(ds, rates):
     """Per swept axis other than scheme and dt, per scheme: how the order and the energy
-    change (dt swept) or the accuracy verdicts change (dt fixed) along it."""
+    change (dt swept) or the accuracy verdicts change (dt fixed) along it; a scheme along
+    which nothing changes is left to its verdict."""
     result = []
     for dim in _other_dims(ds):
         size = ds.sizes[dim]
@@ -356,7 +375,8 @@ def _questions(ds, rates):
             if "dt" in ds["status"].dims:
                 numbers["order"] = [None if r["order"] is None else r["order"][0]
                                     for r in rows]
-                parts = [f"order {_series([order_text(r) for r in rows])}"]
+                orders = [order_text(r) for r in rows]
+                parts, serieses = [f"order {_series(orders)}"], [orders]
                 if rates is not None:
                     along = per_scheme(rates, scheme)
                     status = per_scheme(ds["status"], scheme)
@@ -365,27 +385,35 @@ def _questions(ds, rates):
                                for k in range(size)]
                     if any(c is not None for c in changes):
                         numbers["energy_rate_per_s"] = changes
-                        parts.append("energy " + _series(
-                            ["kept" if c is None else f"{c:+.1e}/s" for c in changes]))
+                        energy = ["kept" if c is None else f"{c:+.1e}" for c in changes]
+                        parts.append("energy per s " + _series(energy))
+                        serieses.append(energy)
             else:
                 numbers["accurate_cases"] = [r["cases"] - r["unstable"] - (r["inaccurate"] or 0)
                                              - r["unjudged"] for r in rows]
                 numbers["failed_cases"] = [r["unstable"] for r in rows]
-                parts = ["accurate " + _series([f"{a}/{r['cases']}" for a, r in
-                                                zip(numbers["accurate_cases"], rows,
-                                                    strict=True)]),
-                         "failed " + _series([f"{r['unstable']}/{r['cases']}" for r in rows])]
-            result.append(Finding(
-                kind="question", numbers=numbers, cases=({"scheme": scheme},),
-                text=f"{scheme} over {axis} {_series(values)}: " + "; ".join(parts)))
+                accurate = [f"{a}/{r['cases']}" for a, r in
+                            zip(numbers["accurate_cases"], rows, strict=True)]
+                failed = [f"{r['unstable']}/{r['cases']}" for r in rows]
+                parts = [f"accurate {_series(accurate)}", f"failed {_series(failed)}"]
+                serieses = [accurate, failed]
+            if all(len(set(series)) == 1 for series in serieses):
+                continue  # nothing changes along the axis: the verdict line says it once
+            head = f"{scheme} over {axis} {_series(values)}: "
+            texts = [head + "; ".join(parts)]
+            if len(texts[0]) > MAX_LINE:  # a line a part, those that change along the axis
+                texts = [head + part for part, series in zip(parts, serieses, strict=True)
+                         if len(set(series)) > 1]
+            result.extend(Finding(kind="question", numbers=numbers, cases=({"scheme": scheme},),
+                                  text=text) for text in texts)
     return result
 
 
 def findings(ds):
     """The findings of a study dataset, most important first: a list of `Finding`."""
     rates = energy_rates(ds)
-    return (_recommendation_findings(ds) + _coincidences(ds) + _questions(ds, rates)
-            + [_verdict(ds, row, rates) for row in scheme_rows(ds)])
+    return (_recommendation_findings(ds) + _coincidences(ds)
+            + [_verdict(ds, row, rates) for row in scheme_rows(ds)] + _questions(ds, rates))
 
 
 # The table's fields for scripts: (JSON/CSV name, row key). Units are in the names.
@@ -451,13 +479,19 @@ def summary_document(ds):
 
 
 def finding_lines(found):
-    """The texts of ``found``, at most `MAX_FINDING_LINES` lines: the last says how many more
-    the JSON form holds."""
-    texts = [finding.text for finding in found]
-    if len(texts) <= MAX_FINDING_LINES:
-        return texts
-    kept = MAX_FINDING_LINES - 1
-    return texts[:kept] + [f"({len(texts) - kept} more findings: --format json lists them all)"]
+    """The texts of ``found``, each wrapped at `MAX_LINE` (later lines indented), at most
+    `MAX_FINDING_LINES` lines: the last says how many more the JSON form holds."""
+    lines = [textwrap.wrap(finding.text, MAX_LINE, subsequent_indent="  ",
+                           break_on_hyphens=False) for finding in found]
+    if sum(map(len, lines)) <= MAX_FINDING_LINES:
+        return [line for wrapped in lines for line in wrapped]
+    shown = []
+    for count, wrapped in enumerate(lines):
+        if len(shown) + len(wrapped) > MAX_FINDING_LINES - 1:
+            more = len(lines) - count
+            return shown + [f"({more} more findings: --format json lists them all)"]
+        shown += wrapped
+    return shown
 
 
 def _cell(value):
