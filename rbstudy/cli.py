@@ -126,6 +126,14 @@ def _study_folders(studies, args):
     return read_only
 
 
+def _say(text):
+    """Print ``text`` with each line within the summary table's width, the lines that
+    continue one indented (`rbstudy.analysis.summary.wrap_clauses`)."""
+    from rbstudy.analysis.summary import wrap_clauses
+    print("\n".join(short for line in text.splitlines()
+                     for short in wrap_clauses(line, indent="  ")))
+
+
 def _each_file(paths, say):
     """``path: say(path)`` for every path; a file that fails gets its one-line error and the
     others are still done; exit 1 if any failed."""
@@ -177,30 +185,30 @@ def _sweep(args):
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
     for study, line, replaced in zip(studies, lines, replaces, strict=True):
         if not args.quiet and study.name not in read_only:  # nothing to forecast there
-            print(line)
+            _say(line)
         if replaced:  # even when quiet: it says whose results the run deletes
-            print(replaced)
+            _say(replaced)
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
                          force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
                          cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)
         if done.archive_problems:
-            print(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
-                  "rebuilt it")
+            _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
+                 "rebuilt it")
         if done.damaged_parts:
-            print(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
-                  "match their checksums) recomputed")
+            _say(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
+                 "match their checksums) recomputed")
         if done.up_to_date:
-            print(f"{study.name}: {done.path} is up to date (the same config and code); "
-                  "--force recomputes it")
+            _say(f"{study.name}: {done.path} is up to date (the same config and code); "
+                 "--force recomputes it")
         else:
-            print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
-                  f"{done.wall_seconds:.1f} s; wrote {done.path}")
+            _say(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+                 f"{done.wall_seconds:.1f} s; wrote {done.path}")
         if done.returned:
-            print(f"{study.name}: {done.returned} parts written here from the values the "
-                  "workers sent back (they do not see the results folder)")
+            _say(f"{study.name}: {done.returned} parts written here from the values the "
+                 "workers sent back (they do not see the results folder)")
         # proven by this run: sealed as written, or verified before it was reused
         print(format_table(scheme_rows(open_archive(done.path, SUMMARY_VARIABLES,
-                                                    verify=False))))
+                                                    verify=False)), wide=args.wide))
     return 0
 
 
@@ -284,13 +292,13 @@ def _conformance(args):
               f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
               "archives it finds)", f"studies and archives: {out}"]
     print(format_scorecard(cells, names))
-    print("\n".join(header))
+    _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
              "steps": args.steps, "source": f"rbstudy {_version()}"}
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
                                      header), out / "conformance.html")
-    print(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
+    _say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
     return 0
 
 
@@ -364,6 +372,9 @@ def build_parser():
                        help="keep parts/ after the archive is written (a changed config then "
                             "reuses the batches it shares)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
+    sweep.add_argument("--wide", action="store_true",
+                       help="print every column of the summary table (default: the columns "
+                            "that fit 100 characters)")
     _limit_arguments(sweep)
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs and forecast their "
