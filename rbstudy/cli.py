@@ -128,6 +128,14 @@ def _study_folders(studies, args):
     return read_only
 
 
+def _say(text):
+    """Print ``text`` with each line within the summary table's width, the lines that
+    continue one indented (`rbstudy.analysis.summary.wrap_clauses`)."""
+    from rbstudy.analysis.summary import wrap_clauses
+    print("\n".join(short for line in text.splitlines()
+                     for short in wrap_clauses(line, indent="  ")))
+
+
 def _each_file(paths, say):
     """``path: say(path)`` for every path; a file that fails gets its one-line error and the
     others are still done; exit 1 if any failed."""
@@ -179,37 +187,39 @@ def _sweep(args):
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
     for study, line, replaced in zip(studies, lines, replaces, strict=True):
         if not args.quiet and study.name not in read_only:  # nothing to forecast there
-            print(line)
+            _say(line)
         if replaced:  # even when quiet: it says whose results the run deletes
-            print(replaced)
+            _say(replaced)
         done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
                          force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
                          cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)
         if done.archive_problems:
-            print(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
-                  "rebuilt it")
+            _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
+                 "rebuilt it")
         if done.damaged_parts:
-            print(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
-                  "match their checksums) recomputed")
+            _say(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
+                 "match their checksums) recomputed")
         if done.up_to_date:
-            print(f"{study.name}: {done.path} is up to date (the same config and code); "
-                  "--force recomputes it")
+            _say(f"{study.name}: {done.path} is up to date (the same config and code); "
+                 "--force recomputes it")
         else:
-            print(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
-                  f"{done.wall_seconds:.1f} s; wrote {done.path}")
+            _say(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+                 f"{done.wall_seconds:.1f} s; wrote {done.path}")
         if done.returned:
-            print(f"{study.name}: {done.returned} parts written here from the values the "
-                  "workers sent back (they do not see the results folder)")
+            _say(f"{study.name}: {done.returned} parts written here from the values the "
+                 "workers sent back (they do not see the results folder)")
         # proven by this run: sealed as written, or verified before it was reused
-        print(_summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False)))
+        print(_summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
+                            wide=args.wide))
     return 0
 
 
-def _summary_text(dataset):
-    """The findings, then the per-scheme table."""
+def _summary_text(dataset, wide=False):
+    """The findings, then the per-scheme table (every column when ``wide``)."""
     from rbstudy.analysis.findings import finding_lines, findings
     from rbstudy.analysis.summary import format_table, scheme_rows
-    return "\n".join(finding_lines(findings(dataset)) + ["", format_table(scheme_rows(dataset))])
+    return "\n".join(finding_lines(findings(dataset))
+                     + ["", format_table(scheme_rows(dataset), wide=wide)])
 
 
 def _summary(args):
@@ -229,7 +239,9 @@ def _summary(args):
         writer.writeheader()
         writer.writerows(rows)
     else:
-        render = markdown_summary if args.format == "md" else _summary_text
+        def render(dataset):
+            return (markdown_summary(dataset) if args.format == "md"
+                    else _summary_text(dataset, wide=args.wide))
         print("\n\n".join(render(dataset) if len(datasets) == 1 or args.format == "md"
                            else f"== {path}\n{render(dataset)}"
                            for path, dataset in zip(args.files, datasets, strict=True)))
@@ -316,13 +328,13 @@ def _conformance(args):
               f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
               "archives it finds)", f"studies and archives: {out}"]
     print(format_scorecard(cells, names))
-    print("\n".join(header))
+    _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
              "steps": args.steps, "source": f"rbstudy {_version()}"}
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
                                      header), out / "conformance.html")
-    print(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
+    _say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
     return 0
 
 
@@ -396,6 +408,9 @@ def build_parser():
                        help="keep parts/ after the archive is written (a changed config then "
                             "reuses the batches it shares)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
+    sweep.add_argument("--wide", action="store_true",
+                       help="print every column of the summary table (default: the columns "
+                            "that fit 100 characters)")
     _limit_arguments(sweep)
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs and forecast their "
@@ -429,6 +444,9 @@ def build_parser():
     summary.add_argument("--format", choices=("text", "md", "csv", "json"), default="text",
                          help="text (default), Markdown, CSV (the table) or JSON (everything, "
                               "for scripts: docs/outputs.md)")
+    summary.add_argument("--wide", action="store_true",
+                         help="every column of the table in the text form (default: those "
+                              "that fit 100 columns)")
     _no_verify_argument(summary)
     summary.set_defaults(run=_summary)
     verify = commands.add_parser("verify", help="prove results files intact by their checksums")

@@ -19,7 +19,7 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     assert sorted(p.name for p in folder.iterdir()) == [".lock", ".rbstudy-study", "small.nc",
                                                         "study.yaml"]
     assert main(["sweep", str(config), "--out", str(tmp_path / "kept"), "--keep-parts",
-                 "--quiet"]) == 0
+                 "--quiet", "--wide"]) == 0  # the inaccurate cases: a wide column
     parts = tmp_path / "kept" / "small" / "parts"
     # one per scheme and dt, each with its digest, no temporaries
     assert sorted(p.suffix for p in parts.iterdir()) == [".nc"] * 6 + [".sha256"] * 6
@@ -28,7 +28,7 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()
-            if line.split()[:1] in (["rk4"], ["hht"])}
+            if line.split()[:1] in (["rk4"], ["hht"])}  # the wide table's, printed last
     assert rows["rk4"][1:3] == ["4", "4.00"] and rows["hht"][1:3] == ["2", "2.00"]  # nominal, fit
     assert rows["hht"].count("0/3") == 2  # none of the three cases inaccurate, none failed
 

@@ -158,7 +158,7 @@ def test_a_read_only_study_folder_answers_an_up_to_date_rerun(swept, capsys):
     sweep = ["sweep", "--out", str(folder.parent), "--quiet"]
     with _read_only(folder):
         assert main([*sweep, str(config)]) == 0
-        out = capsys.readouterr().out
+        out = " ".join(capsys.readouterr().out.split())  # the line is broken at 100 columns
         assert f"small: {folder}/small.nc is up to date (the same config and code)" in out
         for retitle in (False, True):
             if retitle:  # the same config, edited: its new title would be recorded

@@ -28,7 +28,7 @@ OUTSIDE = {
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
                  "yaml"},
-    "analysis": {"numpy", "xarray", "matplotlib"},
+    "analysis": {"numpy", "xarray", "matplotlib", "tabulate"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once
 }

@@ -304,7 +304,7 @@ def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, m
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     assert (rows["rk4"]["inaccurate"], rows["rk4"]["unstable"], rows["rk4"]["unjudged"]) == (0, 0, 2)
     assert rows["rk4"]["error"] is None  # "-", not "failed": nothing failed
-    table = format_table(list(rows.values())).splitlines()
+    table = format_table(list(rows.values()), wide=True).splitlines()
     rk4 = next(line for line in table if line.startswith("rk4"))
     assert "failed" not in rk4 and "0/2 (2 unjudged)" in rk4
     figures = all_figures(ds, tmp_path / "figures")

@@ -33,10 +33,12 @@ import html
 from dataclasses import dataclass
 
 import numpy as np
+from tabulate import tabulate
 
 from rbstudy.analysis.summary import (
     ERROR_MEASURES,
     KEPT_TOLERANCE,
+    TERMINAL_WIDTH,
     error_measure,
     per_scheme,
     scheme_rows,
@@ -58,6 +60,8 @@ SLOPE_CEILING = 0.5
 EXACT = 1e-8
 # The flip interval is measured between samples: errors below this (s) are its floor.
 FLIP_FLOOR = ERROR_MEASURES["flip"][2]
+# What tabulate's plain table puts between two columns.
+_GAP = "  "
 RULES = {
     "order": f"observed order within {ORDER_TOLERANCE} of the nominal order",
     "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
@@ -87,9 +91,13 @@ class Cell:
     verdicts: dict
 
     def short(self):
-        """``pass 4.00`` / ``FAIL order 2.95``."""
+        """What the cell shows: the observed order of a scheme that passed (``order 4.00``),
+        ``exact`` for one exact on the body, ``pass`` where no order is judged, or the rules
+        it failed (``FAIL energy, failure``)."""
         if self.passed:
-            return f"pass {self.value:.3g}" if np.isfinite(self.value) else "pass"
+            if np.isfinite(self.value):
+                return f"order {self.value:.2f}"
+            return "exact" if "order" in self.verdicts else "pass"
         failed = [name for name, verdict in self.verdicts.items() if verdict.passed is False]
         return f"FAIL {', '.join(failed)}"
 
@@ -203,19 +211,29 @@ def score_case(ds, rules):
 
 def format_scorecard(cells, cases):
     """The printed table: a row per scheme, a column per case (``cells``: case -> scheme ->
-    `Cell`), and the count of cases passed."""
+    `Cell`), and the count of cases passed; the cases in as many blocks under each other as
+    keep every line within `TERMINAL_WIDTH`."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
-    texts = {(s, c): cells[c][s].short() if s in cells[c] else "-" for s in schemes
-             for c in cases}
-    widths = {c: max(len(c), *(len(texts[s, c]) for s in schemes)) for c in cases}
-    width = max(len("scheme"), *map(len, schemes))
-    lines = [f"{'scheme':{width}s}  {'passed':>6s}  "
-             + "  ".join(f"{c:{widths[c]}s}" for c in cases)]
-    for s in schemes:
-        passed = sum(cells[c][s].passed for c in cases if s in cells[c])
-        lines.append(f"{s:{width}s}  {f'{passed}/{len(cases)}':>6s}  "
-                     + "  ".join(f"{texts[s, c]:{widths[c]}s}" for c in cases))
-    return "\n".join(lines)
+    passed = [f"{sum(cells[c][s].passed for c in cases if s in cells[c])}/{len(cases)}"
+              for s in schemes]
+    columns = {c: [c, *(cells[c][s].short() if s in cells[c] else "-" for s in schemes)]
+               for c in cases}
+    fixed = [["scheme", *schemes], ["passed", *passed]]
+
+    def width(column):
+        return max(map(len, column)) + len(_GAP)
+    start = sum(map(width, fixed)) - len(_GAP)  # no gap before the first column
+    blocks, used = [[]], start
+    for case in cases:
+        if blocks[-1] and used + width(columns[case]) > TERMINAL_WIDTH:
+            blocks.append([])
+            used = start
+        blocks[-1].append(case)
+        used += width(columns[case])
+    return "\n\n".join(
+        tabulate(list(zip(*fixed, *(columns[c] for c in block), strict=True)), tablefmt="plain",
+                 colalign=["left", "right"] + ["left"] * len(block), disable_numparse=True)
+        for block in blocks)
 
 
 def scorecard_dataset(cells, cases, attrs):

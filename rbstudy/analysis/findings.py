@@ -29,6 +29,7 @@ from rbstudy.analysis.summary import (
     KEPT_TOLERANCE,
     SUMMARY_VARIABLES,
     error_measure,
+    format_table,
     order_text,
     per_scheme,
     scheme_rows,
@@ -503,15 +504,11 @@ def _cell(value):
 
 
 def markdown_summary(ds):
-    """The findings as a list and the table's records as a Markdown table."""
-    records = table_records(scheme_rows(ds))
-    names = list(records[0])
-    lines = [f"## {ds.attrs['study']}", ""] + [f"- {text}" for text in
-                                                finding_lines(findings(ds))] + ["",
-             "| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
-    lines += ["| " + " | ".join(_cell(record[name]).replace("|", "\\|") for name in names)
-              + " |" for record in records]  # |L| would end a cell
-    return "\n".join(lines)
+    """The findings as a list, then the table (every column) as Markdown, rendered from the
+    table's one definition (`rbstudy.analysis.summary.format_table`)."""
+    return "\n".join([f"## {ds.attrs['study']}", ""]
+                     + [f"- {finding.text}" for finding in findings(ds)]
+                     + ["", format_table(scheme_rows(ds), wide=True, fmt="markdown")])
 
 
 def csv_rows(ds):

@@ -13,7 +13,12 @@ import html
 import pathlib
 
 from rbstudy.analysis.plots import ALL_FORMATS, CAPTIONS, all_figures
-from rbstudy.analysis.summary import ERROR_MEASURES, TABLE_NOTE, scheme_rows, table_columns
+from rbstudy.analysis.summary import (
+    ERROR_MEASURES,
+    UNCERTAINTY_FACTOR,
+    format_table,
+    scheme_rows,
+)
 from rbstudy.errors import InputError
 from rbstudy.physics.metrics import (
     MAX_SLOPE_DRIFT,
@@ -38,17 +43,6 @@ pre { background: #f5f5f5; padding: 1em; overflow-x: auto; font-size: 0.85em; }
 figure { margin: 2em 0; } img { max-width: 100%; }
 figcaption { font-size: 0.9em; color: #444; }
 """
-
-
-def _scheme_table(rows):
-    columns = table_columns(rows)
-    lines = ["<table>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h, _ in columns)
-             + "</tr>"]
-    for row in rows:
-        lines.append("<tr>" + "".join(f"<td>{html.escape(cell(row))}</td>" for _, cell in columns)
-                     + "</tr>")
-    lines.append("</table>")
-    return "\n".join(lines)
 
 
 def _caption(name):
@@ -88,17 +82,19 @@ def write_report(ds, out, processes=1):
         f"<p>Study <code>{html.escape(str(ds.attrs.get('study', '')))}</code>: "
         f"{int(ds['status'].size)} cases over {html.escape(dims)}.</p>",
         "<h2>Schemes</h2>",
-        f"<p>{html.escape(TABLE_NOTE)}. The asymptotic range: the longest run of at least "
+        "<p>The table <code>rbstudy sweep --wide</code> prints, its footnotes under it. "
+        "No order is fitted through an error below "
+        f"{UNCERTAINTY_FACTOR:g}x its integrated reference's uncertainty "
+        "(reference_uncertainty). The asymptotic range: the longest run of at least "
         f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
         f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
         f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more "
         f"than {MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. "
         f"Accuracy bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
-        "orientation error at any sample, relative for energy and |L|). ns/step: the "
-        "scheme's kernel "
-        "CPU time over all its steps. dt|w0| is the step parameter of a physical body (a "
+        "orientation error at any sample, relative for energy and |L|). ns per step: "
+        "the scheme's kernel CPU time over all its steps. dt|w0| is the step parameter of a physical body (a "
         "stress body beyond the triangle inequality precesses faster than |w0|).</p>",
-        _scheme_table(rows),
+        format_table(rows, wide=True, fmt="html"),
         "<h2>Figures</h2>",
     ]
     for png in figures.written:

@@ -8,17 +8,30 @@ asymptotic), the errors at the largest and smallest ``dt``, the kernel time per 
 the stable range in ``dt |w0|``, and which invariants every stable case kept. Everything
 comes from the archive (the nominal order from its ``nominal_order`` coordinate): nothing here
 needs the scheme registry or a compiler.
+
+The table of those rows is defined once (`table_columns`: a `Column` per value, with its
+header and units, its cell text, whether the default table shows it and its footnotes) and
+rendered by tabulate as text, Markdown, CSV or HTML (`format_table`). The default text keeps
+to `TERMINAL_WIDTH` columns for every shipped study, its footnotes to six lines.
 """
 
+import csv
+import html
+import io
+import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
+from tabulate import tabulate
 
 from rbstudy.numerics.state import INVARIANTS
 from rbstudy.physics.metrics import asymptotic_order
 
-__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TABLE_NOTE",
-           "error_measure", "fitted_order", "uncertainty_of", "UNCERTAINTY_FACTOR",
-           "scheme_rows", "format_table", "order_text",
-           "table_columns", "schemes_of", "per_scheme", "step_load"]
+__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
+           "TABLE_FORMATS", "error_measure", "fitted_order", "uncertainty_of",
+           "UNCERTAINTY_FACTOR", "scheme_rows", "format_table", "order_text", "Column",
+           "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load"]
 
 # name -> (label, units, floor, ceiling, stored variable, uncertainty of its reference or
 # None). Below the floor an error is round-off: a few hundred ulps of the quantity (rounding
@@ -290,63 +303,136 @@ def _number(value, spec):
     return "-" if value is None or not np.isfinite(value) else f"{value:{spec}}"
 
 
+# The terminal's width the default table and its footnotes keep to (characters).
+TERMINAL_WIDTH = 100
+TABLE_FORMATS = ("text", "markdown", "csv", "html")
+
+
+@dataclass(frozen=True)
+class Column:
+    """A column of the per-scheme table: its ``key``, its ``header`` (the name, then its
+    units; the terminal shows each line of it on a line of its own, the other formats one
+    line), the ``cell`` text of a row, whether the default ``narrow`` table shows it, and
+    its footnotes ``notes`` (none when the header says it all)."""
+
+    key: str
+    header: str
+    cell: Callable
+    narrow: bool
+    notes: tuple = ()
+    left: bool = False
+
+
 def table_columns(rows):
-    """(header, cell function) of the per-scheme table, shared by the terminal and report."""
+    """Every `Column` of the per-scheme table, shared by the terminal, the report, Markdown
+    and CSV; a column with nothing to show in these ``rows`` is left out."""
     large = next((row["error_dt"] for row in rows if "error_dt" in row), None)
     small = next((row["error_small_dt"] for row in rows if "error_small_dt" in row), None)
+
+    def error_at(dt):
+        return "error\n(rad)" if dt is None else f"error at\ndt={dt:g} s\n(rad)"
     columns = [
-        ("scheme", lambda row: row["scheme"]),
-        ("nominal", lambda row: "-" if row["nominal"] is None else str(row["nominal"])),
-        ("order", order_text),
-        ("finest pair", lambda row: "-" if row["finest"] is None else _span(row["finest"])),
-        ("fit over dt (s)", lambda row: "-" if not row["fit_dt"] else
-         f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}"),
-        (f"error dt={large:g}" if large is not None else "final error",
-         lambda row: _error(row["error"])),
+        Column("scheme", "scheme", lambda row: row["scheme"], True, left=True),
+        Column("nominal", "nominal\norder",
+               lambda row: "-" if row["nominal"] is None else str(row["nominal"]), True),
+        Column("order", "observed\norder", order_text, True,
+               ("observed order: fitted over the asymptotic range per value of the other axes",
+                "(k/n): k of the n had one")),
+        Column("finest", "finest\npair",
+               lambda row: "-" if row["finest"] is None else _span(row["finest"]), False,
+               ("finest pair: slope of the two finest fitted steps",)),
+        Column("fit_dt", "fit over\ndt (s)", lambda row: "-" if not row["fit_dt"] else
+               f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}", False),
+        Column("error", error_at(large), lambda row: _error(row["error"]), True,
+               ("error: final orientation error, the worst over the other axes",
+                "\"failed\": one blew up", "\"-\": one had no reference")),
     ]
     if small is not None and small != large:
-        columns.append((f"error dt={small:g}", lambda row: _error(row.get("error_small"))))
+        columns.append(Column("error_small", error_at(small),
+                              lambda row: _error(row.get("error_small")), False))
     columns += [
-        ("ns/step", lambda row: _number(row["ns_per_step"], ".0f")),
-        ("accurate up to dt|w0|", lambda row: _number(row["accurate_hw"], ".3g")),
-        ("first inaccurate dt|w0|", lambda row: _number(row["inaccurate_hw"], ".3g")),
-        ("first failed dt|w0|", lambda row: _number(row["unstable_hw"], ".3g")),
-        ("inaccurate", lambda row: "-" if row["inaccurate"] is None
-         else f"{row['inaccurate']}/{row['cases']}"
-         + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else "")),
-        ("failed", lambda row: f"{row['unstable']}/{row['cases']}"),
+        Column("ns_per_step", "ns per\nstep", lambda row: _number(row["ns_per_step"], ".0f"),
+               True, ("ns: kernel CPU time",)),
+        Column("accurate_hw", "accurate\nto dt|w0|\n(rad)",
+               lambda row: _number(row["accurate_hw"], ".3g"), True,
+               ("accurate to: largest accurate dt|w0| below the first inaccurate or failed one",
+                "dt|w0|: physical bodies only")),
+        Column("inaccurate_hw", "first\ninaccurate\ndt|w0| (rad)",
+               lambda row: _number(row["inaccurate_hw"], ".3g"), False),
+        Column("unstable_hw", "first\nfailed\ndt|w0| (rad)",
+               lambda row: _number(row["unstable_hw"], ".3g"), False),
+        Column("inaccurate", "inaccurate\ncases", lambda row: "-" if row["inaccurate"] is None
+               else f"{row['inaccurate']}/{row['cases']}"
+               + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else ""), False,
+               ("inaccurate: past the accuracy bound (unjudged: no reference)",)),
+        Column("failed", "failed\ncases", lambda row: f"{row['unstable']}/{row['cases']}", True,
+               ("failed: blew up or did not converge",)),
     ]
     if any(row["radioss"] for row in rows):  # only where the limit was passed
-        columns.append(("past Radioss limit", lambda row: f"{row['radioss']}/{row['cases']}"))
-    columns.append(("kept", lambda row: ", ".join(row["kept"]) or "-"))
+        columns.append(Column("radioss", "past\nRadioss\nlimit",
+                              lambda row: f"{row['radioss']}/{row['cases']}", False,
+                              ("past Radioss limit: dt|w| > 1, where OpenRadioss aborts",)))
+    columns.append(Column("kept", "kept", lambda row: ", ".join(row["kept"]) or "-", True,
+                          (f"kept: drift < {KEPT_TOLERANCE:g} in every stable case (energy and "
+                           "|L| at every step, L at the samples)",), left=True))
     return columns
 
 
-TABLE_NOTE = ("errors: final orientation error (rad), the worst over the other swept axes "
-              "(\"failed\" when a case there blew up, \"-\" when one had no reference: its "
-              "integrations passed their step budgets); order: fitted per value of the other "
-              "axes over its asymptotic range, (k/n) when only k of the n values had one (a "
-              "value where the scheme failed at most steps has none), never through an error "
-              f"below {UNCERTAINTY_FACTOR:g}x its integrated reference's uncertainty "
-              "(reference_uncertainty); finest pair: the local "
-              "slope between the two finest fitted steps; inaccurate: cases that finished "
-              "but whose orientation error at some sample or energy or |L| drift passed the "
-              "study's accuracy bound (unjudged: finished without a reference, and no "
-              "drift past the bound); failed: cases that blew up or did not converge; past "
-              "Radioss limit (shown when some case was): cases whose dt |w| passed 1 at some "
-              "step, where OpenRadioss aborts a rigid body (rbstudy runs on); "
-              "dt|w0|: over physical bodies only, accurate up to: the largest accurate case "
-              "below the first that is not; kept: energy and |L| drift over every step, and L (the "
-              f"vector) at the samples, below {KEPT_TOLERANCE:g} in every stable case")
+def table_notes(columns, width=TERMINAL_WIDTH):
+    """The footnotes of ``columns``, keyed by their column's name, as lines of at most
+    ``width`` characters."""
+    return wrap_clauses("; ".join(note for column in columns for note in column.notes), width)
 
 
-def format_table(rows):
-    """The rows as the fixed-width text table `rbstudy sweep` prints (the report's columns)."""
-    columns = table_columns(rows)
-    cells = [[header for header, _ in columns]] + [[cell(row) for _, cell in columns]
-                                                   for row in rows]
-    widths = [max(len(line[k]) for line in cells) for k in range(len(columns))]
-    lines = ["  ".join(text.ljust(width) if k in (0, len(columns) - 1) else text.rjust(width)
-                       for k, (text, width) in enumerate(zip(line, widths, strict=True)))
-             for line in cells]
-    return "\n".join([line.rstrip() for line in lines] + [f"({TABLE_NOTE})"])
+def wrap_clauses(line, width=TERMINAL_WIDTH, indent=""):
+    """``line`` as lines of at most ``width`` characters: broken after a "; " where it can,
+    else between words (a word longer than ``width``, a path, stays whole); the lines after
+    the first start with ``indent``."""
+    clauses = line.split("; ")
+    lines = []
+    for clause in [f"{clause};" for clause in clauses[:-1]] + clauses[-1:]:
+        if lines and len(lines[-1]) + len(" ") + len(clause) <= width:
+            lines[-1] += " " + clause
+        else:
+            lines.append((indent if lines else "") + clause)
+    return [short for long in lines for short in textwrap.wrap(
+        long, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)]
+
+
+def format_table(rows, wide=False, fmt="text"):
+    """The per-scheme table of ``rows`` (`scheme_rows`) as ``fmt`` (one of `TABLE_FORMATS`):
+    the columns that answer how accurate, how stable and at what cost (each line within
+    `TERMINAL_WIDTH` for the shipped studies), or every column when ``wide``; under it its
+    footnotes (not in CSV, which holds the values alone)."""
+    columns = [c for c in table_columns(rows) if wide or c.narrow]
+    cells = [[column.cell(row) for column in columns] for row in rows]
+    align = ["left" if column.left else "right" for column in columns]
+    if fmt == "text":  # the headers as rows: tabulate pads a header row by two more spaces
+        lines = [line.rstrip() for line in tabulate(
+            [[c.header for c in columns], *cells], tablefmt="plain", colalign=align,
+            disable_numparse=True).splitlines()]
+        # the footnotes of a wide table as wide as it
+        return "\n".join(lines + table_notes(columns, max(TERMINAL_WIDTH, *map(len, lines))))
+    headers = [_one_line(c.header) for c in columns]
+    if fmt == "csv":
+        text = io.StringIO()
+        csv.writer(text, lineterminator="\n").writerows([headers, *cells])
+        return text.getvalue()
+    notes = table_notes(columns)
+    if fmt == "markdown":  # a | inside a cell (|L|, dt|w0|) would end it
+        table = tabulate([[_pipes(text) for text in line] for line in cells],
+                         [_pipes(text) for text in headers], tablefmt="github",
+                         colalign=align, disable_numparse=True)
+        return "\n\n".join([table, "\n".join(notes)])
+    if fmt == "html":
+        table = tabulate(cells, headers, tablefmt="html", colalign=align, disable_numparse=True)
+        return f"{table}\n<p>" + "<br>\n".join(html.escape(note) for note in notes) + "</p>"
+    raise ValueError(f"format_table: no format {fmt!r}; one of {', '.join(TABLE_FORMATS)}")
+
+
+def _one_line(header):
+    return header.replace("\n", " ")
+
+
+def _pipes(text):
+    return text.replace("|", "\\|")

@@ -1,0 +1,175 @@
+"""The per-scheme table a sweep prints, from one definition: within 100 columns for every
+shipped study (its footnotes too), every column with --wide, and the same values as text,
+Markdown, CSV and HTML; the conformance scorecard within 100 columns, saying what its numbers
+are."""
+
+import csv
+import html.parser
+import io
+import pathlib
+import re
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from rbstudy.analysis.conformance import Cell, Verdict, format_scorecard
+from rbstudy.analysis.summary import (
+    SUMMARY_VARIABLES,
+    TERMINAL_WIDTH,
+    format_table,
+    scheme_rows,
+    table_columns,
+    wrap_clauses,
+)
+from rbstudy.cli import main
+from rbstudy.pipeline.archive import open_archive
+from rbstudy.pipeline.golden import GOLDEN
+
+CONFIGS = sorted(pathlib.Path("configs").glob("*.yaml"))
+# The most footnote lines under a table (issue 29).
+MAX_NOTE_LINES = 6
+
+
+@pytest.fixture(scope="module")
+def shipped(tmp_path_factory):
+    """Every shipped config, each case one output interval long (the same schemes and swept
+    axes, so the same rows and columns), swept from a folder of its own into the default
+    results/; the printed lines and the archives."""
+    folder = tmp_path_factory.mktemp("shipped")
+    for path in pathlib.Path("configs").iterdir():
+        if path.suffix == ".yaml":
+            config = yaml.safe_load(path.read_text())
+            config["scene"]["duration"] = config["output"]["interval"]
+            (folder / path.name).write_text(yaml.safe_dump(config, sort_keys=False))
+        else:  # the node tables they name
+            shutil.copy(path, folder)
+    return folder, {path.stem: folder / "results" / path.stem / f"{path.stem}.nc"
+                    for path in CONFIGS}
+
+
+def _sweep(folder, capsys, *options):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        assert main(["sweep", *(path.name for path in CONFIGS), *options]) == 0
+    printed = capsys.readouterr()
+    assert printed.err == ""
+    return printed.out
+
+
+def test_every_shipped_study_prints_lines_within_100_columns(shipped, capsys):
+    """Its forecast, its run or up-to-date line and its table. Measured on the full
+    configs: 98 characters at most, 100 on a rerun (the up-to-date lines), the widest table
+    96 (high_order, long_run_convergence); before, tables of up to 243 and a footnote of
+    1,136."""
+    folder, archives = shipped
+    for _ in ("run", "up to date"):
+        out = _sweep(folder, capsys)
+        widest = max(out.splitlines(), key=len)
+        assert len(widest) <= TERMINAL_WIDTH, widest
+    assert out.count("is up to date") == len(CONFIGS)
+    assert "finest pair" not in out and "fit over" not in out  # two of the wide columns
+    wide = _sweep(folder, capsys, "--wide")
+    for name, path in archives.items():
+        rows = scheme_rows(open_archive(path, SUMMARY_VARIABLES, verify=False))
+        text = format_table(rows, wide=True)
+        assert text in wide, name
+        header = "\n".join(text.splitlines()[:3])
+        for column in table_columns(rows):  # every column, each line of its header shown
+            assert all(part in header for part in column.header.split("\n")), column.key
+
+
+def test_footnotes_are_at_most_six_lines_under_the_table(shipped):
+    _, archives = shipped
+    for name, path in archives.items():
+        rows = scheme_rows(open_archive(path, SUMMARY_VARIABLES, verify=False))
+        for wide in (False, True):
+            lines = format_table(rows, wide=wide).splitlines()
+            table = len(rows) + max(c.header.count("\n") + 1 for c in table_columns(rows))
+            notes = lines[table:]
+            assert 0 < len(notes) <= MAX_NOTE_LINES, (name, notes)
+            assert all(re.match(r'^[\w(/"-][^:]*: ', note) for note in notes), notes  # key: text
+
+
+class _Cells(html.parser.HTMLParser):
+    """The text of every cell of an HTML table, row by row."""
+
+    def __init__(self):
+        super().__init__()
+        self.rows, self._cell = [], None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "tr":
+            self.rows.append([])
+        elif tag in ("td", "th"):
+            self._cell = ""
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell += data
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th"):
+            self.rows[-1].append(self._cell.strip())
+            self._cell = None
+
+
+def _markdown_cells(text):
+    table = [line for line in text.splitlines() if line.startswith("|")]
+    return [[cell.strip().replace("\\|", "|") for cell in re.split(r"(?<!\\)\|", line)[1:-1]]
+            for k, line in enumerate(table) if k != 1]  # not the rule under the header
+
+
+@pytest.mark.parametrize("wide", [False, True])
+def test_markdown_csv_and_html_hold_the_values_of_the_text(shipped, wide):
+    """radioss_spin_limit: the one table with the Radioss column, and "|" in its cells."""
+    _, archives = shipped
+    rows = scheme_rows(open_archive(archives["radioss_spin_limit"], SUMMARY_VARIABLES,
+                                    verify=False))
+    values = list(csv.reader(io.StringIO(format_table(rows, wide=wide, fmt="csv"))))
+    assert len(values) == len(rows) + 1 and any("|L|" in line[-1] for line in values)
+    assert _markdown_cells(format_table(rows, wide=wide, fmt="markdown")) == values
+    page = _Cells()
+    page.feed(format_table(rows, wide=wide, fmt="html"))
+    assert page.rows == values
+    text = format_table(rows, wide=wide).splitlines()
+    for line in values[1:]:  # each row's cells, in order, on the scheme's line of the text
+        printed = next(printed for printed in text if printed.startswith(line[0] + " "))
+        assert re.fullmatch(r"\s+".join(map(re.escape, line)), printed), printed
+    header = [c.header.replace("\n", " ") for c in table_columns(rows) if wide or c.narrow]
+    assert values[0] == header and ("past Radioss limit" in header) == wide
+
+
+def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
+    """Thirteen schemes on the eight golden cases, each failing cell as long as it gets
+    (before: 211 columns, "pass 1.09")."""
+    cases = [case.name for case in GOLDEN]
+    schemes = ["euler", "exact_split", "mujoco_implicitfast", *(f"scheme{k}" for k in range(10))]
+    worst = Cell(False, np.nan, {rule: Verdict(False, np.nan, "") for rule in
+                                 ("order", "energy", "failure")})
+    order = Cell(True, 1.0937, {"order": Verdict(True, 1.0937, "")})
+    exact = Cell(True, np.nan, {"order": Verdict(True, np.nan, "")})
+    cells = {case: {scheme: {"euler": worst, "exact_split": exact}.get(scheme, order)
+                    for scheme in schemes} for case in cases}
+    text = format_scorecard(cells, cases)
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= TERMINAL_WIDTH
+    assert all(case in text for case in cases)
+    blocks = text.split("\n\n")
+    for block in blocks:  # each block: the header, then every scheme with its count
+        assert [line.split()[:2] for line in block.splitlines()] == [
+            ["scheme", "passed"], ["euler", "0/8"], ["exact_split", "8/8"],
+            *([scheme, "8/8"] for scheme in schemes[2:])]
+    assert [case for block in blocks for case in block.splitlines()[0].split()[2:]] == cases
+    euler = [line for line in lines if line.startswith("euler")]
+    assert all(line.count("FAIL order, energy, failure") >= 1 for line in euler)
+    assert "order 1.09" in text and "pass 1.09" not in text and "exact" in text
+
+
+def test_a_long_line_breaks_after_its_clauses_and_never_inside_a_path():
+    path = "results/" + "a" * 120 + ".nc"
+    line = f"{'x' * 60}; {'y' * 30}; z z; wrote {path}"
+    assert wrap_clauses(line, indent="  ") == [f"{'x' * 60}; {'y' * 30}; z z;", "  wrote",
+                                               f"  {path}"]
+    assert wrap_clauses(f"{'x' * 60}; {'y' * 40}") == [f"{'x' * 60};", f"{'y' * 40}"]
