@@ -249,15 +249,19 @@ def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
 @pytest.fixture
 def drawn_figures(monkeypatch):
     """The matplotlib figures the plot functions draw, kept open instead of saved."""
+    import matplotlib.pyplot as plt
+
     from rbstudy.analysis import plots
     kept = {}
 
     def keep(fig, folder, ds, name, formats):
+        plots._log_labels(fig)  # what `_save` does before it writes
         kept[name] = fig
         return pathlib.Path(folder) / f"{name}.png"
 
     monkeypatch.setattr(plots, "_save", keep)
-    return kept
+    yield kept
+    plt.close("all")
 
 
 def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path,
@@ -271,18 +275,19 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     fig = drawn_figures["convergence_energy"]
     fig.canvas.draw()
     panels = [ax for ax in fig.axes if ax.get_visible()]
+    legend, = fig.legends
+    # the figure's one legend lies right of every panel, not over one
+    assert legend.get_window_extent().x0 >= max(ax.get_window_extent().x1 for ax in panels)
     styled = set()
     for ax in panels:
-        legend = ax.get_legend()
-        assert legend is not None
-        # the legend lies right of the data, not over it
-        assert legend.get_window_extent().x0 >= ax.get_window_extent().x1
+        assert ax.get_legend() is None
         for line in ax.get_lines():
-            scheme = line.get_label().split(" (")[0]
-            if scheme in SCHEME_STYLES:
-                assert colors.same_color(line.get_color(), SCHEME_STYLES[scheme][0]), scheme
+            scheme = next((s for s in SCHEME_STYLES if colors.same_color(
+                line.get_color(), SCHEME_STYLES[s][0])), None)
+            if scheme is not None and line.get_marker() == SCHEME_STYLES[scheme][1]:
                 styled.add(scheme)
     assert styled == set(SHRUNK_SCHEMES)  # every scheme drawn, each in its own style
+    assert {text.get_text().split(" (")[0] for text in legend.get_texts()} == set(SHRUNK_SCHEMES)
     texts = [t.get_text() for ax in panels for t in ax.texts]
     assert ZERO_LABEL in texts  # hht keeps the energy exactly: drawn on the floor
     bench = drawn_figures["benchmark_omega_time"]
@@ -335,3 +340,110 @@ def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     assert f"{len(serial.written)} figures (PNG)" in command.stdout
     for one in serial.written:
         assert (tmp_path / "cli" / one.name).read_bytes() == one.read_bytes(), one.name
+
+
+@pytest.fixture(scope="module")
+def top_with_twins(tmp_path_factory):
+    """The shrunk Abaqus top with euler and leapfrog, whose errors coincide on it."""
+    root = tmp_path_factory.mktemp("twins")
+    path = shrunk_config("abaqus_top.yaml", root)
+    study = yaml.safe_load(path.read_text())
+    study["sweep"]["scheme"] = ["euler", "leapfrog", "hht"]
+    path.write_text(yaml.safe_dump(study))
+    return open_results(run_study(load_study(path), root / "out", quiet=True).path)
+
+
+def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, tmp_path,
+                                                               drawn_figures):
+    """It was a 9-entry legend in each of 4 panels, and up to 5 of 9 lines hidden."""
+    import numpy as np
+    all_figures(top_with_twins, tmp_path)
+    for name, fig in drawn_figures.items():
+        in_panels = sum(ax.get_legend() is not None for ax in fig.axes)
+        assert len(fig.legends) + in_panels == 1, name
+    fig = drawn_figures["convergence_precession"]
+    texts = [text.get_text() for text in fig.legends[0].get_texts()]
+    assert texts[0].startswith("euler = leapfrog to 3 digits (order 2.00"), texts
+    assert texts[1].startswith("hht (order 2.00") and len(texts) == 2, texts
+    for ax in [ax for ax in fig.axes if ax.get_visible()]:  # both twins drawn, their
+        twins = [line for line in ax.get_lines()  # markers on alternate points
+                 if line.get_markevery() is not None]
+        assert [line.get_markevery() for line in twins] == [(0, 2), (1, 2)]
+        assert np.allclose(twins[0].get_ydata(), twins[1].get_ydata(), rtol=1e-3)
+        assert twins[0].get_markerfacecolor() == "none" != twins[1].get_markerfacecolor()
+        assert twins[0].get_zorder() < twins[1].get_zorder()
+
+
+def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_twins, tmp_path,
+                                                                      drawn_figures):
+    import matplotlib.colors as colors
+    import numpy as np
+    all_figures(top_with_twins, tmp_path)
+    fig = drawn_figures["convergence_orientation"]
+    fig.canvas.draw()
+    for ax in [ax for ax in fig.axes if ax.get_visible()]:
+        guides = [line for line in ax.get_lines() if line.get_linestyle() == ":"
+                  and colors.same_color(line.get_color(), "0.6")]
+        data = [line for line in ax.get_lines() if line.get_linestyle() != "None"
+                and line not in guides and line.get_xdata().size > 2]
+        assert len(guides) == 3 and data  # orders 1, 2 and 4
+        for guide in guides:
+            x, y = np.log10(guide.get_xdata()), np.log10(guide.get_ydata())
+            for line in data:
+                xs, ys = np.log10(line.get_xdata()), np.log10(line.get_ydata())
+                gaps = np.interp(x, xs[::-1], ys[::-1]) - y if xs[0] > xs[-1] else \
+                    np.interp(x, xs, ys) - y
+                gaps = gaps[np.isfinite(gaps)]
+                # one side of the line all along (straight between steps on log axes), and
+                # clear of it: it used to start on the median error, a point of some line
+                assert np.all(gaps > 0.1) or np.all(gaps < -0.1), line.get_label()
+        labels = [tick.get_text() for tick in ax.get_yticklabels() if tick.get_text()]
+        assert labels and all(label.startswith("$") and "10^{" in label for label in labels)
+
+
+def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_path,
+                                                           drawn_figures):
+    all_figures(top_with_twins, tmp_path)
+    fig = drawn_figures["invariant_drift"]
+    title = fig._suptitle.get_text().replace("\n", " ")
+    ratio = float(top_with_twins["inertia_ratio"][0])
+    assert (f"case: inertia_ratio = {ratio:g}, dt = 0.01 s (the first value of each swept "
+            "axis; the largest dt at which every scheme ran stable)") in title
+    legend, = fig.legends
+    assert [text.get_text() for text in legend.get_texts()] == ["euler", "leapfrog", "hht"]
+
+
+def test_one_swept_axis_gives_a_strip_chart_and_an_all_accurate_map_is_left_out(
+        tmp_path, drawn_figures):
+    """high_spin (spin only) drew 9 panels of one diagonal."""
+    from rbstudy.analysis.plots import stability_map
+    ds = open_results(run_study(load_study(shrunk_config("high_spin.yaml", tmp_path)),
+                                tmp_path / "out", quiet=True).path)
+    stability_map(ds, tmp_path / "figures")
+    fig = drawn_figures["stability_map"]
+    ax, = fig.axes
+    assert [tick.get_text() for tick in ax.get_yticklabels()] == SHRUNK_SCHEMES
+    assert ax.get_xscale() == "log" and ax.get_xlabel() == "dt |w0| (rad)"
+    # each scheme's cases in its row, at their dt |w0|
+    points = sorted((float(y), float(x)) for c in ax.collections for x, y in c.get_offsets())
+    assert len(points) == len(SHRUNK_SCHEMES) * ds.sizes["spin"]
+    assert {y for y, _ in points} == set(range(len(SHRUNK_SCHEMES)))
+    texts = [text.get_text() for text in fig.legends[0].get_texts()]
+    assert "accurate" in texts and "failed (unstable or not converged)" in texts
+    drawn_figures.clear()
+    ds["status"][:] = 0
+    ds["accuracy"][:] = 0
+    figures = stability_map(ds, tmp_path / "figures")
+    assert not figures.written and not drawn_figures
+    assert figures.absent["stability_map"].startswith("every case is accurate (dt |w0| up to ")
+
+
+def test_lines_coincide_when_every_point_agrees_to_three_digits():
+    """Two lines failed at every dt have nothing to agree on: each stays its own entry."""
+    import numpy as np
+
+    from rbstudy.analysis.plots import _coincident
+    nan = float("nan")
+    errors = np.array([[1e-3, 2e-6, nan], [1.0004e-3, 2.0008e-6, nan], [nan, nan, nan],
+                       [nan, nan, nan], [1e-3, 2.01e-6, nan]])
+    assert _coincident(errors) == [[0, 1], [2], [3], [4]]

@@ -10,19 +10,24 @@ nothing to show).
   slope of the finest fitted pair, and reference slopes; one figure per error measure, drawn
   only when at least one line has an asymptotic range.
 - `work_precision`: run time per case against error, a line per scheme.
-- `stability_map`: ``dt |w0|`` of every case against the swept parameter: accurate,
-  finished but inaccurate, and failed marked apart; the largest accurate value joined (a
-  named parameter, such as a Radioss option, one column per name); the OpenRadioss limit
-  ``dt |w| = 1`` where some case passed it.
-- `invariant_drift`: |energy| and |L - L0| errors against time for one case per scheme.
+- `stability_map`: every case marked accurate, finished but inaccurate, or failed by its
+  ``dt |w0|``: a strip chart (a row per scheme) when each scheme's cases lie along one axis,
+  else a panel per scheme with a boundary against the swept parameter, the largest accurate
+  value joined (a named parameter, such as a Radioss option, one column per name); the
+  OpenRadioss limit ``dt |w| = 1`` where some case passed it. Not drawn when every case is
+  accurate.
+- `invariant_drift`: |energy| and |L - L0| errors against time for one case per scheme, the
+  case and how it was chosen named once in the title.
 - `benchmark`: the Abaqus figures (global w against time, w_x against w_y, a node's path
   seen down z) with the closed form overlaid.
 
 Every scheme keeps one colour, marker and line style (`SCHEME_STYLES`) in every figure, and
-schemes whose curves coincide differ in marker and dash, so that both stay visible. Legends
-sit outside the data. An exact zero, which log axes cannot show, is a marked point on a floor
-line labelled "0 (exact)"; a gap is a failed case, or a case without a reference (its
-DOP853 reference passed its step budget: `reference = none`).
+schemes whose curves coincide differ in marker and dash, so that both stay visible; in a
+convergence figure they are named together ("euler = leapfrog to 3 digits") and mark
+alternate points. A figure has one legend, outside the data. An exact zero, which log axes
+cannot show, is a marked point on a floor line labelled "0 (exact)"; a gap is a failed
+case, or a case without a reference (its DOP853 reference passed its step budget:
+`reference = none`).
 
 Large sweeps stay readable: lines are the schemes (or, in a one-scheme study, the values of
 a swept axis with at most `MAX_LINES` values); a further axis with at most `MAX_FACETS`
@@ -40,6 +45,7 @@ matplotlib.use("Agg")  # files only; no display needed or wanted
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.font_manager import FontProperties  # noqa: E402
+from matplotlib.legend_handler import HandlerTuple  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
 
 from rbstudy.analysis.summary import (  # noqa: E402
@@ -67,6 +73,19 @@ __all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", 
 MAX_FACETS = 4
 MAX_LINES = 8
 REFERENCE_ORDERS = (1, 2, 4)
+# A slope guide spans three consecutive steps (a factor 4 when dt is halved), two where
+# three do not fit the errors' range; it keeps this many decades clear of every line, and
+# its place is searched on a grid of this many decades.
+GUIDE_STEPS = 3
+GUIDE_CLEARANCE = 0.5
+GUIDE_GRID = 0.125
+# Lines whose errors agree to this many significant digits at every point of a figure are
+# named together in its legend ("euler = leapfrog to 3 digits").
+COINCIDENT_DIGITS = 3
+# Inches beside the panels for a figure's legend of scheme names and fitted orders.
+LEGEND_WIDTH = 3.4
+# Inches per scheme row of the stability strip chart.
+STRIP_ROW_HEIGHT = 0.32
 # A swept parameter spanning more than this ratio gets a log axis in the stability map.
 LOG_AXIS_RATIO = 50
 # The benchmark figures show this case where the study has it (the Abaqus set-up: HHT on the
@@ -187,9 +206,18 @@ def _worst(da, reduced):
     return da.max(reduced, skipna=False) if reduced else da
 
 
-def _plain_log_labels(fig):
-    """Tick labels of log axes as plain text ("1e-05"): matplotlib's default typesets each
-    one with mathtext, which made drawing a figure take seconds."""
+def _power_of_ten(value, _position=None):
+    """``10^{-2}`` or ``2x10^{-3}`` in mathtext: the tick label of a log axis."""
+    exponent = int(np.floor(np.log10(value) + 1e-9))
+    mantissa = round(value / 10.0 ** exponent)
+    return (f"$10^{{{exponent}}}$" if mantissa == 1
+            else f"${mantissa}\\times10^{{{exponent}}}$")
+
+
+def _log_labels(fig):
+    """Tick labels of log axes as powers of ten, a few labelled ticks per axis: matplotlib's
+    default labels every minor tick it may need, and each label typeset with mathtext cost
+    a figure seconds; at most eight labels an axis cost no more than plain text."""
     for ax in fig.axes:
         for axis, scale in ((ax.xaxis, ax.get_xscale()), (ax.yaxis, ax.get_yscale())):
             if scale == "log":
@@ -200,7 +228,7 @@ def _plain_log_labels(fig):
                 short = 0 < low and high / low < 100
                 axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)) if short
                                        else LogLocator(numticks=8))
-                axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0e}"))
+                axis.set_major_formatter(FuncFormatter(_power_of_ten))
                 if short:
                     axis.set_minor_locator(NullLocator())
                 else:
@@ -209,7 +237,7 @@ def _plain_log_labels(fig):
 
 def _save(fig, folder, ds, name, formats):
     """Write the figure in each of ``formats``; returns the first file."""
-    _plain_log_labels(fig)
+    _log_labels(fig)
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [inside(folder, f"{figure_name(ds, name)}.{suffix}") for suffix in formats]
@@ -219,10 +247,13 @@ def _save(fig, folder, ds, name, formats):
     return paths[0]
 
 
-def _grid(count, width=5.4, height=4.2, columns=2):
+def _grid(count, width=5.4, height=4.2, columns=2, legend_width=0.0):
+    """``count`` panels of ``width`` x ``height`` inches, and ``legend_width`` inches beside
+    them for the figure's legend."""
     columns = min(count, columns)
     rows = (count + columns - 1) // columns
-    fig, axes = plt.subplots(rows, columns, figsize=(width * columns, height * rows),
+    fig, axes = plt.subplots(rows, columns,
+                             figsize=(width * columns + legend_width, height * rows),
                              squeeze=False, layout="constrained")
     for extra in axes.flat[count:]:
         extra.set_visible(False)
@@ -256,11 +287,6 @@ def _title(fig, ds, what):
     width_em = 0.97 * fig.get_figwidth() * 72 / size
     fig.suptitle("\n".join(_wrapped(line, width_em)
                            for line in (ds.attrs.get("title", ""), what)))
-
-
-def _legend_outside(ax):
-    """The panel's legend to the right of its axes, clear of the data."""
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
 
 
 def zero_floor(values):
@@ -335,25 +361,63 @@ def _guide_orders(ds, facet, value):
     return tuple(sorted(set(REFERENCE_ORDERS) | {int(o) for o in np.ravel(nominal.values)}))
 
 
+def _conflicts(guides, obstacles):
+    """Per guide (rows of log10 values over some steps), how many ``obstacles`` (rows of
+    log10 values over the same steps, NaN where not drawn) it crosses or passes within
+    `GUIDE_CLEARANCE` decades of. Both are straight between the steps on log axes, so a row
+    that stays on one side at every step stays on it in between."""
+    gaps = obstacles[None, :, :] - guides[:, None, :]
+    near = np.abs(gaps) < GUIDE_CLEARANCE
+    crossed = (gaps > 0).any(axis=2) & (gaps < 0).any(axis=2)
+    return np.sum(near.any(axis=2) | crossed, axis=1)
+
+
 def _reference_slopes(ax, dts, errors, orders):
-    finite = errors[np.isfinite(errors) & (errors > 0)]
-    if finite.size == 0:
+    """A dotted guide per order in ``orders``, each over `GUIDE_STEPS` consecutive steps
+    placed where it crosses no line of ``errors`` (lines x steps) and no other guide, within
+    the errors' range (a guide never stretches the axis): of the places that cross fewest,
+    the longest, at the largest steps, nearest the errors' middle."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.log10(np.where(errors > 0, errors, np.nan))
+    if not np.isfinite(logs).any():
         return
-    anchor_dt, anchor = dts.max(), np.median(finite)
-    for order in orders:
-        # a steep guide stops at the smallest error shown: it never stretches the axis
-        # (order 8 over six halvings would add 15 empty decades)
-        shown = dts[anchor * (dts / anchor_dt) ** order >= finite.min()]
-        if shown.size < 2:
+    order_of_steps = np.argsort(dts)
+    x, logs = np.log10(dts[order_of_steps]), logs[:, order_of_steps]
+    low, high = np.nanmin(logs), np.nanmax(logs)
+    middle = np.nanmedian(logs)
+    anchors = np.arange(low, high + GUIDE_GRID / 2, GUIDE_GRID)  # a guide's largest value
+    for order in sorted(orders, reverse=True):  # the steepest, hardest to place, first
+        best = None
+        for steps in range(min(GUIDE_STEPS, x.size), 1, -1):
+            for start in range(x.size - steps, -1, -1):
+                span = slice(start, start + steps)
+                guides = anchors[:, None] + order * (x[span] - x[span][-1])[None, :]
+                inside_range = guides.min(axis=1) >= low
+                if not inside_range.any():
+                    continue
+                guides = guides[inside_range]
+                conflicts = _conflicts(guides, logs[:, span])
+                distances = np.abs(guides.mean(axis=1) - middle)
+                pick = np.lexsort((distances, conflicts))[0]
+                score = (conflicts[pick], -steps, x.size - start, distances[pick])
+                if best is None or score < best[0]:
+                    best = (score, span, guides[pick])
+        if best is None:
             continue
-        ax.plot(shown, anchor * (shown / anchor_dt) ** order, color="0.6", linestyle=":",
-                linewidth=1, zorder=1)
-        ax.annotate(f"order {order}", (shown.min(), anchor * (shown.min() / anchor_dt) ** order),
+        _, span, guide = best
+        row = np.full(x.size, np.nan)
+        row[span] = guide
+        logs = np.vstack([logs, row])  # the next guide keeps clear of this one
+        shown_dts, shown = 10.0 ** x[span], 10.0 ** guide
+        ax.plot(shown_dts, shown, color="0.6", linestyle=":", linewidth=1, zorder=1)
+        # named above its middle, inside its clearance: never beyond the axes' edge
+        ax.annotate(f"order {order}", (10.0 ** x[span].mean(), 10.0 ** guide.mean()),
+                    xytext=(0, 2), textcoords="offset points", ha="center", va="bottom",
                     fontsize=7, color="0.4")
 
 
-def _fit_label(name, errors, fit, round_off, failed, limits):
-    """``rk4 (order 4.00, finest 4.01)``, or why a line has no order: failed (``failed``: a
+def _fit_text(errors, fit, round_off, failed, limits):
+    """``order 4.00, finest 4.01`` in one panel, or why a line has no order: failed (``failed``: a
     case of the line did; else it had no reference), exact, at round-off (an invariant kept:
     errors at or below ``round_off``), within the reference's uncertainty (every error at or
     below its ``limits``, `UNCERTAINTY_FACTOR` times the uncertainty), or no asymptotic
@@ -372,7 +436,71 @@ def _fit_label(name, errors, fit, round_off, failed, limits):
         text = f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty at every dt"
     else:
         text = "no asymptotic range"
+    return text
+
+
+def _span(values):
+    low, high = f"{min(values):.2f}", f"{max(values):.2f}"
+    return low if low == high else f"{low}-{high}"
+
+
+def _fit_label(names, texts, fits):
+    """The legend entry of a line over a figure's panels (``texts`` and ``fits``, one per
+    panel): ``rk4 (order 4.00, finest 3.99-4.01)``, ``in 3 of 4 panels`` where the others
+    had none; lines that coincide (``names``, more than one) are named together."""
+    name = " = ".join(names) + (f" to {COINCIDENT_DIGITS} digits" if len(names) > 1 else "")
+    fitted = [fit for fit in fits if np.isfinite(fit.order)]
+    if len(set(texts)) == 1:
+        text = texts[0]
+    elif fitted:
+        text = (f"order {_span([f.order for f in fitted])}, "
+                f"finest {_span([f.finest_slope for f in fitted])}")
+        if len(fitted) < len(fits):
+            text += f" in {len(fitted)} of {len(fits)} panels"
+    else:
+        text = "; ".join(dict.fromkeys(texts))
     return f"{name} ({text})".strip()
+
+
+def _coincident(errors):
+    """Groups of line indices (first line first) whose ``errors`` (lines x points) agree to
+    `COINCIDENT_DIGITS` significant digits at every point, gaps at the same points; each
+    line is in exactly one group, alone when it has no point to agree on (failed at every
+    dt)."""
+    groups, placed = [], set()
+    for first in range(len(errors)):
+        if first in placed:
+            continue
+        shown = np.isfinite(errors[first]).any()
+        group = [first] + [other for other in range(first + 1, len(errors)) if shown
+                           if other not in placed and np.allclose(
+                               errors[other], errors[first], rtol=10.0 ** -COINCIDENT_DIGITS,
+                               atol=0.0, equal_nan=True)]
+        placed.update(group)
+        groups.append(group)
+    return groups
+
+
+def _coincident_style(style, rank, count):
+    """A line's style as the ``rank``-th of ``count`` lines drawn on top of each other: each
+    marks every ``count``-th point, starting at its rank, so that the points alternate
+    between them; the first hollow on a solid line under the others, the later ones filled
+    on dashed lines above it, so that every colour shows."""
+    if rank == 0:
+        return {**style, "markersize": 8, "markerfacecolor": "none", "linewidth": 2.0,
+                "zorder": 2, "linestyle": "-", "markevery": (0, count)}
+    return {**style, "markersize": 6, "markerfacecolor": style["color"], "linewidth": 1.2,
+            "zorder": 2 + rank, "markevery": (rank, count),
+            "linestyle": "--" if style["linestyle"] == "-" else style["linestyle"]}
+
+
+def _figure_legend(fig, entries):
+    """One legend for the whole figure, right of its panels: ``entries`` are (handles,
+    label), several handles drawn side by side for lines named together."""
+    if entries:
+        fig.legend([tuple(handles) for handles, _ in entries], [label for _, label in entries],
+                   handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)},
+                   loc="outside right center")
 
 
 def convergence(ds, folder, formats=FORMATS, measures=None):
@@ -418,32 +546,45 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
                 f"no line shows an asymptotic range of the {label} (every line failed, "
                 "stalled or was exact at every dt)")
             continue
+        # the lines are the same in every panel: those that coincide over the whole figure
+        # are drawn on top of each other in turn and named together
+        groups = _coincident([np.concatenate([lines[j][2] for lines in fits])
+                              for j in range(len(fits[0]))])
+        styles = {j: (_coincident_style(_style(fits[0][j][1]), rank, len(group))
+                      if len(group) > 1
+                      else _style(fits[0][j][1]))
+                  for group in groups for rank, j in enumerate(group)}
         with plt.rc_context(_RC):
-            fig, axes = _grid(len(facet_values), width=6.4)
-            floors = []
+            fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
+            floors, handles = [], {}
             for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits,
                                                       strict=True):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for line_name, style_key, errors, fit, failed, line_limits in lines:
-                    style = _style(style_key)
-                    plot_with_zeros(ax, dts, errors, floor,
-                                    _fit_label(line_name, errors, fit, round_off, failed,
-                                               line_limits),
-                                    style)
+                for j, (_, _, errors, fit, _, _) in enumerate(lines):
+                    style = styles[j]
+                    handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
                             color=style["color"], zorder=1)
-                _reference_slopes(ax, dts, panel.values.ravel(), _guide_orders(ds, facet, value))
+                _reference_slopes(ax, dts, np.array([errors for _, _, errors, *_ in lines]),
+                                  _guide_orders(ds, facet, value))
                 _mark_uncertainty(ax, limit.values)
                 _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
                 ax.set_title(_panel_title(facet, value, reduced))
                 ax.grid(True, which="major", alpha=0.3)
-                _legend_outside(ax)
+            _figure_legend(fig, [
+                ([handles[j] for j in group],
+                 _fit_label([fits[0][j][0] for j in group],
+                            [_fit_text(errors, fit, round_off, failed, line_limits)
+                             for _, _, errors, fit, failed, line_limits
+                             in (lines[group[0]] for lines in fits)],
+                            [lines[group[0]][3] for lines in fits]))
+                for group in groups])
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
                 else ""
             unjudged_gap = any(not failed and not np.isfinite(errors).all()
@@ -471,21 +612,22 @@ def work_precision(ds, folder, formats=FORMATS):
     line_dim, facet, reduced = _layout(ds)
     values = list(ds[facet].values) if facet else [None]
     with plt.rc_context(_RC):
-        fig, axes = _grid(len(values), width=6.0)
+        fig, axes = _grid(len(values), width=5.0, legend_width=LEGEND_WIDTH / 2 if line_dim else 0)
+        handles = {}
         for ax, value in zip(axes, values, strict=True):
             pick = {facet: value} if facet else {}
             errors = _worst(measure.sel(pick), reduced)
             times = _worst(ds["run_time"].sel(pick), reduced)
             for (name, style_key, error_line), (*_, time_line) in zip(
                     _lines(errors, line_dim), _lines(times, line_dim), strict=True):
-                ax.loglog(error_line.values, time_line.values, label=name or None,
-                          **_style(style_key))
+                line, = ax.loglog(error_line.values, time_line.values, **_style(style_key))
+                handles.setdefault(name, [line])
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("run time per case (core-seconds)")
             ax.set_title(_panel_title(facet, value, reduced))
             ax.grid(True, which="major", alpha=0.3)
-            if line_dim:
-                _legend_outside(ax)
+        if line_dim:
+            _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
         _title(fig, ds, "work-precision: kernel CPU time of each batch divided among its "
                         "cases, compilation excluded; each point a dt")
         figures.written.append(_save(fig, folder, ds, "work_precision", formats))
@@ -506,93 +648,166 @@ def _parameter(ds):
     return name, ds[name].broadcast_like(ds["status"]), label
 
 
+def _verdict_kinds(ds):
+    """(label, scatter keywords) of accurate, inaccurate, failed and unjudged cases, in the
+    order of `verdicts`' masks."""
+    bound = ds.attrs.get("accuracy_bound")
+    return (("accurate", dict(s=14, color="tab:green")),
+            ("finished, inaccurate" + (f" (error or drift > {bound:g})" if bound is not None
+                                       else ""), dict(s=22, marker="^", color="tab:orange")),
+            ("failed (unstable or not converged)", dict(s=22, marker="x", color="tab:red")),
+            ("finished, no reference (unjudged)", dict(s=22, marker="s", facecolors="none",
+                                                       edgecolors="tab:gray")))
+
+
+def _is_strip(ds, load):
+    """Whether the stability map is a strip chart: each scheme's cases lie along one axis
+    (dt or one parameter), or none, with a dt |w0| of their own, which orders them."""
+    others = [d for d in _case_dims(ds) if d != "scheme"]
+    if len(others) > 1:
+        return False
+    count = ds.sizes[others[0]] if others else 1
+    return all(np.unique(per_scheme(load, scheme).values).size == count
+               for scheme in schemes_of(ds))
+
+
+def _strip_chart(ds, load, judged, radioss):
+    """One row per scheme, its cases at their dt |w0|, marked by verdict."""
+    schemes = list(judged)
+    fig, ax = plt.subplots(figsize=(7.5, 1.2 + STRIP_ROW_HEIGHT * len(schemes)),
+                           layout="constrained")
+    for row, (scheme, masks) in enumerate(judged.items()):
+        x = per_scheme(load, scheme).values.ravel()
+        for cases, (label, kind) in zip(masks, _verdict_kinds(ds), strict=True):
+            cases = cases.ravel()
+            if cases.any():
+                ax.scatter(x[cases], np.full(cases.sum(), row), label=label, **kind)
+    if radioss:
+        ax.axvline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
+                   label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
+    ax.set_yticks(range(len(schemes)), schemes)
+    ax.set_ylim(len(schemes) - 0.5, -0.5)  # the first scheme on top
+    ax.set_xscale("log")
+    ax.set_xlabel("dt |w0| (rad)")
+    ax.grid(True, axis="x", alpha=0.3)
+    return fig, [ax]
+
+
+def _map_panels(ds, load, judged, radioss):
+    """One panel per scheme: dt |w0| against the swept parameter, the largest accurate
+    value at each of its values joined."""
+    parameter = _parameter(ds)
+    fig, axes = _grid(len(judged), width=3.4, height=2.9, columns=4)
+    for ax, (scheme, masks) in zip(axes, judged.items(), strict=True):
+        good = masks[0].ravel()
+        y = per_scheme(load, scheme).values.ravel()
+        if parameter:
+            _, values, label = parameter
+            x = per_scheme(values, scheme).values.ravel()
+            ax.set_xlabel(label)
+            named = x.dtype.kind not in "iuf"
+            if named:  # names or flags: one column each
+                names, x = np.unique(x, return_inverse=True)
+                ax.set_xticks(range(len(names)), [str(name) for name in names])
+                ax.set_xlim(-0.5, len(names) - 0.5)
+            elif np.all(x > 0) and x.max() / x.min() > LOG_AXIS_RATIO:
+                ax.set_xscale("log")
+        else:
+            x = np.zeros(y.size)
+            ax.set_xticks([])
+        for cases, (label, kind) in zip(masks, _verdict_kinds(ds), strict=True):
+            cases = cases.ravel()
+            if cases.any():  # the legend lists what occurs, nothing else
+                ax.scatter(x[cases], y[cases], label=label, **kind)
+        if parameter:
+            xs = np.unique(x)
+            largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
+                       for v in xs]
+            # a bar at each value, so that one accurate value alone still shows; joined
+            # only along a numeric axis (names or flags have nothing between them)
+            ax.plot(xs, largest, color="tab:green", linewidth=0 if named else 1, marker="_",
+                    markersize=12, label="largest accurate")
+        if radioss:
+            ax.axhline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
+                       label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
+        ax.set_yscale("log")
+        ax.set_ylabel("dt |w0| (rad)")
+        ax.set_title(scheme)
+        ax.grid(True, alpha=0.3)
+    return fig, axes
+
+
 def stability_map(ds, folder, formats=FORMATS):
-    """``dt |w0|`` of every case against the swept parameter, one panel per scheme: accurate,
-    finished but inaccurate, failed."""
+    """Every case's verdict (accurate, finished but inaccurate, failed) by its ``dt |w0|``:
+    a strip chart, a row per scheme, when each scheme's cases lie along one axis; else one
+    panel per scheme against the swept parameter. Not drawn when every case is accurate."""
     figures = Figures()
     if "dt" not in ds.coords:
         return figures
     load = step_load(ds)
-    parameter = _parameter(ds)
+    judged = {scheme: verdicts(ds, scheme) for scheme in schemes_of(ds)}
+    if all(masks[0].all() for masks in judged.values()):
+        figures.absent["stability_map"] = (
+            f"every case is accurate (dt |w0| up to {float(load.max()):.3g} rad): no "
+            "stability or accuracy boundary to show")
+        return figures
     # the limit is drawn where some case passed it and it lies among the plotted dt |w0|: a
     # case flagged for the spin it reached later must not stretch a map of small dt |w0|
-    past_radioss_limit = (bool((ds["radioss_dt_limit"] == 1).any())
-                          and bool((load >= RADIOSS_STEP_ANGLE).any()))
-    schemes = schemes_of(ds)
-    bound = ds.attrs.get("accuracy_bound")
-    inaccurate_label = ("finished, inaccurate" + (f" (error or drift > {bound:g})"
-                                                  if bound is not None else ""))
+    radioss = (bool((ds["radioss_dt_limit"] == 1).any())
+               and bool((load >= RADIOSS_STEP_ANGLE).any()))
+    strip = _is_strip(ds, load)
+    what = "stability and accuracy: every case by its dt |w0|"
+    if not strip:  # a panel of nothing but accurate cases shows no boundary: named instead
+        accurate = [scheme for scheme, masks in judged.items() if masks[0].all()]
+        judged = {scheme: masks for scheme, masks in judged.items() if scheme not in accurate}
+        what += f"; accurate in every case: {', '.join(accurate)}" if accurate else ""
     with plt.rc_context(_RC):
-        fig, axes = _grid(len(schemes), width=3.4, height=2.9, columns=4)
-        for ax, scheme in zip(axes, schemes, strict=True):
-            good, poor, failed, unjudged = (mask.ravel() for mask in verdicts(ds, scheme))
-            y = per_scheme(load, scheme).values.ravel()
-            if parameter:
-                _, values, label = parameter
-                x = per_scheme(values, scheme).values.ravel()
-                ax.set_xlabel(label)
-                named = x.dtype.kind not in "iuf"
-                if named:  # names or flags: one column each
-                    names, x = np.unique(x, return_inverse=True)
-                    ax.set_xticks(range(len(names)), [str(name) for name in names])
-                    ax.set_xlim(-0.5, len(names) - 0.5)
-                elif np.all(x > 0) and x.max() / x.min() > LOG_AXIS_RATIO:
-                    ax.set_xscale("log")
-            else:
-                x = np.zeros(y.size)
-                ax.set_xticks([])
-            for cases, kind in ((good, dict(s=14, color="tab:green", label="accurate")),
-                                (poor, dict(s=22, marker="^", color="tab:orange",
-                                            label=inaccurate_label)),
-                                (failed, dict(s=22, marker="x", color="tab:red",
-                                              label="failed (unstable or not converged)")),
-                                (unjudged, dict(s=22, marker="s", facecolors="none",
-                                                edgecolors="tab:gray",
-                                                label="finished, no reference (unjudged)"))):
-                if cases.any():  # the legend lists what occurs, nothing else
-                    ax.scatter(x[cases], y[cases], **kind)
-            if parameter:
-                xs = np.unique(x)
-                largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
-                           for v in xs]
-                # a bar at each value, so that one accurate value alone still shows; joined
-                # only along a numeric axis (names or flags have nothing between them)
-                ax.plot(xs, largest, color="tab:green", linewidth=0 if named else 1, marker="_",
-                        markersize=12, label="largest accurate")
-            if past_radioss_limit:
-                ax.axhline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
-                           label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
-            ax.set_yscale("log")
-            ax.set_ylabel("dt |w0| (rad)")
-            ax.set_title(f"{scheme}: all accurate" if good.all() else scheme)
-            ax.grid(True, alpha=0.3)
+        fig, axes = (_strip_chart if strip else _map_panels)(ds, load, judged, radioss)
         handles = {}
         for ax in axes:  # every category that occurs in some panel, once
             for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
                 handles[label] = handle
+        kinds = [label for label, _ in _verdict_kinds(ds)]
+        handles = dict(sorted(handles.items(), key=lambda item: kinds.index(item[0])
+                              if item[0] in kinds else len(kinds)))
         fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-                   ncols=len(handles))
-        _title(fig, ds, "stability and accuracy: every case by its dt |w0|")
+                   ncols=min(len(handles), 2 if strip else 4))
+        _title(fig, ds, what)
         figures.written.append(_save(fig, folder, ds, "stability_map", formats))
     return figures
 
 
 def _drift_case(ds, scheme):
-    """The case of ``scheme`` the drift figure shows, and its label: the largest dt with a
-    stable case (by value), the first value of every other axis."""
+    """The case of ``scheme`` the drift figure shows and its dt (None when dt is not swept):
+    the first value of every axis but dt, and the largest dt with a stable case (by value);
+    no case when none is stable."""
     case = per_scheme(ds, scheme)
-    named = [scheme]
     for dim in [d for d in _case_dims(case) if d != "dt"]:
         case = case.isel({dim: 0})
-        named.append(_value_text(dim, case[dim].values[()]))
-    if "dt" in case.dims:
-        stable = case["dt"].values[case["status"].values == 0]
-        if stable.size == 0:
-            return None, None
-        case = case.sel(dt=stable.max())
-    if "dt" in case.coords:
-        named.append(f"dt = {float(case['dt']):g} s")
-    return case, ", ".join(named)
+    if "dt" not in case.dims:
+        return case, float(case["dt"]) if "dt" in case.coords else None
+    stable = case["dt"].values[case["status"].values == 0]
+    if stable.size == 0:
+        return None, None
+    return case.sel(dt=stable.max()), float(stable.max())
+
+
+def _drift_title(ds, steps):
+    """Which case the drift figure shows and how it was chosen, once: the first value of
+    each other swept axis; the largest stable dt (``steps``: scheme -> dt, or None), named
+    here when the schemes share it."""
+    others = [d for d in _case_dims(ds) if d not in ("scheme", "dt")]
+    chosen = [_value_text(dim, ds[dim].values[0]) for dim in others]
+    how = ["the first value of each swept axis"] if others else []
+    dts = set(steps.values()) - {None}
+    swept = "dt" in _case_dims(ds)
+    if len(dts) == 1:
+        chosen.append(f"dt = {dts.pop():g} s")
+        how += ["the largest dt at which every scheme ran stable"] if swept else []
+    elif dts:
+        how.append("the largest dt at which each scheme ran stable, in the legend")
+    how = how or ["the study's one case per scheme"]
+    return f"{', '.join(chosen)} ({'; '.join(how)})" if chosen else "; ".join(how)
 
 
 def invariant_drift(ds, folder, formats=FORMATS):
@@ -604,30 +819,35 @@ def invariant_drift(ds, folder, formats=FORMATS):
     if not panels:
         return figures
     cases = [(scheme, *_drift_case(ds, scheme)) for scheme in schemes_of(ds)]
-    cases = [(scheme, case, label) for scheme, case, label in cases if case is not None]
+    cases = [(scheme, case, dt) for scheme, case, dt in cases if case is not None]
     if not cases:
         figures.absent["invariant_drift"] = "every case failed"
         return figures
+    steps = {scheme: dt for scheme, _, dt in cases}
+    several_dts = len(set(steps.values())) > 1
     times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
     with plt.rc_context(_RC):
-        fig, axes = _grid(len(panels), width=6.4)
-        floors = []
+        fig, axes = _grid(len(panels), width=5.4, legend_width=LEGEND_WIDTH / 2)
+        floors, handles = [], {}
         for ax, (name, label) in zip(axes, panels, strict=True):
             ax.set_yscale("log")
             floor = zero_floor(np.concatenate([np.abs(case[name].values[1:])
                                                for _, case, _ in cases]))
             floors.append(floor)
-            for scheme, case, case_label in cases:
-                plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, case_label,
-                                _style(scheme), markers=False)
+            for scheme, case, dt in cases:
+                line = plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, None,
+                                       _style(scheme), markers=False)
+                handles.setdefault(f"{scheme} (dt = {dt:g} s)" if several_dts else scheme,
+                                   [line])
             _mark_floor(ax, floor)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
-            _legend_outside(ax)
+        _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
         zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
             else ""
-        _title(fig, ds, f"invariant drift: bounded or secular{zeros}")
+        _title(fig, ds, f"invariant drift, bounded or secular; case: {_drift_title(ds, steps)}"
+                        f"{zeros}")
         figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))
     return figures
 
@@ -722,22 +942,25 @@ CAPTIONS = {
     "convergence": "Error against the time step, log-log, one line per scheme (or per value "
                    "of the swept axis in a one-scheme study); the legend gives the order "
                    "fitted on the circled points, the asymptotic range (see the table), and "
-                   "the local slope of the finest fitted pair; dotted lines are slopes 1, 2 "
-                   "and 4; a gap is a failed case (or one without a reference); a point on "
-                   "the dotted floor is exactly 0.",
+                   "the local slope of the finest fitted pair, and names together the lines "
+                   "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
+                   "of the data; a gap is a failed case (or one without a reference); a "
+                   "point on the dotted floor is exactly 0.",
     "work_precision": "Kernel run time per case against the final orientation error, one "
                       "point per dt: the cheapest scheme for a given accuracy is the lowest "
                       "line. Run time is the CPU time of the compiled batch call divided "
                       "among its cases, compilation excluded.",
-    "stability_map": "Every case by its dt |w0| against the swept parameter: green accurate, "
-                     "orange triangles finished but inaccurate (orientation error at a sample or "
+    "stability_map": "Every case by its dt |w0|, a row per scheme (or, with more than one "
+                     "swept axis, a panel per scheme against the swept parameter, where the "
+                     "line joins the largest accurate value): green accurate, orange "
+                     "triangles finished but inaccurate (orientation error at a sample or "
                      "energy or |L| drift past the study's accuracy bound), red crosses "
-                     "failed, grey squares finished without a reference (unjudged); the line "
-                     "joins the largest accurate value.",
+                     "failed, grey squares finished without a reference (unjudged).",
     "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
-                       "case per scheme, named in the legend (the largest stable dt when dt "
-                       "is swept; a failed case ends where it failed): bounded oscillation or "
-                       "secular growth; a point on the dotted floor is exactly 0.",
+                       "case per scheme, the case named in the title (the largest stable dt "
+                       "when dt is swept; a failed case ends where it failed): bounded "
+                       "oscillation or secular growth; a point on the dotted floor is "
+                       "exactly 0.",
     "benchmark": "The Abaqus benchmark figures for the case named in the legend (HHT on the "
                  "flat disk at the largest dt where the study has it), with the closed-form "
                  "solution dashed.",
