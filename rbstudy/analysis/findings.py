@@ -248,7 +248,7 @@ def _recommendation_findings(ds):
                             for labels, _ in members),
                 numbers={"dt_s": answer[1], "seconds_per_case": max(seconds),
                          "error_rad": max(errors), "accuracy_bound": bound},
-                text=f"at {where}: {answer[0]} at dt={_g(answer[1])} s, "
+                text=f"cheapest at {where}: {answer[0]} at dt={_g(answer[1])} s, "
                      f"{_g(max(seconds), 2)} s a case, error {_g(max(errors))} rad"))
     return result
 
