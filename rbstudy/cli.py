@@ -373,8 +373,14 @@ def _report(args):
     folder = args.out or pathlib.Path(args.file).parent / "report"
     _check_out(folder, given=bool(args.out))
     dataset = open_archive(args.file, verify=not args.no_verify)
-    index = write_report(dataset, folder, processes=default_threads())
-    print(f"{args.file}: report in {index}")
+
+    def progress(figures, reused):  # a line per figure as its drawing is done
+        for png in figures.written:
+            print(f"  {'reused' if reused else 'drawn'}: {png.name}", file=sys.stderr, flush=True)
+
+    report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
+                          progress=None if args.quiet else progress)
+    print(f"{args.file}: report in {report}")
     return 0
 
 
@@ -436,6 +442,10 @@ def build_parser():
     report = commands.add_parser("report", help="write an HTML report of a results file")
     report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
     report.add_argument("--out", help="report folder (default: report/ beside the file)")
+    report.add_argument("--svg", action="store_true",
+                        help="also write each figure as SVG in the report's figures/ folder and "
+                             "link it (the report itself embeds the PNGs either way)")
+    report.add_argument("--quiet", action="store_true", help="no line per figure")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
     summary = commands.add_parser("summary", help="print the findings and the per-scheme "

@@ -58,8 +58,8 @@ def test_the_scorecard_is_printed_archived_and_drawn(scorecard, capsys):
     assert list(ds["rule"].values) == list(RULES)
     assert (out / "golden" / "conformance_t_handle.yaml").exists()  # rerunnable studies
     page = (out / "conformance.html").read_text()
-    assert page.count("class='pass'") == int((ds["passed"] == 1).sum())
-    assert page.count("class='fail'") == int((ds["passed"] == 0).sum())
+    assert page.count('class="pass"') == int((ds["passed"] == 1).sum())
+    assert page.count('class="fail"') == int((ds["passed"] == 0).sum())
     assert ds.attrs["wall_seconds"] > 0
 
 

@@ -28,7 +28,7 @@ OUTSIDE = {
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
                  "yaml"},
-    "analysis": {"numpy", "xarray", "matplotlib", "tabulate"},
+    "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once
 }

@@ -29,12 +29,12 @@ cases in it are its time steps. `scorecard` returns the cells;
 (``passed`` and ``value`` per scheme and case, and per rule); `scorecard_html` the page.
 """
 
-import html
 from dataclasses import dataclass
 
 import numpy as np
 from tabulate import tabulate
 
+from rbstudy.analysis.pages import render
 from rbstudy.analysis.summary import (
     ERROR_MEASURES,
     KEPT_TOLERANCE,
@@ -283,33 +283,10 @@ def scorecard_dataset(cells, cases, attrs):
 
 
 def scorecard_html(cells, cases, titles, header):
-    """The scorecard as one HTML page: a cell per scheme and case, green or red, with every
-    rule's measurement in it; ``titles`` (case -> title) and ``header`` (lines said above
-    the table)."""
+    """The scorecard as one HTML page (`rbstudy.analysis.pages`, the report's base page): a
+    cell per scheme and case, green or red, with every rule's measurement in it; ``titles``
+    (case -> title) and ``header`` (lines said above the table)."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
-    head = "".join(f"<th title='{html.escape(titles[c])}'>{html.escape(c)}</th>" for c in cases)
-    rows = []
-    for s in schemes:
-        tds = []
-        for c in cases:
-            cell = cells[c].get(s)
-            if cell is None:
-                tds.append("<td>-</td>")
-                continue
-            details = "<br>".join(
-                f"{'&#10003;' if v.passed else '&#10007;' if v.passed is False else '&middot;'}"
-                f" {html.escape(rule)}: {html.escape(v.text)}" for rule, v in cell.verdicts.items())
-            tds.append(f"<td class='{'pass' if cell.passed else 'fail'}'>"
-                       f"<b>{html.escape(cell.short())}</b><br><small>{details}</small></td>")
-        rows.append(f"<tr><th>{html.escape(s)}</th>{''.join(tds)}</tr>")
-    rules = "".join(f"<li><b>{html.escape(r)}</b>: {html.escape(m)}</li>" for r, m in RULES.items())
-    lines = "".join(f"<p>{html.escape(line)}</p>" for line in header)
-    page = f"""<!DOCTYPE html>
-<html><head><meta charset="utf-8"><title>rbstudy conformance scorecard</title>
-<style>body{{font-family:sans-serif;margin:1.5em}} table{{border-collapse:collapse}}
-td,th{{border:1px solid #999;padding:4px;vertical-align:top}} td.pass{{background:#dff0d8}}
-td.fail{{background:#f2dede}} small{{color:#333}}</style></head><body>
-<h1>Conformance scorecard</h1>{lines}<h2>Rules</h2><ul>{rules}</ul>
-<table><tr><th>scheme</th>{head}</tr>{''.join(rows)}</table></body></html>
-"""
-    return page
+    rows = [(s, [cells[c].get(s) for c in cases]) for s in schemes]
+    return render("conformance.html.j2", title="rbstudy conformance scorecard", header=header,
+                  rules=RULES, cases=cases, titles=titles, rows=rows)

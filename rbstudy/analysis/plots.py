@@ -35,6 +35,8 @@ values becomes one panel per value; any other axis is reduced to its worst case 
 case makes the worst case a gap, never hidden), and the panel title says so.
 """
 
+import contextlib
+import json
 import multiprocessing
 import pathlib
 from dataclasses import dataclass, field
@@ -63,12 +65,12 @@ from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
-from rbstudy.pipeline.store import inside  # noqa: E402
+from rbstudy.pipeline.store import inside, write_text_atomic  # noqa: E402
 
 __all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
            "Figures", "convergence",
            "work_precision", "stability_map", "invariant_drift", "benchmark", "all_figures",
-           "CAPTIONS", "figure_name", "zero_floor", "plot_with_zeros"]
+           "CAPTIONS", "figure_name", "figure_layout", "benchmark_case", "zero_floor", "plot_with_zeros"]
 
 MAX_FACETS = 4
 MAX_LINES = 8
@@ -150,7 +152,7 @@ def _case_dims(ds):
     return [d for d in ds["status"].dims if d not in _CASE_DIMS_EXCLUDED]
 
 
-def _layout(ds):
+def figure_layout(ds):
     """(line dim, facet dim, reduced dims) of a figure along dt.
 
     Lines are the schemes; a one-scheme study draws one line per value of its first other
@@ -510,7 +512,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
     if "dt" not in ds.dims:
         return figures
     dts = ds["dt"].values
-    line_dim, facet, reduced = _layout(ds)
+    line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
     for key, (label, units, round_off, *_) in ERROR_MEASURES.items():
         if measures is not None and key not in measures:
@@ -609,7 +611,7 @@ def work_precision(ds, folder, formats=FORMATS):
     if not (measure > 0).any():
         figures.absent["work_precision"] = "no case has a finite, non-zero orientation error"
         return figures
-    line_dim, facet, reduced = _layout(ds)
+    line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
     with plt.rc_context(_RC):
         fig, axes = _grid(len(values), width=5.0, legend_width=LEGEND_WIDTH / 2 if line_dim else 0)
@@ -852,7 +854,9 @@ def invariant_drift(ds, folder, formats=FORMATS):
     return figures
 
 
-def _benchmark_case(ds):
+def benchmark_case(ds):
+    """The case the benchmark figures show (`BENCHMARK_PICKS`, the largest dt) and its name
+    (``hht, inertia_ratio = 2``)."""
     case, named = ds, []
     for dim in _case_dims(ds):
         if dim == "dt":
@@ -875,7 +879,7 @@ def benchmark(ds, folder, formats=FORMATS):
     figures = Figures()
     if any(name not in ds for name in _BENCHMARK_NEEDS):
         return figures
-    case, what = _benchmark_case(ds)
+    case, what = benchmark_case(ds)
     color = _style(str(case["scheme"].values))["color"]
     if int(case["status"]) != 0:
         figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
@@ -982,7 +986,32 @@ def _draw(index):
     return figure(*_INHERITED, **options)
 
 
-def all_figures(ds, folder, formats=FORMATS, processes=1):
+def _manifest(folder, ds):
+    """The file beside a study's figures that records, per drawing, what the figures were
+    drawn from (a digest) and what each drawing gave (`all_figures` with ``digest``)."""
+    return inside(folder, f".{figure_name(ds, 'figures')}.json")
+
+
+def _recorded(manifest, digest, formats):
+    """Drawing index -> its recorded `Figures`, for the drawings of ``manifest`` drawn from
+    ``digest`` in every one of ``formats`` whose files all exist: those need no redrawing."""
+    try:
+        record = json.loads(manifest.read_text())
+        if record["digest"] != digest or len(record["drawings"]) != len(_DRAWINGS):
+            return {}
+        reused = {}
+        for index, entry in enumerate(record["drawings"]):
+            files = [manifest.parent / f"{stem}.{suffix}" for stem in entry["written"]
+                     for suffix in formats]
+            if set(formats) <= set(entry["formats"]) and all(path.is_file() for path in files):
+                reused[index] = Figures([manifest.parent / f"{stem}.{formats[0]}"
+                                         for stem in entry["written"]], dict(entry["absent"]))
+    except (OSError, ValueError, LookupError, TypeError):  # none yet, or not ours: draw all
+        return {}
+    return reused
+
+
+def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=None):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why), in the same order however drawn.
 
@@ -991,24 +1020,48 @@ def all_figures(ds, folder, formats=FORMATS, processes=1):
     process: the 13 figures of the default study took 10.8 s in one. Fork only from a
     process without threads of its own (the command line), as a forked child holds only the
     forking thread.
+
+    ``digest`` (a text naming what the figures are drawn from: the report's digest of the
+    dataset and the sources that draw it) keeps the figures recorded beside them under the
+    same digest and draws only the others; without it every figure is drawn and the record
+    removed. ``progress(figures, reused)`` is called per drawing, in order, as it is done.
     """
     global _INHERITED
     folder = pathlib.Path(folder)
     inside(folder, figure_name(ds, "*"))  # earlier drawings are deleted: only inside it
-    for old in folder.glob(f"{figure_name(ds, '*')}.*"):  # an earlier drawing of this study
-        if old.suffix.lstrip(".") in ALL_FORMATS:
-            old.unlink()
-    processes = min(processes, len(_DRAWINGS))
+    manifest = _manifest(folder, ds)
+    reused = {} if digest is None else _recorded(manifest, digest, formats)
+    if not reused:
+        for old in folder.glob(f"{figure_name(ds, '*')}.*"):  # an earlier drawing of this study
+            if old.suffix.lstrip(".") in ALL_FORMATS:
+                old.unlink()
+        manifest.unlink(missing_ok=True)
+    todo = [index for index in range(len(_DRAWINGS)) if index not in reused]
+    processes = min(processes, len(todo))
     _INHERITED = (ds, folder, formats)
+    done = dict(reused)
     try:
-        if processes > 1 and "fork" in multiprocessing.get_all_start_methods():
-            with multiprocessing.get_context("fork").Pool(processes) as pool:
-                drawn = pool.map(_draw, range(len(_DRAWINGS)), chunksize=1)
-        else:
-            drawn = [_draw(index) for index in range(len(_DRAWINGS))]
+        with contextlib.ExitStack() as stack:
+            if processes > 1 and "fork" in multiprocessing.get_all_start_methods():
+                pool = stack.enter_context(multiprocessing.get_context("fork").Pool(processes))
+                drawings = pool.imap(_draw, todo, chunksize=1)
+            else:
+                drawings = map(_draw, todo)
+            for index in range(len(_DRAWINGS)):
+                if index not in reused:
+                    done[index] = next(drawings)
+                if progress is not None:
+                    progress(done[index], index in reused)
     finally:
         _INHERITED = None
     figures = Figures()
-    for part in drawn:
-        figures += part
+    for index in range(len(_DRAWINGS)):
+        figures += done[index]
+    if digest is not None:
+        record = {"digest": digest, "drawings": [
+            {"written": [path.stem for path in done[index].written],
+             "formats": [suffix for suffix in ALL_FORMATS if all(
+                 path.with_suffix(f".{suffix}").is_file() for path in done[index].written)],
+             "absent": done[index].absent} for index in range(len(_DRAWINGS))]}
+        write_text_atomic(json.dumps(record, indent=1), manifest)
     return figures

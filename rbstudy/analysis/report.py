@@ -1,25 +1,48 @@
-"""`rbstudy report`: one self-contained HTML page per study, from its dataset only.
+"""`rbstudy report`: one self-contained HTML file per study, from its dataset only.
 
-``<out>/index.html`` holds the study's config, the per-scheme table (observed order with the
-dt range it was fitted on and the slope of its finest pair, errors at the largest and smallest
-dt, kernel time per body-step, accurate range, invariants kept), every figure of
-`rbstudy.analysis.plots` (PNG files beside it in ``<out>/figures/``, SVG too), the figures
-the study could not show and why, and the provenance recorded in the dataset. A report folder
-belongs to one study (``.rbstudy-report`` names it): writing another study's report there is
-refused.
+``<out>/report.html`` is the file to send: the study's findings first, a table of contents,
+the per-scheme table with its footnotes, every figure of `rbstudy.analysis.plots` embedded as
+a PNG data URI with a caption built from this study's numbers (which schemes, which swept
+axis, the fitted orders, which lines coincide), the figures the study could not show and why,
+and at the end the provenance and the config recorded in the dataset. It needs no other file:
+the PNGs in ``<out>/figures/`` are kept only so that a later report of the same dataset reuses
+them (their digest is recorded beside them); SVG files are written there, and linked, only on
+request. A report folder belongs to one study (``.rbstudy-report`` names it): writing
+another study's report there is refused. The page is the template ``report.html.j2``
+(`rbstudy.analysis.pages`).
 """
 
-import html
+import base64
+import hashlib
+import importlib.metadata
 import pathlib
 
-from rbstudy.analysis.plots import ALL_FORMATS, CAPTIONS, all_figures
+import markupsafe
+import numpy as np
+
+from rbstudy.analysis.findings import agree, findings
+from rbstudy.analysis.pages import render
+from rbstudy.analysis.plots import (
+    BENCHMARK_NODE,
+    CAPTIONS,
+    FORMATS,
+    all_figures,
+    benchmark_case,
+    figure_layout,
+)
 from rbstudy.analysis.summary import (
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
+    error_measure,
     format_table,
+    order_text,
+    per_scheme,
     scheme_rows,
+    schemes_of,
+    step_load,
 )
 from rbstudy.errors import InputError
+from rbstudy.numerics.sources import SOURCE_DIGEST
 from rbstudy.physics.metrics import (
     MAX_SLOPE_DRIFT,
     MIN_ASYMPTOTIC_POINTS,
@@ -29,25 +52,14 @@ from rbstudy.physics.metrics import (
 from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.reader import Reader
 
-__all__ = ["write_report", "MARKER"]
+__all__ = ["write_report", "figures_digest", "captions", "MARKER", "REPORT_NAME"]
 
 # The file that names the study a report folder belongs to.
 MARKER = ".rbstudy-report"
-
-_STYLE = """
-body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; color: #222; }
-table { border-collapse: collapse; font-size: 0.9em; }
-th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }
-th:first-child, td:first-child { text-align: left; }
-pre { background: #f5f5f5; padding: 1em; overflow-x: auto; font-size: 0.85em; }
-figure { margin: 2em 0; } img { max-width: 100%; }
-figcaption { font-size: 0.9em; color: #444; }
-"""
-
-
-def _caption(name):
-    key = next((k for k in CAPTIONS if name.startswith(k)), None)
-    return CAPTIONS.get(key, "")
+REPORT_NAME = "report.html"
+# The global attributes shown as provenance, in this order (the config has its own section).
+_PROVENANCE = ("source", "versions", "history", "config_path", "batches", "platform", "python")
+_ANALYSIS = pathlib.Path(__file__).resolve().parent
 
 
 def _claim(out, study):
@@ -63,57 +75,221 @@ def _claim(out, study):
     write_text_atomic(study + "\n", marker)
 
 
-def write_report(ds, out, processes=1):
-    """Write ``out/index.html`` and ``out/figures/`` for dataset ``ds``, the figures drawn in
-    ``processes`` processes (`rbstudy.analysis.plots.all_figures`); returns the index path."""
+def figures_digest(ds):
+    """What the figures of ``ds`` are drawn from, as one SHA-256: every variable's and
+    coordinate's name, dimensions, type and values, the global attributes, and the sources
+    that draw (the analysis layer and what computes, `SOURCE_DIGEST`) with matplotlib's
+    version. The values themselves, not the archive's checksums attribute: with --no-verify an
+    edited value must redraw too (hashing the default study's 12 MB takes 11 ms)."""
+    digest = hashlib.sha256()
+    digest.update(f"{SOURCE_DIGEST} matplotlib {importlib.metadata.version('matplotlib')}".encode())
+    for path in sorted(_ANALYSIS.rglob("*")):
+        if path.is_file() and path.suffix in (".py", ".j2"):
+            digest.update(path.read_bytes())
+    for name, variable in sorted({**ds.coords, **ds.data_vars}.items()):
+        values = np.asarray(variable.values)
+        digest.update(f"{name} {variable.dims} {values.dtype} {sorted(variable.attrs.items())}"
+                      .encode())
+        digest.update(values.tobytes() if values.dtype.kind != "O"
+                      else "\0".join(map(str, values.ravel())).encode())
+    digest.update(repr(sorted(ds.attrs.items())).encode())
+    return digest.hexdigest()
+
+
+def _listing(items):
+    """``a, b and c``."""
+    items = list(items)
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
+
+
+def _value(value):
+    return f"{value:g}" if isinstance(value, float | np.floating) else str(value)
+
+
+def _values(ds, dim):
+    return _listing(map(_value, ds[dim].values))
+
+
+def _lines_and_panels(ds, first):
+    """What a figure along dt draws as lines, panels and worst cases, in words; after the
+    ``first`` figure that said so, a pointer to it."""
+    if first is not None:
+        return f"lines and panels as in {first}"
+    line, facet, reduced = figure_layout(ds)
+    if line == "scheme":
+        words = [f"a line per scheme ({_listing(schemes_of(ds))})"]
+    elif line is not None:
+        words = [f"a line per {line} ({_values(ds, line)})"]
+    else:
+        words = ["one line"]
+    if facet is not None:
+        words.append(f"a panel per {facet} ({_values(ds, facet)})")
+    if reduced:
+        words.append(f"the worst case over {_listing(reduced)}")
+    return ", ".join(words)
+
+
+def _coinciding(ds, errors):
+    """``euler = leapfrog`` for each pair of schemes whose ``errors`` agree to 3 digits."""
+    if "scheme" not in errors.dims:
+        return []
+    values = {s: per_scheme(errors, s).values for s in schemes_of(ds)}
+    names = list(values)
+    return [f"{a} = {b}" for i, a in enumerate(names) for b in names[i + 1:]
+            if agree(values[a], values[b])]
+
+
+def _convergence_caption(ds, rows, key, first):
+    label, units = ERROR_MEASURES[key][:2]
+    errors = error_measure(ds, key)
+    dts = ds["dt"].values
+    line = figure_layout(ds)[0]
+    text = (f"The {label}{'' if units == '1' else f' ({units})'} against dt from {dts.min():g} "
+            f"to {dts.max():g} s, {_lines_and_panels(ds, first)}.")
+    if key == "orientation":  # the table's fits: the words cannot disagree with it
+        fitted = [f"{row['scheme']} {order_text(row)}" for row in rows if row["order"]]
+        unfitted = [row["scheme"] for row in rows if not row["order"]]
+        if fitted:
+            text += f" Fitted orders: {_listing(fitted)}."
+        if unfitted:
+            text += f" No asymptotic range: {_listing(unfitted)}."
+    elif line in errors.dims:  # the finest step's error of each line, its worst case
+        finest = errors.sel(dt=dts.min())
+        worst = {value: float(finest.sel({line: value}).max(skipna=False))
+                 for value in ds[line].values}
+        named = "" if line == "scheme" else f"{line} "
+        text += (f" At the smallest dt ({dts.min():g} s) the worst errors: "
+                 + _listing(f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}"
+                            for v, e in worst.items()) + ".")
+    pairs = _coinciding(ds, errors)
+    if pairs:
+        text += f" Coinciding to 3 digits: {_listing(pairs)}."
+    return text
+
+
+def _work_precision_caption(ds, rows, found, first):
+    text = (f"Kernel time per case against the final orientation error, a point per dt "
+            f"({ds.sizes['dt']} values), {_lines_and_panels(ds, first)}.")
+    cost = sorted(rows, key=lambda row: row["ns_per_step"])
+    if len(cost) > 1:
+        text += (f" Cheapest step: {cost[0]['scheme']} ({cost[0]['ns_per_step']:.0f} ns); "
+                 f"dearest: {cost[-1]['scheme']} ({cost[-1]['ns_per_step']:.0f} ns).")
+    answer = next((f.text for f in found if f.kind in ("recommendation", "no_recommendation")),
+                  None)
+    return text + (f" The study's answer: {answer}." if answer else "")
+
+
+def _stability_caption(ds, rows):
+    load = step_load(ds).values
+    text = (f"Each of the {load.size} cases by its dt |w0|, from {np.nanmin(load):.3g} to "
+            f"{np.nanmax(load):.3g} rad.")
+    always = [row["scheme"] for row in rows if np.isnan(row["inaccurate_hw"])
+              and np.isnan(row["unstable_hw"])]
+    limited = [f"{row['scheme']} to {row['accurate_hw']:.3g}" for row in rows
+               if row["scheme"] not in always and np.isfinite(row["accurate_hw"])]
+    failing = [f"{row['scheme']} from {row['unstable_hw']:.3g}" for row in rows
+               if np.isfinite(row["unstable_hw"])]
+    if always:
+        text += f" Accurate in every case: {_listing(always)}."
+    if limited:
+        text += f" Accurate up to: {_listing(limited)}."
+    if failing:
+        text += f" Failing: {_listing(failing)}."
+    return text
+
+
+def _drift_caption(ds, rows):
+    end = float(ds["time"].values[-1]) if "time" in ds.coords else None
+    text = "Energy and angular-momentum errors against time" + (
+        f" over {end:g} s" if end else "") + ", one case per scheme."
+    for invariant in ("energy", "|L|", "L"):
+        keeping = [row["scheme"] for row in rows if invariant in row["kept"]]
+        if keeping:
+            text += f" Keep {invariant} to round-off: {_listing(keeping)}."
+    drifting = [row["scheme"] for row in rows if not row["kept"]]
+    if drifting:
+        text += f" Keep none: {_listing(drifting)}."
+    return text
+
+
+# The three benchmark figures, each what it plots.
+_BENCHMARK_LEADS = {
+    "benchmark_omega_time": "The global angular velocity components against time",
+    "benchmark_omega_xy": "w_x against w_y in global axes, the tip of w circling the momentum "
+                          "axis",
+    "benchmark_node_path": f"The path of node {BENCHMARK_NODE} seen down global z",
+}
+
+
+def captions(ds, names):
+    """Figure name (without the study) -> (caption from this study's numbers, how to read
+    the kind of figure or None): the reading is given with the first figure of each kind, the
+    lines and panels of the figures along dt with the first of them."""
+    rows, found = scheme_rows(ds), findings(ds)
+    result, read, along_dt = {}, set(), None
+    for name in names:
+        kind = next((k for k in CAPTIONS if name.startswith(k)), None)
+        if kind == "convergence":
+            text = _convergence_caption(ds, rows, name.removeprefix("convergence_"), along_dt)
+        elif kind == "work_precision":
+            text = _work_precision_caption(ds, rows, found, along_dt)
+        elif kind == "stability_map":
+            text = _stability_caption(ds, rows)
+        elif kind == "invariant_drift":
+            text = _drift_caption(ds, rows)
+        else:
+            text = f"{_BENCHMARK_LEADS.get(name, name)}, for {benchmark_case(ds)[1]}."
+        if kind in ("convergence", "work_precision") and along_dt is None:
+            along_dt = name
+        result[name] = (text, None if kind in read else CAPTIONS.get(kind))
+        read.add(kind)
+    return result
+
+
+def _data_uri(png):
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+
+
+def _table_intro(ds):
+    floor, ceiling = ERROR_MEASURES["orientation"][2:4]
+    return ("The table rbstudy sweep --wide prints, its footnotes under it. No order is fitted "
+            f"through an error below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
+            "uncertainty (reference_uncertainty). The asymptotic range: the longest run of at "
+            f"least {MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
+            f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
+            f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more than "
+            f"{MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. Accuracy "
+            f"bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
+            "orientation error at any sample, relative for energy and |L|).")
+
+
+def write_report(ds, out, processes=1, svg=False, progress=None):
+    """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
+    ``out/figures/`` in ``processes`` processes, with SVG files linked when ``svg``;
+    ``progress`` as `rbstudy.analysis.plots.all_figures` takes it); returns its path."""
     out = pathlib.Path(out)
     # before the folder is claimed: the study names the figure files
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
     _claim(out, study)
-    figures = all_figures(ds, out / "figures", ALL_FORMATS, processes)  # PNG shown, SVG linked
-    rows = scheme_rows(ds)
-    floor, ceiling = ERROR_MEASURES["orientation"][2:4]
-    title = html.escape(ds.attrs.get("title", ds.attrs.get("study", "rbstudy results")))
+    formats = FORMATS + ("svg",) if svg else FORMATS
+    figures = all_figures(ds, out / "figures", formats, processes, digest=figures_digest(ds),
+                          progress=progress)
+    names = [png.stem.removeprefix(f"{study}_") for png in figures.written]
+    texts = captions(ds, names)
+    shown = [{"name": name, "anchor": f"figure-{name}", "source": _data_uri(png),
+              "caption": texts[name][0], "reading": texts[name][1],
+              "svg": png.with_suffix(".svg").relative_to(out).as_posix() if svg else None}
+             for name, png in zip(names, figures.written, strict=True)]
     dims = ", ".join(f"{d} ({ds.sizes[d]})" for d in ds["status"].dims) or "one case"
-    parts = [
-        "<!DOCTYPE html>", "<html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{title}</title><style>{_STYLE}</style></head><body>",
-        f"<h1>{title}</h1>",
-        f"<p>Study <code>{html.escape(str(ds.attrs.get('study', '')))}</code>: "
-        f"{int(ds['status'].size)} cases over {html.escape(dims)}.</p>",
-        "<h2>Schemes</h2>",
-        "<p>The table <code>rbstudy sweep --wide</code> prints, its footnotes under it. "
-        "No order is fitted through an error below "
-        f"{UNCERTAINTY_FACTOR:g}x its integrated reference's uncertainty "
-        "(reference_uncertainty). The asymptotic range: the longest run of at least "
-        f"{MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
-        f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
-        f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more "
-        f"than {MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. "
-        f"Accuracy bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
-        "orientation error at any sample, relative for energy and |L|). ns per step: "
-        "the scheme's kernel CPU time over all its steps. dt|w0| is the step parameter of a physical body (a "
-        "stress body beyond the triangle inequality precesses faster than |w0|).</p>",
-        format_table(rows, wide=True, fmt="html"),
-        "<h2>Figures</h2>",
-    ]
-    for png in figures.written:
-        relative = png.relative_to(out).as_posix()
-        name = png.stem.removeprefix(f"{study}_")
-        parts.append(f"<figure><img src='{relative}' alt='{png.stem}'>"
-                     f"<figcaption><b>{name}</b>: {html.escape(_caption(name))} "
-                     f"(<a href='{relative[:-4]}.svg'>SVG</a>)</figcaption></figure>")
-    if figures.absent:
-        parts += ["<h3>Figures not drawn</h3>", "<ul>"]
-        parts += [f"<li><b>{html.escape(name)}</b>: {html.escape(reason)}</li>"
-                  for name, reason in figures.absent.items()]
-        parts.append("</ul>")
-    parts += ["<h2>Configuration</h2>", f"<pre>{html.escape(ds.attrs.get('config', ''))}</pre>",
-              "<h2>Provenance</h2>", "<table>"]
-    for key in ("source", "history", "versions", "platform", "python", "config_path"):
-        value = html.escape(str(ds.attrs.get(key, "-"))).replace("\n", "<br>")
-        parts.append(f"<tr><td>{key}</td><td style='text-align:left'>{value}</td></tr>")
-    parts += ["</table>", "</body></html>"]
-    index = out / "index.html"
-    write_text_atomic("\n".join(parts), index)
-    return index
+    provenance = [(key, str(ds.attrs[key])) for key in _PROVENANCE if key in ds.attrs]
+    page = render("report.html.j2",
+                  title=ds.attrs.get("title", study), study=study,
+                  cases=int(ds["status"].size), dims=dims, findings=findings(ds),
+                  table_intro=_table_intro(ds),
+                  # tabulate escapes the cells, format_table the footnotes
+                  table=markupsafe.Markup(format_table(scheme_rows(ds), wide=True, fmt="html")),
+                  figures=shown, absent=figures.absent, provenance=provenance,
+                  config=ds.attrs.get("config", ""))
+    report = out / REPORT_NAME
+    write_text_atomic(page, report)
+    return report

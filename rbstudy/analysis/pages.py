@@ -1,0 +1,24 @@
+"""HTML pages from the templates in ``templates/`` (jinja2): the report and the conformance
+scorecard extend one base page, so they share a look and are escaped the same way.
+
+The templates are package data: a wheel carries them (pyproject's package-data), and they are
+read from beside this module, so an installed rbstudy finds them as a checkout does.
+"""
+
+import pathlib
+
+import jinja2
+
+__all__ = ["render", "TEMPLATES"]
+
+TEMPLATES = pathlib.Path(__file__).resolve().parent / "templates"
+
+# Autoescape every template: the texts come from archives and configs, which are input.
+_ENVIRONMENT = jinja2.Environment(loader=jinja2.FileSystemLoader(TEMPLATES),
+                                  autoescape=True, undefined=jinja2.StrictUndefined,
+                                  keep_trailing_newline=True)
+
+
+def render(template, **context):
+    """The page of ``template`` (a file name in `TEMPLATES`) filled from ``context``."""
+    return _ENVIRONMENT.get_template(template).render(**context)
