@@ -142,7 +142,7 @@ def _each_file(paths, say):
     failures = 0
     for path in paths:
         try:
-            print(f"{path}: {say(path)}")
+            _say(f"{path}: {say(path)}")
         except RbstudyError as error:
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1

@@ -47,6 +47,8 @@ def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
 def test_validate_reports_cases_batches_and_memory(capsys):
     assert main(["validate", "configs/abaqus_top.yaml"]) == 0
     out = capsys.readouterr().out
+    assert max(map(len, out.splitlines())) <= 100  # wrapped after its clauses
+    out = " ".join(out.split())
     assert "216 cases (scheme 9 x dt 6 x inertia_ratio 4) in 54 batches" in out
     assert "archive ~" in out and "peak memory" in out  # the sizes: test_pipeline
     assert "4.5e+05 body-steps" in out  # 216 cases of 2 s at dt 0.01 .. 0.0003125

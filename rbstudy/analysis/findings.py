@@ -279,8 +279,9 @@ def _coincidences(ds):
                 result.append(Finding(
                     kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
                     numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
-                    text=f"{second} gives {first}'s errors to 3 digits in all "
-                         f"{int(both.sum())} cases (their lines overlap)"))
+                    text=f"{second} gives {first}'s errors to 3 digits in "
+                         + (f"all {int(both.sum())} cases (their lines overlap)"
+                            if both.sum() > 1 else "the study's one case")))
     return result
 
 
