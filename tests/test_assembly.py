@@ -311,7 +311,8 @@ def test_a_study_sweeps_node_masses_and_the_cloud_and_says_what_it_regularised(
     ratio = np.array(study.cases[2].scene.body.inertia) / study.cases[1].scene.body.inertia
     assert np.allclose(ratio, 4.0, rtol=1e-12)
     assert main(["validate", str(path)]) == 0
-    out = capsys.readouterr().out.splitlines()
+    # a line of its own (wrapped at 100 columns, its continuations indented)
+    out = "\n".join(capsys.readouterr().out.splitlines()).replace("\n  ", " ").splitlines()
     assert out[1] == (f"{path}: warning: scene.assembly: a principal inertia below 0.001 of "
                       "the largest was raised to it in 6 of 6 scenes (Radioss regularisation)")
     bad = write_study(tmp_path, name="bad", scene=thin, sweep={"inertia_ratio": [1.0]})
