@@ -249,3 +249,34 @@ def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys)
     assert captured.out == ""
     assert captured.err == (f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
                             "file; give the <study>.nc written by rbstudy sweep\n")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_each_stated_order_is_the_slope_of_the_errors_over_dt(archives, name):
+    """A verdict's order range holds the least-squares slope of log error over log dt, fitted
+    here with numpy alone, of every value of the other axes whose errors at the study's three
+    steps lie in the asymptotic window (above round-off, below 0.1 rad) on a straight line."""
+    ds = open_archive(archives[name])
+    if "dt" not in ds["status"].dims or ds.sizes["dt"] < 3:
+        pytest.skip(f"{name} sweeps no dt: no order to state")
+    checked = 0
+    for found in findings(ds):
+        if found.kind != "verdict" or "order_low" not in found.numbers or \
+                found.text.split(":")[0].count(","):  # a composition row: its own slice
+            continue
+        error = ds["final_orientation_error"]
+        if "scheme" in error.dims:
+            error = error.sel(scheme=found.cases[0]["scheme"])
+        error = error.transpose("dt", ...).values.reshape(ds.sizes["dt"], -1)
+        dts = np.log10(np.atleast_1d(ds["dt"].values))
+        for column in error.T:
+            local = np.diff(np.log10(column)) / np.diff(dts) if np.all(column > 0) else None
+            # a straight line: its two local slopes agree (else the table fits no range there,
+            # and says so with its (k/n))
+            if np.all((column > 1e-10) & (column < 0.1)) and np.ptp(local) < 0.3:
+                slope = np.polyfit(dts, np.log10(column), 1)[0]
+                assert found.numbers["order_low"] - 0.1 <= slope \
+                    <= found.numbers["order_high"] + 0.1, (found.text, slope)
+                checked += 1
+    if not checked:
+        pytest.skip(f"{name}: no value of the other axes has all its errors in the window")
