@@ -19,10 +19,11 @@ import logging
 import math
 import os
 import pathlib
+import re
 import sys
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError
+from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean
 
 __all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -384,8 +385,33 @@ def _report(args):
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors offer the verb or option a slip was meant for
+    (``--wokers``: did you mean '--workers'?)."""
+
+    def error(self, message):
+        super().error(message + _meant(self, message))
+
+
+def _meant(parser, message):
+    """`did_you_mean` for the first unknown verb or option that argparse's ``message`` names."""
+    choice = re.match(r"argument \S+: invalid choice: '([^']*)' \(choose from (.*)\)", message)
+    if choice:
+        return did_you_mean(choice[1], re.findall(r"'([^']*)'", choice[2]))
+    if not message.startswith("unrecognized arguments: "):
+        return ""
+    parsers = [parser] + [sub for action in parser._actions  # the verbs' parsers too
+                          if isinstance(action, argparse._SubParsersAction)
+                          for sub in action.choices.values()]
+    options = {option for each in parsers for option in each._option_string_actions}
+    for word in message.split(": ", 1)[1].split():
+        if word.startswith("--") and did_you_mean(word, options):
+            return did_you_mean(word, options)
+    return ""
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rbstudy", description="Parameter studies of rigid-body rotation integrators.")
     parser.add_argument("--version", action="version", version=f"rbstudy {_version()}")
     commands = parser.add_subparsers(dest="command", required=True)

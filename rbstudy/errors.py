@@ -7,11 +7,23 @@ them, and the caller that does places it with `InputError.located`, so that no m
 ever rewritten as text.
 """
 
+import difflib
+
 __all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError",
-           "MAX_LENGTH", "first_line"]
+           "MAX_LENGTH", "first_line", "did_you_mean"]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
 MAX_LENGTH = 1000
+# How alike a name must be to a valid one to be offered as what was meant (difflib's ratio:
+# 'hhtt' and 'hht' 0.86, 'duraton' and 'duration' 0.93, 'sweep' and 'bench' 0.2).
+SIMILAR_NAME = 0.75
+
+
+def did_you_mean(name, valid):
+    """`` (did you mean 'hht'?)`` when ``name`` is a slip of one of ``valid``, else ''."""
+    close = difflib.get_close_matches(str(name), [str(v) for v in valid], n=1,
+                                      cutoff=SIMILAR_NAME)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 class RbstudyError(Exception):

@@ -19,7 +19,7 @@ import stat
 
 import numpy as np
 
-from rbstudy.errors import InputError
+from rbstudy.errors import InputError, did_you_mean
 
 __all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES", "is_folder_name", "FOLDER_NAME_RULE"]
 
@@ -123,7 +123,8 @@ class Reader:
         for name in value:
             if name not in allowed:
                 self.fail(f"{key}.{name}" if key else name,
-                          f"unknown key; valid keys here: {', '.join(allowed)}")
+                          f"unknown key{did_you_mean(name, allowed)}; valid keys here: "
+                          f"{', '.join(allowed)}")
         return value
 
     def number(self, value, key, positive=False):

@@ -90,7 +90,8 @@ def test_a_study_past_the_memory_or_the_free_disk_is_refused(tmp_path, capsys, m
 
 @pytest.mark.parametrize("text, message", [
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: leapfrg, dt: 0.1}\n",
-     "bad.yaml: run.scheme: unknown scheme 'leapfrg'; valid schemes: dop853, euler"),
+     "bad.yaml: run.scheme: unknown scheme 'leapfrg' (did you mean 'leapfrog'?); valid schemes: "
+     "dop853, euler"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.03}\n"
      "output: {interval: 0.1}\n", "bad.yaml: run.dt: dt = 0.03 s does not divide the output"),
     ("name: x\nscene: {body: {inertia: [1, 1, 3]}}\nrun: {scheme: rk4, dt: 0.1}\n",
@@ -259,3 +260,27 @@ def test_yaml_merge_keys_still_merge(tmp_path, capsys):
                                    "run: {<<: {scheme: rk4}, dt: 0.1}"))
     assert main(["validate", str(config)]) == 0
     assert "ok: x: 1 case (one case)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("argv", "meant"), [
+    (["swep", "x.yaml"], "(did you mean 'sweep'?)"),
+    (["sweep", "--wokers", "2", "x.yaml"], "(did you mean '--workers'?)"),
+    (["validate", "x.yaml", "--max-memroy", "100"], "(did you mean '--max-memory'?)"),
+])
+def test_a_slip_of_a_verb_or_an_option_is_offered_what_was_meant(argv, meant, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(meant)
+
+
+def test_a_slip_of_a_scheme_or_a_key_is_offered_what_was_meant(tmp_path, capsys):
+    scheme = write_study(tmp_path, name="scheme", run={"scheme": "hhtt", "dt": 0.01})
+    key = write_study(tmp_path, name="key")
+    key.write_text(key.read_text().replace("duration:", "duraton:"))
+    far = write_study(tmp_path, name="far", run={"scheme": "xyz", "dt": 0.01})
+    assert main(["validate", str(scheme), str(key), str(far)]) == 1
+    errors = capsys.readouterr().err.splitlines()
+    assert "run.scheme: unknown scheme 'hhtt' (did you mean 'hht'?); valid schemes:" in errors[0]
+    assert "scene.duraton: unknown key (did you mean 'duration'?); valid keys here:" in errors[1]
+    assert "unknown scheme 'xyz'; valid schemes:" in errors[2]  # nothing near: no guess

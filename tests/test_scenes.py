@@ -47,7 +47,8 @@ def test_flat_disk_at_the_edge_is_physical():
 
 def test_unknown_keys_and_wrong_types_are_named():
     fails({"body": {"inertia": [1, 1, 1], "mas": 2}},
-          "scene.body.mas: unknown key; valid keys here: mass, inertia, allow_unphysical")
+          "scene.body.mas: unknown key (did you mean 'mass'?); valid keys here: mass, inertia, "
+          "allow_unphysical")
     fails({"body": {"inertia": [1, 1, 1], "mass": "heavy"}},
           "scene.body.mass: expected a number, got 'heavy'")
     fails({"body": {"inertia": [1, 1]}}, "scene.body.inertia: expected a list of 3 numbers")

@@ -17,7 +17,7 @@ import pkgutil
 import threading
 from collections.abc import Mapping
 
-from rbstudy.errors import SchemeError
+from rbstudy.errors import SchemeError, did_you_mean
 from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
 from rbstudy.schemes._composition import stage_reach as composition_reach
 from rbstudy.schemes._plugins import (
@@ -124,4 +124,5 @@ def get_scheme(name):
         raise SchemeError(f"scheme {name!r} ({found.origin}) is not available here: "
                           f"{found.reason}", found.fix)
     valid = ", ".join(SCHEMES)  # every group loaded: the list is whole
-    raise SchemeError(f"unknown scheme {name!r}", f"valid schemes: {valid}")
+    raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}",
+                      f"valid schemes: {valid}")
