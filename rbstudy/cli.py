@@ -219,8 +219,8 @@ def _summary_text(dataset, wide=False):
     """The findings, then the per-scheme table (every column when ``wide``)."""
     from rbstudy.analysis.findings import finding_lines, findings
     from rbstudy.analysis.summary import format_table, scheme_rows
-    return "\n".join(finding_lines(findings(dataset))
-                     + ["", format_table(scheme_rows(dataset), wide=wide)])
+    rows = scheme_rows(dataset)
+    return "\n".join(finding_lines(findings(dataset, rows)) + ["", format_table(rows, wide=wide)])
 
 
 def _summary(args):

@@ -25,9 +25,11 @@ import textwrap
 import numpy as np
 
 from rbstudy.analysis.summary import (
+    COINCIDENT_DIGITS,
     ERROR_MEASURES,
     KEPT_TOLERANCE,
     SUMMARY_VARIABLES,
+    coinciding_pairs,
     error_measure,
     format_table,
     order_text,
@@ -37,17 +39,14 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.numerics.state import INVARIANTS
 
-__all__ = ["Finding", "Recommendation", "findings", "recommendations", "COINCIDENCE_RTOL",
+__all__ = ["Finding", "Recommendation", "findings", "recommendations",
            "table_records", "VERDICT_ACCURATE", "MAX_FINDING_LINES", "summary_document",
-           "finding_lines", "markdown_summary", "csv_rows", "agree", "energy_rates",
+           "finding_lines", "markdown_summary", "csv_rows", "energy_rates",
            "FINDINGS_VARIABLES", "case_seconds"]
 
 # What `findings` reads: the table's per-case scalars, and the energy series whose last value
 # says whether a scheme gains or loses energy.
 FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error")
-# Two errors "agree to 3 digits" when they differ by at most half a unit of the third
-# significant digit, relative to the larger.
-COINCIDENCE_RTOL = 5e-4
 # The archive's accuracy verdict of a case that met the bound (pipeline/outputs.py VERDICTS).
 VERDICT_ACCURATE = 0
 # The findings a terminal shows before the table (text and md); the JSON form has them all.
@@ -253,35 +252,19 @@ def _recommendation_findings(ds):
     return result
 
 
-def agree(first, second):
-    """Whether two arrays of errors agree to 3 digits case by case (`COINCIDENCE_RTOL`; both
-    NaN counts as agreeing: the same failure); at least one case must be finite in both."""
-    both = np.isfinite(first) & np.isfinite(second)
-    same_gap = np.isnan(first) == np.isnan(second)
-    close = np.abs(first - second) <= COINCIDENCE_RTOL * np.fmax(np.abs(first), np.abs(second))
-    return bool(both.any() and same_gap.all() and np.all(close | ~both))
-
-
 def _coincidences(ds):
     error = error_measure(ds, "orientation")
-    if error is None or "scheme" not in error.dims:
-        return []
-    schemes = schemes_of(ds)
-    values = {s: per_scheme(error, s).values for s in schemes}
     result = []
-    for i, first in enumerate(schemes):
-        for second in schemes[i + 1:]:
-            if agree(values[first], values[second]):
-                both = np.isfinite(values[first]) & np.isfinite(values[second])
-                gap = np.abs(values[first] - values[second])[both] / np.fmax(
-                    np.abs(values[first]), np.abs(values[second]))[both]
-                gap = float(np.nanmax(gap)) if gap.size else 0.0
-                result.append(Finding(
-                    kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
-                    numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
-                    text=f"{second} gives {first}'s errors to 3 digits in "
-                         + (f"all {int(both.sum())} cases (their lines overlap)"
-                            if both.sum() > 1 else "the study's one case")))
+    for first, second in coinciding_pairs(ds, error):
+        a, b = per_scheme(error, first).values, per_scheme(error, second).values
+        both = np.isfinite(a) & np.isfinite(b)
+        gap = float(np.max(np.abs(a - b)[both] / np.fmax(np.abs(a), np.abs(b))[both]))
+        result.append(Finding(
+            kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
+            numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
+            text=f"{second} gives {first}'s errors to {COINCIDENT_DIGITS} digits in "
+                 + (f"all {int(both.sum())} cases (their lines overlap)"
+                    if both.sum() > 1 else "the study's one case")))
     return result
 
 
@@ -411,11 +394,13 @@ def _questions(ds, rates):
     return result
 
 
-def findings(ds):
-    """The findings of a study dataset, most important first: a list of `Finding`."""
+def findings(ds, rows=None):
+    """The findings of a study dataset, most important first: a list of `Finding`;
+    ``rows``: its `scheme_rows`, where the caller has them already."""
     rates = energy_rates(ds)
+    rows = scheme_rows(ds) if rows is None else rows
     return (_recommendation_findings(ds) + _coincidences(ds)
-            + [_verdict(ds, row, rates) for row in scheme_rows(ds)] + _questions(ds, rates))
+            + [_verdict(ds, row, rates) for row in rows] + _questions(ds, rates))
 
 
 # The table's fields for scripts: (JSON/CSV name, row key). Units are in the names.
@@ -472,11 +457,12 @@ def summary_document(ds):
             else {"scheme": pick.scheme, "dt": pick.dt, "error": pick.error,
                   "seconds_per_case": pick.seconds_per_case}
         recommended.append({**fields, **labels})
+    rows = scheme_rows(ds)
     return _json_value({
         "study": str(ds.attrs["study"]),
-        "findings": [dataclasses.asdict(finding) for finding in findings(ds)],
+        "findings": [dataclasses.asdict(finding) for finding in findings(ds, rows)],
         "recommended": recommended,
-        "schemes": table_records(scheme_rows(ds)),
+        "schemes": table_records(rows),
     })
 
 
@@ -507,9 +493,10 @@ def _cell(value):
 def markdown_summary(ds):
     """The findings as a list, then the table (every column) as Markdown, rendered from the
     table's one definition (`rbstudy.analysis.summary.format_table`)."""
+    rows = scheme_rows(ds)
     return "\n".join([f"## {ds.attrs['study']}", ""]
-                     + [f"- {finding.text}" for finding in findings(ds)]
-                     + ["", format_table(scheme_rows(ds), wide=True, fmt="markdown")])
+                     + [f"- {finding.text}" for finding in findings(ds, rows)]
+                     + ["", format_table(rows, wide=True, fmt="markdown")])
 
 
 def csv_rows(ds):

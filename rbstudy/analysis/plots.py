@@ -51,12 +51,15 @@ from matplotlib.legend_handler import HandlerTuple  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
 
 from rbstudy.analysis.summary import (  # noqa: E402
+    COINCIDENT_DIGITS,
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
+    agree,
     error_measure,
     fitted_order,
     per_scheme,
     schemes_of,
+    span,
     step_load,
     uncertainty_of,
     verdicts,
@@ -81,9 +84,6 @@ REFERENCE_ORDERS = (1, 2, 4)
 GUIDE_STEPS = 3
 GUIDE_CLEARANCE = 0.5
 GUIDE_GRID = 0.125
-# Lines whose errors agree to this many significant digits at every point of a figure are
-# named together in its legend ("euler = leapfrog to 3 digits").
-COINCIDENT_DIGITS = 3
 # Inches beside the panels for a figure's legend of scheme names and fitted orders.
 LEGEND_WIDTH = 3.4
 # Inches per scheme row of the stability strip chart.
@@ -441,11 +441,6 @@ def _fit_text(errors, fit, round_off, failed, limits):
     return text
 
 
-def _span(values):
-    low, high = f"{min(values):.2f}", f"{max(values):.2f}"
-    return low if low == high else f"{low}-{high}"
-
-
 def _fit_label(names, texts, fits):
     """The legend entry of a line over a figure's panels (``texts`` and ``fits``, one per
     panel): ``rk4 (order 4.00, finest 3.99-4.01)``, ``in 3 of 4 panels`` where the others
@@ -455,8 +450,8 @@ def _fit_label(names, texts, fits):
     if len(set(texts)) == 1:
         text = texts[0]
     elif fitted:
-        text = (f"order {_span([f.order for f in fitted])}, "
-                f"finest {_span([f.finest_slope for f in fitted])}")
+        text = (f"order {span([f.order for f in fitted])}, "
+                f"finest {span([f.finest_slope for f in fitted])}")
         if len(fitted) < len(fits):
             text += f" in {len(fitted)} of {len(fits)} panels"
     else:
@@ -466,7 +461,8 @@ def _fit_label(names, texts, fits):
 
 def _coincident(errors):
     """Groups of line indices (first line first) whose ``errors`` (lines x points) agree to
-    `COINCIDENT_DIGITS` significant digits at every point, gaps at the same points; each
+    `COINCIDENT_DIGITS` significant digits at every point (`agree`, the findings' test),
+    gaps at the same points; each
     line is in exactly one group, alone when it has no point to agree on (failed at every
     dt)."""
     groups, placed = [], set()
@@ -475,9 +471,7 @@ def _coincident(errors):
             continue
         shown = np.isfinite(errors[first]).any()
         group = [first] + [other for other in range(first + 1, len(errors)) if shown
-                           if other not in placed and np.allclose(
-                               errors[other], errors[first], rtol=10.0 ** -COINCIDENT_DIGITS,
-                               atol=0.0, equal_nan=True)]
+                           if other not in placed and agree(errors[other], errors[first])]
         placed.update(group)
         groups.append(group)
     return groups

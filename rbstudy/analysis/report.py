@@ -20,7 +20,7 @@ import pathlib
 import markupsafe
 import numpy as np
 
-from rbstudy.analysis.findings import agree, findings
+from rbstudy.analysis.findings import findings
 from rbstudy.analysis.pages import render
 from rbstudy.analysis.plots import (
     BENCHMARK_NODE,
@@ -31,12 +31,13 @@ from rbstudy.analysis.plots import (
     figure_layout,
 )
 from rbstudy.analysis.summary import (
+    COINCIDENT_DIGITS,
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
+    coinciding_pairs,
     error_measure,
     format_table,
     order_text,
-    per_scheme,
     scheme_rows,
     schemes_of,
     step_load,
@@ -129,16 +130,6 @@ def _lines_and_panels(ds, first):
     return ", ".join(words)
 
 
-def _coinciding(ds, errors):
-    """``euler = leapfrog`` for each pair of schemes whose ``errors`` agree to 3 digits."""
-    if "scheme" not in errors.dims:
-        return []
-    values = {s: per_scheme(errors, s).values for s in schemes_of(ds)}
-    names = list(values)
-    return [f"{a} = {b}" for i, a in enumerate(names) for b in names[i + 1:]
-            if agree(values[a], values[b])]
-
-
 def _convergence_caption(ds, rows, key, first):
     label, units = ERROR_MEASURES[key][:2]
     errors = error_measure(ds, key)
@@ -161,9 +152,9 @@ def _convergence_caption(ds, rows, key, first):
         text += (f" At the smallest dt ({dts.min():g} s) the worst errors: "
                  + _listing(f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}"
                             for v, e in worst.items()) + ".")
-    pairs = _coinciding(ds, errors)
+    pairs = [f"{first} = {second}" for first, second in coinciding_pairs(ds, errors)]
     if pairs:
-        text += f" Coinciding to 3 digits: {_listing(pairs)}."
+        text += f" Coinciding to {COINCIDENT_DIGITS} digits: {_listing(pairs)}."
     return text
 
 
@@ -221,11 +212,11 @@ _BENCHMARK_LEADS = {
 }
 
 
-def captions(ds, names):
-    """Figure name (without the study) -> (caption from this study's numbers, how to read
-    the kind of figure or None): the reading is given with the first figure of each kind, the
-    lines and panels of the figures along dt with the first of them."""
-    rows, found = scheme_rows(ds), findings(ds)
+def captions(ds, names, rows, found):
+    """Figure name (without the study) -> (caption from this study's numbers, ``rows`` (its
+    `scheme_rows`) and ``found`` (its `findings`), how to read the kind of figure or None):
+    the reading is given with the first figure of each kind, the lines and panels of the
+    figures along dt with the first of them."""
     result, read, along_dt = {}, set(), None
     for name in names:
         kind = next((k for k in CAPTIONS if name.startswith(k)), None)
@@ -275,7 +266,9 @@ def write_report(ds, out, processes=1, svg=False, progress=None):
     figures = all_figures(ds, out / "figures", formats, processes, digest=figures_digest(ds),
                           progress=progress)
     names = [png.stem.removeprefix(f"{study}_") for png in figures.written]
-    texts = captions(ds, names)
+    rows = scheme_rows(ds)
+    found = findings(ds, rows)
+    texts = captions(ds, names, rows, found)
     shown = [{"name": name, "anchor": f"figure-{name}", "source": _data_uri(png),
               "caption": texts[name][0], "reading": texts[name][1],
               "svg": png.with_suffix(".svg").relative_to(out).as_posix() if svg else None}
@@ -284,10 +277,10 @@ def write_report(ds, out, processes=1, svg=False, progress=None):
     provenance = [(key, str(ds.attrs[key])) for key in _PROVENANCE if key in ds.attrs]
     page = render("report.html.j2",
                   title=ds.attrs.get("title", study), study=study,
-                  cases=int(ds["status"].size), dims=dims, findings=findings(ds),
+                  cases=int(ds["status"].size), dims=dims, findings=found,
                   table_intro=_table_intro(ds),
                   # tabulate escapes the cells, format_table the footnotes
-                  table=markupsafe.Markup(format_table(scheme_rows(ds), wide=True, fmt="html")),
+                  table=markupsafe.Markup(format_table(rows, wide=True, fmt="html")),
                   figures=shown, absent=figures.absent, provenance=provenance,
                   config=ds.attrs.get("config", ""))
     report = out / REPORT_NAME

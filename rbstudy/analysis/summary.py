@@ -31,7 +31,8 @@ from rbstudy.physics.metrics import asymptotic_order
 __all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
            "TABLE_FORMATS", "error_measure", "fitted_order", "uncertainty_of",
            "UNCERTAINTY_FACTOR", "scheme_rows", "format_table", "order_text", "Column",
-           "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load"]
+           "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load",
+           "span", "agree", "coinciding_pairs", "COINCIDENT_DIGITS", "COINCIDENCE_RTOL"]
 
 # name -> (label, units, floor, ceiling, stored variable, uncertainty of its reference or
 # None). Below the floor an error is round-off: a few hundred ulps of the quantity (rounding
@@ -71,6 +72,10 @@ SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orienta
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
+# Two errors "agree to 3 digits" when they differ by at most half a unit of the third
+# significant digit, relative to the larger (`agree`).
+COINCIDENT_DIGITS = 3
+COINCIDENCE_RTOL = 0.5 * 10.0 ** -COINCIDENT_DIGITS
 _ORDER_MEASURE = "orientation"
 
 
@@ -279,9 +284,32 @@ def _worst(errors, status):
     return None if np.isnan(worst) and not (status != 0).any() else worst
 
 
-def _span(pair):
-    low, high = pair
+def span(values):
+    """``2.00``, or ``1.98-2.01`` when the ``values`` (orders, slopes) differ at two decimals."""
+    low, high = min(values), max(values)
     return f"{low:.2f}" if high - low < 0.005 else f"{low:.2f}-{high:.2f}"
+
+
+def agree(first, second):
+    """Whether two arrays of errors agree to `COINCIDENT_DIGITS` digits case by case
+    (`COINCIDENCE_RTOL`; both NaN counts as agreeing: the same failure); at least one case
+    must be finite in both. The one test of "these lines coincide" of the findings, the
+    figures' legends and the report's captions."""
+    both = np.isfinite(first) & np.isfinite(second)
+    same_gap = np.isnan(first) == np.isnan(second)
+    close = np.abs(first - second) <= COINCIDENCE_RTOL * np.fmax(np.abs(first), np.abs(second))
+    return bool(both.any() and same_gap.all() and np.all(close | ~both))
+
+
+def coinciding_pairs(ds, errors):
+    """The (first, second) schemes of ``ds`` whose ``errors`` (a measure of `error_measure`)
+    `agree` in every case; none where the study has one scheme."""
+    if errors is None or "scheme" not in errors.dims:
+        return []
+    values = {scheme: per_scheme(errors, scheme).values for scheme in schemes_of(ds)}
+    names = list(values)
+    return [(first, second) for i, first in enumerate(names) for second in names[i + 1:]
+            if agree(values[first], values[second])]
 
 
 def order_text(row):
@@ -289,7 +317,7 @@ def order_text(row):
     when some values of the other axes had no asymptotic range; ``-`` without any."""
     if row["order"] is None:
         return "-" if not row["tries"] else f"- (0/{row['tries']})"
-    text = _span(row["order"])
+    text = span(row["order"])
     return text if row["fits"] == row["tries"] else f"{text} ({row['fits']}/{row['tries']})"
 
 
@@ -339,7 +367,7 @@ def table_columns(rows):
                ("observed order: fitted over the asymptotic range per value of the other axes",
                 "(k/n): k of the n had one")),
         Column("finest", "finest\npair",
-               lambda row: "-" if row["finest"] is None else _span(row["finest"]), False,
+               lambda row: "-" if row["finest"] is None else span(row["finest"]), False,
                ("finest pair: slope of the two finest fitted steps",)),
         Column("fit_dt", "fit over\ndt (s)", lambda row: "-" if not row["fit_dt"] else
                f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}", False),

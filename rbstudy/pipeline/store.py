@@ -2,7 +2,7 @@
 
 Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved config),
 ``parts/<batch-id>.nc`` (one finished batch, dimension ``case``), ``<study>.nc`` (every
-case on the study's grid) and `OWNER` (the config file whose study the folder holds). Every
+case on the study's grid) and `OWNER` (the config whose study the folder holds). Every
 file is written under a temporary name in the same folder and renamed (the file and then its
 folder synced to disk first), so a reader, or a rerun after a kill or a machine crash, never
 sees half a file; every part and the archive carry checksums
