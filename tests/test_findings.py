@@ -164,6 +164,24 @@ def test_coincidences_are_exactly_the_schemes_agreeing_to_three_digits(archives,
     assert found == expected
 
 
+
+@pytest.mark.parametrize(("relative", "coincide"), [(2e-4, True), (2e-3, False)])
+def test_a_scheme_within_three_digits_of_another_is_named_as_coinciding(archives, relative,
+                                                                        coincide):
+    """The shipped studies' reduced copies have no coincidence: here leapfrog's errors are
+    made euler's times (1 + relative), within and past 3 digits, in every case."""
+    ds = open_archive(archives["abaqus_top"])
+    errors = ds["final_orientation_error"]
+    errors.loc[{"scheme": "leapfrog"}] = errors.sel(scheme="euler") * (1 + relative)
+    found = [f for f in findings(ds) if f.kind == "coincidence"]
+    assert [tuple(case["scheme"] for case in f.cases) for f in found] == \
+        ([("euler", "leapfrog")] if coincide else [])
+    if coincide:
+        assert found[0].numbers["largest_relative_difference"] == pytest.approx(
+            relative / (1 + relative))
+        assert found[0].text == (f"leapfrog gives euler's errors to 3 digits in all "
+                                 f"{errors.sel(scheme='euler').size} cases (their lines overlap)")
+
 @pytest.mark.parametrize("name", SHIPPED)
 def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
     ds = open_archive(archives[name])

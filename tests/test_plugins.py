@@ -183,12 +183,17 @@ def test_builtin_and_engine_names_import_no_plugin(fake_plugins):
     """A study of rbstudy's own schemes, or of MuJoCo's, never runs another package's code
     (before: the first reading of the registry imported every plug-in)."""
     folder, register = fake_plugins
-    _plugin_module(folder, "never_plugin", "raise SystemExit('imported')\n")
+    # a failed import leaves nothing in sys.modules, and the probe imports in a child: the
+    # module's own mark, a file, tells whether any process ran it
+    mark = folder / "never_plugin-ran"
+    _plugin_module(folder, "never_plugin", f"import pathlib\npathlib.Path({str(mark)!r}).touch()\n"
+                                           "raise SystemExit('imported')\n")
     register({"never": "never_plugin:SCHEME"})
     assert get_scheme("euler") is BUILTIN["euler"]
     assert SCHEMES.find("mujoco_euler").name == "mujoco_euler"  # a Scheme, or Unavailable
-    assert "never_plugin" not in sys.modules
+    assert not mark.exists()
     assert "its import called sys.exit('imported')" in unavailable_schemes()["never"].reason
+    assert mark.exists()  # listing every scheme does import it: the mark can tell
 
 
 def test_a_config_naming_an_unavailable_scheme_fails_in_one_line(fake_plugins, tmp_path):

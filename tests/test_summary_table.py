@@ -3,16 +3,16 @@ shipped study (its footnotes too), every column with --wide, and the same values
 Markdown, CSV and HTML; the conformance scorecard within 100 columns, saying what its numbers
 are."""
 
+import contextlib
 import csv
 import html.parser
 import io
-import pathlib
 import re
-import shutil
 
 import numpy as np
 import pytest
 import yaml
+from conftest import CONFIGS, copy_node_tables
 
 from rbstudy.analysis.conformance import Cell, Verdict, format_scorecard
 from rbstudy.analysis.summary import (
@@ -27,52 +27,61 @@ from rbstudy.cli import main
 from rbstudy.pipeline.archive import open_archive
 from rbstudy.pipeline.golden import GOLDEN
 
-CONFIGS = sorted(pathlib.Path("configs").glob("*.yaml"))
+CONFIG_FILES = sorted(CONFIGS.glob("*.yaml"))
 # The most footnote lines under a table (issue 29).
 MAX_NOTE_LINES = 6
+# The columns every study's wide table has, and of them those the default narrow one shows
+# (a study adds "error_small" where dt is swept, "radioss" where the limit was passed).
+WIDE_COLUMNS = {"scheme", "nominal", "order", "finest", "fit_dt", "error", "ns_per_step",
+                "accurate_hw", "inaccurate_hw", "unstable_hw", "inaccurate", "failed", "kept"}
+NARROW_COLUMNS = {"scheme", "nominal", "order", "error", "ns_per_step", "accurate_hw",
+                  "failed", "kept"}
+
+
+def _sweep(folder, *options):
+    """``rbstudy sweep`` of every shipped config in ``folder``: (stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(out), \
+            contextlib.redirect_stderr(err):
+        patch.chdir(folder)
+        assert main(["sweep", *(path.name for path in CONFIG_FILES), *options]) == 0
+    return out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
 def shipped(tmp_path_factory):
     """Every shipped config, each case one output interval long (the same schemes and swept
     axes, so the same rows and columns), swept from a folder of its own into the default
-    results/; the printed lines and the archives."""
+    results/: the folder, the archives and what the first sweep printed."""
     folder = tmp_path_factory.mktemp("shipped")
-    for path in pathlib.Path("configs").iterdir():
-        if path.suffix == ".yaml":
-            config = yaml.safe_load(path.read_text())
-            config["scene"]["duration"] = config["output"]["interval"]
-            (folder / path.name).write_text(yaml.safe_dump(config, sort_keys=False))
-        else:  # the node tables they name
-            shutil.copy(path, folder)
+    copy_node_tables(folder)
+    for path in CONFIG_FILES:
+        config = yaml.safe_load(path.read_text())
+        config["scene"]["duration"] = config["output"]["interval"]
+        (folder / path.name).write_text(yaml.safe_dump(config, sort_keys=False))
+    printed = _sweep(folder)
     return folder, {path.stem: folder / "results" / path.stem / f"{path.stem}.nc"
-                    for path in CONFIGS}
+                    for path in CONFIG_FILES}, printed
 
 
-def _sweep(folder, capsys, *options):
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(folder)
-        assert main(["sweep", *(path.name for path in CONFIGS), *options]) == 0
-    printed = capsys.readouterr()
-    assert printed.err == ""
-    return printed.out
-
-
-def test_every_shipped_study_prints_lines_within_100_columns(shipped, capsys):
+def test_every_shipped_study_prints_lines_within_100_columns(shipped):
     """Its forecast, its run or up-to-date line and its table. Measured on the full
     configs: 98 characters at most, 100 on a rerun (the up-to-date lines), the widest table
     96 (high_order, long_run_convergence); before, tables of up to 243 and a footnote of
     1,136."""
-    folder, archives = shipped
-    for _ in ("run", "up to date"):
-        out = _sweep(folder, capsys)
+    folder, archives, first = shipped
+    for out, err in (first, _sweep(folder)):
+        assert err == ""
         widest = max(out.splitlines(), key=len)
         assert len(widest) <= TERMINAL_WIDTH, widest
-    assert out.count("is up to date") == len(CONFIGS)
+    assert out.count("is up to date") == len(CONFIG_FILES)
     assert "finest pair" not in out and "fit over" not in out  # two of the wide columns
-    wide = _sweep(folder, capsys, "--wide")
+    wide, _ = _sweep(folder, "--wide")
     for name, path in archives.items():
         rows = scheme_rows(open_archive(path, SUMMARY_VARIABLES, verify=False))
+        keys = {column.key for column in table_columns(rows)}
+        assert WIDE_COLUMNS <= keys, name
+        assert {c.key for c in table_columns(rows) if c.narrow} == NARROW_COLUMNS, name
         text = format_table(rows, wide=True)
         assert text in wide, name
         header = "\n".join(text.splitlines()[:3])
@@ -81,7 +90,7 @@ def test_every_shipped_study_prints_lines_within_100_columns(shipped, capsys):
 
 
 def test_footnotes_are_at_most_six_lines_under_the_table(shipped):
-    _, archives = shipped
+    _, archives, _ = shipped
     for name, path in archives.items():
         rows = scheme_rows(open_archive(path, SUMMARY_VARIABLES, verify=False))
         for wide in (False, True):
@@ -124,7 +133,7 @@ def _markdown_cells(text):
 @pytest.mark.parametrize("wide", [False, True])
 def test_markdown_csv_and_html_hold_the_values_of_the_text(shipped, wide):
     """radioss_spin_limit: the one table with the Radioss column, and "|" in its cells."""
-    _, archives = shipped
+    _, archives, _ = shipped
     rows = scheme_rows(open_archive(archives["radioss_spin_limit"], SUMMARY_VARIABLES,
                                     verify=False))
     values = list(csv.reader(io.StringIO(format_table(rows, wide=wide, fmt="csv"))))
