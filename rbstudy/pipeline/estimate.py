@@ -68,6 +68,13 @@ def physical_memory():
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
+def _inside_run(knots, duration):
+    """Which of ``knots`` (..., K) fall inside the run (0, ``duration``): those a reference
+    restarts at, or puts on a step boundary."""
+    knots = np.asarray(knots)
+    return (knots > 0.0) & (knots < duration)
+
+
 def _composed_steps(scenes, rows, interval):
     """Forecast steps of the composed reference of each scene ``rows`` of a `SceneTable`
     (the first run, as planned), 0 where it has none: planned at once, and the knot search
@@ -75,7 +82,7 @@ def _composed_steps(scenes, rows, interval):
     loads = {name: np.asarray(column)[rows] for name, column in scenes.loads.items()}
     counts = planned_steps(scenes.omega_body[rows], scenes.inertia[rows], loads, interval)
     knots = loads["knots"]
-    for k in np.flatnonzero(((knots > 0.0) & (knots < scenes.duration)).any(axis=-1)):
+    for k in np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1)):
         counts[k] = knot_steps(knots[k], scenes.duration, interval, int(counts[k])) or 0
     return counts * round(scenes.duration / interval)
 
@@ -87,8 +94,7 @@ def _dop853_steps(scenes):
     initial spin, plus the few a slow run still takes, plus one per knot of its load tables
     inside the run (DOP853 restarts at each)."""
     turned = np.linalg.norm(scenes.omega_body, axis=-1) * scenes.duration
-    knots = np.asarray(scenes.loads["knots"])
-    restarts = ((knots > 0.0) & (knots < scenes.duration)).sum(axis=-1)
+    restarts = _inside_run(scenes.loads["knots"], scenes.duration).sum(axis=-1)
     return np.ceil(REFERENCE_STEPS_PER_RADIAN * turned) + 16 + restarts
 
 
