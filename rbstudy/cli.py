@@ -1,5 +1,5 @@
 """Command line: ``rbstudy sweep | validate | schemes | plot | report | summary | bench |
-verify``.
+verify | conformance``.
 
 ``sweep`` runs each study config and writes ``OUT/<study>/<study>.nc``, then prints the
 study's findings and per-scheme summary; ``summary`` prints them again from archives;
@@ -40,6 +40,9 @@ MAX_GOLDEN_STEPS = 8
 
 def _schemes(args):
     from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, unavailable_schemes
+    if args.quiet:  # for scripts, as `docker ps -q` lists ids: `rbstudy bench $(...)`
+        print("\n".join(SCHEMES))
+        return 0
     missing = unavailable_schemes()
     width = max(map(len, [*SCHEMES, *missing]))
     print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
@@ -66,8 +69,8 @@ def _bench(args):
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
                            f"{args.body_steps:.3g}")
-    run_bench(schemes=args.schemes or None, body_steps=args.body_steps or BODY_STEPS,
-              progress=not args.quiet)
+    run_bench(schemes=[*args.scheme_names, *(args.schemes or ())] or None,
+              body_steps=args.body_steps or BODY_STEPS, progress=not args.quiet)
     return 0
 
 
@@ -89,9 +92,13 @@ def _costed(study, args, disk):
     check_limits(study, cost, args.max_body_steps, max_memory)
     if disk:
         check_disk(study, forecast_disk(study, args.out), args.out)
-    # what the reading accepted but a user should know (a regularised body, a knot mid-step)
-    return describe(study, cost) + "".join(f"\n{study.path}: warning: {warning}"
-                                           for warning in study.warnings)
+    return "\n".join([describe(study, cost), *_warning_lines(study)])
+
+
+def _warning_lines(study):
+    """What the reading accepted but a user should know (a regularised body, a knot
+    mid-step), a line each."""
+    return [f"{study.path}: warning: {warning}" for warning in study.warnings]
 
 
 def _check_out(folder, given=True):
@@ -138,12 +145,14 @@ def _say(text):
 
 
 def _each_file(paths, say):
-    """``path: say(path)`` for every path; a file that fails gets its one-line error and the
-    others are still done; exit 1 if any failed."""
+    """Print ``say(path)`` (nothing when it is empty) for every path; a file that fails gets
+    its one-line error and the others are still done; exit 1 if any failed."""
     failures = 0
     for path in paths:
         try:
-            _say(f"{path}: {say(path)}")
+            text = say(path)
+            if text:
+                _say(text)
         except RbstudyError as error:
             print(f"rbstudy: error: {error}", file=sys.stderr)
             failures += 1
@@ -152,8 +161,12 @@ def _each_file(paths, say):
 
 def _validate(args):
     from rbstudy.pipeline.config import load_study
-    return _each_file(args.files,
-                      lambda path: "ok: " + _costed(load_study(path), args, disk=True))
+
+    def checked(path):
+        study = load_study(path)
+        line = _costed(study, args, disk=True)  # the limits are checked even when quiet
+        return "\n".join(_warning_lines(study)) if args.quiet else f"{path}: ok: {line}"
+    return _each_file(args.files, checked)
 
 
 def _sweep(args):
@@ -215,12 +228,14 @@ def _sweep(args):
     return 0
 
 
-def _summary_text(dataset, wide=False):
-    """The findings, then the per-scheme table (every column when ``wide``)."""
+def _summary_text(dataset, wide=False, table_only=False):
+    """The findings (unless ``table_only``), then the per-scheme table (every column when
+    ``wide``)."""
     from rbstudy.analysis.findings import finding_lines, findings
     from rbstudy.analysis.summary import format_table, scheme_rows
     rows = scheme_rows(dataset)
-    return "\n".join(finding_lines(findings(dataset, rows)) + ["", format_table(rows, wide=wide)])
+    table = format_table(rows, wide=wide)
+    return table if table_only else "\n".join(finding_lines(findings(dataset, rows)) + ["", table])
 
 
 def _summary(args):
@@ -242,7 +257,7 @@ def _summary(args):
     else:
         def render(dataset):
             return (markdown_summary(dataset) if args.format == "md"
-                    else _summary_text(dataset, wide=args.wide))
+                    else _summary_text(dataset, wide=args.wide, table_only=args.quiet))
         print("\n\n".join(render(dataset) if len(datasets) == 1 or args.format == "md"
                            else f"== {path}\n{render(dataset)}"
                            for path, dataset in zip(args.files, datasets, strict=True)))
@@ -261,25 +276,35 @@ def _plot(args):
     for folder in dict.fromkeys(folders.values()):
         _check_out(folder, given=bool(args.out))
     opened = functools.partial(open_archive, verify=not args.no_verify)
-    if len(args.files) > 1:  # every file checked before any is drawn, one in memory at a time
-        from rbstudy.pipeline.variables import BOOKKEEPING
-        studies = [str(_select(opened(path, BOOKKEEPING), args.select, path).attrs["study"])
-                   for path in args.files]  # not the trajectories
-        opened = functools.partial(open_archive, verify=False)  # each one verified just now
+    if len(args.files) > 1:
+        studies, opened = _studies(args.files, args, args.select)
         for path, study in zip(args.files, studies, strict=True):
             if args.out and studies.count(study) > 1:
                 raise InputError(f"another file of this command is also study {study!r}: "
                                  "their figures would overwrite each other in --out",
                                  "plot them one at a time, each with its own --out", path)
+    formats = tuple(dict.fromkeys(args.format or ("png",)))  # `--format png,svg,png`: once
     for path in args.files:
         dataset = _select(opened(path), args.select, path)
         folder = folders[path]
-        figures = all_figures(dataset, folder, tuple(args.format), processes=default_threads())
-        kinds = " and ".join(kind.upper() for kind in args.format)
+        figures = all_figures(dataset, folder, formats, processes=default_threads())
+        kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
-        for name, reason in figures.absent.items():
-            print(f"  not drawn: {name}: {reason}")
+        if not args.quiet:
+            for name, reason in figures.absent.items():
+                _say(f"  not drawn: {name}: {reason}")
     return 0
+
+
+def _studies(paths, args, select=None):
+    """The study of each archive of ``paths``, every one read before any is drawn (only its
+    bookkeeping, one at a time; proven intact unless --no-verify; narrowed by ``select``, so
+    that a bad choice fails first), and how to open each in full then (not verified again)."""
+    from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.variables import BOOKKEEPING
+    studies = [str(_select(open_archive(path, BOOKKEEPING, verify=not args.no_verify), select,
+                           path).attrs["study"]) for path in paths]
+    return studies, functools.partial(open_archive, verify=False)
 
 
 def _conformance(args):
@@ -293,8 +318,8 @@ def _conformance(args):
     known = {case.name: case for case in GOLDEN}
     unknown = [name for name in args.cases or () if name not in known]
     if unknown:
-        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}; the cases: "
-                           f"{', '.join(known)}")
+        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}"
+                           f"{did_you_mean(unknown[0], known)}; the cases: {', '.join(known)}")
     if not 3 <= args.steps <= MAX_GOLDEN_STEPS:
         raise RbstudyError(f"--steps: give 3 to {MAX_GOLDEN_STEPS} time steps (an order needs "
                            f"3; each more doubles the work), got {args.steps}")
@@ -364,33 +389,73 @@ def _select(dataset, choices, path):
 
 def _verify(args):
     from rbstudy.pipeline.archive import verify_file
-    return _each_file(args.files, verify_file)
+
+    def proven(path):
+        said = verify_file(path)
+        return "" if args.quiet else f"{path}: {said}"
+    return _each_file(args.files, proven)
 
 
 def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
-    folder = args.out or pathlib.Path(args.file).parent / "report"
-    _check_out(folder, given=bool(args.out))
-    dataset = open_archive(args.file, verify=not args.no_verify)
+    opened = functools.partial(open_archive, verify=not args.no_verify)
+    if len(args.files) == 1:  # -o names the report folder itself, as cp's target names a copy
+        folders = [pathlib.Path(args.out or pathlib.Path(args.files[0]).parent / "report")]
+    else:
+        studies, opened = _studies(args.files, args)
+        folders = _report_folders(args.files, studies, args.out)
+    for folder in dict.fromkeys(folders):
+        _check_out(folder, given=bool(args.out))
 
     def progress(figures, reused):  # a line per figure as its drawing is done
         for png in figures.written:
             print(f"  {'reused' if reused else 'drawn'}: {png.name}", file=sys.stderr, flush=True)
 
-    report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
-                          progress=None if args.quiet else progress)
-    print(f"{args.file}: report in {report}")
+    for path, folder in zip(args.files, folders, strict=True):
+        report = write_report(opened(path), folder, processes=default_threads(), svg=args.svg,
+                              progress=None if args.quiet else progress)
+        print(f"{path}: report in {report}")
     return 0
+
+
+def _report_folders(paths, studies, out):
+    """The report folder of each archive of several: ``out/<study>``, or else ``report/``
+    beside each archive; two archives that would share one are refused."""
+    folders = [pathlib.Path(out, study) if out else pathlib.Path(path).parent / "report"
+               for path, study in zip(paths, studies, strict=True)]
+    places = [folder.resolve() for folder in folders]
+    for path, study, place in zip(paths, studies, places, strict=True):
+        if places.count(place) > 1 and out:
+            raise InputError(f"another file of this command is also study {study!r}: their "
+                             f"reports would overwrite each other in {out}",
+                             "report them one at a time, each with its own -o", path)
+        if places.count(place) > 1:
+            raise InputError("another file of this command lies in the same folder: their "
+                             f"reports would both go to {place}",
+                             "give -o DIR (a folder per study inside it)", path)
+    return folders
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse's parser whose usage errors offer the verb or option a slip was meant for
-    (``--wokers``: did you mean '--workers'?)."""
+    (``--wokers``: did you mean '--workers'?), and name the verb they belong to."""
 
     def error(self, message):
         super().error(message + _meant(self, message))
+
+    def parse_args(self, args=None, namespace=None):
+        """argparse's, except that an unknown argument after a verb is told with that verb's
+        usage and options (argparse itself shows the top-level usage)."""
+        parsed, unknown = self.parse_known_args(args, namespace)
+        if unknown:
+            verbs = {name: sub for action in self._actions
+                     if isinstance(action, argparse._SubParsersAction)
+                     for name, sub in action.choices.items()}
+            verbs.get(getattr(parsed, "command", None), self).error(
+                f"unrecognized arguments: {' '.join(unknown)}")
+        return parsed
 
 
 def _meant(parser, message):
@@ -405,8 +470,9 @@ def _meant(parser, message):
                           for sub in action.choices.values()]
     options = {option for each in parsers for option in each._option_string_actions}
     for word in message.split(": ", 1)[1].split():
-        if word.startswith("--") and did_you_mean(word, options):
-            return did_you_mean(word, options)
+        option = word.partition("=")[0]  # --wokers=2
+        if option.startswith("--") and did_you_mean(option, options):
+            return did_you_mean(option, options)
     return ""
 
 
@@ -417,11 +483,12 @@ def build_parser():
     commands = parser.add_subparsers(dest="command", required=True)
     sweep = commands.add_parser("sweep", help="run study configs and archive the results")
     sweep.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
-    sweep.add_argument("--out", default="results", help="results root (default: results/)")
+    sweep.add_argument("-o", "--out", metavar="DIR", default="results",
+                       help="results root (default: results/)")
     where = sweep.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="run on a running dask.distributed scheduler (tcp://host:8786)")
-    where.add_argument("--workers", type=int, metavar="N",
+    where.add_argument("--workers", type=_whole_number, metavar="N",
                        help="start a local dask.distributed cluster of N worker processes")
     where.add_argument("--cluster", metavar="FILE",
                        help="start the cluster a cluster file describes (local, SLURM or PBS; "
@@ -439,7 +506,8 @@ def build_parser():
     sweep.add_argument("--keep-parts", action="store_true",
                        help="keep parts/ after the archive is written (a changed config then "
                             "reuses the batches it shares)")
-    sweep.add_argument("--quiet", action="store_true", help="no progress bar or study line")
+    sweep.add_argument("-q", "--quiet", action="store_true",
+                       help="no progress bar or forecast line (the findings and the table stay)")
     sweep.add_argument("--wide", action="store_true",
                        help="print every column of the summary table (default: the columns "
                             "that fit 100 characters)")
@@ -448,30 +516,40 @@ def build_parser():
     validate = commands.add_parser("validate", help="check study configs and forecast their "
                                                     "cost without running")
     validate.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
-    validate.add_argument("--out", default="results",
+    validate.add_argument("-o", "--out", metavar="DIR", default="results",
                           help="results root the sweep would write (its free space is checked)")
+    validate.add_argument("-q", "--quiet", action="store_true",
+                          help="no 'ok' line and forecast: only warnings and errors (the exit "
+                               "status tells)")
     _limit_arguments(validate)
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
+    schemes.add_argument("-q", "--quiet", action="store_true",
+                         help="the names alone, one a line (for scripts)")
     schemes.set_defaults(run=_schemes)
     plot = commands.add_parser("plot", help="draw the figures of results files")
     plot.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    plot.add_argument("--out", help="figure folder (default: figures/ beside each file)")
+    plot.add_argument("-o", "--out", metavar="DIR",
+                      help="figure folder (default: figures/ beside each file)")
     plot.add_argument("--select", action="append", metavar="DIM=VALUE",
                       help="only these cases, e.g. --select inertia_ratio=2 --select dt=0.01 "
                            "(repeatable)")
     # the formats of rbstudy.analysis.plots, named here so that parsing loads no matplotlib
-    plot.add_argument("--format", nargs="+", choices=("png", "svg"), default=["png"],
-                      help="file formats (default: png; an SVG takes as long again)")
+    _list_argument(plot, "--format", choices=("png", "svg"), metavar="FORMAT",
+                   help="file formats: png, svg (default: png; an SVG takes as long again)")
+    plot.add_argument("-q", "--quiet", action="store_true",
+                      help="no note of the figures not drawn: a line per file only")
     _no_verify_argument(plot)
     plot.set_defaults(run=_plot)
-    report = commands.add_parser("report", help="write an HTML report of a results file")
-    report.add_argument("file", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    report.add_argument("--out", help="report folder (default: report/ beside the file)")
+    report = commands.add_parser("report", help="write an HTML report of each results file")
+    report.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
+    report.add_argument("-o", "--out", metavar="DIR",
+                        help="report folder (default: report/ beside each file); with several "
+                             "files, a folder per study inside it")
     report.add_argument("--svg", action="store_true",
                         help="also write each figure as SVG in the report's figures/ folder and "
                              "link it (the report itself embeds the PNGs either way)")
-    report.add_argument("--quiet", action="store_true", help="no line per figure")
+    report.add_argument("-q", "--quiet", action="store_true", help="no line per figure")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
     summary = commands.add_parser("summary", help="print the findings and the per-scheme "
@@ -483,33 +561,41 @@ def build_parser():
     summary.add_argument("--wide", action="store_true",
                          help="every column of the table in the text form (default: those "
                               "that fit 100 columns)")
+    summary.add_argument("-q", "--quiet", action="store_true",
+                         help="the table without the findings (text form; the others are "
+                              "unchanged)")
     _no_verify_argument(summary)
     summary.set_defaults(run=_summary)
     verify = commands.add_parser("verify", help="prove results files intact by their checksums")
     verify.add_argument("files", nargs="+", metavar="RESULTS.nc",
                         help="archives (or part files) written by rbstudy sweep")
+    verify.add_argument("-q", "--quiet", action="store_true",
+                        help="no line for an intact file: only the damaged (the exit status "
+                             "tells)")
     verify.set_defaults(run=_verify)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
-    bench.add_argument("schemes", nargs="*", help="schemes to measure (default: all)")
+    bench.add_argument("scheme_names", nargs="*", metavar="SCHEME",
+                       help="schemes to measure, as --schemes takes them (default: all)")
+    _list_argument(bench, "--schemes", metavar="SCHEME", help="schemes to measure")
     bench.add_argument("--body-steps", type=_whole_number, metavar="N",
                        help="body-steps per figure (default 1e7, at most 1e9; fewer for a "
                             "quick look)")
-    bench.add_argument("--quiet", action="store_true", help="no progress line")
+    bench.add_argument("-q", "--quiet", action="store_true", help="no progress line")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
         "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
-    conformance.add_argument("--schemes", nargs="+", metavar="SCHEME",
-                             help="schemes to judge (default: rbstudy's fixed-step schemes "
-                                  "and MuJoCo's where it is installed)")
-    conformance.add_argument("--cases", nargs="+", metavar="CASE",
-                             help="golden cases to run (default: all)")
-    conformance.add_argument("--steps", type=int, default=4, metavar="N",
+    _list_argument(conformance, "--schemes", metavar="SCHEME",
+                   help="schemes to judge (default: rbstudy's fixed-step schemes and MuJoCo's "
+                        "where it is installed)")
+    _list_argument(conformance, "--cases", metavar="CASE",
+                   help="golden cases to run (default: all)")
+    conformance.add_argument("--steps", type=_whole_number, default=4, metavar="N",
                              help="time steps per case, each half the one before (default "
                                   "4; at least 3)")
-    conformance.add_argument("--out", default="conformance",
+    conformance.add_argument("-o", "--out", metavar="DIR", default="conformance",
                              help="folder of the golden studies, their archives and the "
                                   "scorecard (default: conformance/)")
-    conformance.add_argument("--quiet", action="store_true", help="no progress lines")
+    conformance.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     conformance.set_defaults(run=_conformance)
     return parser
 
@@ -523,6 +609,23 @@ def _whole_number(text):
     if not math.isfinite(number) or number != round(number):
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     return int(number)
+
+
+def _list_argument(parser, option, metavar, help, choices=None):
+    """``option`` taking one value or a comma list per use, the uses added up (``--format
+    png,svg`` or ``--format png --format svg``): never a following positional, as nargs="+"
+    took ``plot --format svg X.nc``'s file for a format."""
+    def names(text):
+        listed = [name.strip() for name in text.split(",")]
+        for name in listed:
+            if not name:
+                raise argparse.ArgumentTypeError(f"an empty name in {text!r}")
+            if choices and name not in choices:  # worded as argparse's own, for `_meant`
+                raise argparse.ArgumentTypeError(
+                    f"invalid choice: {name!r} (choose from {', '.join(map(repr, choices))})")
+        return listed
+    parser.add_argument(option, action="extend", type=names, metavar=f"{metavar},...",
+                        help=f"{help}; a comma list, or the option again")
 
 
 def _no_verify_argument(parser):

@@ -157,13 +157,16 @@ class Reader:
         self._first_failure(column, rows, lambda entry: self.number(entry, key, positive))
         return column.astype(float)  # numbers only, held as objects
 
-    def count(self, value, key, maximum=None):
-        """``value`` as a whole number >= 1 (and at most ``maximum``)."""
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            self.fail(key, f"expected a whole number >= 1, got {value!r}")
+    def count(self, value, key, maximum=None, minimum=1):
+        """``value`` as a whole number >= ``minimum`` (and at most ``maximum``), as an int;
+        a whole float is one (``count: 1e3``: YAML reads an exponent as a float)."""
+        whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+        if isinstance(value, bool) or not whole or value < minimum:
+            self.fail(key, f"expected a whole number >= {minimum}, got {value!r}")
         if maximum is not None and value > maximum:
-            self.fail(key, f"{value:,} is too many", f"at most {maximum:,}")
-        return value
+            self.fail(key, f"{value:,} is too many" if isinstance(value, int)
+                      else f"{value:g} is too many", f"at most {maximum:,}")
+        return int(value)
 
     def vector(self, value, key, length=3):
         """``value`` as a tuple of ``length`` finite floats (a swept entry: a float array)."""

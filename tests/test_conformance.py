@@ -14,8 +14,8 @@ from rbstudy.pipeline.golden import GOLDEN
 def scorecard(tmp_path_factory):
     """euler, midpoint and rk4 on the Abaqus top and the flipping T-handle, three steps."""
     out = tmp_path_factory.mktemp("conformance")
-    code = main(["conformance", "--cases", "abaqus_top", "t_handle", "--schemes", "euler",
-                 "midpoint", "rk4", "--steps", "3", "--out", str(out), "--quiet"])
+    code = main(["conformance", "--cases", "abaqus_top,t_handle", "--schemes", "euler",
+                 "--schemes", "midpoint,rk4", "--steps", "3", "--out", str(out), "--quiet"])
     assert code == 0
     with xr.open_dataset(out / "conformance.nc") as ds:
         return out, ds.load()
@@ -67,8 +67,8 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
     out, ds = scorecard
     archive = out / "conformance_t_handle" / "conformance_t_handle.nc"
     written = archive.stat().st_mtime_ns
-    assert main(["conformance", "--cases", "abaqus_top", "t_handle", "--schemes", "euler",
-                 "midpoint", "rk4", "--steps", "3", "--out", str(out), "--quiet"]) == 0
+    assert main(["conformance", "--cases", "abaqus_top,t_handle", "--schemes",
+                 "euler,midpoint,rk4", "--steps", "3", "-o", str(out), "-q"]) == 0
     printed = capsys.readouterr().out
     assert "euler" in printed and "FAIL" in printed
     with xr.open_dataset(out / "conformance.nc") as again:
@@ -81,8 +81,8 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys):
             (["--cases", "nope"], "--cases: no golden case 'nope'; the cases: abaqus_top, "),
             (["--steps", "2"], "--steps: give 3 to 8 time steps"),
             (["--steps", "9"], "--steps: give 3 to 8 time steps"),
-            (["--schemes", "rk4", "rk4"], "--schemes: rk4 is given twice; name it once"),
-            (["--cases", "t_handle", "t_handle"], "--cases: t_handle is given twice"),
+            (["--schemes", "rk4,rk4"], "--schemes: rk4 is given twice; name it once"),
+            (["--cases", "t_handle", "--cases", "t_handle"], "--cases: t_handle is given twice"),
             (["--schemes", "dop853"], "--schemes: dop853 chooses its own steps: it has no "
                                       "order in dt to judge; leave it out"),
             (["--schemes", "nope"], "unknown scheme 'nope'")):

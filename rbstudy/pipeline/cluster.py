@@ -102,10 +102,8 @@ def read_cluster_file(path):
         bounds = reader.mapping(data["adaptive"], "adaptive", ("minimum", "maximum"))
         if set(bounds) != {"minimum", "maximum"}:
             reader.fail("adaptive", "give minimum and maximum")
-        minimum, maximum = bounds["minimum"], bounds["maximum"]
-        if isinstance(minimum, bool) or not isinstance(minimum, int) or minimum < 0:
-            reader.fail("adaptive.minimum", f"expected a whole number >= 0, got {minimum!r}")
-        adaptive = (minimum, reader.count(maximum, "adaptive.maximum"))
+        minimum = reader.count(bounds["minimum"], "adaptive.minimum", minimum=0)
+        adaptive = (minimum, reader.count(bounds["maximum"], "adaptive.maximum"))
         if adaptive[1] < minimum:
             reader.fail("adaptive.maximum", f"{adaptive[1]} is below the minimum {minimum}")
     options = data.get("options") or {}
