@@ -21,6 +21,7 @@ import os
 import pathlib
 import re
 import sys
+import textwrap
 import traceback
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean
@@ -39,12 +40,17 @@ MAX_GOLDEN_STEPS = 8
 
 
 def _schemes(args):
+    from rbstudy.analysis.summary import TERMINAL_WIDTH
     from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, unavailable_schemes
     if args.quiet:  # for scripts, as `docker ps -q` lists ids: `rbstudy bench $(...)`
         print("\n".join(SCHEMES))
         return 0
     missing = unavailable_schemes()
     width = max(map(len, [*SCHEMES, *missing]))
+    # the summaries wrap within the terminal, under their column (at least 30 wide)
+    column = width + 1 + 7 + 1 + 9 + 1 + 16 + 1  # " {order:>7} {kind:9} {keeps:16} "
+    text = functools.partial(textwrap.fill, width=max(TERMINAL_WIDTH, column + 30),
+                             subsequent_indent=" " * column, break_on_hyphens=False)
     print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
@@ -56,11 +62,11 @@ def _schemes(args):
         # "rbstudy's adapter of mujoco 4.0.0" (`rbstudy.engines`), or a plug-in's package
         origin = ("" if scheme.origin == "rbstudy" else f" ({scheme.origin})"
                   if scheme.origin.startswith("rbstudy's ") else f" (plug-in: {scheme.origin})")
-        print(f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} {scheme.summary}"
-              + (f" [{options}]" if options else "") + origin)
+        print(text(scheme.summary + (f" [{options}]" if options else "") + origin,
+                   initial_indent=f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} "))
     for name, why in missing.items():
-        print(f"{name:{width}s} {'-':>7s} {'unavailable':26s} {why.reason}; "
-              f"fix: {why.fix} ({why.origin})")
+        print(text(f"{why.reason}; fix: {why.fix} ({why.origin})",
+                   initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':26s} "))
     return 0
 
 

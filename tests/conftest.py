@@ -55,6 +55,19 @@ def abaqus_mapping(**body):
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 
 
+def listed_schemes(listing):
+    """The rows of `rbstudy schemes`'s ``listing`` by scheme name, each row's wrapped lines
+    joined into one."""
+    rows, name = {}, None
+    for line in listing.splitlines()[1:]:
+        if line.startswith(" "):  # a summary wrapped under its column
+            rows[name] += " " + line.strip()
+        else:
+            name = line.split()[0]
+            rows[name] = line
+    return rows
+
+
 def copy_node_tables(folder):
     """Copy the node tables the shipped configs name into ``folder``, where copies of those
     configs are written (a table's path is relative to its config)."""

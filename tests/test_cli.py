@@ -4,7 +4,7 @@ import re
 
 import pytest
 import yaml
-from conftest import abaqus_mapping, write_study
+from conftest import abaqus_mapping, listed_schemes, write_study
 
 from rbstudy.cli import build_parser, main
 from rbstudy.pipeline.store import open_results
@@ -146,8 +146,10 @@ def test_version_and_a_quick_bench(capsys):
 
 def test_schemes_name_the_invariants_they_keep(capsys):
     assert main(["schemes"]) == 0
-    rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()[1:]}
+    listing = capsys.readouterr().out
+    rows = listed_schemes(listing)
     assert " energy, L " in rows["midpoint"] and " L " in rows["splitting"]
+    assert max(map(len, listing.splitlines())) <= 100  # the summaries wrap under their column
     assert "momentum" not in rows["midpoint"]
 
 

@@ -14,7 +14,7 @@ import textwrap
 import numpy as np
 import pytest
 import yaml
-from conftest import abaqus_mapping
+from conftest import abaqus_mapping, listed_schemes
 
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics import state as S
@@ -128,7 +128,7 @@ def test_schemes_lists_plugins_that_hang_or_exit_as_unavailable(bad_imports, tmp
     others. Probed in a forked child, or in a fresh interpreter when threads run."""
     listed = _run(bad_imports, child, cwd=tmp_path, code=_SCHEMES)
     assert listed.returncode == 0, listed.stderr
-    lines = {line.split()[0]: line for line in listed.stdout.splitlines()[1:]}
+    lines = listed_schemes(listed.stdout)
     assert "euler" in lines and "unavailable" not in lines["euler"]
     origin = "(rbstudy-bad-imports 0.1.0)"
     for name, reason in {"hangs": "its import did not finish within 4 s",

@@ -14,7 +14,7 @@ import textwrap
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import CONFIGS, LOADED, abaqus_mapping, write_study
+from conftest import CONFIGS, LOADED, abaqus_mapping, listed_schemes, write_study
 
 from rbstudy.errors import InputError, SchemeError
 from rbstudy.extending import make_batch_entry
@@ -53,7 +53,7 @@ def _rbstudy(env, *args, cwd):
 def test_installed_example_is_listed_as_a_plugin(installed, tmp_path):
     listed = _rbstudy(installed, "schemes", cwd=tmp_path)
     assert listed.returncode == 0, listed.stderr
-    lines = {line.split()[0]: line for line in listed.stdout.splitlines()[1:]}
+    lines = listed_schemes(listed.stdout)
     for name in ("semi_implicit", "semi_implicit_numpy"):
         assert "(plug-in: rbstudy-semi-implicit 0.1.0)" in lines[name]
     assert "plug-in" not in lines["euler"]
@@ -175,8 +175,8 @@ def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
         get_scheme("engine_rk4")
     from rbstudy.cli import main
     assert main(["schemes"]) == 0
-    listed = capsys.readouterr().out
-    assert "engine_rk4" in listed and 'fix: pip install "rbstudy[engines]"' in listed
+    listed = listed_schemes(capsys.readouterr().out)
+    assert 'fix: pip install "rbstudy[engines]"' in listed["engine_rk4"]
 
 
 def test_builtin_and_engine_names_import_no_plugin(fake_plugins):
