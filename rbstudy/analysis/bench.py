@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from rbstudy.analysis.summary import wrap_clauses
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.scenes import scene_from_mapping
@@ -37,6 +38,8 @@ BENCH_DT = 1e-4
 SAMPLE_EVERY = 1_000
 # dop853 is per case in Python: a short run says enough about its cost.
 REFERENCE_STEPS = 2_000
+# The width of a rate's column (characters): "1.260e+07" and a space either side.
+_RATE = 12
 
 
 def abaqus_top_scene():
@@ -80,14 +83,17 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
     cores = default_threads()
     note = _progress(progress)
     rows = []
-    echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
-         f"figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), {cores} cores; "
-         "rates in body-steps/s")
+    for line in wrap_clauses(
+            f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
+            f"figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), {cores} "
+            "cores; rates in body-steps/s of B bodies", indent="  "):
+        echo(line)
     width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's name may be long
-    header = f"{'scheme':{width}s} {'compile s':>9s}"
-    for size in batch_sizes:
-        header += f" {f'B={size} 1 core':>14s} {f'B={size} {cores} cores':>14s}"
-    echo(header)
+    # two header lines, so that six rates keep to 100 columns
+    echo(f"{'':{width}s} {'compile':>9s}" + "".join(f" {f'B={size}':>{_RATE}s}" * 2
+                                                     for size in batch_sizes))
+    echo(f"{'scheme':{width}s} {'s':>9s}" + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}"
+         * len(batch_sizes))
     for scheme in chosen:
         name = scheme.name
         note(f"{name}: compiling")
@@ -100,14 +106,14 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo
             steps = max(1, body_steps // size)
             if scheme.adaptive:
                 if size > 1:
-                    line += f" {'-':>14s} {'-':>14s}"
+                    line += f" {'-':>{_RATE}s} {'-':>{_RATE}s}"
                     continue
                 steps = REFERENCE_STEPS
             for threads in (1, cores):
                 note(f"{name}: B={size}, {threads} thread(s), {steps * size:.1e} body-steps")
                 rate, _ = _rate(scheme, scene, size, steps, threads)
                 row[f"B{size}_threads{threads}"] = rate
-                line += f" {rate:14.3e}"
+                line += f" {rate:{_RATE}.3e}"
         note("")
         echo(line)
         rows.append(row)
