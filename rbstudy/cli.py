@@ -153,7 +153,7 @@ def _each_file(paths, say):
 def _validate(args):
     from rbstudy.pipeline.config import load_study
     return _each_file(args.files,
-                      lambda path: "ok: " + _costed(load_study(path), args, disk=True))
+                      lambda path: "ok: " + _costed(load_study(path, args.set), args, disk=True))
 
 
 def _sweep(args):
@@ -175,7 +175,8 @@ def _sweep(args):
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study
     from rbstudy.pipeline.store import folder_claim
-    studies = [load_study(path) for path in args.files]  # all configs checked before any run
+    # all configs checked before any run, each with every --set
+    studies = [load_study(path, args.set) for path in args.files]
     names = [study.name for study in studies]
     for study in studies:
         if names.count(study.name) > 1:
@@ -444,6 +445,7 @@ def build_parser():
                        help="print every column of the summary table (default: the columns "
                             "that fit 100 characters)")
     _limit_arguments(sweep)
+    _set_argument(sweep)
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs and forecast their "
                                                     "cost without running")
@@ -451,6 +453,7 @@ def build_parser():
     validate.add_argument("--out", default="results",
                           help="results root the sweep would write (its free space is checked)")
     _limit_arguments(validate)
+    _set_argument(validate)
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
     schemes.set_defaults(run=_schemes)
@@ -529,6 +532,13 @@ def _no_verify_argument(parser):
     parser.add_argument("--no-verify", action="store_true",
                         help="read the archive without proving it intact by its checksums "
                              "(rbstudy verify): for one known to be damaged")
+
+
+def _set_argument(parser):
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config value before it is checked: KEY a dotted path "
+                             "(sweep.dt.count), VALUE as YAML would read it (3, -0.1, [1, 2], "
+                             "hht); repeatable; applies to every FILE (docs/config.md)")
 
 
 def _limit_arguments(parser):
