@@ -86,6 +86,16 @@ def test_an_alias_of_the_file_keeps_its_value_where_it_is_not_overridden(tmp_pat
     assert study.base["scene"]["nodes"]["tip"] == [1.0, 1.0, 2.0]  # the alias: the file's
 
 
+def test_an_empty_mapping_and_a_name_yaml_reads_as_a_number_take_overrides(tmp_path):
+    config = tmp_path / "empty.yaml"
+    config.write_text(
+        "name: empty\nscene:\n  body: {mass: 1.0, inertia: [1.0, 1.0, 2.0]}\n"
+        "  initial: {angular_velocity: {body: [0.25, 0.0, 6.0]}}\n  nodes: {2: [1.0, 0.0, 0.0]}\n"
+        "  duration: 0.5\noutput:\nrun: {scheme: rk4, dt: 0.01}\n")
+    study = load_study(config, ["output.interval=0.05", "scene.nodes.2=[0, 0, 2]"])
+    assert study.output_interval == 0.05 and study.base["scene"]["nodes"] == {2: [0, 0, 2]}
+
+
 @pytest.mark.parametrize(("argv", "line"), [
     (["--set", "sweep.dt.count=0"], "{config}: --set sweep.dt.count: expected a whole number "
                                     ">= 1, got 0"),

@@ -52,13 +52,13 @@ class StudyConfig:
     `rbstudy.pipeline.store.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
     it (`rbstudy.pipeline.overrides`). archived_text : the config text the archive stores: the
     file's, or with the overrides applied. base : the ``scene`` and ``run`` mappings as
-    written. dimensions : the swept
-    `rbstudy.pipeline.grid.Dimension`s (empty for one case). cases : every case, in C order
-    of the dimensions (`rbstudy.pipeline.grid.Cases`: its distinct scenes and runs). variables : the stored
-    variable names. batches : the `rbstudy.pipeline.batches.Batch`es. schemes : what the
-    archive records of each scheme, name -> {coordinate: value}
-    (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the nominal order a tuple along
-    `order_dimension` where a composition is swept). n_times : output samples per case.
+    written. dimensions : the swept `rbstudy.pipeline.grid.Dimension`s (empty for one case).
+    cases : every case, in C order of the dimensions (`rbstudy.pipeline.grid.Cases`: its
+    distinct scenes and runs). variables : the stored variable names. batches : the
+    `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,
+    name -> {coordinate: value} (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the
+    nominal order a tuple along `order_dimension` where a composition is swept). n_times :
+    output samples per case.
     """
 
     path: str
@@ -228,9 +228,8 @@ def load_study(path, overrides=()):
 
 def _validated(path, text, overridden):
     """The `StudyConfig` of the `Overridden` mapping of the file ``path`` of text ``text``."""
-    data = overridden.data
     reader = Reader(path, ConfigError)
-    data = reader.mapping(data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
+    data = reader.mapping(overridden.data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key in ("name", "scene", "run"):
         if key not in data:
             reader.fail(key, "missing")

@@ -75,17 +75,19 @@ class Overridden:
                                error.row)
         if error.source != self.source:  # a table file the config names: its own error
             return error
-        return type(error)(error.message, error.fix, f"{error.source} (with {self.described()})",
-                           error.key, error.row)
+        with_ = " ".join(self._given())
+        return type(error)(error.message, error.fix, f"{error.source} (with {with_})", error.key,
+                           error.row)
 
     def _wrote(self, key):
         """Whether the key path ``key`` is at or below what an override wrote."""
         return any(key == path or key.startswith((f"{path}.", f"{path}["))
                    for path in self.written)
 
-    def described(self):
-        """``--set a=1 --set b=2`` on one line (a newline in a value shown as ``\\n``)."""
-        return " ".join(f"--set {_one_line(text)}" for text in self.assignments)
+    def _given(self):
+        """``--set a=1`` per override, each on one line (a newline shown as ``\\n``)."""
+        return [f"--set {text}".replace("\r", "\\r").replace("\n", "\\n")
+                for text in self.assignments]
 
     def text(self, file_text):
         """The config text an archive stores: ``file_text`` itself without overrides, else the
@@ -94,14 +96,10 @@ class Overridden:
         if not self.overrides:
             return file_text
         header = ["# rbstudy: the config file's values with these applied (the file's comments "
-                  "are not kept):"] + [f"#   --set {_one_line(text)}" for text in self.assignments]
+                  "are not kept):"] + [f"#   {given}" for given in self._given()]
         return "\n".join(header) + "\n" + yaml.safe_dump(self.data, sort_keys=False,
                                                          default_flow_style=None,
                                                          allow_unicode=True)
-
-
-def _one_line(text):
-    return text.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def _parse(assignment, source):
@@ -126,10 +124,11 @@ def _child_key(node, rest, above):
     ``above`` (a list of keys): the longest dotted key ``node`` holds that ``rest`` spells (the
     sweep's ``run.options.alpha``), else the first part; a new sweep axis given by its path is
     that whole path."""
+    held = {str(key): key for key in node}  # `nodes: {2: ...}`: YAML made the name a number
     for taken in range(len(rest), 0, -1):
         joined = ".".join(rest[:taken])
-        if joined in node:
-            return joined, taken
+        if joined in held:
+            return held[joined], taken
     in_sweep = above == ["sweep"] or (len(above) == 3 and above[:2] == ["sweep", "zip"])
     if in_sweep and rest[0] in _AXIS_PATH_HEADS and len(rest) > 1:
         return ".".join(rest), len(rest)
@@ -153,8 +152,8 @@ def _write(root, override, source):
             key, taken, spelled = int(part), 1, f"{spelled}[{part}]"
         elif isinstance(node, dict):
             key, taken = _child_key(node, rest, above)
-            spelled = f"{spelled}.{key}" if spelled else key
-            if key not in node:
+            spelled = f"{spelled}.{key}" if spelled else str(key)
+            if node.get(key) is None:  # absent, or empty (`output:` reads as None)
                 written = written or spelled
         else:
             fail(f"{spelled} holds {node!r:.60}, not a mapping or list",
@@ -164,8 +163,10 @@ def _write(root, override, source):
         if not rest:
             node[key] = override.value
             break
-        child = node.get(key, {}) if isinstance(node, dict) else node[key]
-        if isinstance(child, (dict, list)):
+        child = node[key] if isinstance(node, list) else node.get(key)
+        if child is None:
+            child = node[key] = {}
+        elif isinstance(child, (dict, list)):
             child = node[key] = copy.copy(child)
         node = child
     return written or spelled
