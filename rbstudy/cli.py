@@ -169,7 +169,7 @@ def _validate(args):
     from rbstudy.pipeline.config import load_study
 
     def checked(path):
-        study = load_study(path)
+        study = load_study(path, args.set)
         line = _costed(study, args, disk=True)  # the limits are checked even when quiet
         return "\n".join(_warning_lines(study)) if args.quiet else f"{path}: ok: {line}"
     return _each_file(args.files, checked)
@@ -194,7 +194,8 @@ def _sweep(args):
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study
     from rbstudy.pipeline.store import folder_claim
-    studies = [load_study(path) for path in args.files]  # all configs checked before any run
+    # all configs checked before any run, each with every --set
+    studies = [load_study(path, args.set) for path in args.files]
     names = [study.name for study in studies]
     for study in studies:
         if names.count(study.name) > 1:
@@ -518,6 +519,7 @@ def build_parser():
                        help="print every column of the summary table (default: the columns "
                             "that fit 100 characters)")
     _limit_arguments(sweep)
+    _set_argument(sweep)
     sweep.set_defaults(run=_sweep)
     validate = commands.add_parser("validate", help="check study configs and forecast their "
                                                     "cost without running")
@@ -528,6 +530,7 @@ def build_parser():
                           help="no 'ok' line and forecast: only warnings and errors (the exit "
                                "status tells)")
     _limit_arguments(validate)
+    _set_argument(validate)
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
     schemes.add_argument("-q", "--quiet", action="store_true",
@@ -638,6 +641,13 @@ def _no_verify_argument(parser):
     parser.add_argument("--no-verify", action="store_true",
                         help="read the archive without proving it intact by its checksums "
                              "(rbstudy verify): for one known to be damaged")
+
+
+def _set_argument(parser):
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config value before it is checked: KEY a dotted path "
+                             "(sweep.dt.count), VALUE as YAML would read it (3, -0.1, [1, 2], "
+                             "hht); repeatable; applies to every FILE (docs/config.md)")
 
 
 def _limit_arguments(parser):

@@ -19,6 +19,7 @@ from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
 from rbstudy.pipeline.grid import MAX_CASES, Cases, expand, parse_sweep
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
+from rbstudy.pipeline.overrides import apply_overrides
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
     DEPRECATED,
@@ -47,17 +48,23 @@ BATCH_MAX_BYTES = 256 * 2 ** 20
 class StudyConfig:
     """A validated study.
 
-    base : the ``scene`` and ``run`` mappings as written. dimensions : the swept
-    `rbstudy.pipeline.grid.Dimension`s (empty for one case). cases : every case, in C order
-    of the dimensions (`rbstudy.pipeline.grid.Cases`: its distinct scenes and runs). variables : the stored
-    variable names. batches : the `rbstudy.pipeline.batches.Batch`es. schemes : what the
-    archive records of each scheme, name -> {coordinate: value}
-    (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the nominal order a tuple along
-    `order_dimension` where a composition is swept). n_times : output samples per case.
+    text : the config file's text (its SHA-256 names the study folder's owner,
+    `rbstudy.pipeline.store.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
+    it (`rbstudy.pipeline.overrides`). archived_text : the config text the archive stores: the
+    file's, or with the overrides applied. base : the ``scene`` and ``run`` mappings as
+    written. dimensions : the swept `rbstudy.pipeline.grid.Dimension`s (empty for one case).
+    cases : every case, in C order of the dimensions (`rbstudy.pipeline.grid.Cases`: its
+    distinct scenes and runs). variables : the stored variable names. batches : the
+    `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,
+    name -> {coordinate: value} (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the
+    nominal order a tuple along `order_dimension` where a composition is swept). n_times :
+    output samples per case.
     """
 
     path: str
     text: str
+    overrides: tuple
+    archived_text: str
     name: str
     title: str
     base: dict
@@ -206,12 +213,23 @@ def _output_interval(reader, output, run, swept):
                 "with dt swept, give the output interval (s)")
 
 
-def load_study(path):
-    """Read and validate the study config at ``path``; nothing is run or written."""
+def load_study(path, overrides=()):
+    """Read the study config at ``path``, apply the ``--set`` texts ``overrides``
+    (``KEY=VALUE``, `rbstudy.pipeline.overrides`) and validate it; nothing is run or written.
+    An error in what an override wrote names its key as ``--set <key>``."""
     path = str(path)
     text, data = read_yaml_file(path)
+    overridden = apply_overrides(data, overrides, path)
+    try:
+        return _validated(path, text, overridden)
+    except InputError as error:
+        raise overridden.blame(error) from None
+
+
+def _validated(path, text, overridden):
+    """The `StudyConfig` of the `Overridden` mapping of the file ``path`` of text ``text``."""
     reader = Reader(path, ConfigError)
-    data = reader.mapping(data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
+    data = reader.mapping(overridden.data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key in ("name", "scene", "run"):
         if key not in data:
             reader.fail(key, "missing")
@@ -252,7 +270,8 @@ def load_study(path):
     except InputError as error:
         raise reader.locate(error, "output.interval") from None
     variables = _variables(reader, output.get("variables"), cases.scenes)
-    study = StudyConfig(path=path, text=text, name=name, title=title,
+    study = StudyConfig(path=path, text=text, overrides=overridden.assignments,
+                        archived_text=overridden.text(text), name=name, title=title,
                         base=base, output_interval=interval, accuracy_bound=accuracy_bound,
                         duration=duration,
                         dimensions=dimensions, cases=cases, variables=variables, batches=(),

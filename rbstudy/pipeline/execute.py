@@ -398,7 +398,7 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
         # replaced whole by a rename, so reading needs no lock. Only when there is nothing
         # to write: the archive current and intact, and described by this very text.
         if (force or archive_state(target, study)[0] != "current"
-                or _described_by(target) != study.text):
+                or _described_by(target) != study.archived_text):
             raise
         return _up_to_date(target, study, started_clock)
     with lock:
@@ -411,7 +411,7 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
             stale.unlink()  # left by a killed sweep; the lock is ours
         state, archive_problems = archive_state(target, study)
         if not force and state == "current":
-            if _described_by(target) != study.text:
+            if _described_by(target) != study.archived_text:
                 # the same cases and code, another text (a title, a comment): redescribe
                 refresh_description(target, global_attrs(study, started=started))
                 write_text_atomic(resolved_config(study), folder / "study.yaml")

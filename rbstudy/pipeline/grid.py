@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.errors import InputError
+from rbstudy.errors import InputError, did_you_mean
 from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable, scene_table
 from rbstudy.physics.simulate import steps_per
@@ -154,9 +154,12 @@ def _values(reader, key, spec):
     if spec == ALL_SCHEMES and key.endswith("scheme"):  # rbstudy's own: a config means the
         # same study whatever plug-ins are installed; those are named one by one
         return tuple(name for name, scheme in BUILTIN.items() if not scheme.adaptive)
+    forms = ("linspace", "logspace", "halving", "count")
+    slip = "".join(did_you_mean(name, forms) for name in spec if name not in forms) \
+        if isinstance(spec, dict) else ""  # {halving: 0.01, cout: 3}: 'count' was meant
     reader.fail(key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
                      f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
-                     f"got {spec!r}")
+                     f"got {spec!r}{slip}")
 
 
 def _coordinate(target):
@@ -555,7 +558,9 @@ def expand(reader, base, dimensions, output_interval):
     unknown = sorted(given - {name for run in runs for name in run.options})
     if unknown:
         schemes = sorted({run.scheme for run in runs})
+        options = {option.name for name in schemes for option in get_scheme(name).options}
         reader.fail("run.options", f"{', '.join(unknown)} is an option of none of the study's "
-                                   f"schemes ({', '.join(schemes)})", "see `rbstudy schemes`")
+                                   f"schemes ({', '.join(schemes)})"
+                                   f"{did_you_mean(unknown[0], options)}", "see `rbstudy schemes`")
     return Cases(shape, scenes, tuple(runs), _rows_of(dimensions, of_scenes, shape),
                  _rows_of(dimensions, of_runs, shape))

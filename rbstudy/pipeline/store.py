@@ -22,6 +22,7 @@ import math
 import os
 import pathlib
 import platform
+import shlex
 import shutil
 import sys
 import tempfile
@@ -104,9 +105,10 @@ def utc_now():
 
 
 def global_attrs(study, command=None, started=None):
-    """The global attributes: CF conventions, provenance and the config text."""
+    """The global attributes: CF conventions, provenance, the config text (with the ``--set``
+    overrides applied) and the overrides, one a line (empty without)."""
     versions = _versions()
-    command = command or " ".join(["rbstudy"] + sys.argv[1:])
+    command = command or shlex.join(["rbstudy"] + sys.argv[1:])  # `--set 'k=[1, 2]'` quoted
     history = f"{started or utc_now()} {command} (started)\n{utc_now()} {command} (finished)"
     return {
         "Conventions": "CF-1.11",
@@ -119,8 +121,9 @@ def global_attrs(study, command=None, started=None):
         "study": study.name,
         "batches": batches_digest(study.batches),
         "accuracy_bound": study.accuracy_bound,
-        "config": study.text,
+        "config": study.archived_text,
         "config_path": study.path,
+        "overrides": "\n".join(study.overrides),
         "platform": platform.platform(),
         "python": sys.version.split()[0],
         "versions": "; ".join(f"{k} {v}" for k, v in versions.items()),

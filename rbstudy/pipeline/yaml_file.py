@@ -17,7 +17,7 @@ import yaml
 from rbstudy.errors import ConfigError, InputError
 from rbstudy.reader import read_input_file
 
-__all__ = ["read_yaml_file", "MAX_DEPTH", "MAX_VALUES"]
+__all__ = ["read_yaml_file", "parse_yaml", "MAX_DEPTH", "MAX_VALUES"]
 
 # A study config is a few hundred values a few levels deep (scene.initial.angular_velocity
 # .body is five): these bounds leave ample room.
@@ -118,13 +118,20 @@ def read_yaml_file(path):
     except UnicodeDecodeError as error:
         raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
                           f"offset {error.start})", "save the file as UTF-8", path) from None
+    return text, parse_yaml(text, path)
+
+
+def parse_yaml(text, path):
+    """The values of the YAML ``text`` (a file's, or a value given on the command line for
+    the file at ``path``), read as `read_yaml_file` reads a file; a `ConfigError` at ``path``
+    names what is wrong."""
     loader = _Loader(text)
     try:
         root = loader.get_single_node()  # composed once: measured, then built
         if root is None:
-            return text, None
+            return None
         _check_extent(path, root)
-        return text, loader.construct_document(root)
+        return loader.construct_document(root)
     except RecursionError:
         raise ConfigError("nested too deeply to read", "write it flat, as docs/config.md "
                           "shows", path) from None
