@@ -15,6 +15,7 @@ has gone (``| head -1``): the command stops there.
 import argparse
 import contextlib
 import functools
+import gc
 import logging
 import math
 import os
@@ -591,6 +592,11 @@ def command():
     (``--help``, bad usage) end the usual way.
     """
     code = main()
+    if code:
+        # what failed may have left objects to the cycle collector, among them the queues of
+        # a local cluster's workers that did not start: collected, they release their named
+        # semaphores, which Python's resource tracker would report as leaked (two lines)
+        gc.collect()
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError):  # a reader gone: main has said so already
