@@ -15,6 +15,7 @@ has gone (``| head -1``): the command stops there.
 import argparse
 import contextlib
 import functools
+import gc
 import logging
 import math
 import os
@@ -348,18 +349,20 @@ def _conformance(args):
         scorecard_html,
     )
     from rbstudy.pipeline.archive import open_archive
-    from rbstudy.pipeline.golden import run_golden, write_golden
+    from rbstudy.pipeline.golden import baseline, run_golden, write_golden
     from rbstudy.pipeline.store import write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells = {}
     for case, archive in zip(cases, run_golden(paths, out, quiet=args.quiet), strict=True):
-        cells[case.name] = score_case(open_archive(archive), case.rules)
+        cells[case.name] = score_case(open_archive(archive), case.rules, schemes)
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
               f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
-              "archives it finds)", f"studies and archives: {out}"]
+              "archives it finds)", f"studies and archives: {out}",
+              "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "
+              f"{', '.join(baseline(schemes))}"]
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
@@ -708,6 +711,11 @@ def command():
     (``--help``, bad usage) end the usual way.
     """
     code = main()
+    if code:
+        # what failed may have left objects to the cycle collector, among them the queues of
+        # a local cluster's workers that did not start: collected, they release their named
+        # semaphores, which Python's resource tracker would report as leaked (two lines)
+        gc.collect()
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError):  # a reader gone: main has said so already

@@ -10,7 +10,7 @@ ever rewritten as text.
 import difflib
 
 __all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError",
-           "MAX_LENGTH", "first_line", "did_you_mean"]
+           "MAX_LENGTH", "one_line", "did_you_mean"]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
 MAX_LENGTH = 1000
@@ -73,8 +73,8 @@ class SchemeError(InputError):
     """An unknown scheme, an unknown scheme option, or an option value out of range."""
 
 
-def first_line(error):
-    """The first line of a foreign exception's message (a library's may run to pages), or
-    its class name when it has none: what a one-line error quotes of it."""
-    text = str(error).strip()
-    return text.splitlines()[0] if text else type(error).__name__
+def one_line(error):
+    """A foreign exception's message whole, its lines joined into one, or its class name
+    when it has none: what a one-line error quotes of it. Not its first line alone: a
+    library's first line may end in "see:" or "for example:", the rest on the next."""
+    return " ".join(str(error).split()) or type(error).__name__

@@ -16,8 +16,8 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     assert main(["sweep", str(config), "--out", str(tmp_path / "out")]) == 0
     folder = tmp_path / "out" / "small"
     # the archive holds everything: parts/ goes once it is written
-    assert sorted(p.name for p in folder.iterdir()) == [".lock", ".rbstudy-study", "small.nc",
-                                                        "study.yaml"]
+    assert sorted(p.name for p in folder.iterdir()) == [".lock", ".lock.pid", ".rbstudy-study",
+                                                        "small.nc", "study.yaml"]
     assert main(["sweep", str(config), "--out", str(tmp_path / "kept"), "--keep-parts",
                  "--quiet", "--wide"]) == 0  # the inaccurate cases: a wide column
     parts = tmp_path / "kept" / "small" / "parts"

@@ -1,6 +1,10 @@
 """`rbstudy conformance` on a shrunk golden set: the rules judge real runs, the scorecard is
 printed, archived and drawn as a page."""
 
+import importlib
+import importlib.metadata
+import pathlib
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -8,6 +12,11 @@ import xarray as xr
 from rbstudy.analysis.conformance import RULES
 from rbstudy.cli import main
 from rbstudy.pipeline.golden import GOLDEN
+from rbstudy.schemes import SCHEMES
+from rbstudy.schemes._plugins import GROUP
+
+EXAMPLE = pathlib.Path(__file__).resolve().parents[1] / "examples" / "semi_implicit"
+PLUGIN = "semi_implicit_numpy"
 
 
 @pytest.fixture(scope="module")
@@ -39,8 +48,9 @@ def test_sound_schemes_pass_every_rule_with_their_orders(scorecard):
 
 def test_explicit_euler_fails_where_it_gains_energy_and_shows_no_order(scorecard):
     """On the T-handle explicit Euler gains a quarter of its energy and blows up at the
-    coarsest step: it fails the energy and the order rules. Its failure alone does not fail
-    the failure rule: no other scheme of order 1 is judged here."""
+    coarsest step: it fails the energy and the order rules. Its failure does not fail the
+    failure rule: leapfrog, the other rbstudy scheme of order 1, swept beside it though not
+    named, blows up there too."""
     _, ds = scorecard
     assert int(ds["passed"].sel(scheme="euler", case="t_handle")) == 0
     assert _rule(ds, "euler", "t_handle", "energy") == 0
@@ -48,7 +58,8 @@ def test_explicit_euler_fails_where_it_gains_energy_and_shows_no_order(scorecard
     assert _rule(ds, "euler", "t_handle", "order") == 0
     assert _rule(ds, "euler", "t_handle", "failure") == 1
     text = str(ds["rule_text"].sel(scheme="euler", case="t_handle", rule="failure").values)
-    assert "no scheme of order 1 here finished" in text
+    assert "no rbstudy scheme of order 1 finished (leapfrog)" in text
+    assert list(ds["scheme"].values) == ["euler", "midpoint", "rk4"]  # the baseline unjudged
     # the flip rule is judged where the case finished: within a step at the finer two
     assert _rule(ds, "euler", "t_handle", "flip") == 1
 
@@ -74,6 +85,39 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
     with xr.open_dataset(out / "conformance.nc") as again:
         np.testing.assert_array_equal(again["passed"].values, ds["passed"].values)
     assert archive.stat().st_mtime_ns == written  # up to date: not computed again
+
+
+def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, monkeypatch):
+    """The example plug-in's numpy scheme, of order 1, finishes on the T-handle where euler
+    blows up. Judged beside it, euler still gets the card it gets alone (and beside midpoint
+    and rk4), and the plug-in the card it gets alone: the failure rule compares with
+    rbstudy's own schemes of the order only, which every golden study sweeps."""
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    importlib.import_module("rbstudy_semi_implicit.vectorised")  # here: no probing child
+    entry = importlib.metadata.EntryPoint(PLUGIN, "rbstudy_semi_implicit.vectorised:SCHEME",
+                                          GROUP)
+    monkeypatch.setattr(importlib.metadata, "entry_points",
+                        lambda group=None: [entry] if group == GROUP else ())
+    monkeypatch.setattr(SCHEMES, "_groups", {})  # the registry loads the plug-in afresh
+
+    def card(*schemes):
+        out = tmp_path / "_".join(schemes)
+        assert main(["conformance", "--cases", "t_handle", "--schemes", *schemes, "--steps",
+                     "3", "--out", str(out), "--quiet"]) == 0
+        with xr.open_dataset(out / "conformance.nc") as ds:
+            return {scheme: ds[["passed", "rule_passed", "rule_text"]].sel(scheme=scheme).load()
+                    for scheme in schemes}
+
+    alone = {**card("euler"), **card(PLUGIN)}
+    together = card("euler", PLUGIN)
+    beside_others = scorecard[1].sel(scheme="euler", case=["t_handle"])
+    for scheme in ("euler", PLUGIN):
+        xr.testing.assert_equal(together[scheme], alone[scheme])  # attrs: wall time
+    xr.testing.assert_equal(alone["euler"], beside_others[["passed", "rule_passed",
+                                                                 "rule_text"]])
+    failure = together["euler"]["rule_passed"].sel(case="t_handle", rule="failure")
+    assert int(failure) == 1  # the plug-in's survival is not held against euler
+    assert int(together[PLUGIN]["passed"].sel(case="t_handle")) == 0  # order 0.6, not 1
 
 
 def test_bad_options_are_one_line_errors(tmp_path, capsys):

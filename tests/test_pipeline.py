@@ -221,6 +221,29 @@ def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
     assert not (folder / "small.nc").exists()
 
 
+def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
+    """Another process holds the lock: refused at once, naming that process; killed, it
+    leaves no lock behind (the system's lock, through filelock)."""
+    folder = tmp_path / "study"
+    folder.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\n"
+         "from rbstudy.pipeline.execute import study_lock\n"
+         f"lock = study_lock(__import__('pathlib').Path({str(folder)!r}))\n"
+         "print('held', flush=True)\ntime.sleep(600)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        with pytest.raises(RbstudyError) as refused:  # at once: a wait would outlast the test
+            study_lock(folder)
+        assert f"(pid {holder.pid})" in str(refused.value)
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    with study_lock(folder):
+        assert (folder / execute.PID_FILE).read_text() == str(os.getpid())
+
+
 def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     sweep = {"scheme": ["rkmk4"], "dt": [0.01 / k for k in range(1, 11)],
              "inertia_ratio": {"linspace": [0.2, 2.0, 40]}}

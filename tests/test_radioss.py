@@ -327,6 +327,25 @@ def test_a_spreadsheet_export_reads_as_the_table(tmp_path):
     assert np.array_equal(read["export.csv"].nodes, read["plain.csv"].nodes)
 
 
+def test_quoted_ids_keep_their_commas_and_a_quoted_header_names_the_columns(tmp_path):
+    """Ids quoted as a spreadsheet quotes text, with a comma or a space inside, in a CSV table
+    under a quoted header and in a table of white space: each id whole, the same body."""
+    ids = ["left, front", "right, front", "3", "rear top"]
+    rows = list(zip(ids, NODES.values(), strict=True))
+    (tmp_path / "quoted.csv").write_text(
+        '"id","x","y","z","mass"\n' + "".join(
+            f'"{k}",{",".join(map(str, n["position"]))},{n["mass"]}\n' for k, n in rows))
+    (tmp_path / "quoted.txt").write_text("".join(
+        f'"{k}"\t{"  ".join(map(str, n["position"]))} {n["mass"]}\n' for k, n in rows))
+    plain = loaded({})
+    for name in ("quoted.csv", "quoted.txt"):
+        scene = scene_table({"assembly": {"master": MASTER, "nodes": name},
+                             "initial": {"angular_velocity": {"space": [0.4, 1.1, -0.6]}},
+                             "duration": 2.0}, source=str(tmp_path / "study.yaml")).scene(0)
+        assert scene.node_names == tuple(ids), name
+        assert np.array_equal(scene.nodes, plain.nodes)
+
+
 def test_the_archive_of_a_radioss_study(tmp_path):
     """A swept Radioss option is a coordinate of names ("false", "true"); every case says
     whether it passed the OpenRadioss limit and whether its inertia was regularised; the

@@ -75,7 +75,7 @@ def _refusal(config, folder, owner):
 
 def _folder_bytes(folder):
     return {path.relative_to(folder): path.read_bytes() for path in sorted(folder.rglob("*"))
-            if path.is_file() and path.name != ".lock"}
+            if path.is_file() and path.name not in (".lock", ".lock.pid")}
 
 
 def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp_path, capsys):

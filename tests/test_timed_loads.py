@@ -192,6 +192,26 @@ def test_a_table_file_is_the_inline_table(tmp_path):
     assert read[0].param_row().tolist() == read[1].param_row().tolist() == read[2].param_row().tolist()
 
 
+def test_a_quoted_table_is_the_table(tmp_path):
+    """A spreadsheet's export: the header and every number quoted, a trailing comma; and
+    quoted column names between spaces."""
+    (tmp_path / "quoted.csv").write_text('"t","x","y","z",\n' + "".join(
+        ",".join(f'"{value}"' for value in row) + ",\n" for row in PULL))
+    (tmp_path / "quoted.txt").write_text('"time" "x" "y" "z"\n' + "".join(
+        " ".join(map(str, row)) + "\n" for row in PULL))
+    read = [scene_table(spec({"nodes": {"a": {"force_space": {"table": table}}}}),
+                        source=str(tmp_path / "s.yaml")).scene(0).param_row().tolist()
+            for table in (PULL, "quoted.csv", "quoted.txt")]
+    assert read[0] == read[1] == read[2]
+
+
+def test_a_line_csv_cannot_split_is_named(tmp_path):
+    (tmp_path / "pull.csv").write_text("0, 0, 0, 0\n1, 0,\r 1, 0\n")  # a lone carriage return
+    with pytest.raises(SceneError, match=r"pull.csv: line 2: cannot split the line into fields"):
+        scene_table(spec({"nodes": {"a": {"force_space": {"table": "pull.csv"}}}}),
+                    source=str(tmp_path / "s.yaml"))
+
+
 @pytest.mark.parametrize("text, where, message", [
     ("0 0 0 0\n1 0 0 1\n1 0 0 2\n", "line 3", "time 1.0 does not come after 1.0"),
     ("0 0 0 0\n2 0 0 1\n1 0 0 2\n", "line 3", "time 1.0 does not come after 2.0"),

@@ -18,13 +18,15 @@ every scheme in every case by the rules that case names (`RULES`):
   within one time step of the exact one (or within `FLIP_FLOOR`, the measurement's floor),
   at every step of the sweep where the case finished; a finished case that never flips
   fails. Its number is the largest error in time steps.
-- ``failure``: no case fails (blows up, or does not converge) at a step where another
-  scheme of the same nominal order in this scorecard finished. The rule depends on which
-  schemes are judged together; the details name the survivor.
+- ``failure``: no case fails (blows up, or does not converge) at a step where one of the
+  baseline finished: rbstudy's own schemes of the same nominal order (``scheme_origin``
+  ``rbstudy``), which every golden study sweeps (`rbstudy.pipeline.golden.baseline`). A
+  plug-in or engine scheme in the same run is never the yardstick, so a scheme's card does
+  not depend on what else is judged; the details name the survivor.
 
 A cell passes when every rule of its case passes; its number is the observed order (none
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
-cases in it are its time steps. `scorecard` returns the cells;
+cases in it are its time steps. `score_case` returns the cells;
 `format_scorecard` prints them; `scorecard_dataset` is the archive of the scorecard
 (``passed`` and ``value`` per scheme and case, and per rule); `scorecard_html` the page.
 """
@@ -46,8 +48,8 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.numerics.state import INVARIANTS
 
-__all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "Verdict", "Cell",
-           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
+__all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "ORIGIN_RBSTUDY",
+           "Verdict", "Cell", "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
 
 ORDER_TOLERANCE = 0.3
 ENERGY_GAIN = 1e-3
@@ -60,6 +62,8 @@ SLOPE_CEILING = 0.5
 EXACT = 1e-8
 # The flip interval is measured between samples: errors below this (s) are its floor.
 FLIP_FLOOR = ERROR_MEASURES["flip"][2]
+# The `scheme_origin` of rbstudy's own schemes (`Scheme.origin`), the failure rule's baseline
+ORIGIN_RBSTUDY = "rbstudy"
 # What tabulate's plain table puts between two columns.
 _GAP = "  "
 RULES = {
@@ -67,7 +71,7 @@ RULES = {
     "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
     "energy": f"energy never above its start by more than {ENERGY_GAIN:g} (relative)",
     "flip": "flip interval within one time step of the exact one",
-    "failure": "no failure where a scheme of the same nominal order finished",
+    "failure": "no failure where an rbstudy scheme of the same nominal order finished",
 }
 
 
@@ -176,7 +180,11 @@ def _failure(ds, scheme, row):
         return Verdict(True, 0.0, "no case failed")
     nominal = row["nominal"]
     peers = [other for other in schemes_of(ds) if other != scheme
+             and str(per_scheme(ds["scheme_origin"], other).values) == ORIGIN_RBSTUDY
              and int(per_scheme(ds["nominal_order"], other)) == nominal]
+    if not peers:
+        return Verdict(None, float(failed.sum()), f"{_cases(failed.sum())} failed; no other "
+                       f"rbstudy scheme of order {nominal} to compare with")
     for peer in peers:
         survived = (per_scheme(status, peer) == 0).values
         if np.any(failed & survived):
@@ -185,7 +193,7 @@ def _failure(ds, scheme, row):
                            f"{_cases(failed.sum())} failed; {peer} (order {nominal}) "
                            f"finished at dt = {dt:g} s")
     return Verdict(True, float(failed.sum()), f"{_cases(failed.sum())} failed, where no "
-                   f"scheme of order {nominal} here finished")
+                   f"rbstudy scheme of order {nominal} finished ({', '.join(peers)})")
 
 
 def _cases(count):
@@ -196,12 +204,12 @@ _JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip"
            "failure": _failure}
 
 
-def score_case(ds, rules):
-    """The `Cell` of every scheme of the golden study ``ds`` under ``rules`` (names of
-    `RULES`): scheme -> cell."""
+def score_case(ds, rules, schemes=None):
+    """The `Cell` of each of ``schemes`` (default: every scheme) of the golden study ``ds``
+    under ``rules`` (names of `RULES`): scheme -> cell."""
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     cells = {}
-    for scheme in schemes_of(ds):
+    for scheme in schemes or schemes_of(ds):
         verdicts = {rule: _JUDGES[rule](ds, scheme, rows[scheme]) for rule in rules}
         order = verdicts.get("order")
         cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),

@@ -16,7 +16,7 @@ import pathlib
 import netCDF4
 import numpy as np
 
-from rbstudy.errors import InputError, first_line
+from rbstudy.errors import InputError, one_line
 from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
 from rbstudy.pipeline.store import HDF5_LOCK, open_results
 from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
@@ -29,6 +29,8 @@ GIVE_AN_ARCHIVE = "give the <study>.nc written by rbstudy sweep"
 _REBUILD = "rerun its sweep (rbstudy sweep <config>): a damaged archive is rebuilt"
 # The first bytes of a netCDF file: classic, 64-bit offset, 64-bit data, netCDF-4 (HDF5).
 _SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
+# How much of a file is read to tell netCDF, text and other bytes apart.
+_HEAD_BYTES = 512
 # The coordinates every archive has, as a swept dimension or a single value, and the type of
 # their values (numpy's dtype kinds, "O" for netCDF strings): the summary picks rows by them.
 _CASE_COORDINATES = {"scheme": "O", "dt": "f"}
@@ -50,14 +52,27 @@ def _foreign(path, key, what):
 
 
 def _check_netcdf(path):
-    """Refuse a missing file, and one that is not netCDF at all (text, YAML, an image)."""
+    """Refuse a missing file, a folder, and a file that is not netCDF at all (text, YAML,
+    an image), saying which it is: a non-archive, never a damaged archive."""
     path = pathlib.Path(path)
+    if path.is_dir():
+        raise _foreign(path, None, "a folder, not a file")
     if not path.is_file():
         raise InputError("no such file", GIVE_AN_ARCHIVE, str(path))
     with open(path, "rb") as handle:
-        head = handle.read(max(map(len, _SIGNATURES)))
+        head = handle.read(_HEAD_BYTES)
     if not head.startswith(_SIGNATURES):
-        raise _foreign(path, None, "not a netCDF file")
+        raise _foreign(path, None, f"not a netCDF file{_kind_of_file(head)}")
+
+
+def _kind_of_file(head):
+    """`` (an empty file)`` or `` (a text file)`` from a file's first bytes ``head``; ''
+    for other bytes."""
+    if not head:
+        return " (an empty file)"
+    # a character cut at the end of the head is no sign of bytes that are not text
+    text = b"\0" not in head and not head.decode("utf-8", "replace")[:-1].count("\ufffd")
+    return " (a text file)" if text else ""
 
 
 def _layout_problem(path, nc):
@@ -114,7 +129,7 @@ def check_layout(path):
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
             problem = _layout_problem(path, nc)
     except (OSError, RuntimeError) as error:
-        raise InputError(f"damaged: it cannot be read as netCDF ({first_line(error)})",
+        raise InputError(f"damaged: it cannot be read as netCDF ({one_line(error)})",
                          _REBUILD, str(path)) from None
     if problem is not None:
         raise problem
@@ -147,7 +162,7 @@ def open_archive(path, variables=None, verify=True):
     try:
         return open_results(path, variables)
     except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block
-        raise InputError(f"damaged: it cannot be read ({first_line(error)})", _REBUILD,
+        raise InputError(f"damaged: it cannot be read ({one_line(error)})", _REBUILD,
                          str(path)) from None
 
 

@@ -23,13 +23,14 @@ import contextlib
 import logging
 import math
 import pathlib
+import signal
 import subprocess
 import time
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from rbstudy.errors import ConfigError, RbstudyError, first_line
+from rbstudy.errors import ConfigError, RbstudyError, one_line
 from rbstudy.pipeline.integrity import sealed
 from rbstudy.pipeline.store import write_part
 from rbstudy.pipeline.yaml_file import read_yaml_file
@@ -141,6 +142,14 @@ def _forked_local_cluster(**options):
         return LocalCluster(**options)
 
 
+def dask_setup(worker):
+    """Run by each local worker process as it starts (dask's preload hook): it ignores
+    Ctrl-C. A Ctrl-C at the terminal reaches the sweep's whole process group, its workers
+    too, which printed their tracebacks (4, 63 lines for two workers); the sweep process,
+    interrupted, ends them itself as it closes the cluster."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _start(spec, logs=None):
     """The cluster ``spec`` describes, started and scaled (not yet connected); a job
     cluster's jobs write their output into ``logs`` unless the cluster file or dask's
@@ -149,7 +158,7 @@ def _start(spec, logs=None):
         make, name = _forked_local_cluster, "LocalCluster"
         options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
                    "dashboard_address": None, "silence_logs": logging.CRITICAL,
-                   **spec.options}
+                   "preload": [__name__], **spec.options}  # its dask_setup, in each worker
     else:
         try:
             import dask_jobqueue
@@ -175,9 +184,13 @@ def _start(spec, logs=None):
         cluster = make(**options)
     except (TypeError, ValueError, RuntimeError) as error:
         # a worker that fails to start on a bad option says why in the cause
-        raise ConfigError(first_line(error.__cause__ or error),
-                          f"see the keyword arguments of {name}", spec.path,
-                          "options") from None
+        cause = error.__cause__
+        refused = one_line(error) + (f" ({type(cause).__name__}: {one_line(cause)})"
+                                     if cause is not None else "")
+    else:
+        refused = None
+    if refused is not None:
+        raise ConfigError(refused, f"see the keyword arguments of {name}", spec.path, "options")
     if spec.adaptive:
         minimum, maximum = spec.adaptive
         if spec.kind == "local":
@@ -211,7 +224,8 @@ def connect(scheduler=None, workers=None, cluster=None, logs=None):
                 try:
                     client = Client(scheduler, timeout=CONNECT_TIMEOUT)
                 except (OSError, TimeoutError) as error:
-                    raise RbstudyError(f"--scheduler {scheduler}: cannot connect ({error}); "
+                    raise RbstudyError(f"--scheduler {scheduler}: cannot connect "
+                                       f"({one_line(error)}); "
                                        "start the cluster first or drop --scheduler") from None
             else:
                 spec = cluster or ClusterFile("--workers", "local", workers, None, {})

@@ -13,7 +13,6 @@ A study folder is locked while a sweep writes it; a rerun skips the batches whos
 so a killed sweep resumes where it stopped.
 """
 
-import fcntl
 import functools
 import os
 import pathlib
@@ -27,6 +26,7 @@ from dataclasses import dataclass
 import dask
 import dask.threaded
 import numpy as np
+from filelock import FileLock, Timeout
 
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, request_halt
@@ -66,6 +66,8 @@ _REDRAW_SECONDS = 0.2
 # slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
 # with them when it succeeds.
 _JOB_LOGS = "jobs"
+# Where the sweep that holds a study's lock writes its pid, for a second sweep to name it.
+PID_FILE = ".lock.pid"
 
 
 @dataclass(frozen=True)
@@ -191,34 +193,43 @@ def progress_wanted(quiet):
 
 
 def study_lock(folder):
-    """Take ``folder/.lock`` for the sweep and return it (closing it releases the lock); a
-    second sweep of the same study refuses clearly, and so does a folder that cannot be
-    written (`rbstudy.pipeline.store.UnwritableFolder`, or the full disk's error).
+    """Take ``folder/.lock`` for the sweep and return it, a context manager whose exit
+    releases it; a second sweep of the same study refuses at once, naming the holder's pid,
+    and so does a folder that cannot be written (`rbstudy.pipeline.store.UnwritableFolder`,
+    or the full disk's error).
 
-    The lock is an advisory ``flock``: the system releases it when the process dies, so a
-    killed sweep never leaves a stale lock.
+    The lock is the system's (``flock``; ``msvcrt.locking`` on Windows) through `filelock`:
+    the system releases it when the process dies, so a killed sweep never leaves a stale
+    lock. The holder writes its pid beside it, in ``.lock.pid``: a locked file cannot be read
+    on Windows, and filelock 3 empties the lock file at each attempt to take it.
     """
+    lock = FileLock(folder / ".lock", timeout=0)
     try:
-        handle = open(folder / ".lock", "a+")
+        held = lock.acquire()
+    except Timeout:
+        raise RbstudyError(f"{folder}: another rbstudy sweep is writing this study (pid "
+                           f"{_holder(folder)}); wait for it to finish or use another "
+                           "--out") from None
     except OSError as error:
         raise unwritable(folder, error) from None
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read().strip() or "unknown"
-        handle.close()
-        raise RbstudyError(f"{folder}: another rbstudy sweep is writing this study (pid "
-                           f"{holder}); wait for it to finish or use another --out") from None
-    try:
-        handle.seek(0)
-        handle.truncate()
-        # past the file object's buffer, whose close would fail again on a full disk
-        os.write(handle.fileno(), str(os.getpid()).encode())
+        pid_file = os.open(folder / PID_FILE, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.write(pid_file, str(os.getpid()).encode())
+        finally:
+            os.close(pid_file)
     except OSError as error:  # a full disk: the pid needs a block
-        handle.close()
+        lock.release()
         raise unwritable(folder, error) from None
-    return handle
+    return held
+
+
+def _holder(folder):
+    """The pid of the sweep that holds ``folder``'s lock, as it wrote it (or "unknown")."""
+    try:
+        return (folder / PID_FILE).read_text().strip() or "unknown"
+    except OSError:
+        return "unknown"
 
 
 def _prepare(root, study):

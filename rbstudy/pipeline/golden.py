@@ -21,6 +21,13 @@ before, and names the pass rules that apply to it (`rbstudy.analysis.conformance
 `write_golden` writes each as a study config (``conformance_<case>.yaml``), which a user can
 read and rerun with `rbstudy sweep`; `run_golden` sweeps them like any study, so that an
 interrupted run resumes and a finished one is reused.
+
+Every golden study sweeps the failure rule's **baseline** too (`baseline`): rbstudy's own
+fixed-step schemes of the nominal orders judged. A scheme's failures are compared with them
+alone, so its card is the same whatever else is judged beside it. They are run rather than
+shipped as a table of failure times: a table would hold for one `--steps` and one version
+of the schemes, and fall silently out of date with either; the run costs the baseline's
+share of the sweep (docs/architecture.md gives the figures).
 """
 
 import math
@@ -33,8 +40,9 @@ from rbstudy.errors import RbstudyError
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
+from rbstudy.schemes import BUILTIN, get_scheme
 
-__all__ = ["GoldenCase", "GOLDEN", "write_golden", "run_golden"]
+__all__ = ["GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
 
 
 @dataclass(frozen=True)
@@ -104,10 +112,19 @@ def _study(case, schemes, count):
             "sweep": {"scheme": list(schemes), "dt": {"halving": case.dt, "count": count}}}
 
 
+def baseline(schemes):
+    """The schemes that the failure rule compares ``schemes`` (names) with: rbstudy's own
+    fixed-step schemes of their nominal orders, in the registry's order."""
+    orders = {get_scheme(name).order for name in schemes}
+    return [name for name, scheme in BUILTIN.items()
+            if not scheme.adaptive and scheme.order in orders]
+
+
 def write_golden(folder, schemes, cases=GOLDEN, steps=4):
-    """Write the study config of each of ``cases`` for ``schemes`` into ``folder``, over
-    ``steps`` time steps; returns their paths."""
+    """Write the study config of each of ``cases`` for ``schemes`` and their `baseline` into
+    ``folder``, over ``steps`` time steps; returns their paths."""
     folder = pathlib.Path(folder)
+    schemes = [*schemes, *(name for name in baseline(schemes) if name not in schemes)]
     paths = []
     try:
         folder.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import netCDF4
 import numpy as np
 
-from rbstudy.errors import first_line
+from rbstudy.errors import one_line
 from rbstudy.pipeline.batches import ids_digest
 
 __all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
@@ -205,7 +205,7 @@ def verify_archive(path):
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
     except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:
-        return ArchiveCheck((f"it cannot be read as netCDF ({first_line(error)})",))
+        return ArchiveCheck((f"it cannot be read as netCDF ({one_line(error)})",))
     try:
         problems = [f"{_named(name)} differs from its checksum"
                     for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]

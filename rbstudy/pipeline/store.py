@@ -35,7 +35,7 @@ import netCDF4
 import numpy as np
 import yaml
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError, first_line
+from rbstudy.errors import ConfigError, InputError, RbstudyError, one_line
 from rbstudy.pipeline.batches import batches_digest
 from rbstudy.pipeline.integrity import (
     file_digest,
@@ -312,7 +312,7 @@ def unwritable(folder, error, label=""):
         _raise_if_full(folder)
     # a system file system (/proc) answers a new name with "No such file or directory"
     reason = ("its file system takes no new files" if error.errno == errno.ENOENT
-              else error.strerror or first_line(error))
+              else error.strerror or one_line(error))
     return UnwritableFolder(f"{label}{folder}: cannot write results there ({reason}); "
                             "choose another folder with --out")
 

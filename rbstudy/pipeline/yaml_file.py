@@ -14,7 +14,7 @@ import re
 
 import yaml
 
-from rbstudy.errors import ConfigError, InputError
+from rbstudy.errors import ConfigError, InputError, one_line
 from rbstudy.reader import read_input_file
 
 __all__ = ["read_yaml_file", "parse_yaml", "MAX_DEPTH", "MAX_VALUES"]
@@ -136,7 +136,7 @@ def parse_yaml(text, path):
         raise ConfigError("nested too deeply to read", "write it flat, as docs/config.md "
                           "shows", path) from None
     except (ValueError, OverflowError) as error:  # a number too long for Python to convert
-        raise ConfigError(f"holds a value that cannot be read ({str(error)[:80]})",
+        raise ConfigError(f"holds a value that cannot be read ({one_line(error)})",
                           "write numbers with at most 17 significant digits", path) from None
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)

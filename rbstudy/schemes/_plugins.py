@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rbstudy.errors import RbstudyError, first_line
+from rbstudy.errors import RbstudyError, one_line
 from rbstudy.numerics.driver import StatusError, check_statuses
 from rbstudy.numerics.sources import package_digest
 from rbstudy.numerics.state import Result
@@ -122,7 +122,7 @@ class Guarded:
             raise self._failure(f"its step {error}") from error
         except Exception as error:  # noqa: BLE001 (whatever a plug-in raises is its own)
             raise self._failure(f"its step raised {type(error).__name__}: "
-                                f"{first_line(error)}") from error
+                                f"{one_line(error)}") from error
 
     def _failure(self, what):
         return RbstudyError(f"scheme {self._name!r} (plug-in: {self._origin}) failed: {what}; "
@@ -166,7 +166,7 @@ def _load(entry_point, taken, refusal=None):
         return Unavailable(entry_point.name, f"its import called sys.exit({error.code!r})",
                            f"reinstall or fix {package}", origin)
     except Exception as error:  # a plug-in's bug must not stop the other schemes
-        return Unavailable(entry_point.name, f"cannot be loaded ({first_line(error)})",
+        return Unavailable(entry_point.name, f"cannot be loaded ({one_line(error)})",
                            f"reinstall or fix {package}", origin)
     if not isinstance(scheme, Scheme):
         return Unavailable(entry_point.name,

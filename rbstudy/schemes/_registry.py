@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numba import types
 
-from rbstudy.errors import SchemeError
+from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
 
 __all__ = ["Option", "Scheme", "INVARIANTS"]
@@ -116,7 +116,7 @@ class Scheme:
                 packed = option.parse(value)
             except (TypeError, ValueError, OverflowError) as exc:
                 raise SchemeError(f"scheme {self.name!r} option {option.name!r}: got {value!r}",
-                                  str(exc)) from None
+                                  one_line(exc)) from None
             row[option.slot:option.slot + len(packed)] = packed
         return row
 

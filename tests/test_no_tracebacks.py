@@ -1,0 +1,111 @@
+"""No Python warning or traceback on a path a user causes: a bad local cluster option, Ctrl-C
+of the whole process group of a sweep with workers, a library's message of several lines,
+and a file that is no archive at all. Each says its one line, and only that."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+from conftest import write_study
+from test_cluster import _parts, _slow_study
+
+from rbstudy.cli import main
+from rbstudy.errors import one_line
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+
+INTERRUPTED = "rbstudy: interrupted; finished batches are kept: rerun the same command to resume"
+
+
+def _rbstudy(*args, **popen):
+    return subprocess.Popen([sys.executable, "-m", "rbstudy", *args], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, **popen)
+
+
+def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
+    """The option fails in the worker as it starts: the worker's semaphores were reported
+    as leaked by Python's resource tracker (a warning of two lines, twice) after the error."""
+    config = write_study(tmp_path, name="small")
+    cluster = tmp_path / "cluster.yaml"
+    cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1,
+                                       "options": {"threads_per_worker": -1}}))
+    process = _rbstudy("sweep", str(config), "--cluster", str(cluster), "--out",
+                       str(tmp_path / "out"), "--quiet")
+    error = process.communicate(timeout=300)[1]
+    assert process.returncode == 1
+    assert error == (f"rbstudy: error: {cluster}: options: Nanny failed to start. (ValueError: "
+                     "max_workers must be greater than 0); see the keyword arguments of "
+                     "LocalCluster\n")
+
+
+def test_ctrl_c_of_the_process_group_ends_a_sweep_with_workers_in_one_line(tmp_path):
+    """Ctrl-C at a terminal reaches the sweep's whole process group, its two workers too,
+    which printed 4 tracebacks (63 lines). Now they ignore it and the sweep ends them: its
+    one line, exit 130, and a rerun reuses the batches that had finished."""
+    config = _slow_study(tmp_path)
+    folder = tmp_path / "out" / "slow"
+    process = _rbstudy("sweep", str(config), "--workers", "2", "--out", str(folder.parent),
+                       "--quiet", start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not ((folder / "parts").exists() and _parts(folder)) and process.poll() is None:
+            assert time.monotonic() < deadline, "no batch finished in 300 s"
+            time.sleep(0.01)
+        os.killpg(process.pid, signal.SIGINT)  # the group: its id is the sweep's pid
+        error = process.communicate(timeout=120)[1]
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert "Traceback" not in error and "Warning" not in error
+    assert error.strip() == INTERRUPTED and process.returncode == 130
+    kept = _parts(folder)
+    assert 1 <= len(kept) < 8, f"Ctrl-C came too late to test resuming ({len(kept)} parts)"
+    resumed = run_study(load_study(config), folder.parent, quiet=True)
+    assert (resumed.reused, resumed.computed) == (len(kept), 8 - len(kept))
+
+
+def test_a_library_message_of_several_lines_is_passed_on_whole_in_one_line():
+    xarray_said = ValueError("did not find a match in any of xarray's currently installed IO "
+                             "backends ['netcdf4']. Consider ... installing additional IO "
+                             "dependencies, see:\nhttps://docs.xarray.dev/en/stable/"
+                             "getting-started-guide/installing.html\n")
+    assert one_line(xarray_said).endswith(
+        "dependencies, see: https://docs.xarray.dev/en/stable/getting-started-guide/"
+        "installing.html")
+    assert one_line(KeyError()) == "KeyError"
+
+
+def test_a_job_cluster_s_advice_is_shown_whole(tmp_path, capsys):
+    """dask-jobqueue's message ends its first line with "for example:" and gives the
+    example on the next: the line quoted the first alone ("...for example:; see ...")."""
+    pytest.importorskip("dask_jobqueue")
+    cluster = tmp_path / "slurm.yaml"
+    cluster.write_text(yaml.safe_dump({"kind": "slurm", "jobs": 1, "options": {"queue": "x"}}))
+    config = write_study(tmp_path, name="small")
+    assert main(["sweep", str(config), "--cluster", str(cluster), "--out",
+                 str(tmp_path / "out"), "--quiet"]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1
+    assert ("for example: cluster = SLURMCluster(cores=8, memory='24GB'); see the keyword "
+            "arguments of SLURMCluster") in error
+
+
+@pytest.mark.parametrize("make, said", [
+    (lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
+     "not an rbstudy archive: not a netCDF file (a text file)"),
+    (lambda path: path.write_bytes(b""), "not an rbstudy archive: not a netCDF file (an empty file)"),
+    (lambda path: path.write_bytes(bytes(range(256))), "not an rbstudy archive: not a netCDF file;"),
+    (lambda path: path.mkdir(), "not an rbstudy archive: a folder, not a file"),
+])
+def test_verify_calls_a_non_archive_a_non_archive(tmp_path, capsys, make, said):
+    path = tmp_path / "config.yaml"
+    make(path)
+    assert main(["verify", str(path)]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith(f"rbstudy: error: {path}: {said}")
+    assert "damaged" not in error and error.count("\n") == 1
