@@ -4,7 +4,7 @@ import re
 
 import pytest
 import yaml
-from conftest import abaqus_mapping, write_study
+from conftest import CONFIGS, abaqus_mapping, write_study
 
 from rbstudy.cli import build_parser, main
 from rbstudy.pipeline.store import open_results
@@ -159,9 +159,16 @@ def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     ds = open_results(tmp_path / "out" / "alias" / "alias.nc")
     assert float(ds.max_momentum_error) == float(ds.max_momentum_magnitude_error)
-    assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["long_name"]
-    assert ds.max_momentum_error.attrs["long_name"].startswith(
-        "deprecated alias of max_momentum_magnitude_error")
+    assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["description"]
+    alias = ds.max_momentum_error.attrs
+    assert alias["long_name"] == "deprecated alias of max_momentum_magnitude_error"
+    # the archive and config.md name one release it goes in, a later one than this
+    removed = re.fullmatch(r"removed in rbstudy (\d+)\.(\d+): .*", alias["description"])
+    assert tuple(map(int, removed.groups())) > tuple(
+        map(int, ds.attrs["source"].split()[1].split(".")[:2]))
+    config_md = (CONFIGS.parent / "docs" / "config.md").read_text()
+    assert config_md.count(f"removed in {removed[1]}.{removed[2]}") == 2  # dataset, changes
+    assert not re.search(r"removed in (rbstudy )?0\.[0-4]\b", config_md)
 
 
 GOOD = "name: x\nscene: {body: {inertia: [1, 1, 2]}, initial: {angular_velocity: {body: [0.1, 0, 1]}}}\n" \
