@@ -24,7 +24,7 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     # one per scheme and dt, each with its digest, no temporaries
     assert sorted(p.suffix for p in parts.iterdir()) == [".nc"] * 6 + [".sha256"] * 6
     resolved = yaml.safe_load((folder / "study.yaml").read_text())
-    assert resolved["sweep"]["dt"] == {"dt": [0.01, 0.005, 0.0025]} and resolved["cases"] == 6
+    assert resolved["sweep"]["dt"] == {"dt": [0.0025, 0.005, 0.01]} and resolved["cases"] == 6
     out = capsys.readouterr().out
     assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()
@@ -100,7 +100,7 @@ def test_a_study_past_the_memory_or_the_free_disk_is_refused(tmp_path, capsys, m
      "bad.yaml: sweeps: unknown key"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.1}\n"
      "output: {interval: 0.1}\nsweep: {dt: [0.1, 0.03]}\n",
-     "bad.yaml: sweep (dt[1] = 0.03): run.dt: dt = 0.03 s does not divide"),
+     "bad.yaml: sweep (dt[0] = 0.03): run.dt: dt = 0.03 s does not divide"),
     ("name: x\nscene: [1, 2\n", "bad.yaml: line 3: malformed YAML"),
 ])
 def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, text, message):

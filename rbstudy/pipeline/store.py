@@ -10,8 +10,10 @@ sees half a file; every part and the archive carry checksums
 
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
 memory stays bounded by the largest part whatever the size of the study. Its dimensions are
-the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y, z) and
-``component`` (x, y, z, w); every attribute comes from `rbstudy.pipeline.variables`.
+the swept ones (named after their axes; ``dt`` ascending) then ``time``, ``node``, ``axis``
+(x, y, z) and ``component`` (x, y, z, w); a variable of the scene alone lies along the swept
+dimensions that change the scene only (`archive_dims`). Every attribute comes from
+`rbstudy.pipeline.variables`.
 """
 
 import datetime
