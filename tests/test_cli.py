@@ -4,7 +4,7 @@ import re
 
 import pytest
 import yaml
-from conftest import abaqus_mapping, listed_schemes, write_study
+from conftest import CONFIGS, abaqus_mapping, listed_schemes, write_study
 
 from rbstudy.cli import build_parser, main
 from rbstudy.pipeline.store import open_results
@@ -24,7 +24,7 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     # one per scheme and dt, each with its digest, no temporaries
     assert sorted(p.suffix for p in parts.iterdir()) == [".nc"] * 6 + [".sha256"] * 6
     resolved = yaml.safe_load((folder / "study.yaml").read_text())
-    assert resolved["sweep"]["dt"] == {"dt": [0.01, 0.005, 0.0025]} and resolved["cases"] == 6
+    assert resolved["sweep"]["dt"] == {"dt": [0.0025, 0.005, 0.01]} and resolved["cases"] == 6
     out = capsys.readouterr().out
     assert "small: 6 cases (scheme 2 x dt 3) in 6 batches" in out and "6 batches run" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()
@@ -100,7 +100,7 @@ def test_a_study_past_the_memory_or_the_free_disk_is_refused(tmp_path, capsys, m
      "bad.yaml: sweeps: unknown key"),
     ("name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: rk4, dt: 0.1}\n"
      "output: {interval: 0.1}\nsweep: {dt: [0.1, 0.03]}\n",
-     "bad.yaml: sweep (dt[1] = 0.03): run.dt: dt = 0.03 s does not divide"),
+     "bad.yaml: sweep (dt[0] = 0.03): run.dt: dt = 0.03 s does not divide"),
     ("name: x\nscene: [1, 2\n", "bad.yaml: line 3: malformed YAML"),
 ])
 def test_bad_configs_fail_in_one_line_with_nothing_written(tmp_path, capsys, text, message):
@@ -161,9 +161,16 @@ def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     ds = open_results(tmp_path / "out" / "alias" / "alias.nc")
     assert float(ds.max_momentum_error) == float(ds.max_momentum_magnitude_error)
-    assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["long_name"]
-    assert ds.max_momentum_error.attrs["long_name"].startswith(
-        "deprecated alias of max_momentum_magnitude_error")
+    assert "magnitude |L|" in ds.max_momentum_magnitude_error.attrs["description"]
+    alias = ds.max_momentum_error.attrs
+    assert alias["long_name"] == "deprecated alias of max_momentum_magnitude_error"
+    # the archive and config.md name one release it goes in, a later one than this
+    removed = re.fullmatch(r"removed in rbstudy (\d+)\.(\d+): .*", alias["description"])
+    assert tuple(map(int, removed.groups())) > tuple(
+        map(int, ds.attrs["source"].split()[1].split(".")[:2]))
+    config_md = (CONFIGS.parent / "docs" / "config.md").read_text()
+    assert config_md.count(f"removed in {removed[1]}.{removed[2]}") == 2  # dataset, changes
+    assert not re.search(r"removed in (rbstudy )?0\.[0-4]\b", config_md)
 
 
 GOOD = "name: x\nscene: {body: {inertia: [1, 1, 2]}, initial: {angular_velocity: {body: [0.1, 0, 1]}}}\n" \

@@ -160,19 +160,19 @@ def test_the_order_rule_falls_back_on_the_finest_usable_pair(scorecard):
     pair of usable steps still shows order 4; the coarsest pair would not."""
     ds = _golden(scorecard)
     errors = ds["final_orientation_error"]
-    dts = ds["dt"].values  # coarsest first: 0.05, 0.025, 0.0125
-    errors.loc[{"scheme": "rk4"}] = [0.9, 3e-4, 3e-4 / 16]
+    dts = ds["dt"].values  # finest first: 0.0125, 0.025, 0.05
+    errors.loc[{"scheme": "rk4"}] = [3e-4 / 16, 3e-4, 0.9]
     verdict = _judge(ds)["rk4"].verdicts["order"]
     assert verdict.passed and verdict.value == pytest.approx(4.0)
-    assert f"between dt = {dts[2]:g} and {dts[1]:g} s" in verdict.text
+    assert f"between dt = {dts[0]:g} and {dts[1]:g} s" in verdict.text
 
 
 def test_round_off_at_every_step_passes_as_exact_but_a_falling_error_does_not(scorecard):
     ds = _golden(scorecard)
     errors = ds["final_orientation_error"]
-    errors.loc[{"scheme": "rk4"}] = [2e-12, 5e-12, 1.5e-9]  # round-off, growing with steps
+    errors.loc[{"scheme": "rk4"}] = [1.5e-9, 5e-12, 2e-12]  # round-off, growing with steps
     assert "exact" in _judge(ds)["rk4"].verdicts["order"].text
-    errors.loc[{"scheme": "rk4"}] = [8e-10, 4e-10, 2e-10]  # small, but falling as h: order 1
+    errors.loc[{"scheme": "rk4"}] = [2e-10, 4e-10, 8e-10]  # small, but falling as h: order 1
     verdict = _judge(ds)["rk4"].verdicts["order"]
     assert verdict.passed is False and "exact" not in verdict.text
 

@@ -14,7 +14,7 @@ from conftest import write_study
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.integrity import SIDECAR_SUFFIX
+from rbstudy.pipeline.integrity import GROUP, SIDECAR_SUFFIX
 from rbstudy.pipeline.store import open_results
 
 TIMINGS = ["run_time"]
@@ -151,7 +151,7 @@ def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meanin
     captured = capsys.readouterr()
     assert f"{archive}: intact" in captured.out  # the second file is checked all the same
     assert "the global attributes study, batches, accuracy_bound differs" in captured.err
-    _edit(edited, lambda nc: nc.setncattr("checksums", "5"))
+    _edit(edited, lambda nc: nc[f"/{GROUP}"].setncattr("checksums", "5"))
     assert main(["verify", str(edited)]) == 1
     assert "not what rbstudy writes" in capsys.readouterr().err
     part = sorted((folder / "parts").glob("*.nc"))[0]
@@ -180,10 +180,11 @@ def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):
     archive = folder / "small.nc"
     unsealed = tmp_path / "unsealed.nc"
     shutil.copyfile(archive, unsealed)
-    _edit(unsealed, lambda nc: nc.delncattr("checksums"))
+    _edit(unsealed, lambda nc: nc[f"/{GROUP}"].delncattr("checksums"))
     assert main(["verify", str(unsealed)]) == 1
     assert "cannot be proven intact: it carries no checksums" in capsys.readouterr().err
-    _edit(archive, lambda nc: nc.setncattr("part_checksums", '[["other", "sha256:0"]]'))
+    _edit(archive, lambda nc: nc[f"/{GROUP}"].setncattr("part_checksums",
+                                                         '[["other", "sha256:0"]]'))
     assert main(["verify", str(archive)]) == 1
     assert "do not name the batches" in capsys.readouterr().err
     assert main(["verify", str(tmp_path / "absent.nc")]) == 1

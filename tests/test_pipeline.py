@@ -2,6 +2,7 @@
 agreement with direct runs, resume after kill -9, --force, changed configs, the lock, and the
 same numbers on a two-worker LocalCluster."""
 
+import importlib.metadata
 import json
 import math
 import os
@@ -33,6 +34,7 @@ from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import Progress, run_study, study_lock
 from rbstudy.pipeline.outputs import VERDICTS
 from rbstudy.pipeline.store import open_results
+from rbstudy.pipeline.variables import LONG_NAME_MAX
 from rbstudy.schemes import BUILTIN, SCHEMES
 
 # Timings differ between runs; everything else must not.
@@ -52,7 +54,8 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
     assert list(ds.sizes) == ["scheme", "dt", "inertia_ratio", "time", "axis", "component",
                               "node"]
     assert list(ds.scheme.values) == fixed
-    assert np.allclose(ds.dt, [0.01 / 2 ** k for k in range(6)])
+    assert np.allclose(ds.dt, [0.01 / 2 ** k for k in range(5, -1, -1)])  # ascending
+    assert list(ds.sel(dt=slice(0.001, 0.006)).dt.values) == [0.00125, 0.0025, 0.005]
     assert list(ds.inertia_ratio.values) == [0.1, 0.5, 1.5, 2.0]
     assert ds.omega_body.dims == ("scheme", "dt", "inertia_ratio", "time", "axis")
     assert ds.node_displacement.dims[-2:] == ("node", "axis")
@@ -72,9 +75,23 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
     assert int(bench.n_steps) == 200 and int(bench.iterations) == 200
     assert math.isclose(float(bench.precession_frequency_exact), 2 * math.pi)
     assert abs(float(bench.precession_frequency_error)) < 3e-3
-    # precession W = w3 (I3 - I1) / I1 follows the inertia ratio
-    assert np.allclose(ds.precession_frequency_exact.sel(scheme="rk4", dt=0.01),
-                       2 * math.pi * (ds.inertia_ratio - 1.0))
+    # what belongs to the scene lies along the scene's axis only, not scheme or dt
+    assert ds.inertia.dims == ("inertia_ratio", "axis")
+    assert ds.node_offset.dims == ("inertia_ratio", "node", "axis")
+    for name in ("initial_spin", "physical_body", "reference"):
+        assert ds[name].dims == ("inertia_ratio",), name
+    assert np.allclose(ds.inertia.sel(axis="z") / ds.inertia.sel(axis="x"), ds.inertia_ratio)
+    # the checksums (10 kB of JSON in rbstudy 0.3) are in a group of their own
+    assert len(json.dumps(ds.attrs)) < 2048 + len(json.dumps(ds.attrs["config"]))
+    assert not {"checksums", "part_checksums"} & set(ds.attrs)
+    assert ds.attrs["source"].startswith(f"rbstudy {importlib.metadata.version('rbstudy')}")
+    # labels xarray's plots can use whole: "long_name [units]"; the explanation apart
+    for name, variable in ds.data_vars.items():
+        assert 0 < len(variable.attrs["long_name"]) <= LONG_NAME_MAX, name
+        assert variable.attrs["description"] not in ("", variable.attrs["long_name"]), name
+    # precession W = w3 (I3 - I1) / I1 follows the inertia ratio, and only it
+    assert ds.precession_frequency_exact.dims == ("inertia_ratio",)
+    assert np.allclose(ds.precession_frequency_exact, 2 * math.pi * (ds.inertia_ratio - 1.0))
 
 
 def test_the_estimate_matches_the_archive_and_its_steps(abaqus_results):
@@ -194,8 +211,8 @@ def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tm
                           ds.quaternion.sel(inertia_ratio=1.5))
     assert list(ds.inertia_ratio.values) == [0.5, 1.5]
     w3 = ds.omega_body.isel(time=0).sel(scheme="euler", dt=0.01, axis="z")
-    assert np.allclose(ds.precession_frequency_exact.sel(scheme="euler", dt=0.01),
-                       w3 * (ds.inertia_ratio - 1.0), rtol=1e-14)
+    assert np.allclose(ds.precession_frequency_exact, w3 * (ds.inertia_ratio - 1.0),
+                       rtol=1e-14)
 
 
 def test_a_damaged_part_is_recomputed_not_trusted(tmp_path):
@@ -492,7 +509,7 @@ def test_finite_but_meaningless_is_inaccurate_not_ok(tmp_path):
     assert (ds.accuracy.sel(scheme="rk4") == 0).all()
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     assert rows["euler"]["inaccurate"] == 1 and rows["euler"]["unstable"] == 0
-    spin = float(ds.initial_spin.sel(scheme="euler", dt=6.25e-5))
+    spin = float(ds.initial_spin)  # one scene: one value
     assert rows["euler"]["accurate_hw"] == pytest.approx(6.25e-5 * spin)
     assert rows["rk4"]["accurate_hw"] == pytest.approx(1.25e-4 * spin)
 

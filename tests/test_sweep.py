@@ -22,12 +22,12 @@ def test_value_forms_expand_as_documented(tmp_path):
         "spin": {"logspace": [1.0, 100.0, 3]},
     }))
     values = {d.name: d.axes[0].values for d in study.dimensions}
-    assert values["dt"] == (0.01, 0.005, 0.0025, 0.00125)
+    assert values["dt"] == (0.00125, 0.0025, 0.005, 0.01)  # ascending
     assert np.allclose(values["body_mass"], [1.0, 1.5, 2.0])
     assert np.allclose(values["spin"], [1.0, 10.0, 100.0])
     assert study.shape == (4, 3, 3) and len(study.cases) == 36
     case = study.cases[-1]  # C order: the last case takes the last value of every axis
-    assert case.index == (3, 2, 2) and case.dt == 0.00125 and case.scene.body.mass == 2.0
+    assert case.index == (3, 2, 2) and case.dt == 0.01 and case.scene.body.mass == 2.0
     assert math.isclose(np.linalg.norm(case.scene.omega_body), 100.0)
 
 
@@ -83,8 +83,11 @@ def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
     assert not {b.id for b in changed.batches} & {b.id for b in first.batches}
     # the same cases at other places of the grid are other batches: a reordered axis must
     # never put an old part in new cells
-    reordered = load_study(write_study(tmp_path, sweep={**sweep, "dt": [0.005, 0.01]}))
+    reordered = load_study(write_study(tmp_path, sweep={**sweep, "inertia_ratio": [2.0, 0.5]}))
     assert not {b.id for b in reordered.batches} & {b.id for b in first.batches}
+    # dt is stored ascending whatever order it is given in: the same study
+    steps = load_study(write_study(tmp_path, sweep={**sweep, "dt": [0.005, 0.01]}))
+    assert [b.id for b in steps.batches] == [b.id for b in first.batches]
 
 
 # A body given by a full inertia tensor (principal axes not the input axes), its momentum
@@ -183,7 +186,7 @@ def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, 
 @pytest.mark.parametrize("sweep, message", [
     ({"speed": [1.0]}, "sweep.speed: unknown sweep axis 'speed'; use a short name"),
     ({"dt": []}, "sweep.dt: empty sweep; give at least one value"),
-    ({"dt": [0.01, 0.003]}, "sweep (dt[1] = 0.003): run.dt: dt = 0.003 s does not divide the "
+    ({"dt": [0.01, 0.003]}, "sweep (dt[0] = 0.003): run.dt: dt = 0.003 s does not divide the "
                             "output interval 0.01 s (0.01 / 0.003 = 3.33333); choose dt = 0.01 / n"),
     ({"inertia_ratio": [2.0, 3.0]}, "sweep (inertia_ratio[1] = 3.0): scene.body.inertia: "
                                     "[1.0, 1.0, 3.0] violates the triangle inequality"),

@@ -159,7 +159,8 @@ def case_seconds(ds):
 def recommendations(ds):
     """The cheapest accurate (scheme, dt) for every value of the other swept axes: a list of
     `Recommendation`, with None where no case of that value meets the bound. Cheapest: the
-    least `case_seconds`; ties go to the earlier scheme, then the larger dt (archive order)."""
+    least `case_seconds`; ties go to the earlier scheme, then the earlier dt (archive order:
+    the smaller, as dt is stored ascending since rbstudy 0.4)."""
     if "accuracy" not in ds:
         return []
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]

@@ -109,21 +109,35 @@ def _layout_problem(path, nc):
     for name, variable in nc.variables.items():
         if name not in VARIABLES:
             continue
-        expected = (*grid, *VARIABLES[name].dims)
-        if variable.dimensions != expected:
+        own = VARIABLES[name].dims
+        expected = (*grid, *own)
+        leading = variable.dimensions[:len(variable.dimensions) - len(own)]
+        # a variable of the scene alone lies along the dimensions its scene changes along
+        # (along all of them in archives of rbstudy 0.3)
+        scene_grid = VARIABLES[name].per_scene and variable.dimensions[len(leading):] == own \
+            and _in_order(leading, grid)
+        if variable.dimensions != expected and not scene_grid:
+            wanted = ", ".join(expected) + (" or some of the first" if VARIABLES[name].per_scene
+                                            else "")
             return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), "
-                                        f"not ({', '.join(expected)})")
+                                        f"not ({wanted})")
         if _kind(variable) != np.dtype(VARIABLES[name].dtype).kind:
             return _foreign(path, name, f"{name} holds {_type_name(variable)}, not "
                                         f"{np.dtype(VARIABLES[name].dtype).name}")
     return None
 
 
+def _in_order(names, grid):
+    """Whether ``names`` are some of ``grid``'s, in its order."""
+    rest = iter(grid)
+    return all(name in rest for name in names)
+
+
 def check_layout(path):
     """Refuse the file at ``path`` unless it is netCDF with an archive's layout: the study
     attribute (a study name), the bookkeeping variables and the ``scheme`` and ``dt``
-    coordinates, and every output variable along the swept dimensions then its own, of its
-    type. Reads the file's header only."""
+    coordinates, and every output variable along the swept dimensions (a variable of the
+    scene alone: some of them) then its own, of its type. Reads the file's header only."""
     _check_netcdf(path)
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:

@@ -17,7 +17,14 @@ from rbstudy.errors import ConfigError, InputError
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.simulate import steps_per
 from rbstudy.pipeline.batches import plan_batches
-from rbstudy.pipeline.grid import MAX_CASES, Cases, expand, parse_sweep
+from rbstudy.pipeline.grid import (
+    MAX_CASES,
+    Cases,
+    expand,
+    label_options,
+    parse_sweep,
+    touches_scene,
+)
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.overrides import apply_overrides
 from rbstudy.pipeline.variables import (
@@ -82,6 +89,12 @@ class StudyConfig:
         """``(dimension name, option name, values)`` of a swept option that sets the nominal
         order (a composition), or None."""
         return order_dimension(self.dimensions, self.schemes)
+
+    @property
+    def scene_dims(self):
+        """Names of the dimensions along which the scene changes: those of the variables of
+        the scene alone (`rbstudy.pipeline.variables.PER_SCENE`)."""
+        return tuple(d.name for d in self.dimensions if any(map(touches_scene, d.axes)))
 
     @property
     def n_times(self):
@@ -270,6 +283,7 @@ def _validated(path, text, overridden):
     except InputError as error:
         raise reader.locate(error, "output.interval") from None
     variables = _variables(reader, output.get("variables"), cases.scenes)
+    dimensions = label_options(dimensions, sorted({run.scheme for run in cases.runs}))
     study = StudyConfig(path=path, text=text, overrides=overridden.assignments,
                         archived_text=overridden.text(text), name=name, title=title,
                         base=base, output_interval=interval, accuracy_bound=accuracy_bound,

@@ -5,7 +5,7 @@ axes grouped under ``zip:``, which share one named dimension::
 
     sweep:
       scheme: all                         # every fixed-step scheme
-      dt: {halving: 0.01, count: 6}       # 0.01, 0.005, ..., 0.0003125
+      dt: {halving: 0.01, count: 6}       # 0.01, 0.005, ..., 0.0003125 (stored ascending)
       inertia_ratio: [0.1, 0.5, 1.5, 2.0]
       zip:
         spin_tilt:                        # dimension name
@@ -29,6 +29,7 @@ value named; every failure goes through the study's `rbstudy.reader.Reader`.
 import collections
 import collections.abc
 import copy
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -39,11 +40,12 @@ from rbstudy.errors import InputError, did_you_mean
 from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable, scene_table
 from rbstudy.physics.simulate import steps_per
-from rbstudy.pipeline.variables import VARIABLES, coordinate_units
+from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.schemes import BUILTIN, get_scheme
 
 __all__ = ["Axis", "Dimension", "Case", "Cases", "Run", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
-           "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand"]
+           "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand", "touches_scene",
+           "label_options"]
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
 ALL_SCHEMES = "all"
@@ -89,12 +91,13 @@ _NOT_ZIPPABLE = ("scheme", "dt")
 @dataclass(frozen=True)
 class Axis:
     """One swept quantity: ``target`` (short name or dotted path), its values, its name in the
-    dataset (``coordinate``) and the units of its values."""
+    dataset (``coordinate``), the units of its values and its ``long_name`` there."""
 
     target: str
     values: tuple
     coordinate: str
     units: str | None
+    long_name: str
 
 
 @dataclass(frozen=True)
@@ -185,8 +188,35 @@ def _axis(reader, key, target, spec):
                         "scene.body.mass or run.options.alpha")
         if target in _NOT_SWEEPABLE:
             reader.fail(key, f"{target} cannot be swept: {_NOT_SWEEPABLE[target]}")
-    return Axis(target=target, values=_values(reader, key, spec), coordinate=_coordinate(target),
-                units=coordinate_units(target))
+    values = _values(reader, key, spec)
+    if target == "dt" and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                              for v in values):  # else refused, by its key, with its run
+        # ascending, whatever order the config gives: xarray's ds.sel(dt=slice(0.001, 0.01))
+        # finds nothing along a descending index
+        values = tuple(sorted(values))
+    return Axis(target=target, values=values, coordinate=_coordinate(target),
+                units=coordinate_units(target),
+                long_name=COORDINATES[target][1] if target in COORDINATES else target)
+
+
+def label_options(dimensions, schemes):
+    """``dimensions`` with each swept scheme option (``run.options.<name>``) labelled by the
+    option itself: its ``long_name`` and ``units`` (`rbstudy.schemes.Option`), from the first
+    of the study's ``schemes`` (names) that has it; an option without a long_name keeps its
+    path."""
+    options = {}
+    for name in schemes:
+        for option in get_scheme(name).options:
+            options.setdefault(option.name, option)
+
+    def labelled(axis):
+        option = options.get(axis.target.removeprefix("run.options."))
+        if not axis.target.startswith("run.options.") or option is None:
+            return axis
+        return dataclasses.replace(axis, units=option.units,
+                                   long_name=option.long_name or axis.long_name)
+
+    return tuple(Dimension(d.name, tuple(map(labelled, d.axes))) for d in dimensions)
 
 
 def _zipped(reader, name, group):
@@ -392,7 +422,8 @@ def _apply_short(scene, name, column):
                     length * np.sin(tilt) * np.sin(azimuth), length * np.cos(tilt)]
 
 
-def _touches_scene(axis):
+def touches_scene(axis):
+    """Whether ``axis`` changes the scene (the body, its start, its loads), not the run."""
     return axis.target in _SCENE_SHORT_NAMES or axis.target.startswith("scene.")
 
 
@@ -408,7 +439,7 @@ def _scene_table(reader, base, dimensions):
     scene = {"scene": copy.deepcopy(base["scene"])}
     chosen = {axis.target: _column(axis.values)[rows[k]]
               for k, dimension in enumerate(dimensions) for axis in dimension.axes
-              if _touches_scene(axis)}
+              if touches_scene(axis)}
     for target, column in chosen.items():
         if target not in SHORT_NAMES:
             _set_path(scene, target, column)
@@ -532,8 +563,8 @@ def expand(reader, base, dimensions, output_interval):
     key within the case. An option that no scheme of the study has is an error.
     """
     shape = tuple(d.size for d in dimensions)
-    of_scenes = [k for k, d in enumerate(dimensions) if any(map(_touches_scene, d.axes))]
-    of_runs = [k for k, d in enumerate(dimensions) if not all(map(_touches_scene, d.axes))]
+    of_scenes = [k for k, d in enumerate(dimensions) if any(map(touches_scene, d.axes))]
+    of_runs = [k for k, d in enumerate(dimensions) if not all(map(touches_scene, d.axes))]
     scene_dimensions = [dimensions[k] for k in of_scenes]
     try:
         scenes = _scene_table(reader, base, scene_dimensions)

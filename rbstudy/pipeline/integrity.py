@@ -7,11 +7,14 @@ Two kinds of file, two kinds of proof:
   in ``<batch>.nc.sha256``. A part is reused only when its bytes still hash to that digest:
   a truncated, zeroed, overwritten, edited or swapped file never is, wherever the damage lies
   (data, attributes, the HDF5 structure, or garbage after its end).
-* **The archive** (``<study>.nc``) travels alone, so it carries its own proof: the attribute
-  ``checksums`` holds one SHA-256 per variable, of its type, shape, attributes and stored
-  values (fill values included, nothing decoded). ``part_checksums`` names the digest of every
-  part it was built from. `verify_archive` recomputes the first and checks that the second
-  names exactly the study's batches (its ``batches`` attribute).
+* **The archive** (``<study>.nc``) travels alone, so it carries its own proof, in the netCDF
+  group `GROUP` (out of the global attributes a user reads: ``xr.open_dataset`` of the file
+  does not show it): its attribute ``checksums`` holds one SHA-256 per variable, of its type,
+  shape, attributes and stored values (fill values included, nothing decoded), and
+  ``part_checksums`` the digest of every part it was built from. `verify_archive`
+  recomputes the first and checks that the second names exactly the study's batches (its
+  ``batches`` attribute). Archives of rbstudy 0.3 hold the two as global attributes, and
+  are proven the same way.
 
 The global attributes (title, history, config text) are not in the per-variable checksums:
 a changed title is redescribed in place without touching the data (`store.refresh_description`).
@@ -32,7 +35,7 @@ from rbstudy.pipeline.batches import ids_digest
 
 __all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
            "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive",
-           "SIDECAR_SUFFIX", "ALGORITHM", "netcdf_writer"]
+           "SIDECAR_SUFFIX", "ALGORITHM", "netcdf_writer", "GROUP", "SEALS"]
 
 ALGORITHM = "sha256"
 SIDECAR_SUFFIX = ".sha256"
@@ -47,6 +50,9 @@ _CACHE_SLOTS = 521
 # is redescribed in place.
 MEANING_ATTRIBUTES = ("study", "batches", "accuracy_bound")
 MEANING = "(global attributes)"
+# The archive's group of checksums, and its two attributes.
+GROUP = "integrity"
+SEALS = ("checksums", "part_checksums")
 # Closes of a netCDF file whose flush met a full disk, once its temporary is truncated
 # (`netcdf_writer`): measured on a full tmpfs, the first fails and the second succeeds.
 _CLOSE_ATTEMPTS = 3
@@ -167,8 +173,8 @@ def seal_archive(path, part_digests):
     the study's batch order)."""
     with netcdf_writer(path, "a") as nc:
         checksums = archive_checksums(nc)
-        nc.setncatts({"checksums": json.dumps(checksums, sort_keys=True),
-                      "part_checksums": json.dumps(part_digests)})
+        nc.createGroup(GROUP).setncatts(dict(zip(SEALS, (
+            json.dumps(checksums, sort_keys=True), json.dumps(part_digests)), strict=True)))
 
 
 def _named(name):
@@ -197,11 +203,12 @@ def verify_archive(path):
             if is_part(attributes, nc.dimensions):
                 return ArchiveCheck(("it is a part file without its digest beside it (its "
                                      "sweep stopped before sealing it)",), provable=False)
-            if not {"checksums", "part_checksums", "batches"} <= attributes:
+            # rbstudy 0.3 sealed its archives in the global attributes
+            sealed_in = nc.groups[GROUP] if GROUP in nc.groups else nc
+            if not set(SEALS) <= set(sealed_in.ncattrs()) or "batches" not in attributes:
                 return ArchiveCheck(("it carries no checksums (written by an rbstudy before "
                                      "0.3, or not by rbstudy)",), provable=False)
-            stored, parts = (json.loads(nc.getncattr(name))
-                             for name in ("checksums", "part_checksums"))
+            stored, parts = (json.loads(sealed_in.getncattr(name)) for name in SEALS)
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
     except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:

@@ -10,8 +10,10 @@ sees half a file; every part and the archive carry checksums
 
 The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
 memory stays bounded by the largest part whatever the size of the study. Its dimensions are
-the swept ones (named after their axes) then ``time``, ``node``, ``axis`` (x, y, z) and
-``component`` (x, y, z, w); every attribute comes from `rbstudy.pipeline.variables`.
+the swept ones (named after their axes; ``dt`` ascending) then ``time``, ``node``, ``axis``
+(x, y, z) and ``component`` (x, y, z, w); a variable of the scene alone lies along the swept
+dimensions that change the scene only (`archive_dims`). Every attribute comes from
+`rbstudy.pipeline.variables`.
 """
 
 import datetime
@@ -24,6 +26,7 @@ import pathlib
 import platform
 import shlex
 import shutil
+import subprocess
 import sys
 import tempfile
 import threading
@@ -58,7 +61,8 @@ __all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic", "UnwritableF
            "unwritable", "check_output_folder", "WRITE_REFUSALS",
            "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
            "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
-           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder", "inside"]
+           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder", "inside",
+           "source_text", "archive_dims"]
 
 _DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
                  "matplotlib", "PyYAML")
@@ -88,6 +92,9 @@ OWNER = ".rbstudy-study"
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
 _MAX_DECIMALS = 15
+# How long git may take to name the checkout's commit (it answers in milliseconds; a hung
+# network file system must not hold the sweep).
+_GIT_SECONDS = 5
 
 
 def _versions():
@@ -98,6 +105,25 @@ def _versions():
         except metadata.PackageNotFoundError:
             found[name] = "not installed"
     return found
+
+
+def source_text(version):
+    """``rbstudy <version>``, with the commit of the checkout the package runs from
+    (``rbstudy 0.4.0 (commit abc1234)``, ``..., modified)`` when its tracked files differ
+    from it): an editable install's version names no code, its commit does. Just the
+    version where the package is no checkout or git cannot tell."""
+    checkout = pathlib.Path(__file__).resolve().parents[2]
+    if not (checkout / ".git").exists():  # a .git file in a worktree: exists() too
+        return f"rbstudy {version}"
+    try:
+        commit, changes = (subprocess.run(["git", "-C", str(checkout), *arguments],
+                                          capture_output=True, text=True, check=True,
+                                          timeout=_GIT_SECONDS).stdout.strip()
+                           for arguments in (["rev-parse", "--short", "HEAD"],
+                                             ["status", "--porcelain", "--untracked-files=no"]))
+    except (OSError, subprocess.SubprocessError):
+        return f"rbstudy {version}"
+    return f"rbstudy {version} (commit {commit}{', modified' if changes else ''})"
 
 
 def utc_now():
@@ -114,7 +140,7 @@ def global_attrs(study, command=None, started=None):
         "Conventions": "CF-1.11",
         "title": study.title,
         "institution": "rbstudy user",
-        "source": f"rbstudy {versions['rbstudy']}",
+        "source": source_text(versions["rbstudy"]),
         "history": history,
         "comment": "Rigid-body integrator study; errors are measured against the reference "
                    "named per case by the variable `reference`.",
@@ -216,7 +242,7 @@ def grid_coordinates(study):
                                 {"long_name": "index along the zipped axes "
                                               + ", ".join(a.coordinate for a in dim.axes)})
         for axis in dim.axes:
-            attrs = cf_attrs(axis.units, COORDINATES.get(axis.target, (None, axis.target))[1])
+            attrs = cf_attrs(axis.units, axis.long_name)
             attrs["sweep_path"] = axis.target
             coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
     return coords
@@ -571,10 +597,6 @@ def consolidate(study, parts, digests, target, attrs):
     and seal it with its checksums and the ``digests`` of its parts (batch id -> digest)."""
     shape = study.shape
     grid = grid_coordinates(study)
-    # Auxiliary coordinates (zipped axes, unswept scheme and dt) that CF readers attach to
-    # every data variable.
-    auxiliary = " ".join(name for name, (dims, _, _) in grid.items()
-                         if dims != (name,))
     with _temporary_beside(target) as temporary, HDF5_LOCK:
         with netcdf_writer(temporary) as nc:
             nc.setncatts(attrs)
@@ -588,15 +610,20 @@ def consolidate(study, parts, digests, target, attrs):
             for name, (values, coord_attrs) in fixed.items():
                 _create(nc, name, (name,), values.astype(object) if values.dtype.kind == "U"
                         else values, coord_attrs)
-            grid_dims = tuple(d.name for d in study.dimensions)
             targets = {}
             for name in study.variables:
-                variable_attrs_ = variable_attrs(name)
+                along = archive_dims(study, name)
+                attrs_ = variable_attrs(name)
+                # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
+                # claims) that CF readers attach to it: those along its dimensions
+                auxiliary = [coordinate for coordinate, (dims, _, _) in grid.items()
+                             if dims != (coordinate,) and set(dims) <= set(along)]
                 if auxiliary:
-                    variable_attrs_["coordinates"] = auxiliary
-                targets[name] = _create(nc, name, grid_dims + VARIABLES[name].dims,
-                                        attrs=variable_attrs_, dtype=VARIABLES[name].dtype,
-                                        grid_rank=len(grid_dims))
+                    attrs_["coordinates"] = " ".join(auxiliary)
+                grid_rank = len(along) - len(VARIABLES[name].dims)
+                targets[name] = (_create(nc, name, along, attrs=attrs_,
+                                         dtype=VARIABLES[name].dtype, grid_rank=grid_rank),
+                                 tuple(d.name in along[:grid_rank] for d in study.dimensions))
             for batch in study.batches:
                 _copy_part(targets, read_part(parts[batch.id], study.variables), shape)
         seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
@@ -617,11 +644,22 @@ def _block(cases, shape):
                  for a in axes), tuple(len(a) for a in axes)
 
 
+def archive_dims(study, name):
+    """The dimensions of variable ``name`` in ``study``'s archive: the swept ones (a
+    variable of the scene alone: those along which the scene changes), then its own."""
+    grid = study.scene_dims if VARIABLES[name].per_scene else tuple(
+        d.name for d in study.dimensions)
+    return grid + VARIABLES[name].dims
+
+
 def _copy_part(targets, part, shape):
-    """Copy one part's cases (`read_part`) into the consolidated variables ``targets``."""
+    """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
+    -> (netCDF variable, whether it lies along each grid dimension). A part holds a value per
+    case; a variable of the scene alone takes its cases' values at the first position of the
+    dimensions it does not lie along (the same at every other)."""
     cases = part["case"]
     if not shape:  # a one-case study
-        for name, variable in targets.items():
+        for name, (variable, _) in targets.items():
             variable[...] = part[name][0]
         return
     block = _block(cases, shape)
@@ -632,11 +670,13 @@ def _copy_part(targets, part, shape):
         (index, tuple(piece.stop - piece.start for piece in index))
         for run in np.split(cases, np.flatnonzero(np.diff(cases) != 1) + 1)
         for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)]
-    for name, variable in targets.items():
+    for name, (variable, along) in targets.items():
         values, start = part[name], 0
         for index, sizes in slabs:
             count = math.prod(sizes)
-            variable[index] = values[start:start + count].reshape(sizes + values.shape[1:])
+            block = values[start:start + count].reshape(sizes + values.shape[1:])
+            kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
+            variable[kept or ...] = block[tuple(slice(None) if keep else 0 for keep in along)]
             start += count
 
 

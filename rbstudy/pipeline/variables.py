@@ -20,9 +20,10 @@ from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
 from rbstudy.physics.analytic import INTEGRATED, REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
-__all__ = ["Variable", "VARIABLES", "DEPRECATED", "FEATURES", "COORDINATES", "SCHEME_COORDINATES",
-           "TIME_UNITS", "coordinate_units", "cf_attrs", "variable_attrs", "scene_features", "selected",
-           "evaluate", "BOOKKEEPING", "UNCERTAINTIES"]
+__all__ = ["Variable", "VARIABLES", "DEPRECATED", "ALIAS_REMOVED_IN", "LONG_NAME_MAX", "FEATURES",
+           "COORDINATES", "SCHEME_COORDINATES", "TIME_UNITS", "coordinate_units", "cf_attrs",
+           "variable_attrs", "scene_features", "selected", "evaluate", "BOOKKEEPING",
+           "UNCERTAINTIES", "PER_SCENE"]
 
 # The scene features a variable may need: name -> (predicate on a
 # `rbstudy.physics.scenes.SceneTable`, true or false per scene, meaning).
@@ -52,118 +53,166 @@ FEATURES = {
 @dataclass(frozen=True)
 class Variable:
     """An output variable: ``compute(batch) -> values`` (case axis first), ``dims`` beyond the
-    case dimensions, CF ``units`` and ``long_name``, the scene features it ``needs``, its
-    netCDF storage type, and for a flag the meaning of each code (``flags``)."""
+    case dimensions, CF ``units``, a ``long_name`` short enough for a plot's axis label
+    (`LONG_NAME_MAX`) and the ``description`` that explains it, the scene features it
+    ``needs``, its netCDF storage type, for a flag the meaning of each code (``flags``), and
+    whether it is the same for every run of a scene (``per_scene``: stored along the scene's
+    dimensions only, not along scheme, dt or a scheme option)."""
 
     name: str
     dims: tuple
     units: str
     long_name: str
+    description: str
     compute: Callable
     needs: frozenset = frozenset()
     dtype: str = "f8"
     flags: tuple = ()
+    per_scene: bool = False
 
 
-def _v(name, dims, units, long_name, *needs, flags=(), dtype="f8"):
+# xarray labels a plot's axis "long_name [units]": longer names are cut or wrap.
+LONG_NAME_MAX = 60
+
+
+def _v(name, dims, units, long_name, description, *needs, flags=(), dtype="f8",
+       per_scene=False):
     """A variable computed by `rbstudy.pipeline.outputs` function of the same name."""
-    return Variable(name, dims, units, long_name, getattr(outputs, name), frozenset(needs),
-                    dtype, flags)
+    return Variable(name, dims, units, long_name, description, getattr(outputs, name),
+                    frozenset(needs), dtype, flags, per_scene)
 
 
-def _result(name, units, long_name, *needs, flags=()):
+def _scene(name, dims, units, long_name, description, *needs, flags=(), dtype="f8"):
+    """A variable of the scene alone, the same for every scheme, dt and option."""
+    return _v(name, dims, units, long_name, description, *needs, flags=flags, dtype=dtype,
+              per_scene=True)
+
+
+def _result(name, units, long_name, description, *needs, flags=()):
     """A per-case result of the driver, stored as the driver's storage type."""
-    return Variable(name, (), units, long_name, outputs.driver_result(name), frozenset(needs),
-                    dict(RESULT_FIELDS)[name], flags)
+    return Variable(name, (), units, long_name, description, outputs.driver_result(name),
+                    frozenset(needs), dict(RESULT_FIELDS)[name], flags)
 
+
+_AS_UNCERTAINTY = "; NaN where reference_uncertainty is"
 
 VARIABLES = {v.name: v for v in (
-    _v("omega_body", ("time", "axis"), "rad s-1", "angular velocity in principal body axes"),
-    _v("omega_space", ("time", "axis"), "rad s-1", "angular velocity in space axes"),
-    _v("quaternion", ("time", "component"), "1",
-       "orientation quaternion, scalar-last (x, y, z, w), principal body axes to space"),
-    _v("position", ("time", "axis"), "m", "centre-of-mass position", "translation"),
-    _v("node_displacement", ("time", "node", "axis"), "m",
-       "displacement of nodes fixed to the body", "nodes"),
-    _v("node_velocity", ("time", "node", "axis"), "m s-1",
-       "velocity of nodes fixed to the body, v + w x r, in space axes", "nodes"),
-    _v("energy_error", ("time",), "1", "relative rotational kinetic energy error (T - T0) / T0",
+    _v("omega_body", ("time", "axis"), "rad s-1", "angular velocity in principal body axes",
+       "angular velocity w in the principal axes of the body"),
+    _v("omega_space", ("time", "axis"), "rad s-1", "angular velocity in space axes",
+       "angular velocity R w in the space (global) axes"),
+    _v("quaternion", ("time", "component"), "1", "orientation quaternion (x, y, z, w)",
+       "orientation as a unit quaternion, scalar last, that turns the principal body axes "
+       "into the space axes"),
+    _v("position", ("time", "axis"), "m", "centre-of-mass position",
+       "position of the centre of mass in space axes", "translation"),
+    _v("node_displacement", ("time", "node", "axis"), "m", "node displacement",
+       "displacement of each node fixed to the body from its position at t = 0, in space "
+       "axes", "nodes"),
+    _v("node_velocity", ("time", "node", "axis"), "m s-1", "node velocity",
+       "velocity of each node fixed to the body, v + R (w x s) with s its offset in body "
+       "axes, in space axes", "nodes"),
+    _v("energy_error", ("time",), "1", "relative kinetic energy error",
+       "(T - T0) / T0 of the rotational kinetic energy T (no moment acts, so T is conserved)",
        "moment_free"),
-    _v("momentum_error", ("time",), "1", "relative space angular momentum error |L - L0| / |L0|",
-       "moment_free"),
-    _v("orientation_error", ("time",), "rad", "geodesic angle to the reference orientation",
+    _v("momentum_error", ("time",), "1", "relative angular momentum error",
+       "|L - L0| / |L0| of the angular momentum vector L in space axes (no moment acts, so L "
+       "is conserved)", "moment_free"),
+    _v("orientation_error", ("time",), "rad", "orientation error",
+       "geodesic angle between the orientation and the reference's (variable reference)",
        "reference"),
-    _v("omega_error", ("time",), "1", "relative angular velocity error |w - w_ref| / |w_ref|",
+    _v("omega_error", ("time",), "1", "relative angular velocity error",
+       "|w - w_ref| / |w_ref| of the angular velocity in body axes against the reference",
        "reference"),
-    _v("node_error", ("time", "node"), "m", "distance of nodes to their reference positions",
-       "reference", "nodes"),
-    _v("precession_frequency", (), "rad s-1",
-       "body-frame precession frequency: slope of the unwrapped phase of w1 + i w2", "symmetric"),
-    _v("precession_frequency_exact", (), "rad s-1",
-       "exact body-frame precession frequency W = w3 (I3 - I1) / I1", "symmetric"),
-    _v("precession_frequency_error", (), "rad s-1",
-       "precession frequency minus its exact value", "symmetric"),
-    _v("flip_interval", (), "s",
-       "mean time between sign changes of the intermediate-axis angular velocity",
+    _v("node_error", ("time", "node"), "m", "node position error",
+       "distance of each node to its position in the reference motion", "reference", "nodes"),
+    _v("precession_frequency", (), "rad s-1", "body-frame precession frequency",
+       "slope of the unwrapped phase of the angular velocity across the symmetry axis "
+       "(w1 + i w2 for axis 3) over the run", "symmetric"),
+    _scene("precession_frequency_exact", (), "rad s-1", "exact precession frequency",
+           "exact body-frame precession frequency W = w3 (I3 - I1) / I1 (axis 3 the symmetry "
+           "axis)", "symmetric"),
+    _v("precession_frequency_error", (), "rad s-1", "precession frequency error",
+       "precession_frequency minus precession_frequency_exact", "symmetric"),
+    _v("flip_interval", (), "s", "flip interval",
+       "mean time between sign changes of the angular velocity about the intermediate axis",
        "asymmetric"),
-    _v("flip_interval_exact", (), "s", "exact flip interval 2 K(k^2) / |lambda|", "asymmetric"),
-    _v("flip_interval_error", (), "s", "flip interval minus its exact value", "asymmetric"),
-    _result("status", "1", "case outcome", flags=STATUS_NAMES),
-    _result("failure_time", "s", "time of blow-up or solver failure (NaN if none)"),
-    _result("n_steps", "1", "time steps taken"),
-    _result("iterations", "1", "Newton iterations summed over the steps"),
-    _v("run_time", (), "s", "kernel CPU time per case: CPU time of the compiled batch call, "
-       "summed over its threads, / batch size; compilation excluded"),
-    _result("max_energy_error", "1", "largest |relative energy error| over every step",
-            "moment_free"),
-    _result("max_momentum_magnitude_error", "1",
+    _scene("flip_interval_exact", (), "s", "exact flip interval",
+           "exact time between sign changes of the intermediate-axis rate, 2 K(k^2) / |lambda|",
+           "asymmetric"),
+    _v("flip_interval_error", (), "s", "flip interval error",
+       "flip_interval minus flip_interval_exact", "asymmetric"),
+    _result("status", "1", "case outcome",
+            "ok; unstable: blew up (a non-finite state, or an energy or |L| drift past 50% for "
+            "a moment-free body); not_converged: the implicit solver failed", flags=STATUS_NAMES),
+    _result("failure_time", "s", "time of failure",
+            "time of blow-up or solver failure; NaN if none"),
+    _result("n_steps", "1", "time steps taken", "time steps the scheme took"),
+    _result("iterations", "1", "Newton iterations",
+            "Newton iterations summed over the steps (0 for an explicit scheme)"),
+    _v("run_time", (), "s", "kernel CPU time per case",
+       "CPU time of the compiled batch call, summed over its threads, divided by the batch's "
+       "cases; compilation excluded"),
+    _result("max_energy_error", "1", "largest relative energy error",
+            "largest |(T - T0) / T0| over every step, not only the samples", "moment_free"),
+    _result("max_momentum_magnitude_error", "1", "largest relative drift of |L|",
             "largest relative drift of the magnitude |L| over every step (the vector's drift, "
             "sampled, is momentum_error)", "moment_free"),
-    _result("max_step_angle", "rad", "largest dt |w| over the accepted states, t = 0 included "
-            "(an adaptive scheme: each step's own dt and the |w| it ends with)"),
-    _result("radioss_dt_limit", "1", "whether (dt |w|)^2 > 1 at some step, where OpenRadioss "
-            "aborts a rigid body as unstable (the run goes on)",
-            flags=("within", "exceeded")),
-    _v("final_orientation_error", (), "rad", "orientation error at the last output time",
-       "reference"),
-    _v("accuracy", (), "1", "accuracy verdict: a finished case is inaccurate when its "
-       "orientation error at any sample (rad) or its relative energy or |L| drift passes the "
-       "global attribute accuracy_bound; a failed case has no verdict; a finished case "
-       "without a reference (reference = none) and no drift past the bound is unjudged",
-       "reference",
-       flags=outputs.VERDICTS, dtype="i1"),
-    _v("reference", (), "1", "reference solution the errors are measured against", "reference",
-       flags=REFERENCE_KINDS, dtype="i1"),
-    _v("reference_uncertainty", (), "rad", "orientation angle at the last output time "
-       "between the two independent integrations of the reference (exact_split composed to "
-       "order 8, and DOP853); NaN where the reference is a closed form or was not "
-       "cross-checked", "integrated"),
-    _v("reference_omega_uncertainty", (), "1", "largest relative difference of the angular "
-       "velocity between the two integrations of the reference over the output times (as "
-       "reference_uncertainty)",
-       "integrated"),
-    _v("reference_node_uncertainty", (), "m", "largest node distance between the two "
-       "integrations of the reference over the output times (as reference_uncertainty)",
-       "integrated", "nodes"),
-    _v("inertia", ("axis",), "kg m2", "principal moments of inertia"),
-    _v("initial_spin", (), "rad s-1", "initial angular speed |w(0)|"),
-    _v("node_offset", ("node", "axis"), "m", "node offsets from the centre of mass, principal axes",
-       "nodes"),
-    _v("regularised_inertia", (), "1", "whether a principal inertia below 1e-3 of the largest "
-       "was raised to that (Radioss regularisation of an assembled body)", "assembled",
-       flags=("as_assembled", "regularised"), dtype="i1"),
-    _v("physical_body", (), "1",
-       "whether the principal inertias meet the triangle inequality (a real rigid body)",
-       flags=("unphysical_stress_body", "physical"), dtype="i1"),
+    _result("max_step_angle", "rad", "largest step angle dt |w|",
+            "largest dt |w| over the accepted states, t = 0 included (an adaptive scheme: "
+            "each step's own dt and the |w| it ends with)"),
+    _result("radioss_dt_limit", "1", "OpenRadioss step limit",
+            "whether (dt |w|)^2 > 1 at some step, where OpenRadioss aborts a rigid body as "
+            "unstable (the run goes on)", flags=("within", "exceeded")),
+    _v("final_orientation_error", (), "rad", "final orientation error",
+       "orientation_error at the last output time", "reference"),
+    _v("accuracy", (), "1", "accuracy verdict",
+       "a finished case is inaccurate when its orientation error at any sample (rad) or its "
+       "relative energy or |L| drift passes the global attribute accuracy_bound; a failed "
+       "case has no verdict; a finished case without a reference (reference = none) and no "
+       "drift past the bound is unjudged", "reference", flags=outputs.VERDICTS, dtype="i1"),
+    _scene("reference", (), "1", "reference solution",
+           "the solution the errors are measured against", "reference",
+           flags=REFERENCE_KINDS, dtype="i1"),
+    _scene("reference_uncertainty", (), "rad", "reference orientation uncertainty",
+           "orientation angle at the last output time between the two independent "
+           "integrations of the reference (exact_split composed to order 8, and DOP853); NaN "
+           "where the reference is a closed form or was not cross-checked", "integrated"),
+    _scene("reference_omega_uncertainty", (), "1", "reference angular velocity uncertainty",
+           "largest relative difference of the angular velocity between the two integrations "
+           "of the reference over the output times" + _AS_UNCERTAINTY, "integrated"),
+    _scene("reference_node_uncertainty", (), "m", "reference node position uncertainty",
+           "largest node distance between the two integrations of the reference over the "
+           "output times" + _AS_UNCERTAINTY, "integrated", "nodes"),
+    _scene("inertia", ("axis",), "kg m2", "principal moments of inertia",
+           "moments of inertia about the body's principal axes"),
+    _scene("initial_spin", (), "rad s-1", "initial angular speed |w(0)|",
+           "magnitude of the angular velocity at t = 0"),
+    _scene("node_offset", ("node", "axis"), "m", "node offset from the centre of mass",
+           "offset of each node fixed to the body from the centre of mass, in principal body "
+           "axes", "nodes"),
+    _scene("regularised_inertia", (), "1", "inertia regularised",
+           "whether a principal inertia below 1e-3 of the largest was raised to that (Radioss "
+           "regularisation of an assembled body)", "assembled",
+           flags=("as_assembled", "regularised"), dtype="i1"),
+    _scene("physical_body", (), "1", "physical rigid body",
+           "whether the principal inertias meet the triangle inequality (a real rigid body, "
+           "not an allow_unphysical stress body)",
+           flags=("unphysical_stress_body", "physical"), dtype="i1"),
 )}
 
-# Names replaced by clearer ones in rbstudy 0.2, kept as aliases until 0.4: stored beside the
-# new name (same values) and accepted in output.variables. Old name -> new name.
+# Names replaced by clearer ones in rbstudy 0.2, kept as aliases until `ALIAS_REMOVED_IN`:
+# stored beside the new name (same values) and accepted in output.variables. Old name -> new
+# name. docs/config.md names the same release.
 DEPRECATED = {"max_momentum_error": "max_momentum_magnitude_error"}
+ALIAS_REMOVED_IN = "0.5"
 VARIABLES.update({old: dataclasses.replace(
-    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}, removed in rbstudy "
-                                        f"0.3: {VARIABLES[new].long_name}")
+    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}",
+    description=f"removed in rbstudy {ALIAS_REMOVED_IN}: {VARIABLES[new].description}")
     for old, new in DEPRECATED.items()})
+
+# The variables stored along the scene's dimensions only.
+PER_SCENE = frozenset(name for name, variable in VARIABLES.items() if variable.per_scene)
 
 # Simulated time is a duration, not a date: plain seconds, which every reader (xarray
 # included) opens as numbers. (A "seconds since <epoch>" unit made xarray decode it to
@@ -196,13 +245,13 @@ SCHEME_COORDINATES = {
 }
 
 # Units of a value swept by dotted path, found from the last key of the path that is listed
-# here (``scene.initial.angular_velocity.body.2`` -> ``body`` under ``angular_velocity``).
+# here (``scene.initial.angular_velocity.body.2`` -> ``body`` under ``angular_velocity``). A
+# scheme option's come from the option (`rbstudy.schemes.Option.units`).
 _KEY_UNITS = {
     "mass": "kg", "inertia": "kg m2", "angular_velocity": "rad s-1", "position": "m",
     "velocity": "m s-1", "euler_zxz_deg": "degree", "phi_deg": "degree", "quaternion": "1",
     "rotation_vector": "rad", "momentum_axis": "1", "nodes": "m", "force_space": "N",
     "force_body": "N", "moment_space": "N m", "moment_body": "N m", "gravity": "m s-2",
-    "alpha": "1", "axis_order": None,
 }
 
 
@@ -224,11 +273,11 @@ def cf_attrs(units, long_name):
 def variable_attrs(name):
     """The CF attributes of output variable ``name``, all from the table above."""
     variable = VARIABLES[name]
+    described = {"long_name": variable.long_name, "description": variable.description}
     if variable.flags:
-        return {"long_name": variable.long_name,
-                "flag_values": list(range(len(variable.flags))),
-                "flag_meanings": " ".join(variable.flags)}
-    return {"units": variable.units, "long_name": variable.long_name}
+        return described | {"flag_values": list(range(len(variable.flags))),
+                            "flag_meanings": " ".join(variable.flags)}
+    return {"units": variable.units} | described
 
 
 def scene_features(scenes):

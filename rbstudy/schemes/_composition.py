@@ -100,6 +100,8 @@ COMPOSITION = Option(
     parse=_parse_composition,
     sets_order=True,
     cost=lambda order: len(stage_weights(order)),
+    long_name="order of the symmetric composition of the step",
+    units="1",
 )
 
 

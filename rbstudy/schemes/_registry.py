@@ -25,7 +25,10 @@ class Option:
     ``slot`` onward in the body's option row; it raises ``ValueError`` with the expectation.
     ``sets_order``: the option's value is the scheme's nominal order (a composition).
     ``cost(value)``: how many plain steps one step takes with that value (the stages of a
-    composition); None for an option that does not change the cost.
+    composition); None for an option that does not change the cost. ``long_name`` (at most
+    60 characters: a plot's axis label) and ``units`` (CF, "1" for a number without; None for
+    a label such as an axis order) label the option's coordinate in an archive that sweeps
+    it; without a long_name the coordinate is labelled with the option's name.
     """
 
     name: str
@@ -35,6 +38,8 @@ class Option:
     parse: Callable[[Any], tuple]
     sets_order: bool = False
     cost: Callable[[Any], int] | None = None
+    long_name: str = ""
+    units: str | None = None
 
 
 @dataclass(frozen=True)

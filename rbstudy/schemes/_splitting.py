@@ -28,6 +28,7 @@ AXIS_ORDER = Option(
     ),
     slot=0,
     parse=_parse_axis_order,
+    long_name="order of the axes' free sub-flows",  # a label such as "213": no units
 )
 
 

@@ -77,6 +77,8 @@ ALPHA = Option(
     description="HHT numerical dissipation, in [-1/3, 0]; 0 is trapezoidal Newmark (no damping)",
     slot=0,
     parse=_parse_alpha,
+    long_name="HHT numerical dissipation alpha",
+    units="1",
 )
 
 
