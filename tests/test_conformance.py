@@ -102,7 +102,7 @@ def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, m
 
     def card(*schemes):
         out = tmp_path / "_".join(schemes)
-        assert main(["conformance", "--cases", "t_handle", "--schemes", *schemes, "--steps",
+        assert main(["conformance", "--cases", "t_handle", "--schemes", ",".join(schemes), "--steps",
                      "3", "--out", str(out), "--quiet"]) == 0
         with xr.open_dataset(out / "conformance.nc") as ds:
             return {scheme: ds[["passed", "rule_passed", "rule_text"]].sel(scheme=scheme).load()

@@ -126,7 +126,7 @@ def test_an_empty_mapping_and_a_name_yaml_reads_as_a_number_take_overrides(tmp_p
                                    "a list of values, "),
     # an error elsewhere that an override may have caused names the file with the overrides
     (["--set", "output.interval=0.003"], "{config} (with --set output.interval=0.003): sweep "
-                                         "(scheme[0] = 'rk4', dt[0] = 0.01): run.dt: dt = 0.01 s "
+                                         "(scheme[0] = 'rk4', dt[0] = 0.005): run.dt: dt = 0.005 s "
                                          "does not divide the output interval 0.003 s"),
 ])
 def test_a_bad_override_is_one_line_and_writes_nothing(tmp_path, capsys, argv, line):

@@ -188,7 +188,8 @@ def _failure(ds, scheme, row):
     for peer in peers:
         survived = (per_scheme(status, peer) == 0).values
         if np.any(failed & survived):
-            dt = float(ds["dt"].values[np.argmax(failed & survived)])
+            # the largest such step: dt ascends in the archive
+            dt = float(ds["dt"].values[np.flatnonzero(failed & survived)[-1]])
             return Verdict(False, float(failed.sum()),
                            f"{_cases(failed.sum())} failed; {peer} (order {nominal}) "
                            f"finished at dt = {dt:g} s")
