@@ -63,7 +63,7 @@ import threading
 
 import numpy as np
 
-from rbstudy.numerics import algebra
+from rbstudy.engines._frames import to_world
 from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.state import OK, UNSTABLE
@@ -148,14 +148,6 @@ def _model(integrator, h, mass, inertia):
     return models[key]
 
 
-def _to_world(q, v):
-    """The body-frame vectors ``v`` (n, 3) in the world, for the scalar-last unit
-    quaternions ``q`` (n, 4): ``R v`` by `algebra.rotation_columns`, the formula of the
-    kernels and of the error measures."""
-    columns = algebra.rotation_columns(q.T)
-    return sum(np.stack(column, axis=1) * v[:, k, None] for k, column in enumerate(columns))
-
-
 def _stepper(integrator):
     """The vectorised step of MuJoCo's ``integrator`` (module docstring)."""
 
@@ -173,7 +165,7 @@ def _stepper(integrator):
         state[:, 11:14] = y[:, S.OMEGA:S.OMEGA + 3]
         wrench = np.zeros((n, 1, 12))  # the world body's, then the body's: force, torque
         wrench[:, 0, 6:9] = force
-        wrench[:, 0, 9:12] = _to_world(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
+        wrench[:, 0, 9:12] = to_world(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
         after = np.empty((n, 1, _WIDTH))
         local = _thread()
         local["rollout"].rollout(models, [local["template"][1]], state, wrench,

@@ -60,6 +60,8 @@ ENGINES = {
     "mujoco_implicitfast": "rbstudy.engines.mujoco:IMPLICITFAST",
     "mujoco_implicit": "rbstudy.engines.mujoco:IMPLICIT",
     "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
+    "bullet_multibody": "rbstudy.engines.bullet:MULTIBODY",
+    "bullet_rigidbody": "rbstudy.engines.bullet:RIGIDBODY",
 }
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk

@@ -1,0 +1,53 @@
+"""What the engine adapters' tests share (tests/test_engines.py and tests/test_<engine>.py):
+the bodies they compare on, a run step by step, the largest difference of two schemes'
+samples, and the example plug-in's linearised backward Euler."""
+
+import importlib
+import pathlib
+import sys
+
+import numpy as np
+from conftest import LOADED, abaqus_mapping
+
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import run_batch
+from rbstudy.physics.scenes import param_rows, scene_from_mapping
+from rbstudy.physics.simulate import simulate
+from rbstudy.schemes import get_scheme
+
+EXAMPLE = pathlib.Path(__file__).resolve().parents[1] / "examples" / "semi_implicit"
+
+
+def make_scene(**mapping):
+    return scene_from_mapping(mapping, "test")
+
+
+def compared_scenes():
+    """The Abaqus top, an asymmetric body from the same start, and a loaded body."""
+    return [make_scene(**{**abaqus_mapping(), "duration": 2.0}),
+            make_scene(**{**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 2.0}),
+            make_scene(**LOADED)]
+
+
+def run(scheme, scenes, dt, n_steps):
+    """Every step of ``scenes`` under ``scheme`` (a name or a `Scheme`): samples
+    (B, n_steps + 1, N_STATE)."""
+    chosen = get_scheme(scheme) if isinstance(scheme, str) else scheme
+    return run_batch(chosen, np.array([body.state_row() for body in scenes]),
+                     param_rows(scenes), np.zeros((len(scenes), S.N_OPTION)), dt, n_steps,
+                     1).samples
+
+
+def difference(a, b, scenes, dt):
+    """The largest difference (B,) of the samples of schemes ``a`` and ``b`` per scene."""
+    return np.max(np.abs(simulate(scenes, a, dt, 0.01).output.samples
+                         - simulate(scenes, b, dt, 0.01).output.samples), axis=(1, 2))
+
+
+def example_scheme():
+    """The example plug-in's compiled scheme, imported from its folder (not installed)."""
+    sys.path.insert(0, str(EXAMPLE))
+    try:
+        return importlib.import_module("rbstudy_semi_implicit.compiled").SCHEME
+    finally:
+        sys.path.remove(str(EXAMPLE))
