@@ -253,6 +253,7 @@ def _plot(args):
     from rbstudy.analysis.plots import all_figures
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.progress import Progress
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
@@ -272,9 +273,13 @@ def _plot(args):
                                  "their figures would overwrite each other in --out",
                                  "plot them one at a time, each with its own --out", path)
     for path in args.files:
-        dataset = _select(opened(path), args.select, path)
         folder = folders[path]
-        figures = all_figures(dataset, folder, tuple(args.format), processes=default_threads())
+        with Progress(path, f"drawing its figures into {folder}",
+                      quiet=args.quiet) as progress:
+            progress.phase(f"{path}: reading")
+            dataset = _select(opened(path), args.select, path)
+            figures = all_figures(dataset, folder, tuple(args.format),
+                                  processes=default_threads(), progress=progress)
         kinds = " and ".join(kind.upper() for kind in args.format)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         for name, reason in figures.absent.items():
@@ -317,12 +322,18 @@ def _conformance(args):
     )
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import run_golden, write_golden
+    from rbstudy.pipeline.progress import Progress
     from rbstudy.pipeline.store import write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells = {}
-    for case, archive in zip(cases, run_golden(paths, out, quiet=args.quiet), strict=True):
-        cells[case.name] = score_case(open_archive(archive), case.rules)
+    with Progress("conformance", f"{len(schemes)} schemes x {len(cases)} golden cases",
+                  quiet=args.quiet) as progress:
+        archives = run_golden(paths, out, progress)
+        progress.phase("conformance: scoring", len(cases), "cases")
+        for case, archive in zip(cases, archives, strict=True):
+            cells[case.name] = score_case(open_archive(archive), case.rules)
+            progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
@@ -371,16 +382,14 @@ def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.progress import Progress
     folder = args.out or pathlib.Path(args.file).parent / "report"
     _check_out(folder, given=bool(args.out))
-    dataset = open_archive(args.file, verify=not args.no_verify)
-
-    def progress(figures, reused):  # a line per figure as its drawing is done
-        for png in figures.written:
-            print(f"  {'reused' if reused else 'drawn'}: {png.name}", file=sys.stderr, flush=True)
-
-    report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
-                          progress=None if args.quiet else progress)
+    with Progress(args.file, f"writing its report into {folder}", quiet=args.quiet) as progress:
+        progress.phase(f"{args.file}: reading")
+        dataset = open_archive(args.file, verify=not args.no_verify)
+        report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
+                              progress=progress)
     print(f"{args.file}: report in {report}")
     return 0
 
@@ -463,6 +472,7 @@ def build_parser():
     # the formats of rbstudy.analysis.plots, named here so that parsing loads no matplotlib
     plot.add_argument("--format", nargs="+", choices=("png", "svg"), default=["png"],
                       help="file formats (default: png; an SVG takes as long again)")
+    plot.add_argument("--quiet", action="store_true", help="no progress")
     _no_verify_argument(plot)
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of a results file")
@@ -471,7 +481,7 @@ def build_parser():
     report.add_argument("--svg", action="store_true",
                         help="also write each figure as SVG in the report's figures/ folder and "
                              "link it (the report itself embeds the PNGs either way)")
-    report.add_argument("--quiet", action="store_true", help="no line per figure")
+    report.add_argument("--quiet", action="store_true", help="no progress")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
     summary = commands.add_parser("summary", help="print the findings and the per-scheme "
