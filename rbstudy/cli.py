@@ -173,7 +173,7 @@ def _sweep(args):
     from rbstudy.analysis.findings import FINDINGS_VARIABLES
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.config import load_study
-    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.execute import run_study, study_progress
     from rbstudy.pipeline.store import folder_claim
     studies = [load_study(path) for path in args.files]  # all configs checked before any run
     names = [study.name for study in studies]
@@ -191,9 +191,16 @@ def _sweep(args):
             _say(line)
         if replaced:  # even when quiet: it says whose results the run deletes
             _say(replaced)
-        done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
-                         force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
-                         cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)
+        with study_progress(study, args.quiet) as progress:
+            done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
+                             force=args.force, keep_parts=args.keep_parts, cluster=cluster,
+                             writer=args.writer, worker_wait=args.worker_wait,
+                             progress=progress)
+            progress.phase(f"{study.name}: reading its findings")
+            # proven by this run: sealed as written, or verified before it was reused
+            summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
+                                    wide=args.wide)
+            progress.end = done.said
         if done.archive_problems:
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
                  "rebuilt it")
@@ -209,9 +216,7 @@ def _sweep(args):
         if done.returned:
             _say(f"{study.name}: {done.returned} parts written here from the values the "
                  "workers sent back (they do not see the results folder)")
-        # proven by this run: sealed as written, or verified before it was reused
-        print(_summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
-                            wide=args.wide))
+        print(summary)
     return 0
 
 

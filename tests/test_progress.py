@@ -98,7 +98,7 @@ def test_the_bar_ticks_while_no_batch_ends():
         for seconds in (1.5, 2.5):
             now[0] = seconds
             deadline = time.monotonic() + REDRAW_WAIT
-            while f"1/4 cases  {seconds:5.1f} s" not in terminal.text():
+            while f"1/4 cases {seconds:5.1f} s" not in terminal.text():
                 assert time.monotonic() < deadline, terminal.text()[-300:]
                 time.sleep(0.05)
     assert "study: running batches" in terminal.text()
@@ -134,8 +134,11 @@ class _Client:
 
 
 def test_the_dashboard_link_or_how_to_get_one(monkeypatch):
+    monkeypatch.setattr(cluster, "_bokeh", lambda: True)
     assert (dashboard_line(_Client({"dashboard": 8787}))
             == "dask dashboard at http://127.0.0.1:8787/status")
+    assert dashboard_line(_Client({})) == "no dask dashboard: the scheduler runs none"
+    # without bokeh the scheduler still names a dashboard, whose pages are empty
     monkeypatch.setattr(cluster, "_bokeh", lambda: False)
-    assert (dashboard_line(_Client({}))
+    assert (dashboard_line(_Client({"dashboard": 8787}))
             == "no dask dashboard: it needs bokeh; pip install 'rbstudy[dashboard]'")

@@ -99,8 +99,8 @@ def _measure(scheme, scene, batch_sizes, body_steps, cores, width, progress):
                 continue
             steps = REFERENCE_STEPS
         for threads in (1, cores):
-            progress.update(f"bench: {name}, B={size}, {threads} thread(s), "
-                            f"{steps * size:.1e} body-steps")
+            progress.update(f"bench: {name}, B={size} on {threads} thread"
+                            + "s" * (threads > 1))
             rate, _ = _rate(scheme, scene, size, steps, threads)
             row[f"B{size}_threads{threads}"] = rate
             line += f" {rate:14.3e}"

@@ -153,12 +153,14 @@ def _bokeh():
 
 def dashboard_line(client):
     """Where the dask dashboard of ``client``'s scheduler is, or why there is none and how to
-    get one, in one line."""
+    get one, in one line. Without bokeh here there is none: the scheduler serves its
+    dashboard's address all the same, with nothing on its pages (a remote scheduler with
+    bokeh of its own is taken for one without)."""
+    if not _bokeh():
+        return f"no dask dashboard: it needs bokeh; {DASHBOARD_FIX}"
     with contextlib.suppress(Exception):  # a scheduler gone: the run will say so
         if "dashboard" in client.scheduler_info(n_workers=0).get("services", {}):
             return f"dask dashboard at {client.dashboard_link}"
-    if not _bokeh():
-        return f"no dask dashboard: it needs bokeh; {DASHBOARD_FIX}"
     return "no dask dashboard: the scheduler runs none"
 
 

@@ -59,7 +59,7 @@ from rbstudy.pipeline.store import (
 from rbstudy.pipeline.variables import evaluate
 from rbstudy.schemes import get_ready
 
-__all__ = ["run_study", "StudyRun", "compute_batch", "compute_references"]
+__all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
 # The folder, among the part files, where batch jobs write their output (else SLURM writes
 # slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
@@ -97,6 +97,19 @@ class StudyRun:
     damaged_parts: int = 0
     archive_problems: tuple = ()
     returned: int = 0
+
+    @property
+    def said(self):
+        """What the run did, in the words of its progress's end line."""
+        return ("up to date" if self.up_to_date else
+                f"{self.computed} batches run, {self.reused} reused")
+
+
+def study_progress(study, quiet=False):
+    """The `rbstudy.pipeline.progress.Progress` of a sweep of ``study`` (its start line
+    counts the cases and batches), to enter and hand to `run_study`."""
+    return Progress(study.name, f"{len(study.cases)} cases in {len(study.batches)} batches",
+                    quiet=quiet)
 
 
 def compute_references(table, rows, n_times, output_interval):
@@ -164,7 +177,7 @@ def _show_compiling(progress, name, compiling):
         progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes")
     else:
         progress.update(f"{name}: compiling {', '.join(running)}" if running
-                        else f"{name}: compiled", done)
+                        else f"{name}: loading the compiled schemes", done)
 
 
 def study_lock(folder):
@@ -336,15 +349,12 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
             with contextlib.ExitStack() as stack:
                 own = progress is None
                 if own:
-                    progress = stack.enter_context(Progress(
-                        study.name, f"{len(study.cases)} cases in {len(study.batches)} batches",
-                        quiet=quiet))
+                    progress = stack.enter_context(study_progress(study, quiet))
                 run = _run_in(folder, study, _Where(scheduler, workers, cluster, writer,
                                                     worker_wait),
                               force, progress, keep_parts, started, started_clock)
                 if own:
-                    progress.end = ("up to date" if run.up_to_date else
-                                    f"{run.computed} batches run, {run.reused} reused")
+                    progress.end = run.said
             return run
         except OSError as error:  # the folder refused a write (an immutable one under --force)
             if (error.errno not in WRITE_REFUSALS or error.filename is None
@@ -412,7 +422,7 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         digests = {}
         if not force:
-            progress.phase(f"{study.name}: checking the stored parts", len(study.batches),
+            progress.phase(f"{study.name}: checking stored parts", len(study.batches),
                            "parts")
             for batch in study.batches:
                 digests[batch.id] = part_complete(parts[batch.id], batch)

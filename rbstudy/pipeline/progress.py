@@ -34,7 +34,7 @@ WIDTH = 100
 # Redraws per second: the elapsed time shows tenths.
 _REDRAWS = 10
 # The columns of the phase's words; longer words end in an ellipsis.
-_WORDS = 46
+_WORDS = 50
 # The displays drawing now, whose redrawing a fork waits for (`_hold_for_fork`).
 _LIVE = []
 _LIVE_LOCK = threading.Lock()
@@ -55,12 +55,12 @@ class _Counts(ProgressColumn):
         elapsed = task.elapsed or 0.0
         if task.total is None:
             return Text(f"{elapsed:5.1f} s")
-        unit = task.fields.get("unit", "")
         done, total = int(task.completed), int(task.total)
-        text = f"{done}/{total} {unit}  {elapsed:5.1f} s"
+        text = f"{done}/{total} {task.fields.get('unit', '')} {elapsed:5.1f} s"
         if done and elapsed > 0:
             rate = done / elapsed
-            text += f"  {rate:.3g} {unit}/s  ~{(total - done) / rate:.0f} s left"
+            per_second = f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
+            text += f" {per_second}/s ~{(total - done) / rate:.0f} s left"
         return Text(text)
 
 
@@ -113,7 +113,8 @@ class Progress:
                 TextColumn("{task.description}", markup=False,
                            table_column=Column(no_wrap=True, overflow="ellipsis",
                                                max_width=_WORDS)),
-                BarColumn(bar_width=None, table_column=Column(ratio=1)), _Counts(),
+                BarColumn(bar_width=None, table_column=Column(ratio=1)),
+                _Counts(table_column=Column(no_wrap=True)),
                 console=console, refresh_per_second=_REDRAWS, transient=True,
                 redirect_stdout=False, redirect_stderr=False, get_time=self.clock,
                 expand=True)
@@ -138,9 +139,9 @@ class Progress:
     def phase(self, what, total=None, unit=""):
         """A new phase of the work, ``what`` (``abaqus_top: running batches``): the bar counts
         to ``total`` (None: a spinner) in ``unit``, from 0 and with its own timer."""
-        if self._display is not None:
-            self._display.reset(self._task, total=total, completed=0, description=what,
-                                unit=unit)
+        if self._display is not None:  # a task of its own: rich keeps a total once set
+            self._display.remove_task(self._task)
+            self._task = self._display.add_task(what, total=total, unit=unit)
 
     def update(self, what=None, done=None):
         """The phase's words and how much of it is done, as they change."""
