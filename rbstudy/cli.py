@@ -509,7 +509,7 @@ def build_parser():
     bench.add_argument("--body-steps", type=_whole_number, metavar="N",
                        help="body-steps per figure (default 1e7, at most 1e9; fewer for a "
                             "quick look)")
-    bench.add_argument("--quiet", action="store_true", help="no progress line")
+    bench.add_argument("--quiet", action="store_true", help="no progress")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
         "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
@@ -524,7 +524,7 @@ def build_parser():
     conformance.add_argument("--out", default="conformance",
                              help="folder of the golden studies, their archives and the "
                                   "scorecard (default: conformance/)")
-    conformance.add_argument("--quiet", action="store_true", help="no progress lines")
+    conformance.add_argument("--quiet", action="store_true", help="no progress")
     conformance.set_defaults(run=_conformance)
     return parser
 
