@@ -279,9 +279,8 @@ def _plot(args):
                                  "plot them one at a time, each with its own --out", path)
     for path in args.files:
         folder = folders[path]
-        with Progress(path, f"drawing its figures into {folder}",
-                      quiet=args.quiet) as progress:
-            progress.phase(f"{path}: reading")
+        with Progress(path, f"drawing its figures into {folder}", quiet=args.quiet,
+                      opening="reading") as progress:
             dataset = _select(opened(path), args.select, path)
             figures = all_figures(dataset, folder, tuple(args.format),
                                   processes=default_threads(), progress=progress)
@@ -390,8 +389,8 @@ def _report(args):
     from rbstudy.pipeline.progress import Progress
     folder = args.out or pathlib.Path(args.file).parent / "report"
     _check_out(folder, given=bool(args.out))
-    with Progress(args.file, f"writing its report into {folder}", quiet=args.quiet) as progress:
-        progress.phase(f"{args.file}: reading")
+    with Progress(args.file, f"writing its report into {folder}", quiet=args.quiet,
+                  opening="reading") as progress:
         dataset = open_archive(args.file, verify=not args.no_verify)
         report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
                               progress=progress)

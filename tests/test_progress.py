@@ -113,6 +113,9 @@ def test_no_bar_in_ci_or_when_quiet(monkeypatch):
     monkeypatch.setenv("CI", "true")
     assert not live_wanted(False, Terminal())
     stream = Terminal()
+    with Progress("study", "4 cases", stream=stream):
+        pass  # work refused before its first phase: its one error line alone, no start
+    assert stream.getvalue() == ""
     with Progress("study", "4 cases", stream=stream) as progress:
         progress.phase("study: running batches", 4, "cases")
         progress.advance(4)

@@ -7,8 +7,9 @@ its timer ticks while a batch or a figure is under way, not only when one ends: 
 the rate and the time left; a phase without a total shows a spinner and its elapsed time.
 The line is erased when the work ends: the verb's own result line follows on stdout.
 Elsewhere (a pipe, a file, ``CI`` set) a start line and an end line, nothing between; with
-``--quiet`` nothing. Lines that must be read (the first run's compile notice) are `say`-ed
-in all but the quiet case.
+``--quiet`` nothing. The start line waits for the work's first phase, so that input refused
+before it (an archive that is not one) is told in its one error line alone. Lines that
+must be read (the first run's compile notice) are `say`-ed in all but the quiet case.
 
 rich rather than tqdm: rich's live display redraws itself on its own thread (tqdm redraws
 when it is updated, so a ticking timer would be a thread of ours), has a spinner for phases
@@ -85,17 +86,19 @@ if hasattr(os, "register_at_fork"):
 
 class Progress:
     """The progress of one piece of work named ``label`` (a study, an archive, the bench),
-    a context manager: a live bar on a terminal (`live_wanted`), else ``label: start`` on
-    entry and ``label: <end> in <s> s`` on a clean exit (`end`, "done" unless set); nothing
+    a context manager: a live bar on a terminal (`live_wanted`), showing ``opening`` (words
+    after the label) until the first `phase`; else ``label: start`` at the first `phase` and
+    ``label: <end> in <s> s`` on a clean exit after it (`end`, "done" unless set); nothing
     when ``quiet``. ``clock`` (seconds) is rich's and the end line's clock."""
 
-    def __init__(self, label, start, quiet=False, stream=None, clock=time.monotonic):
-        self.label, self.start, self.quiet = label, start, quiet
+    def __init__(self, label, start, quiet=False, stream=None, clock=time.monotonic,
+                 opening=None):
+        self.label, self.start, self.quiet, self.opening = label, start, quiet, opening
         self.stream = stream or sys.stderr
         self.clock = clock
         self.end = "done"
-        self._display = self._task = None
-        self._began = None
+        self._display = self._task = self._began = None
+        self._started = False
 
     @property
     def live(self):
@@ -118,12 +121,11 @@ class Progress:
                 console=console, refresh_per_second=_REDRAWS, transient=True,
                 redirect_stdout=False, redirect_stderr=False, get_time=self.clock,
                 expand=True)
-            self._task = self._display.add_task(self.label, total=None, unit="")
+            words = self.label if self.opening is None else f"{self.label}: {self.opening}"
+            self._task = self._display.add_task(words, total=None, unit="")
             with _LIVE_LOCK:
                 self._display.start()
                 _LIVE.append(self._display)
-        elif not self.quiet:
-            self._line(f"{self.label}: {self.start}")
         return self
 
     def __exit__(self, kind, error, trace):
@@ -132,13 +134,14 @@ class Progress:
                 _LIVE.remove(self._display)
             self._display.stop()
             self._display = None
-        elif kind is None and not self.quiet:
+        elif kind is None and self._started and not self.quiet:
             self._line(f"{self.label}: {self.end} in {self.clock() - self._began:.1f} s")
         return False
 
     def phase(self, what, total=None, unit=""):
         """A new phase of the work, ``what`` (``abaqus_top: running batches``): the bar counts
         to ``total`` (None: a spinner) in ``unit``, from 0 and with its own timer."""
+        self._begin()
         if self._display is not None:  # a task of its own: rich keeps a total once set
             self._display.remove_task(self._task)
             self._task = self._display.add_task(what, total=total, unit=unit)
@@ -154,7 +157,9 @@ class Progress:
             self._display.advance(self._task, amount)
 
     def say(self, text):
-        """A line to read whatever the stream is (above the bar on a terminal), unless quiet."""
+        """A line to read whatever the stream is (above the bar on a terminal), unless quiet;
+        off a terminal after the start line."""
+        self._begin()
         if self._display is not None:
             self._display.console.print(text, markup=False, soft_wrap=True)
         elif not self.quiet:
@@ -166,6 +171,12 @@ class Progress:
             self._display.console.print(text, markup=False, soft_wrap=True)
         else:
             print(text, flush=True)
+
+    def _begin(self):
+        """The start line, off a terminal, before anything else this work prints."""
+        if not self._started and self._display is None and not self.quiet:
+            self._line(f"{self.label}: {self.start}")
+        self._started = True
 
     def _line(self, text):
         self.stream.write(text + "\n")
