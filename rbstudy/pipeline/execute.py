@@ -171,9 +171,9 @@ def _show_compiling(progress, name, compiling):
     total, done, running = compiling.total, compiling.done, compiling.running
     if not done and not running:
         plural = "s" * (total > 1)
-        progress.say(f"{name}: compiling {total} scheme{plural} first, "
-                     f"{compiling.processes} at a time: once per machine and rbstudy version,"
-                     f"\n  into numba's cache {compiling.cache}")
+        progress.say(f"{name}: compiling {total} scheme{plural} first, {compiling.processes} "
+                     "at a time, once per machine\n  and rbstudy version, into numba's cache "
+                     f"{compiling.cache}")
         progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes")
     else:
         progress.update(f"{name}: compiling {', '.join(running)}" if running
