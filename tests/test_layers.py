@@ -27,7 +27,7 @@ OUTSIDE = {
     "engines": {"numpy", "mujoco", "pybullet"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
-                 "yaml", "filelock"},
+                 "yaml", "filelock", "rich"},
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once
