@@ -21,8 +21,12 @@ the one its solver takes:
   node (``ModelError``: "explicit integrator detected node 0 which contains algebraic
   variables"; tests/test_exudyn.py).
 
-Every scene is represented: loads go in as a force and a moment in the world frame at the
-centre of mass (``LoadForceVector``, ``LoadTorqueVector``), held over the step. Exudyn writes
+Every scene is represented. Its constant loads are Exudyn's own (``LoadForceVector``,
+``LoadTorqueVector``, in space or body axes; a space force at a node as a force at a body
+point), which its solvers evaluate at every stage and Newton iterate, so that the schemes
+keep their order under loads; loads tabulated in time go in as a force and a moment in the
+world frame at the centre of mass, held over the step (Exudyn would call back into Python
+at every stage for them). Exudyn writes
 nothing and prints nothing here: its solution, sensor and restart files, its console output
 and its statistics are turned off, and the step is fixed (no step-size control, no adaptive
 step reduction after a failed Newton).
@@ -72,9 +76,8 @@ VERSION = importlib.metadata.version("exudyn")
 SPECTRAL_RADIUS = 0.9
 # Per thread: the running bodies' systems (dask may step batches in several threads).
 _LOCAL = threading.local()
-# Where a body's number in this thread's list of systems, and whether a load was set on it
-# last step (1.0) or not (0.0), are kept in its work row.
-_ID, _LOADED = 0, 1
+# Where a body's number in this thread's list of systems is kept in its work row.
+_ID = 0
 
 
 def _parse_spectral_radius(value):
@@ -195,18 +198,22 @@ class _Kind:
 
 
 class _Body:
-    """One body in a system of its own, with its solver, started at its initial state."""
+    """One body in a system of its own, with its solver, started at its initial state: the
+    node ``node`` of ``kind``, the mass, inertias and loads of the parameter row ``p``."""
 
-    def __init__(self, kind, node, mass, inertia, h, spectral_radius):
+    def __init__(self, kind, node, p, h, spectral_radius):
         self.container = exudyn.SystemContainer()
         mbs = self.mbs = self.container.AddSystem()
         number = mbs.AddNode(node)
-        mbs.AddObject(items.ObjectRigidBody(mass=mass, inertia=[*inertia, 0.0, 0.0, 0.0],
-                                            nodeNumber=number))
-        marker = mbs.AddMarker(items.MarkerNodeRigid(nodeNumber=number))
-        self.force = mbs.AddLoad(items.LoadForceVector(markerNumber=marker, bodyFixed=False,
+        body = mbs.AddObject(items.ObjectRigidBody(
+            mass=float(p[S.MASS]), inertia=[*p[S.INERTIA:S.INERTIA + 3].tolist(), 0.0, 0.0, 0.0],
+            nodeNumber=number))
+        centre = mbs.AddMarker(items.MarkerNodeRigid(nodeNumber=number))
+        _add_constant_loads(mbs, body, centre, p)
+        # the loads tabulated in time, held over each step (`hold`)
+        self.force = mbs.AddLoad(items.LoadForceVector(markerNumber=centre, bodyFixed=False,
                                                        loadVector=[0.0, 0.0, 0.0]))
-        self.moment = mbs.AddLoad(items.LoadTorqueVector(markerNumber=marker, bodyFixed=False,
+        self.moment = mbs.AddLoad(items.LoadTorqueVector(markerNumber=centre, bodyFixed=False,
                                                          loadVector=[0.0, 0.0, 0.0]))
         mbs.Assemble()
         self.reference = np.array(node.referenceCoordinates)
@@ -215,7 +222,8 @@ class _Body:
                        else exudyn.MainSolverExplicit())
         self.solver.InitializeSolver(mbs, self.settings)
 
-    def load(self, force, moment):
+    def hold(self, force, moment):
+        """The world ``force`` and ``moment`` (3,) at the centre of mass over the next step."""
         self.mbs.SetLoadParameter(self.force, "loadVector", force.tolist())
         self.mbs.SetLoadParameter(self.moment, "loadVector", moment.tolist())
 
@@ -229,6 +237,32 @@ class _Body:
         iteration.endTime = iteration.currentTime + h
         done = self.solver.SolveSteps(self.mbs, self.settings)
         return done, iteration.newtonStepsCount - before
+
+
+def _add_constant_loads(mbs, body, centre, p):
+    """The constant loads of the parameter row ``p`` as Exudyn's own loads on ``body`` (whose
+    node's marker is ``centre``), which its solvers evaluate at every stage and Newton
+    iterate, as rbstudy's schemes do: forces and moments in space (``bodyFixed=False``) or
+    in body axes (``True``), the weight, and the space forces at body-fixed points. Those
+    are rows ``k_b`` of `S.LEVER` whose moment is ``sum_b (R e_b) x k_b``: a force ``k_b`` at
+    the body point ``e_b`` each, less their sum at the centre of mass (the node forces' sum
+    is in the space force already)."""
+    lever = p[S.LEVER:S.LEVER + 9].reshape(3, 3)
+    space_force = (p[S.FORCE_SPACE:S.FORCE_SPACE + 3] + p[S.MASS] * p[S.GRAVITY:S.GRAVITY + 3]
+                   - lever.sum(axis=0))
+    loads = [(items.LoadForceVector, centre, space_force, False),
+             (items.LoadForceVector, centre, p[S.FORCE_BODY:S.FORCE_BODY + 3], True),
+             (items.LoadTorqueVector, centre, p[S.MOMENT_SPACE:S.MOMENT_SPACE + 3], False),
+             (items.LoadTorqueVector, centre, p[S.MOMENT_BODY:S.MOMENT_BODY + 3], True)]
+    for axis, force in enumerate(lever):
+        if force.any():
+            point = mbs.AddMarker(items.MarkerBodyPosition(
+                bodyNumber=body, localPosition=np.eye(3)[axis].tolist()))
+            loads.append((items.LoadForceVector, point, force, False))
+    for load, marker, vector, body_fixed in loads:
+        if vector.any():
+            mbs.AddLoad(load(markerNumber=marker, loadVector=vector.tolist(),
+                             bodyFixed=body_fixed))
 
 
 def _bodies():
@@ -245,13 +279,24 @@ def _starter(kind):
         bodies = _bodies()
         bodies.clear()
         for k, node in enumerate(kind.node(y)):
-            bodies.append(_Body(kind, node, float(p[k, S.MASS]),
-                                p[k, S.INERTIA:S.INERTIA + 3].tolist(), h, float(opt[k, 0])))
+            bodies.append(_Body(kind, node, p[k], h, float(opt[k, 0])))
         work[:, _ID] = np.arange(len(y))
-        work[:, _LOADED] = 0.0
         return OK
 
     return init
+
+
+def _hold_tabulated_loads(bodies, y, p, t):
+    """The loads tabulated in time of the bodies that have them, at the step's start ``t``,
+    held over the step (`_Body.hold`): Exudyn would call back into Python at every stage."""
+    timed = np.flatnonzero(p[:, S.KNOTS] > 0)
+    if timed.size:
+        tabulated_only = p[timed].copy()
+        tabulated_only[:, S.FORCE_SPACE:S.KNOTS] = 0.0  # the constant loads are Exudyn's
+        force, moment = batch_loads(y[timed], tabulated_only, t)
+        moment = to_world(y[timed, S.QUATERNION:S.QUATERNION + 4], moment)
+        for j, k in enumerate(timed.tolist()):
+            bodies[k].hold(force[j], moment[j])
 
 
 def _stepper(kind):
@@ -259,12 +304,7 @@ def _stepper(kind):
 
     def step(y, p, opt, t, h, work):
         bodies = [_bodies()[k] for k in work[:, _ID].astype(int).tolist()]
-        force, moment = batch_loads(y, p, t)
-        moment = to_world(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
-        loaded = force.any(axis=1) | moment.any(axis=1)
-        for k in np.flatnonzero(loaded | (work[:, _LOADED] > 0.0)).tolist():
-            bodies[k].load(force[k], moment[k])  # also the zeros after a load has ended
-        work[:, _LOADED] = loaded
+        _hold_tabulated_loads(bodies, y, p, t)
         status = np.full(len(y), OK)
         iterations = np.zeros(len(y), dtype=np.int64)
         for k, body in enumerate(bodies):
@@ -291,7 +331,7 @@ def _scheme(name, kind, order, summary, step_seconds, options=()):
         implicit=kind.implicit,
         keeps=(),
         options=options,
-        run_bodies_inplace=make_batch_entry(_stepper(kind), _starter(kind), n_work=2),
+        run_bodies_inplace=make_batch_entry(_stepper(kind), _starter(kind), n_work=1),
         reference="Gerstmayr, Exudyn, Multibody System Dynamics 2023; Arnold & Bruls, "
                   "Multibody System Dynamics 2007; Holzinger & Gerstmayr, Multibody System "
                   "Dynamics 2021",
