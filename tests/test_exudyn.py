@@ -5,7 +5,7 @@ prints nothing."""
 
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, final_orientation_errors, write_study
+from conftest import LOADED, abaqus_mapping, final_orientation_errors, write_study
 from engine_cases import compared_scenes, difference, make_scene
 from scipy.spatial.transform import Rotation
 
@@ -80,6 +80,27 @@ def test_exudyns_own_test_of_its_lie_group_rk44_is_reproduced():
 def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
     errors = final_orientation_errors(_asymmetric(4.0), scheme, [0.01, 0.005, 0.0025], 0.04)
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.1)
+
+
+@pytest.mark.parametrize("scheme, order", [("exudyn_genalpha", 2), ("exudyn_rk44", 4)])
+def test_constant_loads_are_exudyns_own_and_keep_the_order(scheme, order):
+    """The loaded body (moments and forces in space and body axes, gravity): Exudyn evaluates
+    its loads at every stage and iterate, so its schemes keep their order (held over the
+    step, as loads tabulated in time are, they would be of order 1)."""
+    errors = final_orientation_errors(make_scene(**LOADED), scheme, [0.01, 0.005, 0.0025], 0.01)
+    np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.1)
+
+
+def test_loads_tabulated_in_time_are_held_over_the_step():
+    """A moment tabulated as a constant in time is the constant moment held over each step:
+    the two runs differ by O(h)."""
+    held = {"moment_body": {"table": [[0.0, 0.2, -0.1, 0.3], [5.0, 0.2, -0.1, 0.3]]}}
+    scenes = [make_scene(**{**LOADED, "loads": loads}) for loads in
+              ({"moment_body": [0.2, -0.1, 0.3]}, held)]
+    coarse, fine = (np.max(np.abs(np.diff(simulate(scenes, "exudyn_rk44", dt, 0.01)
+                                          .output.samples, axis=0))) for dt in (0.01, 0.005))
+    assert coarse > 1e-4
+    assert np.log2(coarse / fine) == pytest.approx(1.0, abs=0.1)
 
 
 def test_on_the_abaqus_top_generalized_alpha_is_of_hhts_order_with_a_larger_error():
