@@ -26,18 +26,18 @@ Every scene is represented. Its constant loads are Exudyn's own (``LoadForceVect
 point), which its solvers evaluate at every stage and Newton iterate, so that the schemes
 keep their order under loads; loads tabulated in time go in as a force and a moment in the
 world frame at the centre of mass, held over the step (Exudyn would call back into Python
-at every stage for them). Exudyn writes
-nothing and prints nothing here: its solution, sensor and restart files, its console output
-and its statistics are turned off, and the step is fixed (no step-size control, no adaptive
-step reduction after a failed Newton).
+at every stage for them). Exudyn writes nothing and prints nothing here: its solution,
+sensor and restart files, its console output and its statistics are turned off, and the step
+is fixed (no step-size control, no adaptive step reduction after a failed Newton).
 
 Each body is a system of its own (``SystemContainer``) with its own solver, kept from the
 scheme's init to the end of its run, so that the generalized-alpha solver carries its
 algorithmic accelerations from step to step as in one ``SolveDynamic``, and a body's Newton
-iterations do not depend on the bodies beside it. Each step sets the solver's end time one
-step ahead and calls ``SolveSteps``: the states agree with one ``SolveDynamic`` over the run
-to the bit (explicit) and to 2e-10 (the Newton tolerance; generalized alpha). The coordinates are
-read back with ``GetODE2Coordinates`` (and ``_t``), displacements from the node's reference:
+iterations do not depend on the bodies beside it. Each step moves the solver's start and
+end time one step on and calls ``SolveSteps``: the states agree with one ``SolveDynamic``
+over the run to the bit (explicit) and to 2e-10 (the Newton tolerance; generalized alpha).
+The coordinates are read back with ``GetODE2Coordinates`` (and ``_t``), displacements from
+the node's reference:
 
 - Euler parameters ``(e0, e1, e2, e3)``, scalar *first*, body to world, held at unit norm to
   the Newton tolerance; the angular velocity in the body frame is ``2 conj(e) e_t``.
@@ -121,7 +121,7 @@ def _settings(solver_type, h, spectral_radius):
     integration.automaticStepSize = False
     integration.explicit.useLieGroupIntegration = True
     integration.generalizedAlpha.spectralRadius = spectral_radius
-    # the end time moves one step ahead each step (`step`); the step is endTime / numberOfSteps
+    # a step of (endTime - startTime) / numberOfSteps = h; `_Body.step` moves both ends on
     integration.numberOfSteps = 1
     integration.endTime = h
     return settings
