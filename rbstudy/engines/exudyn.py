@@ -342,10 +342,10 @@ def _scheme(name, kind, order, summary, step_seconds, options=()):
 
 GENALPHA = _scheme("exudyn_genalpha",
                    _Kind(exudyn.DynamicSolverType.GeneralizedAlpha, euler_parameters=True), 2,
-                   "generalized alpha (implicit) on Euler parameters", 1.3e-05,
+                   "generalized alpha (implicit) on Euler parameters", 1.2e-05,
                    (SPECTRAL_RADIUS_OPTION,))
 RK44 = _scheme("exudyn_rk44", _Kind(exudyn.DynamicSolverType.RK44, euler_parameters=False), 4,
                "RK44 (explicit, Lie group) on a rotation vector", 1.2e-05)
 MIDPOINT = _scheme("exudyn_midpoint",
                    _Kind(exudyn.DynamicSolverType.ExplicitMidpoint, euler_parameters=False), 2,
-                   "explicit midpoint (Lie group) on a rotation vector", 1.5e-05)
+                   "explicit midpoint (Lie group) on a rotation vector", 9.3e-06)
