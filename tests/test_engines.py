@@ -25,7 +25,13 @@ BINDINGS = {
     "rbstudy.engines.mujoco": ("mujoco", 'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")'),
     "rbstudy.engines.bullet": ("pybullet",
                                'pip install "pybullet>=3.2.7" (rbstudy\'s extra "engines")'),
+    "rbstudy.engines.exudyn": ("exudyn", 'pip install "exudyn>=1.13.6" (rbstudy\'s extra "engines")'),
 }
+
+# Schemes that integrate the rotation's coordinates, not on the rotation group, and so miss a
+# steady rotation by O(h^2): their bound on the constant spins (tests/test_<engine>.py shows
+# the order), the other schemes' being 1e-12.
+STEADY_SPIN_ERROR = {"exudyn_genalpha": 1e-3}  # Euler parameters as coordinates: 2.6e-4
 
 
 def _schemes_of(adapter):
@@ -91,9 +97,10 @@ def test_a_constant_spin_turns_the_body_about_its_own_axis(engine_scheme, axis):
     times = dt * np.arange(n_steps + 1)
     expected = turned * Rotation.from_rotvec(times[:, None] * spin)
     reached = Rotation.from_quat(samples[:, S.QUATERNION:S.QUATERNION + 4])
-    assert np.max((expected.inv() * reached).magnitude()) < 1e-12
+    bound = STEADY_SPIN_ERROR.get(engine_scheme, 1e-12)
+    assert np.max((expected.inv() * reached).magnitude()) < bound
     np.testing.assert_allclose(samples[:, S.OMEGA:S.OMEGA + 3], np.tile(spin, (n_steps + 1, 1)),
-                               atol=1e-12)
+                               atol=bound)
     np.testing.assert_allclose(samples[:, S.POSITION:S.POSITION + 3],
                                times[:, None] * [0.5, -0.25, 1.0], atol=1e-12)
     wrong = Rotation.from_rotvec(times[:, None] * spin) * turned  # w taken in the world frame

@@ -120,6 +120,13 @@ SCHEME_STYLES = {
     "mujoco_implicitfast": ("tab:gray", ">", "-"),
     "mujoco_implicit": ("darkgoldenrod", "x", "--"),
     "mujoco_rk4": ("magenta", "*", "-."),
+    # Bullet's bodies take MuJoCo's Euler and implicit steps, Exudyn's RK44 is rkmk4 to O(h^5):
+    # each of them another marker and dash than the line it lies on
+    "bullet_multibody": ("teal", "d", "--"),
+    "bullet_rigidbody": ("sienna", "h", ":"),
+    "exudyn_genalpha": ("darkgreen", "p", "-."),
+    "exudyn_rk44": ("crimson", "8", ":"),
+    "exudyn_midpoint": ("slateblue", "H", "--"),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),

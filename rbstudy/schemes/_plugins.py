@@ -62,6 +62,9 @@ ENGINES = {
     "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
     "bullet_multibody": "rbstudy.engines.bullet:MULTIBODY",
     "bullet_rigidbody": "rbstudy.engines.bullet:RIGIDBODY",
+    "exudyn_genalpha": "rbstudy.engines.exudyn:GENALPHA",
+    "exudyn_rk44": "rbstudy.engines.exudyn:RK44",
+    "exudyn_midpoint": "rbstudy.engines.exudyn:MIDPOINT",
 }
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
