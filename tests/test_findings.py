@@ -266,7 +266,7 @@ def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys)
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err == (f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
-                            "file; give the <study>.nc written by rbstudy sweep\n")
+                            "file (a text file); give the <study>.nc written by rbstudy sweep\n")
 
 
 @pytest.mark.parametrize("name", SHIPPED)
