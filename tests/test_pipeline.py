@@ -86,6 +86,8 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
     assert not {"checksums", "part_checksums"} & set(ds.attrs)
     assert ds.attrs["source"].startswith(f"rbstudy {importlib.metadata.version('rbstudy')}")
     # labels xarray's plots can use whole: "long_name [units]"; the explanation apart
+    for name, variable in ds.variables.items():  # the coordinates' too
+        assert len(variable.attrs.get("long_name", "")) <= LONG_NAME_MAX, name
     for name, variable in ds.data_vars.items():
         assert 0 < len(variable.attrs["long_name"]) <= LONG_NAME_MAX, name
         assert variable.attrs["description"] not in ("", variable.attrs["long_name"]), name

@@ -239,9 +239,9 @@ COORDINATES = {
 SCHEME_COORDINATES = {
     "nominal_order": ("order", "1", "nominal global order of accuracy of the scheme"),
     "claimed_invariants": ("keeps", None,
-                           "invariants the scheme keeps to round-off for a moment-free body"),
+                           "invariants kept to round-off by a moment-free body"),
     "scheme_origin": ("origin", None,
-                      "who provides the scheme: rbstudy, or a plug-in's package and version"),
+                      "provider of the scheme: rbstudy, or a package and version"),
 }
 
 # Units of a value swept by dotted path, found from the last key of the path that is listed
