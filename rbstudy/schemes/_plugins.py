@@ -62,6 +62,10 @@ ENGINES = {
     "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
     "bullet_multibody": "rbstudy.engines.bullet:MULTIBODY",
     "bullet_rigidbody": "rbstudy.engines.bullet:RIGIDBODY",
+    "drake_rk2": "rbstudy.engines.drake:RK2",
+    "drake_rk3": "rbstudy.engines.drake:RK3",
+    "drake_implicit_euler": "rbstudy.engines.drake:IMPLICIT_EULER",
+    "drake_discrete": "rbstudy.engines.drake:DISCRETE",
 }
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
