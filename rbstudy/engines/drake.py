@@ -9,14 +9,16 @@ differ only in how Drake advances the same ``MultibodyPlant``:
 - continuous time (``MultibodyPlant(time_step=0)``), through a ``Simulator`` whose integrator
   is chosen by ``ResetIntegratorFromFlags`` and put in fixed-step mode (error control off):
   ``runge_kutta2`` (explicit trapezoid, order 2), ``runge_kutta3`` (order 3), and
-  ``implicit_euler`` (order 1; Newton on the whole state, its Jacobian formed afresh at each
-  step, see below). Each integrates the plant's ODE for the state ``(q, v)``, the quaternion
+  ``implicit_euler`` (order 1): backward Euler on the whole state in the world frame, which
+  Drake advances by the two steps of dt/2 it takes for its error estimate, by Newton
+  iterations that stop at Drake's default tolerance (1e-4 of a step's turn at |w| dt = 0.5),
+  its Jacobian formed afresh at each step (below). Each integrates the plant's ODE for the state ``(q, v)``, the quaternion
   by ``dq/dt = 1/2 q (0, w)``, as any other coordinate: the quaternion's norm drifts (Drake
   issue 14800), and Drake's kinematics normalise it.
 - discrete time (``MultibodyPlant(time_step=dt)``), the stepping robotics users run: the
   velocity by the forces at the step's start (the gyroscopic term explicit), then
   ``q += dt N(q) v_next``, again without normalising. Drake 1.51's default discrete model is
-  the ``lagged`` approximation, solved by SAP; TAMSI gives the same numbers to the bit on a
+  the ``lagged`` approximation, solved by SAP; TAMSI gives the same numbers to round-off on a
   body without contact (tests/test_drake.py), both being the free motion. Order 1.
 
 The scene as Drake sees it: one plant per thread and scheme (and step, for the discrete plant,
@@ -52,6 +54,7 @@ calling thread: Drake steps there (docs/engines.md).
 """
 
 import importlib.metadata
+import math
 import threading
 
 import numpy as np
@@ -87,6 +90,9 @@ VERSION = importlib.metadata.version("drake")
 _LOCAL = threading.local()
 # Plants kept per thread: one per (scheme, dt) of the studies it has run.
 _MAX_PLANTS = 64
+# Drake 1.51's default discrete model of a plant: SAP's solver of the lagged approximation.
+# TAMSI (`kTamsi`) gives the same numbers, to round-off, on a body without contact.
+_DISCRETE_MODEL = DiscreteContactApproximation.kLagged
 # Where a body's quaternion norm, as Drake holds it, is carried in its work row.
 _NORM = 0
 
@@ -103,7 +109,7 @@ class _Plant:
                                                          RotationalInertia(1.0, 1.0, 1.0)))
         self.plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
         if not flag:
-            self.plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+            self.plant.set_discrete_contact_approximation(_DISCRETE_MODEL)
         self.plant.Finalize()
         self.context = self.plant.CreateDefaultContext()
         self.simulator = Simulator(self.plant, self.context)
@@ -174,7 +180,7 @@ def _stepper(flag):
             except RuntimeError:  # Drake's implicit step failed to converge
                 status[k] = NOT_CONVERGED
                 continue
-            work[k, _NORM] = np.linalg.norm(q[:4])
+            work[k, _NORM] = math.hypot(*q[:4])  # inf, not an overflow warning, past 1e154
             y[k, S.QUATERNION + 3] = q[0] / work[k, _NORM]  # scalar last
             y[k, S.QUATERNION:S.QUATERNION + 3] = q[1:4] / work[k, _NORM]
             y[k, S.POSITION:S.POSITION + 3] = q[4:]
