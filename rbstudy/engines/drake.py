@@ -12,9 +12,9 @@ differ only in how Drake advances the same ``MultibodyPlant``:
   ``implicit_euler`` (order 1): backward Euler on the whole state in the world frame, which
   Drake advances by the two steps of dt/2 it takes for its error estimate, by Newton
   iterations that stop at Drake's default tolerance (1e-4 of a step's turn at |w| dt = 0.5),
-  its Jacobian formed afresh at each step (below). Each integrates the plant's ODE for the state ``(q, v)``, the quaternion
-  by ``dq/dt = 1/2 q (0, w)``, as any other coordinate: the quaternion's norm drifts (Drake
-  issue 14800), and Drake's kinematics normalise it.
+  its Jacobian formed afresh at each step (below). Each integrates the plant's ODE for the
+  state ``(q, v)``, the quaternion by ``dq/dt = 1/2 q (0, w)``, as any other coordinate: the
+  quaternion's norm drifts (Drake issue 14800), and Drake's kinematics normalise it.
 - discrete time (``MultibodyPlant(time_step=dt)``), the stepping robotics users run: the
   velocity by the forces at the step's start (the gyroscopic term explicit), then
   ``q += dt N(q) v_next``, again without normalising. Drake 1.51's default discrete model is
