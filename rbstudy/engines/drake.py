@@ -116,25 +116,25 @@ class _Plant:
         if flag:
             ResetIntegratorFromFlags(self.simulator, flag, h).set_fixed_step_mode(True)
         self.h, self.inertia, self.load = h, None, None
-        self._fix_load(np.zeros(6))
+        self._fix_load([0.0] * 6)
 
-    def step(self, q, v, p, load):
-        """One step from positions ``q`` (7,), velocities ``v`` (6,), with the body's parameter
-        row ``p`` and ``load`` (6,) (force, moment in the world): (q, v) after it."""
-        inertia = tuple(p[S.MASS:S.INERTIA + 3].tolist())
+    def step(self, x, inertia, load):
+        """One step from the state ``x`` (13,: Drake's positions, then velocities), with the
+        body's mass and principal inertias ``inertia`` (4-tuple) and ``load`` (a 6-list: force,
+        moment in the world): the state (13,) after it."""
         if inertia != self.inertia:
             mass, *principal = inertia
             self.body.SetSpatialInertiaInBodyFrame(
                 self.context, SpatialInertia.MakeFromCentralInertia(
                     mass, [0.0] * 3, RotationalInertia(*principal)))
             self.inertia = inertia
-        if not np.array_equal(load, self.load):
+        if load != self.load:
             self._fix_load(load)
-        self.plant.SetPositionsAndVelocities(self.context, np.concatenate([q, v]))
+        self.plant.SetPositionsAndVelocities(self.context, x)
         self.context.SetTime(0.0)
         self.simulator.Initialize()
         self.simulator.AdvanceTo(self.h)
-        return self.plant.GetPositions(self.context), self.plant.GetVelocities(self.context)
+        return self.plant.GetPositionsAndVelocities(self.context)
 
     def _fix_load(self, load):
         applied = ExternallyAppliedSpatialForce()
@@ -142,7 +142,7 @@ class _Plant:
         applied.p_BoBq_B = np.zeros(3)
         applied.F_Bq_W = SpatialForce(tau=load[3:], f=load[:3])
         self.plant.get_applied_spatial_force_input_port().FixValue(self.context, [applied])
-        self.load = load.copy()
+        self.load = load
 
 
 def _plant(flag, h):
@@ -168,26 +168,27 @@ def _stepper(flag):
         plant = _plant(flag, h)
         force, moment = batch_loads(y, p, t)
         unit = y[:, S.QUATERNION:S.QUATERNION + 4]
-        loads = np.concatenate([force, to_world(unit, moment)], axis=1)
-        spin = to_world(unit, y[:, S.OMEGA:S.OMEGA + 3])
+        # Drake's states (n, 13): the quaternion scalar first at Drake's norm, the position;
+        # the angular velocity in the world, the velocity
+        x = np.concatenate([unit[:, 3:] * work[:, _NORM, None], unit[:, :3] * work[:, _NORM, None],
+                            y[:, S.POSITION:S.POSITION + 3],
+                            to_world(unit, y[:, S.OMEGA:S.OMEGA + 3]),
+                            y[:, S.VELOCITY:S.VELOCITY + 3]], axis=1)
+        loads = np.concatenate([force, to_world(unit, moment)], axis=1).tolist()
+        inertias = [tuple(row) for row in p[:, S.MASS:S.INERTIA + 3].tolist()]
         status = np.full(len(y), OK)
         for k in range(len(y)):
-            q = np.concatenate([unit[k, 3:], unit[k, :3], y[k, S.POSITION:S.POSITION + 3]])
-            q[:4] *= work[k, _NORM]
-            v = np.concatenate([spin[k], y[k, S.VELOCITY:S.VELOCITY + 3]])
             try:
-                q, v = plant.step(q, v, p[k], loads[k])
-            except RuntimeError:  # Drake's implicit step failed to converge
+                x[k] = plant.step(x[k], inertias[k], loads[k])
+            except RuntimeError:  # Drake's implicit step failed to converge: the body as it was
                 status[k] = NOT_CONVERGED
-                continue
-            work[k, _NORM] = math.hypot(*q[:4])  # inf, not an overflow warning, past 1e154
-            y[k, S.QUATERNION + 3] = q[0] / work[k, _NORM]  # scalar last
-            y[k, S.QUATERNION:S.QUATERNION + 3] = q[1:4] / work[k, _NORM]
-            y[k, S.POSITION:S.POSITION + 3] = q[4:]
-            y[k, S.VELOCITY:S.VELOCITY + 3] = v[3:]
-            spin[k] = v[:3]
-        # the angular velocities read back in the world frame, into the body frame at once
-        y[:, S.OMEGA:S.OMEGA + 3] = to_body(y[:, S.QUATERNION:S.QUATERNION + 4], spin)
+        # inf, not an overflow warning, past 1e154
+        work[:, _NORM] = [math.hypot(*row) for row in x[:, :4].tolist()]
+        unit = np.concatenate([x[:, 1:4], x[:, :1]], axis=1) / work[:, _NORM, None]
+        y[:, S.QUATERNION:S.QUATERNION + 4] = unit
+        y[:, S.POSITION:S.POSITION + 3] = x[:, 4:7]
+        y[:, S.OMEGA:S.OMEGA + 3] = to_body(unit, x[:, 7:10])
+        y[:, S.VELOCITY:S.VELOCITY + 3] = x[:, 10:13]
         return status, 0
 
     return step
