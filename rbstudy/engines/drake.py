@@ -210,10 +210,10 @@ def _scheme(name, flag, order, summary, step_seconds):
 
 
 RK2 = _scheme("drake_rk2", "runge_kutta2", 2,
-              "RungeKutta2Integrator, fixed step, on the continuous plant", 1e-05)
+              "RungeKutta2Integrator, fixed step, on the continuous plant", 1.5e-05)
 RK3 = _scheme("drake_rk3", "runge_kutta3", 3,
-              "RungeKutta3Integrator, fixed step (error control off)", 1.2e-05)
+              "RungeKutta3Integrator, fixed step (error control off)", 1.8e-05)
 IMPLICIT_EULER = _scheme("drake_implicit_euler", "implicit_euler", 1,
-                         "ImplicitEulerIntegrator, fixed step (error control off)", 8e-05)
+                         "ImplicitEulerIntegrator, fixed step (error control off)", 7.9e-05)
 DISCRETE = _scheme("drake_discrete", None, 1,
-                   "discrete MultibodyPlant (time_step = dt, SAP): explicit forces", 1e-05)
+                   "discrete MultibodyPlant (time_step = dt, SAP): explicit forces", 1.6e-05)
