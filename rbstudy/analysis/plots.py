@@ -119,6 +119,11 @@ SCHEME_STYLES = {
     "mujoco_implicitfast": ("tab:gray", ">", "-"),
     "mujoco_implicit": ("darkgoldenrod", "x", "--"),
     "mujoco_rk4": ("magenta", "*", "-."),
+    # Drake's (rbstudy.engines.drake)
+    "drake_rk2": ("teal", "d", "-"),
+    "drake_rk3": ("crimson", "h", "--"),
+    "drake_implicit_euler": ("darkgreen", "p", "-."),
+    "drake_discrete": ("sienna", "H", ":"),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
