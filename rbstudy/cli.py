@@ -193,7 +193,7 @@ def _sweep(args):
     from rbstudy.analysis.findings import FINDINGS_VARIABLES
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.config import load_study
-    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.execute import run_study, study_progress
     from rbstudy.pipeline.store import folder_claim
     # all configs checked before any run, each with every --set
     studies = [load_study(path, args.set) for path in args.files]
@@ -212,9 +212,16 @@ def _sweep(args):
             _say(line)
         if replaced:  # even when quiet: it says whose results the run deletes
             _say(replaced)
-        done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
-                         force=args.force, quiet=args.quiet, keep_parts=args.keep_parts,
-                         cluster=cluster, writer=args.writer, worker_wait=args.worker_wait)
+        with study_progress(study, args.quiet) as progress:
+            done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
+                             force=args.force, keep_parts=args.keep_parts, cluster=cluster,
+                             writer=args.writer, worker_wait=args.worker_wait,
+                             progress=progress)
+            progress.phase(f"{study.name}: reading its findings")
+            # proven by this run: sealed as written, or verified before it was reused
+            summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
+                                    wide=args.wide)
+            progress.end = done.said
         if done.archive_problems:
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
                  "rebuilt it")
@@ -230,9 +237,7 @@ def _sweep(args):
         if done.returned:
             _say(f"{study.name}: {done.returned} parts written here from the values the "
                  "workers sent back (they do not see the results folder)")
-        # proven by this run: sealed as written, or verified before it was reused
-        print(_summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
-                            wide=args.wide))
+        print(summary)
     return 0
 
 
@@ -276,6 +281,7 @@ def _plot(args):
     from rbstudy.analysis.plots import all_figures
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.progress import Progress
     if args.select and not args.out:
         raise RbstudyError("--select needs --out: the selected figures would replace the "
                            "study's full set beside the archive")
@@ -293,9 +299,12 @@ def _plot(args):
                                  "plot them one at a time, each with its own --out", path)
     formats = tuple(dict.fromkeys(args.format or ("png",)))  # `--format png,svg,png`: once
     for path in args.files:
-        dataset = _select(opened(path), args.select, path)
         folder = folders[path]
-        figures = all_figures(dataset, folder, formats, processes=default_threads())
+        with Progress(path, f"drawing its figures into {folder}", quiet=args.quiet,
+                      opening="reading") as progress:
+            dataset = _select(opened(path), args.select, path)
+            figures = all_figures(dataset, folder, formats, processes=default_threads(),
+                                  progress=progress)
         kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         if not args.quiet:
@@ -350,12 +359,18 @@ def _conformance(args):
     )
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
+    from rbstudy.pipeline.progress import Progress
     from rbstudy.pipeline.store import write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells = {}
-    for case, archive in zip(cases, run_golden(paths, out, quiet=args.quiet), strict=True):
-        cells[case.name] = score_case(open_archive(archive), case.rules, schemes)
+    with Progress("conformance", f"{len(schemes)} schemes x {len(cases)} golden cases",
+                  quiet=args.quiet) as progress:
+        archives = run_golden(paths, out, progress)
+        progress.phase("conformance: scoring", len(cases), "cases")
+        for case, archive in zip(cases, archives, strict=True):
+            cells[case.name] = score_case(open_archive(archive), case.rules, schemes)
+            progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
@@ -410,6 +425,7 @@ def _report(args):
     from rbstudy.analysis.report import write_report
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.progress import Progress
     opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) == 1:  # -o names the report folder itself, as cp's target names a copy
         folders = [pathlib.Path(args.out or pathlib.Path(args.files[0]).parent / "report")]
@@ -418,14 +434,11 @@ def _report(args):
         folders = _report_folders(args.files, studies, args.out)
     for folder in dict.fromkeys(folders):
         _check_out(folder, given=bool(args.out))
-
-    def progress(figures, reused):  # a line per figure as its drawing is done
-        for png in figures.written:
-            print(f"  {'reused' if reused else 'drawn'}: {png.name}", file=sys.stderr, flush=True)
-
     for path, folder in zip(args.files, folders, strict=True):
-        report = write_report(opened(path), folder, processes=default_threads(), svg=args.svg,
-                              progress=None if args.quiet else progress)
+        with Progress(path, f"writing its report into {folder}", quiet=args.quiet,
+                      opening="reading") as progress:
+            report = write_report(opened(path), folder, processes=default_threads(),
+                                  svg=args.svg, progress=progress)
         print(f"{path}: report in {report}")
     return 0
 
@@ -550,7 +563,7 @@ def build_parser():
     _list_argument(plot, "--format", choices=("png", "svg"), metavar="FORMAT",
                    help="file formats: png, svg (default: png; an SVG takes as long again)")
     plot.add_argument("-q", "--quiet", action="store_true",
-                      help="no note of the figures not drawn: a line per file only")
+                      help="no progress and no note of the figures not drawn: a line per file")
     _no_verify_argument(plot)
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of each results file")
@@ -561,7 +574,7 @@ def build_parser():
     report.add_argument("--svg", action="store_true",
                         help="also write each figure as SVG in the report's figures/ folder and "
                              "link it (the report itself embeds the PNGs either way)")
-    report.add_argument("-q", "--quiet", action="store_true", help="no line per figure")
+    report.add_argument("-q", "--quiet", action="store_true", help="no progress")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
     summary = commands.add_parser("summary", help="print the findings and the per-scheme "
@@ -592,7 +605,7 @@ def build_parser():
     bench.add_argument("--body-steps", type=_whole_number, metavar="N",
                        help="body-steps per figure (default 1e7, at most 1e9; fewer for a "
                             "quick look)")
-    bench.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    bench.add_argument("-q", "--quiet", action="store_true", help="no progress")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
         "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
@@ -607,7 +620,7 @@ def build_parser():
     conformance.add_argument("-o", "--out", metavar="DIR", default="conformance",
                              help="folder of the golden studies, their archives and the "
                                   "scorecard (default: conformance/)")
-    conformance.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    conformance.add_argument("-q", "--quiet", action="store_true", help="no progress")
     conformance.set_defaults(run=_conformance)
     return parser
 

@@ -186,7 +186,7 @@ def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path
 
 
 def test_every_scheme_has_a_style_of_its_own():
-    """rbstudy's own schemes and MuJoCo's (plug-ins take the styles of other lines)."""
+    """rbstudy's own schemes and the engines' (plug-ins take the styles of other lines)."""
     from rbstudy.analysis.plots import SCHEME_STYLES
     from rbstudy.schemes._plugins import ENGINES
     own = [*BUILTIN, *ENGINES]
@@ -194,7 +194,8 @@ def test_every_scheme_has_a_style_of_its_own():
     styles = [SCHEME_STYLES[name] for name in own]
     assert len({color for color, _, _ in styles}) == len(styles)
     for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4"),
-                 ("mujoco_implicitfast", "mujoco_implicit")):
+                 ("mujoco_implicitfast", "mujoco_implicit"), ("bullet_multibody", "mujoco_euler"),
+                 ("bullet_rigidbody", "mujoco_implicit"), ("exudyn_rk44", "rkmk4")):
         # curves that coincide: another marker and another dash, so that both show
         assert SCHEME_STYLES[a][1:] != SCHEME_STYLES[b][1:]
         assert SCHEME_STYLES[a][2] != SCHEME_STYLES[b][2]

@@ -201,11 +201,12 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
     with _tmpfs(tmp_path / "disk", (1 + 2 * pages) * PAGE + part // 2) as disk:
         sweep = ["sweep", str(config), "--out", str(disk / "out")]
         assert main(sweep) == 1
-        error = capsys.readouterr().err.strip()
+        # stderr is no terminal: the run's start line, then the error in one line
+        start, error = capsys.readouterr().err.strip().splitlines()
+        assert start == "small: 4 cases in 4 batches"
         assert error.endswith(f": no space left on the file system at {disk}; free space "
                               "and rerun the same command (a sweep keeps its finished parts "
                               "and resumes)")
-        assert "\n" not in error
         parts = disk / "out" / "small" / "parts"
         kept = sorted(parts.glob("*.nc"))
         assert len(kept) == 2 and len(list(parts.glob("*.sha256"))) == 2

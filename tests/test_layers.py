@@ -24,10 +24,10 @@ RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 OUTSIDE = {
     "numerics": {"numpy", "numba"},
     "schemes": {"numpy", "numba"},
-    "engines": {"numpy", "mujoco", "pybullet", "pydrake"},  # each adapter its engine's own bindings
+    "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
-                 "yaml", "filelock"},
+                 "yaml", "filelock", "rich"},
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once

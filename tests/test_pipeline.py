@@ -31,7 +31,7 @@ from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline import cluster, execute
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
-from rbstudy.pipeline.execute import Progress, run_study, study_lock
+from rbstudy.pipeline.execute import run_study, study_lock
 from rbstudy.pipeline.outputs import VERDICTS
 from rbstudy.pipeline.store import open_results
 from rbstudy.pipeline.variables import LONG_NAME_MAX
@@ -427,16 +427,6 @@ def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
     assert "1/2" in euler_row  # one of its two cases unstable
     assert (ds.reference.attrs["flag_meanings"].split()[int(euler.reference)]
             == "exact_asymmetric")
-
-
-def test_progress_shows_cases_elapsed_and_remaining(tmp_path):
-    with open(tmp_path / "bar", "w") as stream:
-        bar = Progress(10, "study", enabled=True, stream=stream)
-        bar.advance(4)
-        bar.advance(6)
-    text = (tmp_path / "bar").read_text()
-    assert "10/10 cases" in text and "elapsed" in text and "remaining" in text
-    assert text.endswith("\n")
 
 
 def test_unwritable_results_folder_is_one_line(tmp_path):

@@ -14,7 +14,6 @@ below the blow-up bound over the long single-body run; output is sampled every
 """
 
 import math
-import sys
 import time
 
 import numpy as np
@@ -23,7 +22,7 @@ from rbstudy.analysis.summary import wrap_clauses
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.scenes import scene_from_mapping
-from rbstudy.pipeline.execute import progress_wanted
+from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import SCHEMES, get_scheme
 
 __all__ = ["run_bench", "abaqus_top_scene", "BODY_STEPS", "MAX_BODY_STEPS"]
@@ -62,59 +61,55 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
     return taken / out.kernel_seconds, out
 
 
-def _progress(enabled):
-    """``note(text)``: redraws one status line on a terminal's stderr (nothing elsewhere,
-    as a sweep's bar: `rbstudy.pipeline.execute.progress_wanted`)."""
-    live = progress_wanted(quiet=not enabled)
-
-    def note(text):
-        if live:
-            sys.stderr.write(f"\r{text:<60s}\r" if text else f"\r{'':60s}\r")
-            sys.stderr.flush()
-    return note
-
-
-def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, echo=print,
-              progress=True):
-    """Measure and print the figures (a progress line on a terminal while each runs);
-    returns them as a list of dicts."""
+def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, progress=True):
+    """Measure the figures and print them as a table on stdout, each scheme's compilation
+    and measurements shown meanwhile (`rbstudy.pipeline.progress.Progress`) unless
+    ``progress`` is False; returns them as a list of dicts."""
     chosen = [get_scheme(name) for name in schemes or SCHEMES]  # unknown names fail first
     scene = abaqus_top_scene()
     cores = default_threads()
-    note = _progress(progress)
     rows = []
-    for line in wrap_clauses(
-            f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per "
-            f"figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), {cores} "
-            "cores; rates in body-steps/s of B bodies", indent="  "):
-        echo(line)
-    width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's name may be long
-    # two header lines, so that six rates keep to 100 columns
-    echo(f"{'':{width}s} {'compile':>9s}" + "".join(f" {f'B={size}':>{_RATE}s}" * 2
-                                                     for size in batch_sizes))
-    echo(f"{'scheme':{width}s} {'s':>9s}" + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}"
-         * len(batch_sizes))
-    for scheme in chosen:
-        name = scheme.name
-        note(f"{name}: compiling")
-        start = time.perf_counter()
-        scheme.ensure_compiled()
-        compile_seconds = time.perf_counter() - start
-        line = f"{name:{width}s} {compile_seconds:9.2f}"
-        row = {"scheme": name, "compile_seconds": compile_seconds}
-        for size in batch_sizes:
-            steps = max(1, body_steps // size)
-            if scheme.adaptive:
-                if size > 1:
-                    line += f" {'-':>{_RATE}s} {'-':>{_RATE}s}"
-                    continue
-                steps = REFERENCE_STEPS
-            for threads in (1, cores):
-                note(f"{name}: B={size}, {threads} thread(s), {steps * size:.1e} body-steps")
-                rate, _ = _rate(scheme, scene, size, steps, threads)
-                row[f"B{size}_threads{threads}"] = rate
-                line += f" {rate:{_RATE}.3e}"
-        note("")
-        echo(line)
-        rows.append(row)
+    with Progress("bench", f"{len(chosen)} schemes", quiet=not progress) as shown:
+        for line in wrap_clauses(
+                f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps "
+                f"per figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), "
+                f"{cores} cores; rates in body-steps/s of B bodies", indent="  "):
+            shown.echo(line)
+        width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's may be long
+        # two header lines, so that six rates keep to 100 columns
+        shown.echo(f"{'':{width}s} {'compile':>9s}" + "".join(f" {f'B={size}':>{_RATE}s}" * 2
+                                                              for size in batch_sizes))
+        shown.echo(f"{'scheme':{width}s} {'s':>9s}"
+                   + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}" * len(batch_sizes))
+        for scheme in chosen:
+            rows.append(_measure(scheme, scene, batch_sizes, body_steps, cores, width, shown))
     return rows
+
+
+def _measure(scheme, scene, batch_sizes, body_steps, cores, width, progress):
+    """One scheme's row of figures, printed as a line of the table by ``progress``."""
+    name = scheme.name
+    progress.phase(f"bench: compiling {name}")
+    start = time.perf_counter()
+    scheme.ensure_compiled()
+    compile_seconds = time.perf_counter() - start
+    line = f"{name:{width}s} {compile_seconds:9.2f}"
+    row = {"scheme": name, "compile_seconds": compile_seconds}
+    sizes = batch_sizes[:1] if scheme.adaptive else batch_sizes
+    progress.phase(f"bench: measuring {name}", 2 * len(sizes), "figures")
+    for size in batch_sizes:
+        steps = max(1, body_steps // size)
+        if scheme.adaptive:
+            if size > 1:
+                line += f" {'-':>{_RATE}s} {'-':>{_RATE}s}"
+                continue
+            steps = REFERENCE_STEPS
+        for threads in (1, cores):
+            progress.update(f"bench: {name}, B={size} on {threads} thread"
+                            + "s" * (threads > 1))
+            rate, _ = _rate(scheme, scene, size, steps, threads)
+            row[f"B{size}_threads{threads}"] = rate
+            line += f" {rate:{_RATE}.3e}"
+            progress.advance()
+    progress.echo(line)
+    return row

@@ -68,6 +68,7 @@ from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
+from rbstudy.pipeline.progress import SILENT  # noqa: E402
 from rbstudy.pipeline.store import inside, write_text_atomic  # noqa: E402
 
 __all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
@@ -119,11 +120,18 @@ SCHEME_STYLES = {
     "mujoco_implicitfast": ("tab:gray", ">", "-"),
     "mujoco_implicit": ("darkgoldenrod", "x", "--"),
     "mujoco_rk4": ("magenta", "*", "-."),
+    # Bullet's bodies take MuJoCo's Euler and implicit steps, Exudyn's RK44 is rkmk4 to O(h^5):
+    # each of them another marker and dash than the line it lies on
+    "bullet_multibody": ("teal", "d", "--"),
+    "bullet_rigidbody": ("sienna", "h", ":"),
+    "exudyn_genalpha": ("darkgreen", "p", "-."),
+    "exudyn_rk44": ("crimson", "8", ":"),
+    "exudyn_midpoint": ("slateblue", "H", "--"),
     # Drake's (rbstudy.engines.drake)
-    "drake_rk2": ("teal", "d", "-"),
-    "drake_rk3": ("crimson", "h", "--"),
-    "drake_implicit_euler": ("darkgreen", "p", "-."),
-    "drake_discrete": ("sienna", "H", ":"),
+    "drake_rk2": ("mediumvioletred", "d", "-"),
+    "drake_rk3": ("olivedrab", "h", "--"),
+    "drake_implicit_euler": ("chocolate", "p", "-."),
+    "drake_discrete": ("steelblue", "1", ":"),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
@@ -1010,7 +1018,7 @@ def _recorded(manifest, digest, formats):
     return reused
 
 
-def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=None):
+def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why), in the same order however drawn.
 
@@ -1023,7 +1031,8 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
     ``digest`` (a text naming what the figures are drawn from: the report's digest of the
     dataset and the sources that draw it) keeps the figures recorded beside them under the
     same digest and draws only the others; without it every figure is drawn and the record
-    removed. ``progress(figures, reused)`` is called per drawing, in order, as it is done.
+    removed. ``progress`` (`rbstudy.pipeline.progress.Progress`) counts the drawings as they
+    are done, and its end line tells the figures drawn and reused.
     """
     global _INHERITED
     folder = pathlib.Path(folder)
@@ -1039,6 +1048,7 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
     processes = min(processes, len(todo))
     _INHERITED = (ds, folder, formats)
     done = dict(reused)
+    progress.phase(f"{ds.attrs['study']}: drawing figures", len(todo), "drawings")
     try:
         with contextlib.ExitStack() as stack:
             if processes > 1 and "fork" in multiprocessing.get_all_start_methods():
@@ -1046,16 +1056,17 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
                 drawings = pool.imap(_draw, todo, chunksize=1)
             else:
                 drawings = map(_draw, todo)
-            for index in range(len(_DRAWINGS)):
-                if index not in reused:
-                    done[index] = next(drawings)
-                if progress is not None:
-                    progress(done[index], index in reused)
+            for index in todo:
+                done[index] = next(drawings)
+                progress.advance()
     finally:
         _INHERITED = None
     figures = Figures()
     for index in range(len(_DRAWINGS)):
         figures += done[index]
+    kept = sum(len(done[index].written) for index in reused)
+    drawn = len(figures.written) - kept
+    progress.end = f"{drawn} figure{'s' * (drawn != 1)} drawn, {kept} reused"
     if digest is not None:
         record = {"digest": digest, "drawings": [
             {"written": [path.stem for path in done[index].written],

@@ -50,6 +50,7 @@ from rbstudy.physics.metrics import (
     MIN_CONVERGENCE_ORDER,
     ORDER_SPREAD,
 )
+from rbstudy.pipeline.progress import SILENT
 from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.reader import Reader
 
@@ -254,10 +255,10 @@ def _table_intro(ds):
             "orientation error at any sample, relative for energy and |L|).")
 
 
-def write_report(ds, out, processes=1, svg=False, progress=None):
+def write_report(ds, out, processes=1, svg=False, progress=SILENT):
     """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
     ``out/figures/`` in ``processes`` processes, with SVG files linked when ``svg``;
-    ``progress`` as `rbstudy.analysis.plots.all_figures` takes it); returns its path."""
+    shown by ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path."""
     out = pathlib.Path(out)
     # before the folder is claimed: the study names the figure files
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
@@ -265,6 +266,7 @@ def write_report(ds, out, processes=1, svg=False, progress=None):
     formats = FORMATS + ("svg",) if svg else FORMATS
     figures = all_figures(ds, out / "figures", formats, processes, digest=figures_digest(ds),
                           progress=progress)
+    progress.phase(f"{study}: writing {REPORT_NAME}")
     names = [png.stem.removeprefix(f"{study}_") for png in figures.written]
     rows = scheme_rows(ds)
     found = findings(ds, rows)

@@ -20,6 +20,7 @@ a fixed number of jobs that have all ended ends the run at once.
 """
 
 import contextlib
+import importlib.util
 import logging
 import math
 import pathlib
@@ -36,8 +37,8 @@ from rbstudy.pipeline.store import write_part
 from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 
-__all__ = ["ClusterFile", "read_cluster_file", "connect", "run_on_cluster", "WRITERS",
-           "WORKER_WAIT", "CONNECT_TIMEOUT"]
+__all__ = ["ClusterFile", "read_cluster_file", "connect", "run_on_cluster", "dashboard_line",
+           "WRITERS", "WORKER_WAIT", "CONNECT_TIMEOUT"]
 
 WRITERS = ("auto", "workers", "client")
 # Seconds to wait for a first worker (batch jobs queue) or for workers to come back.
@@ -67,6 +68,8 @@ JOBS_LOOK_SECONDS = 5.0
 # again; a completing one may still be requeued).
 _SLURM_ENDED = frozenset({"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED",
                           "NODE_FAIL", "OUT_OF_MEMORY", "TIMEOUT"})
+# How to get dask's dashboard, which bokeh draws (distributed's optional dependency).
+DASHBOARD_FIX = "pip install 'rbstudy[dashboard]'"
 # The module of a study's tasks, which the forkserver of local workers imports.
 TASKS_MODULE = "rbstudy.pipeline.execute"
 
@@ -150,6 +153,24 @@ def dask_setup(worker):
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _bokeh():
+    """Whether bokeh, which draws dask's dashboard, is installed."""
+    return importlib.util.find_spec("bokeh") is not None
+
+
+def dashboard_line(client):
+    """Where the dask dashboard of ``client``'s scheduler is, or why there is none and how to
+    get one, in one line. Without bokeh here there is none: the scheduler serves its
+    dashboard's address all the same, with nothing on its pages (a remote scheduler with
+    bokeh of its own is taken for one without)."""
+    if not _bokeh():
+        return f"no dask dashboard: it needs bokeh; {DASHBOARD_FIX}"
+    with contextlib.suppress(Exception):  # a scheduler gone: the run will say so
+        if "dashboard" in client.scheduler_info(n_workers=0).get("services", {}):
+            return f"dask dashboard at {client.dashboard_link}"
+    return "no dask dashboard: the scheduler runs none"
+
+
 def _start(spec, logs=None):
     """The cluster ``spec`` describes, started and scaled (not yet connected); a job
     cluster's jobs write their output into ``logs`` unless the cluster file or dask's
@@ -157,7 +178,9 @@ def _start(spec, logs=None):
     if spec.kind == "local":
         make, name = _forked_local_cluster, "LocalCluster"
         options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
-                   "dashboard_address": None, "silence_logs": logging.CRITICAL,
+                   # on a free port, where bokeh can draw it
+                   "dashboard_address": ":0" if _bokeh() else None,
+                   "silence_logs": logging.CRITICAL,
                    "preload": [__name__], **spec.options}  # its dask_setup, in each worker
     else:
         try:
@@ -276,8 +299,8 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                 elif waiting_since is None:
                     waiting_since = now
                     if not seen_workers:
-                        progress.say(f"waiting up to {worker_wait:g} s for a worker to join "
-                                     f"{where}")
+                        progress.say(f"{progress.label}: waiting up to {worker_wait:g} s for "
+                                     f"a worker to join {where}")
                 else:
                     word = None
                     if fixed_jobs and now - asked >= JOBS_LOOK_SECONDS:

@@ -13,11 +13,11 @@ A study folder is locked while a sweep writes it; a rerun skips the batches whos
 so a killed sweep resumes where it stopped.
 """
 
+import contextlib
 import functools
 import os
 import pathlib
 import shutil
-import sys
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
@@ -33,10 +33,11 @@ from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.simulate import simulate
-from rbstudy.pipeline.cluster import WORKER_WAIT, connect, run_on_cluster
+from rbstudy.pipeline.cluster import WORKER_WAIT, connect, dashboard_line, run_on_cluster
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
+from rbstudy.pipeline.progress import Progress
 from rbstudy.pipeline.store import (
     WRITE_REFUSALS,
     Layout,
@@ -58,10 +59,8 @@ from rbstudy.pipeline.store import (
 from rbstudy.pipeline.variables import evaluate
 from rbstudy.schemes import get_ready
 
-__all__ = ["run_study", "StudyRun", "compute_batch", "compute_references", "Progress"]
+__all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
-# Seconds between two redraws of the progress bar.
-_REDRAW_SECONDS = 0.2
 # The folder, among the part files, where batch jobs write their output (else SLURM writes
 # slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
 # with them when it succeeds.
@@ -100,6 +99,19 @@ class StudyRun:
     damaged_parts: int = 0
     archive_problems: tuple = ()
     returned: int = 0
+
+    @property
+    def said(self):
+        """What the run did, in the words of its progress's end line."""
+        return ("up to date" if self.up_to_date else
+                f"{self.computed} batches run, {self.reused} reused")
+
+
+def study_progress(study, quiet=False):
+    """The `rbstudy.pipeline.progress.Progress` of a sweep of ``study`` (its start line
+    counts the cases and batches), to enter and hand to `run_study`."""
+    return Progress(study.name, f"{len(study.cases)} cases in {len(study.batches)} batches",
+                    quiet=quiet)
 
 
 def compute_references(table, rows, n_times, output_interval):
@@ -155,41 +167,19 @@ def sees_folder(probe):
         return False
 
 
-class Progress:
-    """Cases done / total, elapsed and remaining time, redrawn in place on a terminal."""
-
-    def __init__(self, total, label, enabled, stream=sys.stderr):
-        self.total, self.label, self.enabled, self.stream = total, label, enabled, stream
-        self.done = 0
-        self.start = time.perf_counter()
-        self._drawn = 0.0
-
-    def say(self, text):
-        """A line of its own, for what the bar cannot show (a cluster still without workers)."""
-        if self.enabled:
-            self.stream.write(f"{self.label}: {text}\n")
-            self.stream.flush()
-
-    def advance(self, cases):
-        self.done += cases
-        now = time.perf_counter()
-        if self.enabled and (now - self._drawn > _REDRAW_SECONDS or self.done == self.total):
-            self._drawn = now
-            elapsed = now - self.start
-            remaining = elapsed / self.done * (self.total - self.done) if self.done else 0.0
-            width = 30
-            filled = int(width * self.done / max(self.total, 1))
-            self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
-                              f"{self.done}/{self.total} cases, elapsed {elapsed:5.1f} s, "
-                              f"remaining {remaining:5.1f} s")
-            if self.done == self.total:
-                self.stream.write("\n")
-            self.stream.flush()
-
-
-def progress_wanted(quiet):
-    """A bar only on a terminal, never in CI or with --quiet."""
-    return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
+def _show_compiling(progress, name, compiling):
+    """`rbstudy.schemes.get_ready`'s watch: a first run said before anything is compiled, on
+    any stream, then shown as it goes."""
+    total, done, running = compiling.total, compiling.done, compiling.running
+    if not done and not running:
+        plural = "s" * (total > 1)
+        progress.say(f"{name}: compiling {total} scheme{plural} first, {compiling.processes} "
+                     "at a time, once per machine\n  and rbstudy version, into numba's cache "
+                     f"{compiling.cache}")
+        progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes")
+    else:
+        progress.update(f"{name}: compiling {', '.join(running)}" if running
+                        else f"{name}: loading the compiled schemes", done)
 
 
 def study_lock(folder):
@@ -307,18 +297,13 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
     return tasks, targets
 
 
-def _run_local(tasks, targets, progress, workers, schemes):
+def _run_local(tasks, targets, progress, workers):
     """Run the tasks on this process's threads; {key: digest} of the parts they wrote. On
     Ctrl-C (or when a task fails) every running kernel and reference is halted
     (`rbstudy.numerics.driver.request_halt`) and the threads are joined before the exception
     goes on: the study stays locked until nothing of this run is left working, and the
     process ends within a second."""
     from dask.callbacks import Callback
-
-    # before any batch: a compiling thread holds the GIL for long stretches, and a batch
-    # beside it would stall. A cluster's workers get ready at their first batch instead (a
-    # worker that joins late is not missed; with the cache warm that takes milliseconds).
-    get_ready(schemes, workers)
 
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
@@ -342,7 +327,8 @@ def _run_local(tasks, targets, progress, workers, schemes):
 
 
 def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False,
-              keep_parts=False, cluster=None, writer="auto", worker_wait=WORKER_WAIT):
+              keep_parts=False, cluster=None, writer="auto", worker_wait=WORKER_WAIT,
+              progress=None):
     """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
 
     Parameters
@@ -353,13 +339,16 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     workers : start a LocalCluster of this many single-threaded worker processes, or None.
     cluster : start the cluster of a `rbstudy.pipeline.cluster.ClusterFile`, or None.
     force : recompute every batch even when its part or a current archive exists.
-    quiet : no progress bar.
+    quiet : no progress (`rbstudy.pipeline.progress`: a bar on a terminal, else a start
+        and an end line).
     keep_parts : keep ``parts/`` after the archive is written (else it is removed: the
         archive holds everything; until then the parts are what a rerun resumes from).
     writer : on a cluster, who writes the part files: "workers", "client" (this process,
         from the values the workers send back) or "auto" (the workers where they see the
         results folder).
     worker_wait : seconds a cluster may have no worker before the run ends (jobs queue).
+    progress : a `rbstudy.pipeline.progress.Progress` under way to show the run in (the
+        conformance's golden studies share one), else the study's own.
     """
     started_clock = time.perf_counter()
     started = utc_now()
@@ -368,9 +357,16 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
     folder = _prepare(root, study)
     try:
         try:
-            return _run_in(folder, study, _Where(scheduler, workers, cluster, writer,
-                                                 worker_wait),
-                           force, quiet, keep_parts, started, started_clock)
+            with contextlib.ExitStack() as stack:
+                own = progress is None
+                if own:
+                    progress = stack.enter_context(study_progress(study, quiet))
+                run = _run_in(folder, study, _Where(scheduler, workers, cluster, writer,
+                                                    worker_wait),
+                              force, progress, keep_parts, started, started_clock)
+                if own:
+                    progress.end = run.said
+            return run
         except OSError as error:  # the folder refused a write (an immutable one under --force)
             if (error.errno not in WRITE_REFUSALS or error.filename is None
                     or not pathlib.Path(error.filename).is_relative_to(folder)):
@@ -397,9 +393,15 @@ class _Where:
     def distributed(self):
         return (self.scheduler, self.workers, self.cluster) != (None, None, None)
 
+    @property
+    def starting(self):
+        """What a run does while it reaches its cluster."""
+        return (f"connecting to {self.scheduler}" if self.scheduler else
+                f"starting {self.workers} workers" if self.workers else "starting the cluster")
 
-def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clock):
-    """`run_study` inside its study folder."""
+
+def _run_in(folder, study, where, force, progress, keep_parts, started, started_clock):
+    """`run_study` inside its study folder, shown by ``progress``."""
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
     try:
@@ -429,8 +431,13 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
             return _up_to_date(target, study, started_clock)
         parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
-        digests = {} if force else {batch.id: part_complete(parts[batch.id], batch)
-                                    for batch in study.batches}
+        digests = {}
+        if not force:
+            progress.phase(f"{study.name}: checking stored parts", len(study.batches),
+                           "parts")
+            for batch in study.batches:
+                digests[batch.id] = part_complete(parts[batch.id], batch)
+                progress.advance()
         pending = [batch for batch in study.batches if digests.get(batch.id) is None]
         # a part without its digest was stopped between its rename and its digest: unfinished
         damaged = 0 if force else sum(sealed(parts[batch.id]) for batch in pending)
@@ -441,26 +448,36 @@ def _run_in(folder, study, where, force, quiet, keep_parts, started, started_clo
         probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
         tasks, targets = _graph(study, pending, parts_dir, threads, token, where.writer,
                                 (str(probe), token) if where.distributed else None)
-        progress = Progress(sum(cases for *_, cases in targets.values()), study.name,
-                            progress_wanted(quiet))
         # the kernels take the time where the scenes have load tables (numerics/clock.py)
         timed = study.cases.scenes.loads["knots"].shape[-1] > 0
-        schemes = {(batch.scheme, timed) for batch in pending}
+        # Before any batch, whatever runs them: a compiling thread holds the GIL for long
+        # stretches, and a batch beside it would stall; a cluster's workers then load from
+        # the cache what this process put there (a worker whose processor differs compiles
+        # at its first batch), and a first run is announced here, not in a worker's log.
+        get_ready({(batch.scheme, timed) for batch in pending}, cores,
+                  watch=functools.partial(_show_compiling, progress, study.name))
+        cases = sum(cases for *_, cases in targets.values())
         written, returned = {}, 0  # the digest of each part, by its store task's key
         if tasks and where.distributed:
             probe.write_text(token)
             try:
+                progress.phase(f"{study.name}: {where.starting}")
                 with connect(where.scheduler, where.workers, where.cluster,
                              logs=parts_dir / _JOB_LOGS) as client:
+                    progress.say(f"{study.name}: {dashboard_line(client)}")
+                    progress.phase(f"{study.name}: running batches", cases, "cases")
                     written, returned = run_on_cluster(
                         client, tasks, targets, progress, where.worker_wait,
                         fixed_jobs=where.cluster is not None and where.cluster.jobs is not None)
             finally:
                 probe.unlink()
         elif tasks:
-            written = _run_local(tasks, targets, progress, cores, schemes)
+            progress.phase(f"{study.name}: running batches", cases, "cases")
+            written = _run_local(tasks, targets, progress, cores)
         digests.update({batch.id: written[key] for key, (_, batch, _, _) in targets.items()})
-        consolidate(study, parts, digests, target, global_attrs(study, started=started))
+        progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
+        consolidate(study, parts, digests, target, global_attrs(study, started=started),
+                    advance=progress.advance)
         write_text_atomic(resolved_config(study), folder / "study.yaml")
         if keep_parts:
             current = {path.name for path in parts.values()}

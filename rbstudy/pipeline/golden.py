@@ -140,6 +140,7 @@ def write_golden(folder, schemes, cases=GOLDEN, steps=4):
     return paths
 
 
-def run_golden(paths, out, quiet=False):
-    """Sweep the golden studies at ``paths`` into ``out``; returns their archives' paths."""
-    return [run_study(load_study(path), out, quiet=quiet).path for path in paths]
+def run_golden(paths, out, progress):
+    """Sweep the golden studies at ``paths`` into ``out``, shown by the one ``progress``
+    (`rbstudy.pipeline.progress.Progress`) of them all; returns their archives' paths."""
+    return [run_study(load_study(path), out, progress=progress).path for path in paths]

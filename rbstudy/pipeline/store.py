@@ -592,9 +592,10 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
     return variable
 
 
-def consolidate(study, parts, digests, target, attrs):
-    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part,
-    and seal it with its checksums and the ``digests`` of its parts (batch id -> digest)."""
+def consolidate(study, parts, digests, target, attrs, advance=lambda: None):
+    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part
+    (``advance()`` after each), and seal it with its checksums and the ``digests`` of its
+    parts (batch id -> digest)."""
     shape = study.shape
     grid = grid_coordinates(study)
     with _temporary_beside(target) as temporary, HDF5_LOCK:
@@ -626,6 +627,7 @@ def consolidate(study, parts, digests, target, attrs):
                                  tuple(d.name in along[:grid_rank] for d in study.dimensions))
             for batch in study.batches:
                 _copy_part(targets, read_part(parts[batch.id], study.variables), shape)
+                advance()
         seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
 
 

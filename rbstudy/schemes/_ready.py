@@ -19,12 +19,17 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
+from typing import NamedTuple
 
-__all__ = ["get_ready"]
+import numba
+
+__all__ = ["get_ready", "Compiling"]
 
 # A child: compile each scheme it is first to claim, every variant it is given.
 _CHILD = """
 import os, sys
+from rbstudy.schemes._ready import DONE
 from rbstudy.schemes import get_scheme
 claims = sys.argv[1]
 for item in sys.argv[2:]:
@@ -35,15 +40,36 @@ for item in sys.argv[2:]:
         continue
     for variant in variants.split(","):
         get_scheme(name).ensure_compiled(timed=variant == "timed")
+    os.close(os.open(os.path.join(claims, name + DONE), os.O_CREAT))
 """
+# The name a child gives a scheme's claim once the cache holds all its variants.
+DONE = ".done"
+# Seconds between two looks at the children's claims.
+LOOK_SECONDS = 0.1
 
 
-def get_ready(variants, processes=1):
+class Compiling(NamedTuple):
+    """How the first run's compilation goes, as `get_ready` tells its ``watch``: the
+    schemes the cache lacks (``total``), how many are done, those being compiled now, how
+    many processes compile them, and numba's cache folder, where they go."""
+
+    total: int
+    done: int
+    running: tuple
+    processes: int
+    cache: str
+
+
+def get_ready(variants, processes=1, watch=None):
     """Compile (or load from numba's cache) the schemes of ``variants``, pairs (name, timed):
     ``timed`` asks for the variant that takes the time (loads tabulated in time,
     `rbstudy.numerics.clock`). When the cache lacks more than one scheme, up to
     ``processes`` child processes compile them first. Returns the number of variants the
     children put into the cache.
+
+    ``watch(Compiling)``, when the cache lacks any scheme, is told before anything is
+    compiled (done 0) and again whenever a scheme starts or ends: a first run is announced
+    and shown, never silent.
 
     A child that fails (no memory, a broken interpreter) costs nothing but time: what it
     did not put into the cache, this process compiles itself. Ctrl-C ends the children.
@@ -55,24 +81,52 @@ def get_ready(variants, processes=1):
     for name, timed in variants:
         if not get_scheme(name).is_cached(timed):
             cold.setdefault(name, []).append(timed)
+    processes = max(1, min(processes, len(cold)))
+    tell = watch or (lambda compiling: None)
+    cache = numba.config.CACHE_DIR
+    if cold:
+        tell(Compiling(len(cold), 0, (), processes, cache))
     compiled = 0
-    if processes > 1 and len(cold) > 1:
+    if processes > 1:
         items = [f"{name}:{','.join('timed' if timed else 'plain' for timed in timings)}"
                  for name, timings in cold.items()]
         with tempfile.TemporaryDirectory(prefix="rbstudy-compile-") as claims:
             children = [subprocess.Popen([sys.executable, "-c", _CHILD, claims, *items],
                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
-                        for _ in range(min(processes, len(cold)))]
+                        for _ in range(processes)]
             try:
-                for child in children:
-                    child.wait()
+                _follow(children, claims, len(cold), tell, cache)
             except BaseException:  # Ctrl-C: no child goes on compiling behind the user
                 for child in children:
                     child.kill()
                 raise
         compiled = sum(get_scheme(name).is_cached(timed)
                        for name, timings in cold.items() for timed in timings)
-    for name, timed in variants:
+    # what no child compiled, here
+    here = [name for name, timings in cold.items() if processes == 1
+            or not all(get_scheme(name).is_cached(timed) for timed in timings)]
+    for count, name in enumerate(here):
+        tell(Compiling(len(cold), len(cold) - len(here) + count, (name,), 1, cache))
+        for timed in cold[name]:
+            get_scheme(name).ensure_compiled(timed=timed)
+    for name, timed in variants:  # loaded from the cache, in milliseconds
         get_scheme(name).ensure_compiled(timed=timed)
+    if cold:
+        tell(Compiling(len(cold), len(cold), (), processes, cache))
     return compiled
+
+
+def _follow(children, claims, total, tell, cache):
+    """Wait for the compiling ``children``, telling ``tell`` what their ``claims`` show
+    (a file per scheme claimed, another when it is done) as it changes."""
+    said = (0, ())  # as told before the children started
+    while any(child.poll() is None for child in children):
+        names = set(os.listdir(claims))
+        done = {name for name in names if name.endswith(DONE)}
+        now = (len(done), tuple(sorted(name for name in names - done
+                                       if name + DONE not in done)))
+        if now != said:
+            said = now
+            tell(Compiling(total, *now, len(children), cache))
+        time.sleep(LOOK_SECONDS)

@@ -127,8 +127,8 @@ class Scheme:
 
     def is_cached(self, timed=False):
         """Whether numba's cache holds the batch kernel's variant with the time (``timed``)
-        or without, so that `ensure_compiled` only loads it. False where the kernel cannot
-        tell (the Python entry point of dop853, whose right-hand side is compiled)."""
+        or without, so that `ensure_compiled` only loads it. False where the entry point cannot
+        tell (it has no ``is_cached``: dop853's tells of its compiled right-hand side)."""
         check = getattr(self.run_bodies_inplace, "is_cached", None)
         return bool(check and check(timed))
 

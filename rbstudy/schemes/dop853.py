@@ -17,15 +17,14 @@ This is the one scheme of the numerics layer that imports scipy; it does no I/O.
 Reference: Hairer, Norsett & Wanner, Solving ODEs I (1993), II.10; scipy.integrate.solve_ivp.
 """
 
-
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import DOP853
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import is_moment_free
+from rbstudy.numerics.entry import cache_holds
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import read3, read4, write3, write4
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE, Result
@@ -103,6 +102,10 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     ``max_steps`` bounds the accepted steps (None: no bound); ``halt`` (a (1,) array, see
     `rbstudy.numerics.driver.request_halt`) is read every step.
     """
+    # here, not at the top: scipy.integrate costs every command that loads the schemes
+    # 0.1-0.25 s, and a first run's notice should come at once (issue 30)
+    from scipy.integrate import DOP853
+
     samples = np.full((len(times), S.N_STATE), np.nan)
     samples[0] = y0
     y, start = np.array(y0, dtype=float), 0.0
@@ -176,6 +179,14 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         for name, value in row.items():
             results[b, Result[name]] = value
 
+
+def _is_cached(timed=False):
+    """(`rbstudy.schemes.Scheme.is_cached`) Whether numba's cache holds the right-hand side,
+    this scheme's one compiled kernel, which takes the time either way: 6 s to compile."""
+    return cache_holds(derivative)
+
+
+run_bodies_inplace.is_cached = _is_cached
 
 SCHEME = Scheme(
     name="dop853",
