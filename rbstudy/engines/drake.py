@@ -21,8 +21,8 @@ differ only in how Drake advances the same ``MultibodyPlant``:
   the ``lagged`` approximation, solved by SAP; TAMSI gives the same numbers to round-off on a
   body without contact (tests/test_drake.py), both being the free motion. Order 1.
 
-The scene as Drake sees it: one plant per thread and scheme (and step, for the discrete plant,
-whose step is built in), holding one free rigid body, its frame at the centre of mass along
+The scene as Drake sees it: one plant per thread, scheme and step (the discrete plant's step
+is built in; the simulator's is set once), holding one free rigid body, its frame at the centre of mass along
 the principal axes; the scene's mass and principal inertias are the context's parameters
 (``SetSpatialInertiaInBodyFrame``), Drake's gravity is off (the scene's gravity is in the
 force, as for every adapter), there is no geometry, so no contact. Each step, for each body:
@@ -43,8 +43,9 @@ Drake prints nothing when imported nor when stepping; an implicit step whose New
 fail raises, and stops that body as ``NOT_CONVERGED``.
 
 Conventions (tests/test_engines.py checks them on a body at rest and on constant spins):
-- ``GetPositions``: the unit quaternion *scalar first* (w, x, y, z), mapping body to world,
-  then the position of the body frame in the world; rbstudy's quaternion is scalar last.
+- ``GetPositions``: the quaternion *scalar first* (w, x, y, z), mapping body to world once
+  normalised, then the position of the body frame in the world; rbstudy's quaternion is
+  scalar last and of norm 1.
 - ``GetVelocities``: the angular velocity *in the world frame*, then the velocity of the
   centre of mass in the world; rbstudy's ``omega_body`` is in the body frame
   (`rbstudy.engines._frames`).
