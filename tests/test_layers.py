@@ -24,7 +24,7 @@ RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 OUTSIDE = {
     "numerics": {"numpy", "numba"},
     "schemes": {"numpy", "numba"},
-    "engines": {"numpy", "mujoco", "pybullet", "exudyn"},  # each adapter its engine's own bindings
+    "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
                  "yaml", "filelock", "rich"},

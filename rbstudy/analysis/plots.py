@@ -127,6 +127,11 @@ SCHEME_STYLES = {
     "exudyn_genalpha": ("darkgreen", "p", "-."),
     "exudyn_rk44": ("crimson", "8", ":"),
     "exudyn_midpoint": ("slateblue", "H", "--"),
+    # Drake's (rbstudy.engines.drake)
+    "drake_rk2": ("mediumvioletred", "d", "-"),
+    "drake_rk3": ("olivedrab", "h", "--"),
+    "drake_implicit_euler": ("chocolate", "p", "-."),
+    "drake_discrete": ("steelblue", "1", ":"),
 }
 # Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),

@@ -65,6 +65,10 @@ ENGINES = {
     "exudyn_genalpha": "rbstudy.engines.exudyn:GENALPHA",
     "exudyn_rk44": "rbstudy.engines.exudyn:RK44",
     "exudyn_midpoint": "rbstudy.engines.exudyn:MIDPOINT",
+    "drake_rk2": "rbstudy.engines.drake:RK2",
+    "drake_rk3": "rbstudy.engines.drake:RK3",
+    "drake_implicit_euler": "rbstudy.engines.drake:IMPLICIT_EULER",
+    "drake_discrete": "rbstudy.engines.drake:DISCRETE",
 }
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
