@@ -221,7 +221,6 @@ def _sweep(args):
             # proven by this run: sealed as written, or verified before it was reused
             summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
                                     wide=args.wide)
-            progress.end = done.said
         if done.archive_problems:
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
                  "rebuilt it")
