@@ -327,8 +327,7 @@ def _conformance(args):
     import time
 
     from rbstudy.pipeline.golden import GOLDEN
-    from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
-    from rbstudy.schemes._plugins import ENGINES
+    from rbstudy.schemes import expand_groups, get_scheme
     started = time.perf_counter()
     _check_out(args.out)
     known = {case.name: case for case in GOLDEN}
@@ -343,8 +342,7 @@ def _conformance(args):
         twice = [name for name in given or () if given.count(name) > 1]
         if twice:
             raise RbstudyError(f"{option}: {twice[0]} is given twice; name it once")
-    schemes = args.schemes or [*(name for name, s in BUILTIN.items() if not s.adaptive),
-                               *(name for name in ENGINES if name in SCHEMES)]
+    schemes = expand_groups(args.schemes or ["builtin", "engines"])
     for name in schemes:
         if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
             raise RbstudyError(f"--schemes: {name} chooses its own steps: it has no order "
@@ -609,8 +607,8 @@ def build_parser():
     conformance = commands.add_parser(
         "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
     _list_argument(conformance, "--schemes", metavar="SCHEME",
-                   help="schemes to judge (default: rbstudy's fixed-step schemes and MuJoCo's "
-                        "where it is installed)")
+                   help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), "
+                        "engines, or one engine (mujoco, drake, ...); default: builtin,engines")
     _list_argument(conformance, "--cases", metavar="CASE",
                    help="golden cases to run (default: all)")
     conformance.add_argument("--steps", type=_whole_number, default=4, metavar="N",
