@@ -366,7 +366,8 @@ def _conformance(args):
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
-            cells[case.name] = score_case(open_archive(archive), case.rules, schemes)
+            cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
+                                          case.figure)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
@@ -375,13 +376,17 @@ def _conformance(args):
               "archives it finds)", f"studies and archives: {out}",
               "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "
               f"{', '.join(baseline(schemes))}"]
+    figures = {case.name: case.figure for case in cases if case.figure is not None}
+    if figures:
+        header.append(f"figure yes/no: the scheme reproduces what the case's source asserts "
+                      f"({', '.join(figures)}; docs/results.md)")
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
              "steps": args.steps, "source": f"rbstudy {_version()}"}
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
-                                     header), out / "conformance.html")
+                                     header, figures), out / "conformance.html")
     _say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
     return 0
 

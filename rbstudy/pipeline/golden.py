@@ -18,6 +18,12 @@ before, and names the pass rules that apply to it (`rbstudy.analysis.conformance
 - `radioss_assembly`: a body assembled from a master node and secondary nodes, as Radioss
   builds one (principal axes and inertias derived).
 
+The peers' own public test cases follow, each with the `Figure` its source asserts, which the
+card checks every scheme against (docs/results.md gives the sources' lines):
+
+- `radioss_rota`: OpenRadioss's QA case ``KIN_CONSTRAINTS/RBODY/ROTA``.
+- `drake_free_body`: Drake's free-body benchmark against Kane and Levinson's closed form.
+
 `write_golden` writes each as a study config (``conformance_<case>.yaml``), which a user can
 read and rerun with `rbstudy sweep`; `run_golden` sweeps them like any study, so that an
 interrupted run resumes and a finished one is reused.
@@ -42,14 +48,39 @@ from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.schemes import BUILTIN, get_scheme
 
-__all__ = ["GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
+__all__ = ["Check", "Figure", "GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
+
+
+@dataclass(frozen=True)
+class Check:
+    """One number a source asserts: its ``measure`` (a name of
+    `rbstudy.analysis.conformance.FIGURE_MEASURES`) is ``expected`` within ``tolerance``
+    plus ``growth`` per second of simulated time, at the time ``at`` (s), or at every saved
+    time when None."""
+
+    measure: str
+    expected: float
+    tolerance: float
+    growth: float = 0.0
+    at: float | None = None
+
+
+@dataclass(frozen=True)
+class Figure:
+    """What a peer's public test asserts of a golden case: ``claim`` (a line), the ``url``
+    of the test and its ``checks``, judged at the case's own (largest) step, the source's."""
+
+    claim: str
+    url: str
+    checks: tuple
 
 
 @dataclass(frozen=True)
 class GoldenCase:
     """A study of the golden set: its ``scene`` (a config's scene mapping), the largest
-    time step ``dt`` (s; the sweep halves it three times), the output ``interval`` (s) and
-    the ``rules`` that judge it (names of `rbstudy.analysis.conformance.RULES`)."""
+    time step ``dt`` (s; the sweep halves it three times), the output ``interval`` (s), the
+    ``rules`` that judge it (names of `rbstudy.analysis.conformance.RULES`) and the
+    ``figure`` its source asserts (None: a case of rbstudy's own, asserting no number)."""
 
     name: str
     title: str
@@ -57,6 +88,7 @@ class GoldenCase:
     dt: float
     interval: float
     rules: tuple = ("order", "invariants", "energy", "failure")
+    figure: Figure | None = None
 
 
 def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
@@ -72,6 +104,35 @@ def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
 # HLW's initial angular momentum (cos 1.1, 0, sin 1.1) in body axes, as an angular velocity
 _HLW = (2.0, 1.0, 2.0 / 3.0)
 _HLW_OMEGA = (math.cos(1.1) / _HLW[0], 0.0, math.sin(1.1) / _HLW[2])
+
+# OpenRadioss QA ROTA (BLOCK_0000.rad): a rigid body of spherical inertia J = 1 (ISPHER = 1,
+# no added mass) on master node 1 at the origin, secondary node 2 at (1, 0, 0); the nodes carry
+# no mass (the run's total mass is Radioss's floor, 1e-20 kg), so the secondary adds no
+# inertia and J = 1 is the whole body's. Its master turns at w_z = 2 rad/s (an imposed
+# velocity, which a free spherical body keeps by itself) for 10 s at dt = 1e-3 s.
+_ROTA_URL = ("https://github.com/OpenRadioss/OpenRadioss/tree/main/qa-tests/miniqa/"
+             "KIN_CONSTRAINTS/RBODY/ROTA")
+_ROTA_SPIN, _ROTA_DURATION, _ROTA_DT = 2.0, 10.0, 1e-3
+# A spherical body turns at a constant rate: most schemes are exact on it to round-off at
+# these steps (w dt = 0.002), which shows no order to judge.
+_NO_ORDER = ("invariants", "energy", "failure")
+# ref.extract prints the energy to five figures (2.0000e+00): within half its last digit.
+_ROTA_ENERGY_TOLERANCE = 5e-5
+# Drake's multibody_plant_free_body_test.cc: a uniform cylinder, I = 0.04 transverse,
+# J = 0.02 axial (free_body.h), w_B(0) = (2, 4, 6) rad/s, integrated to t_final = max(4
+# periods, 10 s) = 10 s in steps of at most a sixteenth of a period (0.073 s); at every step
+# the quaternion's components within tol(t) and w_B within 2 tol(t), where tol(t) = (1 + 4 *
+# 256 t / t_final) 1e-3, and the rotation matrices' elements within tol(t). An element of
+# the difference of two rotation matrices, and twice a quaternion component's, is at most
+# the angle between them: the card asks the orientation error (rad) to stay within tol(t) and
+# |w - w_exact| (rad/s) within 2 tol(t), no looser than Drake's test.
+_DRAKE_URL = ("https://github.com/RobotLocomotion/drake/blob/master/multibody/benchmarks/"
+              "free_body/test/multibody_plant_free_body_test.cc")
+_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION = (0.04, 0.04, 0.02), (2.0, 4.0, 6.0), 10.0
+_DRAKE_TOLERANCE, _DRAKE_GROWTH = 1e-3, 4 * 256 * 1e-3 / _DRAKE_DURATION
+# The card's largest step: within Drake's largest (a sixteenth of a period, 0.073 s), which
+# its error-controlled RK3 (1e-3 a step) shortens further.
+_DRAKE_DT = 1.0 / 32.0
 
 GOLDEN = (
     GoldenCase("abaqus_top", "Abaqus force-free symmetric top (I = 1, 1, 2)",
@@ -102,6 +163,26 @@ GOLDEN = (
                 "initial": {"angular_velocity": {"body": [2.0, 5.0, 3.0]}},
                 "duration": 2.0},
                dt=0.01, interval=0.01),
+    GoldenCase("radioss_rota", "OpenRadioss QA ROTA: spherical J = 1 at w_z = 2 rad/s, 10 s",
+               {"assembly": {"master": {"position": [0.0, 0.0, 0.0], "mass": 1e-20,
+                                        "inertia": 1.0},
+                             "nodes": {"secondary": {"position": [1.0, 0.0, 0.0], "mass": 0.0}}},
+                "initial": {"angular_velocity": {"body": [0.0, 0.0, _ROTA_SPIN]}},
+                "duration": _ROTA_DURATION},
+               dt=_ROTA_DT, interval=0.1, rules=_NO_ORDER,
+               figure=Figure("10,001 cycles; rotational kinetic energy 2.0000 (ref.extract)",
+                             _ROTA_URL,
+                             (Check("cycles", round(_ROTA_DURATION / _ROTA_DT) + 1, 0.0),
+                              Check("rotational_energy", 0.5 * _ROTA_SPIN ** 2,
+                                    _ROTA_ENERGY_TOLERANCE, at=_ROTA_DURATION)))),
+    GoldenCase("drake_free_body", "Drake's free-body benchmark: cylinder I = 0.04, 0.04, 0.02",
+               _body(_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION), dt=_DRAKE_DT,
+               interval=_DRAKE_DT,
+               figure=Figure("quaternion within tol(t), w_B within 2 tol(t), tol(t) = (1 + "
+                             "102.4 t / s) 1e-3 (the test's own)", _DRAKE_URL,
+                             (Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
+                              Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE,
+                                    2 * _DRAKE_GROWTH)))),
 )
 
 
