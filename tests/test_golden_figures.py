@@ -98,3 +98,19 @@ def test_drakes_tolerance_grows_linearly_in_time(card):
     error[:] = np.where(error["time"] == error["time"][1], 0.99 * late, 0.0)
     ds["orientation_error"].loc[{"scheme": "rk4", "dt": dt}] = error
     assert judge_figure(ds, "rk4", figure).passed is False
+
+
+def test_exudyns_rk44_reproduces_its_own_figure_asked_of_it_alone(tmp_path):
+    """Exudyn's Lie-group test asserts its RK44's own number at h = 1e-3 s: exudyn_rk44 gives
+    it on the card; rk4, whose truncation error differs, is not asked for it."""
+    pytest.importorskip("exudyn")
+    assert main(["conformance", "--cases", "exudyn_heavy_top", "--schemes", "exudyn_rk44,rk4",
+                 "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    with xr.open_dataset(tmp_path / "conformance.nc") as ds:
+        assert int(ds["figure"].sel(scheme="exudyn_rk44", case="exudyn_heavy_top")) == 1
+        assert int(ds["figure"].sel(scheme="rk4", case="exudyn_heavy_top")) == -1
+        assert int(ds["passed"].sel(scheme="rk4", case="exudyn_heavy_top")) == 1
+    figure = CASES["exudyn_heavy_top"].figure
+    golden = _golden(tmp_path, "exudyn_heavy_top")
+    golden["omega_space"].loc[{"scheme": "exudyn_rk44"}] *= 1 + 1e-11  # 1.1e-9 rad/s off
+    assert judge_figure(golden, "exudyn_rk44", figure).passed is False

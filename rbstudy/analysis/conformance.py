@@ -27,7 +27,8 @@ every scheme in every case by the rules that case names (`RULES`):
 A case taken from a peer's public tests carries the figure its source asserts
 (`rbstudy.pipeline.golden.Figure`): every scheme is checked against it apart from the rules
 (`judge_figure`, by the measures of `FIGURE_MEASURES`), at the case's own step, the source's;
-the cell says ``figure yes`` or ``figure no``, and nothing where the source asserts no number.
+the cell says ``figure yes`` or ``figure no``, and nothing where the source asserts no number
+of that scheme (a figure that is one engine integrator's own output is asked of it alone).
 
 A cell passes when every rule of its case passes; its number is the observed order (none
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
@@ -231,6 +232,7 @@ FIGURE_MEASURES = {
     "orientation_error": lambda run: run["orientation_error"],  # rad
     # rad/s; |w - w_exact| where |w_exact| stays |w(0)|: a symmetric top, a spherical body
     "omega_error_magnitude": lambda run: run["omega_error"] * run["initial_spin"],
+    "omega_space_y": lambda run: run["omega_space"].sel(axis="y"),  # rad/s
 }
 
 
@@ -264,7 +266,7 @@ def judge_figure(ds, scheme, figure):
 def score_case(ds, rules, schemes=None, figure=None):
     """The `Cell` of each of ``schemes`` (default: every scheme) of the golden study ``ds``
     under ``rules`` (names of `RULES`), checked against the source's ``figure`` where there
-    is one: scheme -> cell."""
+    is one and it is asked of the scheme (`Figure.scheme`): scheme -> cell."""
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     cells = {}
     for scheme in schemes or schemes_of(ds):
@@ -272,7 +274,8 @@ def score_case(ds, rules, schemes=None, figure=None):
         order = verdicts.get("order")
         cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),
                              np.nan if order is None else order.value, verdicts,
-                             None if figure is None else judge_figure(ds, scheme, figure))
+                             None if figure is None or figure.scheme not in (None, scheme)
+                             else judge_figure(ds, scheme, figure))
     return cells
 
 

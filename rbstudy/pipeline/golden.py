@@ -23,6 +23,8 @@ card checks every scheme against (docs/results.md gives the sources' lines):
 
 - `radioss_rota`: OpenRadioss's QA case ``KIN_CONSTRAINTS/RBODY/ROTA``.
 - `drake_free_body`: Drake's free-body benchmark against Kane and Levinson's closed form.
+- `exudyn_heavy_top`: Exudyn's test of its explicit Lie-group integrators, a heavy top
+  released free under its weight (no exact reference: rbstudy's DOP853 is its reference).
 
 `write_golden` writes each as a study config (``conformance_<case>.yaml``), which a user can
 read and rerun with `rbstudy sweep`; `run_golden` sweeps them like any study, so that an
@@ -68,11 +70,14 @@ class Check:
 @dataclass(frozen=True)
 class Figure:
     """What a peer's public test asserts of a golden case: ``claim`` (a line), the ``url``
-    of the test and its ``checks``, judged at the case's own (largest) step, the source's."""
+    of the test and its ``checks``, judged at the case's own (largest) step, the source's.
+    ``scheme``: the one scheme whose own output the figure is (an engine's integrator, to
+    its truncation error); None for a property of the motion, asked of every scheme."""
 
     claim: str
     url: str
     checks: tuple
+    scheme: str | None = None
 
 
 @dataclass(frozen=True)
@@ -134,6 +139,16 @@ _DRAKE_TOLERANCE, _DRAKE_GROWTH = 1e-3, 4 * 256 * 1e-3 / _DRAKE_DURATION
 # its error-controlled RK3 (1e-3 a step) shortens further.
 _DRAKE_DT = 1.0 / 32.0
 
+# Exudyn's TestModels/explicitLieGroupIntegratorTest.py: a body of mass 15 with a heavy top's
+# inertia about its fixed point, free, its weight at the body point (0, 1, 0), spun at (0,
+# 150, -4.61538) rad/s; its comment gives the y component of the angular velocity in space
+# at t = 2 s from its RK44 at h = 1e-3 s, printed to 17 figures: reproduced to 1e-10 rad/s
+# (a relative 1e-12, room for another build's round-off; exudyn_rk44 gives it to 3e-14).
+_EXUDYN_URL = ("https://github.com/jgerstmayr/EXUDYN/blob/master/main/pythonDev/TestModels/"
+               "explicitLieGroupIntegratorTest.py")
+_EXUDYN_MASS, _EXUDYN_DURATION, _EXUDYN_DT = 15.0, 2.0, 1e-3
+_EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE = -106.16651966442174, 1e-10
+
 GOLDEN = (
     GoldenCase("abaqus_top", "Abaqus force-free symmetric top (I = 1, 1, 2)",
                _body((1.0, 1.0, 2.0), (0.25, 0.0, 2.0 * math.pi), 2.0,
@@ -183,6 +198,18 @@ GOLDEN = (
                              (Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
                               Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE,
                                     2 * _DRAKE_GROWTH)))),
+    GoldenCase("exudyn_heavy_top", "Exudyn's Lie-group test: a heavy top at 150 rad/s, free",
+               {"body": {"mass": _EXUDYN_MASS,
+                         "inertia": [0.234375 + _EXUDYN_MASS, 0.46875, 0.234375 + _EXUDYN_MASS]},
+                "nodes": {"top": [0.0, 1.0, 0.0]},
+                "initial": {"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
+                "loads": {"nodes": {"top": {"force_space": [0.0, 0.0, -_EXUDYN_MASS * 9.81]}}},
+                "duration": _EXUDYN_DURATION},
+               dt=_EXUDYN_DT, interval=0.01, rules=("order", "failure"),
+               figure=Figure("w_y in space at t = 2 s: -106.16651966442174 rad/s (its RK44, "
+                             "h = 1e-3 s)", _EXUDYN_URL,
+                             (Check("omega_space_y", _EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE,
+                                    at=_EXUDYN_DURATION),), scheme="exudyn_rk44")),
 )
 
 
