@@ -114,3 +114,11 @@ def test_exudyns_rk44_reproduces_its_own_figure_asked_of_it_alone(tmp_path):
     golden = _golden(tmp_path, "exudyn_heavy_top")
     golden["omega_space"].loc[{"scheme": "exudyn_rk44"}] *= 1 + 1e-11  # 1.1e-9 rad/s off
     assert judge_figure(golden, "exudyn_rk44", figure).passed is False
+
+
+def test_the_radioss_case_sweeps_the_sources_step_alone(card):
+    """It judges no order, so it runs at dt = 1e-3 s only, whatever --steps says."""
+    out, _ = card
+    ds = _golden(out, "radioss_rota")
+    assert ds["dt"].values.tolist() == [1e-3]
+    assert "order" not in CASES["radioss_rota"].rules
