@@ -371,7 +371,9 @@ def _conformance(args):
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
-    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
+    fixed = "".join(f" ({case.name}: {case.steps})" for case in cases if case.steps)
+    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps"
+              f"{fixed}; "
               f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
               "archives it finds)", f"studies and archives: {out}",
               "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "

@@ -65,6 +65,7 @@ def test_the_card_says_figure_yes_or_no_within_the_terminal(card, capsys):
                  "--schemes", "rk4,midpoint,euler", "--steps", "3", "-o", str(out), "-q"]) == 0
     printed = capsys.readouterr().out
     assert "figure yes" in printed and "figure no" in printed
+    assert "x 3 time steps (radioss_rota: 1);" in printed
     assert max(map(len, printed.splitlines())) <= TERMINAL_WIDTH
     page = (out / "conformance.html").read_text()
     assert CASES["radioss_rota"].figure.url in page and "figure: at dt = 0.001 s" in page
