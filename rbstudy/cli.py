@@ -327,8 +327,7 @@ def _conformance(args):
     import time
 
     from rbstudy.pipeline.golden import GOLDEN
-    from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
-    from rbstudy.schemes._plugins import ENGINES
+    from rbstudy.schemes import expand_groups, get_scheme
     started = time.perf_counter()
     _check_out(args.out)
     known = {case.name: case for case in GOLDEN}
@@ -343,8 +342,7 @@ def _conformance(args):
         twice = [name for name in given or () if given.count(name) > 1]
         if twice:
             raise RbstudyError(f"{option}: {twice[0]} is given twice; name it once")
-    schemes = args.schemes or [*(name for name, s in BUILTIN.items() if not s.adaptive),
-                               *(name for name in ENGINES if name in SCHEMES)]
+    schemes = expand_groups(args.schemes or ["builtin", "engines"])
     for name in schemes:
         if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
             raise RbstudyError(f"--schemes: {name} chooses its own steps: it has no order "
@@ -368,22 +366,29 @@ def _conformance(args):
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
-            cells[case.name] = score_case(open_archive(archive), case.rules, schemes)
+            cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
+                                          case.figure)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
-    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps; "
+    fixed = "".join(f" ({case.name}: {case.steps})" for case in cases if case.steps)
+    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps"
+              f"{fixed}; "
               f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
               "archives it finds)", f"studies and archives: {out}",
               "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "
               f"{', '.join(baseline(schemes))}"]
+    figures = {case.name: case.figure for case in cases if case.figure is not None}
+    if figures:
+        header.append(f"figure yes/no: the scheme reproduces what the case's source asserts "
+                      f"({', '.join(figures)}; docs/results.md)")
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
              "steps": args.steps, "source": f"rbstudy {_version()}"}
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
-                                     header), out / "conformance.html")
+                                     header, figures), out / "conformance.html")
     _say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
     return 0
 
@@ -609,8 +614,8 @@ def build_parser():
     conformance = commands.add_parser(
         "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
     _list_argument(conformance, "--schemes", metavar="SCHEME",
-                   help="schemes to judge (default: rbstudy's fixed-step schemes and MuJoCo's "
-                        "where it is installed)")
+                   help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), "
+                        "engines, or one engine (mujoco, drake, ...); default: builtin,engines")
     _list_argument(conformance, "--cases", metavar="CASE",
                    help="golden cases to run (default: all)")
     conformance.add_argument("--steps", type=_whole_number, default=4, metavar="N",

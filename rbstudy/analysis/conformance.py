@@ -24,6 +24,12 @@ every scheme in every case by the rules that case names (`RULES`):
   plug-in or engine scheme in the same run is never the yardstick, so a scheme's card does
   not depend on what else is judged; the details name the survivor.
 
+A case taken from a peer's public tests carries the figure its source asserts
+(`rbstudy.pipeline.golden.Figure`): every scheme is checked against it apart from the rules
+(`judge_figure`, by the measures of `FIGURE_MEASURES`), at the case's own step, the source's;
+the cell says ``figure yes`` or ``figure no``, and nothing where the source asserts no number
+of that scheme (a figure that is one engine integrator's own output is asked of it alone).
+
 A cell passes when every rule of its case passes; its number is the observed order (none
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
 cases in it are its time steps. `score_case` returns the cells;
@@ -49,7 +55,8 @@ from rbstudy.analysis.summary import (
 from rbstudy.numerics.state import INVARIANTS
 
 __all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "ORIGIN_RBSTUDY",
-           "Verdict", "Cell", "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
+           "FIGURE_MEASURES", "Verdict", "Cell", "judge_figure", "score_case", "format_scorecard",
+           "scorecard_dataset", "scorecard_html"]
 
 ORDER_TOLERANCE = 0.3
 ENERGY_GAIN = 1e-3
@@ -87,17 +94,24 @@ class Verdict:
 
 @dataclass(frozen=True)
 class Cell:
-    """A scheme in a case: ``passed`` (all applicable rules), its number ``value`` and the
-    ``verdicts`` per rule name."""
+    """A scheme in a case: ``passed`` (all applicable rules), its number ``value``, the
+    ``verdicts`` per rule name, and the ``figure`` verdict: whether the scheme reproduces
+    the figure the case's source asserts (None: the source asserts none)."""
 
     passed: bool
     value: float
     verdicts: dict
+    figure: Verdict | None = None
 
     def short(self):
         """What the cell shows: the observed order of a scheme that passed (``order 4.00``),
         ``exact`` for one exact on the body, ``pass`` where no order is judged, or the rules
-        it failed (``FAIL energy, failure``)."""
+        it failed (``FAIL energy, failure``); then ``figure yes`` or ``figure no`` where the
+        source asserts a figure."""
+        return self._verdict() + ("" if self.figure is None
+                                  else f", figure {'yes' if self.figure.passed else 'no'}")
+
+    def _verdict(self):
         if self.passed:
             if np.isfinite(self.value):
                 return f"order {self.value:.2f}"
@@ -205,16 +219,63 @@ _JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip"
            "failure": _failure}
 
 
-def score_case(ds, rules, schemes=None):
+def _rotational_energy(run):
+    return 0.5 * (run["inertia"] * run["omega_body"] ** 2).sum("axis")
+
+
+# What a source's figure can be checked on, from one scheme's run at one step: name ->
+# function of that run (an xarray dataset) giving a number, or one per saved time.
+FIGURE_MEASURES = {
+    # a cycle is a step and the start: Radioss counts cycles 0 to N
+    "cycles": lambda run: run["n_steps"] + 1,
+    "rotational_energy": _rotational_energy,  # J, in the principal axes
+    "orientation_error": lambda run: run["orientation_error"],  # rad
+    # rad/s; |w - w_exact| where |w_exact| stays |w(0)|: a symmetric top, a spherical body
+    "omega_error_magnitude": lambda run: run["omega_error"] * run["initial_spin"],
+    "omega_space_y": lambda run: run["omega_space"].sel(axis="y"),  # rad/s
+}
+
+
+def judge_figure(ds, scheme, figure):
+    """Whether ``scheme`` reproduces ``figure`` (`rbstudy.pipeline.golden.Figure`) in the
+    golden study ``ds``, at its largest step (the source's): a `Verdict` whose value is the
+    largest deviation as a share of its allowance (1 at the edge)."""
+    dt = float(ds["dt"].max())
+    run = per_scheme(ds, scheme).sel(dt=dt)
+    if int(run["status"]) != 0:
+        return Verdict(False, np.nan, f"failed at dt = {dt:g} s")
+    worst, said = 0.0, []
+    for check in figure.checks:
+        measured = FIGURE_MEASURES[check.measure](run)
+        if check.at is not None:
+            measured = measured.sel(time=check.at, method="nearest")
+        times = measured["time"] if "time" in measured.dims else check.at or 0.0
+        allowed = check.tolerance + check.growth * times
+        deviation = np.abs(measured - check.expected)
+        share = float((deviation / allowed).max()) if check.tolerance else float(
+            np.inf if deviation.max() > 0 else 0.0)
+        worst = max(worst, share)
+        allowance = (f" +- {check.tolerance:g}" if check.tolerance else "") + (
+            f" + {check.growth:g} t" if check.growth else "")
+        said.append(f"{check.measure} {'up to ' if 'time' in measured.dims else ''}"
+                    f"{float(np.abs(measured).max()):.6g} (asserted {check.expected:g}"
+                    f"{allowance})")
+    return Verdict(worst <= 1.0, worst, f"at dt = {dt:g} s: {'; '.join(said)}")
+
+
+def score_case(ds, rules, schemes=None, figure=None):
     """The `Cell` of each of ``schemes`` (default: every scheme) of the golden study ``ds``
-    under ``rules`` (names of `RULES`): scheme -> cell."""
+    under ``rules`` (names of `RULES`), checked against the source's ``figure`` where there
+    is one and it is asked of the scheme (`Figure.scheme`): scheme -> cell."""
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     cells = {}
     for scheme in schemes or schemes_of(ds):
         verdicts = {rule: _JUDGES[rule](ds, scheme, rows[scheme]) for rule in rules}
         order = verdicts.get("order")
         cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),
-                             np.nan if order is None else order.value, verdicts)
+                             np.nan if order is None else order.value, verdicts,
+                             None if figure is None or figure.scheme not in (None, scheme)
+                             else judge_figure(ds, scheme, figure))
     return cells
 
 
@@ -258,12 +319,18 @@ def scorecard_dataset(cells, cases, attrs):
     rule_passed = np.full((len(schemes), len(cases), len(rules)), -1, dtype=np.int8)
     rule_value = np.full((len(schemes), len(cases), len(rules)), np.nan)
     text = np.full((len(schemes), len(cases), len(rules)), "", dtype=object)
+    figure = np.full((len(schemes), len(cases)), -1, dtype=np.int8)
+    figure_value = np.full((len(schemes), len(cases)), np.nan)
+    figure_text = np.full((len(schemes), len(cases)), "", dtype=object)
     for i, s in enumerate(schemes):
         for j, c in enumerate(cases):
             cell = cells[c].get(s)
             if cell is None:
                 continue
             passed[i, j], value[i, j] = cell.passed, cell.value
+            if cell.figure is not None:
+                figure[i, j], figure_value[i, j] = cell.figure.passed, cell.figure.value
+                figure_text[i, j] = cell.figure.text
             for k, rule in enumerate(rules):
                 verdict = cell.verdicts.get(rule)
                 if verdict is not None:
@@ -284,18 +351,28 @@ def scorecard_dataset(cells, cases, attrs):
                         {"long_name": "the rule's measured number: the observed order, the "
                                       "largest relative energy gain, the largest flip "
                                       "interval error in time steps, the failed cases"}),
-         "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"})},
+         "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"}),
+         "figure": (("scheme", "case"), figure,
+                    {"long_name": "the scheme reproduces the figure the source asserts",
+                     "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                     "flag_meanings": "not_asserted no yes"}),
+         "figure_value": (("scheme", "case"), figure_value,
+                          {"long_name": "largest deviation from the figure, share of allowed"}),
+         "figure_text": (("scheme", "case"), figure_text,
+                         {"long_name": "what was measured against the figure"})},
         coords={"scheme": np.array(schemes, dtype=object), "case": np.array(cases, dtype=object),
                 "rule": np.array(rules, dtype=object),
                 "rule_meaning": ("rule", np.array([RULES[r] for r in rules], dtype=object))},
         attrs=attrs)
 
 
-def scorecard_html(cells, cases, titles, header):
+def scorecard_html(cells, cases, titles, header, figures=None):
     """The scorecard as one HTML page (`rbstudy.analysis.pages`, the report's base page): a
-    cell per scheme and case, green or red, with every rule's measurement in it; ``titles``
-    (case -> title) and ``header`` (lines said above the table)."""
+    cell per scheme and case, green or red, with every rule's measurement in it and the
+    figure's check; ``titles`` (case -> title), ``header`` (lines said above the table) and
+    ``figures`` (case -> `rbstudy.pipeline.golden.Figure`, for the cases whose source asserts
+    one)."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
     rows = [(s, [cells[c].get(s) for c in cases]) for s in schemes]
     return render("conformance.html.j2", title="rbstudy conformance scorecard", header=header,
-                  rules=RULES, cases=cases, titles=titles, rows=rows)
+                  rules=RULES, cases=cases, titles=titles, rows=rows, figures=figures or {})

@@ -18,6 +18,14 @@ before, and names the pass rules that apply to it (`rbstudy.analysis.conformance
 - `radioss_assembly`: a body assembled from a master node and secondary nodes, as Radioss
   builds one (principal axes and inertias derived).
 
+The peers' own public test cases follow, each with the `Figure` its source asserts, which the
+card checks every scheme against (docs/results.md gives the sources' lines):
+
+- `radioss_rota`: OpenRadioss's QA case ``KIN_CONSTRAINTS/RBODY/ROTA``.
+- `drake_free_body`: Drake's free-body benchmark against Kane and Levinson's closed form.
+- `exudyn_heavy_top`: Exudyn's test of its explicit Lie-group integrators, a heavy top
+  released free under its weight (no exact reference: rbstudy's DOP853 is its reference).
+
 `write_golden` writes each as a study config (``conformance_<case>.yaml``), which a user can
 read and rerun with `rbstudy sweep`; `run_golden` sweeps them like any study, so that an
 interrupted run resumes and a finished one is reused.
@@ -42,14 +50,44 @@ from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.schemes import BUILTIN, get_scheme
 
-__all__ = ["GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
+__all__ = ["Check", "Figure", "GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
+
+
+@dataclass(frozen=True)
+class Check:
+    """One number a source asserts: its ``measure`` (a name of
+    `rbstudy.analysis.conformance.FIGURE_MEASURES`) is ``expected`` within ``tolerance``
+    plus ``growth`` per second of simulated time, at the time ``at`` (s), or at every saved
+    time when None."""
+
+    measure: str
+    expected: float
+    tolerance: float
+    growth: float = 0.0
+    at: float | None = None
+
+
+@dataclass(frozen=True)
+class Figure:
+    """What a peer's public test asserts of a golden case: ``claim`` (a line), the ``url``
+    of the test and its ``checks``, judged at the case's own (largest) step, the source's.
+    ``scheme``: the one scheme whose own output the figure is (an engine's integrator, to
+    its truncation error); None for a property of the motion, asked of every scheme."""
+
+    claim: str
+    url: str
+    checks: tuple
+    scheme: str | None = None
 
 
 @dataclass(frozen=True)
 class GoldenCase:
     """A study of the golden set: its ``scene`` (a config's scene mapping), the largest
-    time step ``dt`` (s; the sweep halves it three times), the output ``interval`` (s) and
-    the ``rules`` that judge it (names of `rbstudy.analysis.conformance.RULES`)."""
+    time step ``dt`` (s; the sweep halves it three times), the output ``interval`` (s), the
+    ``rules`` that judge it (names of `rbstudy.analysis.conformance.RULES`), the
+    ``figure`` its source asserts (None: a case of rbstudy's own, asserting no number) and,
+    for a case that judges no order, the ``steps`` it sweeps whatever ``--steps`` asks (None:
+    those)."""
 
     name: str
     title: str
@@ -57,6 +95,8 @@ class GoldenCase:
     dt: float
     interval: float
     rules: tuple = ("order", "invariants", "energy", "failure")
+    figure: Figure | None = None
+    steps: int | None = None
 
 
 def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
@@ -72,6 +112,47 @@ def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
 # HLW's initial angular momentum (cos 1.1, 0, sin 1.1) in body axes, as an angular velocity
 _HLW = (2.0, 1.0, 2.0 / 3.0)
 _HLW_OMEGA = (math.cos(1.1) / _HLW[0], 0.0, math.sin(1.1) / _HLW[2])
+
+# OpenRadioss QA ROTA (BLOCK_0000.rad): a rigid body of spherical inertia J = 1 (ISPHER = 1,
+# no added mass) on master node 1 at the origin, secondary node 2 at (1, 0, 0); the nodes carry
+# no mass (the run's total mass is Radioss's floor, 1e-20 kg), so the secondary adds no
+# inertia and J = 1 is the whole body's. Its master turns at w_z = 2 rad/s (an imposed
+# velocity, which a free spherical body keeps by itself) for 10 s at dt = 1e-3 s.
+_ROTA_URL = ("https://github.com/OpenRadioss/OpenRadioss/tree/main/qa-tests/miniqa/"
+             "KIN_CONSTRAINTS/RBODY/ROTA")
+_ROTA_SPIN, _ROTA_DURATION, _ROTA_DT = 2.0, 10.0, 1e-3
+# A spherical body turns at a constant rate: most schemes are exact on it to round-off at
+# these steps (w dt = 0.002), which shows no order to judge; so the case sweeps the source's
+# step alone (halvings would cost engine schemes 15 times its 1e4 steps, ~5 minutes for 22
+# schemes on 2 cores, to show nothing more).
+_NO_ORDER = ("invariants", "energy", "failure")
+# ref.extract prints the energy to five figures (2.0000e+00): within half its last digit.
+_ROTA_ENERGY_TOLERANCE = 5e-5
+# Drake's multibody_plant_free_body_test.cc: a uniform cylinder, I = 0.04 transverse,
+# J = 0.02 axial (free_body.h), w_B(0) = (2, 4, 6) rad/s, integrated to t_final = max(4
+# periods, 10 s) = 10 s in steps of at most a sixteenth of a period (0.073 s); at every step
+# the quaternion's components within tol(t) and w_B within 2 tol(t), where tol(t) = (1 + 4 *
+# 256 t / t_final) 1e-3, and the rotation matrices' elements within tol(t). An element of
+# the difference of two rotation matrices, and twice a quaternion component's, is at most
+# the angle between them: the card asks the orientation error (rad) to stay within tol(t) and
+# |w - w_exact| (rad/s) within 2 tol(t), no looser than Drake's test.
+_DRAKE_URL = ("https://github.com/RobotLocomotion/drake/blob/master/multibody/benchmarks/"
+              "free_body/test/multibody_plant_free_body_test.cc")
+_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION = (0.04, 0.04, 0.02), (2.0, 4.0, 6.0), 10.0
+_DRAKE_TOLERANCE, _DRAKE_GROWTH = 1e-3, 4 * 256 * 1e-3 / _DRAKE_DURATION
+# The card's largest step: within Drake's largest (a sixteenth of a period, 0.073 s), which
+# its error-controlled RK3 (1e-3 a step) shortens further.
+_DRAKE_DT = 1.0 / 32.0
+
+# Exudyn's TestModels/explicitLieGroupIntegratorTest.py: a body of mass 15 with a heavy top's
+# inertia about its fixed point, free, its weight at the body point (0, 1, 0), spun at (0,
+# 150, -4.61538) rad/s; its comment gives the y component of the angular velocity in space
+# at t = 2 s from its RK44 at h = 1e-3 s, printed to 17 figures: reproduced to 1e-10 rad/s
+# (a relative 1e-12, room for another build's round-off; exudyn_rk44 gives it to 3e-14).
+_EXUDYN_URL = ("https://github.com/jgerstmayr/EXUDYN/blob/HEAD/main/pythonDev/TestModels/"
+               "explicitLieGroupIntegratorTest.py")
+_EXUDYN_MASS, _EXUDYN_DURATION, _EXUDYN_DT = 15.0, 2.0, 1e-3
+_EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE = -106.16651966442174, 1e-10
 
 GOLDEN = (
     GoldenCase("abaqus_top", "Abaqus force-free symmetric top (I = 1, 1, 2)",
@@ -102,6 +183,38 @@ GOLDEN = (
                 "initial": {"angular_velocity": {"body": [2.0, 5.0, 3.0]}},
                 "duration": 2.0},
                dt=0.01, interval=0.01),
+    GoldenCase("radioss_rota", "OpenRadioss QA ROTA: spherical J = 1 at w_z = 2 rad/s, 10 s",
+               {"assembly": {"master": {"position": [0.0, 0.0, 0.0], "mass": 1e-20,
+                                        "inertia": 1.0},
+                             "nodes": {"secondary": {"position": [1.0, 0.0, 0.0], "mass": 0.0}}},
+                "initial": {"angular_velocity": {"body": [0.0, 0.0, _ROTA_SPIN]}},
+                "duration": _ROTA_DURATION},
+               dt=_ROTA_DT, interval=0.1, rules=_NO_ORDER, steps=1,
+               figure=Figure("10,001 cycles; rotational kinetic energy 2.0000 (ref.extract)",
+                             _ROTA_URL,
+                             (Check("cycles", round(_ROTA_DURATION / _ROTA_DT) + 1, 0.0),
+                              Check("rotational_energy", 0.5 * _ROTA_SPIN ** 2,
+                                    _ROTA_ENERGY_TOLERANCE, at=_ROTA_DURATION)))),
+    GoldenCase("drake_free_body", "Drake's free-body benchmark: cylinder I = 0.04, 0.04, 0.02",
+               _body(_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION), dt=_DRAKE_DT,
+               interval=_DRAKE_DT,
+               figure=Figure("quaternion within tol(t), w_B within 2 tol(t), tol(t) = (1 + "
+                             "102.4 t / s) 1e-3 (the test's own)", _DRAKE_URL,
+                             (Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
+                              Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE,
+                                    2 * _DRAKE_GROWTH)))),
+    GoldenCase("exudyn_heavy_top", "Exudyn's Lie-group test: a heavy top at 150 rad/s, free",
+               {"body": {"mass": _EXUDYN_MASS,
+                         "inertia": [0.234375 + _EXUDYN_MASS, 0.46875, 0.234375 + _EXUDYN_MASS]},
+                "nodes": {"top": [0.0, 1.0, 0.0]},
+                "initial": {"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
+                "loads": {"nodes": {"top": {"force_space": [0.0, 0.0, -_EXUDYN_MASS * 9.81]}}},
+                "duration": _EXUDYN_DURATION},
+               dt=_EXUDYN_DT, interval=0.01, rules=("order", "failure"),
+               figure=Figure("w_y in space at t = 2 s: -106.16651966442174 rad/s (its RK44, "
+                             "h = 1e-3 s)", _EXUDYN_URL,
+                             (Check("omega_space_y", _EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE,
+                                    at=_EXUDYN_DURATION),), scheme="exudyn_rk44")),
 )
 
 
@@ -109,7 +222,8 @@ def _study(case, schemes, count):
     return {"name": f"conformance_{case.name}", "title": f"conformance: {case.title}",
             "scene": case.scene, "output": {"interval": case.interval},
             "run": {"scheme": schemes[0], "dt": case.dt},
-            "sweep": {"scheme": list(schemes), "dt": {"halving": case.dt, "count": count}}}
+            "sweep": {"scheme": list(schemes),
+                      "dt": {"halving": case.dt, "count": case.steps or count}}}
 
 
 def baseline(schemes):

@@ -32,7 +32,7 @@ from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
 
 __all__ = ["SCHEMES", "BUILTIN", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme",
            "SchemeUnavailable", "Unavailable", "composition_reach", "get_scheme", "get_ready",
-           "unavailable_schemes"]
+           "unavailable_schemes", "scheme_groups", "expand_groups"]
 
 
 def _discover():
@@ -126,3 +126,44 @@ def get_scheme(name):
     valid = ", ".join(SCHEMES)  # every group loaded: the list is whole
     raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}",
                       f"valid schemes: {valid}")
+
+
+# The group of rbstudy's own fixed-step schemes, and that of every available engine scheme;
+# each engine's group is the name of its adapter module (`ENGINES`: "rbstudy.engines.mujoco").
+BUILTIN_GROUP = "builtin"
+ENGINES_GROUP = "engines"
+
+
+def _engine_of(name):
+    return ENGINES[name].partition(":")[0].rpartition(".")[2]
+
+
+def scheme_groups():
+    """group name -> the registered scheme names it stands for (available or not): one group
+    per engine of `ENGINES`, ``engines`` for them all, ``builtin`` for rbstudy's own
+    fixed-step schemes."""
+    groups = {BUILTIN_GROUP: [name for name, scheme in BUILTIN.items() if not scheme.adaptive],
+              ENGINES_GROUP: list(ENGINES)}
+    for name in ENGINES:
+        groups.setdefault(_engine_of(name), []).append(name)
+    return groups
+
+
+def expand_groups(names, option="--schemes"):
+    """``names`` (scheme or group names) with each group replaced by its available schemes,
+    each scheme once, in the order given. A group none of whose schemes is available here
+    raises `SchemeError` with why and the install command; ``engines`` takes whichever
+    engines are installed."""
+    groups = scheme_groups()
+    expanded = []
+    for name in names:
+        if name not in groups:
+            expanded.append(name)
+            continue
+        members = [member for member in groups[name] if isinstance(SCHEMES.find(member), Scheme)]
+        if not members and name != ENGINES_GROUP:
+            why = SCHEMES.find(groups[name][0])
+            raise SchemeError(f"the group {name!r} has no scheme available here: {why.reason}",
+                              why.fix, key=option)
+        expanded.extend(members)
+    return list(dict.fromkeys(expanded))

@@ -1,0 +1,56 @@
+"""Groups of schemes on `rbstudy conformance --schemes`: one per engine of the registry's
+`ENGINES`, ``engines`` and ``builtin``, expanded to the available schemes, each once."""
+
+import pytest
+
+from rbstudy.cli import main
+from rbstudy.errors import SchemeError
+from rbstudy.schemes import BUILTIN, SCHEMES, Unavailable, expand_groups, scheme_groups
+from rbstudy.schemes._plugins import ENGINES
+
+
+def test_each_engine_of_the_registry_is_a_group_of_its_adapters():
+    groups = scheme_groups()
+    engines = {value.split(":")[0].rsplit(".", 1)[1] for value in ENGINES.values()}
+    assert {"mujoco", "bullet", "exudyn", "drake"} <= engines
+    for engine in engines:
+        assert groups[engine] == [name for name, value in ENGINES.items()
+                                  if value.startswith(f"rbstudy.engines.{engine}:")]
+    assert groups["engines"] == list(ENGINES)
+    assert groups["builtin"] == [name for name, scheme in BUILTIN.items() if not scheme.adaptive]
+    assert "dop853" not in groups["builtin"] and "rk4" in groups["builtin"]
+
+
+def test_groups_mix_with_names_and_each_scheme_is_taken_once():
+    expanded = expand_groups(["rk4", "builtin", "euler"])
+    assert expanded[0] == "rk4" and len(expanded) == len(set(expanded))
+    assert set(expanded) == set(scheme_groups()["builtin"])
+    assert expand_groups(["nope"]) == ["nope"]  # get_scheme refuses it, with the valid names
+
+
+def _without_drake(monkeypatch):
+    """The registry as on a machine without Drake: its schemes are listed unavailable."""
+    find = SCHEMES.find
+
+    def find_without_drake(name):
+        if name.startswith("drake_"):
+            return Unavailable(name, "needs the pydrake package", "pip install drake", "rbstudy")
+        return find(name)
+    monkeypatch.setattr(SCHEMES, "find", find_without_drake)
+
+
+def test_a_group_whose_engine_is_absent_is_refused_with_the_install_command(monkeypatch):
+    _without_drake(monkeypatch)
+    with pytest.raises(SchemeError, match="--schemes: the group 'drake' has no scheme available "
+                                          "here: needs the pydrake package; pip install drake"):
+        expand_groups(["rk4", "drake"])
+    assert not any(name.startswith("drake_") for name in expand_groups(["engines"]))
+
+
+def test_the_command_refuses_an_absent_engine_in_one_line(monkeypatch, tmp_path, capsys):
+    _without_drake(monkeypatch)
+    assert main(["conformance", "--schemes", "rk4,drake", "--out", str(tmp_path)]) == 1
+    error = capsys.readouterr().err
+    assert error == ("rbstudy: error: --schemes: the group 'drake' has no scheme available here: "
+                     "needs the pydrake package; pip install drake\n")
+    assert not list(tmp_path.iterdir())
