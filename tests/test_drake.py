@@ -5,8 +5,8 @@ engines, and the discrete solvers' agreement on a free body."""
 
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, final_orientation_errors, write_study
-from engine_cases import compared_scenes, difference, make_scene, run
+from conftest import final_orientation_errors
+from engine_cases import compared_scenes, difference, make_scene, run, swept_errors
 from scipy.spatial.transform import Rotation
 
 pytest.importorskip("pydrake")
@@ -112,17 +112,8 @@ def test_tamsi_and_sap_step_a_free_body_alike(monkeypatch):
 def test_drake_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme, on the asymmetric top: statuses, Drake's version
     in the archive, and the orders from the archived errors."""
-    import xarray as xr
-
-    from rbstudy.cli import main
-    config = write_study(tmp_path, name="drake", sweep={
-        "scheme": ["drake_rk3", "drake_discrete"], "dt": [0.01, 0.005, 0.0025]},
-        scene={**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 1.0})
-    assert main(["sweep", str(config), "--out", str(tmp_path), "--quiet"]) == 0
-    with xr.open_dataset(tmp_path / "drake" / "drake.nc") as ds:
-        assert (ds["status"] == 0).all()
-        assert set(ds["scheme_origin"].values) == {f"rbstudy's adapter of Drake {drake.VERSION}"}
-        errors = ds["final_orientation_error"]
-        for scheme, order in (("drake_rk3", 3), ("drake_discrete", 1)):
-            e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
-            assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
+    errors = swept_errors(tmp_path, ["drake_rk3", "drake_discrete"],
+                          f"rbstudy's adapter of Drake {drake.VERSION}")
+    for scheme, order in (("drake_rk3", 3), ("drake_discrete", 1)):
+        e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
+        assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme

@@ -8,8 +8,8 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, final_orientation_errors, write_study
-from engine_cases import compared_scenes, difference, example_scheme, make_scene, run
+from conftest import abaqus_mapping, final_orientation_errors
+from engine_cases import compared_scenes, difference, example_scheme, make_scene, run, swept_errors
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SchemeError
@@ -166,21 +166,11 @@ def test_each_shows_its_order_against_the_exact_solution(scheme, order):
 def test_mujoco_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: statuses, the engine's version in the archive,
     and orders from the archived errors."""
-    import xarray as xr
-
-    from rbstudy.cli import main
-    config = write_study(tmp_path, name="engines", sweep={
-        "scheme": ["mujoco_rk4", "mujoco_implicitfast"], "dt": [0.01, 0.005, 0.0025]},
-        scene={**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 1.0})
-    assert main(["sweep", str(config), "--out", str(tmp_path), "--quiet"]) == 0
-    with xr.open_dataset(tmp_path / "engines" / "engines.nc") as ds:
-        assert (ds["status"] == 0).all()
-        assert set(ds["scheme_origin"].values) == {
-            f"rbstudy's adapter of mujoco {mujoco.__version__}"}
-        errors = ds["final_orientation_error"]
-        for scheme, order in (("mujoco_rk4", 4), ("mujoco_implicitfast", 1)):
-            e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
-            assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
+    errors = swept_errors(tmp_path, ["mujoco_rk4", "mujoco_implicitfast"],
+                          f"rbstudy's adapter of mujoco {mujoco.__version__}")
+    for scheme, order in (("mujoco_rk4", 4), ("mujoco_implicitfast", 1)):
+        e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
+        assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
 
 
 @pytest.mark.parametrize("scheme", MUJOCO)

@@ -5,8 +5,8 @@ prints nothing."""
 
 import numpy as np
 import pytest
-from conftest import LOADED, abaqus_mapping, final_orientation_errors, write_study
-from engine_cases import compared_scenes, difference, make_scene
+from conftest import LOADED, abaqus_mapping, final_orientation_errors
+from engine_cases import compared_scenes, difference, make_scene, swept_errors
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SchemeError
@@ -184,19 +184,9 @@ def test_a_failed_newton_stops_that_body_and_nothing_is_written_or_printed(tmp_p
 def test_exudyn_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: the engine's version in the archive, the
     spectral radius swept as an option, and orders from the archived errors."""
-    import xarray as xr
-
-    from rbstudy.cli import main
-    config = write_study(tmp_path, name="exudyn", sweep={
-        "scheme": ["exudyn_genalpha", "exudyn_rk44"], "dt": [0.01, 0.005, 0.0025],
-        "run.options.spectral_radius": [0.5, 0.9]},
-        scene={**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 1.0})
-    assert main(["sweep", str(config), "--out", str(tmp_path), "--quiet"]) == 0
-    with xr.open_dataset(tmp_path / "exudyn" / "exudyn.nc") as ds:
-        assert (ds["status"] == 0).all()
-        assert set(ds["scheme_origin"].values) == {
-            f"rbstudy's adapter of Exudyn {exudyn.__version__}"}
-        errors = ds["final_orientation_error"]
-        for scheme, order in (("exudyn_genalpha", 2), ("exudyn_rk44", 4)):
-            e = errors.sel(scheme=scheme).isel(spectral_radius=-1).values  # finest first
-            assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
+    errors = swept_errors(tmp_path, ["exudyn_genalpha", "exudyn_rk44"],
+                          f"rbstudy's adapter of Exudyn {exudyn.__version__}",
+                          **{"run.options.spectral_radius": [0.5, 0.9]})
+    for scheme, order in (("exudyn_genalpha", 2), ("exudyn_rk44", 4)):
+        e = errors.sel(scheme=scheme).isel(spectral_radius=-1).values  # finest first
+        assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
