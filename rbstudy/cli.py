@@ -380,8 +380,8 @@ def _conformance(args):
               f"{', '.join(baseline(schemes))}"]
     figures = {case.name: case.figure for case in cases if case.figure is not None}
     if figures:
-        header.append(f"figure yes/no: the scheme reproduces what the case's source asserts "
-                      f"({', '.join(figures)}; docs/results.md)")
+        header.append(f"figure yes/no: the scheme reproduces what the source of "
+                      f"{', '.join(figures)} asserts (docs/results.md)")
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
