@@ -357,7 +357,7 @@ def _conformance(args):
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
     from rbstudy.pipeline.progress import Progress
-    from rbstudy.pipeline.store import write_dataset_atomic, write_text_atomic
+    from rbstudy.pipeline.store import source_text, write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells = {}
@@ -385,7 +385,7 @@ def _conformance(args):
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
-             "steps": args.steps, "source": f"rbstudy {_version()}"}
+             "steps": args.steps, "source": source_text(_version())}
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
                                      header, figures), out / "conformance.html")

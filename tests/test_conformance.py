@@ -30,6 +30,14 @@ def scorecard(tmp_path_factory):
         return out, ds.load()
 
 
+def test_the_scorecard_names_the_code_that_made_it_as_archives_do(scorecard):
+    """``rbstudy 0.4.0 (commit abc1234)`` from a checkout, as each golden archive says."""
+    out, ds = scorecard
+    with xr.open_dataset(out / "conformance_abaqus_top" / "conformance_abaqus_top.nc") as golden:
+        assert ds.attrs["source"] == golden.attrs["source"]
+    assert ds.attrs["source"].startswith(f"rbstudy {importlib.metadata.version('rbstudy')}")
+
+
 def _rule(ds, scheme, case, rule):
     return int(ds["rule_passed"].sel(scheme=scheme, case=case, rule=rule))
 
