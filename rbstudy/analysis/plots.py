@@ -120,12 +120,13 @@ SCHEME_STYLES = {
     "mujoco_implicitfast": ("tab:gray", ">", "-"),
     "mujoco_implicit": ("darkgoldenrod", "x", "--"),
     "mujoco_rk4": ("magenta", "*", "-."),
-    # Bullet's bodies take MuJoCo's Euler and implicit steps, Exudyn's RK44 is rkmk4 to O(h^5):
-    # each of them another marker and dash than the line it lies on
+    # Bullet's bodies take MuJoCo's Euler and implicit steps (their lines agree to 3 digits and
+    # share a legend entry); Exudyn's RK44 is rkmk4 to O(h^5), which is not 3 digits at the
+    # finest steps: a solid line with large hollow markers under rkmk4's dashed one
     "bullet_multibody": ("teal", "d", "--"),
     "bullet_rigidbody": ("sienna", "h", ":"),
     "exudyn_genalpha": ("darkgreen", "p", "-."),
-    "exudyn_rk44": ("crimson", "8", ":"),
+    "exudyn_rk44": ("crimson", "8", "-"),
     "exudyn_midpoint": ("slateblue", "H", "--"),
     # Drake's (rbstudy.engines.drake)
     "drake_rk2": ("mediumvioletred", "d", "-"),
