@@ -5,11 +5,13 @@ with rbstudy's own schemes where the formulations coincide, and its order throug
 The other engines' agreements and orders are in tests/test_<engine>.py."""
 
 import sys
+from importlib.metadata import requires
 
 import numpy as np
 import pytest
 from conftest import abaqus_mapping, final_orientation_errors
 from engine_cases import compared_scenes, difference, example_scheme, make_scene, run, swept_errors
+from packaging.requirements import Requirement
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SchemeError
@@ -20,13 +22,13 @@ from rbstudy.schemes import SCHEMES, get_scheme, unavailable_schemes
 from rbstudy.schemes._plugins import ENGINES
 
 MUJOCO = ("mujoco_euler", "mujoco_implicitfast", "mujoco_implicit", "mujoco_rk4")
-# Each adapter: the bindings it imports, and the install command it names without them.
+# Each adapter: the bindings it imports, the package and the rbstudy extra its install hint
+# names (the extra must exist in pyproject.toml and hold the package: tested below).
 BINDINGS = {
-    "rbstudy.engines.mujoco": ("mujoco", 'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")'),
-    "rbstudy.engines.bullet": ("pybullet",
-                               'pip install "pybullet>=3.2.7" (rbstudy\'s extra "engines")'),
-    "rbstudy.engines.exudyn": ("exudyn", 'pip install "exudyn>=1.13.6" (rbstudy\'s extra "engines")'),
-    "rbstudy.engines.drake": ("pydrake", 'pip install "drake>=1.51" (rbstudy\'s extra "engines")'),
+    "rbstudy.engines.mujoco": ("mujoco", "mujoco>=4.0", "mujoco"),
+    "rbstudy.engines.bullet": ("pybullet", "pybullet>=3.2.7", "bullet"),
+    "rbstudy.engines.exudyn": ("exudyn", "exudyn>=1.13.6", "exudyn"),
+    "rbstudy.engines.drake": ("pydrake", "drake>=1.51", "drake"),
 }
 
 # Schemes that integrate the rotation's coordinates, not on the rotation group, and so miss a
@@ -49,9 +51,24 @@ def test_every_adapter_names_its_bindings():
 
 
 @pytest.mark.parametrize("adapter", sorted(BINDINGS))
+def test_the_extra_an_install_hint_names_installs_that_engine(adapter):
+    """The hint's extra is in rbstudy's installed metadata, holds the package, and `engines`
+    holds that extra."""
+    _, package, extra = BINDINGS[adapter]
+    needs = [Requirement(line) for line in requires("rbstudy")]
+
+    def of_extra(name):
+        return [need for need in needs if need.marker and need.marker.evaluate({"extra": name})]
+
+    assert package in {f"{need.name}{need.specifier}" for need in of_extra(extra)}
+    assert extra in next(need.extras for need in of_extra("engines") if need.name == "rbstudy")
+
+
+@pytest.mark.parametrize("adapter", sorted(BINDINGS))
 def test_without_its_engine_each_scheme_is_unavailable_with_the_install_hint(adapter,
                                                                                monkeypatch):
-    binding, fix = BINDINGS[adapter]
+    binding, package, extra = BINDINGS[adapter]
+    fix = f'pip install "{package}" (rbstudy\'s extra "{extra}")'
     monkeypatch.setitem(sys.modules, binding, None)  # import <binding> raises ImportError
     monkeypatch.delitem(sys.modules, adapter, raising=False)
     monkeypatch.setattr(SCHEMES, "_groups", {})  # loaded again on first use

@@ -74,7 +74,7 @@ from rbstudy.schemes._registry import Scheme
 
 __all__ = ["MULTIBODY", "RIGIDBODY"]
 
-_INSTALL = 'pip install "pybullet>=3.2.7" (rbstudy\'s extra "engines")'
+_INSTALL = 'pip install "pybullet>=3.2.7" (rbstudy\'s extra "bullet")'
 
 
 @contextlib.contextmanager

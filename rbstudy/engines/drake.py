@@ -67,7 +67,7 @@ from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._plugins import SchemeUnavailable
 from rbstudy.schemes._registry import Scheme
 
-_INSTALL = 'pip install "drake>=1.51" (rbstudy\'s extra "engines")'
+_INSTALL = 'pip install "drake>=1.51" (rbstudy\'s extra "drake")'
 
 try:
     # the package first: its submodules, once imported, would be found even were it hidden

@@ -62,7 +62,7 @@ from rbstudy.schemes._registry import Option, Scheme
 
 __all__ = ["GENALPHA", "RK44", "MIDPOINT"]
 
-_INSTALL = 'pip install "exudyn>=1.13.6" (rbstudy\'s extra "engines")'
+_INSTALL = 'pip install "exudyn>=1.13.6" (rbstudy\'s extra "exudyn")'
 
 try:
     import exudyn

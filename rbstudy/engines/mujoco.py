@@ -75,7 +75,7 @@ try:
     from mujoco import rollout
 except ImportError:
     raise SchemeUnavailable("needs the mujoco package",
-                            'pip install "mujoco>=4.0" (rbstudy\'s extra "engines")') from None
+                            'pip install "mujoco>=4.0" (rbstudy\'s extra "mujoco")') from None
 
 __all__ = ["EULER", "IMPLICITFAST", "IMPLICIT", "RK4"]
 
