@@ -73,10 +73,12 @@ def _schemes(args):
 
 def _bench(args):
     from rbstudy.analysis.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    from rbstudy.schemes import expand_groups
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
                            f"{args.body_steps:.3g}")
-    run_bench(schemes=[*args.scheme_names, *(args.schemes or ())] or None,
+    # groups as conformance takes them: `bench builtin`, `bench --schemes mujoco,rk4`
+    run_bench(schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
               body_steps=args.body_steps or BODY_STEPS, progress=not args.quiet)
     return 0
 
