@@ -368,8 +368,9 @@ def _conformance(args):
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
+            held = () if case.moment_free else [s for s in schemes if get_scheme(s).loads_held]
             cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
-                                          case.figure)
+                                          case.figure, held)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started

@@ -186,3 +186,26 @@ def test_drakes_rk3_reproduces_its_floating_body_figure_and_its_rk2_does_not(tmp
         figure = ds["figure"].sel(case="drake_floating_body")
         assert (int(figure.sel(scheme="drake_rk3")), int(figure.sel(scheme="drake_rk2"))) == (1, 0)
         assert int(ds["passed"].sel(scheme="drake_rk3", case="drake_floating_body")) == 1
+
+
+def test_only_the_heavy_top_carries_a_moment():
+    """A held load judges the adapter only where a moment acts: the heavy top's weight at its
+    node; Drake's floating body falls under gravity at its centre, which turns nothing."""
+    assert [case.name for case in GOLDEN if not case.moment_free] == ["exudyn_heavy_top"]
+
+
+def test_the_card_marks_the_heavy_top_cells_that_judge_an_adapters_held_load(tmp_path, capsys):
+    """MuJoCo's RK4 shows no order 4 under the heavy top's moment, which its adapter holds
+    over each step: the card says so beside the cell and in a footnote, not on rk4's cell nor
+    on the moment-free floating body."""
+    pytest.importorskip("mujoco")
+    assert main(["conformance", "--cases", "exudyn_heavy_top,drake_floating_body", "--schemes",
+                 "mujoco_rk4,rk4", "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in printed.splitlines()[1:3]}
+    assert rows["mujoco_rk4"].split()[2:] == ["FAIL", "order", "*", "order", "4.00,", "figure",
+                                              "yes"]
+    assert "*" not in rows["rk4"]
+    assert "\n* the adapter holds the loads of each step's start over the step" in printed
+    assert max(map(len, printed.splitlines())) <= TERMINAL_WIDTH
+    assert "a cell so marked judges that" in (tmp_path / "conformance.html").read_text()

@@ -50,6 +50,7 @@ import yaml
 from rbstudy.errors import RbstudyError
 from rbstudy.physics.analytic import symmetric_top
 from rbstudy.physics.quaternions import quat_to_matrix
+from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
@@ -102,6 +103,12 @@ class GoldenCase:
     rules: tuple = ("order", "invariants", "energy", "failure")
     figure: Figure | None = None
     steps: int | None = None
+
+    @property
+    def moment_free(self):
+        """No moment acts on the body: a load held over a step, as an engine's caller holds
+        it (`rbstudy.schemes.Scheme.loads_held`), then turns it exactly."""
+        return scene_from_mapping(self.scene, source=self.name).loads.moment_free
 
 
 def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
