@@ -29,6 +29,9 @@ A case taken from a peer's public tests carries the figure its source asserts
 (`judge_figure`, by the measures of `FIGURE_MEASURES`), at the case's own step, the source's;
 the cell says ``figure yes`` or ``figure no``, and nothing where the source asserts no number
 of that scheme (a figure that is one engine integrator's own output is asked of it alone).
+Where a moment acts, the cell of a scheme that holds each step's loads over the step (an
+engine adapter, `rbstudy.schemes.Scheme.loads_held`) is marked `HELD_LOAD_MARK`, and the
+card says in a footnote (`HELD_LOAD_NOTE`) that it judges the adapter.
 
 A cell passes when every rule of its case passes; its number is the observed order (none
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
