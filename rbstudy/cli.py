@@ -73,10 +73,12 @@ def _schemes(args):
 
 def _bench(args):
     from rbstudy.analysis.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    from rbstudy.schemes import expand_groups
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
                            f"{args.body_steps:.3g}")
-    run_bench(schemes=[*args.scheme_names, *(args.schemes or ())] or None,
+    # groups as conformance takes them: `bench builtin`, `bench --schemes mujoco,rk4`
+    run_bench(schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
               body_steps=args.body_steps or BODY_STEPS, progress=not args.quiet)
     return 0
 
@@ -366,8 +368,9 @@ def _conformance(args):
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
+            held = () if case.moment_free else [s for s in schemes if get_scheme(s).loads_held]
             cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
-                                          case.figure)
+                                          case.figure, held)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started

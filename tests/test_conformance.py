@@ -147,7 +147,7 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys):
 
 def test_every_golden_case_names_known_rules():
     assert {rule for case in GOLDEN for rule in case.rules} <= set(RULES)
-    assert len({case.name for case in GOLDEN}) == len(GOLDEN) == 11
+    assert len({case.name for case in GOLDEN}) == len(GOLDEN) == 12
 
 
 # Each rule on a golden archive with one thing made wrong, so that the rule must see it.

@@ -1,10 +1,11 @@
-"""The peers' public cases in the golden set: OpenRadioss's QA ROTA and Drake's free-body
-benchmark, each with the figure its source asserts, which the card checks every scheme
-against (`judge_figure`)."""
+"""The peers' public cases in the golden set: OpenRadioss's QA ROTA, Drake's free-body
+benchmark and floating-body test, Exudyn's Lie-group test, each with the figure its source
+asserts, which the card checks every scheme against (`judge_figure`)."""
 
 import numpy as np
 import pytest
 import xarray as xr
+from scipy.spatial.transform import Rotation
 
 from rbstudy.analysis.conformance import judge_figure
 from rbstudy.analysis.summary import TERMINAL_WIDTH
@@ -13,13 +14,14 @@ from rbstudy.pipeline.golden import GOLDEN
 from rbstudy.pipeline.store import open_results
 
 CASES = {case.name: case for case in GOLDEN}
+_CARD_CASES = "radioss_rota,drake_free_body,drake_floating_body,abaqus_top"
 
 
 @pytest.fixture(scope="module")
 def card(tmp_path_factory):
-    """rk4, midpoint and euler on the two peers' cases and the Abaqus top, three steps."""
+    """rk4, midpoint and euler on three peers' cases and the Abaqus top, three steps."""
     out = tmp_path_factory.mktemp("figures")
-    assert main(["conformance", "--cases", "radioss_rota,drake_free_body,abaqus_top",
+    assert main(["conformance", "--cases", _CARD_CASES,
                  "--schemes", "rk4,midpoint,euler", "--steps", "3", "--out", str(out),
                  "--quiet"]) == 0
     with xr.open_dataset(out / "conformance.nc") as ds:
@@ -61,8 +63,8 @@ def test_second_and_fourth_order_schemes_pass_and_reproduce_the_figures(card):
 
 def test_the_card_says_figure_yes_or_no_within_the_terminal(card, capsys):
     out, _ = card
-    assert main(["conformance", "--cases", "radioss_rota,drake_free_body,abaqus_top",
-                 "--schemes", "rk4,midpoint,euler", "--steps", "3", "-o", str(out), "-q"]) == 0
+    assert main(["conformance", "--cases", _CARD_CASES, "--schemes", "rk4,midpoint,euler",
+                 "--steps", "3", "-o", str(out), "-q"]) == 0
     printed = capsys.readouterr().out
     assert "figure yes" in printed and "figure no" in printed
     assert "x 3 time steps (radioss_rota: 1);" in printed
@@ -123,3 +125,87 @@ def test_the_radioss_case_sweeps_the_sources_step_alone(card):
     ds = _golden(out, "radioss_rota")
     assert ds["dt"].values.tolist() == [1e-3]
     assert "order" not in CASES["radioss_rota"].rules
+
+
+def test_drakes_floating_body_asks_each_element_as_compare_matrices_does():
+    """Drake's floating_body_test.cc: at 10 s, R_WB, w_WB and p_WBcm within 1e-5 max(1,
+    |element|); w_WB against the torque-free symmetric top written independently (the
+    symmetry axis turning about L at |L| / I), p_WBcm against the parabola."""
+    figure = CASES["drake_floating_body"].figure
+    assert figure.url.endswith("multibody/tree/test/floating_body_test.cc") and figure.scheme is None
+    checks = {check.measure: check for check in figure.checks}
+    assert all(check.at == 10.0 and check.growth == 0.0 for check in figure.checks)
+    assert (checks["orientation_error"].expected, checks["orientation_error"].tolerance) == (0, 1e-5)
+    inertia, axial, omega0 = 0.04, 0.02, np.ones(3)  # B = W at t = 0, so w_B(0) = w_W(0)
+    momentum = np.array([inertia, inertia, axial]) * omega0
+    axis = Rotation.from_rotvec(momentum / inertia * 10.0).apply([0.0, 0.0, 1.0])
+    omega = momentum / inertia + (1 / axial - 1 / inertia) * (momentum @ axis) * axis
+    position = (10.0, 0.0, -0.5 * 9.81 * 100.0)  # v(0) = (1, 0, 0) m/s, g = 9.81 m/s^2 down z
+    for name, exact in (("omega_space", omega), ("position", position)):
+        for component, value in zip("xyz", exact, strict=True):
+            check = checks[f"{name}_{component}"]
+            assert check.expected == pytest.approx(value, abs=1e-12)
+            assert check.tolerance == pytest.approx(1e-5 * max(1.0, abs(value)), rel=1e-12)
+
+
+def test_the_floating_body_passes_for_rbstudys_schemes_and_only_rk4_meets_drakes_1e5(card):
+    """At the card's 1/80 s, rk4 reproduces Drake's figure; midpoint passes every rule but
+    misses 1e-5 (its orientation error is 7e-4 rad at 10 s); euler does neither."""
+    _, ds = card
+    for scheme in ("rk4", "midpoint"):
+        assert int(ds["passed"].sel(scheme=scheme, case="drake_floating_body")) == 1, scheme
+    figure = ds["figure"].sel(case="drake_floating_body")
+    assert (int(figure.sel(scheme="rk4")), int(figure.sel(scheme="midpoint")),
+            int(figure.sel(scheme="euler"))) == (1, 0, 0)
+    said = str(ds["figure_text"].sel(scheme="rk4", case="drake_floating_body").values)
+    assert said.startswith("at dt = 0.0125 s: orientation_error") and "position_z -490.5" in said
+
+
+def test_a_component_past_drakes_relative_allowance_is_not_the_figure(card):
+    """p_z = -490.5 m is allowed 4.9e-3 m, w_x = 1.41 rad/s 1.41e-5 rad/s: a miss just
+    inside passes, just outside fails (an absolute 1e-5 would fail the first)."""
+    out, _ = card
+    figure = CASES["drake_floating_body"].figure
+
+    def judged(variable, axis, shift):
+        ds = _golden(out, "drake_floating_body")
+        ds[variable].loc[{"scheme": "rk4", "time": 10.0, "axis": axis}] += shift
+        return judge_figure(ds, "rk4", figure).passed
+
+    assert judged("position", "z", 4.8e-3) and not judged("position", "z", 5.0e-3)
+    assert judged("omega_space", "x", 1.3e-5) and not judged("omega_space", "x", 1.5e-5)
+
+
+def test_drakes_rk3_reproduces_its_floating_body_figure_and_its_rk2_does_not(tmp_path):
+    """The figure is of the motion, asked of every scheme: fixed-step RK3 at 1/80 s is
+    within it (orientation 6.9e-6 rad); RK2 misses w_WB by up to 1.8e-5 rad/s."""
+    pytest.importorskip("pydrake")
+    assert main(["conformance", "--cases", "drake_floating_body", "--schemes",
+                 "drake_rk3,drake_rk2", "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    with xr.open_dataset(tmp_path / "conformance.nc") as ds:
+        figure = ds["figure"].sel(case="drake_floating_body")
+        assert (int(figure.sel(scheme="drake_rk3")), int(figure.sel(scheme="drake_rk2"))) == (1, 0)
+        assert int(ds["passed"].sel(scheme="drake_rk3", case="drake_floating_body")) == 1
+
+
+def test_only_the_heavy_top_carries_a_moment():
+    """A held load judges the adapter only where a moment acts: the heavy top's weight at its
+    node; Drake's floating body falls under gravity at its centre, which turns nothing."""
+    assert [case.name for case in GOLDEN if not case.moment_free] == ["exudyn_heavy_top"]
+
+
+def test_the_card_marks_the_heavy_top_cells_that_judge_an_adapters_held_load(tmp_path, capsys):
+    """MuJoCo's RK4 shows no order 4 under the heavy top's moment, which its adapter holds
+    over each step: the card says so beside the cell and in a footnote, not on rk4's cell nor
+    on the moment-free floating body."""
+    pytest.importorskip("mujoco")
+    assert main(["conformance", "--cases", "exudyn_heavy_top,drake_floating_body", "--schemes",
+                 "mujoco_rk4,rk4", "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in printed.splitlines()[1:3]}
+    assert rows["mujoco_rk4"].split()[2:] == ["FAIL", "order", "*", "order", "4.00,", "figure",
+                                              "yes"]
+    assert "*" not in rows["rk4"]
+    assert "\n* the adapter holds the loads of each step's start over the step" in printed
+    assert max(map(len, printed.splitlines())) <= TERMINAL_WIDTH
+    assert "a cell so marked judges that" in (tmp_path / "conformance.html").read_text()

@@ -1,5 +1,6 @@
-"""Groups of schemes on `rbstudy conformance --schemes`: one per engine of the registry's
-`ENGINES`, ``engines`` and ``builtin``, expanded to the available schemes, each once."""
+"""Groups of schemes on `rbstudy conformance --schemes` and `rbstudy bench`: one per engine
+of the registry's `ENGINES`, ``engines`` and ``builtin``, expanded to the available schemes,
+each once."""
 
 import pytest
 
@@ -54,3 +55,19 @@ def test_the_command_refuses_an_absent_engine_in_one_line(monkeypatch, tmp_path,
     assert error == ("rbstudy: error: --schemes: the group 'drake' has no scheme available here: "
                      "needs the pydrake package; pip install drake\n")
     assert not list(tmp_path.iterdir())
+
+
+def test_bench_takes_groups_as_conformance_does(capsys):
+    """`bench --schemes builtin,rk4` times each of rbstudy's fixed-step schemes once (before:
+    "unknown scheme 'builtin'")."""
+    assert main(["bench", "--schemes", "builtin,rk4", "--body-steps", "200", "--quiet"]) == 0
+    rows = [line.split()[0] for line in capsys.readouterr().out.splitlines()[4:]]
+    assert rows == scheme_groups()["builtin"]
+
+
+def test_bench_refuses_an_absent_engine_in_one_line(monkeypatch, capsys):
+    _without_drake(monkeypatch)
+    assert main(["bench", "drake", "--body-steps", "200", "--quiet"]) == 1
+    assert capsys.readouterr().err == (
+        "rbstudy: error: --schemes: the group 'drake' has no scheme available here: needs the "
+        "pydrake package; pip install drake\n")

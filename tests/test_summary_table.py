@@ -14,7 +14,7 @@ import pytest
 import yaml
 from conftest import CONFIGS, copy_node_tables
 
-from rbstudy.analysis.conformance import Cell, Verdict, format_scorecard
+from rbstudy.analysis.conformance import HELD_LOAD_NOTE, Cell, Verdict, format_scorecard
 from rbstudy.analysis.summary import (
     SUMMARY_VARIABLES,
     TERMINAL_WIDTH,
@@ -152,11 +152,13 @@ def test_markdown_csv_and_html_hold_the_values_of_the_text(shipped, wide):
 
 def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
     """Thirteen schemes on the golden cases, each failing cell as long as it gets, with the
-    source's figure not reproduced (before: 211 columns, "pass 1.09")."""
+    source's figure not reproduced and the adapter's held load marked (before: 211 columns,
+    "pass 1.09"); the mark's footnote last."""
     cases = [case.name for case in GOLDEN]
     schemes = ["euler", "exact_split", "mujoco_implicitfast", *(f"scheme{k}" for k in range(10))]
     worst = Cell(False, np.nan, {rule: Verdict(False, np.nan, "") for rule in
-                                 ("order", "energy", "failure")}, Verdict(False, np.nan, ""))
+                                 ("order", "energy", "failure")}, Verdict(False, np.nan, ""),
+                 load_held=True)
     order = Cell(True, 1.0937, {"order": Verdict(True, 1.0937, "")})
     exact = Cell(True, np.nan, {"order": Verdict(True, np.nan, "")})
     cells = {case: {scheme: {"euler": worst, "exact_split": exact}.get(scheme, order)
@@ -165,7 +167,8 @@ def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
     lines = text.splitlines()
     assert max(map(len, lines)) <= TERMINAL_WIDTH
     assert all(case in text for case in cases)
-    blocks = text.split("\n\n")
+    blocks, footnote = text.split("\n\n")[:-1], text.split("\n\n")[-1]
+    assert footnote.startswith(HELD_LOAD_NOTE[:40])
     for block in blocks:  # each block: the header, then every scheme with its count
         assert [line.split()[:2] for line in block.splitlines()] == [
             ["scheme", "passed"], ["euler", f"0/{len(cases)}"],
@@ -173,7 +176,7 @@ def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
             *([scheme, f"{len(cases)}/{len(cases)}"] for scheme in schemes[2:])]
     assert [case for block in blocks for case in block.splitlines()[0].split()[2:]] == cases
     euler = [line for line in lines if line.startswith("euler")]
-    assert all(line.count("FAIL order, energy, failure, figure no") >= 1 for line in euler)
+    assert all(line.count("FAIL order, energy, failure, figure no *") >= 1 for line in euler)
     assert "order 1.09" in text and "pass 1.09" not in text and "exact" in text
 
 

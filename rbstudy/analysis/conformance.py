@@ -29,6 +29,9 @@ A case taken from a peer's public tests carries the figure its source asserts
 (`judge_figure`, by the measures of `FIGURE_MEASURES`), at the case's own step, the source's;
 the cell says ``figure yes`` or ``figure no``, and nothing where the source asserts no number
 of that scheme (a figure that is one engine integrator's own output is asked of it alone).
+Where a moment acts, the cell of a scheme that holds each step's loads over the step (an
+engine adapter, `rbstudy.schemes.Scheme.loads_held`) is marked `HELD_LOAD_MARK`, and the
+card says in a footnote (`HELD_LOAD_NOTE`) that it judges the adapter.
 
 A cell passes when every rule of its case passes; its number is the observed order (none
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
@@ -51,12 +54,13 @@ from rbstudy.analysis.summary import (
     per_scheme,
     scheme_rows,
     schemes_of,
+    wrap_clauses,
 )
 from rbstudy.numerics.state import INVARIANTS
 
 __all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "ORIGIN_RBSTUDY",
-           "FIGURE_MEASURES", "Verdict", "Cell", "judge_figure", "score_case", "format_scorecard",
-           "scorecard_dataset", "scorecard_html"]
+           "FIGURE_MEASURES", "HELD_LOAD_MARK", "HELD_LOAD_NOTE", "Verdict", "Cell", "judge_figure",
+           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
 
 ORDER_TOLERANCE = 0.3
 ENERGY_GAIN = 1e-3
@@ -73,6 +77,12 @@ FLIP_FLOOR = ERROR_MEASURES["flip"][2]
 ORIGIN_RBSTUDY = "rbstudy"
 # What tabulate's plain table puts between two columns.
 _GAP = "  "
+# The card's footnote on a cell whose scheme holds the loads over each step under a moment
+# (`rbstudy.schemes.Scheme.loads_held`): its order there is the adapter's, not the engine's.
+HELD_LOAD_MARK = "*"
+HELD_LOAD_NOTE = (f"{HELD_LOAD_MARK} the adapter holds the loads of each step's start over the "
+                  "step, as a caller hands them to the engine (docs/engines.md): where a moment "
+                  "acts, a cell so marked judges that, not the engine's integrator")
 RULES = {
     "order": f"observed order within {ORDER_TOLERANCE} of the nominal order",
     "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
@@ -95,21 +105,26 @@ class Verdict:
 @dataclass(frozen=True)
 class Cell:
     """A scheme in a case: ``passed`` (all applicable rules), its number ``value``, the
-    ``verdicts`` per rule name, and the ``figure`` verdict: whether the scheme reproduces
-    the figure the case's source asserts (None: the source asserts none)."""
+    ``verdicts`` per rule name, the ``figure`` verdict: whether the scheme reproduces the
+    figure the case's source asserts (None: the source asserts none), and ``load_held``:
+    the scheme holds each step's loads over the step in a case where a moment acts, so the
+    cell judges its adapter (`HELD_LOAD_NOTE`)."""
 
     passed: bool
     value: float
     verdicts: dict
     figure: Verdict | None = None
+    load_held: bool = False
 
     def short(self):
         """What the cell shows: the observed order of a scheme that passed (``order 4.00``),
         ``exact`` for one exact on the body, ``pass`` where no order is judged, or the rules
         it failed (``FAIL energy, failure``); then ``figure yes`` or ``figure no`` where the
-        source asserts a figure."""
-        return self._verdict() + ("" if self.figure is None
-                                  else f", figure {'yes' if self.figure.passed else 'no'}")
+        source asserts a figure; then `HELD_LOAD_MARK` where the load is held."""
+        return (self._verdict()
+                + ("" if self.figure is None
+                   else f", figure {'yes' if self.figure.passed else 'no'}")
+                + (f" {HELD_LOAD_MARK}" if self.load_held else ""))
 
     def _verdict(self):
         if self.passed:
@@ -232,7 +247,10 @@ FIGURE_MEASURES = {
     "orientation_error": lambda run: run["orientation_error"],  # rad
     # rad/s; |w - w_exact| where |w_exact| stays |w(0)|: a symmetric top, a spherical body
     "omega_error_magnitude": lambda run: run["omega_error"] * run["initial_spin"],
-    "omega_space_y": lambda run: run["omega_space"].sel(axis="y"),  # rad/s
+    # a component of the angular velocity in space (rad/s) or of the centre's position (m)
+    **{f"{variable}_{axis}": (lambda run, variable=variable, axis=axis:
+                              run[variable].sel(axis=axis))
+       for variable in ("omega_space", "position") for axis in "xyz"},
 }
 
 
@@ -257,16 +275,20 @@ def judge_figure(ds, scheme, figure):
         worst = max(worst, share)
         allowance = (f" +- {check.tolerance:g}" if check.tolerance else "") + (
             f" + {check.growth:g} t" if check.growth else "")
+        farthest = float(measured.values.flat[int(np.argmax(deviation.values))])  # signed
+        # six figures hide a miss of 1e-10 in -106.16651966442174: say the miss as well
+        off = (f"; off by {float(deviation.max()):.2g}"
+               if check.expected and check.tolerance else "")
         said.append(f"{check.measure} {'up to ' if 'time' in measured.dims else ''}"
-                    f"{float(np.abs(measured).max()):.6g} (asserted {check.expected:g}"
-                    f"{allowance})")
+                    f"{farthest:.6g} (asserted {check.expected:g}{allowance}{off})")
     return Verdict(worst <= 1.0, worst, f"at dt = {dt:g} s: {'; '.join(said)}")
 
 
-def score_case(ds, rules, schemes=None, figure=None):
+def score_case(ds, rules, schemes=None, figure=None, loads_held=()):
     """The `Cell` of each of ``schemes`` (default: every scheme) of the golden study ``ds``
     under ``rules`` (names of `RULES`), checked against the source's ``figure`` where there
-    is one and it is asked of the scheme (`Figure.scheme`): scheme -> cell."""
+    is one and it is asked of the scheme (`Figure.scheme`); ``loads_held``: the schemes
+    whose cells judge how their adapter holds the case's moment: scheme -> cell."""
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
     cells = {}
     for scheme in schemes or schemes_of(ds):
@@ -275,14 +297,14 @@ def score_case(ds, rules, schemes=None, figure=None):
         cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),
                              np.nan if order is None else order.value, verdicts,
                              None if figure is None or figure.scheme not in (None, scheme)
-                             else judge_figure(ds, scheme, figure))
+                             else judge_figure(ds, scheme, figure), scheme in loads_held)
     return cells
 
 
 def format_scorecard(cells, cases):
     """The printed table: a row per scheme, a column per case (``cells``: case -> scheme ->
     `Cell`), and the count of cases passed; the cases in as many blocks under each other as
-    keep every line within `TERMINAL_WIDTH`."""
+    keep every line within `TERMINAL_WIDTH`; then `HELD_LOAD_NOTE` if a cell is so marked."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
     passed = [f"{sum(cells[c][s].passed for c in cases if s in cells[c])}/{len(cases)}"
               for s in schemes]
@@ -301,9 +323,15 @@ def format_scorecard(cells, cases):
         blocks[-1].append(case)
         used += width(columns[case])
     return "\n\n".join(
-        tabulate(list(zip(*fixed, *(columns[c] for c in block), strict=True)), tablefmt="plain",
-                 colalign=["left", "right"] + ["left"] * len(block), disable_numparse=True)
-        for block in blocks)
+        [tabulate(list(zip(*fixed, *(columns[c] for c in block), strict=True)), tablefmt="plain",
+                  colalign=["left", "right"] + ["left"] * len(block), disable_numparse=True)
+         for block in blocks]
+        + (["\n".join(wrap_clauses(HELD_LOAD_NOTE, indent="  "))] if _held(cells, cases) else []))
+
+
+def _held(cells, cases):
+    """Whether a cell of ``cases`` judges an adapter's held load (`Cell.load_held`)."""
+    return any(cell.load_held for case in cases for cell in cells[case].values())
 
 
 def scorecard_dataset(cells, cases, attrs):
@@ -375,4 +403,5 @@ def scorecard_html(cells, cases, titles, header, figures=None):
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
     rows = [(s, [cells[c].get(s) for c in cases]) for s in schemes]
     return render("conformance.html.j2", title="rbstudy conformance scorecard", header=header,
-                  rules=RULES, cases=cases, titles=titles, rows=rows, figures=figures or {})
+                  rules=RULES, cases=cases, titles=titles, rows=rows, figures=figures or {},
+                  held_load_note=HELD_LOAD_NOTE if _held(cells, cases) else None)

@@ -266,6 +266,7 @@ def _scheme(name, maximal, summary, step_seconds):
                   "Body Dynamics Algorithms, Springer 2008",
         origin=f"rbstudy's adapter of pybullet {VERSION}",
         code_digest=f"pybullet {VERSION}",  # another Bullet: other parts
+        loads_held=True,
     )
 
 

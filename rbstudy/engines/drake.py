@@ -207,6 +207,7 @@ def _scheme(name, flag, order, summary, step_seconds):
                   "formulation of compliant contact (SAP), IEEE T-RO 2023",
         origin=f"rbstudy's adapter of Drake {VERSION}",
         code_digest=f"drake {VERSION}",  # another Drake: other parts
+        loads_held=True,
     )
 
 

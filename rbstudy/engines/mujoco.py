@@ -196,6 +196,7 @@ def _scheme(name, integrator, order, summary, step_seconds):
                   "Computation: numerical integration",
         origin=f"rbstudy's adapter of mujoco {mujoco.__version__}",
         code_digest=f"mujoco {mujoco.__version__}",  # another MuJoCo: other parts
+        loads_held=True,
     )
 
 

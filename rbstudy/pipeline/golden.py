@@ -23,6 +23,8 @@ card checks every scheme against (docs/results.md gives the sources' lines):
 
 - `radioss_rota`: OpenRadioss's QA case ``KIN_CONSTRAINTS/RBODY/ROTA``.
 - `drake_free_body`: Drake's free-body benchmark against Kane and Levinson's closed form.
+- `drake_floating_body`: Drake's test of its quaternion floating mobilizer, the same body
+  falling under gravity, against the closed forms at 10 s.
 - `exudyn_heavy_top`: Exudyn's test of its explicit Lie-group integrators, a heavy top
   released free under its weight (no exact reference: rbstudy's DOP853 is its reference).
 
@@ -42,9 +44,13 @@ import math
 import pathlib
 from dataclasses import dataclass
 
+import numpy as np
 import yaml
 
 from rbstudy.errors import RbstudyError
+from rbstudy.physics.analytic import symmetric_top
+from rbstudy.physics.quaternions import quat_to_matrix
+from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
@@ -98,6 +104,12 @@ class GoldenCase:
     figure: Figure | None = None
     steps: int | None = None
 
+    @property
+    def moment_free(self):
+        """No moment acts on the body: a load held over a step, as an engine's caller holds
+        it (`rbstudy.schemes.Scheme.loads_held`), then turns it exactly."""
+        return scene_from_mapping(self.scene, source=self.name).loads.moment_free
+
 
 def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
     body = {"mass": 1.0, "inertia": list(inertia)}
@@ -143,6 +155,49 @@ _DRAKE_TOLERANCE, _DRAKE_GROWTH = 1e-3, 4 * 256 * 1e-3 / _DRAKE_DURATION
 # The card's largest step: within Drake's largest (a sixteenth of a period, 0.073 s), which
 # its error-controlled RK3 (1e-3 a step) shortens further.
 _DRAKE_DT = 1.0 / 32.0
+
+# Drake's multibody/tree/test/floating_body_test.cc (QuaternionFloatingMobilizer.Simulation):
+# the same cylinder (free_body.h), mass 1 kg, from the world's orientation at w_WB(0) = (1, 1,
+# 1) rad/s and v(0) = (1, 0, 0) m/s, falling under g = 9.81 m/s^2 along -z, integrated to 10 s
+# by its error-controlled RK3 (accuracy 1e-5, steps of at most 0.1 s). At 10 s it asserts
+# R_WB, p_WBcm, w_WB and v_WBcm against Kane and Levinson's closed form and the parabola by
+# CompareMatrices(..., 1e-5, relative): each element within 1e-5 max(1, |its value|). The card
+# asks the orientation error (rad, which bounds every element of the matrices' difference)
+# within 1e-5 and each component of w_WB and p_WBcm within the test's own allowance; v_WBcm
+# is not archived, and the test's quaternion-norm assertion (|q| within 5e-9 of 1) is of
+# Drake's unnormalised state, which the archive's unit quaternion does not keep.
+_FLOATING_URL = ("https://github.com/RobotLocomotion/drake/blob/master/multibody/tree/test/"
+                 "floating_body_test.cc")
+_FLOATING_OMEGA, _FLOATING_VELOCITY, _FLOATING_GRAVITY = (1.0, 1.0, 1.0), (1.0, 0.0, 0.0), 9.81
+_FLOATING_DURATION, _FLOATING_TOLERANCE = 10.0, 1e-5
+# The card's largest step: an eighth of Drake's largest (0.1 s), which its error control
+# shortens further; fixed-step RK3 reproduces the figure there, and rbstudy's fourth-order
+# schemes stay above round-off down to its third halving (6e-10 to 2e-9 rad at 1/80 s, 2e-13
+# to 6e-13 at 1/640 s).
+_FLOATING_DT = 0.1 / 8
+
+
+def _drake_compared(measure, expected):
+    """A `Check` of ``measure`` at 10 s as Drake's CompareMatrices(..., 1e-5, relative) asks
+    each element: within 1e-5 max(1, |expected|)."""
+    return Check(measure, expected, _FLOATING_TOLERANCE * max(1.0, abs(expected)),
+                 at=_FLOATING_DURATION)
+
+
+def _floating_checks():
+    """The checks of Drake's floating-body test: the orientation, then w_WB and p_WBcm
+    component by component, against the closed forms at 10 s."""
+    quaternion, omega = symmetric_top(_DRAKE_INERTIA, (0.0, 0.0, 0.0, 1.0), _FLOATING_OMEGA,
+                                      [_FLOATING_DURATION])
+    omega_space = quat_to_matrix(quaternion[0]) @ omega[0]
+    position = (np.asarray(_FLOATING_VELOCITY) * _FLOATING_DURATION
+                - 0.5 * np.array([0.0, 0.0, _FLOATING_GRAVITY]) * _FLOATING_DURATION ** 2)
+    return (Check("orientation_error", 0.0, _FLOATING_TOLERANCE, at=_FLOATING_DURATION),
+            *(_drake_compared(f"omega_space_{axis}", float(value))
+              for axis, value in zip("xyz", omega_space, strict=True)),
+            *(_drake_compared(f"position_{axis}", float(value))
+              for axis, value in zip("xyz", position, strict=True)))
+
 
 # Exudyn's TestModels/explicitLieGroupIntegratorTest.py: a body of mass 15 with a heavy top's
 # inertia about its fixed point, free, its weight at the body point (0, 1, 0), spun at (0,
@@ -203,6 +258,16 @@ GOLDEN = (
                              (Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
                               Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE,
                                     2 * _DRAKE_GROWTH)))),
+    GoldenCase("drake_floating_body", "Drake's floating body: the cylinder falling, w = (1, 1, 1)",
+               {"body": {"mass": 1.0, "inertia": list(_DRAKE_INERTIA)},
+                "initial": {"angular_velocity": {"body": list(_FLOATING_OMEGA)},
+                            "velocity": list(_FLOATING_VELOCITY)},
+                "loads": {"gravity": [0.0, 0.0, -_FLOATING_GRAVITY]},
+                "duration": _FLOATING_DURATION},
+               dt=_FLOATING_DT, interval=0.05,
+               figure=Figure("at 10 s: R_WB, w_WB and p_WBcm within 1e-5 max(1, |element|) of "
+                             "the closed forms (the test's own)", _FLOATING_URL,
+                             _floating_checks())),
     GoldenCase("exudyn_heavy_top", "Exudyn's Lie-group test: a heavy top at 150 rad/s, free",
                {"body": {"mass": _EXUDYN_MASS,
                          "inertia": [0.234375 + _EXUDYN_MASS, 0.46875, 0.234375 + _EXUDYN_MASS]},

@@ -64,6 +64,9 @@ class Scheme:
     origin : who provides it: "rbstudy", or a plug-in's package and version (set on loading).
     code_digest : a plug-in's digest of its package's sources, which enters its batch ids
         (None for rbstudy's own schemes: rbstudy's source digest covers them).
+    loads_held : takes the loads at each step's start and holds them over the step, as a
+        caller hands loads to an engine (docs/engines.md): under a moment it is then of
+        order 1 at most, whatever its integrator's order.
     """
 
     name: str
@@ -78,6 +81,7 @@ class Scheme:
     options: tuple = field(default=())
     origin: str = "rbstudy"
     code_digest: str | None = None
+    loads_held: bool = False
 
     def __post_init__(self):
         unknown = set(self.keeps) - set(INVARIANTS)
