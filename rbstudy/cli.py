@@ -194,6 +194,7 @@ def _sweep(args):
         start_forkserver()
     from rbstudy.analysis.findings import FINDINGS_VARIABLES
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.cluster import Where
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study, study_progress
     from rbstudy.pipeline.store import folder_claim
@@ -206,6 +207,8 @@ def _sweep(args):
                               "command", "study names pick the results folder: rename one",
                               source=study.path, key="name")
     read_only = _study_folders(studies, args)
+    where = Where(scheduler=args.scheduler, workers=args.workers, cluster=cluster,
+                  writer=args.writer, worker_wait=args.worker_wait)
     # a folder of another config of the same name is refused before any study runs
     replaces = [folder_claim(args.out, study, args.force) for study in studies]
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
@@ -215,10 +218,8 @@ def _sweep(args):
         if replaced:  # even when quiet: it says whose results the run deletes
             _say(replaced)
         with study_progress(study, args.quiet) as progress:
-            done = run_study(study, args.out, scheduler=args.scheduler, workers=args.workers,
-                             force=args.force, keep_parts=args.keep_parts, cluster=cluster,
-                             writer=args.writer, worker_wait=args.worker_wait,
-                             progress=progress)
+            done = run_study(study, args.out, where=where, force=args.force,
+                             keep_parts=args.keep_parts, progress=progress)
             progress.phase(f"{study.name}: reading its findings")
             # proven by this run: sealed as written, or verified before it was reused
             summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),

@@ -20,7 +20,7 @@ from distributed import Client, LocalCluster
 
 from rbstudy.cli import main
 from rbstudy.errors import ConfigError, RbstudyError
-from rbstudy.pipeline.cluster import read_cluster_file
+from rbstudy.pipeline.cluster import Where, read_cluster_file
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
@@ -103,11 +103,11 @@ def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_p
                 client.wait_for_workers(2, timeout=60)
             with pytest.raises(RbstudyError, match="does not see this results folder; use "
                                                    "--writer auto or client") as refused:
-                run_study(load_study(config), "results", scheduler=cluster.scheduler_address,
-                          writer="workers", quiet=True)
+                run_study(load_study(config), "results", quiet=True,
+                          where=Where(scheduler=cluster.scheduler_address, writer="workers"))
             assert "\n" not in str(refused.value)
             remote = run_study(load_study(config), "results", keep_parts=True,
-                               scheduler=cluster.scheduler_address, quiet=True)
+                               where=Where(scheduler=cluster.scheduler_address), quiet=True)
         finally:
             _stop(workers)
     assert remote.returned == remote.computed == 4
@@ -125,9 +125,10 @@ def test_client_writer_on_a_shared_folder_gives_the_same_parts(tmp_path):
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
         shared = run_study(load_study(config), tmp_path / "shared",
-                           scheduler=cluster.scheduler_address, quiet=True)
-        sent = run_study(load_study(config), tmp_path / "sent", writer="client",
-                         scheduler=cluster.scheduler_address, quiet=True)
+                           where=Where(scheduler=cluster.scheduler_address), quiet=True)
+        sent = run_study(load_study(config), tmp_path / "sent",
+                         where=Where(scheduler=cluster.scheduler_address, writer="client"),
+                         quiet=True)
     assert (shared.returned, sent.returned) == (0, 4)
     _assert_same_numbers(threaded.path, shared.path)
     _assert_same_numbers(threaded.path, sent.path)
@@ -146,7 +147,8 @@ def test_a_killed_worker_keeps_the_finished_parts_and_a_rerun_resumes(tmp_path):
         killer = _when_parts_appear(out / "slow",
                                     lambda: [os.kill(pid, signal.SIGKILL) for pid in pids])
         with pytest.raises(RbstudyError) as killed:
-            run_study(load_study(config), out, scheduler=cluster.scheduler_address, quiet=True)
+            run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address),
+                      quiet=True)
         killer.join()
     message = str(killed.value)
     assert "KilledWorker" in message and "rerun the same command to resume" in message
@@ -168,7 +170,8 @@ def test_a_scheduler_that_goes_away_keeps_the_finished_parts(tmp_path):
     closer = _when_parts_appear(out / "slow", cluster.close)
     started = time.monotonic()
     with pytest.raises(RbstudyError, match="went away") as gone:
-        run_study(load_study(config), out, scheduler=cluster.scheduler_address, quiet=True)
+        run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address),
+                  quiet=True)
     assert time.monotonic() - started < 60  # ends, without waiting out reconnection
     closer.join()
     kept = _parts(out / "slow")
@@ -192,7 +195,7 @@ def test_workers_that_never_come_or_all_leave_end_the_run_in_one_line(tmp_path, 
         try:
             killer = _when_parts_appear(out / "slow", lambda: _stop(workers))
             with pytest.raises(RbstudyError, match=f"every worker left {address} for 2 s"):
-                run_study(load_study(config), out, scheduler=address, worker_wait=2,
+                run_study(load_study(config), out, where=Where(scheduler=address, worker_wait=2),
                           quiet=True)
             killer.join()
         finally:

@@ -62,8 +62,8 @@ def candidate_figures(ds):
     names = {"stability_map"}
     if "dt" in ds.dims:
         names.add("work_precision")
-        names |= {f"convergence_{key}" for key, (*_, variable, _) in ERROR_MEASURES.items()
-                  if variable in ds}
+        names |= {f"convergence_{key}" for key, measure in ERROR_MEASURES.items()
+                  if measure.variable in ds}
     if "energy_error" in ds:
         names.add("invariant_drift")
     if "precession_frequency" in ds and "node_offset" in ds:

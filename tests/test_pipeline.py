@@ -29,6 +29,7 @@ from rbstudy.physics.references import composed_steps
 from rbstudy.physics.scenes import Body
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline import cluster, execute
+from rbstudy.pipeline.cluster import Where
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import run_study, study_lock
@@ -394,12 +395,13 @@ def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(
 
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
-    cluster = run_study(load_study(config), tmp_path / "cluster", workers=2, quiet=True)
+    cluster = run_study(load_study(config), tmp_path / "cluster", where=Where(workers=2),
+                        quiet=True)
     _assert_same_numbers(threaded.path, cluster.path)
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                       dashboard_address=None) as running:
         remote = run_study(load_study(config), tmp_path / "remote",
-                           scheduler=running.scheduler_address, quiet=True)
+                           where=Where(scheduler=running.scheduler_address), quiet=True)
     _assert_same_numbers(threaded.path, remote.path)
 
 

@@ -72,7 +72,7 @@ SLOPE_CEILING = 0.5
 # T-handle); nor is a slope taken through an error below it.
 EXACT = 1e-8
 # The flip interval is measured between samples: errors below this (s) are its floor.
-FLIP_FLOOR = ERROR_MEASURES["flip"][2]
+FLIP_FLOOR = ERROR_MEASURES["flip"].floor
 # The `scheme_origin` of rbstudy's own schemes (`Scheme.origin`), the failure rule's baseline
 ORIGIN_RBSTUDY = "rbstudy"
 # What tabulate's plain table puts between two columns.

@@ -300,7 +300,7 @@ def _row_scheme(row):
 
 def _verdict(ds, row, rates):
     name, numbers = row["scheme"], {}
-    floor = ERROR_MEASURES["orientation"][2]
+    floor = ERROR_MEASURES["orientation"].floor
     largest = row.get("error")
     if row["order"] is None and largest is not None and np.isfinite(largest) and \
             largest <= floor:

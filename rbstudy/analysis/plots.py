@@ -522,7 +522,8 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
     dts = ds["dt"].values
     line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
-    for key, (label, units, round_off, *_) in ERROR_MEASURES.items():
+    for key, spec in ERROR_MEASURES.items():
+        label, units, round_off = spec.label, spec.units, spec.floor
         if measures is not None and key not in measures:
             continue
         measure = error_measure(ds, key)

@@ -132,7 +132,7 @@ def _lines_and_panels(ds, first):
 
 
 def _convergence_caption(ds, rows, key, first):
-    label, units = ERROR_MEASURES[key][:2]
+    label, units = ERROR_MEASURES[key].label, ERROR_MEASURES[key].units
     errors = error_measure(ds, key)
     dts = ds["dt"].values
     line = figure_layout(ds)[0]
@@ -243,7 +243,7 @@ def _data_uri(png):
 
 
 def _table_intro(ds):
-    floor, ceiling = ERROR_MEASURES["orientation"][2:4]
+    floor, ceiling = ERROR_MEASURES["orientation"].floor, ERROR_MEASURES["orientation"].ceiling
     return ("The table rbstudy sweep --wide prints, its footnotes under it. No order is fitted "
             f"through an error below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
             "uncertainty (reference_uncertainty). The asymptotic range: the longest run of at "

@@ -21,6 +21,7 @@ import io
 import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from tabulate import tabulate
@@ -28,37 +29,58 @@ from tabulate import tabulate
 from rbstudy.numerics.state import INVARIANTS
 from rbstudy.physics.metrics import asymptotic_order
 
-__all__ = ["ERROR_MEASURES", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
+__all__ = ["ERROR_MEASURES", "ErrorMeasure", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
            "TABLE_FORMATS", "error_measure", "fitted_order", "uncertainty_of",
            "UNCERTAINTY_FACTOR", "scheme_rows", "format_table", "order_text", "Column",
            "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load",
            "span", "agree", "coinciding_pairs", "COINCIDENT_DIGITS", "COINCIDENCE_RTOL"]
 
-# name -> (label, units, floor, ceiling, stored variable, uncertainty of its reference or
-# None). Below the floor an error is round-off: a few hundred ulps of the quantity (rounding
-# summed over 1e3-1e4 steps, relative to 1); energy and |L| are relative to their exact start
-# values and sit lower. Above the ceiling it is not asymptotic (or the run failed).
+class ErrorMeasure(NamedTuple):
+    """An error measure of the archive, as the table, the figures and the report show it.
+
+    label, units : its words and units. floor, ceiling : its asymptotic range: below the floor
+    an error is round-off, above the ceiling it is not asymptotic (or the run failed).
+    variable : the archive's variable. uncertainty : the variable of the uncertainty of its
+    reference, or None (a closed form, or a measure not against a reference).
+    """
+
+    label: str
+    units: str
+    floor: float
+    ceiling: float
+    variable: str
+    uncertainty: str | None = None
+
+
+# The floor is a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
+# to 1); energy and |L| are relative to their exact start values and sit lower.
 # `metrics.asymptotic_order` also cuts the range where the local slopes stop agreeing, so a
 # floor set a little low costs nothing. A measure taken against an integrated reference also
 # has a floor of `UNCERTAINTY_FACTOR` times that reference's uncertainty, case by case.
 ERROR_MEASURES = {
-    "orientation": ("final orientation error", "rad", 1e-13, 1e-1, "final_orientation_error",
-                    "reference_uncertainty"),
-    "omega": ("max relative angular velocity error", "1", 1e-13, 1e-1, "omega_error",
-              "reference_omega_uncertainty"),
-    "nodes": ("max node position error", "m", 1e-13, 1e-1, "node_error",
-              "reference_node_uncertainty"),
-    "energy": ("max relative energy error", "1", 1e-15, 1e-1, "max_energy_error", None),
-    "momentum_magnitude": ("max relative error of |L| (magnitude)", "1", 1e-15, 1e-1,
-                           "max_momentum_magnitude_error", None),
+    "orientation": ErrorMeasure(label="final orientation error", units="rad", floor=1e-13,
+                                ceiling=1e-1, variable="final_orientation_error",
+                                uncertainty="reference_uncertainty"),
+    "omega": ErrorMeasure(label="max relative angular velocity error", units="1", floor=1e-13,
+                          ceiling=1e-1, variable="omega_error",
+                          uncertainty="reference_omega_uncertainty"),
+    "nodes": ErrorMeasure(label="max node position error", units="m", floor=1e-13,
+                          ceiling=1e-1, variable="node_error",
+                          uncertainty="reference_node_uncertainty"),
+    "energy": ErrorMeasure(label="max relative energy error", units="1", floor=1e-15,
+                           ceiling=1e-1, variable="max_energy_error"),
+    "momentum_magnitude": ErrorMeasure(label="max relative error of |L| (magnitude)", units="1",
+                                       floor=1e-15, ceiling=1e-1,
+                                       variable="max_momentum_magnitude_error"),
     # the vector L = R m at the samples carries the rounding of R and m over thousands of
     # steps: 1e-14 to 1e-13 for the schemes that keep it
-    "momentum_vector": ("max relative |L - L0| (vector)", "1", 1e-12, 1e-1, "momentum_error",
-                        None),
-    "precession": ("|precession frequency error|", "rad/s", 1e-13, 1e-1,
-                   "precession_frequency_error", None),
+    "momentum_vector": ErrorMeasure(label="max relative |L - L0| (vector)", units="1",
+                                    floor=1e-12, ceiling=1e-1, variable="momentum_error"),
+    "precession": ErrorMeasure(label="|precession frequency error|", units="rad/s", floor=1e-13,
+                               ceiling=1e-1, variable="precession_frequency_error"),
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
-    "flip": ("|flip interval error|", "s", 1e-5, 1.0, "flip_interval_error", None),
+    "flip": ErrorMeasure(label="|flip interval error|", units="s", floor=1e-5, ceiling=1.0,
+                         variable="flip_interval_error"),
 }
 # An error within this factor of its reference's uncertainty says as much about the reference
 # as about the scheme: no order is fitted through it.
@@ -81,7 +103,7 @@ _ORDER_MEASURE = "orientation"
 
 def error_measure(ds, key):
     """|error measure| ``key`` of every case (time and nodes reduced by max), or None."""
-    name = ERROR_MEASURES[key][4]
+    name = ERROR_MEASURES[key].variable
     if name not in ds:
         return None
     value = ds[name]
@@ -92,7 +114,7 @@ def error_measure(ds, key):
 def uncertainty_of(ds, key, like):
     """The uncertainty of the reference of measure ``key`` per case, broadcast like the
     measure ``like``; None where the archive has none (closed-form references)."""
-    name = ERROR_MEASURES[key][5]
+    name = ERROR_MEASURES[key].uncertainty
     return ds[name].broadcast_like(like) if name is not None and name in ds else None
 
 
@@ -101,7 +123,7 @@ def fitted_order(dts, errors, key, uncertainty=None):
     `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope). A point whose
     error is below `UNCERTAINTY_FACTOR` times its reference's ``uncertainty`` (per point;
     NaN or None: none known) is not fitted."""
-    _, _, floor, ceiling, *_ = ERROR_MEASURES[key]
+    floor, ceiling = ERROR_MEASURES[key].floor, ERROR_MEASURES[key].ceiling
     if uncertainty is not None:
         floor = np.fmax(floor, UNCERTAINTY_FACTOR * np.asarray(uncertainty, dtype=float))
     return asymptotic_order(dts, errors, floor, ceiling)

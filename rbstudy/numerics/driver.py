@@ -43,8 +43,10 @@ body's numbers do not depend on which batch it ran in (no cross-body operations)
 
 import math
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -363,6 +365,16 @@ class BatchOutput:
     kernel_cpu_seconds: float
 
 
+class BatchKernel(Protocol):
+    """What `run_batch` needs of a scheme (a `rbstudy.schemes.Scheme`, which this layer does
+    not import): its name, its entry point over a range of rows, and a way to compile it."""
+
+    name: str
+    run_bodies_inplace: Callable
+
+    def ensure_compiled(self, timed: bool = False) -> None: ...
+
+
 def _as_rows(array, width, name, wider=False):
     """``array`` as C-ordered float rows (B, width), or at least ``width`` wide."""
     rows = np.ascontiguousarray(array, dtype=np.float64)
@@ -393,8 +405,9 @@ def _chunks(n_bodies, threads):
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
-def run_batch(scheme, state0, params, options, h, n_steps, every, drift_bound=DRIFT_BOUND,
-              threads=None):
+def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, options: np.ndarray,
+              h: float, n_steps: int, every: int, drift_bound: float = DRIFT_BOUND,
+              threads: int | None = None) -> BatchOutput:
     """Run a batch with a registered scheme and return a `BatchOutput`.
 
     Parameters

@@ -26,7 +26,8 @@ from rbstudy.physics.analytic import (
     reference_kinds,
     symmetric_top,
 )
-from rbstudy.physics.simulate import STEP_RTOL, simulate
+from rbstudy.physics.simulate import simulate
+from rbstudy.physics.time_grid import STEP_RTOL
 from rbstudy.schemes import dop853
 
 __all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",

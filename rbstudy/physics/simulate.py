@@ -2,45 +2,24 @@
 
 This is the physics layer's bridge to the numerics: it checks that the time step divides the
 output interval and the duration, packs one state row and one parameter row per scene, and
-names the slices of the sampled states.
+names the slices of the sampled states. The run's steps and sample times are those of
+`rbstudy.physics.time_grid`.
 """
 
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.errors import InputError, RbstudyError
+from rbstudy.errors import RbstudyError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import DRIFT_BOUND, BatchOutput, run_batch
 from rbstudy.numerics.state import STATUS_NAMES
-from rbstudy.physics.scenes import param_rows
+from rbstudy.physics.scenes import Scene, param_rows
+from rbstudy.physics.time_grid import output_count, output_times, step_count, steps_per
 from rbstudy.schemes import get_scheme
 
-__all__ = ["Simulation", "simulate", "steps_per", "STEP_RTOL"]
-
-# A time step "divides" an interval when the quotient is within this relative distance of an
-# integer: decimal inputs such as 0.01 and 2.0 are not exact binary fractions.
-STEP_RTOL = 1e-9
-# Beyond this many steps in one interval the divisibility test itself loses its meaning (the
-# quotient's rounding passes STEP_RTOL) and no run could finish.
-MAX_STEPS_PER_INTERVAL = 1e12
-
-
-def steps_per(interval, step, step_name="dt", interval_name="interval"):
-    """The whole number of ``step``s in ``interval``; an unplaced `InputError` if there is
-    none (the caller knows the file and key)."""
-    ratio = interval / step
-    if not ratio < MAX_STEPS_PER_INTERVAL:  # inf for a subnormal step, NaN for a NaN
-        raise InputError(f"{step_name} = {step:g} s is too small for the {interval_name} "
-                         f"{interval:g} s (over {MAX_STEPS_PER_INTERVAL:.0e} steps)",
-                         f"choose {step_name} = {interval:g} / n with a reasonable n")
-    count = round(ratio)
-    if count < 1 or abs(ratio - count) > STEP_RTOL * ratio:
-        raise InputError(
-            f"{step_name} = {step:g} s does not divide the {interval_name} {interval:g} s "
-            f"({interval:g} / {step:g} = {ratio:.6g})",
-            f"choose {step_name} = {interval:g} / n")
-    return int(count)
+__all__ = ["Simulation", "simulate"]
 
 
 @dataclass(frozen=True)
@@ -76,8 +55,9 @@ class Simulation:
         return [STATUS_NAMES[code] for code in self.results["status"]]
 
 
-def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound=DRIFT_BOUND,
-             threads=None):
+def simulate(scenes: Iterable[Scene], scheme: str, dt: float, output_interval: float | None = None,
+             options: Mapping | Sequence[Mapping] | None = None, drift_bound: float = DRIFT_BOUND,
+             threads: int | None = None) -> Simulation:
     """Integrate ``scenes`` (all of the same duration) with ``scheme`` at step ``dt``.
 
     Parameters
@@ -95,8 +75,8 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
         raise RbstudyError(f"a batch needs one duration, got {sorted(durations)}")
     duration = durations.pop()
     output_interval = dt if output_interval is None else output_interval
+    n_steps = step_count(duration, output_interval, dt)
     every = steps_per(output_interval, dt, "dt", "output interval")
-    n_steps = steps_per(duration, output_interval, "output interval", "duration") * every
     chosen = get_scheme(scheme)
     if options is None or isinstance(options, dict):
         rows = np.repeat(chosen.option_row(options)[None, :], len(scenes), axis=0)
@@ -105,5 +85,6 @@ def simulate(scenes, scheme, dt, output_interval=None, options=None, drift_bound
     output = run_batch(chosen, np.array([s.state_row() for s in scenes]),
                        param_rows(scenes), rows, dt, n_steps, every,
                        drift_bound, threads=threads)
-    return Simulation(scheme=scheme, dt=dt, time=np.arange(output.samples.shape[1]) * (every * dt),
+    return Simulation(scheme=scheme, dt=dt,
+                      time=output_times(output_count(duration, output_interval), output_interval),
                       output=output)

@@ -120,6 +120,6 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
             if code is not None:  # only then: the ids of rbstudy's own schemes stay as they were
                 identity["code"] = code
             digest = canonical_id(identity)
-            batches.append(Batch(f"{scheme}_dt{dt:g}_{digest}", scheme, dt,
-                                 tuple(chunk.tolist()), cost))
+            batches.append(Batch(id=f"{scheme}_dt{dt:g}_{digest}", scheme=scheme, dt=dt,
+                                 cases=tuple(chunk.tolist()), step_seconds=cost))
     return tuple(batches)

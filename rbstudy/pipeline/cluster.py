@@ -33,12 +33,11 @@ from typing import NamedTuple
 
 from rbstudy.errors import ConfigError, RbstudyError, one_line
 from rbstudy.pipeline.integrity import sealed
-from rbstudy.pipeline.store import write_part
 from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 
-__all__ = ["ClusterFile", "read_cluster_file", "connect", "run_on_cluster", "dashboard_line",
-           "WRITERS", "WORKER_WAIT", "CONNECT_TIMEOUT"]
+__all__ = ["ClusterFile", "Where", "LOCAL", "read_cluster_file", "connect", "run_on_cluster",
+           "dashboard_line", "WRITERS", "WORKER_WAIT", "CONNECT_TIMEOUT"]
 
 WRITERS = ("auto", "workers", "client")
 # Seconds to wait for a first worker (batch jobs queue) or for workers to come back.
@@ -85,6 +84,40 @@ class ClusterFile:
     jobs: int | None
     adaptive: tuple | None
     options: dict
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a sweep (`rbstudy.pipeline.execute.run_study`) runs its tasks: this process's
+    threads (the default), or a cluster, reached as `connect` says.
+
+    scheduler : address of a running dask.distributed scheduler. workers : start a
+    `LocalCluster` of this many single-threaded worker processes. cluster : start the cluster
+    of a `ClusterFile`. writer : on a cluster, who writes the part files (`WRITERS`):
+    "workers", "client" (this process, from the values the workers send back) or "auto" (the
+    workers where they see the results folder). worker_wait : seconds a cluster may have no
+    worker before the run ends (jobs queue).
+    """
+
+    scheduler: str | None = None
+    workers: int | None = None
+    cluster: ClusterFile | None = None
+    writer: str = "auto"
+    worker_wait: float = WORKER_WAIT
+
+    @property
+    def distributed(self):
+        return (self.scheduler, self.workers, self.cluster) != (None, None, None)
+
+    @property
+    def starting(self):
+        """What a run does while it reaches its cluster."""
+        return (f"connecting to {self.scheduler}" if self.scheduler else
+                f"starting {self.workers} workers" if self.workers else "starting the cluster")
+
+
+# The tasks on this process's threads: no cluster.
+LOCAL = Where()
 
 
 def read_cluster_file(path):
@@ -266,7 +299,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     """Run the store ``tasks`` on ``client``'s cluster; ({key: digest}, number of parts this
     process wrote from values sent back).
 
-    ``targets`` gives each task's key its (layout, batch, path, cases): a task returns
+    ``targets`` gives each task's key its `rbstudy.pipeline.store.PartTarget`: a task returns
     (digest, None) when its worker wrote the part, (None, values) when this process must.
     Futures are released as they finish, so a worker holds no values once they are written.
     ``fixed_jobs``: the cluster's batch jobs were submitted once (a cluster file's ``jobs``),
@@ -282,10 +315,10 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     digests, returned = {}, 0
     waiting_since, seen_workers, looked, asked = None, False, -math.inf, -math.inf
     # parts already sealed (a --force run, a damaged part) prove nothing about this run
-    sealed_before = {path for _, _, path, _ in targets.values() if sealed(path)}
+    sealed_before = {target.path for target in targets.values() if sealed(target.path)}
 
     def kept():  # counted on disk: a worker may have written a part whose news was lost
-        paths = [path for _, _, path, _ in targets.values()]
+        paths = [target.path for target in targets.values()]
         return (f"{sum(map(sealed, paths))} of {len(paths)} batches are kept in "
                 f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume")
 
@@ -310,8 +343,8 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                         # a part this run wrote proves a worker, even one that came and went
                         # between two looks
                         seen_workers = seen_workers or any(
-                            sealed(path) for _, _, path, _ in targets.values()
-                            if path not in sealed_before)
+                            sealed(target.path) for target in targets.values()
+                            if target.path not in sealed_before)
                         what = "every worker left" if seen_workers else "no worker joined"
                         when = f"for {worker_wait:g} s" if waited else "and every job ended"
                         said, fix, _ = word or _jobs_said(client) or _UNASKED
@@ -328,19 +361,19 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                 except KilledWorker as error:
                     allowed = error.args[2] if len(error.args) > 2 else "?"
                     raise RbstudyError(
-                        f"batch {targets[future.key][1].id}: its workers died while running "
+                        f"batch {targets[future.key].batch.id}: its workers died while running "
                         f"it, more often than {where} allows (KilledWorker, allowed-failures "
                         f"= {allowed}: killed at their walltime or memory limit?); {kept()}, "
                         "with a longer walltime or more memory per worker") from None
                 seen_workers = True  # a batch that came back had a worker (see above)
-                layout, batch, path, cases = targets[future.key]
+                target = targets[future.key]
                 if values is not None:
-                    digest = write_part(layout, batch, values, path)
+                    digest = target.write(values)
                     returned += 1
                 digests[future.key] = digest
                 pending.discard(future)
                 future.release()
-                progress.advance(cases)
+                progress.advance(target.cases)
     except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
         if client.status == "running" and not isinstance(error, CancelledError):
             raise  # this machine's own trouble (a full disk writing a part)

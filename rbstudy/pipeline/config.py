@@ -9,20 +9,25 @@ path, the value and the fix. docs/config.md documents every key.
 
 import dataclasses
 import math
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from rbstudy.errors import ConfigError, InputError
 from rbstudy.numerics.state import N_STATE, row_width
-from rbstudy.physics.simulate import steps_per
-from rbstudy.pipeline.batches import plan_batches
+from rbstudy.physics.time_grid import output_count
+from rbstudy.pipeline.batches import Batch, plan_batches
 from rbstudy.pipeline.grid import (
     MAX_CASES,
     Cases,
+    Dimension,
     expand,
     label_options,
     parse_sweep,
+    read_dt,
     touches_scene,
 )
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
@@ -40,7 +45,8 @@ from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 from rbstudy.schemes import composition_reach, get_scheme
 
-__all__ = ["StudyConfig", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
+__all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES",
+           "MAX_CASES"]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -78,16 +84,16 @@ class StudyConfig:
     output_interval: float
     accuracy_bound: float
     duration: float
-    dimensions: tuple
+    dimensions: tuple[Dimension, ...]
     cases: Cases
-    variables: tuple
-    batches: tuple
-    schemes: dict
+    variables: tuple[str, ...]
+    batches: tuple[Batch, ...]
+    schemes: dict[str, dict]
 
     @property
     def order_dimension(self):
-        """``(dimension name, option name, values)`` of a swept option that sets the nominal
-        order (a composition), or None."""
+        """The `OrderDimension` of a swept option that sets the nominal order (a
+        composition), or None."""
         return order_dimension(self.dimensions, self.schemes)
 
     @property
@@ -98,7 +104,7 @@ class StudyConfig:
 
     @property
     def n_times(self):
-        return steps_per(self.duration, self.output_interval) + 1
+        return output_count(self.duration, self.output_interval)
 
     @property
     def shape(self):
@@ -185,16 +191,25 @@ def _variables(reader, requested, scenes):
     return tuple(name for name in available if name in kept)
 
 
+class OrderDimension(NamedTuple):
+    """A swept option that sets a scheme's nominal order (``run.options.composition``): the
+    name of its dimension, the option's name and its values along the dimension."""
+
+    dimension: str
+    option: str
+    values: tuple
+
+
 def order_dimension(dimensions, schemes):
-    """``(dimension name, option name, values)`` of a swept option that sets the nominal
-    order (``run.options.composition``) of one of ``schemes`` (the study's), or None."""
+    """The `OrderDimension` of a swept option that sets the nominal order of one of
+    ``schemes`` (the study's), or None."""
     setting = {option.name for name in schemes for option in get_scheme(name).options
                if option.sets_order}
     for dim in dimensions:
         for axis in dim.axes:
             option = axis.target.removeprefix("run.options.")
             if axis.target.startswith("run.options.") and option in setting:
-                return dim.name, option, axis.values
+                return OrderDimension(dimension=dim.name, option=option, values=axis.values)
     return None
 
 
@@ -213,20 +228,21 @@ def _scheme_claims(cases, dimensions):
                         for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
         claims[name]["nominal_order"] = (
             scheme.nominal_order(options) if swept is None else
-            tuple(scheme.nominal_order({**options, swept[1]: value}) for value in swept[2]))
+            tuple(scheme.nominal_order({**options, swept.option: value}) for value in swept.values))
     return claims
 
 
-def _output_interval(reader, output, run, swept):
+def _output_interval(reader, output, dt, swept):
+    """``output.interval`` (s), else the unswept ``run.dt`` (``dt``, already read)."""
     if "interval" in output:
         return reader.number(output["interval"], "output.interval", positive=True)
-    if "dt" not in swept and isinstance(run.get("dt"), (int, float)):
-        return reader.number(run["dt"], "run.dt", positive=True)
+    if "dt" not in swept and dt is not None:
+        return dt
     reader.fail("output.interval", "missing",
                 "with dt swept, give the output interval (s)")
 
 
-def load_study(path, overrides=()):
+def load_study(path: str | os.PathLike, overrides: Sequence[str] = ()) -> StudyConfig:
     """Read the study config at ``path``, apply the ``--set`` texts ``overrides``
     (``KEY=VALUE``, `rbstudy.pipeline.overrides`) and validate it; nothing is run or written.
     An error in what an override wrote names its key as ``--set <key>``."""
@@ -259,8 +275,7 @@ def _validated(path, text, overridden):
         if key not in run and key not in swept:
             reader.fail(f"run.{key}", "missing", "give it here or sweep it")
     # checked even when swept: a value that is never used must still not be garbage
-    if "dt" in run:
-        reader.number(run["dt"], "run.dt", positive=True)
+    dt = read_dt(reader, run["dt"]) if "dt" in run else None
     if "scheme" in run:
         try:
             get_scheme(run["scheme"])
@@ -270,7 +285,7 @@ def _validated(path, text, overridden):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
     output = reader.mapping(data.get("output"), "output",
                             ("interval", "variables", "accuracy_bound"))
-    interval = _output_interval(reader, output, run, swept)
+    interval = _output_interval(reader, output, dt, swept)
     accuracy_bound = reader.number(output.get("accuracy_bound", ACCURACY_BOUND),
                                    "output.accuracy_bound", positive=True)
     if not isinstance(data["scene"], dict):
@@ -279,7 +294,7 @@ def _validated(path, text, overridden):
     cases = expand(reader, base, dimensions, interval)
     duration = cases.scenes.duration
     try:
-        steps_per(duration, interval, "interval", "duration")
+        output_count(duration, interval)
     except InputError as error:
         raise reader.locate(error, "output.interval") from None
     variables = _variables(reader, output.get("variables"), cases.scenes)

@@ -1,6 +1,6 @@
 """What a study will cost before it runs, and the limits past which it is refused.
 
-`estimate` forecasts, from the config alone: the body-steps of every case (duration / dt;
+`estimate` forecasts, from the config alone: the body-steps of every case (`step_count`;
 for the adaptive dop853, its steps per radian turned), the two integrations of each
 reference no closed form gives (the composed exact-flow splitting and DOP853) and which
 cases would have neither within its step budget, the run time on this machine's cores (each scheme's
@@ -31,6 +31,7 @@ from rbstudy.physics.references import (
     knot_steps,
     planned_steps,
 )
+from rbstudy.physics.time_grid import output_count, step_count
 from rbstudy.schemes import get_scheme
 
 __all__ = ["Estimate", "estimate", "describe", "check_limits", "check_disk", "disk_needed",
@@ -84,7 +85,7 @@ def _composed_steps(scenes, rows, interval):
     knots = loads["knots"]
     for k in np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1)):
         counts[k] = knot_steps(knots[k], scenes.duration, interval, int(counts[k])) or 0
-    return counts * round(scenes.duration / interval)
+    return counts * (output_count(scenes.duration, interval) - 1)  # per interval, over the run
 
 
 def _dop853_steps(scenes):
@@ -149,7 +150,7 @@ def estimate(study, cores=None):
         if scheme.adaptive:
             steps = int(dop853_steps[cases.scene_rows[list(batch.cases)]].sum())
         else:
-            steps = len(batch.cases) * round(study.duration / batch.dt)
+            steps = len(batch.cases) * step_count(study.duration, study.output_interval, batch.dt)
         body_steps += steps
         # a batch holds one cost per body-step (a composition's stages: `plan_batches`)
         batch_seconds = steps * batch.step_seconds * knot_factor
@@ -176,8 +177,10 @@ def estimate(study, cores=None):
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
-    return Estimate(body_steps, len(rows), reference_steps, over_budget, seconds, longest,
-                    cores, PROCESS_BYTES + in_flight, study.bytes_per_case() * len(study.cases))
+    return Estimate(body_steps=body_steps, references=len(rows), reference_steps=reference_steps,
+                    over_budget=over_budget, core_seconds=seconds, longest_seconds=longest,
+                    cores=cores, peak_bytes=PROCESS_BYTES + in_flight,
+                    archive_bytes=study.bytes_per_case() * len(study.cases))
 
 
 def disk_needed(study, pending):

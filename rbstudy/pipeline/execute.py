@@ -31,9 +31,12 @@ from filelock import FileLock, Timeout
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
-from rbstudy.physics.references import reference_solutions
+from rbstudy.physics.references import Reference, reference_solutions
+from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
-from rbstudy.pipeline.cluster import WORKER_WAIT, connect, dashboard_line, run_on_cluster
+from rbstudy.physics.time_grid import output_times
+from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
+from rbstudy.pipeline.config import StudyConfig
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
@@ -41,6 +44,7 @@ from rbstudy.pipeline.progress import Progress
 from rbstudy.pipeline.store import (
     WRITE_REFUSALS,
     Layout,
+    PartTarget,
     UnwritableFolder,
     archive_state,
     claim_folder,
@@ -77,8 +81,8 @@ class BatchJob:
     dt: float
     output_interval: float
     scene_rows: np.ndarray  # (n,) rows of the study's scene table: the task builds the scenes
-    options: tuple
-    variables: tuple
+    options: tuple[dict, ...]  # (n,) each case's scheme options
+    variables: tuple[str, ...]
     accuracy_bound: float  # rad for the orientation, relative for energy and |L|
     references: np.ndarray  # (n, 2) per case: (chunk, position) in the chunks it is given
 
@@ -114,14 +118,16 @@ def study_progress(study, quiet=False):
                     quiet=quiet)
 
 
-def compute_references(table, rows, n_times, output_interval):
+def compute_references(table: SceneTable, rows: np.ndarray, n_times: int,
+                       output_interval: float) -> list[Reference]:
     """The references of the scenes ``rows`` of ``table`` on the output grid of ``n_times``
     samples (a dask task)."""
     return reference_solutions([table.scene(row) for row in rows],
-                               np.arange(n_times) * output_interval)
+                               output_times(n_times, output_interval))
 
 
-def compute_batch(job, table, reference_chunks, threads):
+def compute_batch(job: BatchJob, table: SceneTable, reference_chunks: list[list[Reference]],
+                  threads: int) -> dict[str, np.ndarray]:
     """Run one batch and return its outputs, name -> array with the case axis first.
 
     ``reference_chunks`` are the results of the reference tasks the batch needs; each case
@@ -258,7 +264,7 @@ def _reference_chunks(study, pending):
 def _graph(study, pending, parts_dir, threads, token, writer, probe):
     """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
     distinct scenes (references do not depend on the scheme or dt, so batches share them);
-    and the targets of the store tasks, key -> (layout, batch, part path, cases).
+    and the targets of the store tasks, key -> `PartTarget`.
 
     Arguments are wrapped as opaque leaves (``traverse=False``): dask would otherwise walk
     every number of every job looking for collections. The scene table is one shared
@@ -282,10 +288,11 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
         needed = np.unique(places[:, 0])
         positions = np.stack([np.searchsorted(needed, places[:, 0]), places[:, 1]], axis=1)
         numbers = np.asarray(batch.cases)
-        job = BatchJob(batch.scheme, batch.dt, study.output_interval,
-                       study.cases.scene_rows[numbers],
-                       tuple(runs[row].options for row in study.cases.run_rows[numbers]),
-                       study.variables, study.accuracy_bound, positions)
+        job = BatchJob(scheme=batch.scheme, dt=batch.dt, output_interval=study.output_interval,
+                       scene_rows=study.cases.scene_rows[numbers],
+                       options=tuple(runs[row].options for row in study.cases.run_rows[numbers]),
+                       variables=study.variables, accuracy_bound=study.accuracy_bound,
+                       references=positions)
         values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False), table,
                                              [reference_tasks[k] for k in needed], threads,
                                              dask_key_name=f"batch-{token}-{batch.id}")
@@ -293,7 +300,7 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
         tasks.append(dask.delayed(deliver_part)(
             values, dask.delayed(layout, traverse=False), dask.delayed(batch, traverse=False),
             path, writer, probe, dask_key_name=key))
-        targets[key] = (layout, batch, path, len(batch.cases))
+        targets[key] = PartTarget(layout=layout, batch=batch, path=path)
     return tasks, targets
 
 
@@ -308,7 +315,7 @@ def _run_local(tasks, targets, progress, workers):
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
             if key in targets:
-                progress.advance(targets[key][3])
+                progress.advance(targets[key].cases)
 
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
@@ -326,27 +333,22 @@ def _run_local(tasks, targets, progress, workers):
         clear_halt()  # nothing of this run works any more: later runs must not stop
 
 
-def run_study(study, root, scheduler=None, workers=None, force=False, quiet=False,
-              keep_parts=False, cluster=None, writer="auto", worker_wait=WORKER_WAIT,
-              progress=None):
+def run_study(study: StudyConfig, root: str | os.PathLike, *, where: Where = LOCAL,
+              force: bool = False, quiet: bool = False, keep_parts: bool = False,
+              progress: Progress | None = None) -> StudyRun:
     """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
 
     Parameters
     ----------
-    study : `rbstudy.pipeline.config.StudyConfig`.
+    study : the study.
     root : results root folder.
-    scheduler : address of a running dask.distributed scheduler, or None.
-    workers : start a LocalCluster of this many single-threaded worker processes, or None.
-    cluster : start the cluster of a `rbstudy.pipeline.cluster.ClusterFile`, or None.
+    where : this process's threads (the default) or a cluster, and who writes the parts there
+        (`rbstudy.pipeline.cluster.Where`).
     force : recompute every batch even when its part or a current archive exists.
     quiet : no progress (`rbstudy.pipeline.progress`: a bar on a terminal, else a start
         and an end line).
     keep_parts : keep ``parts/`` after the archive is written (else it is removed: the
         archive holds everything; until then the parts are what a rerun resumes from).
-    writer : on a cluster, who writes the part files: "workers", "client" (this process,
-        from the values the workers send back) or "auto" (the workers where they see the
-        results folder).
-    worker_wait : seconds a cluster may have no worker before the run ends (jobs queue).
     progress : a `rbstudy.pipeline.progress.Progress` under way to show the run in (the
         conformance's golden studies share one), else the study's own.
     """
@@ -361,9 +363,8 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
                 own = progress is None
                 if own:
                     progress = stack.enter_context(study_progress(study, quiet))
-                run = _run_in(folder, study, _Where(scheduler, workers, cluster, writer,
-                                                    worker_wait),
-                              force, progress, keep_parts, started, started_clock)
+                run = _run_in(folder, study, where, force, progress, keep_parts, started,
+                              started_clock)
                 if own:
                     progress.end = run.said
             return run
@@ -376,28 +377,6 @@ def run_study(study, root, scheduler=None, workers=None, force=False, quiet=Fals
         if made and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
             shutil.rmtree(made[0])  # this run made the folder and left nothing worth keeping
         raise
-
-
-@dataclass(frozen=True)
-class _Where:
-    """Where `run_study` runs its tasks: this process's threads, or a cluster (its
-    arguments of the same names)."""
-
-    scheduler: str | None
-    workers: int | None
-    cluster: object
-    writer: str
-    worker_wait: float
-
-    @property
-    def distributed(self):
-        return (self.scheduler, self.workers, self.cluster) != (None, None, None)
-
-    @property
-    def starting(self):
-        """What a run does while it reaches its cluster."""
-        return (f"connecting to {self.scheduler}" if self.scheduler else
-                f"starting {self.workers} workers" if self.workers else "starting the cluster")
 
 
 def _run_in(folder, study, where, force, progress, keep_parts, started, started_clock):
@@ -456,7 +435,7 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         # at its first batch), and a first run is announced here, not in a worker's log.
         get_ready({(batch.scheme, timed) for batch in pending}, cores,
                   watch=functools.partial(_show_compiling, progress, study.name))
-        cases = sum(cases for *_, cases in targets.values())
+        cases = sum(target.cases for target in targets.values())
         written, returned = {}, 0  # the digest of each part, by its store task's key
         if tasks and where.distributed:
             probe.write_text(token)
@@ -474,7 +453,7 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         elif tasks:
             progress.phase(f"{study.name}: running batches", cases, "cases")
             written = _run_local(tasks, targets, progress, cores)
-        digests.update({batch.id: written[key] for key, (_, batch, _, _) in targets.items()})
+        digests.update({target.batch.id: written[key] for key, target in targets.items()})
         progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
         consolidate(study, parts, digests, target, global_attrs(study, started=started),
                     advance=progress.advance)

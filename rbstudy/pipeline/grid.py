@@ -39,13 +39,13 @@ import numpy as np
 from rbstudy.errors import InputError, did_you_mean
 from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable, scene_table
-from rbstudy.physics.simulate import steps_per
+from rbstudy.physics.time_grid import steps_per
 from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.schemes import BUILTIN, get_scheme
 
 __all__ = ["Axis", "Dimension", "Case", "Cases", "Run", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
            "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand", "touches_scene",
-           "label_options"]
+           "label_options", "read_dt"]
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
 ALL_SCHEMES = "all"
@@ -460,34 +460,43 @@ class Run:
     dt: float
 
 
+def read_dt(reader, value, output_interval=None):
+    """The time step ``value`` of ``run.dt`` (as written, or swept) in s: a positive number
+    that divides ``output_interval`` (s; None when the step itself is the output interval);
+    else a `ConfigError` at ``run.dt``."""
+    dt = reader.number(value, "run.dt", positive=True)
+    if output_interval is not None:
+        try:
+            steps_per(output_interval, dt, "dt", "output interval")
+        except InputError as error:
+            raise reader.locate(error, "run.dt") from None
+    return dt
+
+
 def _run(reader, base, dimensions, index, output_interval):
     """The run at ``index`` of the run ``dimensions``; an `InputError` keyed within it."""
-    spec = {"run": dict(base["run"])}
+    run = base["run"]
+    scheme_name, dt = run.get("scheme"), run.get("dt")
+    spec = {"run": {"options": dict(run.get("options") or {})}}
     for dimension, i in zip(dimensions, index, strict=True):
         for axis in dimension.axes:
-            if axis.target in ("scheme", "dt"):
-                spec["run"][axis.target] = axis.values[i]
+            if axis.target == "scheme":
+                scheme_name = axis.values[i]
+            elif axis.target == "dt":
+                dt = axis.values[i]
             elif axis.target.startswith("run."):
-                spec["run"]["options"] = dict(spec["run"].get("options") or {})
                 _set_path(spec, axis.target, axis.values[i])
-    run = spec["run"]
     try:
-        scheme = get_scheme(run.get("scheme"))
+        scheme = get_scheme(scheme_name)
     except InputError as error:
         raise reader.locate(error, "run.scheme") from None
     known = {option.name for option in scheme.options}
-    options = {name: value for name, value in (run.get("options") or {}).items()
-               if name in known}
+    options = {name: value for name, value in spec["run"]["options"].items() if name in known}
     try:
         scheme.option_row(options)
     except InputError as error:
         raise reader.locate(error, "run.options") from None
-    dt = reader.number(run.get("dt"), "run.dt", positive=True)
-    try:
-        steps_per(output_interval, dt, "dt", "output interval")
-    except InputError as error:
-        raise reader.locate(error, "run.dt") from None
-    return Run(scheme.name, options, dt)
+    return Run(scheme=scheme.name, options=options, dt=read_dt(reader, dt, output_interval))
 
 
 # --- every case ------------------------------------------------------------------------------
@@ -593,5 +602,6 @@ def expand(reader, base, dimensions, output_interval):
         reader.fail("run.options", f"{', '.join(unknown)} is an option of none of the study's "
                                    f"schemes ({', '.join(schemes)})"
                                    f"{did_you_mean(unknown[0], options)}", "see `rbstudy schemes`")
-    return Cases(shape, scenes, tuple(runs), _rows_of(dimensions, of_scenes, shape),
-                 _rows_of(dimensions, of_runs, shape))
+    return Cases(shape=shape, scenes=scenes, runs=tuple(runs),
+                 scene_rows=_rows_of(dimensions, of_scenes, shape),
+                 run_rows=_rows_of(dimensions, of_runs, shape))

@@ -33,13 +33,15 @@ import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
+from typing import NamedTuple
 
 import netCDF4
 import numpy as np
 import yaml
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError, one_line
-from rbstudy.pipeline.batches import batches_digest
+from rbstudy.physics.time_grid import output_times
+from rbstudy.pipeline.batches import Batch, batches_digest
 from rbstudy.pipeline.integrity import (
     file_digest,
     netcdf_writer,
@@ -184,15 +186,33 @@ class Layout:
 
     @classmethod
     def of(cls, study):
-        return cls(study.name, study.variables, study.n_times, study.output_interval,
-                   study.node_names)
+        return cls(study=study.name, variables=study.variables, n_times=study.n_times,
+                   output_interval=study.output_interval, node_names=study.node_names)
+
+
+class PartTarget(NamedTuple):
+    """Where a store task puts its batch: the study's `Layout`, the `Batch` and the path
+    of its part file."""
+
+    layout: Layout
+    batch: Batch
+    path: str
+
+    @property
+    def cases(self):
+        return len(self.batch.cases)
+
+    def write(self, values):
+        """`write_part` of this batch's ``values``; the part's digest."""
+        return write_part(self.layout, self.batch, values, self.path)
 
 
 def decimal_grid(n_times, interval):
-    """The output times ``k * interval``, k < n_times, each the double nearest its decimal
-    value: ``0.35``, not ``35 * 0.01 = 0.35000000000000003``, so that ``ds.sel(time=0.35)``
-    finds it. An interval with more than 15 decimals is left as the plain products."""
-    times = np.arange(n_times) * interval
+    """The output times (`rbstudy.physics.simulate.output_times`) as the archive labels them:
+    each the double nearest its decimal value, ``0.35``, not ``35 * 0.01 =
+    0.35000000000000003``, so that ``ds.sel(time=0.35)`` finds it. An interval with more
+    than 15 decimals is left as the plain products."""
+    times = output_times(n_times, interval)
     places = -decimal.Decimal(repr(float(interval))).as_tuple().exponent
     if places > _MAX_DECIMALS or times[-1] * 10.0 ** places >= 2.0 ** 52:
         return times
@@ -231,8 +251,8 @@ def grid_coordinates(study):
     coords = {}
     swept = {axis.target for dim in study.dimensions for axis in dim.axes}
     for name in ("scheme", "dt"):
-        if name not in swept:
-            value = getattr(study.cases[0], name)
+        if name not in swept:  # then every run has the first run's
+            value = getattr(study.cases.runs[0], name)
             coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
                             cf_attrs(*COORDINATES[name]))
     coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
@@ -252,7 +272,7 @@ def _scheme_claims(study, dims):
     """`SCHEME_COORDINATES` of the study's schemes, along ``dims`` (the scheme dimension, or
     none for a one-scheme study); invariants as space-separated names, "none" for none."""
     schemes = (list(next(a.values for d in study.dimensions for a in d.axes
-                         if a.target == "scheme")) if dims else [study.cases[0].scheme])
+                         if a.target == "scheme")) if dims else [study.cases.runs[0].scheme])
     swept_order = study.order_dimension
     coords = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
@@ -263,7 +283,7 @@ def _scheme_claims(study, dims):
         elif name == "scheme_origin":
             values = np.array(values, dtype=object)
         if name == "nominal_order" and swept_order is not None:
-            along = dims + (swept_order[0],)  # the orders of a swept composition
+            along = dims + (swept_order.dimension,)  # the orders of a swept composition
         shape = (len(values),) * bool(dims) + np.shape(values)[1:]
         coords[name] = (along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
     return coords

@@ -114,7 +114,7 @@ def unavailable_schemes():
     return SCHEMES.unavailable()
 
 
-def get_scheme(name):
+def get_scheme(name: str) -> Scheme:
     """The registered scheme ``name``; an unknown name raises `SchemeError` listing the valid
     ones, an unavailable one says why and how to make it available."""
     found = SCHEMES.find(name) if isinstance(name, str) else None

@@ -93,7 +93,7 @@ class Scheme:
                              "give the core-seconds per body-step `rbstudy bench` measures, "
                              "a number above 0")
 
-    def nominal_order(self, values: Mapping | None = None):
+    def nominal_order(self, values: Mapping | None = None) -> int:
         """The nominal order with options ``values``: that of an option that sets it (a
         composition), else `order`."""
         for option in self.options:
@@ -101,7 +101,7 @@ class Scheme:
                 return int(values[option.name])
         return self.order
 
-    def seconds_per_step(self, values: Mapping | None = None):
+    def seconds_per_step(self, values: Mapping | None = None) -> float:
         """`step_seconds` with options ``values``: a composition's step costs its stages."""
         seconds = self.step_seconds
         for option in self.options:
@@ -109,7 +109,7 @@ class Scheme:
                 seconds *= option.cost((values or {}).get(option.name, option.default))
         return seconds
 
-    def option_row(self, values: Mapping | None = None):
+    def option_row(self, values: Mapping | None = None) -> np.ndarray:
         """Validate option ``values`` and pack them (defaults filled) into a (N_OPTION,) row."""
         values = dict(values or {})
         known = {option.name: option for option in self.options}
@@ -129,14 +129,14 @@ class Scheme:
             row[option.slot:option.slot + len(packed)] = packed
         return row
 
-    def is_cached(self, timed=False):
+    def is_cached(self, timed: bool = False) -> bool:
         """Whether numba's cache holds the batch kernel's variant with the time (``timed``)
         or without, so that `ensure_compiled` only loads it. False where the entry point cannot
         tell (it has no ``is_cached``: dop853's tells of its compiled right-hand side)."""
         check = getattr(self.run_bodies_inplace, "is_cached", None)
         return bool(check and check(timed))
 
-    def ensure_compiled(self, timed=False):
+    def ensure_compiled(self, timed: bool = False) -> None:
         """Compile (or load from numba's cache) the batch kernel with a one-body, one-step run:
         its variant with the time when ``timed`` (a batch with loads tabulated in time), else
         its variant without (`rbstudy.numerics.clock`).
