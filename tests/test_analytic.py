@@ -28,6 +28,7 @@ def random_symmetric_scene(axis):
                  omega_body=tuple(RNG.normal(scale=2.0, size=3)), duration=5.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_symmetric_top_matches_dop853(seed):
     scene = random_symmetric_scene(axis=seed % 3)
@@ -50,6 +51,7 @@ def test_axial_moment_matches_dop853():
     assert np.allclose(numeric.omega_body[0], omega, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_reference_records_which_solution_was_used():
     symmetric = random_symmetric_scene(axis=2)
     times = np.linspace(0.0, 1.0, 11)

@@ -155,6 +155,7 @@ def test_a_damaged_or_foreign_archive_is_one_line_and_nothing_is_written(
     assert _files(tmp_path) == before and not (tmp_path / "top").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("verb", ("plot", "report"))
 def test_only_no_verify_reads_an_edited_archive_and_never_an_unreadable_one(
         archive, tmp_path, capsys, verb):

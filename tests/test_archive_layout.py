@@ -101,6 +101,7 @@ def test_a_0_3_archive_reads_as_it_would_be_written_now():
         "recommended: euler at dt=0.02 s")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("verb", ["plot", "report", "summary", "verify"])
 def test_every_reading_verb_reads_a_0_3_archive(verb, tmp_path, capsys):
     archive = tmp_path / "legacy_v03.nc"

@@ -38,20 +38,32 @@ def test_batch_mates_of_a_blow_up_equal_their_solo_runs():
 
 def test_every_scheme_gives_a_result_or_a_clean_unstable_at_huge_steps():
     """h |w| = 3 on I = (1, 2, 3): nothing raises; each body ends ok, unstable or
-    not_converged, and whatever finished has finite numbers."""
+    not_converged. A finished body has finite numbers; a failed one fails at the step its
+    failure time names: sampled at every step, its samples before that time are finite and
+    the rest NaN, and the same body run to the step before ends ok with those samples."""
     from rbstudy.schemes import BUILTIN
     scene = spinner((1.0, 2.0, 1.5), duration=30.0)
     h = 3.0 / np.linalg.norm(scene.omega_body)
+    steps = round(30.0 / h)
+    failed = []
     for name, scheme in BUILTIN.items():
         if scheme.adaptive:
             continue
-        steps = round(30.0 / h)
         run = simulate([scene.with_changes(duration=steps * h)], name, h, h)
         assert run.results["status"][0] in (OK, UNSTABLE, NOT_CONVERGED)
         if run.results["status"][0] == OK:
             assert np.all(np.isfinite(run.omega_body))
-        else:
-            assert np.isfinite(run.results["failure_time"][0])
+            continue
+        failed.append(name)
+        failing_step = round(run.results["failure_time"][0] / h)
+        assert 1 <= failing_step <= steps, name
+        finite = np.isfinite(run.omega_body[0]).all(axis=1)
+        assert np.array_equal(finite, np.arange(steps + 1) < failing_step), name
+        if failing_step > 1:  # a run of no steps is no scene
+            before = simulate([scene.with_changes(duration=(failing_step - 1) * h)], name, h, h)
+            assert before.status_names == ["ok"], name
+            assert np.array_equal(before.omega_body[0], run.omega_body[0, :failing_step]), name
+    assert len(failed) >= 2  # the huge step does make schemes fail
 
 
 def test_bodies_run_side_by_side_equal_their_solo_runs_in_every_result():

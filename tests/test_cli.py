@@ -180,6 +180,7 @@ BOMB = "title:\n  a0: &a0 x\n" + "".join(
     f"  a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 9) + "]\n" for k in range(1, 10))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("content, message", [
     (GOOD.replace("name: x", "name: x\ntitle: caf\xe9").encode("latin-1"),
      "is not UTF-8 text (byte 0xe9 at offset 18); save the file as UTF-8"),

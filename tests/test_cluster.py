@@ -85,6 +85,7 @@ def _when_parts_appear(folder, action):
     return thread
 
 
+@pytest.mark.slow
 def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_path,
                                                                         monkeypatch):
     """Workers in another working directory: the relative results folder the client names
@@ -120,6 +121,7 @@ def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_p
     _assert_same_numbers(threaded.path, again.path)
 
 
+@pytest.mark.slow
 def test_client_writer_on_a_shared_folder_gives_the_same_parts(tmp_path):
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
@@ -134,6 +136,7 @@ def test_client_writer_on_a_shared_folder_gives_the_same_parts(tmp_path):
     _assert_same_numbers(threaded.path, sent.path)
 
 
+@pytest.mark.slow
 def test_a_killed_worker_keeps_the_finished_parts_and_a_rerun_resumes(tmp_path):
     """Workers killed mid-run, on a scheduler that allows no failure (KilledWorker at
     once, as after a worker's walltime when retries are exhausted)."""
@@ -163,6 +166,7 @@ def test_a_killed_worker_keeps_the_finished_parts_and_a_rerun_resumes(tmp_path):
     _assert_same_numbers(uninterrupted.path, resumed.path)
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_goes_away_keeps_the_finished_parts(tmp_path):
     config = _slow_study(tmp_path)
     out = tmp_path / "out"
@@ -181,6 +185,7 @@ def test_a_scheduler_that_goes_away_keeps_the_finished_parts(tmp_path):
     assert (resumed.computed, resumed.reused) == (8 - len(kept), len(kept))
 
 
+@pytest.mark.slow
 def test_workers_that_never_come_or_all_leave_end_the_run_in_one_line(tmp_path, capsys):
     config = _slow_study(tmp_path)
     out = tmp_path / "out"
@@ -203,6 +208,7 @@ def test_workers_that_never_come_or_all_leave_end_the_run_in_one_line(tmp_path, 
     assert _parts(out / "slow")
 
 
+@pytest.mark.slow
 def test_a_local_cluster_file_runs_the_study(tmp_path, capsys):
     config = _small_study(tmp_path)
     cluster = tmp_path / "cluster.yaml"

@@ -7,6 +7,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from rbstudy.numerics.entry import _module_text
 
 # Three schemes (one with an init kernel, one composed), both variants: with and without
@@ -43,6 +45,7 @@ def get_ready(cache):
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_a_second_process_loads_every_entry_point_without_compiling(tmp_path):
     first = get_ready(tmp_path)
     assert "run_bodies_inplace" in first["compiled"]  # an empty cache: it compiled
@@ -89,6 +92,7 @@ IN_CHILDREN = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_cold_cache_is_filled_by_child_processes_and_loaded_here(tmp_path):
     done = subprocess.run([sys.executable, "-c", IN_CHILDREN], capture_output=True, text=True,
                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}, check=True)

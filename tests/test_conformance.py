@@ -30,6 +30,7 @@ def scorecard(tmp_path_factory):
         return out, ds.load()
 
 
+@pytest.mark.slow
 def test_the_scorecard_names_the_code_that_made_it_as_archives_do(scorecard):
     """``rbstudy 0.4.0 (commit abc1234)`` from a checkout, as each golden archive says."""
     out, ds = scorecard
@@ -42,6 +43,7 @@ def _rule(ds, scheme, case, rule):
     return int(ds["rule_passed"].sel(scheme=scheme, case=case, rule=rule))
 
 
+@pytest.mark.slow
 def test_sound_schemes_pass_every_rule_with_their_orders(scorecard):
     _, ds = scorecard
     for scheme, order in (("midpoint", 2), ("rk4", 4)):
@@ -54,6 +56,7 @@ def test_sound_schemes_pass_every_rule_with_their_orders(scorecard):
     assert _rule(ds, "rk4", "t_handle", "flip") == 1
 
 
+@pytest.mark.slow
 def test_explicit_euler_fails_where_it_gains_energy_and_shows_no_order(scorecard):
     """On the T-handle explicit Euler gains a quarter of its energy and blows up at the
     coarsest step: it fails the energy and the order rules. Its failure does not fail the
@@ -72,6 +75,7 @@ def test_explicit_euler_fails_where_it_gains_energy_and_shows_no_order(scorecard
     assert _rule(ds, "euler", "t_handle", "flip") == 1
 
 
+@pytest.mark.slow
 def test_the_scorecard_is_printed_archived_and_drawn(scorecard, capsys):
     out, ds = scorecard
     assert list(ds["rule"].values) == list(RULES)
@@ -82,6 +86,7 @@ def test_the_scorecard_is_printed_archived_and_drawn(scorecard, capsys):
     assert ds.attrs["wall_seconds"] > 0
 
 
+@pytest.mark.slow
 def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
     out, ds = scorecard
     archive = out / "conformance_t_handle" / "conformance_t_handle.nc"
@@ -95,6 +100,7 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
     assert archive.stat().st_mtime_ns == written  # up to date: not computed again
 
 
+@pytest.mark.slow
 def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, monkeypatch):
     """The example plug-in's numpy scheme, of order 1, finishes on the T-handle where euler
     blows up. Judged beside it, euler still gets the card it gets alone (and beside midpoint
@@ -163,6 +169,7 @@ def _judge(ds, case="t_handle"):
     return score_case(ds, next(c for c in GOLDEN if c.name == case).rules)
 
 
+@pytest.mark.slow
 def test_the_order_rule_falls_back_on_the_finest_usable_pair(scorecard):
     """rk4's errors made too large at the coarsest steps for an asymptotic fit: the finest
     pair of usable steps still shows order 4; the coarsest pair would not."""
@@ -175,6 +182,7 @@ def test_the_order_rule_falls_back_on_the_finest_usable_pair(scorecard):
     assert f"between dt = {dts[0]:g} and {dts[1]:g} s" in verdict.text
 
 
+@pytest.mark.slow
 def test_round_off_at_every_step_passes_as_exact_but_a_falling_error_does_not(scorecard):
     ds = _golden(scorecard)
     errors = ds["final_orientation_error"]
@@ -185,6 +193,7 @@ def test_round_off_at_every_step_passes_as_exact_but_a_falling_error_does_not(sc
     assert verdict.passed is False and "exact" not in verdict.text
 
 
+@pytest.mark.slow
 def test_a_lost_invariant_a_missing_flip_and_an_energy_gain_each_fail(scorecard):
     ds = _golden(scorecard)
     ds["max_energy_error"].loc[{"scheme": "midpoint", "dt": ds["dt"].values[0]}] = 1e-6
@@ -198,6 +207,7 @@ def test_a_lost_invariant_a_missing_flip_and_an_energy_gain_each_fail(scorecard)
     assert cells["rk4"].verdicts["energy"].value == pytest.approx(2e-3)
 
 
+@pytest.mark.slow
 def test_a_failure_fails_beside_a_survivor_of_the_same_order(scorecard):
     """midpoint given euler's order for the test: it finished every step where euler blew
     up, so euler's failure now fails the rule, and the verdict names the survivor."""
@@ -207,6 +217,7 @@ def test_a_failure_fails_beside_a_survivor_of_the_same_order(scorecard):
     assert verdict.passed is False and "midpoint (order 1) finished at dt = 0.05 s" in verdict.text
 
 
+@pytest.mark.slow
 def test_invariants_are_not_judged_where_no_case_finished(scorecard):
     ds = _golden(scorecard)
     ds["status"].loc[{"scheme": "midpoint"}] = 1  # as an archive holds a blow-up: no error

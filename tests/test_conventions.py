@@ -100,6 +100,7 @@ def test_a_list_option_never_takes_a_positional():
     assert parser.parse_args(["bench", "--schemes", "rk4", "euler"]).scheme_names == ["euler"]
 
 
+@pytest.mark.slow
 def test_plot_format_svg_then_the_file_draws_that_file(archives, tmp_path, capsys):
     assert main(["plot", "--format", "svg", str(archives[0]), "-o", str(tmp_path / "f")]) == 0
     line = capsys.readouterr().out.splitlines()[0]
@@ -114,6 +115,7 @@ def test_plot_format_svg_then_the_file_draws_that_file(archives, tmp_path, capsy
     assert f"{tmp_path / 'absent.nc'}: no such file" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_report_writes_a_report_of_each_archive(archives, tmp_path, capsys):
     assert main(["report", *map(str, archives), "-q"]) == 0  # beside each archive
     out = capsys.readouterr().out.splitlines()

@@ -58,6 +58,7 @@ def test_a_step_of_a_constant_spin_turns_by_the_schemes_own_polynomial(scheme):
     assert abs(turn - rate * dt) > 1e-5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme, order", [("drake_rk2", 2), ("drake_rk3", 3),
                                            ("drake_implicit_euler", 1), ("drake_discrete", 1)])
 def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
@@ -65,6 +66,7 @@ def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.15)
 
 
+@pytest.mark.slow
 def test_energy_over_a_long_run():
     """Over 20 s at dt = 0.01 s: the explicit gyroscopic force of the discrete plant gains
     energy by percents (as Bullet's multibody does), and so does the implicit Euler, whose

@@ -75,6 +75,7 @@ def drawn(figures, study):
     return {png.stem.removeprefix(f"{study}_") for png in figures.written}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_every_shipped_study_gives_its_figures(name, tmp_path):
     """Every figure the archive supports is drawn, in both formats and named by study, or
@@ -95,6 +96,7 @@ def test_every_shipped_study_gives_its_figures(name, tmp_path):
         assert png.stat().st_size > 10_000 and png.with_suffix(".svg").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_the_report_table_shows_every_column_with_the_summary_numbers(tmp_path, capsys):
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
@@ -114,6 +116,7 @@ def test_the_report_table_shows_every_column_with_the_summary_numbers(tmp_path, 
     assert "Provenance" in text and "history" in text
 
 
+@pytest.mark.slow
 def test_the_shipped_convergence_study_shows_every_nominal_order(tmp_path):
     done = run_study(load_study(CONFIGS / "convergence_asymmetric.yaml"), tmp_path, quiet=True)
     rows = scheme_rows(open_results(done.path))
@@ -135,6 +138,7 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
     assert "not an rbstudy archive: not a netCDF file" in error and "\n" not in error
 
 
+@pytest.mark.slow
 def test_plot_select_narrows_the_cases(tmp_path, capsys):
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
@@ -155,6 +159,7 @@ def test_plot_select_narrows_the_cases(tmp_path, capsys):
     assert "--select needs --out" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_archive(
         tmp_path, capsys):
     """`plot a.nc b.nc --out DIR` used to leave 13 of 50 figures: names now carry the study;
@@ -174,6 +179,7 @@ def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_arch
     assert "also study 'long_run'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path):
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
@@ -295,6 +301,7 @@ def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
             assert "\n" not in error and f"{path}: {message}" in error, error
 
 
+@pytest.mark.slow
 def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     """`rbstudy plot` draws in as many processes as it has cores (2 in CI); the files are
     the same, byte for byte, in the same order, with the same figures left out and why."""
@@ -326,6 +333,7 @@ def top_with_twins(tmp_path_factory):
     return open_results(run_study(load_study(path), root / "out", quiet=True).path)
 
 
+@pytest.mark.slow
 def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, tmp_path,
                                                                drawn_figures):
     """It was a 9-entry legend in each of 4 panels, and up to 5 of 9 lines hidden."""
@@ -347,6 +355,7 @@ def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, t
         assert twins[0].get_zorder() < twins[1].get_zorder()
 
 
+@pytest.mark.slow
 def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_twins, tmp_path,
                                                                       drawn_figures):
     import matplotlib.colors as colors

@@ -113,6 +113,7 @@ def _expected_picks(ds):
     return picks
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_the_recommendation_is_the_cheapest_accurate_case(archives, name):
     ds = open_archive(archives[name])
@@ -149,6 +150,7 @@ def _agree(a, b):
                        <= 5e-4 * np.maximum(np.abs(a[finite]), np.abs(b[finite]))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_coincidences_are_exactly_the_schemes_agreeing_to_three_digits(archives, name):
     ds = open_archive(archives[name])
@@ -165,6 +167,7 @@ def test_coincidences_are_exactly_the_schemes_agreeing_to_three_digits(archives,
 
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("relative", "coincide"), [(2e-4, True), (2e-3, False)])
 def test_a_scheme_within_three_digits_of_another_is_named_as_coinciding(archives, relative,
                                                                         coincide):
@@ -182,6 +185,7 @@ def test_a_scheme_within_three_digits_of_another_is_named_as_coinciding(archives
         assert found[0].text == (f"leapfrog gives euler's errors to 3 digits in all "
                                  f"{errors.sel(scheme='euler').size} cases (their lines overlap)")
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
     ds = open_archive(archives[name])
@@ -216,6 +220,7 @@ def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
                 assert f"; {word} energy, up to " in found.text
 
 
+@pytest.mark.slow
 def test_the_study_question_states_the_order_per_value_of_the_swept_option(archives):
     ds = open_archive(archives["hht_damping"])
     question = next(f for f in findings(ds) if f.kind == "question")
@@ -223,6 +228,7 @@ def test_the_study_question_states_the_order_per_value_of_the_swept_option(archi
     assert len(question.numbers["order"]) == 2  # one per alpha, not a folded range
 
 
+@pytest.mark.slow
 def test_summary_json_keeps_its_contract(archives, capsys):
     assert main(["summary", str(archives["abaqus_top"]), "--format", "json"]) == 0
     document = json.loads(capsys.readouterr().out)
@@ -269,6 +275,7 @@ def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys)
                             "file (a text file); give the <study>.nc written by rbstudy sweep\n")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_each_stated_order_is_the_slope_of_the_errors_over_dt(archives, name):
     """A verdict's order range holds the least-squares slope of log error over log dt, fitted

@@ -45,6 +45,7 @@ def test_the_cases_state_their_sources_assertions():
     assert CASES["abaqus_top"].figure is None
 
 
+@pytest.mark.slow
 def test_second_and_fourth_order_schemes_pass_and_reproduce_the_figures(card):
     _, ds = card
     for scheme in ("rk4", "midpoint"):
@@ -61,6 +62,7 @@ def test_second_and_fourth_order_schemes_pass_and_reproduce_the_figures(card):
         ds["figure_text"].sel(scheme="rk4", case="radioss_rota").values)
 
 
+@pytest.mark.slow
 def test_the_card_says_figure_yes_or_no_within_the_terminal(card, capsys):
     out, _ = card
     assert main(["conformance", "--cases", _CARD_CASES, "--schemes", "rk4,midpoint,euler",
@@ -73,6 +75,7 @@ def test_the_card_says_figure_yes_or_no_within_the_terminal(card, capsys):
     assert CASES["radioss_rota"].figure.url in page and "figure: at dt = 0.001 s" in page
 
 
+@pytest.mark.slow
 def test_a_wrong_cycle_count_or_energy_is_not_the_figure(card):
     out, _ = card
     figure = CASES["radioss_rota"].figure
@@ -86,6 +89,7 @@ def test_a_wrong_cycle_count_or_energy_is_not_the_figure(card):
     assert verdict.passed is False and verdict.value == pytest.approx(4.0004 / 0.5, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_drakes_tolerance_grows_linearly_in_time(card):
     """An error just inside tol(t) late in the run passes; the same error at the start,
     where tol is 1e-3, does not."""
@@ -103,6 +107,7 @@ def test_drakes_tolerance_grows_linearly_in_time(card):
     assert judge_figure(ds, "rk4", figure).passed is False
 
 
+@pytest.mark.slow
 def test_exudyns_rk44_reproduces_its_own_figure_asked_of_it_alone(tmp_path):
     """Exudyn's Lie-group test asserts its RK44's own number at h = 1e-3 s: exudyn_rk44 gives
     it on the card; rk4, whose truncation error differs, is not asked for it."""
@@ -119,6 +124,7 @@ def test_exudyns_rk44_reproduces_its_own_figure_asked_of_it_alone(tmp_path):
     assert judge_figure(golden, "exudyn_rk44", figure).passed is False
 
 
+@pytest.mark.slow
 def test_the_radioss_case_sweeps_the_sources_step_alone(card):
     """It judges no order, so it runs at dt = 1e-3 s only, whatever --steps says."""
     out, _ = card

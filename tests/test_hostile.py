@@ -7,6 +7,7 @@ import contextlib
 import copy
 import io
 
+import pytest
 import yaml
 from conftest import CONFIGS, copy_node_tables
 
@@ -56,6 +57,7 @@ def _run(argv):
     return code, err.getvalue().strip()
 
 
+@pytest.mark.slow
 def test_every_mutation_of_the_shipped_configs_fails_in_one_line(tmp_path):
     failures, count = [], 0
     copy_node_tables(tmp_path)

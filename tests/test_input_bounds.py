@@ -81,6 +81,7 @@ def table_study(folder, table="load.csv"):
     return study(folder, loads={"moment_body": {"table": table}})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["validate", "sweep"])
 def test_a_fifo_config_or_table_is_refused_without_opening_it(tmp_path, command):
     os.mkfifo(tmp_path / "load.csv")
@@ -93,6 +94,7 @@ def test_a_fifo_config_or_table_is_refused_without_opening_it(tmp_path, command)
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_a_link_to_a_device_is_refused_in_bounded_memory(tmp_path):
     (tmp_path / "load.csv").symlink_to("/dev/zero")
     (tmp_path / "zero.yaml").symlink_to("/dev/zero")
@@ -103,6 +105,7 @@ def test_a_link_to_a_device_is_refused_in_bounded_memory(tmp_path):
         assert peak < REFUSED_PEAK_BYTES
 
 
+@pytest.mark.slow
 def test_a_table_or_config_past_the_size_bound_is_refused(tmp_path):
     config = table_study(tmp_path)
     with open(tmp_path / "load.csv", "wb") as table:  # sparse: no disk, no time
@@ -124,6 +127,7 @@ def write_knots(path, count):
                fmt="%.5f")
 
 
+@pytest.mark.slow
 def test_a_table_of_many_knots_is_forecast_within_twice_its_peak(tmp_path):
     write_knots(tmp_path / "load.csv", 100_000)
     code, out, err, peak = rbstudy("sweep", table_study(tmp_path), "--out", tmp_path / "out")

@@ -98,6 +98,7 @@ def _same_numbers(path_a, path_b):
                                 b.drop_vars(TIMINGS).drop_attrs())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", CORRUPTIONS)
 def test_a_damaged_part_is_recomputed_never_reused(study, kind):
     config, out, folder = study

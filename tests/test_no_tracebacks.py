@@ -26,6 +26,7 @@ def _rbstudy(*args, **popen):
                             stderr=subprocess.PIPE, text=True, **popen)
 
 
+@pytest.mark.slow
 def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
     """The option fails in the worker as it starts: the worker's semaphores were reported
     as leaked by Python's resource tracker (a warning of two lines, twice) after the error."""
@@ -42,6 +43,7 @@ def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
                      "LocalCluster\n")
 
 
+@pytest.mark.slow
 def test_ctrl_c_of_the_process_group_ends_a_sweep_with_workers_in_one_line(tmp_path):
     """Ctrl-C at a terminal reaches the sweep's whole process group, its two workers too,
     which printed 4 tracebacks (63 lines). Now they ignore it and the sweep ends them: its

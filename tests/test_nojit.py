@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 SCRIPT = r"""
 import json, math
 from rbstudy.physics.scenes import Body, Scene, scene_from_mapping
@@ -43,6 +45,7 @@ def run(disable):
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_interpreted_kernels_match_compiled():
     import numpy as np
     compiled, interpreted = run(False), run(True)

@@ -168,6 +168,7 @@ def _runs(capsys):
     return int(run), int(reused)
 
 
+@pytest.mark.slow
 def test_overrides_are_states_of_one_study_for_the_resume_rules(tmp_path, capsys):
     """The same overrides find the archive up to date; others are another state of the same
     study (the folder is not refused as another config's): the batches they change are run,

@@ -49,6 +49,7 @@ def abaqus_results(tmp_path_factory):
     return root / "abaqus_top" / "abaqus_top.nc"
 
 
+@pytest.mark.slow
 def test_default_study_follows_the_dataset_contract(abaqus_results):
     ds = open_results(abaqus_results)
     fixed = [name for name, s in BUILTIN.items() if not s.adaptive]
@@ -106,6 +107,7 @@ def test_the_estimate_matches_the_archive_and_its_steps(abaqus_results):
     assert cost.body_steps == int(ds.n_steps.sum())  # fixed steps: the forecast is exact
 
 
+@pytest.mark.slow
 def test_the_dop853_forecast_is_within_a_factor_two_of_its_steps(tmp_path):
     """The forecast that warns of a reference past its budget: accepted DOP853 steps against
     |w0| T for asymmetric bodies turning 10 to 1000 radians under a small space-fixed moment
@@ -137,6 +139,7 @@ def test_the_dop853_forecast_is_within_a_factor_two_of_its_steps(tmp_path):
 TIME_RULE = "Coordinate variable 'time' should have standard_name='time', found: 'None'"
 
 
+@pytest.mark.slow
 def test_default_study_is_cf_compliant_at_strict_criteria(abaqus_results, tmp_path):
     checker = shutil.which("compliance-checker") or os.path.join(
         os.path.dirname(sys.executable), "compliance-checker")
@@ -190,6 +193,7 @@ def _assert_same_numbers(path_a, path_b):
                                 b.drop_vars(TIMINGS).drop_attrs())
 
 
+@pytest.mark.slow
 def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tmp_path):
     config = _small_study(tmp_path)
     out = tmp_path / "out"
@@ -241,6 +245,7 @@ def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
     assert not (folder / "small.nc").exists()
 
 
+@pytest.mark.slow
 def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
     """Another process holds the lock: refused at once, naming that process; killed, it
     leaves no lock behind (the system's lock, through filelock)."""
@@ -264,6 +269,7 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
         assert (folder / execute.PID_FILE).read_text() == str(os.getpid())
 
 
+@pytest.mark.slow
 def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     sweep = {"scheme": ["rkmk4"], "dt": [0.01 / k for k in range(1, 11)],
              "inertia_ratio": {"linspace": [0.2, 2.0, 40]}}
@@ -293,6 +299,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     _assert_same_numbers(resumed.path, clean.path)
 
 
+@pytest.mark.slow
 def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path):
     """A batch of 1.6e7 body-steps is halted from inside its compiled loop: the process ends
     at once (it used to wait for the kernel), the study's lock is free only then, and the
@@ -390,6 +397,7 @@ def test_a_resume_needs_the_disk_for_what_is_left_only(tmp_path, monkeypatch):
         run_study(study, tmp_path / "out", quiet=True, force=True)
 
 
+@pytest.mark.slow
 def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(tmp_path):
     from distributed import LocalCluster
 

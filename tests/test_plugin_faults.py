@@ -122,6 +122,7 @@ def _run(env, *args, cwd, code=None):
                           text=True, timeout=300)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("child", ["fork", "threads"])
 def test_schemes_lists_plugins_that_hang_or_exit_as_unavailable(bad_imports, tmp_path, child):
     """Before: `schemes` hung on the first, and ended without a word (exit 3, or 0) on the
@@ -150,6 +151,7 @@ def _study(folder, schemes):
     return path
 
 
+@pytest.mark.slow
 def test_a_sweep_of_builtin_schemes_imports_no_plugin(bad_imports, tmp_path):
     """Before: the sweep hung on the plug-in that hangs, though it names none."""
     swept = _run(bad_imports, "sweep", str(_study(tmp_path, ["euler", "rk4"])), "--out", "out",
@@ -159,6 +161,7 @@ def test_a_sweep_of_builtin_schemes_imports_no_plugin(bad_imports, tmp_path):
     assert not list(tmp_path.glob("imported-*")) and "plug-in" not in swept.stderr
 
 
+@pytest.mark.slow
 def test_a_plugin_step_that_raises_ends_the_sweep_in_one_line_and_keeps_finished_batches(
         bad_steps, tmp_path):
     """Before: exit 70, a traceback and "this is a bug in rbstudy"."""
@@ -176,6 +179,7 @@ def test_a_plugin_step_that_raises_ends_the_sweep_in_one_line_and_keeps_finished
     assert "faults: 1 batches run, 1 reused" in resumed.stdout
 
 
+@pytest.mark.slow
 def test_a_plugin_step_that_returns_nan_as_status_ends_the_sweep_in_one_line(bad_steps,
                                                                              tmp_path):
     """Before: a traceback (NaN cast to an integer) with exit 70."""

@@ -50,6 +50,7 @@ def _rbstudy(env, *args, cwd):
                           capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_installed_example_is_listed_as_a_plugin(installed, tmp_path):
     listed = _rbstudy(installed, "schemes", cwd=tmp_path)
     assert listed.returncode == 0, listed.stderr
@@ -59,6 +60,7 @@ def test_installed_example_is_listed_as_a_plugin(installed, tmp_path):
     assert "plug-in" not in lines["euler"]
 
 
+@pytest.mark.slow
 def test_installed_example_sweeps_with_its_nominal_order(installed, tmp_path):
     """Both kinds of the example sweep like built-ins; they show order 1 on the Abaqus top,
     agree with each other to round-off, and the archive names where they come from."""
@@ -103,6 +105,7 @@ def _row_by_row(module):
     return make_batch_entry(each_step, each_init if init else None, module.N_WORK)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["euler", "hht"])
 def test_vectorised_driver_books_like_the_compiled_driver(name):
     """Samples, statuses, failure times, step and iteration counts, drifts and step angles of
@@ -314,6 +317,7 @@ print(out.samples[0, -1, S.POSITION])
 """
 
 
+@pytest.mark.slow
 def test_an_edited_helper_of_a_plugin_is_compiled_again(tmp_path):
     """numba checks only the file that defines a kernel: a plug-in's kernels are cached
     under a digest of its whole package, so a changed helper module is not run stale."""

@@ -65,6 +65,7 @@ def one_scheme(tmp_path_factory):
     return config, folder, cache, _sweep(config, folder / "out", cache)
 
 
+@pytest.mark.slow
 def test_a_first_run_says_it_compiles_before_it_does(one_scheme):
     _, _, cache, lines = one_scheme
     announced = [(seconds, line) for seconds, line in lines
@@ -78,6 +79,7 @@ def test_a_first_run_says_it_compiles_before_it_does(one_scheme):
     assert all(len(line) <= 100 for _, line in lines)
 
 
+@pytest.mark.slow
 def test_elsewhere_than_a_terminal_a_sweep_prints_a_start_and_an_end_line(one_scheme):
     config, folder, cache, _ = one_scheme
     # the cache warm now: nothing to compile, nothing to announce

@@ -32,6 +32,7 @@ def oracle(scene, step, **moments):
                            scene.duration, step, **moments)[0]
 
 
+@pytest.mark.slow
 def test_over_a_long_loaded_run_the_composed_reference_is_far_tighter_than_dop853():
     """40 s under a space-fixed moment: DOP853's error grows with the run, the composition's
     stays near round-off, and the archived uncertainty (their difference) is the larger of
@@ -53,6 +54,7 @@ def assert_tells_the_larger_error(uncertainty, *errors):
     assert max(errors) / 2.0 <= uncertainty <= 2.0 * max(errors), (uncertainty, errors)
 
 
+@pytest.mark.slow
 def test_a_body_that_a_moment_spins_up_gets_a_step_for_its_fastest_spin():
     """A body moment spins the body up fivefold over 10 s, past the step chosen from the
     initial spin: the composition is rerun at a step fitted to the fastest spin. Its rounding

@@ -69,6 +69,7 @@ def _report(archive, out, *options):
     return out / "report.html"
 
 
+@pytest.mark.slow
 def test_the_report_is_one_file_with_the_answer_first(archive, tmp_path, capsys):
     report = _report(archive, tmp_path / "report")
     page = _parsed(report)
@@ -98,6 +99,7 @@ def test_the_report_is_one_file_with_the_answer_first(archive, tmp_path, capsys)
     assert "Fitted orders: hht" in page.captions[0] and "0.01 s" in page.captions[0]
 
 
+@pytest.mark.slow
 def test_svg_files_only_when_asked_for_and_then_linked(archive, tmp_path, capsys):
     report = _report(archive, tmp_path / "report", "--svg")
     page = _parsed(report)
@@ -117,6 +119,7 @@ def _progress(capsys):
     return int(drawn), int(reused)
 
 
+@pytest.mark.slow
 def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archive, tmp_path,
                                                                           capsys):
     out = tmp_path / "report"
@@ -152,6 +155,7 @@ def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archiv
     assert deleted.is_file()
 
 
+@pytest.mark.slow
 def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_path, capsys):
     report = _report(archive, tmp_path / "report", "--quiet").read_text()
     cell = Cell(passed=False, value=float("nan"),
@@ -167,6 +171,7 @@ def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_pa
     assert page.count('class="fail"') == 1 and "✗ order" in page and "· energy" in page
 
 
+@pytest.mark.slow
 def test_the_report_of_another_shipped_study_has_distinct_captions(tmp_path, capsys):
     """A one-scheme study (hht's damping swept): lines are the swept option's values."""
     path = run_study(load_study(shrunk_config("hht_damping.yaml", tmp_path)), tmp_path / "out",

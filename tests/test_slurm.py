@@ -105,6 +105,7 @@ def _resumes(config, out, uninterrupted, kept):
     _assert_same_numbers(uninterrupted, resumed.path)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("error")
 def test_a_study_in_slurm_jobs_gives_the_threaded_archive(tmp_path, capsys, monkeypatch):
     """... with no warning, though the dashboard's usual port is taken, and nothing written
@@ -126,6 +127,7 @@ def test_a_study_in_slurm_jobs_gives_the_threaded_archive(tmp_path, capsys, monk
     assert not (tmp_path / "out" / "small" / "parts").exists()
 
 
+@pytest.mark.slow
 def test_a_cancelled_worker_job_is_named_and_the_rerun_resumes(tmp_path, capsys, slow):
     config, uninterrupted = slow
     cluster, name = _cluster_file(tmp_path)
@@ -144,6 +146,7 @@ def test_a_cancelled_worker_job_is_named_and_the_rerun_resumes(tmp_path, capsys,
     _resumes(config, out, uninterrupted, kept)
 
 
+@pytest.mark.slow
 def test_a_walltime_shorter_than_the_study_is_named(tmp_path, capsys):
     """A job of one minute, which sleeps through most of it (`WALLTIME_SLEEP`); the
     uninterrupted run is computed meanwhile, in a process of its own."""
@@ -170,6 +173,7 @@ def test_a_walltime_shorter_than_the_study_is_named(tmp_path, capsys):
     _resumes(config, out, tmp_path / "whole" / "long" / "long.nc", kept)
 
 
+@pytest.mark.slow
 def test_a_job_that_never_starts_says_why_and_the_rerun_runs_on_slurm(tmp_path, capsys, slow):
     """The partition is down: the job stays pending, the sweep says so after --worker-wait,
     and cancels it; once the partition is up the same command runs the study."""

@@ -44,6 +44,7 @@ def _same_numbers(path_a, path_b):
     xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(TABLES))
 @pytest.mark.parametrize("keep_parts", [False, True], ids=["archive", "kept-parts"])
 def test_swapped_table_contents_are_recomputed(tmp_path, kind, keep_parts):

@@ -64,6 +64,7 @@ def shipped(tmp_path_factory):
                     for path in CONFIG_FILES}, printed
 
 
+@pytest.mark.slow
 def test_every_shipped_study_prints_lines_within_100_columns(shipped):
     """Its forecast, its run or up-to-date line and its table. Measured on the full
     configs: 98 characters at most, 100 on a rerun (the up-to-date lines), the widest table
@@ -89,6 +90,7 @@ def test_every_shipped_study_prints_lines_within_100_columns(shipped):
             assert all(part in header for part in column.header.split("\n")), column.key
 
 
+@pytest.mark.slow
 def test_footnotes_are_at_most_six_lines_under_the_table(shipped):
     _, archives, _ = shipped
     for name, path in archives.items():
@@ -130,6 +132,7 @@ def _markdown_cells(text):
             for k, line in enumerate(table) if k != 1]  # not the rule under the header
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wide", [False, True])
 def test_markdown_csv_and_html_hold_the_values_of_the_text(shipped, wide):
     """radioss_spin_limit: the one table with the Radioss column, and "|" in its cells."""

@@ -20,7 +20,18 @@ __all__ = ["hamilton_product", "rotation_columns", "rotational_energy", "momentu
 
 
 def hamilton_product(a, b):
-    """Hamilton product ``a * b`` of scalar-last quaternions, as a 4-tuple of components."""
+    """Hamilton product ``a * b`` of scalar-last quaternions.
+
+    Parameters
+    ----------
+    a, b : sequence of 4 floats, or of 4 arrays of one shape
+        Components ``(x, y, z, w)``: floats in a kernel, component-first arrays in numpy.
+
+    Returns
+    -------
+    tuple of 4
+        The components of ``a * b``, of the operands' kind.
+    """
     ax, ay, az, aw = a
     bx, by, bz, bw = b
     return (
@@ -32,8 +43,18 @@ def hamilton_product(a, b):
 
 
 def rotation_columns(q):
-    """The columns ``R e_1, R e_2, R e_3`` of the rotation of a unit quaternion ``q``
-    (scalar last), three 3-tuples of components."""
+    """The columns ``R e_1, R e_2, R e_3`` of the rotation of a unit quaternion.
+
+    Parameters
+    ----------
+    q : sequence of 4 floats, or of 4 arrays of one shape
+        ``(x, y, z, w)``, scalar last, body to space.
+
+    Returns
+    -------
+    tuple of 3 tuples of 3
+        The three columns, each as its components.
+    """
     x, y, z, w = q
     return ((1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
             (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
@@ -41,29 +62,81 @@ def rotation_columns(q):
 
 
 def rotational_energy(w, inertia):
-    """Kinetic energy of rotation ``1/2 w . (I w)`` for principal inertias ``inertia``."""
+    """Kinetic energy of rotation ``1/2 w . (I w)`` for principal inertias.
+
+    Parameters
+    ----------
+    w : sequence of 3 floats, or of 3 arrays of one shape
+        Body angular velocity (rad/s).
+    inertia : sequence of 3 floats, or of 3 arrays broadcasting against ``w``'s
+        Principal inertias (kg m^2).
+
+    Returns
+    -------
+    float or array of the operands' shape
+        J.
+    """
     return 0.5 * (inertia[0] * w[0] * w[0] + inertia[1] * w[1] * w[1]
                   + inertia[2] * w[2] * w[2])
 
 
 def momentum_squared(w, inertia):
-    """``|I w|^2``, equal to ``|L|^2`` in space (a rotation keeps lengths)."""
+    """``|I w|^2``, equal to ``|L|^2`` in space (a rotation keeps lengths).
+
+    Parameters
+    ----------
+    w : sequence of 3 floats, or of 3 arrays of one shape
+        Body angular velocity (rad/s).
+    inertia : sequence of 3 floats, or of 3 arrays broadcasting against ``w``'s
+        Principal inertias (kg m^2).
+
+    Returns
+    -------
+    float or array of the operands' shape
+        (kg m^2/s)^2.
+    """
     m0, m1, m2 = inertia[0] * w[0], inertia[1] * w[1], inertia[2] * w[2]
     return m0 * m0 + m1 * m1 + m2 * m2
 
 
 def relative_drift(value, initial):
-    """``|value - initial| / initial``, or the absolute change when ``initial`` (a scalar) is
-    zero: a body at rest has nothing to be relative to."""
+    """``|value - initial| / initial``, or the absolute change when ``initial`` is zero: a body
+    at rest has nothing to be relative to.
+
+    Parameters
+    ----------
+    value : float or array
+        The quantity now.
+    initial : float
+        The quantity at the start, >= 0 (a scalar: it picks the formula).
+
+    Returns
+    -------
+    float or array of ``value``'s shape
+    """
     if initial > 0.0:
         return abs(value - initial) / initial
     return abs(value - initial)
 
 
 def momentum_excess(inertia, m, j):
-    """``G^2 - 2 E I_j`` of a body with principal inertias ``inertia`` and body angular
-    momentum ``m``, summed term by term (``sum_{n != j} m_n^2 (I_n - I_j) / I_n``): free of the
-    cancellation of ``|m|^2 - I_j m . w`` when two moments nearly agree."""
+    """``G^2 - 2 E I_j`` of a body, summed term by term (``sum_{n != j} m_n^2 (I_n - I_j) /
+    I_n``): free of the cancellation of ``|m|^2 - I_j m . w`` when two moments nearly agree.
+
+    Parameters
+    ----------
+    inertia : sequence of 3 floats
+        Principal inertias (kg m^2).
+    m : sequence of 3 floats
+        Body angular momentum ``I w`` (kg m^2/s).
+    j : int
+        The axis (0, 1, 2).
+
+    Returns
+    -------
+    float
+        (kg m^2/s)^2.
+    """
     total = 0.0
     for k in range(3):
         if k != j:
@@ -72,11 +145,23 @@ def momentum_excess(inertia, m, j):
 
 
 def circulation_axes(inertia, excess):
-    """The relabelling of a free body's principal axes (docs/theory.md s3), given the
-    body's ``excess = (G^2 - 2 E I_j for j = 0, 1, 2)`` (`momentum_excess`): the indices
-    ``(first, mid, third)``, ``third`` the axis the body circulates about (its largest when
-    the excess of the intermediate axis ``mid`` is positive, else its smallest), and the sign
-    (1.0 or -1.0) that ``first`` takes to keep the frame right-handed."""
+    """The relabelling of a free body's principal axes (docs/theory.md s3).
+
+    Parameters
+    ----------
+    inertia : sequence of 3 floats
+        Principal inertias (kg m^2), any order.
+    excess : sequence of 3 floats
+        ``G^2 - 2 E I_j`` for j = 0, 1, 2 (`momentum_excess`).
+
+    Returns
+    -------
+    first, mid, third : int
+        Axis indices: ``third`` the axis the body circulates about (its largest when the
+        excess of the intermediate axis ``mid`` is positive, else its smallest).
+    sign : float
+        1.0 or -1.0, the sign ``first`` takes to keep the frame right-handed.
+    """
     lo, mid, hi = 0, 1, 2
     if inertia[lo] > inertia[mid]:
         lo, mid = mid, lo

@@ -82,7 +82,18 @@ class BatchStepEntry:
         self.step, self.init, self.n_work = step, init, int(n_work)
 
     def is_cached(self, timed=False):
-        """Nothing to compile: always ready (`rbstudy.schemes.Scheme.is_cached`)."""
+        """Nothing to compile: always ready (`rbstudy.schemes.Scheme.is_cached`).
+
+        Parameters
+        ----------
+        timed : bool
+            The variant asked for (either is ready).
+
+        Returns
+        -------
+        bool
+            True.
+        """
         return True
 
     # a body that blows up overflows on its way to the status check, which records it: a
@@ -166,16 +177,45 @@ def _loads_of_rows(y, p, t, force, moment):
 
 
 def batch_loads(y, p, t):
-    """The loads on the bodies of state rows ``y`` (n, N_STATE) with parameter rows ``p`` at
-    time ``t`` (s, or None without loads tabulated in time): the total force in space (n, 3),
-    N, and the total moment in the body frame (n, 3), N m, by the compiled kernels of the
-    built-in schemes, so that a vectorised scheme meets every load a scene can carry."""
+    """The loads on a batch's bodies, by the compiled kernels of the built-in schemes, so that a
+    vectorised scheme meets every load a scene can carry.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n, N_STATE)
+        State rows.
+    p : ndarray, shape (n, W)
+        Parameter rows, W >= N_PARAM.
+    t : float or None
+        Time (s); None in a batch without loads tabulated in time.
+
+    Returns
+    -------
+    force : ndarray, shape (n, 3)
+        Total force in space (N).
+    moment : ndarray, shape (n, 3)
+        Total moment in the body frame (N m).
+    """
     force, moment = np.empty((y.shape[0], 3)), np.empty((y.shape[0], 3))
     _loads_of_rows(y, p, t, force, moment)
     return force, moment
 
 
 def make_batch_entry(step, init=None, n_work=0):
-    """The entry point of a vectorised scheme: ``step`` and ``init`` (None: nothing to
-    start) over arrays of bodies, ``n_work`` floats of carry per body (module docstring)."""
+    """The entry point of a vectorised scheme (module docstring).
+
+    Parameters
+    ----------
+    step : callable ``(y, p, opt, t, h, work) -> (status, iterations)``
+        The step over arrays of bodies: ``y`` (n, N_STATE) updated in place, ``p`` (n, W),
+        ``opt`` (n, N_OPTION), ``work`` (n, n_work); status and iterations scalars or (n,).
+    init : callable ``(y, p, opt, t, h, work) -> status``, or None
+        Its start (None: nothing to start).
+    n_work : int
+        Floats of carry per body.
+
+    Returns
+    -------
+    BatchStepEntry
+    """
     return BatchStepEntry(step, init, n_work)

@@ -21,13 +21,40 @@ __all__ = ["later", "step_time", "without_time"]
 
 
 def later(t, d):
-    """The time ``d`` after ``t``; None when there is no time (``t`` None)."""
+    """The time ``d`` after ``t``, or no time.
+
+    Parameters
+    ----------
+    t : float or None
+        A time (s); None in a batch without loads tabulated in time.
+    d : float
+        s.
+
+    Returns
+    -------
+    float or None
+        ``t + d``; None when ``t`` is None.
+    """
     return None if t is None else t + d
 
 
 def step_time(steps, h, clock):
-    """The time after ``steps`` steps of ``h`` (a product: no drift of a running sum over 1e9
-    steps) when ``clock`` is a number; None when it is None."""
+    """The time after ``steps`` steps of ``h``: a product, so that no running sum drifts over
+    1e9 steps.
+
+    Parameters
+    ----------
+    steps : int
+    h : float
+        The step (s).
+    clock : float or None
+        A number where the kernels take the time, None where they do not.
+
+    Returns
+    -------
+    float or None
+        ``steps * h``; None when ``clock`` is None.
+    """
     return None if clock is None else steps * h
 
 
@@ -46,8 +73,18 @@ def _step_time(steps, h, clock):
 
 
 def without_time(of_time):
-    """``of_time(q, p, t)``, a compiled function of the time that gives a 3-vector, as a
-    function that compiled code may also call with ``t`` None, and that gives zero then."""
+    """A compiled function of the time as one that compiled code may also call without a time.
+
+    Parameters
+    ----------
+    of_time : compiled function ``(q, p, t) -> tuple of 3 floats``
+        ``q`` a quaternion 4-tuple, ``p`` a parameter row (W,), ``t`` a time (s).
+
+    Returns
+    -------
+    function ``(q, p, t) -> tuple of 3 floats``
+        ``of_time(q, p, t)``, or ``(0.0, 0.0, 0.0)`` where ``t`` is None (compiled away).
+    """
 
     def timed(q, p, t):
         return (0.0, 0.0, 0.0) if t is None else of_time(q, p, t)

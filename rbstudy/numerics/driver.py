@@ -92,9 +92,19 @@ class StatusError(ValueError):
 
 
 def check_statuses(codes):
-    """Raise `StatusError` naming the first of ``codes`` (a scalar or an array of any type)
-    that is not a status code: cast to an integer, NaN and codes past the table would be
-    read as another status (NaN to ``int8`` is 0, "ok")."""
+    """Refuse codes that are not status codes: cast to an integer, NaN and codes past the table
+    would be read as another status (NaN to ``int8`` is 0, "ok").
+
+    Parameters
+    ----------
+    codes : scalar, or ndarray of any type, shape (...)
+        What a scheme returned as statuses.
+
+    Raises
+    ------
+    StatusError
+        Naming the first code that is none of `rbstudy.numerics.state.STATUS_NAMES`.
+    """
     codes = np.asarray(codes)
     # integers, the usual answer, in two reductions: 1.5 us a step of a vectorised scheme
     # where np.isin takes 12 us (of a step's ~140 us for one body)
@@ -120,13 +130,47 @@ def clear_halt():
 
 
 def n_samples(n_steps, every):
-    """Number of output samples (including t = 0) of a run of ``n_steps`` sampled every ``every``."""
+    """Number of output samples, t = 0 included, of a run sampled every ``every`` steps.
+
+    Parameters
+    ----------
+    n_steps : int
+        Steps of the run.
+    every : int
+        Steps between two samples.
+
+    Returns
+    -------
+    int
+        T, the samples' axis length.
+    """
     return n_steps // every + 1
 
 
 @jit
 def init_nothing(y, p, opt, t, h, work):
-    """The ``init_inplace`` of schemes that carry nothing between steps."""
+    """The ``init_inplace`` of schemes that carry nothing between steps.
+
+    Parameters
+    ----------
+    y : ndarray, shape (N_STATE,)
+        The body's state row.
+    p : ndarray, shape (W,)
+        Its parameter row, W >= N_PARAM.
+    opt : ndarray, shape (N_OPTION,)
+        Its scheme options.
+    t : float or None
+        Time at the start of the step (s); None without loads tabulated in time.
+    h : float
+        Time step (s).
+    work : ndarray, shape (n_work,)
+        The body's scratch and carry.
+
+    Returns
+    -------
+    int
+        OK.
+    """
     return OK
 
 
@@ -233,7 +277,30 @@ def _lane_end(lane, fixed, b, h, samples, results):
 
 @jit
 def idle_step(y, p, opt, t, h, work):
-    """The step of a second lane that never runs (`run_rows` of a scheme of one lane)."""
+    """The step of a second lane that never runs (`run_rows` of a scheme of one lane).
+
+    Parameters
+    ----------
+    y : ndarray, shape (N_STATE,)
+        The body's state row.
+    p : ndarray, shape (W,)
+        Its parameter row, W >= N_PARAM.
+    opt : ndarray, shape (N_OPTION,)
+        Its scheme options.
+    t : float or None
+        Time at the start of the step (s); None without loads tabulated in time.
+    h : float
+        Time step (s).
+    work : ndarray, shape (n_work,)
+        The body's scratch and carry.
+
+    Returns
+    -------
+    status : int
+        -1, the idle lane's status (never OK, never stored).
+    iterations : int
+        0.
+    """
     return _IDLE, 0
 
 
@@ -241,8 +308,8 @@ def idle_step(y, p, opt, t, h, work):
 def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, state0, params,
                            options, h, n_steps, every, drift_bound, samples, results, halt,
                            clock):
-    """Integrate body ``a`` of a batch, and body ``b`` beside it step for step unless ``b``
-    is -1; write their samples and results.
+    """Integrate body ``a`` of a batch, and body ``b`` beside it step for step unless ``b`` is
+    -1; write their samples and results.
 
     Why two at once (a scheme's ``lanes``, `make_entry`): the step of a cheap scheme is a
     chain of dependent operations (the moment needs the orientation, the spin the moment,
@@ -254,22 +321,40 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
 
     Parameters
     ----------
-    step, init : compiled kernels of one scheme (see module docstring), for body ``a``;
-    second_step, second_init : the kernels for body ``b`` (`run_rows`).
-    n_work : int, the floats of work per body.
-    a, b : int, the bodies' rows in the batch arrays (``b`` -1 for none).
-    state0 : (B, N_STATE) initial states (read only).
-    params : (B, W) parameters, W >= N_PARAM (`rbstudy.numerics.state.row_width`);
-    options : (B, N_OPTION) scheme options (read only).
-    h : float, time step (s); n_steps : int; every : int, steps between samples.
-    drift_bound : float, relative energy / |L| drift that flags a moment-free body unstable.
-    samples : (B, T, N_STATE) output, T = n_steps // every + 1; rows a and b are written.
-    results : (B, N_RESULT) output, rows a and b written by name (`rbstudy.numerics.state`):
-        the drifts are NaN under moments, the failure time NaN when the body finished; the
-        largest step angle dt |w| and the Radioss flag cover every step taken.
-    halt : (1,) int64, the halt flag: the bodies stop early when it is nonzero (their
-        numbers are then discarded by `run_batch`).
-    clock : 0.0 to give the kernels the time, None to compile them without it
+    step, init : compiled kernels
+        One scheme's (module docstring), for body ``a``.
+    second_step, second_init : compiled kernels
+        The kernels for body ``b`` (`run_rows`).
+    n_work : int
+        Floats of work per body.
+    a, b : int
+        The bodies' rows in the batch arrays (``b`` -1 for none); only these rows of
+        ``samples`` and ``results`` are written.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states (read only).
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM (`rbstudy.numerics.state.row_width`).
+    options : ndarray, shape (B, N_OPTION)
+        Scheme options (read only).
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps of every body.
+    every : int
+        Steps between two samples.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    samples : ndarray, shape (B, T, N_STATE)
+        Output, T = n_steps // every + 1 (`n_samples`); NaN after a body's failure.
+    results : ndarray, shape (B, N_RESULT)
+        Output, by name (`rbstudy.numerics.state.Result`): the drifts NaN under moments, the
+        failure time NaN for a body that finished; the largest step angle dt |w| and the
+        Radioss flag cover every step taken.
+    halt : ndarray of int64, shape (1,)
+        The halt flag: the bodies stop early when it is nonzero (their numbers are then
+        discarded by `run_batch`).
+    clock : float or None
+        0.0 to give the kernels the time, None to compile them without it
         (`rbstudy.numerics.clock`).
     """
     paired = b >= 0
@@ -317,12 +402,52 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
 @inline_jit
 def run_rows(step, init, second_step, second_init, n_work, lanes, start, stop, state0, params,
              options, h, n_steps, every, drift_bound, samples, results, halt, clock):
-    """Integrate the rows [start, stop) of a batch with a scheme's kernels ``step`` and
-    ``init``, ``n_work`` floats of work per body, ``lanes`` (1 or 2) rows at a time
-    (`integrate_rows_inplace`). The second lane runs ``second_step`` and ``second_init``:
-    the scheme's own kernels for two lanes; for one, `idle_step` and `init_nothing`, which it
-    never calls, so that a scheme of one lane compiles its step once, not twice (+40% of
-    its compile time, measured)."""
+    """Integrate the rows [start, stop) of a batch with a scheme's kernels, ``lanes`` rows at a
+    time (`integrate_rows_inplace`).
+
+    The second lane runs ``second_step`` and ``second_init``: the scheme's own kernels for two
+    lanes; for one, `idle_step` and `init_nothing`, which it never calls, so that a scheme of
+    one lane compiles its step once, not twice (+40% of its compile time, measured).
+
+    Parameters
+    ----------
+    step, init : compiled kernels
+        The scheme's (module docstring).
+    second_step, second_init : compiled kernels
+        The second lane's.
+    n_work : int
+        Floats of work per body.
+    lanes : int
+        1 or 2.
+    start, stop : int
+        The rows to integrate; only these rows of ``samples`` and ``results`` are written.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states (read only).
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM (`rbstudy.numerics.state.row_width`).
+    options : ndarray, shape (B, N_OPTION)
+        Scheme options (read only).
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps of every body.
+    every : int
+        Steps between two samples.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    samples : ndarray, shape (B, T, N_STATE)
+        Output, T = n_steps // every + 1 (`n_samples`); NaN after a body's failure.
+    results : ndarray, shape (B, N_RESULT)
+        Output, by name (`rbstudy.numerics.state.Result`): the drifts NaN under moments, the
+        failure time NaN for a body that finished; the largest step angle dt |w| and the
+        Radioss flag cover every step taken.
+    halt : ndarray of int64, shape (1,)
+        The halt flag: the bodies stop early when it is nonzero (their numbers are then
+        discarded by `run_batch`).
+    clock : float or None
+        0.0 to give the kernels the time, None to compile them without it
+        (`rbstudy.numerics.clock`).
+    """
     for a in range(start, stop, lanes):
         if halt[0] != 0:
             return
@@ -333,14 +458,30 @@ def run_rows(step, init, second_step, second_init, n_work, lanes, start, stop, s
 
 
 def make_entry(step, init, n_work, wrapper=None, lanes=1):
-    """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params,
-    options, h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows
-    [start, stop) (`run_rows`) with the kernel ``step``, or with ``wrapper(step, ...)`` when
-    given (an inlined kernel that takes the step first: a composition), ``lanes`` (1 or 2)
-    bodies side by side (`integrate_rows_inplace`: 2 pays for cheap explicit steps, whose
-    time is latency; a costlier step loses 5-12% to it, and compiles its step twice); numba
-    compiles it, or loads it from its cache, for each type of ``clock`` (None or a float)
-    when first called with it (`rbstudy.numerics.entry`)."""
+    """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params, options,
+    h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows [start,
+    stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type of
+    ``clock`` (None or a float) when first called with it (`rbstudy.numerics.entry`).
+
+    Parameters
+    ----------
+    step : compiled kernel ``(y, p, opt, t, h, work) -> (status, iterations)``
+        The scheme's step (module docstring).
+    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
+        Its start.
+    n_work : int
+        Floats of work per body.
+    wrapper : compiled kernel, optional
+        An inlined kernel that takes the step first (a composition): the scheme steps with
+        ``wrapper(step, ...)``.
+    lanes : int
+        Bodies side by side (`integrate_rows_inplace`): 2 pays for cheap explicit steps, whose
+        time is latency; a costlier step loses 5-12% to it, and compiles its step twice.
+
+    Returns
+    -------
+    rbstudy.numerics.entry.CachedEntry
+    """
     if lanes not in (1, 2):
         raise ValueError(f"a scheme runs 1 or 2 lanes, not {lanes!r}")
     return CachedEntry(step, init, n_work, wrapper, lanes)
@@ -372,7 +513,14 @@ class BatchKernel(Protocol):
     name: str
     run_bodies_inplace: Callable
 
-    def ensure_compiled(self, timed: bool = False) -> None: ...
+    def ensure_compiled(self, timed: bool = False) -> None:
+        """Compile (or load from the cache) the kernels before the clock starts.
+
+        Parameters
+        ----------
+        timed : bool
+            Whether the kernels that take the time (loads tabulated in time) are needed.
+        """
 
 
 def _as_rows(array, width, name, wider=False):
@@ -410,18 +558,40 @@ def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, optio
               threads: int | None = None) -> BatchOutput:
     """Run a batch with a registered scheme and return a `BatchOutput`.
 
+    The first call of a scheme in a process compiles (or loads from cache) before the clock
+    starts, so ``kernel_seconds`` is run time only.
+
     Parameters
     ----------
-    scheme : `rbstudy.schemes.Scheme`.
-    state0 : (B, N_STATE); params : (B, W >= N_PARAM); options : (B, N_OPTION).
-    h : float, time step (s); n_steps : int >= 0; every : int >= 1, steps per sample.
-    drift_bound : float, see `DRIFT_BOUND`.
-    threads : int, threads to spread the bodies over (default: all cores; 1 under a
-        scheduler that already runs one task per core).
+    scheme : BatchKernel
+        A registered scheme (`rbstudy.schemes.Scheme`), or anything with its kernels.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states.
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM.
+    options : ndarray, shape (B, N_OPTION)
+        Scheme options.
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps, >= 0.
+    every : int
+        Steps per sample, >= 1.
+    drift_bound : float
+        See `DRIFT_BOUND`.
+    threads : int, optional
+        Threads to spread the bodies over (default: all cores; 1 under a scheduler that
+        already runs one task per core).
 
-    The first call of a scheme in a process compiles (or loads from cache) before the clock
-    starts, so ``kernel_seconds`` is run time only. Raises `Halted` when `request_halt` was
-    called before the batch ended.
+    Returns
+    -------
+    BatchOutput
+        The samples (B, T, N_STATE), T = n_steps // every + 1, and the results (B,) by name.
+
+    Raises
+    ------
+    Halted
+        When `request_halt` was called before the batch ended.
     """
     state0 = _as_rows(state0, S.N_STATE, "state0")
     params = _as_rows(params, S.N_PARAM, "params", wider=True)

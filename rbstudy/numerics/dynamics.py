@@ -23,19 +23,56 @@ __all__ = [
 
 @jit
 def inertia(p):
-    """Principal inertias ``(I1, I2, I3)`` of a parameter row ``p`` (N_PARAM or wider)."""
+    """Principal inertias ``(I1, I2, I3)`` of a parameter row.
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+
+    Returns
+    -------
+    tuple of 3 floats
+        kg m^2.
+    """
     return read3(p, S.INERTIA)
 
 
 @jit
 def to_momentum(w, inertia_):
-    """Body angular momentum ``m = I w``."""
+    """Body angular momentum ``m = I w``.
+
+    Parameters
+    ----------
+    w : tuple of 3 floats
+        Body angular velocity (rad/s).
+    inertia_ : tuple of 3 floats
+        Principal inertias (kg m^2).
+
+    Returns
+    -------
+    tuple of 3 floats
+        kg m^2/s.
+    """
     return (inertia_[0] * w[0], inertia_[1] * w[1], inertia_[2] * w[2])
 
 
 @jit
 def to_omega(m, inertia_):
-    """Body angular velocity ``w = I^-1 m``."""
+    """Body angular velocity ``w = I^-1 m``.
+
+    Parameters
+    ----------
+    m : tuple of 3 floats
+        Body angular momentum (kg m^2/s).
+    inertia_ : tuple of 3 floats
+        Principal inertias (kg m^2).
+
+    Returns
+    -------
+    tuple of 3 floats
+        rad/s.
+    """
     return (m[0] / inertia_[0], m[1] / inertia_[1], m[2] / inertia_[2])
 
 
@@ -45,16 +82,38 @@ rotation_columns = jit(algebra.rotation_columns)
 
 @jit
 def lever_moment(q, k1, k2, k3):
-    """Space-frame moment of space-fixed forces at body-fixed points, given as the rows
-    ``k_b`` of `S.LEVER`: ``sum_b c_b x k_b`` with ``c_b = R e_b`` the columns of the body's
-    rotation."""
+    """Space-frame moment of space-fixed forces at body-fixed points: ``sum_b c_b x k_b`` with
+    ``c_b = R e_b`` the columns of the body's rotation.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    k1, k2, k3 : tuple of 3 floats
+        The rows ``k_b`` of `S.LEVER` (N m).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N m, space axes.
+    """
     c1, c2, c3 = rotation_columns(q)
     return add(add(cross(c1, k1), cross(c2, k2)), cross(c3, k3))
 
 
 @jit
 def has_lever(p):
-    """True when constant space-fixed forces act at points off the centre of mass."""
+    """Whether constant space-fixed forces act at points off the centre of mass.
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+
+    Returns
+    -------
+    bool
+    """
     for k in range(9):
         if p[S.LEVER + k] != 0.0:
             return True
@@ -63,10 +122,25 @@ def has_lever(p):
 
 @jit
 def knot_segment(p, t):
-    """Where time ``t`` falls among the knots of the tabulated loads of row ``p``: ``(k, s)``
-    with ``t = (1 - s) t_k + s t_k+1``, ``0 <= s < 1``; ``s = 0`` at the first knot for
-    earlier times and at the last knot for later ones (the loads are held there). Bisection:
-    the knots are few, and a step may ask at any time."""
+    """Where a time falls among the knots of the tabulated loads of a row: ``t = (1 - s) t_k + s
+    t_k+1``, ``0 <= s < 1``; ``s = 0`` at the first knot for earlier times and at the last knot
+    for later ones (the loads are held there). Bisection: the knots are few, and a step may ask
+    at any time.
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    t : float
+        Time (s).
+
+    Returns
+    -------
+    k : int
+        The knot at or before ``t``.
+    s : float
+        The fraction of the segment after it.
+    """
     count = int(p[S.KNOTS])
     first = S.N_PARAM
     if t <= p[first]:
@@ -86,8 +160,22 @@ def knot_segment(p, t):
 
 @jit
 def tabulated3(p, k, s, field):
-    """The tabulated load ``field`` (a row index from FORCE_SPACE to LEVER + 6) at ``(k, s)``
-    of `knot_segment`, a 3-vector."""
+    """A tabulated load at a place among the knots.
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    k, s : int, float
+        The place (`knot_segment`).
+    field : int
+        The load's row index, FORCE_SPACE to LEVER + 6.
+
+    Returns
+    -------
+    tuple of 3 floats
+        The load there, interpolated linearly between knots.
+    """
     at = S.N_PARAM + int(p[S.KNOTS]) + k * S.LOAD_RECORD + field - S.FORCE_SPACE
     value = read3(p, at)
     if s == 0.0:  # at or past a knot: the next record may not exist
@@ -97,8 +185,22 @@ def tabulated3(p, k, s, field):
 
 @jit
 def tabulated_moment(q, p, t):
-    """Body-frame moment of the loads tabulated in time (`S.KNOTS`) at time ``t``; zero for
-    a row without."""
+    """Body-frame moment of the loads tabulated in time (`S.KNOTS`).
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    t : float
+        Time (s).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N m, body axes; zero for a row without tabulated loads.
+    """
     if p[S.KNOTS] == 0.0:
         return (0.0, 0.0, 0.0)
     k, s = knot_segment(p, t)
@@ -110,8 +212,22 @@ def tabulated_moment(q, p, t):
 
 @jit
 def tabulated_force(q, p, t):
-    """Space force of the loads tabulated in time at time ``t``, weight included; zero for a
-    row without."""
+    """Space force of the loads tabulated in time, weight included.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    t : float
+        Time (s).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N, space axes; zero for a row without tabulated loads.
+    """
     if p[S.KNOTS] == 0.0:
         return (0.0, 0.0, 0.0)
     k, s = knot_segment(p, t)
@@ -126,10 +242,25 @@ timed_force = without_time(tabulated_force)
 
 @inline_jit
 def body_moment(q, p, t):
-    """Total moment in the body frame at time ``t``: the body-fixed moment, the space moment
-    with the moment of space-fixed forces at body-fixed points (skipped when there is none)
-    turned in, and the loads tabulated in time (`timed_moment`). Inlined by numba
-    (`rbstudy.numerics.jit.inline_jit` says why)."""
+    """Total moment in the body frame: the body-fixed moment, the space moment with the moment
+    of space-fixed forces at body-fixed points (skipped when there is none) turned in, and the
+    loads tabulated in time (`timed_moment`). Inlined by numba
+    (`rbstudy.numerics.jit.inline_jit` says why).
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    t : float or None
+        Time (s); None in a batch without loads tabulated in time (`rbstudy.numerics.clock`).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N m, body axes.
+    """
     space = read3(p, S.MOMENT_SPACE)
     if has_lever(p):
         space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3),
@@ -140,15 +271,30 @@ def body_moment(q, p, t):
 
 @inline_jit
 def space_force(q, p, t):
-    """Total force in space at time ``t``: space force, body-fixed force turned out, weight,
-    and the loads tabulated in time (`timed_force`). Inlined, as `body_moment` is.
+    """Total force in space: space force, body-fixed force turned out, weight, and the loads
+    tabulated in time (`timed_force`). Inlined, as `body_moment` is.
 
     A body without a body-fixed force skips its rotation (a rotated zero is zero: the same
     numbers): the force then no longer waits on the orientation, and the 30 operations of
     the rotation leave every step (free top, one core: leapfrog 2.5e7 -> 2.58e7, euler
-    2.64e7 -> 2.95e7, rk4 1.03e7 -> 1.17e7 body-steps/s, docs/performance.md). The same branch on the space
-    moment in `body_moment` made leapfrog and euler 25% slower (the compiled code was laid
-    out worse) and was dropped."""
+    2.64e7 -> 2.95e7, rk4 1.03e7 -> 1.17e7 body-steps/s, docs/performance.md). The same
+    branch on the space moment in `body_moment` made leapfrog and euler 25% slower (the
+    compiled code was laid out worse) and was dropped.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+    t : float or None
+        Time (s); None in a batch without loads tabulated in time (`rbstudy.numerics.clock`).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N, space axes.
+    """
     if p[S.FORCE_BODY] != 0.0 or p[S.FORCE_BODY + 1] != 0.0 or p[S.FORCE_BODY + 2] != 0.0:
         f = add(read3(p, S.FORCE_SPACE), quat_rotate(q, read3(p, S.FORCE_BODY)))
     else:
@@ -158,7 +304,22 @@ def space_force(q, p, t):
 
 @jit
 def euler_rates(w, inertia_, moment):
-    """``dw/dt`` from Euler's equations ``I dw/dt = M - w x (I w)`` in the body frame."""
+    """``dw/dt`` from Euler's equations ``I dw/dt = M - w x (I w)`` in the body frame.
+
+    Parameters
+    ----------
+    w : tuple of 3 floats
+        Body angular velocity (rad/s).
+    inertia_ : tuple of 3 floats
+        Principal inertias (kg m^2).
+    moment : tuple of 3 floats
+        Body-frame moment (N m).
+
+    Returns
+    -------
+    tuple of 3 floats
+        rad/s^2.
+    """
     i1, i2, i3 = inertia_
     return (
         (moment[0] - (i3 - i2) * w[1] * w[2]) / i1,
@@ -169,7 +330,22 @@ def euler_rates(w, inertia_, moment):
 
 @jit
 def momentum_rates(m, w, moment):
-    """``dm/dt = m x w + M`` for the body angular momentum ``m = I w``."""
+    """``dm/dt = m x w + M`` for the body angular momentum ``m = I w``.
+
+    Parameters
+    ----------
+    m : tuple of 3 floats
+        Body angular momentum (kg m^2/s).
+    w : tuple of 3 floats
+        Body angular velocity (rad/s).
+    moment : tuple of 3 floats
+        Body-frame moment (N m).
+
+    Returns
+    -------
+    tuple of 3 floats
+        N m.
+    """
     return add(cross(m, w), moment)
 
 
@@ -193,8 +369,18 @@ def _moment_fields_free(p, at):
 
 @jit
 def is_moment_free(p):
-    """True when no moment acts, constant or tabulated, so that energy and angular momentum
-    must be conserved."""
+    """Whether no moment acts, constant or tabulated, so that energy and angular momentum must
+    be conserved.
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM (`rbstudy.numerics.state`).
+
+    Returns
+    -------
+    bool
+    """
     if not _moment_fields_free(p, S.FORCE_SPACE):
         return False
     count = int(p[S.KNOTS])

@@ -44,8 +44,18 @@ AGM_MAX_STEPS = 16
 
 @jit
 def carlson_rf(x, y, z):
-    """Carlson's ``R_F(x, y, z) = 1/2 int_0^inf dt / sqrt((t + x)(t + y)(t + z))`` for
-    ``x, y, z >= 0``, at most one of them zero (Carlson 1995, algorithm 1)."""
+    """Carlson's ``R_F(x, y, z) = 1/2 int_0^inf dt / sqrt((t + x)(t + y)(t + z))`` (Carlson
+    1995, algorithm 1).
+
+    Parameters
+    ----------
+    x, y, z : float
+        >= 0, at most one of them zero.
+
+    Returns
+    -------
+    float
+    """
     mean = (x + y + z) / 3.0
     while True:
         spread = max(abs(mean - x), abs(mean - y), abs(mean - z))
@@ -78,7 +88,19 @@ def _carlson_rc_one(e):
 @jit
 def carlson_rj(x, y, z, p):
     """Carlson's ``R_J(x, y, z, p) = 3/2 int_0^inf dt / ((t + p) sqrt((t + x)(t + y)(t + z)))``
-    for ``x, y, z >= 0`` (at most one zero) and ``p > 0`` (Carlson 1995, algorithm 4)."""
+    (Carlson 1995, algorithm 4).
+
+    Parameters
+    ----------
+    x, y, z : float
+        >= 0, at most one of them zero.
+    p : float
+        > 0.
+
+    Returns
+    -------
+    float
+    """
     mean = (x + y + z + 2.0 * p) / 5.0
     mean0, x0, y0, z0 = mean, x, y, z
     delta = (p - x) * (p - y) * (p - z)
@@ -111,31 +133,80 @@ def carlson_rj(x, y, z, p):
 
 @jit
 def complete_first(m1):
-    """``K(m) = R_F(0, m1, 1)``, the quarter period, from the complementary parameter
-    ``m1 = 1 - m > 0``."""
+    """``K(m) = R_F(0, m1, 1)``, the quarter period.
+
+    Parameters
+    ----------
+    m1 : float
+        The complementary parameter ``1 - m``, > 0.
+
+    Returns
+    -------
+    float
+    """
     return carlson_rf(0.0, m1, 1.0)
 
 
 @jit
 def complete_third(n, m1, quarter):
-    """``Pi(n | m) = K + n/3 R_J(0, m1, 1, 1 - n)`` for ``n < 1`` and ``m1 > 0``; ``quarter``
-    is ``K(m)``."""
+    """``Pi(n | m) = K + n/3 R_J(0, m1, 1, 1 - n)``.
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 1.
+    m1 : float
+        The complementary parameter ``1 - m``, > 0.
+    quarter : float
+        ``K(m)`` (`complete_first`).
+
+    Returns
+    -------
+    float
+    """
     return quarter + n / 3.0 * carlson_rj(0.0, m1, 1.0, 1.0 - n)
 
 
 @jit
 def first_kind(s, c, d):
-    """``F(phi | m) = s R_F(c^2, d^2, 1)`` for ``|phi| <= pi/2`` given ``s = sin phi``,
-    ``c = cos phi >= 0`` and ``d = sqrt(1 - m sin^2 phi)`` (DLMF 19.25.5)."""
+    """``F(phi | m) = s R_F(c^2, d^2, 1)`` for ``|phi| <= pi/2`` (DLMF 19.25.5).
+
+    Parameters
+    ----------
+    s, c : float
+        ``sin phi`` and ``cos phi >= 0``.
+    d : float
+        ``sqrt(1 - m sin^2 phi)``.
+
+    Returns
+    -------
+    float
+    """
     return s * carlson_rf(c * c, d * d, 1.0)
 
 
 @jit
 def third_kind(n, sn, cn, dn, u, complete):
-    """Legendre's ``Pi(n; am u | m) = int_0^u dv / (1 - n sn^2 v)`` for ``n < 1`` and
-    ``|u| <= 2K``, from ``sn u, cn u, dn u`` (DLMF 19.25.14 on the angle ``asin(sn)``, and
-    ``Pi(n; pi - phi) = 2 Pi(n) - Pi(n; phi)`` where ``cn < 0``); ``complete`` is ``Pi(n | m)``
-    (unused where ``cn >= 0``, so it may be inf on the separatrix)."""
+    """Legendre's ``Pi(n; am u | m) = int_0^u dv / (1 - n sn^2 v)`` for ``|u| <= 2K``, from ``sn
+    u, cn u, dn u`` (DLMF 19.25.14 on the angle ``asin(sn)``, and ``Pi(n; pi - phi) = 2 Pi(n) -
+    Pi(n; phi)`` where ``cn < 0``).
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 1.
+    sn, cn, dn : float
+        Jacobi's functions of ``u`` (`jacobi`).
+    u : float
+        The argument, ``|u| <= 2K``.
+    complete : float
+        ``Pi(n | m)`` (`complete_third`); unused where ``cn >= 0``, so it may be inf on the
+        separatrix.
+
+    Returns
+    -------
+    float
+    """
     s2 = sn * sn
     reduced = sn * carlson_rf(cn * cn, dn * dn, 1.0) + n / 3.0 * sn * s2 * carlson_rj(
         cn * cn, dn * dn, 1.0, 1.0 - n * s2)
@@ -181,12 +252,24 @@ def _jacobi_near_zero(v, m, m1):
 
 @jit
 def jacobi(u, m, m1, quarter):
-    """Jacobi's ``(sn, cn, dn)`` of ``u`` with ``|u| <= 2K`` (``quarter`` = ``K``, inf when
-    ``m1 = 0``), relatively accurate in each where it is small.
+    """Jacobi's ``(sn, cn, dn)`` of ``u``, relatively accurate in each where it is small.
 
     On the separatrix (``m1 = 0``) they are ``tanh, sech, sech``. Otherwise ``|u|`` is
     brought to ``[0, K]`` by ``sn(2K - v) = sn v``, ``cn(2K - v) = -cn v`` and the parities;
     beyond ``K/2`` the quarter-period shift (module docstring) takes over.
+
+    Parameters
+    ----------
+    u : float
+        ``|u| <= 2K``.
+    m, m1 : float
+        The parameter and its complement ``1 - m``, computed without cancellation.
+    quarter : float
+        ``K(m)``; inf when ``m1 = 0``.
+
+    Returns
+    -------
+    sn, cn, dn : float
     """
     if m1 == 0.0:
         return math.tanh(u), 1.0 / math.cosh(u), 1.0 / math.cosh(u)

@@ -71,18 +71,36 @@ def step(y, p, opt, t, h, work):
 
 
 def entries_folder():
-    """Where the generated modules live: beside numba's cache of this source tree."""
+    """Where the generated modules live: beside numba's cache of this source tree.
+
+    Returns
+    -------
+    str
+    """
     return os.path.join(numba.config.CACHE_DIR, "rbstudy-entries")
 
 
 def cache_holds(dispatcher, wanted=lambda signature: True):
-    """Whether numba's cache on disk holds a variant of the compiled function ``dispatcher``
-    whose argument types are ``wanted`` for this machine's processor, so that getting it
-    ready takes milliseconds: its cache index names that variant under this processor's code
-    generator (a folder shared with other machines may hold only theirs). Compiles nothing.
-    Reads numba's index through its cache object (private names, the same from numba 0.59
-    to 0.68); where that fails (numba's JIT disabled, its private API changed), it says
-    True, and the caller compiles in this process as before."""
+    """Whether numba's cache on disk holds a variant of a compiled function for this machine's
+    processor, so that getting it ready takes milliseconds: its cache index names that variant
+    under this processor's code generator (a folder shared with other machines may hold only
+    theirs). Compiles nothing.
+
+    Reads numba's index through its cache object (private names, the same from numba 0.59 to
+    0.68); where that fails (numba's JIT disabled, its private API changed), it says True, and
+    the caller compiles in this process as before.
+
+    Parameters
+    ----------
+    dispatcher : numba dispatcher
+        The compiled function.
+    wanted : callable ``(argument types) -> bool``
+        Which variants count (default: any).
+
+    Returns
+    -------
+    bool
+    """
     try:
         index = dispatcher._cache._cache_file._load_index()
         processor = dispatcher.targetctx.codegen().magic_tuple()
@@ -180,9 +198,18 @@ class CachedEntry:
         return self.dispatcher.signatures
 
     def is_cached(self, timed):
-        """Whether numba's cache on disk holds this entry point's variant with the time
-        (``timed``) or without (`rbstudy.numerics.clock`) for this machine's processor
-        (`cache_holds`). Imports the generated module, compiles nothing."""
+        """Whether numba's cache on disk holds this entry point's variant for this machine's
+        processor (`cache_holds`). Imports the generated module, compiles nothing.
+
+        Parameters
+        ----------
+        timed : bool
+            The variant with the time (True) or without (`rbstudy.numerics.clock`).
+
+        Returns
+        -------
+        bool
+        """
         return cache_holds(self.dispatcher,
                            lambda signature: (signature[-1] == types.none) != timed)
 

@@ -110,9 +110,19 @@ def _steady(omega):
 
 @jit
 def free_body(inertia, omega):
-    """The constants of the free motion of a body with principal inertias ``inertia`` (3-tuple,
-    kg m^2, any order, positive) from body angular velocity ``omega`` (3-tuple, rad/s): a
-    `FreeBody`."""
+    """The constants of the free motion of a body.
+
+    Parameters
+    ----------
+    inertia : tuple of 3 floats
+        Principal inertias (kg m^2), any order, positive.
+    omega : tuple of 3 floats
+        Body angular velocity (rad/s).
+
+    Returns
+    -------
+    FreeBody
+    """
     m = (inertia[0] * omega[0], inertia[1] * omega[1], inertia[2] * omega[2])
     if cross(m, omega) == (0.0, 0.0, 0.0):
         return _steady(omega)
@@ -153,9 +163,24 @@ def free_body(inertia, omega):
 
 @jit
 def free_motion(body, q, t):
-    """The state a time ``t`` (s, any sign) after orientation ``q`` (4-tuple, scalar-last,
-    body to space) of the free body ``body`` (`free_body`, from the angular velocity at that
-    same instant): ``(q, omega)``, a 4-tuple and a 3-tuple."""
+    """The state of a free body a time after a given orientation.
+
+    Parameters
+    ----------
+    body : FreeBody
+        Its constants (`free_body`, from the angular velocity at the same instant as ``q``).
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    t : float
+        s, any sign.
+
+    Returns
+    -------
+    q : tuple of 4 floats
+        The orientation after ``t``.
+    omega : tuple of 3 floats
+        The body angular velocity after ``t`` (rad/s).
+    """
     if body.steady:
         omega = body.omega0
         return quat_mul(q, quat_exp((omega[0] * t, omega[1] * t, omega[2] * t))), omega
@@ -196,14 +221,21 @@ def free_flow(inertia, q, omega, t):
 
     Parameters
     ----------
-    inertia : 3-tuple, principal inertias (kg m^2), any order, positive.
-    q : 4-tuple, orientation (scalar-last, body to space) at the start.
-    omega : 3-tuple, body angular velocity (rad/s) at the start.
-    t : float, s (any sign).
+    inertia : tuple of 3 floats
+        Principal inertias (kg m^2), any order, positive.
+    q : tuple of 4 floats
+        Orientation (scalar-last, body to space) at the start.
+    omega : tuple of 3 floats
+        Body angular velocity (rad/s) at the start.
+    t : float
+        s, any sign.
 
     Returns
     -------
-    (q, omega) after ``t``: a 4-tuple and a 3-tuple.
+    q : tuple of 4 floats
+        The orientation after ``t``.
+    omega : tuple of 3 floats
+        The body angular velocity after ``t`` (rad/s).
     """
     return free_motion(free_body(inertia, omega), q, t)
 
@@ -215,12 +247,18 @@ def free_flow_batch(inertia, quaternion, omega, times, quaternion_out, omega_out
 
     Parameters
     ----------
-    inertia : (B, 3) principal inertias, kg m^2.
-    quaternion : (B, 4) orientations at t = 0 (scalar-last, body to space).
-    omega : (B, 3) body angular velocities at t = 0, rad/s.
-    times : (T,) s.
-    quaternion_out : (B, T, 4), written.
-    omega_out : (B, T, 3), written.
+    inertia : ndarray, shape (B, 3)
+        Principal inertias, kg m^2.
+    quaternion : ndarray, shape (B, 4)
+        Orientations at t = 0 (scalar-last, body to space).
+    omega : ndarray, shape (B, 3)
+        Body angular velocities at t = 0, rad/s.
+    times : ndarray, shape (T,)
+        s.
+    quaternion_out : ndarray, shape (B, T, 4)
+        Written: the orientations.
+    omega_out : ndarray, shape (B, T, 3)
+        Written: the body angular velocities.
     """
     for b in range(inertia.shape[0]):
         body = free_body(read3(inertia[b], 0), read3(omega[b], 0))

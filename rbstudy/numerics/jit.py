@@ -31,7 +31,13 @@ __all__ = ["jit", "inline_jit", "cache_dir"]
 
 
 def cache_dir():
-    """``$XDG_CACHE_HOME/rbstudy/numba-<SOURCE_DIGEST>`` (~/.cache by default)."""
+    """Numba's cache folder for this source tree.
+
+    Returns
+    -------
+    str
+        ``$XDG_CACHE_HOME/rbstudy/numba-<SOURCE_DIGEST>`` (~/.cache by default).
+    """
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return os.path.join(base, "rbstudy", f"numba-{SOURCE_DIGEST}")
 

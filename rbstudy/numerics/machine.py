@@ -7,5 +7,10 @@ __all__ = ["default_threads"]
 
 
 def default_threads():
-    """Cores this process may use (a SLURM share, a container's limit)."""
+    """Cores this process may use (a SLURM share, a container's limit).
+
+    Returns
+    -------
+    int
+    """
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()

@@ -26,13 +26,30 @@ SMALL_ANGLE = 1e-4
 
 @jit
 def read3(a, i):
-    """Three consecutive entries ``a[i:i+3]`` of a 1-D array as a tuple."""
+    """Three consecutive entries ``a[i:i+3]`` of a 1-D array as a tuple.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+    i : int
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (a[i], a[i + 1], a[i + 2])
 
 
 @jit
 def write3(a, i, v):
-    """Store the 3-tuple ``v`` into ``a[i:i+3]`` (mutates ``a``)."""
+    """Store a 3-tuple into ``a[i:i+3]`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+    i : int
+    v : tuple of 3 floats
+    """
     a[i] = v[0]
     a[i + 1] = v[1]
     a[i + 2] = v[2]
@@ -40,13 +57,30 @@ def write3(a, i, v):
 
 @jit
 def read4(a, i):
-    """Four consecutive entries ``a[i:i+4]`` of a 1-D array as a tuple."""
+    """Four consecutive entries ``a[i:i+4]`` of a 1-D array as a tuple.
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+    i : int
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
     return (a[i], a[i + 1], a[i + 2], a[i + 3])
 
 
 @jit
 def write4(a, i, v):
-    """Store the 4-tuple ``v`` into ``a[i:i+4]`` (mutates ``a``)."""
+    """Store a 4-tuple into ``a[i:i+4]`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (n,)
+    i : int
+    v : tuple of 4 floats
+    """
     a[i] = v[0]
     a[i + 1] = v[1]
     a[i + 2] = v[2]
@@ -55,54 +89,155 @@ def write4(a, i, v):
 
 @jit
 def add(a, b):
+    """``a + b`` for 3-vectors.
+
+    Parameters
+    ----------
+    a, b : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
 @jit
 def sub(a, b):
+    """``a - b`` for 3-vectors.
+
+    Parameters
+    ----------
+    a, b : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
 @jit
 def scale(s, a):
+    """``s * a`` for a 3-vector.
+
+    Parameters
+    ----------
+    s : float
+    a : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (s * a[0], s * a[1], s * a[2])
 
 
 @jit
 def axpy(s, a, b):
-    """``s * a + b`` for 3-tuples."""
+    """``s * a + b`` for 3-vectors.
+
+    Parameters
+    ----------
+    s : float
+    a, b : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (s * a[0] + b[0], s * a[1] + b[1], s * a[2] + b[2])
 
 
 @jit
 def axpy4(s, a, b):
-    """``s * a + b`` for 4-tuples (quaternions)."""
+    """``s * a + b`` for 4-vectors (quaternions).
+
+    Parameters
+    ----------
+    s : float
+    a, b : tuple of 4 floats
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
     return (s * a[0] + b[0], s * a[1] + b[1], s * a[2] + b[2], s * a[3] + b[3])
 
 
 @jit
 def dot4(a, b):
+    """``a . b`` for 4-vectors (quaternions).
+
+    Parameters
+    ----------
+    a, b : tuple of 4 floats
+
+    Returns
+    -------
+    float
+    """
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
 
 
 @jit
 def dot(a, b):
+    """``a . b`` for 3-vectors.
+
+    Parameters
+    ----------
+    a, b : tuple of 3 floats
+
+    Returns
+    -------
+    float
+    """
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 @jit
 def cross(a, b):
+    """``a x b`` for 3-vectors.
+
+    Parameters
+    ----------
+    a, b : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @jit
 def norm(a):
+    """Euclidean length ``|a|`` of a 3-vector.
+
+    Parameters
+    ----------
+    a : tuple of 3 floats
+
+    Returns
+    -------
+    float
+    """
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
 @jit
 def skew_matmul(a, d):
-    """The 3x3 matrix ``[a]x diag(d)`` as three row tuples (used in Newton Jacobians)."""
+    """The 3x3 matrix ``[a]x diag(d)`` (used in Newton Jacobians).
+
+    Parameters
+    ----------
+    a, d : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 tuples of 3 floats
+        Its rows.
+    """
     return (
         (0.0, -a[2] * d[1], a[1] * d[2]),
         (a[2] * d[0], 0.0, -a[0] * d[2]),
@@ -112,11 +247,22 @@ def skew_matmul(a, d):
 
 @jit
 def solve3(m, r):
-    """Solve ``m x = r`` for a 3x3 matrix given as three row tuples (Cramer's rule).
+    """Solve ``m x = r`` by Cramer's rule.
 
     Cramer's rule is exact enough here: the Newton matrices of the implicit schemes are
     ``c * 1 + O(h |omega|)`` and far from singular in the range where Newton converges; a
     singular matrix yields inf/nan, which the caller turns into a status code.
+
+    Parameters
+    ----------
+    m : tuple of 3 tuples of 3 floats
+        The matrix's rows.
+    r : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+        ``x``.
     """
     (a, b, c), (d, e, f), (g, h, i) = m
     c0 = e * i - f * h
@@ -136,18 +282,51 @@ quat_mul = jit(algebra.hamilton_product)
 
 @jit
 def quat_conj(q):
+    """The conjugate of a quaternion (the inverse rotation of a unit one).
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Scalar last.
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
     return (-q[0], -q[1], -q[2], q[3])
 
 
 @jit
 def quat_normalize(q):
+    """A quaternion scaled to unit length.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Scalar last, nonzero.
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
     s = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
 
 
 @jit
 def quat_rotate(q, v):
-    """``R(q) v``: a body-frame vector expressed in space."""
+    """``R(q) v``: a body-frame vector expressed in space.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Unit quaternion, scalar last, body to space.
+    v : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     x, y, z, w = q
     u = (x, y, z)
     t = scale(2.0, cross(u, v))
@@ -156,13 +335,35 @@ def quat_rotate(q, v):
 
 @jit
 def quat_rotate_inverse(q, v):
-    """``R(q)^T v``: a space vector expressed in the body frame."""
+    """``R(q)^T v``: a space vector expressed in the body frame.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Unit quaternion, scalar last, body to space.
+    v : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return quat_rotate(quat_conj(q), v)
 
 
 @jit
 def quat_exp(v):
-    """Unit quaternion of the rotation vector ``v`` (angle |v| about v/|v|): exp([v]x)."""
+    """Unit quaternion of a rotation vector (angle ``|v|`` about ``v/|v|``): ``exp([v]x)``.
+
+    Parameters
+    ----------
+    v : tuple of 3 floats
+        Rotation vector (rad).
+
+    Returns
+    -------
+    tuple of 4 floats
+        Scalar last.
+    """
     angle = norm(v)
     half = 0.5 * angle
     if angle < SMALL_ANGLE:
@@ -181,16 +382,38 @@ def quat_cayley(v):
 
     cay([v]x) is the rotation by ``2 atan(|v|/2)`` about ``v``, whose quaternion is
     proportional to ``(v/2, 1)``.
+
+    Parameters
+    ----------
+    v : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 4 floats
+        Scalar last.
     """
     return quat_normalize((0.5 * v[0], 0.5 * v[1], 0.5 * v[2], 1.0))
 
 
 @jit
 def quat_mul_axis_rotation(q, k, s, c):
-    """``q * (s e_k, c)``: compose ``q`` with a rotation about coordinate axis ``k`` (0, 1, 2).
+    """``q * (s e_k, c)``: compose ``q`` with a rotation about coordinate axis ``k``.
 
-    ``s`` and ``c`` are the sine and cosine of half the rotation angle. Written out because the
-    right factor has two non-zero entries: a quarter of a full `quat_mul`.
+    Written out because the right factor has two non-zero entries: a quarter of a full
+    `quat_mul`.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Scalar last.
+    k : int
+        The axis, 0, 1 or 2.
+    s, c : float
+        The sine and cosine of half the rotation angle.
+
+    Returns
+    -------
+    tuple of 4 floats
     """
     x, y, z, w = q
     if k == 0:
@@ -205,6 +428,17 @@ def quat_times_axis(q, k):
     """``q * (e_k, 0)``: right multiplication by a pure unit quaternion along axis ``k``.
 
     This is NO_SQUISH's permutation matrix ``P_k`` (Miller et al. 2002) in scalar-last form.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Scalar last.
+    k : int
+        The axis, 0, 1 or 2.
+
+    Returns
+    -------
+    tuple of 4 floats
     """
     x, y, z, w = q
     if k == 0:

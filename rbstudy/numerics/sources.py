@@ -31,11 +31,26 @@ SOURCE_DIGEST = _source_digest()
 
 
 def package_digest(module_name):
-    """A digest of the Python sources of the top-level package of ``module_name`` (every
-    module of it, helpers included; each folder of a namespace package), or of the module
-    alone when it is in no package: what names a plug-in's code in its batch ids, its
-    generated entry modules and its kernels' cache (`rbstudy.numerics.jit`). Raises
-    ``ValueError`` where the sources cannot be read (a zipped install)."""
+    """A digest of the Python sources of the top-level package of ``module_name`` (every module
+    of it, helpers included; each folder of a namespace package), or of the module alone when it
+    is in no package: what names a plug-in's code in its batch ids, its generated entry modules
+    and its kernels' cache (`rbstudy.numerics.jit`).
+
+    Parameters
+    ----------
+    module_name : str
+        A dotted module name.
+
+    Returns
+    -------
+    str
+        16 hexadecimal digits.
+
+    Raises
+    ------
+    ValueError
+        Where the sources cannot be read (a zipped install).
+    """
     spec = importlib.util.find_spec(module_name.split(".")[0])
     if spec is None:
         raise ValueError(f"no module {module_name!r} to read")

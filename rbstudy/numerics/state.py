@@ -68,7 +68,18 @@ LOAD_RECORD = KNOTS - FORCE_SPACE
 
 
 def row_width(knots):
-    """Width of a parameter row whose loads are tabulated at ``knots`` times."""
+    """Width of a parameter row whose loads are tabulated at ``knots`` times.
+
+    Parameters
+    ----------
+    knots : int or ndarray of ints, shape (B,)
+        Knots of each row (0: constant loads).
+
+    Returns
+    -------
+    int or ndarray of ints, shape (B,)
+        ``W = N_PARAM + knots (1 + LOAD_RECORD)``.
+    """
     return N_PARAM + knots * (1 + LOAD_RECORD)
 
 

@@ -78,7 +78,18 @@ class BatchData:
         return nodes
 
     def reference(self, name):
-        """``name`` (quaternion, omega_body, position, velocity) of every reference, (B, T, k)."""
+        """One field of every case's reference, stacked once.
+
+        Parameters
+        ----------
+        name : str
+            ``quaternion``, ``omega_body``, ``position`` or ``velocity``.
+
+        Returns
+        -------
+        ndarray, shape (B, T, k)
+            k = 4 for the quaternion, 3 for the others.
+        """
         if name not in self._stacked:
             self._stacked[name] = np.array([getattr(reference, name)
                                             for reference in self.references])
@@ -115,7 +126,23 @@ class BatchData:
 
 
 def driver_result(name):
-    """The compute function of the driver's per-body result ``name``."""
+    """The compute function of one of the driver's per-body results.
+
+    Parameters
+    ----------
+    name : str
+        A name of `rbstudy.numerics.state.RESULT_FIELDS`.
+
+    Returns
+    -------
+    callable ``(batch) -> ndarray, shape (B,)``
+        Named ``name``.
+
+    Raises
+    ------
+    ValueError
+        Where the driver reports no ``name``.
+    """
     if name not in dict(RESULT_FIELDS):
         raise ValueError(f"the driver reports no {name!r}")
 
@@ -127,28 +154,99 @@ def driver_result(name):
 
 
 def omega_body(batch):
+    """Angular velocity in the body's principal axes.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, 3)
+        rad/s; NaN after a failure.
+    """
     return batch.run.omega_body
 
 
 def omega_space(batch):
+    """Angular velocity in space.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, 3)
+        rad/s; NaN after a failure.
+    """
     space = np.einsum("btij,btj->bti", batch.rotation, batch.run.omega_body)
     return np.where(batch.finite[..., None], space, np.nan)
 
 
 def quaternion(batch):
+    """Orientation, scalar last, body to space.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, 4)
+        NaN after a failure.
+    """
     return batch.run.quaternion
 
 
 def position(batch):
+    """Centre-of-mass position in space.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, 3)
+        m; NaN after a failure.
+    """
     return batch.run.position
 
 
 def node_displacement(batch):
+    """Displacement of every node from its place at t = 0.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, N, 3)
+        m, space axes; NaN after a failure.
+    """
     return batch.node_positions - batch.node_positions[:, :1]
 
 
 def node_velocity(batch):
-    """Space velocity of every node, ``v_i = v + R (w x s_i)`` (s_i its body offset)."""
+    """Space velocity of every node, ``v_i = v + R (w x s_i)`` (s_i its body offset).
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, N, 3)
+        m/s; NaN after a failure.
+    """
     spin = np.cross(batch.run.omega_body[:, :, None, :], batch.node_offsets[:, None, :, :])
     turned = np.einsum("btij,btnj->btni", batch.rotation, spin)
     velocity = turned + batch.run.velocity[:, :, None, :]
@@ -157,65 +255,235 @@ def node_velocity(batch):
 
 
 def energy_error(batch):
+    """Relative rotational energy error ``(T - T0) / T0``, signed.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T)
+        NaN after a failure.
+    """
     return metrics.energy_error(batch.run.omega_body, batch.inertia)
 
 
 def momentum_error(batch):
+    """Relative angular momentum error ``|L - L0| / |L0|`` of L in space.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T)
+        NaN after a failure.
+    """
     return metrics.momentum_error(batch.run.quaternion, batch.run.omega_body, batch.inertia)
 
 
 def orientation_error(batch):
+    """Angle of the rotation between the orientation and the reference's.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T)
+        rad; NaN after a failure.
+    """
     return batch.orientation_error
 
 
 def omega_error(batch):
+    """Relative angular velocity error ``|w - w_ref| / |w_ref|`` in body axes.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T)
+        NaN after a failure.
+    """
     return metrics.omega_error(batch.run.omega_body, batch.reference("omega_body"))
 
 
 def node_error(batch):
+    """Distance of every node from its place in the reference motion.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, T, N)
+        m; NaN after a failure.
+    """
     exact = metrics.node_positions(batch.reference("quaternion"), batch.reference("position"),
                                    batch.node_offsets)
     return metrics.node_error(batch.node_positions, exact)
 
 
 def precession_frequency(batch):
+    """Measured precession rate of a symmetric body (the phase rate of its transverse body
+    rates).
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad/s
+    """
     return batch.measured_precession
 
 
 def precession_frequency_exact(batch):
+    """Exact precession rate of a free symmetric body.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad/s (a free symmetric body).
+    """
     return batch.exact_precession
 
 
 def precession_frequency_error(batch):
+    """Measured minus exact precession rate.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad/s
+    """
     return batch.measured_precession - batch.exact_precession
 
 
 def flip_interval(batch):
+    """Measured mean time between sign changes of the intermediate-axis rate.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        s
+    """
     return batch.measured_flip
 
 
 def flip_interval_exact(batch):
+    """Exact time between sign changes of the intermediate-axis rate.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        s (a free asymmetric body).
+    """
     return batch.exact_flip
 
 
 def flip_interval_error(batch):
+    """Measured minus exact flip interval.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        s
+    """
     return batch.measured_flip - batch.exact_flip
 
 
 def run_time(batch):
+    """Kernel time of each case.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        s
+    """
     return batch.run_time
 
 
 def final_orientation_error(batch):
+    """Orientation error at the last output time.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad; NaN after a failure.
+    """
     return batch.orientation_error[:, -1]
 
 
 def accuracy(batch):
-    """0 accurate, 1 inaccurate, 2 failed: a finished case is inaccurate when its orientation
-    error at any sample (rad), or its relative energy or |L| drift over the steps (moment-free
-    bodies), passes the accuracy bound. The largest error, not the final one: an error that
-    wrapped round by the end of the run still was one. A finished case with no reference and
-    no drift past the bound is unjudged, not accurate."""
+    """The accuracy verdict of each case (`VERDICTS`).
+
+    A finished case is inaccurate when its orientation error at any sample (rad), or its
+    relative energy or |L| drift over the steps (moment-free bodies), passes the
+    accuracy bound. The largest error, not the final one: an error that wrapped round
+    by the end of the run still was one. A finished case with no reference and no
+    drift past the bound is unjudged, not accurate.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        int8: 0 accurate, 1 inaccurate, 2 failed, 3 unjudged.
+    """
     results, bound = batch.run.results, batch.accuracy_bound
     # NaN drifts (under moments: no conserved quantity) compare False: no drift past the bound
     drifted = ((results["max_energy_error"] > bound)
@@ -229,7 +497,18 @@ def accuracy(batch):
 
 
 def reference(batch):
-    """The code of each case's reference in `rbstudy.physics.analytic.REFERENCE_KINDS`."""
+    """The code of each case's reference in `rbstudy.physics.analytic.REFERENCE_KINDS`.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        int8
+    """
     return np.array([analytic.REFERENCE_KINDS.index(ref.name) for ref in batch.references],
                     dtype=np.int8)
 
@@ -240,32 +519,128 @@ def _uncertainty(batch, measure):
 
 
 def reference_uncertainty(batch):
+    """The reference's uncertainty in orientation.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad; NaN where nothing checked it.
+    """
     return _uncertainty(batch, "orientation")
 
 
 def reference_omega_uncertainty(batch):
+    """The reference's relative uncertainty in body angular velocity.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        NaN where nothing checked it.
+    """
     return _uncertainty(batch, "omega")
 
 
 def reference_node_uncertainty(batch):
+    """The reference's uncertainty in node positions.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        m; NaN where nothing checked it.
+    """
     return _uncertainty(batch, "nodes")
 
 
 def inertia(batch):
+    """Principal inertias.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, 3)
+        kg m^2
+    """
     return batch.inertia[:, 0, :]
 
 
 def initial_spin(batch):
+    """``|w|`` at t = 0.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        rad/s
+    """
     return np.linalg.norm(batch.run.omega_body[:, 0], axis=-1)
 
 
 def node_offset(batch):
+    """Node offsets from the centre of mass, principal axes.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B, N, 3)
+        m
+    """
     return batch.node_offsets
 
 
 def regularised_inertia(batch):
+    """Whether a principal inertia was raised (an assembled body).
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        int8: 0 as assembled, 1 regularised.
+    """
     return np.array([scene.body.regularised for scene in batch.scenes], dtype=np.int8)
 
 
 def physical_body(batch):
+    """Whether the body is physical (0: an ``allow_unphysical`` stress body).
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        int8
+    """
     return np.array([scene.body.physical for scene in batch.scenes], dtype=np.int8)
