@@ -72,7 +72,7 @@ def _schemes(args):
 
 
 def _bench(args):
-    from rbstudy.analysis.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
                            f"{args.body_steps:.3g}")
@@ -141,6 +141,14 @@ def _study_folders(studies, args):
                 raise (refused or error) from None
             read_only.add(study.name)
     return read_only
+
+
+def _styles_of(dataset):
+    """The registered style of each scheme of ``dataset`` that has one, read from the registry
+    here: the analysis layer, which draws them, never loads the schemes (nor numba)."""
+    from rbstudy.analysis.summary import schemes_of
+    from rbstudy.schemes import scheme_styles
+    return scheme_styles(schemes_of(dataset))
 
 
 def _say(text):
@@ -303,7 +311,7 @@ def _plot(args):
                       opening="reading") as progress:
             dataset = _select(opened(path), args.select, path)
             figures = all_figures(dataset, folder, formats, processes=default_threads(),
-                                  progress=progress)
+                                  progress=progress, styles=_styles_of(dataset))
         kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         if not args.quiet:
@@ -441,8 +449,9 @@ def _report(args):
     for path, folder in zip(args.files, folders, strict=True):
         with Progress(path, f"writing its report into {folder}", quiet=args.quiet,
                       opening="reading") as progress:
-            report = write_report(opened(path), folder, processes=default_threads(),
-                                  svg=args.svg, progress=progress)
+            dataset = opened(path)
+            report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
+                                  progress=progress, styles=_styles_of(dataset))
         print(f"{path}: report in {report}")
     return 0
 
