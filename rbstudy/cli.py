@@ -361,6 +361,8 @@ def _conformance(args):
         score_case,
         scorecard_dataset,
         scorecard_html,
+        status_lines,
+        tally_statuses,
     )
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
@@ -368,14 +370,15 @@ def _conformance(args):
     from rbstudy.pipeline.store import source_text, write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
-    cells = {}
+    cells, failed = {}, {}
     with Progress("conformance", f"{len(schemes)} schemes x {len(cases)} golden cases",
                   quiet=args.quiet) as progress:
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
-            cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
-                                          case.figure)
+            dataset = open_archive(archive)
+            cells[case.name] = score_case(dataset, case.rules, schemes, case.figure)
+            tally_statuses(failed, dataset, schemes)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
@@ -390,6 +393,7 @@ def _conformance(args):
     if figures:
         header.append(f"figure yes/no: the scheme reproduces what the source of "
                       f"{', '.join(figures)} asserts (docs/results.md)")
+    header += status_lines(failed)
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,

@@ -67,7 +67,7 @@ from rbstudy.analysis.summary import (  # noqa: E402
     uncertainty_of,
     verdicts,
 )
-from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
+from rbstudy.numerics.state import OK, RADIOSS_STEP_ANGLE, STATUSES  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
@@ -662,7 +662,8 @@ def _verdict_kinds(ds):
     return (("accurate", dict(s=14, color="tab:green")),
             ("finished, inaccurate" + (f" (error or drift > {bound:g})" if bound is not None
                                        else ""), dict(s=22, marker="^", color="tab:orange")),
-            ("failed (unstable or not converged)", dict(s=22, marker="x", color="tab:red")),
+            (f"failed ({' or '.join(status.name.replace('_', ' ') for status in STATUSES[OK + 1:])})",
+             dict(s=22, marker="x", color="tab:red")),
             ("finished, no reference (unjudged)", dict(s=22, marker="s", facecolors="none",
                                                        edgecolors="tab:gray")))
 
