@@ -43,9 +43,10 @@ def test_an_option_outside_the_row_or_wider_than_declared_is_refused():
 
 
 def test_rbstudy_s_engine_schemes_are_its_own_entry_points():
-    """Read from the source tree's pyproject.toml, which the test layer checks too."""
+    """Read from the source tree's pyproject.toml, which the test layer checks too, in the
+    order of their names, as an installed rbstudy's metadata lists them."""
     assert plugins.ENGINES["mujoco_euler"] == "rbstudy.engines.mujoco:EULER"
-    assert len(plugins.ENGINES) == 13
+    assert len(plugins.ENGINES) == 13 and list(plugins.ENGINES) == sorted(plugins.ENGINES)
     assert all(value.startswith("rbstudy.engines.") for value in plugins.ENGINES.values())
 
 
@@ -53,7 +54,10 @@ def test_an_installed_rbstudy_reads_its_engines_from_its_metadata(tmp_path, monk
     """A wheel has no pyproject.toml beside its package: the installed metadata names them."""
     entries = importlib.metadata.EntryPoints([
         importlib.metadata.EntryPoint("mujoco_rk4", "rbstudy.engines.mujoco:RK4", plugins.GROUP),
-        importlib.metadata.EntryPoint("rbstudy", "rbstudy.cli:command", "console_scripts")])
+        importlib.metadata.EntryPoint("rbstudy", "rbstudy.cli:command", "console_scripts"),
+        importlib.metadata.EntryPoint("drake_rk2", "rbstudy.engines.drake:RK2", plugins.GROUP)])
+    installed = {"drake_rk2": "rbstudy.engines.drake:RK2",
+                 "mujoco_rk4": "rbstudy.engines.mujoco:RK4"}
 
     class Installed:
         entry_points = entries
@@ -61,6 +65,6 @@ def test_an_installed_rbstudy_reads_its_engines_from_its_metadata(tmp_path, monk
     monkeypatch.setattr(plugins, "_PYPROJECT", tmp_path / "pyproject.toml")
     monkeypatch.setattr(importlib.metadata, "distribution",
                         lambda name: Installed if name == "rbstudy" else None)
-    assert plugins._own_entries() == {"mujoco_rk4": "rbstudy.engines.mujoco:RK4"}
+    assert list(plugins._own_entries().items()) == list(installed.items())
     (tmp_path / "pyproject.toml").write_text('[project]\nname = "another"\n')  # not ours
-    assert plugins._own_entries() == {"mujoco_rk4": "rbstudy.engines.mujoco:RK4"}
+    assert plugins._own_entries() == installed

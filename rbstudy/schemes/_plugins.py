@@ -63,19 +63,20 @@ _PYPROJECT = pathlib.Path(__file__).resolve().parents[2] / "pyproject.toml"
 
 
 def _own_entries():
-    """rbstudy's own entries of `GROUP`, name -> "module:attribute": those of the source tree's
-    pyproject.toml when rbstudy runs from one, else those of its installed metadata. An
-    editable install's metadata is written by ``pip install -e .`` and keeps the entry points
-    of that moment: the project file is what the code beside it declares now."""
+    """rbstudy's own entries of `GROUP`, name -> "module:attribute" in the order of the names
+    (as setuptools writes them into the metadata, and as the plug-ins are listed): those of
+    the source tree's pyproject.toml when rbstudy runs from one, else those of its installed
+    metadata. An editable install's metadata is written by ``pip install -e .`` and keeps the
+    entry points of that moment: the project file is what the code beside it declares now."""
     try:
         import tomllib  # Python 3.11 on; on 3.10 a source tree reads the metadata as well
         project = tomllib.loads(_PYPROJECT.read_text())["project"]
         if project["name"] == DISTRIBUTION:
-            return dict(project["entry-points"][GROUP])
+            return dict(sorted(project["entry-points"][GROUP].items()))
     except (ImportError, OSError, ValueError, KeyError):  # no source tree: installed
         pass
-    return {point.name: point.value for point in
-            importlib.metadata.distribution(DISTRIBUTION).entry_points.select(group=GROUP)}
+    installed = importlib.metadata.distribution(DISTRIBUTION).entry_points
+    return dict(sorted((point.name, point.value) for point in installed.select(group=GROUP)))
 
 
 # rbstudy's own adapters of other engines (`rbstudy.engines`), loaded as plug-ins are:
