@@ -324,8 +324,10 @@ def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     import sys
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
-    serial = all_figures(open_results(done.path), tmp_path / "one")
-    forked = all_figures(open_results(done.path), tmp_path / "two", processes=2)
+    from rbstudy.schemes import scheme_styles
+    styles = scheme_styles(SHRUNK_SCHEMES)  # as the command line reads them
+    serial = all_figures(open_results(done.path), tmp_path / "one", styles=styles)
+    forked = all_figures(open_results(done.path), tmp_path / "two", processes=2, styles=styles)
     assert [path.name for path in forked.written] == [path.name for path in serial.written]
     assert forked.absent == serial.absent
     for one, two in zip(serial.written, forked.written, strict=True):
