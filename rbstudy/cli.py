@@ -72,7 +72,7 @@ def _schemes(args):
 
 
 def _bench(args):
-    from rbstudy.analysis.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
     from rbstudy.schemes import expand_groups
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
@@ -143,6 +143,14 @@ def _study_folders(studies, args):
                 raise (refused or error) from None
             read_only.add(study.name)
     return read_only
+
+
+def _styles_of(dataset):
+    """The registered style of each scheme of ``dataset`` that has one, read from the registry
+    here: the analysis layer, which draws them, never loads the schemes (nor numba)."""
+    from rbstudy.analysis.summary import schemes_of
+    from rbstudy.schemes import scheme_styles
+    return scheme_styles(schemes_of(dataset))
 
 
 def _say(text):
@@ -306,7 +314,7 @@ def _plot(args):
                       opening="reading") as progress:
             dataset = _select(opened(path), args.select, path)
             figures = all_figures(dataset, folder, formats, processes=default_threads(),
-                                  progress=progress)
+                                  progress=progress, styles=_styles_of(dataset))
         kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         if not args.quiet:
@@ -356,6 +364,8 @@ def _conformance(args):
         score_case,
         scorecard_dataset,
         scorecard_html,
+        status_lines,
+        tally_statuses,
     )
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
@@ -363,15 +373,16 @@ def _conformance(args):
     from rbstudy.pipeline.store import source_text, write_dataset_atomic, write_text_atomic
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
-    cells = {}
+    cells, failed = {}, {}
     with Progress("conformance", f"{len(schemes)} schemes x {len(cases)} golden cases",
                   quiet=args.quiet) as progress:
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
+            dataset = open_archive(archive)
             held = () if case.moment_free else [s for s in schemes if get_scheme(s).loads_held]
-            cells[case.name] = score_case(open_archive(archive), case.rules, schemes,
-                                          case.figure, held)
+            cells[case.name] = score_case(dataset, case.rules, schemes, case.figure, held)
+            tally_statuses(failed, dataset, schemes)
             progress.advance()
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
@@ -386,6 +397,7 @@ def _conformance(args):
     if figures:
         header.append(f"figure yes/no: the scheme reproduces what the source of "
                       f"{', '.join(figures)} asserts (docs/results.md)")
+    header += status_lines(failed)
     print(format_scorecard(cells, names))
     _say("\n".join(header))
     attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
@@ -445,8 +457,9 @@ def _report(args):
     for path, folder in zip(args.files, folders, strict=True):
         with Progress(path, f"writing its report into {folder}", quiet=args.quiet,
                       opening="reading") as progress:
-            report = write_report(opened(path), folder, processes=default_threads(),
-                                  svg=args.svg, progress=progress)
+            dataset = opened(path)
+            report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
+                                  progress=progress, styles=_styles_of(dataset))
         print(f"{path}: report in {report}")
     return 0
 

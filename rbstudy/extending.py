@@ -2,9 +2,10 @@
 
     from rbstudy.extending import Scheme, jit, make_entry, state as S, rotation, dynamics
 
-- `Scheme`, `Option`: a scheme as the registry sees it; register it under the entry-point
-  group ``rbstudy.schemes``. `SchemeUnavailable`: raise it from your module when the scheme
-  cannot run here (a missing engine), with the fix.
+- `Scheme`, `Option`, `Style`: a scheme as the registry sees it, and how the figures draw
+  its lines; register it under the entry-point group ``rbstudy.schemes``.
+  `SchemeUnavailable`: raise it from your module when the scheme cannot run here (a missing
+  engine), with the fix.
 - A compiled scheme: single-body kernels ``init(y, p, opt, t, h, work) -> status`` and
   ``step(y, p, opt, t, h, work) -> (status, iterations)`` compiled with `jit`, given their
   entry point by `make_entry(step, init, n_work)`; `init_nothing` is the ``init`` of a
@@ -27,8 +28,8 @@ from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
-from rbstudy.schemes import Option, Scheme, SchemeUnavailable
+from rbstudy.schemes import Option, Scheme, SchemeUnavailable, Style
 
-__all__ = ["Scheme", "Option", "SchemeUnavailable", "jit", "make_entry", "init_nothing",
+__all__ = ["Scheme", "Option", "Style", "SchemeUnavailable", "jit", "make_entry", "init_nothing",
            "make_batch_entry", "batch_loads", "later", "algebra", "state", "rotation",
            "dynamics", "OK", "UNSTABLE", "NOT_CONVERGED"]

@@ -191,20 +191,38 @@ def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path
     assert not (tmp_path / "figures" / "abaqus_top_convergence_orientation.png").exists()
 
 
-def test_every_scheme_has_a_style_of_its_own():
-    """rbstudy's own schemes and the engines' (plug-ins take the styles of other lines)."""
-    from rbstudy.analysis.plots import SCHEME_STYLES
+def test_every_scheme_registers_a_style_of_its_own():
+    """rbstudy's own schemes and the engines', each in its file (plug-ins may leave it out)."""
+    from rbstudy.schemes import scheme_styles
     from rbstudy.schemes._plugins import ENGINES
     own = [*BUILTIN, *ENGINES]
-    assert set(own) == set(SCHEME_STYLES)
-    styles = [SCHEME_STYLES[name] for name in own]
-    assert len({color for color, _, _ in styles}) == len(styles)
+    styles = scheme_styles(own)
+    assert set(styles) == set(own)
+    assert len({style.color for style in styles.values()}) == len(own)
     for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4"),
                  ("mujoco_implicitfast", "mujoco_implicit"), ("bullet_multibody", "mujoco_euler"),
                  ("bullet_rigidbody", "mujoco_implicit"), ("exudyn_rk44", "rkmk4")):
         # curves that coincide: another marker and another dash, so that both show
-        assert SCHEME_STYLES[a][1:] != SCHEME_STYLES[b][1:]
-        assert SCHEME_STYLES[a][2] != SCHEME_STYLES[b][2]
+        assert styles[a][1:] != styles[b][1:]
+        assert styles[a].dash != styles[b].dash
+
+
+def test_a_scheme_without_a_style_gets_one_no_other_line_of_the_study_wears():
+    """A plug-in's lines took a style chosen by its name's letters among eight, which could be
+    euler's own or another plug-in's."""
+    from rbstudy.analysis.plots import line_styles
+    from rbstudy.schemes import scheme_styles
+    registered = scheme_styles(["euler", "leapfrog", "rk4"])
+    plugins = [f"plugin_{k}" for k in range(30)]
+    styles = line_styles(["euler", "leapfrog", "rk4", *plugins], registered)
+    assert all(styles[name] == tuple(registered[name]) for name in registered)
+    assert len({style[:2] for style in styles.values()}) == len(styles)  # colour and marker
+    colours = {style.color for style in registered.values()}
+    # while colours are left, a plug-in takes one no registered line wears
+    assert not colours & {styles[name][0] for name in plugins[:5]}
+    # and the same study gives a plug-in the same style in every figure, whatever the order
+    assert line_styles(["rk4", "plugin_0"], registered)["plugin_0"] == \
+        line_styles(["plugin_0", "rk4"], registered)["plugin_0"]
 
 
 def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
@@ -247,10 +265,14 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
                                                                           drawn_figures):
     import matplotlib.colors as colors
 
-    from rbstudy.analysis.plots import SCHEME_STYLES, ZERO_LABEL
+    from rbstudy.analysis.plots import ZERO_LABEL
+    from rbstudy.cli import _styles_of
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
-    all_figures(open_results(done.path), tmp_path / "figures")
+    ds = open_results(done.path)
+    styles = _styles_of(ds)  # what `rbstudy plot` reads from the registry
+    assert styles == {name: SCHEMES[name].style for name in SHRUNK_SCHEMES}
+    all_figures(ds, tmp_path / "figures", styles=styles)
     fig = drawn_figures["convergence_energy"]
     fig.canvas.draw()
     panels = [ax for ax in fig.axes if ax.get_visible()]
@@ -261,9 +283,9 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     for ax in panels:
         assert ax.get_legend() is None
         for line in ax.get_lines():
-            scheme = next((s for s in SCHEME_STYLES if colors.same_color(
-                line.get_color(), SCHEME_STYLES[s][0])), None)
-            if scheme is not None and line.get_marker() == SCHEME_STYLES[scheme][1]:
+            scheme = next((s for s in styles if colors.same_color(
+                line.get_color(), styles[s].color)), None)
+            if scheme is not None and line.get_marker() == styles[scheme].marker:
                 styled.add(scheme)
     assert styled == set(SHRUNK_SCHEMES)  # every scheme drawn, each in its own style
     assert {text.get_text().split(" (")[0] for text in legend.get_texts()} == set(SHRUNK_SCHEMES)
@@ -276,7 +298,7 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     assert all("6.2869" in tick.get_text() for tick in w_z.get_yticklabels() if tick.get_text())
     case_line = bench.axes[0].get_lines()[0]
     assert case_line.get_label().startswith("hht")
-    assert colors.same_color(case_line.get_color(), SCHEME_STYLES["hht"][0])
+    assert colors.same_color(case_line.get_color(), styles["hht"].color)
 
 
 def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
@@ -309,8 +331,10 @@ def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     import sys
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
                      quiet=True)
-    serial = all_figures(open_results(done.path), tmp_path / "one")
-    forked = all_figures(open_results(done.path), tmp_path / "two", processes=2)
+    from rbstudy.schemes import scheme_styles
+    styles = scheme_styles(SHRUNK_SCHEMES)  # as the command line reads them
+    serial = all_figures(open_results(done.path), tmp_path / "one", styles=styles)
+    forked = all_figures(open_results(done.path), tmp_path / "two", processes=2, styles=styles)
     assert [path.name for path in forked.written] == [path.name for path in serial.written]
     assert forked.absent == serial.absent
     for one, two in zip(serial.written, forked.written, strict=True):

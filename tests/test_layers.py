@@ -6,6 +6,10 @@ layer uses only the outside packages its job needs, and the analysis layer never
 `errors.py` and `reader.py` at the top of the package hold the user-facing errors and the one
 input reader; every layer from the schemes up may use them, and they import nothing of
 rbstudy but each other, and of the outside numpy only (a swept column is an array).
+
+Every import counts, the ones named in strings too: ``importlib.import_module("...")`` and
+``__import__("...")`` in a module, and the entry points of pyproject.toml that the scheme
+registry loads (rbstudy's engine adapters), which must name modules of the engines layer.
 """
 
 import ast
@@ -13,7 +17,10 @@ import pathlib
 import subprocess
 import sys
 
+import tomllib
+
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
+PYPROJECT = PACKAGE.parent / "pyproject.toml"
 
 # Layers from the bottom up: a module may import its own layer and the layers below it.
 LAYERS = ("numerics", "schemes", "engines", "physics", "pipeline", "analysis", "cli")
@@ -35,13 +42,20 @@ OUTSIDE = {
 # The one scheme that wraps scipy's integrator.
 SCIPY_SCHEME = "schemes/dop853.py"
 
-# Modules the archive readers rely on: none of them may load numba (or the schemes), so that
-# figures, tables and reports start in a moment and need no compiler.
-NUMBA_FREE = ("rbstudy.analysis.plots", "rbstudy.analysis.summary", "rbstudy.analysis.report",
-              "rbstudy.analysis.conformance", "rbstudy.analysis.findings",
+# The entry-point group the scheme registry loads (rbstudy.schemes._plugins), and the layer
+# its modules belong to: above the schemes, whose registry loads them, below the physics.
+ENTRY_POINT_GROUP = "rbstudy.schemes"
+PLUGIN_LAYER = "engines"
+# Modules the archive readers rely on: every module of the analysis layer and these below it.
+# None of them may load numba (or the schemes), so that figures, tables and reports start in
+# a moment and need no compiler.
+NUMBA_FREE = (*(f"rbstudy.analysis.{path.stem}"
+                for path in sorted((PACKAGE / "analysis").glob("*.py")) if path.stem != "__init__"),
               "rbstudy.pipeline.archive", "rbstudy.pipeline.store", "rbstudy.pipeline.variables",
               "rbstudy.pipeline.outputs",
               "rbstudy.pipeline.batches", "rbstudy.physics.analytic", "rbstudy.reader")
+# The calls that import the module their first argument names.
+IMPORT_CALLS = ("import_module", "__import__")
 
 
 def layer_of(parts):
@@ -57,12 +71,22 @@ def layer_of(parts):
     raise AssertionError(f"rbstudy/{'/'.join(parts)}.py belongs to no layer: move it into one")
 
 
+def _called(node):
+    """The name of the function a call calls (``import_module`` for importlib.import_module)."""
+    function = node.func
+    return function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", None)
+
+
 def imports(path):
-    """The absolute module names ``path`` imports; a relative import is named ``.relative``
-    (refused: the contract is checked on absolute names)."""
+    """The absolute module names ``path`` imports, by statement or by a string given to
+    `IMPORT_CALLS`; a relative import is named ``.relative`` (refused: the contract is checked
+    on absolute names)."""
     tree = ast.parse(path.read_text())
     for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
+        if (isinstance(node, ast.Call) and _called(node) in IMPORT_CALLS and node.args
+                and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            yield node.args[0].value
+        elif isinstance(node, ast.Import):
             yield from (alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.level > 0:
             yield ".relative"
@@ -99,10 +123,34 @@ def violations_of(path, parts):
     return found
 
 
+def entry_point_violations(entry_points):
+    """What is wrong with ``entry_points`` (name -> "module:attribute") of the group the
+    registry loads: each of rbstudy's must name a module of `PLUGIN_LAYER`."""
+    found = []
+    for name, value in entry_points.items():
+        module = value.partition(":")[0]
+        if module.split(".")[0] == "rbstudy":
+            layer = layer_of(tuple(module.split(".")[1:]))
+            if layer != PLUGIN_LAYER:
+                found.append(f"entry point {name} = {value!r}: the scheme registry would load "
+                             f"the {layer} layer; register schemes from the {PLUGIN_LAYER} layer")
+    return found
+
+
 def test_every_module_sits_in_a_layer_and_imports_downwards_only():
     violations = {"/".join(parts): found for path, parts in modules()
                   if (found := violations_of(path, parts))}
     assert not violations, violations
+
+
+def test_the_entry_points_the_registry_loads_are_engine_adapters():
+    entry_points = tomllib.loads(PYPROJECT.read_text())["project"]["entry-points"]
+    own = entry_points[ENTRY_POINT_GROUP]
+    assert own, "rbstudy registers its engine adapters as entry points"
+    assert not entry_point_violations(own)
+    for value in own.values():  # each names a module that exists
+        module = value.partition(":")[0]
+        assert (PACKAGE.parent / (module.replace(".", "/") + ".py")).is_file(), value
 
 
 def test_the_contract_names_what_exists():
@@ -120,6 +168,29 @@ def test_an_upward_import_is_caught(tmp_path):
     found = violations_of(bad, ("physics", "bad"))
     assert len(found) == 3 and "physics -> pipeline" in found[0] and "matplotlib" in found[1]
     assert "relative import" in found[2]
+
+
+def test_an_upward_import_by_a_string_is_caught(tmp_path):
+    """A module named in a string counts as imported: a scheme module loading an engine
+    adapter or the physics by name, or the analysis layer loading numba, is reported; a name
+    built at run time (the registry's own scheme modules) is not a module name to check."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("import importlib\nfrom importlib import import_module\n"
+                   "importlib.import_module('rbstudy.engines.mujoco')\n"
+                   "import_module('rbstudy.physics.scenes')\n__import__('numba')\n"
+                   "importlib.import_module(f'{__name__}.euler')\n")
+    found = violations_of(bad, ("schemes", "bad"))
+    assert len(found) == 2, found
+    assert "schemes -> engines" in found[0] and "schemes -> physics" in found[1]
+    assert violations_of(bad, ("analysis", "bad"))[-1] == \
+        "numba: not a package the analysis layer may use"
+
+
+def test_an_entry_point_into_another_layer_is_caught():
+    found = entry_point_violations({"mujoco_euler": "rbstudy.engines.mujoco:EULER",
+                                    "odd": "rbstudy.pipeline.bench:SCHEME",
+                                    "other": "rbstudy_semi_implicit.compiled:SCHEME"})
+    assert len(found) == 1 and "odd" in found[0] and "the pipeline layer" in found[0]
 
 
 def test_the_archive_readers_never_load_numba():

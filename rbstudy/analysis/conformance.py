@@ -54,13 +54,16 @@ from rbstudy.analysis.summary import (
     per_scheme,
     scheme_rows,
     schemes_of,
+    status_counts,
+    status_text,
     wrap_clauses,
 )
 from rbstudy.numerics.state import INVARIANTS
 
 __all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "ORIGIN_RBSTUDY",
            "FIGURE_MEASURES", "HELD_LOAD_MARK", "HELD_LOAD_NOTE", "Verdict", "Cell", "judge_figure",
-           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html"]
+           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html", "tally_statuses",
+           "status_lines"]
 
 ORDER_TOLERANCE = 0.3
 ENERGY_GAIN = 1e-3
@@ -299,6 +302,22 @@ def score_case(ds, rules, schemes=None, figure=None, loads_held=()):
                              None if figure is None or figure.scheme not in (None, scheme)
                              else judge_figure(ds, scheme, figure), scheme in loads_held)
     return cells
+
+
+def tally_statuses(tally, ds, schemes):
+    """Add the failed cases of ``schemes`` in the golden study ``ds`` to ``tally`` (status
+    code -> scheme -> cases, summed over the golden cases); returns it."""
+    for code, cases in status_counts(ds, schemes).items():
+        counted = tally.setdefault(code, {})
+        for scheme, count in cases.items():
+            counted[scheme] = counted.get(scheme, 0) + count
+    return tally
+
+
+def status_lines(tally):
+    """A line per status of failed cases in ``tally`` (`tally_statuses`): the cases per
+    scheme, what the status means and what to try, as the findings of a study say it."""
+    return [status_text(code, cases) for code, cases in sorted(tally.items())]
 
 
 def format_scorecard(cells, cases):

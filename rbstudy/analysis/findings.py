@@ -7,6 +7,8 @@
    ``|L|`` drift), costed by the kernel time per case (`case_seconds`); one for the whole
    study, then one per distinct answer where the values of the other swept axes disagree, or
    a statement that no case meets the bound;
+   then, where cases failed, one per status: the cases, what it means and what to try
+   (`rbstudy.numerics.state.STATUSES`, as the scorecard says it);
 2. coincidences: schemes whose final orientation errors agree to 3 digits in every case;
 3. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`;
 4. the study's own question, for every swept axis other than scheme and ``dt`` (a scheme
@@ -36,8 +38,10 @@ from rbstudy.analysis.summary import (
     per_scheme,
     scheme_rows,
     schemes_of,
+    status_counts,
+    status_text,
 )
-from rbstudy.numerics.state import INVARIANTS
+from rbstudy.numerics.state import INVARIANTS, STATUS_NAMES
 
 __all__ = ["Finding", "Recommendation", "findings", "recommendations",
            "table_records", "VERDICT_ACCURATE", "MAX_FINDING_LINES", "summary_document",
@@ -64,8 +68,8 @@ _SWEPT_BY_SUMMARY = ("scheme", "dt")
 class Finding:
     """One statement about a study.
 
-    kind: ``recommendation``, ``no_recommendation``, ``coincidence``, ``question`` or
-    ``verdict``; text: the statement, one line; numbers: the values it states, by name (units
+    kind: ``recommendation``, ``no_recommendation``, ``failure``, ``coincidence``,
+    ``question`` or ``verdict``; text: the statement, one line; numbers: the values it states, by name (units
     in the names); cases: the cases it rests on, each a mapping of coordinate names to values
     (a coordinate not named: every value of it).
     """
@@ -253,6 +257,15 @@ def _recommendation_findings(ds):
     return result
 
 
+def _failures(ds):
+    """A finding per status of failed cases: how many of each scheme, what it means, what to
+    try."""
+    return [Finding(kind="failure", text=status_text(code, cases),
+                    numbers={"status": STATUS_NAMES[code], "cases": sum(cases.values())},
+                    cases=tuple({"scheme": scheme} for scheme in cases))
+            for code, cases in status_counts(ds).items()]
+
+
 def _coincidences(ds):
     error = error_measure(ds, "orientation")
     result = []
@@ -400,7 +413,7 @@ def findings(ds, rows=None):
     ``rows``: its `scheme_rows`, where the caller has them already."""
     rates = energy_rates(ds)
     rows = scheme_rows(ds) if rows is None else rows
-    return (_recommendation_findings(ds) + _coincidences(ds)
+    return (_recommendation_findings(ds) + _failures(ds) + _coincidences(ds)
             + [_verdict(ds, row, rates) for row in rows] + _questions(ds, rates))
 
 

@@ -21,8 +21,11 @@ nothing to show).
 - `benchmark`: the Abaqus figures (global w against time, w_x against w_y, a node's path
   seen down z) with the closed form overlaid.
 
-Every scheme keeps one colour, marker and line style (`SCHEME_STYLES`) in every figure, and
-schemes whose curves coincide differ in marker and dash, so that both stay visible; in a
+Every scheme keeps one colour, marker and line style in every figure: the style it registers
+(`rbstudy.schemes.Style`, in the scheme's own file), which the command line reads from the
+registry and hands to the figure functions (``styles``: this layer never loads the schemes);
+a scheme without one gets a style no other line of the study wears (`line_styles`). Schemes
+whose curves coincide differ in marker and dash, so that both stay visible; in a
 convergence figure they are named together ("euler = leapfrog to 3 digits") and mark
 alternate points. A figure has one legend, outside the data. An exact zero, which log axes
 cannot show, is a marked point on a floor line labelled "0 (exact)"; a gap is a failed
@@ -64,14 +67,14 @@ from rbstudy.analysis.summary import (  # noqa: E402
     uncertainty_of,
     verdicts,
 )
-from rbstudy.numerics.state import RADIOSS_STEP_ANGLE  # noqa: E402
+from rbstudy.numerics.state import OK, RADIOSS_STEP_ANGLE, STATUSES  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 from rbstudy.pipeline.progress import SILENT  # noqa: E402
 from rbstudy.pipeline.store import inside, write_text_atomic  # noqa: E402
 
-__all__ = ["MAX_FACETS", "MAX_LINES", "SCHEME_STYLES", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
+__all__ = ["MAX_FACETS", "MAX_LINES", "line_styles", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
            "Figures", "convergence",
            "work_precision", "stability_map", "invariant_drift", "benchmark", "all_figures",
            "CAPTIONS", "figure_name", "figure_layout", "benchmark_case", "zero_floor", "plot_with_zeros"]
@@ -101,43 +104,13 @@ _RC = {"font.size": 10, "axes.titlesize": 10, "legend.fontsize": 8, "figure.titl
 _CASE_DIMS_EXCLUDED = ("time", "node", "axis", "component")
 _NO_REFERENCE = REFERENCE_KINDS.index("none")
 
-# (colour, marker, line style) of each scheme, the same in every figure. The pairs whose
-# curves coincide on a symmetric top (euler/leapfrog, splitting/no_squish, rk4/rkmk4) take a
-# large hollow marker on a solid line and a small filled one on a dashed line on top.
-SCHEME_STYLES = {
-    "euler": ("tab:blue", "o", "-"),
-    "leapfrog": ("tab:orange", "s", "--"),
-    "hht": ("tab:brown", "D", "-"),
-    "midpoint": ("tab:purple", "^", "-."),
-    "splitting": ("tab:green", "o", "-"),
-    "no_squish": ("tab:olive", "P", "--"),
-    "rk4": ("tab:red", "o", "-"),
-    "rkmk4": ("tab:pink", "X", "--"),
-    "exact_split": ("tab:cyan", "v", "-"),
-    "dop853": ("black", "+", ":"),
-    # MuJoCo's (rbstudy.engines): implicitfast and implicit coincide on one free body
-    "mujoco_euler": ("navy", "<", "-."),
-    "mujoco_implicitfast": ("tab:gray", ">", "-"),
-    "mujoco_implicit": ("darkgoldenrod", "x", "--"),
-    "mujoco_rk4": ("magenta", "*", "-."),
-    # Bullet's bodies take MuJoCo's Euler and implicit steps (their lines agree to 3 digits and
-    # share a legend entry); Exudyn's RK44 is rkmk4 to O(h^5), which is not 3 digits at the
-    # finest steps: a solid line with large hollow markers under rkmk4's dashed one
-    "bullet_multibody": ("teal", "d", "--"),
-    "bullet_rigidbody": ("sienna", "h", ":"),
-    "exudyn_genalpha": ("darkgreen", "p", "-."),
-    "exudyn_rk44": ("crimson", "8", "-"),
-    "exudyn_midpoint": ("slateblue", "H", "--"),
-    # Drake's (rbstudy.engines.drake)
-    "drake_rk2": ("mediumvioletred", "d", "-"),
-    "drake_rk3": ("olivedrab", "h", "--"),
-    "drake_implicit_euler": ("chocolate", "p", "-."),
-    "drake_discrete": ("steelblue", "1", ":"),
-}
-# Styles of lines that are not built-in schemes (swept values, other schemes), in turn.
+# (colour, marker, line style) of lines that are not schemes (the values of a swept axis), in
+# turn; a scheme that registers no style (`rbstudy.schemes.Style`) takes the first of them no
+# registered line of the study wears, then the same colours with `_MORE_MARKERS`.
 _OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
                  ("tab:red", "D", ":"), ("tab:purple", "v", "-"), ("tab:brown", "P", "--"),
                  ("tab:pink", "X", "-."), ("tab:gray", "*", ":")]
+_MORE_MARKERS = ("<", ">", "h", "d", "p", "8", "H", "x")
 ZERO_LABEL = "0 (exact)"
 # File formats: PNG by default (an SVG takes as long again to write); SVG on request.
 FORMATS = ("png",)
@@ -198,19 +171,39 @@ def _panel_title(dim, value, reduced):
 def _lines(da, line):
     """(label, style key, data) per line of a panel."""
     if line is None:
-        return [("", None, da)]
+        return [("", 0, da)]
     if line == "scheme":
         return [(scheme, scheme, per_scheme(da, scheme)) for scheme in schemes_of(da)]
     return [(_value_text(line, v), k, da.sel({line: v})) for k, v in enumerate(da[line].values)]
 
 
-def _style(key):
-    """Keyword arguments that draw the line ``key`` (a scheme name or a line number)."""
-    if isinstance(key, str) and key in SCHEME_STYLES:
-        color, marker, dash = SCHEME_STYLES[key]
-    else:
-        index = key if isinstance(key, int) else sum(map(ord, str(key)))
-        color, marker, dash = _OTHER_STYLES[index % len(_OTHER_STYLES)]
+def line_styles(schemes, styles=None):
+    """scheme name -> (colour, marker, line style) for the lines of ``schemes`` (the study's
+    scheme names): the registered style of each scheme in ``styles`` (name -> style, as
+    `rbstudy.schemes.scheme_styles` gives), and for each other scheme, in turn, one that no
+    line of the study wears, so that every line stays told apart."""
+    styles = styles or {}
+    chosen = {name: tuple(styles[name]) for name in schemes if name in styles}
+    colours = {colour for colour, _, _ in chosen.values()}
+    # the colours no registered line wears first; then every colour with other markers
+    candidates = ([style for style in _OTHER_STYLES if style[0] not in colours]
+                  + [style for style in _OTHER_STYLES if style[0] in colours]
+                  + [(colour, marker, dash) for marker in _MORE_MARKERS
+                     for colour, _, dash in _OTHER_STYLES])
+    worn = {style[:2] for style in chosen.values()}
+    free = (style for style in candidates if style[:2] not in worn)
+    for name in schemes:
+        if name not in chosen:
+            chosen[name] = next(free, _OTHER_STYLES[0])
+            worn.add(chosen[name][:2])
+    return chosen
+
+
+def _style(key, schemes):
+    """Keyword arguments that draw the line ``key``: a scheme name, in its style of
+    ``schemes`` (`line_styles`), or the number of a line of other values."""
+    color, marker, dash = (schemes[key] if key in schemes
+                           else _OTHER_STYLES[key % len(_OTHER_STYLES)])
     solid = dash == "-"
     return dict(color=color, marker=marker, linestyle=dash, linewidth=2.0 if solid else 1.2,
                 markersize=7 if solid else 4, zorder=2 if solid else 3,
@@ -513,10 +506,12 @@ def _figure_legend(fig, entries):
                    loc="outside right center")
 
 
-def convergence(ds, folder, formats=FORMATS, measures=None):
+def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
     """Error against dt per measure (``measures``: keys of `ERROR_MEASURES`, default all),
-    fitted order per line in the legend."""
+    fitted order per line in the legend; ``styles``: the schemes' registered styles
+    (`line_styles`)."""
     figures = Figures()
+    schemes = line_styles(schemes_of(ds), styles)
     if "dt" not in ds.dims:
         return figures
     dts = ds["dt"].values
@@ -561,10 +556,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
         # are drawn on top of each other in turn and named together
         groups = _coincident([np.concatenate([lines[j][2] for lines in fits])
                               for j in range(len(fits[0]))])
-        styles = {j: (_coincident_style(_style(fits[0][j][1]), rank, len(group))
-                      if len(group) > 1
-                      else _style(fits[0][j][1]))
-                  for group in groups for rank, j in enumerate(group)}
+        drawn = {j: (_coincident_style(_style(fits[0][j][1], schemes), rank, len(group))
+                     if len(group) > 1
+                     else _style(fits[0][j][1], schemes))
+                 for group in groups for rank, j in enumerate(group)}
         with plt.rc_context(_RC):
             fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
             floors, handles = [], {}
@@ -575,7 +570,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
                 floor = zero_floor(panel.values)
                 floors.append(floor)
                 for j, (_, _, errors, fit, _, _) in enumerate(lines):
-                    style = styles[j]
+                    style = drawn[j]
                     handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
                     ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
                             markersize=11, markerfacecolor="none", markeredgewidth=0.8,
@@ -611,9 +606,11 @@ def convergence(ds, folder, formats=FORMATS, measures=None):
     return figures
 
 
-def work_precision(ds, folder, formats=FORMATS):
-    """Run time per case against the final orientation error, a line per scheme over dt."""
+def work_precision(ds, folder, formats=FORMATS, styles=None):
+    """Run time per case against the final orientation error, a line per scheme over dt;
+    ``styles``: the schemes' registered styles (`line_styles`)."""
     figures = Figures()
+    schemes = line_styles(schemes_of(ds), styles)
     measure = error_measure(ds, "orientation")
     if measure is None or "dt" not in ds.dims:
         return figures
@@ -631,7 +628,7 @@ def work_precision(ds, folder, formats=FORMATS):
             times = _worst(ds["run_time"].sel(pick), reduced)
             for (name, style_key, error_line), (*_, time_line) in zip(
                     _lines(errors, line_dim), _lines(times, line_dim), strict=True):
-                line, = ax.loglog(error_line.values, time_line.values, **_style(style_key))
+                line, = ax.loglog(error_line.values, time_line.values, **_style(style_key, schemes))
                 handles.setdefault(name, [line])
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("run time per case (core-seconds)")
@@ -666,7 +663,8 @@ def _verdict_kinds(ds):
     return (("accurate", dict(s=14, color="tab:green")),
             ("finished, inaccurate" + (f" (error or drift > {bound:g})" if bound is not None
                                        else ""), dict(s=22, marker="^", color="tab:orange")),
-            ("failed (unstable or not converged)", dict(s=22, marker="x", color="tab:red")),
+            (f"failed ({' or '.join(status.name.replace('_', ' ') for status in STATUSES[OK + 1:])})",
+             dict(s=22, marker="x", color="tab:red")),
             ("finished, no reference (unjudged)", dict(s=22, marker="s", facecolors="none",
                                                        edgecolors="tab:gray")))
 
@@ -821,8 +819,9 @@ def _drift_title(ds, steps):
     return f"{', '.join(chosen)} ({'; '.join(how)})" if chosen else "; ".join(how)
 
 
-def invariant_drift(ds, folder, formats=FORMATS):
-    """|energy error| and |L - L0| / |L0| against time, one case per scheme."""
+def invariant_drift(ds, folder, formats=FORMATS, styles=None):
+    """|energy error| and |L - L0| / |L0| against time, one case per scheme; ``styles``: the
+    schemes' registered styles (`line_styles`)."""
     figures = Figures()
     panels = [(name, label) for name, label in (
         ("energy_error", "|relative energy error|"),
@@ -835,6 +834,7 @@ def invariant_drift(ds, folder, formats=FORMATS):
         figures.absent["invariant_drift"] = "every case failed"
         return figures
     steps = {scheme: dt for scheme, _, dt in cases}
+    schemes = line_styles(schemes_of(ds), styles)
     several_dts = len(set(steps.values())) > 1
     times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
     with plt.rc_context(_RC):
@@ -847,7 +847,7 @@ def invariant_drift(ds, folder, formats=FORMATS):
             floors.append(floor)
             for scheme, case, dt in cases:
                 line = plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, None,
-                                       _style(scheme), markers=False)
+                                       _style(scheme, schemes), markers=False)
                 handles.setdefault(f"{scheme} (dt = {dt:g} s)" if several_dts else scheme,
                                    [line])
             _mark_floor(ax, floor)
@@ -883,13 +883,14 @@ _BENCHMARK_NEEDS = ("precession_frequency", "node_offset", "node_displacement", 
                     "omega_body", "quaternion")
 
 
-def benchmark(ds, folder, formats=FORMATS):
-    """The Abaqus benchmark figures of a symmetric body with nodes, exact solution overlaid."""
+def benchmark(ds, folder, formats=FORMATS, styles=None):
+    """The Abaqus benchmark figures of a symmetric body with nodes, exact solution overlaid;
+    the case's line in its scheme's style (``styles``: `line_styles`)."""
     figures = Figures()
     if any(name not in ds for name in _BENCHMARK_NEEDS):
         return figures
     case, what = benchmark_case(ds)
-    color = _style(str(case["scheme"].values))["color"]
+    color = _style(str(case["scheme"].values), line_styles(schemes_of(ds), styles))["color"]
     if int(case["status"]) != 0:
         figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
         return figures
@@ -985,14 +986,19 @@ CAPTIONS = {
 _DRAWINGS = ([(convergence, {"measures": (key,)}) for key in ERROR_MEASURES]
              + [(figure, {}) for figure in (work_precision, stability_map, invariant_drift,
                                             benchmark)])
-# What the drawing processes of `all_figures` inherit (dataset, folder, formats): forked, they
-# share the loaded dataset instead of receiving a copy.
+# The drawing whose lines are not schemes: it takes no styles.
+_UNSTYLED = (stability_map,)
+# What the drawing processes of `all_figures` inherit (dataset, folder, formats, styles):
+# forked, they share the loaded dataset instead of receiving a copy.
 _INHERITED = None
 
 
 def _draw(index):
     figure, options = _DRAWINGS[index]
-    return figure(*_INHERITED, **options)
+    ds, folder, formats, styles = _INHERITED
+    if figure not in _UNSTYLED:
+        options = {**options, "styles": styles}
+    return figure(ds, folder, formats, **options)
 
 
 def _manifest(folder, ds):
@@ -1020,7 +1026,8 @@ def _recorded(manifest, digest, formats):
     return reused
 
 
-def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT):
+def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT,
+                styles=None):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why), in the same order however drawn.
 
@@ -1034,7 +1041,9 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
     dataset and the sources that draw it) keeps the figures recorded beside them under the
     same digest and draws only the others; without it every figure is drawn and the record
     removed. ``progress`` (`rbstudy.pipeline.progress.Progress`) counts the drawings as they
-    are done, and its end line tells the figures drawn and reused.
+    are done, and its end line tells the figures drawn and reused. ``styles``: the schemes'
+    registered styles (name -> (colour, marker, line style); `rbstudy.schemes.scheme_styles`),
+    which the digest must cover; a scheme without one is given one (`line_styles`).
     """
     global _INHERITED
     folder = pathlib.Path(folder)
@@ -1048,7 +1057,7 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
         manifest.unlink(missing_ok=True)
     todo = [index for index in range(len(_DRAWINGS)) if index not in reused]
     processes = min(processes, len(todo))
-    _INHERITED = (ds, folder, formats)
+    _INHERITED = (ds, folder, formats, styles)
     done = dict(reused)
     progress.phase(f"{ds.attrs['study']}: drawing figures", len(todo), "drawings")
     try:

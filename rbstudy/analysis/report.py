@@ -77,12 +77,14 @@ def _claim(out, study):
     write_text_atomic(study + "\n", marker)
 
 
-def figures_digest(ds):
+def figures_digest(ds, styles=None):
     """What the figures of ``ds`` are drawn from, as one SHA-256: every variable's and
-    coordinate's name, dimensions, type and values, the global attributes, and the sources
-    that draw (the analysis layer and what computes, `SOURCE_DIGEST`) with matplotlib's
-    version. The values themselves, not the archive's checksums attribute: with --no-verify an
-    edited value must redraw too (hashing the default study's 12 MB takes 11 ms)."""
+    coordinate's name, dimensions, type and values, the global attributes, the schemes'
+    registered ``styles`` (a plug-in's, or an engine's that is installed here or not, are
+    not in rbstudy's sources), and the sources that draw (the analysis layer and what
+    computes, `SOURCE_DIGEST`) with matplotlib's version. The values themselves, not the
+    archive's checksums attribute: with --no-verify an edited value must redraw too (hashing
+    the default study's 12 MB takes 11 ms)."""
     digest = hashlib.sha256()
     digest.update(f"{SOURCE_DIGEST} matplotlib {importlib.metadata.version('matplotlib')}".encode())
     for path in sorted(_ANALYSIS.rglob("*")):
@@ -95,6 +97,8 @@ def figures_digest(ds):
         digest.update(values.tobytes() if values.dtype.kind != "O"
                       else "\0".join(map(str, values.ravel())).encode())
     digest.update(repr(sorted(ds.attrs.items())).encode())
+    digest.update(repr(sorted((name, tuple(style)) for name, style in (styles or {}).items()))
+                  .encode())
     return digest.hexdigest()
 
 
@@ -255,17 +259,18 @@ def _table_intro(ds):
             "orientation error at any sample, relative for energy and |L|).")
 
 
-def write_report(ds, out, processes=1, svg=False, progress=SILENT):
+def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
     """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
-    ``out/figures/`` in ``processes`` processes, with SVG files linked when ``svg``;
-    shown by ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path."""
+    ``out/figures/`` in ``processes`` processes, its schemes in their registered ``styles``
+    (`rbstudy.analysis.plots.all_figures`), with SVG files linked when ``svg``; shown by
+    ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path."""
     out = pathlib.Path(out)
     # before the folder is claimed: the study names the figure files
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
     _claim(out, study)
     formats = FORMATS + ("svg",) if svg else FORMATS
-    figures = all_figures(ds, out / "figures", formats, processes, digest=figures_digest(ds),
-                          progress=progress)
+    figures = all_figures(ds, out / "figures", formats, processes,
+                          digest=figures_digest(ds, styles), progress=progress, styles=styles)
     progress.phase(f"{study}: writing {REPORT_NAME}")
     names = [png.stem.removeprefix(f"{study}_") for png in figures.written]
     rows = scheme_rows(ds)

@@ -26,10 +26,11 @@ from typing import NamedTuple
 import numpy as np
 from tabulate import tabulate
 
-from rbstudy.numerics.state import INVARIANTS
+from rbstudy.numerics.state import INVARIANTS, OK, STATUSES
 from rbstudy.physics.metrics import asymptotic_order
 
 __all__ = ["ERROR_MEASURES", "ErrorMeasure", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
+           "status_counts", "status_text",
            "TABLE_FORMATS", "error_measure", "fitted_order", "uncertainty_of",
            "UNCERTAINTY_FACTOR", "scheme_rows", "format_table", "order_text", "Column",
            "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load",
@@ -137,6 +138,29 @@ def schemes_of(ds):
 def per_scheme(variable, scheme):
     """``variable`` for one scheme (all of it when the study has one)."""
     return variable.sel(scheme=scheme) if "scheme" in variable.dims else variable
+
+
+def status_counts(ds, schemes=None):
+    """code -> {scheme: cases} of each status other than ok among the cases of ``schemes``
+    (default: every scheme) in ``ds``, in the order of `STATUSES`; empty when all finished."""
+    counts = {}
+    for scheme in schemes_of(ds) if schemes is None else schemes:
+        codes, cases = np.unique(per_scheme(ds["status"], scheme).values, return_counts=True)
+        for code, count in zip(codes.tolist(), cases.tolist(), strict=True):
+            if code != OK:
+                counts.setdefault(int(code), {})[scheme] = count
+    return dict(sorted(counts.items()))
+
+
+def status_text(code, cases):
+    """What the status ``code`` of ``cases`` (scheme -> how many, or a text naming them) says
+    and what to try, from `STATUSES`: ``unstable: 12 cases (euler 8, leapfrog 4): blew up
+    (...); take a smaller dt (...)``."""
+    name, message, fix = STATUSES[code]
+    which = cases if isinstance(cases, str) else (
+        f"{sum(cases.values())} case{'s' * (sum(cases.values()) != 1)} ("
+        + ", ".join(f"{scheme} {count}" for scheme, count in cases.items()) + ")")
+    return f"{name}: {which}: {message}; {fix}"
 
 
 def step_load(ds):
@@ -416,7 +440,8 @@ def table_columns(rows):
                + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else ""), False,
                ("inaccurate: past the accuracy bound (unjudged: no reference)",)),
         Column("failed", "failed\ncases", lambda row: f"{row['unstable']}/{row['cases']}", True,
-               ("failed: blew up or did not converge",)),
+               # what each means and what to try: the findings (`status_text`)
+               (f"failed: {' or '.join(status.name for status in STATUSES[OK + 1:])}",)),
     ]
     if any(row["radioss"] for row in rows):  # only where the limit was passed
         columns.append(Column("radioss", "past\nRadioss\nlimit",

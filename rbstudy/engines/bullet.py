@@ -70,7 +70,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._plugins import SchemeUnavailable
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 __all__ = ["MULTIBODY", "RIGIDBODY"]
 
@@ -253,7 +253,7 @@ def step(y, p, opt, t, h, work):
     return OK, 0
 
 
-def _scheme(name, maximal, summary, step_seconds):
+def _scheme(name, maximal, summary, step_seconds, style):
     return Scheme(
         name=name,
         summary=f"Bullet {summary}",
@@ -267,10 +267,16 @@ def _scheme(name, maximal, summary, step_seconds):
         origin=f"rbstudy's adapter of pybullet {VERSION}",
         code_digest=f"pybullet {VERSION}",  # another Bullet: other parts
         loads_held=True,
+        style=style,
     )
 
 
 MULTIBODY = _scheme("bullet_multibody", False,
-                    "btMultiBody (pybullet's default): gyroscopic term explicit", 5e-06)
+                    "btMultiBody (pybullet's default): gyroscopic term explicit", 5e-06,
+                    # MuJoCo's Euler step: another marker and dash than mujoco_euler's, their
+                    # lines agreeing to 3 digits
+                    style=Style("teal", "d", "--"))
 RIGIDBODY = _scheme("bullet_rigidbody", True,
-                    "btRigidBody (maximal coordinates): gyroscopic term implicit", 7e-06)
+                    "btRigidBody (maximal coordinates): gyroscopic term implicit", 7e-06,
+                    # MuJoCo's implicit step: another marker and dash than mujoco_implicit's
+                    style=Style("sienna", "h", ":"))

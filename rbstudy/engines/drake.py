@@ -65,7 +65,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._plugins import SchemeUnavailable
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 _INSTALL = 'pip install "drake>=1.51" (rbstudy\'s extra "drake")'
 
@@ -195,7 +195,7 @@ def _stepper(flag):
     return step
 
 
-def _scheme(name, flag, order, summary, step_seconds):
+def _scheme(name, flag, order, summary, step_seconds, style):
     return Scheme(
         name=name, summary=f"Drake {summary}", step_seconds=step_seconds, order=order,
         # Newton iterations Drake's own: pydrake does not expose the implicit integrator's
@@ -208,14 +208,19 @@ def _scheme(name, flag, order, summary, step_seconds):
         origin=f"rbstudy's adapter of Drake {VERSION}",
         code_digest=f"drake {VERSION}",  # another Drake: other parts
         loads_held=True,
+        style=style,
     )
 
 
 RK2 = _scheme("drake_rk2", "runge_kutta2", 2,
-              "RungeKutta2Integrator, fixed step, on the continuous plant", 1.5e-05)
+              "RungeKutta2Integrator, fixed step, on the continuous plant", 1.5e-05,
+              Style("mediumvioletred", "d", "-"))
 RK3 = _scheme("drake_rk3", "runge_kutta3", 3,
-              "RungeKutta3Integrator, fixed step (error control off)", 1.8e-05)
+              "RungeKutta3Integrator, fixed step (error control off)", 1.8e-05,
+              Style("olivedrab", "h", "--"))
 IMPLICIT_EULER = _scheme("drake_implicit_euler", "implicit_euler", 1,
-                         "ImplicitEulerIntegrator, fixed step (error control off)", 7.9e-05)
+                         "ImplicitEulerIntegrator, fixed step (error control off)", 7.9e-05,
+                         Style("chocolate", "p", "-."))
 DISCRETE = _scheme("drake_discrete", None, 1,
-                   "discrete MultibodyPlant (time_step = dt, SAP): explicit forces", 1.6e-05)
+                   "discrete MultibodyPlant (time_step = dt, SAP): explicit forces", 1.6e-05,
+                   Style("steelblue", "1", ":"))

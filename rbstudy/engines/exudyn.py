@@ -58,7 +58,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes._plugins import SchemeUnavailable
-from rbstudy.schemes._registry import Option, Scheme
+from rbstudy.schemes._registry import Option, Scheme, Style
 
 __all__ = ["GENALPHA", "RK44", "MIDPOINT"]
 
@@ -322,7 +322,7 @@ def _stepper(kind):
     return step
 
 
-def _scheme(name, kind, order, summary, step_seconds, options=()):
+def _scheme(name, kind, order, summary, step_seconds, style, options=()):
     return Scheme(
         name=name,
         summary=f"Exudyn {summary}",
@@ -337,15 +337,20 @@ def _scheme(name, kind, order, summary, step_seconds, options=()):
                   "Dynamics 2021",
         origin=f"rbstudy's adapter of Exudyn {VERSION}",
         code_digest=f"exudyn {VERSION}",  # another Exudyn: other parts
+        style=style,
     )
 
 
 GENALPHA = _scheme("exudyn_genalpha",
                    _Kind(exudyn.DynamicSolverType.GeneralizedAlpha, euler_parameters=True), 2,
                    "generalized alpha (implicit) on Euler parameters", 1.2e-05,
-                   (SPECTRAL_RADIUS_OPTION,))
+                   Style("darkgreen", "p", "-."), (SPECTRAL_RADIUS_OPTION,))
 RK44 = _scheme("exudyn_rk44", _Kind(exudyn.DynamicSolverType.RK44, euler_parameters=False), 4,
-               "RK44 (explicit, Lie group) on a rotation vector", 1.2e-05)
+               "RK44 (explicit, Lie group) on a rotation vector", 1.2e-05,
+               # rkmk4 to O(h^5), which is not 3 digits at the finest steps: solid, with large
+               # hollow markers, under rkmk4's dashed line
+               Style("crimson", "8", "-"))
 MIDPOINT = _scheme("exudyn_midpoint",
                    _Kind(exudyn.DynamicSolverType.ExplicitMidpoint, euler_parameters=False), 2,
-                   "explicit midpoint (Lie group) on a rotation vector", 9.3e-06)
+                   "explicit midpoint (Lie group) on a rotation vector", 9.3e-06,
+                   Style("slateblue", "H", "--"))

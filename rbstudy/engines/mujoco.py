@@ -68,7 +68,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.state import OK, UNSTABLE
 from rbstudy.schemes._plugins import SchemeUnavailable
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 try:
     import mujoco
@@ -183,7 +183,7 @@ def _stepper(integrator):
     return step
 
 
-def _scheme(name, integrator, order, summary, step_seconds):
+def _scheme(name, integrator, order, summary, step_seconds, style):
     return Scheme(
         name=name,
         summary=f"MuJoCo {summary}",
@@ -197,15 +197,24 @@ def _scheme(name, integrator, order, summary, step_seconds):
         origin=f"rbstudy's adapter of mujoco {mujoco.__version__}",
         code_digest=f"mujoco {mujoco.__version__}",  # another MuJoCo: other parts
         loads_held=True,
+        style=style,
     )
 
 
 EULER = _scheme("mujoco_euler", mujoco.mjtIntegrator.mjINT_EULER, 1,
-                "Euler: semi-implicit, velocities then positions", 2.8e-06)
+                "Euler: semi-implicit, velocities then positions", 2.8e-06,
+                style=Style("navy", "<", "-."))
 IMPLICITFAST = _scheme("mujoco_implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST, 1,
                        "implicitfast: velocity-implicit; on one free body the same as "
-                       "implicit", 3.0e-06)
+                       "implicit", 3.0e-06,
+                       # solid under mujoco_implicit's dashed line: the two coincide on one free
+                       # body
+                       style=Style("tab:gray", ">", "-"))
 IMPLICIT = _scheme("mujoco_implicit", mujoco.mjtIntegrator.mjINT_IMPLICIT, 1,
-                   "implicit: the gyroscopic term linearised-implicit", 3.3e-06)
+                   "implicit: the gyroscopic term linearised-implicit", 3.3e-06,
+                   # dashed over mujoco_implicitfast's solid line (and bullet_rigidbody's dotted
+                   # one, which agrees to 3 digits)
+                   style=Style("darkgoldenrod", "x", "--"))
 RK4 = _scheme("mujoco_rk4", mujoco.mjtIntegrator.mjINT_RK4, 4,
-              "RK4 on (qpos, qvel), loads held over the step", 5.7e-06)
+              "RK4 on (qpos, qvel), loads held over the step", 5.7e-06,
+              style=Style("magenta", "*", "-."))

@@ -32,13 +32,14 @@ the layers above read this layout and the status codes without compiling anythin
 """
 
 import enum
+from typing import NamedTuple
 
 __all__ = [
     "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
     "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
     "LEVER", "KNOTS", "N_PARAM", "LOAD_RECORD", "row_width", "N_OPTION", "RESULT_FIELDS",
     "RADIOSS_STEP_ANGLE", "Result", "N_RESULT",
-    "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
+    "Status", "STATUSES", "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
 ]
 
 POSITION = 0
@@ -108,10 +109,32 @@ RADIOSS_STEP_ANGLE = 1.0
 Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
 N_RESULT = len(RESULT_FIELDS)
 
-# Status codes of a body; archives store the code, `STATUS_NAMES` gives its meaning (append
-# only: archived codes must keep theirs).
-STATUS_NAMES = ("ok", "unstable", "not_converged")
-OK, UNSTABLE, NOT_CONVERGED = range(len(STATUS_NAMES))
+
+
+class Status(NamedTuple):
+    """What a body's status code says: its ``name`` (the archive's flag meaning), what
+    happened (``message``) and what to try (``fix``), as the command line, the report and
+    the scorecard print them."""
+
+    name: str
+    message: str
+    fix: str
+
+
+# Status codes of a body: the code is the index. Archives store the code (append only:
+# archived codes must keep their meaning); the messages are part of the archive's
+# description of `status` (`rbstudy.pipeline.variables`).
+STATUSES = (
+    Status("ok", "finished", ""),
+    Status("unstable", "blew up (a non-finite state, or an energy or |L| drift past 50% for a "
+           "moment-free body)", "take a smaller dt (the stability map shows the dt |w0| where "
+           "it starts), or a scheme that keeps the energy (rbstudy schemes)"),
+    Status("not_converged", "the implicit solver failed",
+           "take a smaller dt: the Newton iteration then starts nearer its answer (dop853, "
+           "whose step budget ran out: a shorter duration)"),
+)
+STATUS_NAMES = tuple(status.name for status in STATUSES)
+OK, UNSTABLE, NOT_CONVERGED = range(len(STATUSES))
 
 # The invariants a scheme may claim to keep to round-off for the moment-free body, and how
 # they read: the energy, the magnitude |L| of the angular momentum, the space vector L itself

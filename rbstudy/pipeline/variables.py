@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.numerics.state import RESULT_FIELDS, STATUS_NAMES
+from rbstudy.numerics.state import OK, RESULT_FIELDS, STATUS_NAMES, STATUSES
 from rbstudy.physics.analytic import INTEGRATED, REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
@@ -143,8 +143,8 @@ VARIABLES = {v.name: v for v in (
     _v("flip_interval_error", (), "s", "flip interval error",
        "flip_interval minus flip_interval_exact", "asymmetric"),
     _result("status", "1", "case outcome",
-            "ok; unstable: blew up (a non-finite state, or an energy or |L| drift past 50% for "
-            "a moment-free body); not_converged: the implicit solver failed", flags=STATUS_NAMES),
+            "; ".join([STATUS_NAMES[OK], *(f"{name}: {message}" for name, message, _ in
+                                          STATUSES[OK + 1:])]), flags=STATUS_NAMES),
     _result("failure_time", "s", "time of failure",
             "time of blow-up or solver failure; NaN if none"),
     _result("n_steps", "1", "time steps taken", "time steps the scheme took"),

@@ -28,11 +28,11 @@ from rbstudy.schemes._plugins import (
     load_plugins,
 )
 from rbstudy.schemes._ready import get_ready
-from rbstudy.schemes._registry import INVARIANTS, Option, Scheme
+from rbstudy.schemes._registry import INVARIANTS, Option, Scheme, Style
 
 __all__ = ["SCHEMES", "BUILTIN", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme",
            "SchemeUnavailable", "Unavailable", "composition_reach", "get_scheme", "get_ready",
-           "unavailable_schemes", "scheme_groups", "expand_groups"]
+           "unavailable_schemes", "scheme_groups", "expand_groups", "scheme_styles", "Style"]
 
 
 def _discover():
@@ -126,6 +126,14 @@ def get_scheme(name: str) -> Scheme:
     valid = ", ".join(SCHEMES)  # every group loaded: the list is whole
     raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}",
                       f"valid schemes: {valid}")
+
+
+def scheme_styles(names):
+    """name -> `Style` of each of the schemes ``names`` that is registered here with a style
+    (the figures give the others, and the schemes not installed here, one of their own)."""
+    found = {name: SCHEMES.find(name) for name in names}
+    return {name: scheme.style for name, scheme in found.items()
+            if isinstance(scheme, Scheme) and scheme.style is not None}
 
 
 # The group of rbstudy's own fixed-step schemes, and that of every available engine scheme;

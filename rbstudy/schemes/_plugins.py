@@ -6,9 +6,11 @@ metadata (docs/extending.md):
     [project.entry-points."rbstudy.schemes"]
     semi_implicit = "rbstudy_semi_implicit.compiled:SCHEME"
 
-`load_engines` loads rbstudy's own adapters of other engines (`ENGINES`, `rbstudy.engines`),
-`load_plugins` the other packages' schemes; the registry calls each only when it needs a name
-it may give. A plug-in that cannot be loaded here never stops rbstudy: it is listed as
+rbstudy registers its own adapters of other engines (`rbstudy.engines`) the same way, in its
+own pyproject.toml (`ENGINES`), so that every module the registry loads is named in package
+metadata, where the layer test reads it too. `load_engines` loads rbstudy's own entries,
+`load_plugins` the other packages'; the registry calls each only when it needs a name it may
+give. A plug-in that cannot be loaded here never stops rbstudy: it is listed as
 unavailable, with why and what to do (`Unavailable`). A package whose scheme needs something
 absent (an engine's Python bindings) says so by raising `SchemeUnavailable` when its module
 is imported, with the install command as the fix.
@@ -34,6 +36,7 @@ import contextlib
 import importlib
 import importlib.metadata
 import os
+import pathlib
 import select
 import signal
 import sys
@@ -52,24 +55,34 @@ __all__ = ["GROUP", "ENGINES", "IMPORT_SECONDS", "SchemeUnavailable", "Unavailab
            "load_engines", "load_plugins"]
 
 GROUP = "rbstudy.schemes"
+# The distribution whose entries of `GROUP` are rbstudy's own (`ENGINES`), not plug-ins.
+DISTRIBUTION = "rbstudy"
+# The source tree's project file, when rbstudy runs from one (an editable install, a checkout
+# on the path); an installed wheel has none beside its package.
+_PYPROJECT = pathlib.Path(__file__).resolve().parents[2] / "pyproject.toml"
+
+
+def _own_entries():
+    """rbstudy's own entries of `GROUP`, name -> "module:attribute" in the order of the names
+    (as setuptools writes them into the metadata, and as the plug-ins are listed): those of
+    the source tree's pyproject.toml when rbstudy runs from one, else those of its installed
+    metadata. An editable install's metadata is written by ``pip install -e .`` and keeps the
+    entry points of that moment: the project file is what the code beside it declares now."""
+    try:
+        import tomllib  # Python 3.11 on; on 3.10 a source tree reads the metadata as well
+        project = tomllib.loads(_PYPROJECT.read_text())["project"]
+        if project["name"] == DISTRIBUTION:
+            return dict(sorted(project["entry-points"][GROUP].items()))
+    except (ImportError, OSError, ValueError, KeyError):  # no source tree: installed
+        pass
+    installed = importlib.metadata.distribution(DISTRIBUTION).entry_points
+    return dict(sorted((point.name, point.value) for point in installed.select(group=GROUP)))
+
+
 # rbstudy's own adapters of other engines (`rbstudy.engines`), loaded as plug-ins are:
 # name -> "module:attribute". Each names its engine and version in its `origin` and
 # `code_digest`, so that another version of the engine never reuses a part.
-ENGINES = {
-    "mujoco_euler": "rbstudy.engines.mujoco:EULER",
-    "mujoco_implicitfast": "rbstudy.engines.mujoco:IMPLICITFAST",
-    "mujoco_implicit": "rbstudy.engines.mujoco:IMPLICIT",
-    "mujoco_rk4": "rbstudy.engines.mujoco:RK4",
-    "bullet_multibody": "rbstudy.engines.bullet:MULTIBODY",
-    "bullet_rigidbody": "rbstudy.engines.bullet:RIGIDBODY",
-    "exudyn_genalpha": "rbstudy.engines.exudyn:GENALPHA",
-    "exudyn_rk44": "rbstudy.engines.exudyn:RK44",
-    "exudyn_midpoint": "rbstudy.engines.exudyn:MIDPOINT",
-    "drake_rk2": "rbstudy.engines.drake:RK2",
-    "drake_rk3": "rbstudy.engines.drake:RK3",
-    "drake_implicit_euler": "rbstudy.engines.drake:IMPLICIT_EULER",
-    "drake_discrete": "rbstudy.engines.drake:DISCRETE",
-}
+ENGINES = _own_entries()
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
 # takes seconds; rbstudy's own import with numba, 0.7 s.
@@ -222,7 +235,8 @@ def load_plugins(builtin):
     not take. Each module is imported in a child process first (`_probe`)."""
     taken = {**{name: "rbstudy's own scheme" for name in builtin},
              **{name: "rbstudy's adapter of an engine" for name in ENGINES}}
-    entry_points = sorted(importlib.metadata.entry_points(group=GROUP),
+    entry_points = sorted((point for point in importlib.metadata.entry_points(group=GROUP)
+                           if getattr(point.dist, "name", None) != DISTRIBUTION),
                           key=lambda point: point.name)
     return _load_all(entry_points, taken,
                      _probe([point for point in entry_points if point.name not in taken]))

@@ -1,10 +1,11 @@
-"""What a scheme is, as the rest of rbstudy sees it: capabilities, options, compiled entry."""
+"""What a scheme is, as the rest of rbstudy sees it: capabilities, options, compiled entry, and
+how its lines are drawn."""
 
 import math
 import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import types
@@ -12,7 +13,7 @@ from numba import types
 from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
 
-__all__ = ["Option", "Scheme", "INVARIANTS"]
+__all__ = ["Option", "Scheme", "Style", "INVARIANTS"]
 
 INVARIANTS = S.INVARIANTS
 
@@ -21,8 +22,12 @@ INVARIANTS = S.INVARIANTS
 class Option:
     """A scheme option: its default, what it means, and how it is packed for the kernel.
 
-    ``parse(value) -> tuple of floats`` validates a user value and returns the floats stored at
-    ``slot`` onward in the body's option row; it raises ``ValueError`` with the expectation.
+    ``parse(value) -> tuple of floats`` validates a user value and returns the ``width`` floats
+    stored at ``slot`` onward in the body's option row; it raises ``ValueError`` with the
+    expectation. The slot is the option's own, not the scheme's: a kernel reads it as a
+    constant, and an option shared by several schemes (``composition``) is read by one
+    compiled function at one slot in all of them. The registry checks the layout when a
+    scheme is registered (`Scheme`): every option inside the row, no two on one slot.
     ``sets_order``: the option's value is the scheme's nominal order (a composition).
     ``cost(value)``: how many plain steps one step takes with that value (the stages of a
     composition); None for an option that does not change the cost. ``long_name`` (at most
@@ -40,6 +45,23 @@ class Option:
     cost: Callable[[Any], int] | None = None
     long_name: str = ""
     units: str | None = None
+    width: int = 1
+
+    @property
+    def slots(self):
+        """The slots of the option row the option fills."""
+        return range(self.slot, self.slot + self.width)
+
+
+class Style(NamedTuple):
+    """How a scheme's lines are drawn in every figure: a matplotlib colour, marker and line
+    style ("-" solid, "--", "-.", ":"). A solid line is drawn wide under large hollow markers,
+    the others narrow over small filled ones, so that two schemes whose curves coincide stay
+    visible when one is solid and the other not."""
+
+    color: str
+    marker: str
+    dash: str
 
 
 @dataclass(frozen=True)
@@ -61,6 +83,8 @@ class Scheme:
     run_bodies_inplace : compiled entry point over a range of batch rows (`rbstudy.numerics.driver`),
         or that of a vectorised step (`rbstudy.numerics.batch_driver`).
     reference : literature reference.
+    style : how its lines are drawn (`Style`); None: the figures give it a style no other
+        line of the figure wears.
     origin : who provides it: "rbstudy", or a plug-in's package and version (set on loading).
     code_digest : a plug-in's digest of its package's sources, which enters its batch ids
         (None for rbstudy's own schemes: rbstudy's source digest covers them).
@@ -79,6 +103,7 @@ class Scheme:
     reference: str
     adaptive: bool = False
     options: tuple = field(default=())
+    style: Style | None = None
     origin: str = "rbstudy"
     code_digest: str | None = None
     loads_held: bool = False
@@ -92,6 +117,7 @@ class Scheme:
             raise ValueError(f"scheme {self.name!r}: step_seconds is {self.step_seconds!r}; "
                              "give the core-seconds per body-step `rbstudy bench` measures, "
                              "a number above 0")
+        _check_option_slots(self.name, self.options)
 
     def nominal_order(self, values: Mapping | None = None) -> int:
         """The nominal order with options ``values``: that of an option that sets it (a
@@ -156,3 +182,26 @@ class Scheme:
         options = self.option_row()[None, :]
         kernel(0, 1, state0, params, options, 0.1, 1, 1, 1.0, np.empty((1, 2, S.N_STATE)),
                np.empty((1, S.N_RESULT)), np.zeros(1, dtype=np.int64), 0.0 if timed else None)
+
+
+def _check_option_slots(scheme, options):
+    """Refuse, in one line, an option layout a kernel would misread: an option outside the
+    row of `N_OPTION` slots, one whose default packs more or fewer floats than its width, or
+    two options on one slot (each would read the other's value)."""
+    holders = {}
+    for option in options:
+        if option.slot < 0 or option.slot + option.width > S.N_OPTION:
+            raise ValueError(f"scheme {scheme!r}: option {option.name!r} takes slots "
+                             f"{option.slot}-{option.slot + option.width - 1} of a row of "
+                             f"{S.N_OPTION}; give it a slot from 0 to "
+                             f"{S.N_OPTION - option.width}")
+        packed = len(option.parse(option.default))
+        if packed != option.width:
+            raise ValueError(f"scheme {scheme!r}: option {option.name!r} packs {packed} "
+                             f"values into a width of {option.width}; declare width={packed}")
+        for slot in option.slots:
+            if slot in holders:
+                raise ValueError(f"scheme {scheme!r}: options {holders[slot]!r} and "
+                                 f"{option.name!r} both claim slot {slot} of the option row; "
+                                 "move one to a free slot")
+            holders[slot] = option.name

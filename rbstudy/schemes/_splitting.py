@@ -27,6 +27,7 @@ AXIS_ORDER = Option(
         "it changes the error constant a lot (Fasso 2003)"
     ),
     slot=0,
+    width=3,
     parse=_parse_axis_order,
     long_name="order of the axes' free sub-flows",  # a label such as "213": no units
 )

@@ -28,7 +28,7 @@ from rbstudy.numerics.entry import cache_holds
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import read3, read4, write3, write4
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE, Result
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes.rk4 import rates
 
 # Tight enough that the reference error (~1e-12) sits below every compiled scheme's error at
@@ -198,4 +198,5 @@ SCHEME = Scheme(
     adaptive=True,
     run_bodies_inplace=run_bodies_inplace,
     reference="Hairer, Norsett & Wanner, Solving ODEs I (1993); scipy.integrate.solve_ivp",
+    style=Style("black", "+", ":"),
 )

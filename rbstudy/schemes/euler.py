@@ -35,7 +35,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 N_WORK = 0
 
@@ -65,4 +65,6 @@ SCHEME = Scheme(
     keeps=(),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
+    # solid under leapfrog's dashed line: their curves coincide on a symmetric top
+    style=Style("tab:blue", "o", "-"),
 )

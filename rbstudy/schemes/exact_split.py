@@ -28,7 +28,7 @@ from rbstudy.numerics.rotation import quat_normalize, read3, read4, write3, writ
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 N_WORK = 0
 
@@ -55,4 +55,5 @@ SCHEME = Scheme(
     run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
     reference="Celledoni, Fasso, Safstrom & Zanna, SIAM J. Sci. Comput. 30 (2008) 2084",
     options=(COMPOSITION,),
+    style=Style("tab:cyan", "v", "-"),
 )

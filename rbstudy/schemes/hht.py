@@ -54,7 +54,7 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
-from rbstudy.schemes._registry import Option, Scheme
+from rbstudy.schemes._registry import Option, Scheme, Style
 
 # work: body angular acceleration A_n (3), translational acceleration a_n (3)
 N_WORK = 6
@@ -168,4 +168,5 @@ SCHEME = Scheme(
     run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
     options=(ALPHA,),
+    style=Style("tab:brown", "D", "-"),
 )

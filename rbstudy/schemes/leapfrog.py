@@ -34,7 +34,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 N_WORK = 0
 
@@ -61,4 +61,6 @@ SCHEME = Scheme(
     keeps=(),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK, lanes=2),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
+    # dashed over euler's solid line: their curves coincide on a symmetric top
+    style=Style("tab:orange", "s", "--"),
 )

@@ -44,7 +44,7 @@ from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 
 N_WORK = 0
 
@@ -101,4 +101,5 @@ SCHEME = Scheme(
     run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
     options=(COMPOSITION,),
+    style=Style("tab:purple", "^", "-."),
 )

@@ -41,7 +41,7 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
 # work: conjugate momentum P (4)
@@ -115,4 +115,6 @@ SCHEME = Scheme(
     run_bodies_inplace=composed_entry(symmetric_step, init_inplace, N_WORK),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=(AXIS_ORDER, COMPOSITION),
+    # dashed over splitting's solid line: their curves coincide on a symmetric top
+    style=Style("tab:olive", "P", "--"),
 )

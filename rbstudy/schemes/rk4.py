@@ -28,7 +28,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
 
 N_WORK = 0
@@ -70,4 +70,6 @@ SCHEME = Scheme(
     keeps=(),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
+    # solid under rkmk4's dashed line: their curves coincide on a symmetric top
+    style=Style("tab:red", "o", "-"),
 )

@@ -41,7 +41,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._registry import Scheme
+from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._rk import rk4_sum3
 
 N_WORK = 0
@@ -89,4 +89,6 @@ SCHEME = Scheme(
     keeps=(),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
+    # dashed over the solid lines of rk4 and exudyn_rk44, whose curves coincide with its own
+    style=Style("tab:pink", "X", "--"),
 )

@@ -1,6 +1,7 @@
 """`rbstudy bench`: throughput of every scheme on the Abaqus top, printed, never asserted.
 
-The one module of the analysis layer that runs kernels: it measures them.
+It runs kernels, so it sits in the pipeline, which may load them, and not in the analysis
+layer, which reads archives and never loads numba.
 
 For each scheme: the first-call compilation time, then body-steps per second at batch sizes
 1, 100 and 10,000, on one thread and on all cores. Each measurement runs about
@@ -18,7 +19,6 @@ import time
 
 import numpy as np
 
-from rbstudy.analysis.summary import wrap_clauses
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.scenes import scene_from_mapping
@@ -70,11 +70,11 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
     cores = default_threads()
     rows = []
     with Progress("bench", f"{len(chosen)} schemes", quiet=not progress) as shown:
-        for line in wrap_clauses(
-                f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps "
-                f"per figure (at least one step per body; dop853 {REFERENCE_STEPS} steps), "
-                f"{cores} cores; rates in body-steps/s of B bodies", indent="  "):
-            shown.echo(line)
+        # two lines, each within 100 columns for any --body-steps and number of cores
+        shown.echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} "
+                   "body-steps per figure,")
+        shown.echo(f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {cores} "
+                   "cores; rates in body-steps/s of B bodies")
         width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's may be long
         # two header lines, so that six rates keep to 100 columns
         shown.echo(f"{'':{width}s} {'compile':>9s}" + "".join(f" {f'B={size}':>{_RATE}s}" * 2
