@@ -11,12 +11,22 @@ from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import without_time
 from rbstudy.numerics.jit import inline_jit, jit
-from rbstudy.numerics.rotation import add, axpy, cross, quat_rotate, quat_rotate_inverse, read3, sub
+from rbstudy.numerics.loads import TURNING_RECORD_SLOTS, TURNING_SLOTS
+from rbstudy.numerics.rotation import (
+    add,
+    axpy,
+    cross,
+    quat_rotate,
+    quat_rotate_inverse,
+    read3,
+    scale,
+    sub,
+)
 
 __all__ = [
     "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "knot_segment",
     "tabulated3", "tabulated_moment", "tabulated_force", "timed_moment", "timed_force",
-    "body_moment", "space_force",
+    "body_moment", "kick_momentum", "space_force",
     "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
 ]
 
@@ -125,8 +135,9 @@ timed_force = without_time(tabulated_force)
 
 
 @inline_jit
-def body_moment(q, p, t):
-    """Total moment in the body frame at time ``t``: the body-fixed moment, the space moment
+def body_moment(q, w, p, t):
+    """Total moment in the body frame on a body at orientation ``q`` turning at ``w`` (body
+    axes) at time ``t``: the body-fixed moment, the space moment
     with the moment of space-fixed forces at body-fixed points (skipped when there is none)
     turned in, and the loads tabulated in time (`timed_moment`). Inlined by numba
     (`rbstudy.numerics.jit.inline_jit` says why)."""
@@ -136,6 +147,14 @@ def body_moment(q, p, t):
                                         read3(p, S.LEVER + 6)))
     return add(add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space)),
                timed_moment(q, p, t))
+
+
+@inline_jit
+def kick_momentum(q, w, p, t, d):
+    """The change of the body angular momentum ``m = I w`` in a kick, the loads acting for a
+    time ``d`` with the orientation ``q`` and the time ``t`` held (the splitting schemes'
+    half kicks, `rbstudy.schemes._kicks`): ``d M`` with ``M = body_moment(q, w, p, t)``."""
+    return scale(d, body_moment(q, w, p, t))
 
 
 @inline_jit
@@ -179,26 +198,25 @@ momentum_squared = jit(algebra.momentum_squared)
 
 
 @jit
-def _moment_fields_free(p, at):
-    """True when the moment fields (MOMENT_SPACE, MOMENT_BODY, LEVER) of the load record that
-    starts at ``at`` (FORCE_SPACE of the constant loads or of a knot) are all zero."""
-    for field in range(S.MOMENT_SPACE, S.MOMENT_BODY + 3):
-        if p[at + field - S.FORCE_SPACE] != 0.0:
-            return False
-    for field in range(S.LEVER, S.LEVER + 9):
-        if p[at + field - S.FORCE_SPACE] != 0.0:
-            return False
+def _slots_free(p, at, slots):
+    """True when the ``slots`` ((start, width) pairs, starts counted from ``at``) of row ``p``
+    are all zero."""
+    for start, width in slots:
+        for k in range(width):
+            if p[at + start + k] != 0.0:
+                return False
     return True
 
 
 @jit
 def is_moment_free(p):
-    """True when no moment acts, constant or tabulated, so that energy and angular momentum
-    must be conserved."""
-    if not _moment_fields_free(p, S.FORCE_SPACE):
+    """True when no load that turns the body acts (`rbstudy.numerics.loads`: every kind
+    with ``turns_body``), constant or tabulated, so that energy and angular momentum must be
+    conserved."""
+    if not _slots_free(p, 0, TURNING_SLOTS):
         return False
     count = int(p[S.KNOTS])
     for k in range(count):
-        if not _moment_fields_free(p, S.N_PARAM + count + k * S.LOAD_RECORD):
+        if not _slots_free(p, S.N_PARAM + count + k * S.LOAD_RECORD, TURNING_RECORD_SLOTS):
             return False
     return True

@@ -93,7 +93,7 @@ def residual(a, w, inertia_, moment):
 def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
-    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, p, t)))
+    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, w, p, t)))
     write3(work, _LINEAR, scale(1.0 / p[S.MASS], space_force(q, p, t)))
     return OK
 
@@ -106,7 +106,7 @@ def step_inplace(y, p, opt, t, h, work):
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
-    moment_old = body_moment(q, p, t)
+    moment_old = body_moment(q, w, p, t)
     r_old = residual(a_old, w, inertia_, moment_old)
     scale_ = norm(to_momentum(w, inertia_)) * norm(w) + norm(to_momentum(a_old, inertia_)) \
         + norm(moment_old) + 1e-300
@@ -117,7 +117,7 @@ def step_inplace(y, p, opt, t, h, work):
         w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
         q_new = quat_mul(q, quat_exp(theta))
-        moment_new = body_moment(q_new, p, later(t, h))
+        moment_new = body_moment(q_new, w_new, p, later(t, h))
         g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
                 scale(alpha, r_old))
         size = norm(g)
