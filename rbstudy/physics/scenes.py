@@ -581,7 +581,13 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, nodal, size), size)
     for name in GIVEN:
         if name in loads_spec:
-            given = loads.read(loads_spec[name], f"{loads_path}.{name}")
+            key = f"{loads_path}.{name}"
+            given = loads.read(loads_spec[name], key)
+            if KIND[name].dissipates:  # a negative value would feed energy in
+                refuse(reader, np.any(given.reshape(len(given), -1) < 0.0, axis=-1), key,
+                       lambda row, given=given: f"got {given[row].tolist()}: a load that "
+                       "only takes energy out has no negative value",
+                       f"give values >= 0 ({KIND[name].units})")
             loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES
                       else given)
     if assembled is not None:
