@@ -283,9 +283,8 @@ def _refuse_foreign_loads(name, p):
     (`_NATIVE_LOADS`), in one line naming it."""
     for load in LOAD_KINDS:
         if load.name not in _NATIVE_LOADS and np.any(p[:, load.offset:load.offset + load.width]):
-            raise SchemeError(f"scheme {name!r} cannot take scene.loads.{load.name} "
-                              f"({load.meaning}): Exudyn has no such load here",
-                              f"leave {name} out of studies with it")
+            raise SchemeError(f"scheme {name} cannot take scene.loads.{load.name}",
+                              "Exudyn has no such load: leave the scheme out")
 
 
 def _starter(kind, name):
