@@ -17,7 +17,7 @@ so that a knot's record of tabulated loads is one slice of the row's layout
 from dataclasses import dataclass, replace
 
 __all__ = ["LoadKind", "LOAD_KINDS", "KIND", "FIRST_SLOT", "END_SLOT", "RECORD_WIDTH",
-           "TURNING_SLOTS", "TURNING_RECORD_SLOTS", "FRAMES"]
+           "TURNING_SLOTS", "TURNING_RECORD_SLOTS", "FRAMES", "needs_time"]
 
 # What a kind's vector is given in: ``space`` axes, ``body`` axes (turned into the principal
 # frame when the inertia is a full tensor), one value per ``principal`` axis (a coefficient,
@@ -42,6 +42,9 @@ class LoadKind:
     given : a key of ``scene.loads`` (False: derived from other loads, the lever).
     at_nodes : it may be given at a node, and is aggregated to the centre of mass.
     tabulated : it may be tabulated in time (then part of a knot's record).
+    timed_kernels : only the kernels compiled with the time carry it (`rbstudy.numerics.clock`):
+        a check for a rare load in every evaluation of the moment costs the free body as a
+        check for tabulated loads did, so the lean kernels leave it out (`needs_time`).
     meaning : one line for the docs and error messages.
     offset : where its values start in a parameter row (set by the layout below).
     """
@@ -57,6 +60,7 @@ class LoadKind:
     given: bool = True
     at_nodes: bool = False
     tabulated: bool = True
+    timed_kernels: bool = False
     offset: int = -1
 
 
@@ -99,3 +103,15 @@ RECORD_WIDTH = sum(kind.width for kind in LOAD_KINDS if kind.tabulated)
 TURNING_SLOTS = tuple((kind.offset, kind.width) for kind in LOAD_KINDS if kind.turns_body)
 TURNING_RECORD_SLOTS = tuple((kind.offset - FIRST_SLOT, kind.width) for kind in LOAD_KINDS
                              if kind.turns_body and kind.tabulated)
+
+
+def needs_time(params):
+    """(B,) True for the parameter rows ``params`` (B, W) that need the kernels compiled with
+    the time (`rbstudy.numerics.clock`): loads tabulated in time (a count of knots, KNOTS,
+    right after the last slot), or a kind of load only those kernels carry
+    (`LoadKind.timed_kernels`)."""
+    needed = params[:, END_SLOT] != 0.0
+    for kind in LOAD_KINDS:
+        if kind.timed_kernels:
+            needed = needed | (params[:, kind.offset:kind.offset + kind.width] != 0.0).any(axis=1)
+    return needed

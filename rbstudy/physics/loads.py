@@ -14,7 +14,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import FIRST_SLOT, KIND, LOAD_KINDS
 
 __all__ = ["Loads", "TABLES", "GIVEN", "TURNING", "MOVING", "TABULATED", "acting",
-           "constant_acting", "turning", "moving", "timed", "record_slice"]
+           "constant_acting", "turning", "moving", "timed", "needs_time", "record_slice"]
 
 # The kinds a scene's ``loads`` block may name; those that turn the body, that move its
 # centre, that may be tabulated in time.
@@ -76,6 +76,14 @@ def moving(velocity, loads):
 def timed(loads):
     """Whether some load varies in time."""
     return _tabulated_acting(loads["tabulated"], TABULATED)
+
+
+def needs_time(loads):
+    """Whether some scene of ``loads`` (a `SceneTable`'s columns) needs the kernels compiled
+    with the time (`rbstudy.numerics.loads.needs_time`, on parameter rows): a load table, or
+    a kind of load only those kernels carry. One bool."""
+    rare = [kind.name for kind in LOAD_KINDS if kind.timed_kernels]
+    return bool(np.shape(loads["knots"])[-1] > 0 or np.any(constant_acting(loads, rare)))
 
 
 def _moment_free(self):
