@@ -90,6 +90,9 @@ LOAD_KINDS = _laid_out((
     LoadKind("lever", "lever", "N m", 9, turns_body=True, moves_centre=False, given=False,
              meaning="space forces at body-fixed points off the centre of mass, as the rows "
                      "k_b = sum_i d_i[b] F_i whose moment turns with the body"),
+    LoadKind("damping_moment", "principal", "N m s", 3, turns_body=True, moves_centre=False,
+             dissipates=True, tabulated=False, timed_kernels=True,
+             meaning="linear damping moment M = -C w in body axes, C per principal axis"),
 ))
 KIND = {kind.name: kind for kind in LOAD_KINDS}
 
