@@ -34,7 +34,8 @@ class LoadKind:
     """A kind of load.
 
     name : its key under ``scene.loads`` and its `rbstudy.physics.scenes.Loads` field.
-    frame : one of `FRAMES`. units : CF units of its values. width : values in the row.
+    frame : one of `FRAMES`. units : of its values, as docs/config.md writes them.
+    width : values in the row.
     turns_body : it exerts a moment (a body on which none acts is moment-free).
     moves_centre : it pushes the centre of mass.
     dissipates : it only ever takes energy out (it bounds no moment that could speed the body
@@ -85,7 +86,7 @@ LOAD_KINDS = _laid_out((
              at_nodes=True, meaning="moment fixed in space"),
     LoadKind("moment_body", "body", "N m", 3, turns_body=True, moves_centre=False,
              at_nodes=True, meaning="moment turning with the body"),
-    LoadKind("gravity", "space", "m s-2", 3, turns_body=False, moves_centre=True,
+    LoadKind("gravity", "space", "m/s^2", 3, turns_body=False, moves_centre=True,
              meaning="acceleration of gravity (the weight acts at the centre of mass)"),
     LoadKind("lever", "lever", "N m", 9, turns_body=True, moves_centre=False, given=False,
              meaning="space forces at body-fixed points off the centre of mass, as the rows "

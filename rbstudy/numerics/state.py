@@ -21,6 +21,8 @@ Parameter row:
     from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
     their moment ``sum_i (R d_i) x F_i = sum_b (R e_b) x k_b`` in space turns with the body
     (`rbstudy.numerics.dynamics.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
+    Then the kinds that are never tabulated: the damping coefficients 3 (N m s, principal
+    axes; `rbstudy.numerics.dynamics.spin_damping`).
     KNOTS 1: the number K of knots of the loads tabulated in time (0: all loads constant).
     The row then goes on past N_PARAM with the K knot times (s, increasing) and, at each knot,
     a record of the tabulated loads laid out as the constant ones from FIRST_SLOT
