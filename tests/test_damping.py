@@ -129,8 +129,8 @@ def test_a_negative_damping_is_refused_by_its_key(tmp_path):
     with pytest.raises(InputError) as caught:
         load_study(write_study(tmp_path, scene=scene))
     assert str(caught.value).endswith(
-        "scene.loads.damping_moment: got [0.3, -0.5, 0.8]: a load that only takes energy out "
-        "has no negative value; give values >= 0 (N m s)")
+        "scene.loads.damping_moment: got [0.3, -0.5, 0.8], below 0; give values >= 0 (N m s): "
+        "it only takes energy out")
 
 
 def test_exudyn_refuses_the_damping_it_has_no_load_for():

@@ -585,9 +585,8 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
             given = loads.read(loads_spec[name], key)
             if KIND[name].dissipates:  # a negative value would feed energy in
                 refuse(reader, np.any(given.reshape(len(given), -1) < 0.0, axis=-1), key,
-                       lambda row, given=given: f"got {given[row].tolist()}: a load that "
-                       "only takes energy out has no negative value",
-                       f"give values >= 0 ({KIND[name].units})")
+                       lambda row, given=given: f"got {given[row].tolist()}, below 0",
+                       f"give values >= 0 ({KIND[name].units}): it only takes energy out")
             loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES
                       else given)
     if assembled is not None:
