@@ -28,7 +28,7 @@ def test_every_kind_has_its_field_and_its_slot_in_the_row():
         values = tuple(float(k + 1) for k in range(kind.width))
         scene = scene_from_mapping({"body": {"inertia": [1.0, 2.0, 3.0]}})
         row = scene.with_changes(loads=Loads(**{kind.name: values})).param_row()
-        assert row[kind.offset:kind.offset + kind.width].tolist() == list(values)
+        assert row[kind.offset : kind.offset + kind.width].tolist() == list(values)
         assert np.count_nonzero(row[FIRST_SLOT:]) == kind.width, kind.name
         assert bool(turning(vars(Loads(**{kind.name: values})))) == kind.turns_body
         assert needs_time(row[None, :])[0] == kind.timed_kernels, kind.name
@@ -39,6 +39,9 @@ def test_config_md_names_every_key_with_its_units():
     for kind in LOAD_KINDS:
         if not kind.given:
             continue
-        row = next(line for line in text.splitlines()
-                   if line.startswith("| `loads.") and f"`loads.{kind.name}`" in line)
+        row = next(
+            line
+            for line in text.splitlines()
+            if line.startswith("| `loads.") and f"`loads.{kind.name}`" in line
+        )
         assert row.split("|")[3].strip() == kind.units, (kind.name, row)

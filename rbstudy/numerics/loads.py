@@ -16,8 +16,18 @@ so that a knot's record of tabulated loads is one slice of the row's layout
 
 from dataclasses import dataclass, replace
 
-__all__ = ["LoadKind", "LOAD_KINDS", "KIND", "FIRST_SLOT", "END_SLOT", "RECORD_WIDTH",
-           "TURNING_SLOTS", "TURNING_RECORD_SLOTS", "FRAMES", "needs_time"]
+__all__ = [
+    "LoadKind",
+    "LOAD_KINDS",
+    "KIND",
+    "FIRST_SLOT",
+    "END_SLOT",
+    "RECORD_WIDTH",
+    "TURNING_SLOTS",
+    "TURNING_RECORD_SLOTS",
+    "FRAMES",
+    "needs_time",
+]
 
 # What a kind's vector is given in: ``space`` axes, ``body`` axes (turned into the principal
 # frame when the inertia is a full tensor), one value per ``principal`` axis (a coefficient,
@@ -77,24 +87,82 @@ def _laid_out(kinds):
     return tuple(placed)
 
 
-LOAD_KINDS = _laid_out((
-    LoadKind("force_space", "space", "N", 3, turns_body=False, moves_centre=True, at_nodes=True,
-             meaning="force at the centre of mass, fixed in space"),
-    LoadKind("force_body", "body", "N", 3, turns_body=False, moves_centre=True, at_nodes=True,
-             meaning="force at the centre of mass, turning with the body"),
-    LoadKind("moment_space", "space", "N m", 3, turns_body=True, moves_centre=False,
-             at_nodes=True, meaning="moment fixed in space"),
-    LoadKind("moment_body", "body", "N m", 3, turns_body=True, moves_centre=False,
-             at_nodes=True, meaning="moment turning with the body"),
-    LoadKind("gravity", "space", "m/s^2", 3, turns_body=False, moves_centre=True,
-             meaning="acceleration of gravity (the weight acts at the centre of mass)"),
-    LoadKind("lever", "lever", "N m", 9, turns_body=True, moves_centre=False, given=False,
-             meaning="space forces at body-fixed points off the centre of mass, as the rows "
-                     "k_b = sum_i d_i[b] F_i whose moment turns with the body"),
-    LoadKind("damping_moment", "principal", "N m s", 3, turns_body=True, moves_centre=False,
-             dissipates=True, tabulated=False, timed_kernels=True,
-             meaning="linear damping moment M = -C w in body axes, C per principal axis"),
-))
+LOAD_KINDS = _laid_out(
+    (
+        LoadKind(
+            "force_space",
+            "space",
+            "N",
+            3,
+            turns_body=False,
+            moves_centre=True,
+            at_nodes=True,
+            meaning="force at the centre of mass, fixed in space",
+        ),
+        LoadKind(
+            "force_body",
+            "body",
+            "N",
+            3,
+            turns_body=False,
+            moves_centre=True,
+            at_nodes=True,
+            meaning="force at the centre of mass, turning with the body",
+        ),
+        LoadKind(
+            "moment_space",
+            "space",
+            "N m",
+            3,
+            turns_body=True,
+            moves_centre=False,
+            at_nodes=True,
+            meaning="moment fixed in space",
+        ),
+        LoadKind(
+            "moment_body",
+            "body",
+            "N m",
+            3,
+            turns_body=True,
+            moves_centre=False,
+            at_nodes=True,
+            meaning="moment turning with the body",
+        ),
+        LoadKind(
+            "gravity",
+            "space",
+            "m/s^2",
+            3,
+            turns_body=False,
+            moves_centre=True,
+            meaning="acceleration of gravity (the weight acts at the centre of mass)",
+        ),
+        LoadKind(
+            "lever",
+            "lever",
+            "N m",
+            9,
+            turns_body=True,
+            moves_centre=False,
+            given=False,
+            meaning="space forces at body-fixed points off the centre of mass, as the rows "
+            "k_b = sum_i d_i[b] F_i whose moment turns with the body",
+        ),
+        LoadKind(
+            "damping_moment",
+            "principal",
+            "N m s",
+            3,
+            turns_body=True,
+            moves_centre=False,
+            dissipates=True,
+            tabulated=False,
+            timed_kernels=True,
+            meaning="linear damping moment M = -C w in body axes, C per principal axis",
+        ),
+    )
+)
 KIND = {kind.name: kind for kind in LOAD_KINDS}
 
 # Past the last slot: the row's KNOTS (`rbstudy.numerics.state`).
@@ -105,8 +173,9 @@ RECORD_WIDTH = sum(kind.width for kind in LOAD_KINDS if kind.tabulated)
 # (start, width) of the kinds that turn the body, in the row and in a knot's record (from
 # its start).
 TURNING_SLOTS = tuple((kind.offset, kind.width) for kind in LOAD_KINDS if kind.turns_body)
-TURNING_RECORD_SLOTS = tuple((kind.offset - FIRST_SLOT, kind.width) for kind in LOAD_KINDS
-                             if kind.turns_body and kind.tabulated)
+TURNING_RECORD_SLOTS = tuple(
+    (kind.offset - FIRST_SLOT, kind.width) for kind in LOAD_KINDS if kind.turns_body and kind.tabulated
+)
 
 
 def needs_time(params):
@@ -117,5 +186,5 @@ def needs_time(params):
     needed = params[:, END_SLOT] != 0.0
     for kind in LOAD_KINDS:
         if kind.timed_kernels:
-            needed = needed | (params[:, kind.offset:kind.offset + kind.width] != 0.0).any(axis=1)
+            needed = needed | (params[:, kind.offset : kind.offset + kind.width] != 0.0).any(axis=1)
     return needed

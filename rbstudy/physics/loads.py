@@ -13,8 +13,21 @@ import numpy as np
 from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import FIRST_SLOT, KIND, LOAD_KINDS
 
-__all__ = ["Loads", "TABLES", "GIVEN", "TURNING", "MOVING", "TABULATED", "acting",
-           "constant_acting", "turning", "moving", "timed", "needs_time", "record_slice"]
+__all__ = [
+    "Loads",
+    "TABLES",
+    "GIVEN",
+    "TURNING",
+    "MOVING",
+    "TABULATED",
+    "acting",
+    "constant_acting",
+    "turning",
+    "moving",
+    "timed",
+    "needs_time",
+    "record_slice",
+]
 
 # The kinds a scene's ``loads`` block may name; those that turn the body, that move its
 # centre, that may be tabulated in time.
@@ -98,13 +111,16 @@ def _timed(self):
 Loads = dataclasses.make_dataclass(
     "Loads",
     [(kind.name, tuple, dataclasses.field(default=(0.0,) * kind.width)) for kind in LOAD_KINDS]
-    + [("knots", np.ndarray, dataclasses.field(default_factory=lambda: np.zeros(0),
-                                               compare=False)),
-       ("tabulated", np.ndarray, dataclasses.field(
-           default_factory=lambda: np.zeros((0, S.LOAD_RECORD)), compare=False))],
+    + [
+        ("knots", np.ndarray, dataclasses.field(default_factory=lambda: np.zeros(0), compare=False)),
+        (
+            "tabulated",
+            np.ndarray,
+            dataclasses.field(default_factory=lambda: np.zeros((0, S.LOAD_RECORD)), compare=False),
+        ),
+    ],
     frozen=True,
-    namespace={"moment_free": property(_moment_free), "timed": property(_timed),
-               "__module__": __name__},
+    namespace={"moment_free": property(_moment_free), "timed": property(_timed), "__module__": __name__},
 )
 Loads.__doc__ = """A scene's loads: a field per kind of the catalogue `rbstudy.numerics.loads`
 (its frame, units and width there), in the principal frame; ``lever`` (9,) N m holds the space
