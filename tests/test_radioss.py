@@ -87,7 +87,7 @@ def test_nodal_forces_give_the_force_sum_and_r_cross_f_at_any_orientation():
                   + np.cross(later.apply(r["1"]), space_forces["1"])
                   + np.cross(later.apply(master), space_forces["master"]) + [0.5, 0.0, 0.0])
         expected = turn.inv().apply(moment)
-        got = np.array(body_moment(turn.as_quat(), p, 0.0))
+        got = np.array(body_moment(turn.as_quat(), np.zeros(3), p, 0.0))
         assert np.allclose(got, expected, rtol=1e-13, atol=1e-13)
         force = space_forces["1"] + space_forces["master"] + later.apply(body_force)
         assert np.allclose(p[S.FORCE_SPACE:S.FORCE_SPACE + 3]

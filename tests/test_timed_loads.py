@@ -82,7 +82,7 @@ def test_the_kernels_interpolate_the_tables_at_any_time_and_orientation():
     times = [-1.0, 0.0, 0.1, 0.25, 0.37, 0.5, 0.99, 1.0, 1.2, 1.5, 1.75, 2.0, 7.0]
     for t, turn in zip(times, Rotation.random(len(times), random_state=3), strict=True):
         force, moment = loads_at(scene, turn, t)
-        assert np.allclose(body_moment(turn.as_quat(), p, t), moment, rtol=1e-13, atol=1e-13), t
+        assert np.allclose(body_moment(turn.as_quat(), np.zeros(3), p, t), moment, rtol=1e-13, atol=1e-13), t
         assert np.allclose(space_force(turn.as_quat(), p, t), force, rtol=1e-13, atol=1e-13), t
 
 
@@ -334,7 +334,7 @@ def test_tabulated_loads_equal_constant_ones_in_every_frame():
         timed = scene_from_mapping({**body, "loads": tabulated}).param_row()
         for t, turn in zip((0.0, 0.4, 3.0), Rotation.random(3, random_state=5), strict=True):
             q = turn.as_quat()
-            assert np.allclose(body_moment(q, timed, t), body_moment(q, fixed, t),
+            assert np.allclose(body_moment(q, np.zeros(3), timed, t), body_moment(q, np.zeros(3), fixed, t),
                                rtol=1e-13, atol=1e-13)
             assert np.allclose(space_force(q, timed, t), space_force(q, fixed, t),
                                rtol=1e-13, atol=1e-13)

@@ -54,8 +54,10 @@ import threading
 import numpy as np
 
 from rbstudy.engines._frames import to_world
+from rbstudy.errors import SchemeError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
+from rbstudy.numerics.loads import END_SLOT, FIRST_SLOT, LOAD_KINDS
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes._plugins import SchemeUnavailable
 from rbstudy.schemes._registry import Option, Scheme, Style
@@ -239,6 +241,11 @@ class _Body:
         return done, iteration.newtonStepsCount - before
 
 
+# The kinds of load (`rbstudy.numerics.loads`) that are Exudyn's own (`_add_constant_loads`);
+# a scene with another kind is refused.
+_NATIVE_LOADS = ("force_space", "force_body", "moment_space", "moment_body", "gravity", "lever")
+
+
 def _add_constant_loads(mbs, body, centre, p):
     """The constant loads of the parameter row ``p`` as Exudyn's own loads on ``body`` (whose
     node's marker is ``centre``), which its solvers evaluate at every stage and Newton
@@ -271,11 +278,21 @@ def _bodies():
     return _LOCAL.bodies
 
 
-def _starter(kind):
-    """The vectorised init: a system per body of the batch, in place of this thread's last
-    batch's; their numbers in ``work``."""
+def _refuse_foreign_loads(name, p):
+    """Refuse parameter rows ``p`` (B, W) that carry a kind of load Exudyn does not take
+    (`_NATIVE_LOADS`), in one line naming it."""
+    for load in LOAD_KINDS:
+        if load.name not in _NATIVE_LOADS and np.any(p[:, load.offset:load.offset + load.width]):
+            raise SchemeError(f"scheme {name} cannot take scene.loads.{load.name}",
+                              "Exudyn has no such load: leave the scheme out")
+
+
+def _starter(kind, name):
+    """The vectorised init of the scheme ``name``: a system per body of the batch, in place
+    of this thread's last batch's; their numbers in ``work``."""
 
     def init(y, p, opt, t, h, work):
+        _refuse_foreign_loads(name, p)
         bodies = _bodies()
         bodies.clear()
         for k, node in enumerate(kind.node(y)):
@@ -292,7 +309,7 @@ def _hold_tabulated_loads(bodies, y, p, t):
     timed = np.flatnonzero(p[:, S.KNOTS] > 0)
     if timed.size:
         tabulated_only = p[timed].copy()
-        tabulated_only[:, S.FORCE_SPACE:S.KNOTS] = 0.0  # the constant loads are Exudyn's
+        tabulated_only[:, FIRST_SLOT:END_SLOT] = 0.0  # the constant loads are Exudyn's
         force, moment = batch_loads(y[timed], tabulated_only, t)
         moment = to_world(y[timed, S.QUATERNION:S.QUATERNION + 4], moment)
         for j, k in enumerate(timed.tolist()):
@@ -331,7 +348,7 @@ def _scheme(name, kind, order, summary, step_seconds, style, options=()):
         implicit=kind.implicit,
         keeps=(),
         options=options,
-        run_bodies_inplace=make_batch_entry(_stepper(kind), _starter(kind), n_work=1),
+        run_bodies_inplace=make_batch_entry(_stepper(kind), _starter(kind, name), n_work=1),
         reference="Gerstmayr, Exudyn, Multibody System Dynamics 2023; Arnold & Bruls, "
                   "Multibody System Dynamics 2007; Holzinger & Gerstmayr, Multibody System "
                   "Dynamics 2021",

@@ -31,7 +31,7 @@ from rbstudy.numerics.clock import step_time
 from rbstudy.numerics.driver import HALT_CHECK_STEPS, check_statuses
 from rbstudy.numerics.dynamics import body_moment, is_moment_free, space_force
 from rbstudy.numerics.jit import jit
-from rbstudy.numerics.rotation import read4, write3
+from rbstudy.numerics.rotation import read3, read4, write3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = ["BatchStepEntry", "make_batch_entry", "batch_loads"]
@@ -173,7 +173,7 @@ def _loads_of_rows(y, p, t, force, moment):
     for b in range(y.shape[0]):
         q = read4(y[b], S.QUATERNION)
         write3(force[b], 0, space_force(q, p[b], t))
-        write3(moment[b], 0, body_moment(q, p[b], t))
+        write3(moment[b], 0, body_moment(q, read3(y[b], S.OMEGA), p[b], t))
 
 
 def batch_loads(y, p, t):

@@ -9,6 +9,10 @@ made by type, once per batch: the driver passes the time ``t`` as a float when s
 the batch has tabulated loads, and as None otherwise (`rbstudy.numerics.driver.run_batch`).
 numba compiles each kernel once per type of ``t``; under None the functions below resolve,
 while typing, to code without the time, and the tabulated loads vanish from the kernels.
+A kind of load that is rare and costs a check where it is absent rides along: the catalogue
+marks it (`rbstudy.numerics.loads.LoadKind.timed_kernels`), the batches that carry it get the
+time too (`rbstudy.numerics.loads.needs_time`), and the kernels reach it through
+`without_time` as well.
 
 Kernels therefore write a stage's time as ``later(t, d)``, never ``t + d``, and reach a
 function of the time through `without_time`.
@@ -73,17 +77,20 @@ def _step_time(steps, h, clock):
 
 
 def without_time(of_time):
-    """A compiled function of the time as one that compiled code may also call without a time.
+    """A compiled function ``of_time(x, p, t)`` that gives a 3-vector (of the time, or of a
+    load only the kernels with the time carry), as one that compiled code may also call with
+    ``t`` None, and that gives zero then.
 
     Parameters
     ----------
-    of_time : compiled function ``(q, p, t) -> tuple of 3 floats``
-        ``q`` a quaternion 4-tuple, ``p`` a parameter row (W,), ``t`` a time (s).
+    of_time : compiled function ``(x, p, t) -> tuple of 3 floats``
+        ``x`` a state part (a quaternion 4-tuple or a spin 3-tuple), ``p`` a parameter row
+        (W,), ``t`` a time (s).
 
     Returns
     -------
-    function ``(q, p, t) -> tuple of 3 floats``
-        ``of_time(q, p, t)``, or ``(0.0, 0.0, 0.0)`` where ``t`` is None (compiled away).
+    function ``(x, p, t) -> tuple of 3 floats``
+        ``of_time(x, p, t)``, or ``(0.0, 0.0, 0.0)`` where ``t`` is None (compiled away).
     """
 
     def timed(q, p, t):

@@ -56,6 +56,7 @@ from rbstudy.numerics.clock import step_time
 from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
 from rbstudy.numerics.entry import CachedEntry
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.loads import needs_time
 from rbstudy.numerics.machine import default_threads
 from rbstudy.numerics.rotation import dot, read3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
@@ -605,9 +606,10 @@ def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, optio
     n_bodies = state0.shape[0]
     samples = np.empty((n_bodies, n_samples(n_steps, every), S.N_STATE))
     results = np.full((n_bodies, S.N_RESULT), np.nan)
-    # the kernels take the time only where some body has loads tabulated in time: a batch of
-    # constant loads runs kernels compiled without it (`rbstudy.numerics.clock`)
-    clock = 0.0 if np.any(params[:, S.KNOTS] != 0.0) else None
+    # the kernels take the time only where some body has loads tabulated in time, or a kind of
+    # load only those kernels carry: a batch of the common loads runs kernels compiled
+    # without it (`rbstudy.numerics.clock`)
+    clock = 0.0 if np.any(needs_time(params)) else None
     scheme.ensure_compiled(timed=clock is not None)
     arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
                  results, HALT_FLAG, clock)

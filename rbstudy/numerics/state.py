@@ -13,15 +13,19 @@ State row (SI units):
     OMEGA     3  angular velocity in the principal body frame (rad/s)
 
 Parameter row:
-    MASS 1, INERTIA 3 (principal, kg m^2), FORCE_SPACE 3 (N), FORCE_BODY 3 (N, body axes),
+    MASS 1, INERTIA 3 (principal, kg m^2), then a slot per kind of load in the order of the
+    catalogue `rbstudy.numerics.loads` (which lays them out; tabulated kinds first):
+    FORCE_SPACE 3 (N), FORCE_BODY 3 (N, body axes),
     MOMENT_SPACE 3 (N m), MOMENT_BODY 3 (N m, body axes), GRAVITY 3 (m/s^2, space),
     LEVER 9 (N m): space-fixed forces ``F_i`` at body-fixed points ``d_i`` (principal axes,
     from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
     their moment ``sum_i (R d_i) x F_i = sum_b (R e_b) x k_b`` in space turns with the body
     (`rbstudy.numerics.dynamics.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
+    Then the kinds that are never tabulated: the damping coefficients 3 (N m s, principal
+    axes; `rbstudy.numerics.dynamics.spin_damping`).
     KNOTS 1: the number K of knots of the loads tabulated in time (0: all loads constant).
     The row then goes on past N_PARAM with the K knot times (s, increasing) and, at each knot,
-    a record of the tabulated loads laid out as the constant ones from FORCE_SPACE to LEVER
+    a record of the tabulated loads laid out as the constant ones from FIRST_SLOT
     (`LOAD_RECORD` values, principal body axes). Between knots the record is interpolated
     linearly, before the first and after the last it is held; it adds to the constant loads
     (`rbstudy.numerics.dynamics.tabulated_moment`). Rows of one batch may hold different K:
@@ -33,6 +37,8 @@ the layers above read this layout and the status codes without compiling anythin
 
 import enum
 from typing import NamedTuple
+
+from rbstudy.numerics.loads import END_SLOT, KIND, RECORD_WIDTH
 
 __all__ = [
     "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
@@ -56,16 +62,18 @@ STATE_FIELDS = {"position": slice(POSITION, POSITION + 3),
 
 MASS = 0
 INERTIA = 1
-FORCE_SPACE = 4
-FORCE_BODY = 7
-MOMENT_SPACE = 10
-MOMENT_BODY = 13
-GRAVITY = 16
-LEVER = 19
-KNOTS = 28
-N_PARAM = 29
-# Values of one knot's record of tabulated loads: FORCE_SPACE to LEVER, as in the row.
-LOAD_RECORD = KNOTS - FORCE_SPACE
+# The load slots, laid out by the catalogue of load kinds (`rbstudy.numerics.loads`).
+FORCE_SPACE = KIND["force_space"].offset
+FORCE_BODY = KIND["force_body"].offset
+MOMENT_SPACE = KIND["moment_space"].offset
+MOMENT_BODY = KIND["moment_body"].offset
+GRAVITY = KIND["gravity"].offset
+LEVER = KIND["lever"].offset
+KNOTS = END_SLOT
+N_PARAM = KNOTS + 1
+# Values of one knot's record of tabulated loads: the tabulated kinds' slots, as in the row
+# from FIRST_SLOT on.
+LOAD_RECORD = RECORD_WIDTH
 
 
 def row_width(knots):

@@ -27,6 +27,8 @@ import math
 import numpy as np
 
 from rbstudy.numerics import algebra
+from rbstudy.numerics.loads import KIND
+from rbstudy.physics.loads import TURNING, constant_acting
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
 __all__ = ["REFERENCE_KINDS", "INTEGRATED", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
@@ -45,6 +47,8 @@ REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asy
 # The reference planned for a scene no closed form covers (the integrations may end with
 # ``dop853`` or ``none`` instead).
 INTEGRATED = "exact_split_composition"
+# The kinds of load (`rbstudy.numerics.loads`) the closed forms here take (`reference_kinds`).
+_CLOSED_FORM_LOADS = ("force_space", "gravity", "moment_body")
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
 # symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of
@@ -168,18 +172,18 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     the exact solution that applies to its rotation and centre of mass, else `INTEGRATED`.
     Arguments are the
     scenes' principal inertias and initial body angular velocities, each (n, 3), their
-    constant loads, a mapping of the `rbstudy.physics.scenes.Loads` fields to columns (n, 3)
-    (the lever (n, 9)), and ``timed`` (n,) (or one bool), True where a load varies in time
+    constant loads, a mapping of every kind of `rbstudy.numerics.loads` to columns (n, w),
+    and ``timed`` (n,) (or one bool), True where a load varies in time
     (the closed forms here hold for constant loads only)."""
-    force_body, moment_space, moment_body, lever = (
-        np.asarray(loads[name]) for name in ("force_body", "moment_space", "moment_body", "lever"))
-    # a body-fixed force, or a space force off the centre, turns with the body: translation
-    # and rotation couple
-    pushed = (np.any(force_body != 0.0, axis=-1) | np.any(lever != 0.0, axis=-1)
+    # the closed forms take a force in space and gravity (a parabola, whatever the rotation
+    # does) and a body moment along the spin axis; any other kind (a body-fixed force or a
+    # space force off the centre, which turn with the body and couple translation and
+    # rotation; a space moment; a load the catalogue gained since) needs the integration
+    pushed = (constant_acting(loads, [name for name in KIND if name not in _CLOSED_FORM_LOADS])
               | np.asarray(timed, dtype=bool))
-    turned_in_space = np.any(moment_space != 0.0, axis=-1)
-    moment_free = ~turned_in_space & ~np.any(np.asarray(moment_body) != 0.0, axis=-1)
-    axial = ~turned_in_space & (_axial_indices(omega_body, moment_body) >= 0)
+    moment_body = np.asarray(loads["moment_body"])
+    moment_free = ~constant_acting(loads, TURNING)
+    axial = _axial_indices(omega_body, moment_body) >= 0
     symmetric = symmetry_axes(inertia) >= 0
     # an object array of the few names, each shared by its scenes: as fixed-width text, a
     # million scenes' kinds took 88 MiB

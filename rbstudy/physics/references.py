@@ -17,6 +17,7 @@ import numpy as np
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import HALT_FLAG, Halted
 from rbstudy.numerics.free_flow import free_flow_batch
+from rbstudy.numerics.loads import KIND
 from rbstudy.numerics.state import OK
 from rbstudy.physics import metrics
 from rbstudy.physics.analytic import (
@@ -26,6 +27,7 @@ from rbstudy.physics.analytic import (
     reference_kinds,
     symmetric_top,
 )
+from rbstudy.physics.loads import TURNING, record_slice
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
 from rbstudy.schemes import dop853
@@ -120,22 +122,23 @@ def dop853_reference(scene, times):
                                   for name, place in S.STATE_FIELDS.items()})
 
 
-# The loads that turn the body, and where each sits in a knot's record of tabulated loads.
-_MOMENTS = {"moment_space": S.MOMENT_SPACE, "moment_body": S.MOMENT_BODY, "lever": S.LEVER}
-_WIDTHS = {"moment_space": 3, "moment_body": 3, "lever": 9}
+# The loads that may speed the body's spin up (every kind that turns it, but those that only
+# take energy out).
+_DRIVING = tuple(name for name in TURNING if not KIND[name].dissipates)
 
 
 def moment_bound(loads):
     """An upper bound (N m) of the moment's magnitude at any time, (...,): every constant
-    and tabulated moment, and the lever of off-centre forces, added up. ``loads`` maps the
+    and tabulated moment that may drive the body, and the lever of off-centre forces, added
+    up. ``loads`` maps the
     `rbstudy.physics.scenes.Loads` fields to arrays with the same leading dims (...) (a
     `SceneTable`'s columns, or one scene's fields with a leading axis of one)."""
     records = np.asarray(loads["tabulated"])  # (..., K, LOAD_RECORD)
     bound = 0.0
-    for name, start in _MOMENTS.items():
-        place = slice(start - S.FORCE_SPACE, start - S.FORCE_SPACE + _WIDTHS[name])
-        bound = (bound + np.abs(loads[name]).sum(axis=-1)
-                 + np.abs(records[..., place]).sum(axis=-1).max(axis=-1, initial=0.0))
+    for name in _DRIVING:
+        tabulated = (np.abs(records[..., record_slice(name)]).sum(axis=-1).max(axis=-1, initial=0.0)
+                     if KIND[name].tabulated else 0.0)
+        bound = bound + np.abs(loads[name]).sum(axis=-1) + tabulated
     return bound
 
 
@@ -262,8 +265,7 @@ def reference_solutions(scenes, times):
     times = np.asarray(times, dtype=float)
     kinds = reference_kinds(
         [scene.body.inertia for scene in scenes], [scene.omega_body for scene in scenes],
-        {name: [getattr(scene.loads, name) for scene in scenes]
-         for name in ("force_body", "moment_space", "moment_body", "lever")},
+        {name: [getattr(scene.loads, name) for scene in scenes] for name in KIND},
         [scene.loads.timed for scene in scenes])
     found = {}
     for kind, compute in COMPUTE.items():

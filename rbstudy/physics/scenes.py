@@ -24,10 +24,21 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
 from rbstudy.numerics import state as S
+from rbstudy.numerics.loads import KIND, LOAD_KINDS
 from rbstudy.physics.analytic import reference_kinds, symmetrised, symmetry_axes, symmetry_axis
 from rbstudy.physics.assembly import REGULARISATION, read_assembly
 from rbstudy.physics.columns import file_bindings, read_files, refuse, rows, symmetric_tensor
 from rbstudy.physics.load_table import inline_load_table, read_load_file
+from rbstudy.physics.loads import (
+    GIVEN,
+    TABLES,
+    TABULATED,
+    Loads,
+    moving,
+    record_slice,
+    timed,
+    turning,
+)
 from rbstudy.physics.node_table import RESERVED
 from rbstudy.reader import Reader
 
@@ -40,59 +51,10 @@ __all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_ma
 TRIANGLE_RTOL = 1e-9
 
 _ORIENTATION_FORMS = ("euler_zxz_deg", "quaternion", "rotation_vector", "momentum_axis")
-_LOADS = ("force_space", "force_body", "moment_space", "moment_body", "gravity")
-_FORCES = ("force_space", "force_body", "gravity")
-_MOMENTS = ("moment_space", "moment_body")
-_IN_BODY_AXES = ("force_body", "moment_body")
-# What may act at a node (`_add_nodal_loads`).
-_NODAL_LOADS = ("force_space", "force_body", "moment_space", "moment_body")
-# Where each load starts in a parameter row (`rbstudy.numerics.state`), and in a knot's
-# record of the loads tabulated in time (the same layout, from FORCE_SPACE on).
-_FIELDS = {"force_space": S.FORCE_SPACE, "force_body": S.FORCE_BODY,
-           "moment_space": S.MOMENT_SPACE, "moment_body": S.MOMENT_BODY, "gravity": S.GRAVITY,
-           "lever": S.LEVER}
-_WIDTHS = {name: 9 if name == "lever" else 3 for name in _FIELDS}
-
-
-def _acting(*vectors):
-    """Whether any of ``vectors`` (each (..., k), one k for all) has a non-zero entry: a bool,
-    or (...,)."""
-    return np.any(np.stack(np.broadcast_arrays(*vectors)) != 0.0, axis=(0, -1))
-
-
-def _tabulated_acting(record, names):
-    """Whether any of the loads ``names`` has a non-zero entry at some knot of ``record``
-    (..., K, LOAD_RECORD), the loads tabulated in time: a bool, or (...,)."""
-    record = np.asarray(record, dtype=float)
-    if record.ndim == 3 and len(record) > 1 and record.strides[0] == 0:  # one row, broadcast
-        return np.broadcast_to(_tabulated_acting(record[:1], names), record.shape[:1])
-    chosen = [record[..., _FIELDS[name] - S.FORCE_SPACE:][..., :_WIDTHS[name]] for name in names]
-    return np.any(np.concatenate(chosen, axis=-1) != 0.0, axis=(-2, -1))
-
-
-# The loads that turn the body; the `Loads` fields of the loads tabulated in time.
-_TURNING = _MOMENTS + ("lever",)
-_TABLES = ("knots", "tabulated")
-
-
-# What loads do, asked of one scene's `Loads` fields (``vars(loads)``) or of a `SceneTable`'s
-# columns alike: a bool, or (n,).
-def _turning(loads):
-    """Whether a moment acts: a moment, or space forces off the centre (the lever), constant
-    or tabulated."""
-    return (_acting(*(loads[name] for name in _MOMENTS)) | _acting(loads["lever"])
-            | _tabulated_acting(loads["tabulated"], _TURNING))
-
-
-def _moving(velocity, loads):
-    """Whether the centre of mass moves: an initial velocity, or a force."""
-    return (_acting(velocity, *(loads[name] for name in _FORCES))
-            | _tabulated_acting(loads["tabulated"], _FORCES))
-
-
-def _timed(loads):
-    """Whether some load varies in time."""
-    return _tabulated_acting(loads["tabulated"], _FIELDS)
+# The kinds that may act at a node (`_add_nodal_loads`), and those given in body axes (turned
+# into the principal frame with the body's other vectors).
+_NODAL_LOADS = tuple(kind.name for kind in LOAD_KINDS if kind.at_nodes)
+_IN_BODY_AXES = tuple(kind.name for kind in LOAD_KINDS if kind.frame == "body")
 
 
 @dataclass(frozen=True)
@@ -128,37 +90,6 @@ class Body:
 
 
 @dataclass(frozen=True)
-class Loads:
-    """Loads at the centre of mass: forces (N) and moments (N m) in space or body axes,
-    gravity (m/s^2); and ``lever`` (9,) N m, the space forces that act at body-fixed points
-    off it, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is in ``force_space``).
-    These are constant; loads tabulated in time add to them: their ``knots`` (K,) s and, at
-    each knot, a record ``tabulated`` (K, LOAD_RECORD) of the same loads in the parameter
-    row's layout (`rbstudy.numerics.state.KNOTS`); arrays, views of the `SceneTable`'s (a
-    long table is held once, not once per scene), left out of comparisons as `Scene.nodes`
-    is."""
-
-    force_space: tuple = (0.0, 0.0, 0.0)
-    force_body: tuple = (0.0, 0.0, 0.0)
-    moment_space: tuple = (0.0, 0.0, 0.0)
-    moment_body: tuple = (0.0, 0.0, 0.0)
-    gravity: tuple = (0.0, 0.0, 0.0)
-    lever: tuple = (0.0,) * 9
-    knots: np.ndarray = field(default_factory=lambda: np.zeros(0), compare=False)
-    tabulated: np.ndarray = field(default_factory=lambda: np.zeros((0, S.LOAD_RECORD)),
-                                  compare=False)
-
-    @property
-    def moment_free(self):
-        return not _turning(vars(self))
-
-    @property
-    def timed(self):
-        """True when a load varies in time."""
-        return bool(_timed(vars(self)))
-
-
-@dataclass(frozen=True)
 class Scene:
     """A rigid body and everything needed to integrate it, in the principal frame, SI units.
 
@@ -180,7 +111,7 @@ class Scene:
     @property
     def translates(self):
         """True when the centre of mass moves (initial velocity or a force)."""
-        return bool(_moving(self.velocity, vars(self.loads)))
+        return bool(moving(self.velocity, vars(self.loads)))
 
     def state_row(self):
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
@@ -197,8 +128,8 @@ class Scene:
         row = np.zeros(S.row_width(count))
         row[S.MASS] = self.body.mass
         row[S.INERTIA:S.INERTIA + 3] = self.body.inertia
-        for name, offset in _FIELDS.items():
-            row[offset:offset + _WIDTHS[name]] = getattr(loads, name)
+        for kind in LOAD_KINDS:
+            row[kind.offset:kind.offset + kind.width] = getattr(loads, kind.name)
         row[S.KNOTS] = count
         row[S.N_PARAM:S.N_PARAM + count] = loads.knots
         row[S.N_PARAM + count:] = np.reshape(loads.tabulated, -1)
@@ -254,7 +185,7 @@ class SceneTable:
             omega_body=tuple(self.omega_body[i].tolist()),
             position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
             nodes=np.array(self.nodes[i]), node_names=self.node_names,
-            loads=Loads(**{name: column[i] if name in _TABLES else tuple(column[i].tolist())
+            loads=Loads(**{name: column[i] if name in TABLES else tuple(column[i].tolist())
                            for name, column in self.loads.items()}),
             duration=self.duration)
 
@@ -267,17 +198,17 @@ class SceneTable:
     @cached_property
     def reference_kinds(self):
         """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
-        return reference_kinds(self.inertia, self.omega_body, self.loads, _timed(self.loads))
+        return reference_kinds(self.inertia, self.omega_body, self.loads, timed(self.loads))
 
     @cached_property
     def moment_free(self):
         """(n,) True where no moment acts."""
-        return ~_turning(self.loads)
+        return ~turning(self.loads)
 
     @cached_property
     def translates(self):
         """(n,) True where the centre of mass moves (initial velocity or a force)."""
-        return _moving(self.velocity, self.loads)
+        return moving(self.velocity, self.loads)
 
 
 def param_rows(scenes):
@@ -526,7 +457,8 @@ def _loaded_nodes(reader, spec, path, points):
 def _timed_loads(reader, spec, path, nodal, size):
     """The loads tabulated in time under ``scene.loads`` (``spec``, at ``path``), at the
     centre and at the ``nodal`` loads (`_loaded_nodes`): key -> `_Timed`."""
-    found = {f"{path}.{name}": spec[name] for name in _LOADS if isinstance(spec.get(name), dict)}
+    found = {f"{path}.{name}": spec[name] for name in TABULATED
+             if isinstance(spec.get(name), dict)}
     found.update({f"{key}.{name}": value for key, _, node_loads in nodal
                   for name, value in node_loads.items() if isinstance(value, dict)})
     return {key: _read_timed(reader, value, key, size) for key, value in found.items()}
@@ -543,9 +475,9 @@ class _LoadSets:
         self.knots = np.unique(np.concatenate([np.zeros(0)] + [table.times for load in
                                                                timed.values()
                                                                for table in load.tables]))
-        self.constant = {name: np.zeros((size, _WIDTHS[name])) for name in _FIELDS}
-        self.tabulated = {name: np.zeros((1, len(self.knots), _WIDTHS[name]))
-                          for name in _FIELDS}
+        self.constant = {kind.name: np.zeros((size, kind.width)) for kind in LOAD_KINDS}
+        self.tabulated = {name: np.zeros((1, len(self.knots), KIND[name].width))
+                          for name in TABULATED}
 
     def read(self, value, key):
         """The load at ``key``, constant (n, 3) or tabulated at the knots (n or 1, K, 3)."""
@@ -564,9 +496,8 @@ class _LoadSets:
         shape = (self.size, len(self.knots))
         record = np.zeros((max(len(value) for value in self.tabulated.values()), shape[1],
                            S.LOAD_RECORD))
-        for name, offset in _FIELDS.items():
-            start = offset - S.FORCE_SPACE
-            record[..., start:start + _WIDTHS[name]] = self.tabulated[name]
+        for name, values in self.tabulated.items():
+            record[..., record_slice(name)] = values
         record.setflags(write=False)  # each scene's `Loads` holds a view of it
         return {**self.constant, "knots": np.broadcast_to(self.knots, shape),
                 "tabulated": np.broadcast_to(record, shape + (S.LOAD_RECORD,))}
@@ -583,7 +514,7 @@ def _add_nodal_loads(nodal, loads, points, axes):
         offset = _alike(points[name])
         for load, value in node_spec.items():
             given = loads.read(value, f"{key}.{load}")
-            if load.endswith("_body"):
+            if load in _IN_BODY_AXES:
                 given = _in_principal(axes, given)
             loads.add(load, given)
             if load == "force_space":
@@ -641,16 +572,21 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
         omega_principal = principal_rotation.inv().apply(given["space"])
 
     loads_path = f"{path}.loads"
-    loads_spec = reader.mapping(spec.get("loads"), loads_path, _LOADS + ("nodes",))
+    loads_spec = reader.mapping(spec.get("loads"), loads_path, GIVEN + ("nodes",))
     points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
     if assembled is not None:
         points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
     nodal = (_loaded_nodes(reader, loads_spec["nodes"], f"{loads_path}.nodes", points)
              if "nodes" in loads_spec else [])
     loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, nodal, size), size)
-    for name in _LOADS:
+    for name in GIVEN:
         if name in loads_spec:
-            given = loads.read(loads_spec[name], f"{loads_path}.{name}")
+            key = f"{loads_path}.{name}"
+            given = loads.read(loads_spec[name], key)
+            if KIND[name].dissipates:  # a negative value would feed energy in
+                refuse(reader, np.any(given.reshape(len(given), -1) < 0.0, axis=-1), key,
+                       lambda row, given=given: f"got {given[row].tolist()}, below 0",
+                       f"give values >= 0 ({KIND[name].units}): it only takes energy out")
             loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES
                       else given)
     if assembled is not None:

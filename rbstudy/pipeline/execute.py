@@ -31,6 +31,7 @@ from filelock import FileLock, Timeout
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
+from rbstudy.physics.loads import needs_time
 from rbstudy.physics.references import Reference, reference_solutions
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
@@ -427,8 +428,9 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
         tasks, targets = _graph(study, pending, parts_dir, threads, token, where.writer,
                                 (str(probe), token) if where.distributed else None)
-        # the kernels take the time where the scenes have load tables (numerics/clock.py)
-        timed = study.cases.scenes.loads["knots"].shape[-1] > 0
+        # the kernels take the time where the scenes have load tables, or loads only those
+        # kernels carry (numerics/clock.py)
+        timed = needs_time(study.cases.scenes.loads)
         # Before any batch, whatever runs them: a compiling thread holds the GIL for long
         # stretches, and a batch beside it would stall; a cluster's workers then load from
         # the cache what this process put there (a worker whose processor differs compiles

@@ -9,19 +9,19 @@ free flow advances and the kicks hold), which keeps the composition symmetric.
 """
 
 from rbstudy.numerics import state as S
-from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import jit
-from rbstudy.numerics.rotation import axpy, read3, read4, write3
+from rbstudy.numerics.rotation import add, axpy, read3, read4, write3
 
 
 @jit
 def kick_inplace(y, p, t, d):
     """Apply the loads at time ``t`` for a time ``d`` to the velocities of state row ``y``
-    (N_STATE,)."""
-    q = read4(y, S.QUATERNION)
+    (N_STATE,); the spin changes by `rbstudy.numerics.dynamics.kick_momentum`."""
+    q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
-    write3(y, S.OMEGA, to_omega(axpy(d, body_moment(q, p, t), m), inertia_))
+    m = add(to_momentum(w, inertia_), kick_momentum(q, w, p, t, d))
+    write3(y, S.OMEGA, to_omega(m, inertia_))
     write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
 
 

@@ -47,7 +47,7 @@ def step_inplace(y, p, opt, t, h, work):
     v = read3(y, S.VELOCITY)
     inertia_ = inertia(p)
     m = to_momentum(w, inertia_)
-    m_next = axpy(h, momentum_rates(m, w, body_moment(q, p, t)), m)
+    m_next = axpy(h, momentum_rates(m, w, body_moment(q, w, p, t)), m)
     acceleration = scale(1.0 / p[S.MASS], space_force(q, p, t))
     write3(y, S.POSITION, axpy(h, v, read3(y, S.POSITION)))
     write3(y, S.VELOCITY, axpy(h, acceleration, v))

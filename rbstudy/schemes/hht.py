@@ -10,7 +10,8 @@ moment ``T(R)`` (Simo & Vu-Quoc 1988; docs/theory.md s5):
     (1 + alpha) r_n+1 - alpha r_n = 0                       (HHT-alpha; solved for A_n+1)
 
 with ``gamma = 1/2 - alpha`` and ``beta = (1 - alpha)^2 / 4``. Newton on ``A_n+1`` with the
-Jacobian ``(1 + alpha) (J + h gamma ([W]x J - [J W]x))``; the dependence of a space-fixed
+Jacobian ``(1 + alpha) (J + h gamma ([W]x J - [J W]x + C))``, ``C`` the coefficients of a
+damping moment ``-C W`` (diagonal); the dependence of a space-fixed
 moment on ``R_n+1`` is left out of the Jacobian (a modified Newton step, which still
 converges). The translation uses the same Newmark/HHT weights with ``mass a = F(R)``.
 The carry ``(A_n, a_n)`` starts from equilibrium at t = 0.
@@ -33,7 +34,14 @@ import math
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import make_entry
-from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force, to_momentum
+from rbstudy.numerics.dynamics import (
+    body_moment,
+    euler_rates,
+    inertia,
+    space_force,
+    spin_damping,
+    to_momentum,
+)
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import (
     add,
@@ -93,7 +101,7 @@ def residual(a, w, inertia_, moment):
 def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
-    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, p, t)))
+    write3(work, _ANGULAR, euler_rates(w, inertia(p), body_moment(q, w, p, t)))
     write3(work, _LINEAR, scale(1.0 / p[S.MASS], space_force(q, p, t)))
     return OK
 
@@ -106,7 +114,7 @@ def step_inplace(y, p, opt, t, h, work):
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
-    moment_old = body_moment(q, p, t)
+    moment_old = body_moment(q, w, p, t)
     r_old = residual(a_old, w, inertia_, moment_old)
     scale_ = norm(to_momentum(w, inertia_)) * norm(w) + norm(to_momentum(a_old, inertia_)) \
         + norm(moment_old) + 1e-300
@@ -117,7 +125,7 @@ def step_inplace(y, p, opt, t, h, work):
         w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
         q_new = quat_mul(q, quat_exp(theta))
-        moment_new = body_moment(q_new, p, later(t, h))
+        moment_new = body_moment(q_new, w_new, p, later(t, h))
         g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
                 scale(alpha, r_old))
         size = norm(g)
@@ -131,11 +139,15 @@ def step_inplace(y, p, opt, t, h, work):
         # same at the steps where the scheme is accurate
         jw = to_momentum(w_new, inertia_)
         k = skew_matmul(w_new, inertia_)
+        cw = spin_damping(p)  # -dT/dW of a damping moment (zero without)
         c, d = 1.0 + alpha, h * gamma
         jacobian = (
-            (c * (inertia_[0] + d * k[0][0]), c * d * (k[0][1] + jw[2]), c * d * (k[0][2] - jw[1])),
-            (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * k[1][1]), c * d * (k[1][2] + jw[0])),
-            (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]), c * (inertia_[2] + d * k[2][2])),
+            (c * (inertia_[0] + d * (k[0][0] + cw[0])), c * d * (k[0][1] + jw[2]),
+             c * d * (k[0][2] - jw[1])),
+            (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * (k[1][1] + cw[1])),
+             c * d * (k[1][2] + jw[0])),
+            (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]),
+             c * (inertia_[2] + d * (k[2][2] + cw[2]))),
         )
         a_new = sub(a_new, solve3(jacobian, g))
         iterations += 1

@@ -41,9 +41,8 @@ N_WORK = 0
 
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    q = read4(y, S.QUATERNION)
-    w_half = axpy(h, euler_rates(read3(y, S.OMEGA), inertia(p), body_moment(q, p, t)),
-                  read3(y, S.OMEGA))
+    q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
+    w_half = axpy(h, euler_rates(w, inertia(p), body_moment(q, w, p, t)), w)
     v_half = axpy(h / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY))
     write3(y, S.OMEGA, w_half)
     write3(y, S.VELOCITY, v_half)

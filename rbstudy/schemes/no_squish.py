@@ -24,7 +24,7 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.dynamics import body_moment, inertia, space_force, to_momentum, to_omega
+from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     axpy,
@@ -34,7 +34,6 @@ from rbstudy.numerics.rotation import (
     quat_times_axis,
     read3,
     read4,
-    scale,
     write3,
     write4,
 )
@@ -75,11 +74,13 @@ def axis_flow(q, momentum, inertia_, k, d):
 
 @jit
 def kick_inplace(y, p, momentum, t, d):
-    """Loads at time ``t`` for a time ``d``: ``P += 2 d q * (M_b, 0)``, ``v += d F / mass``;
-    returns P."""
+    """Loads at time ``t`` for a time ``d``: ``P += 2 q * (dm, 0)`` with ``dm`` the body
+    momentum's change (`rbstudy.numerics.dynamics.kick_momentum`: ``d M_b``),
+    ``v += d F / mass``; returns P."""
     q = read4(y, S.QUATERNION)
     write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
-    return axpy4(1.0, conjugate_momentum(q, scale(d, body_moment(q, p, t))), momentum)
+    w = to_omega(body_momentum(q, momentum), inertia(p))  # the spin now: y's is the step's start
+    return axpy4(1.0, conjugate_momentum(q, kick_momentum(q, w, p, t, d)), momentum)
 
 
 @jit

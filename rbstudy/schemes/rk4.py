@@ -40,7 +40,7 @@ def rates(q, v, w, p, t):
     and time ``t``."""
     dq = quat_mul(q, (0.5 * w[0], 0.5 * w[1], 0.5 * w[2], 0.0))
     dv = scale(1.0 / p[S.MASS], space_force(q, p, t))
-    dw = euler_rates(w, inertia(p), body_moment(q, p, t))
+    dw = euler_rates(w, inertia(p), body_moment(q, w, p, t))
     return v, dq, dv, dw
 
 

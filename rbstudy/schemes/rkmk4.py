@@ -54,7 +54,7 @@ def rates(q_start, v, u, m, p, t):
     q = quat_mul(q_start, quat_exp(u))
     w = to_omega(m, inertia(p))
     du = add(add(w, scale(0.5, cross(u, w))), scale(1.0 / 12.0, cross(u, cross(u, w))))
-    dm = momentum_rates(m, w, body_moment(q, p, t))
+    dm = momentum_rates(m, w, body_moment(q, w, p, t))
     dv = scale(1.0 / p[S.MASS], space_force(q, p, t))
     return v, dv, du, dm
 

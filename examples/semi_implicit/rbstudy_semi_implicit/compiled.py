@@ -14,7 +14,7 @@ def step_inplace(y, p, opt, t, h, work):
     w = R.read3(y, S.OMEGA)
     inertia = D.inertia(p)
     m = D.to_momentum(w, inertia)
-    rate = R.sub(D.body_moment(q, p, t), R.cross(w, m))
+    rate = R.sub(D.body_moment(q, w, p, t), R.cross(w, m))
     # I + h ([w]x I - [m]x): the derivative of h (w x I w) in w, added to I
     (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = R.skew_matmul(w, inertia)
     (d0, d1, d2), (e0, e1, e2), (f0, f1, f2) = R.skew_matmul(m, (1.0, 1.0, 1.0))
