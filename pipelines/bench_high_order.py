@@ -36,10 +36,14 @@ from extended_oracle import loaded_rotation  # noqa: E402
 # rad, final orientation errors
 TARGETS = (1e-8, 1e-10, 1e-12)
 BATCH = 16
-BODY = {"body": {"inertia": [1.0, 2.0, 3.0]},
-        "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                    "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}},
-        "duration": 100.0}
+BODY = {
+    "body": {"inertia": [1.0, 2.0, 3.0]},
+    "initial": {
+        "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+        "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+    },
+    "duration": 100.0,
+}
 MOMENTS = (0.15, 0.02)  # N m about the space y axis
 FREE = scene_from_mapping(BODY, source="bench")
 # (scheme, options, largest dt, halvings)
@@ -74,29 +78,37 @@ def cost_at(target, errors, seconds):
 def dop853_run(scene, reference):
     """(seconds, final orientation error against ``reference``) of DOP853 at 1e-13."""
     start = time.perf_counter()
-    run = dop853.integrate(scene.state_row(), scene.param_row(), np.array([0.0, scene.duration]),
-                           max_steps=10**7, halt=HALT_FLAG)
+    run = dop853.integrate(
+        scene.state_row(), scene.param_row(), np.array([0.0, scene.duration]), max_steps=10**7, halt=HALT_FLAG
+    )
     seconds = time.perf_counter() - start
     return seconds, orientation_error(run.samples[-1, STATE_FIELDS["quaternion"]], reference)
 
 
 def extended(scene, moment, step):
     """The extended-precision final orientation of ``scene`` under ``moment``."""
-    return loaded_rotation(scene.body.inertia, scene.quaternion, scene.omega_body,
-                           scene.duration, step, moment_space=(0.0, moment, 0.0))[0]
+    return loaded_rotation(
+        scene.body.inertia,
+        scene.quaternion,
+        scene.omega_body,
+        scene.duration,
+        step,
+        moment_space=(0.0, moment, 0.0),
+    )[0]
 
 
 def loaded_table(moment):
     """Print the errors and costs of every candidate under ``moment``, and the best at each
     target against rk4 and DOP853."""
-    scene = scene_from_mapping({**BODY, "loads": {"moment_space": [0.0, moment, 0.0]}},
-                               source="bench")
+    scene = scene_from_mapping({**BODY, "loads": {"moment_space": [0.0, moment, 0.0]}}, source="bench")
     reference = extended(scene, moment, 0.02)
     check = orientation_error(extended(scene, moment, 0.04), reference)
     dop853_seconds, dop853_error = dop853_run(scene, reference)
-    print(f"\nspace moment (0, {moment:g}, 0) N m, 100 s: reference in extended precision "
-          f"(macro step 0.02 s; 0.04 s differs by {check:.1e} rad); DOP853 (1e-13) is "
-          f"{dop853_error:.1e} rad off and takes {dop853_seconds * 1e3:.0f} ms a case")
+    print(
+        f"\nspace moment (0, {moment:g}, 0) N m, 100 s: reference in extended precision "
+        f"(macro step 0.02 s; 0.04 s differs by {check:.1e} rad); DOP853 (1e-13) is "
+        f"{dop853_error:.1e} rad off and takes {dop853_seconds * 1e3:.0f} ms a case"
+    )
     targets = (*TARGETS, dop853_error)
     header = "  ".join(f"at {target:.2g}" for target in targets)
     print(f"{'scheme':28s} {'errors over the halved dt (rad)':>60s}  cost a case {header}")
@@ -112,10 +124,11 @@ def loaded_table(moment):
         shown = []
         for target in targets:
             costs[target][name] = cost_at(target, errors, seconds)
-            shown.append("-" if costs[target][name] is None else
-                         f"{costs[target][name] * 1e3:.3f} ms")
-        print(f"{name:28s} {' '.join(f'{e:.1e}' for e in errors):>60s}  "
-              + "  ".join(f"{text:>12s}" for text in shown))
+            shown.append("-" if costs[target][name] is None else f"{costs[target][name] * 1e3:.3f} ms")
+        print(
+            f"{name:28s} {' '.join(f'{e:.1e}' for e in errors):>60s}  "
+            + "  ".join(f"{text:>12s}" for text in shown)
+        )
     for target in targets:
         reached = {name: cost for name, cost in costs[target].items() if cost is not None}
         if not reached:
@@ -124,9 +137,11 @@ def loaded_table(moment):
         best = min(reached, key=reached.get)
         rk4 = costs[target]["rk4"]
         versus_rk4 = f"{rk4 / reached[best]:.1f}x faster than rk4" if rk4 else "rk4 never reaches it"
-        print(f"at {target:.2g} rad: best {best}, {reached[best] * 1e3:.3f} ms a case: "
-              f"{versus_rk4}, {dop853_seconds / reached[best]:.0f}x faster than DOP853 (whose "
-              f"own error is {dop853_error:.1e} rad)")
+        print(
+            f"at {target:.2g} rad: best {best}, {reached[best] * 1e3:.3f} ms a case: "
+            f"{versus_rk4}, {dop853_seconds / reached[best]:.0f}x faster than DOP853 (whose "
+            f"own error is {dop853_error:.1e} rad)"
+        )
 
 
 def main():
@@ -140,9 +155,11 @@ def main():
     free_dop853, free_error = dop853_run(FREE, exact)
     # the reference is the same closed form, so the difference is zero or an ulp: the tests
     # measure exact_split against a 40-digit solution instead (tests/test_compositions.py)
-    print(f"free body, 100 s: exact_split in one step {one_step * 1e6:.1f} us a case, "
-          f"{orientation_error(q, exact):.1e} rad off the exact reference (the same closed "
-          f"form); DOP853 {free_dop853 * 1e3:.0f} ms, {free_error:.1e} rad off")
+    print(
+        f"free body, 100 s: exact_split in one step {one_step * 1e6:.1f} us a case, "
+        f"{orientation_error(q, exact):.1e} rad off the exact reference (the same closed "
+        f"form); DOP853 {free_dop853 * 1e3:.0f} ms, {free_error:.1e} rad off"
+    )
 
 
 if __name__ == "__main__":

@@ -20,15 +20,24 @@ from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.schemes import get_scheme
 
 SCHEMES = ("leapfrog", "rk4", "midpoint", "hht")
-FREE = {"body": {"inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}}}
+FREE = {
+    "body": {"inertia": [1.0, 1.0, 2.0]},
+    "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}},
+}
 # a small force, so that the top stays close to the free one over the run
-PUSHED = {**FREE, "nodes": {"a": [0.5, 0.2, 0.1]},
-          "loads": {"nodes": {"a": {"force_space": [0.0, 0.0, -1e-3]}}}}
+PUSHED = {
+    **FREE,
+    "nodes": {"a": [0.5, 0.2, 0.1]},
+    "loads": {"nodes": {"a": {"force_space": [0.0, 0.0, -1e-3]}}},
+}
 # the same force, ramped up over a table of 11 knots that spans the run
-TIMED = {**FREE, "nodes": {"a": [0.5, 0.2, 0.1]},
-         "loads": {"nodes": {"a": {"force_space": {"table": [[0.01 * k, 0.0, 0.0, -1e-4 * k]
-                                                             for k in range(11)]}}}}}
+TIMED = {
+    **FREE,
+    "nodes": {"a": [0.5, 0.2, 0.1]},
+    "loads": {
+        "nodes": {"a": {"force_space": {"table": [[0.01 * k, 0.0, 0.0, -1e-4 * k] for k in range(11)]}}}
+    },
+}
 DT = 1e-4
 RUNS = 3
 
@@ -40,8 +49,10 @@ def rates(scene, name, bodies, steps):
     params = np.repeat(scene.param_row()[None], bodies, axis=0)  # the same width each
     options = np.repeat(scheme.option_row(None)[None], bodies, axis=0)
     run_batch(scheme, state0[:1], params[:1], options[:1], DT, 1, 1)  # compile
-    return [bodies * steps / run_batch(scheme, state0, params, options, DT, steps,
-                                       steps).kernel_seconds for _ in range(RUNS)]
+    return [
+        bodies * steps / run_batch(scheme, state0, params, options, DT, steps, steps).kernel_seconds
+        for _ in range(RUNS)
+    ]
 
 
 def main():
@@ -50,8 +61,7 @@ def main():
     parser.add_argument("--bodies", type=int, default=10_000)
     parser.add_argument("--steps", type=int, default=1000)
     args = parser.parse_args()
-    scenes = ({"free top": FREE} if args.free_only
-              else {"free top": FREE, "pushed": PUSHED, "timed": TIMED})
+    scenes = {"free top": FREE} if args.free_only else {"free top": FREE, "pushed": PUSHED, "timed": TIMED}
     for label, spec in scenes.items():
         scene = scene_from_mapping(spec)
         for name in SCHEMES:

@@ -20,8 +20,12 @@ from rbstudy.physics.references import reference_solutions
 from rbstudy.physics.scenes import Body, Scene
 from rbstudy.schemes import dop853
 
-PLATE = Scene(body=Body(mass=1.0, inertia=(0.35, 0.65, 1.0)), quaternion=(0.0, 0.0, 0.0, 1.0),
-              omega_body=(0.6, 1.5, 0.9), duration=1000.0)
+PLATE = Scene(
+    body=Body(mass=1.0, inertia=(0.35, 0.65, 1.0)),
+    quaternion=(0.0, 0.0, 0.0, 1.0),
+    omega_body=(0.6, 1.5, 0.9),
+    duration=1000.0,
+)
 
 
 def _per_case(scenes, times):
@@ -37,14 +41,14 @@ def main():
         alone, exact = _per_case([PLATE], times)
         batched, _ = _per_case([PLATE] * 100, times)
         start = time.perf_counter()
-        run = dop853.integrate(PLATE.state_row(), PLATE.param_row(), times,
-                               max_steps=10**7, halt=HALT_FLAG)
+        run = dop853.integrate(PLATE.state_row(), PLATE.param_row(), times, max_steps=10**7, halt=HALT_FLAG)
         integrated = time.perf_counter() - start
-        drift = orientation_error(run.samples[-1, STATE_FIELDS["quaternion"]],
-                                  exact.quaternion[-1])
-        print(f"{duration:6.0f} s, {count} times: exact {alone * 1e3:.2f} ms a case alone, "
-              f"{batched * 1e3:.2f} ms in a batch of 100; DOP853 {integrated * 1e3:.0f} ms "
-              f"({integrated / alone:.0f}x), {drift:.1e} rad off the exact solution at the end")
+        drift = orientation_error(run.samples[-1, STATE_FIELDS["quaternion"]], exact.quaternion[-1])
+        print(
+            f"{duration:6.0f} s, {count} times: exact {alone * 1e3:.2f} ms a case alone, "
+            f"{batched * 1e3:.2f} ms in a batch of 100; DOP853 {integrated * 1e3:.0f} ms "
+            f"({integrated / alone:.0f}x), {drift:.1e} rad off the exact solution at the end"
+        )
 
 
 if __name__ == "__main__":

@@ -76,15 +76,19 @@ print(json.dumps(seconds))
 
 
 def ready(env):
-    done = subprocess.run([sys.executable, "-c", _READY], capture_output=True, text=True,
-                          env=env, check=True)
+    done = subprocess.run([sys.executable, "-c", _READY], capture_output=True, text=True, env=env, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def measure(config, env=None):
     with tempfile.TemporaryDirectory() as out:
-        done = subprocess.run([sys.executable, "-c", _CHILD, str(config), out],
-                              capture_output=True, text=True, env=env, check=False)
+        done = subprocess.run(
+            [sys.executable, "-c", _CHILD, str(config), out],
+            capture_output=True,
+            text=True,
+            env=env,
+            check=False,
+        )
     if done.returncode:
         sys.exit(f"{config}: the sweep failed:\n{done.stderr}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -103,11 +107,12 @@ def scaling_config(folder, cases, scheme="leapfrog", dt=0.001):
 def scale_config(folder, cases):
     """The default scene over 100 spins x ``cases``/100 tilts, 200 leapfrog steps a case."""
     study = yaml.safe_load(DEFAULT.read_text())
-    study.update(name=f"spin_tilt{cases}", run={"scheme": "leapfrog", "dt": 0.01},
-                 output={"interval": 0.2})
+    study.update(name=f"spin_tilt{cases}", run={"scheme": "leapfrog", "dt": 0.01}, output={"interval": 0.2})
     study["scene"]["duration"] = 2.0
-    study["sweep"] = {"spin": {"logspace": [1, 100, 100]},
-                      "tilt": {"linspace": [1, 60, max(1, cases // 100)]}}
+    study["sweep"] = {
+        "spin": {"logspace": [1, 100, 100]},
+        "tilt": {"linspace": [1, 60, max(1, cases // 100)]},
+    }
     path = pathlib.Path(folder) / f"spin_tilt{cases}.yaml"
     path.write_text(yaml.safe_dump(study))
     return path
@@ -116,15 +121,22 @@ def scale_config(folder, cases):
 def line(label, figures):
     cores = os.cpu_count() or 1
     outside = 1.0 - figures["kernel"] / (figures["wall"] * cores)
-    return (f"{label:28s} {figures['cases']:7d} {figures['wall']:9.2f} {figures['kernel']:11.3f} "
-            f"{100 * outside:8.1f}% {figures['rss'] / 2 ** 20:9.0f}")
+    return (
+        f"{label:28s} {figures['cases']:7d} {figures['wall']:9.2f} {figures['kernel']:11.3f} "
+        f"{100 * outside:8.1f}% {figures['rss'] / 2**20:9.0f}"
+    )
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
-    parser.add_argument("--scale", type=int, nargs="+", metavar="CASES",
-                        help="only the 200-step studies of these sizes (multiples of 100)")
+    parser.add_argument(
+        "--scale",
+        type=int,
+        nargs="+",
+        metavar="CASES",
+        help="only the 200-step studies of these sizes (multiples of 100)",
+    )
     args = parser.parse_args()
     if args.scale:
         scale(args.scale)
@@ -137,8 +149,7 @@ def main():
     for name in cold:
         print(f"{name:32s} {cold[name]:8.3f} {warm[name]:8.3f}")
     print(f"{'all':32s} {sum(cold.values()):8.2f} {sum(warm.values()):8.2f}")
-    print(f"{'study':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} {'outside':>9s} "
-          f"{'peak MiB':>9s}")
+    print(f"{'study':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} {'outside':>9s} {'peak MiB':>9s}")
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as configs:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         print(line("abaqus_top (numba cold)", measure(DEFAULT, env)), flush=True)
@@ -152,13 +163,18 @@ def main():
 
 
 def scale(sizes):
-    print(f"{'200 leapfrog steps a case':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} "
-          f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'lazy open s':>12s}")
+    print(
+        f"{'200 leapfrog steps a case':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} "
+        f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'lazy open s':>12s}"
+    )
     with tempfile.TemporaryDirectory() as configs:
         for cases in sizes:
             figures = measure(scale_config(configs, cases))
-            print(f"{line('spin x tilt', figures)} {figures['archive'] / 2 ** 20:12.1f} "
-                  f"{figures['lazy_open']:12.2f}", flush=True)
+            print(
+                f"{line('spin x tilt', figures)} {figures['archive'] / 2**20:12.1f} "
+                f"{figures['lazy_open']:12.2f}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

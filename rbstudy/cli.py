@@ -43,6 +43,7 @@ MAX_GOLDEN_STEPS = 8
 def _schemes(args):
     from rbstudy.analysis.summary import TERMINAL_WIDTH
     from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, unavailable_schemes
+
     if args.quiet:  # for scripts, as `docker ps -q` lists ids: `rbstudy bench $(...)`
         print("\n".join(SCHEMES))
         return 0
@@ -50,36 +51,58 @@ def _schemes(args):
     width = max(map(len, [*SCHEMES, *missing]))
     # the summaries wrap within the terminal, under their column (at least 30 wide)
     column = width + 1 + 7 + 1 + 9 + 1 + 16 + 1  # " {order:>7} {kind:9} {keeps:16} "
-    text = functools.partial(textwrap.fill, width=max(TERMINAL_WIDTH, column + 30),
-                             subsequent_indent=" " * column, break_on_hyphens=False)
+    text = functools.partial(
+        textwrap.fill,
+        width=max(TERMINAL_WIDTH, column + 30),
+        subsequent_indent=" " * column,
+        break_on_hyphens=False,
+    )
     print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
         kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
         keeps = ", ".join(INVARIANTS[name] for name in scheme.keeps) or "-"
         options = ", ".join(f"{o.name}={o.default}" for o in scheme.options)
         # a composition's orders: "2,4,6,8"
-        orders = next((",".join(map(str, COMPOSITION_ORDERS)) for o in scheme.options
-                       if o.sets_order), str(scheme.order))
+        orders = next(
+            (",".join(map(str, COMPOSITION_ORDERS)) for o in scheme.options if o.sets_order),
+            str(scheme.order),
+        )
         # "rbstudy's adapter of mujoco 4.0.0" (`rbstudy.engines`), or a plug-in's package
-        origin = ("" if scheme.origin == "rbstudy" else f" ({scheme.origin})"
-                  if scheme.origin.startswith("rbstudy's ") else f" (plug-in: {scheme.origin})")
-        print(text(scheme.summary + (f" [{options}]" if options else "") + origin,
-                   initial_indent=f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} "))
+        origin = (
+            ""
+            if scheme.origin == "rbstudy"
+            else f" ({scheme.origin})"
+            if scheme.origin.startswith("rbstudy's ")
+            else f" (plug-in: {scheme.origin})"
+        )
+        print(
+            text(
+                scheme.summary + (f" [{options}]" if options else "") + origin,
+                initial_indent=f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} ",
+            )
+        )
     for name, why in missing.items():
-        print(text(f"{why.reason}; fix: {why.fix} ({why.origin})",
-                   initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':26s} "))
+        print(
+            text(
+                f"{why.reason}; fix: {why.fix} ({why.origin})",
+                initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':26s} ",
+            )
+        )
     return 0
 
 
 def _bench(args):
     from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
     from rbstudy.schemes import expand_groups
+
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
-        raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got "
-                           f"{args.body_steps:.3g}")
+        raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got {args.body_steps:.3g}")
     # groups as conformance takes them: `bench builtin`, `bench --schemes mujoco,rk4`
-    run_bench(schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
-              body_steps=args.body_steps or BODY_STEPS, progress=not args.quiet)
+    run_bench(
+        schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
+        body_steps=args.body_steps or BODY_STEPS,
+        progress=not args.quiet,
+    )
     return 0
 
 
@@ -94,10 +117,11 @@ def _costed(study, args, disk):
         estimate,
         forecast_disk,
     )
+
     if not args.max_body_steps > 0 or (args.max_memory is not None and not args.max_memory > 0):
         raise RbstudyError("--max-body-steps and --max-memory take a number above 0")
     cost = estimate(study)
-    max_memory = None if args.max_memory is None else args.max_memory * 2 ** 20
+    max_memory = None if args.max_memory is None else args.max_memory * 2**20
     check_limits(study, cost, args.max_body_steps, max_memory)
     if disk:
         check_disk(study, forecast_disk(study, args.out), args.out)
@@ -115,6 +139,7 @@ def _check_out(folder, given=True):
     read-only or immutable folder) in one line, before a command prints or computes anything;
     ``given``: the folder is the user's --out (else a command's default folder)."""
     from rbstudy.pipeline.store import check_output_folder
+
     check_output_folder(folder, "--out " if given else "")
 
 
@@ -125,6 +150,7 @@ def _study_folders(studies, args):
     one line naming the folder). A folder that cannot be written is refused at once under
     --force, and where it holds no archive."""
     from rbstudy.pipeline.store import UnwritableFolder
+
     root = pathlib.Path(args.out)
     try:
         _check_out(root)
@@ -150,6 +176,7 @@ def _styles_of(dataset):
     here: the analysis layer, which draws them, never loads the schemes (nor numba)."""
     from rbstudy.analysis.summary import schemes_of
     from rbstudy.schemes import scheme_styles
+
     return scheme_styles(schemes_of(dataset))
 
 
@@ -157,8 +184,8 @@ def _say(text):
     """Print ``text`` with each line within the summary table's width, the lines that
     continue one indented (`rbstudy.analysis.summary.wrap_clauses`)."""
     from rbstudy.analysis.summary import wrap_clauses
-    print("\n".join(short for line in text.splitlines()
-                     for short in wrap_clauses(line, indent="  ")))
+
+    print("\n".join(short for line in text.splitlines() for short in wrap_clauses(line, indent="  ")))
 
 
 def _each_file(paths, say):
@@ -183,6 +210,7 @@ def _validate(args):
         study = load_study(path, args.set)
         line = _costed(study, args, disk=True)  # the limits are checked even when quiet
         return "\n".join(_warning_lines(study)) if args.quiet else f"{path}: ok: {line}"
+
     return _each_file(args.files, checked)
 
 
@@ -190,15 +218,16 @@ def _sweep(args):
     if args.workers is not None and args.workers < 1:
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     if not args.worker_wait > 0:
-        raise RbstudyError(f"--worker-wait: need a number of seconds above 0, got "
-                           f"{args.worker_wait}")
+        raise RbstudyError(f"--worker-wait: need a number of seconds above 0, got {args.worker_wait}")
     cluster = None
     if args.cluster:
         from rbstudy.pipeline.cluster import read_cluster_file
+
         cluster = read_cluster_file(args.cluster)
     if not args.scheduler and (args.workers or (cluster and cluster.kind == "local")):
         # the local workers' forkserver imports rbstudy while this process reads the studies
         from rbstudy.pipeline.cluster import start_forkserver
+
         start_forkserver()
     from rbstudy.analysis.findings import FINDINGS_VARIABLES
     from rbstudy.pipeline.archive import open_archive
@@ -206,17 +235,26 @@ def _sweep(args):
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study, study_progress
     from rbstudy.pipeline.store import folder_claim
+
     # all configs checked before any run, each with every --set
     studies = [load_study(path, args.set) for path in args.files]
     names = [study.name for study in studies]
     for study in studies:
         if names.count(study.name) > 1:
-            raise ConfigError(f"{study.name!r} is also the name of another config of this "
-                              "command", "study names pick the results folder: rename one",
-                              source=study.path, key="name")
+            raise ConfigError(
+                f"{study.name!r} is also the name of another config of this command",
+                "study names pick the results folder: rename one",
+                source=study.path,
+                key="name",
+            )
     read_only = _study_folders(studies, args)
-    where = Where(scheduler=args.scheduler, workers=args.workers, cluster=cluster,
-                  writer=args.writer, worker_wait=args.worker_wait)
+    where = Where(
+        scheduler=args.scheduler,
+        workers=args.workers,
+        cluster=cluster,
+        writer=args.writer,
+        worker_wait=args.worker_wait,
+    )
     # a folder of another config of the same name is refused before any study runs
     replaces = [folder_claim(args.out, study, args.force) for study in studies]
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
@@ -226,27 +264,31 @@ def _sweep(args):
         if replaced:  # even when quiet: it says whose results the run deletes
             _say(replaced)
         with study_progress(study, args.quiet) as progress:
-            done = run_study(study, args.out, where=where, force=args.force,
-                             keep_parts=args.keep_parts, progress=progress)
+            done = run_study(
+                study, args.out, where=where, force=args.force, keep_parts=args.keep_parts, progress=progress
+            )
             progress.phase(f"{study.name}: reading its findings")
             # proven by this run: sealed as written, or verified before it was reused
-            summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False),
-                                    wide=args.wide)
+            summary = _summary_text(open_archive(done.path, FINDINGS_VARIABLES, verify=False), wide=args.wide)
         if done.archive_problems:
-            _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); "
-                 "rebuilt it")
+            _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); rebuilt it")
         if done.damaged_parts:
-            _say(f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
-                 "match their checksums) recomputed")
+            _say(
+                f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
+                "match their checksums) recomputed"
+            )
         if done.up_to_date:
-            _say(f"{study.name}: {done.path} is up to date (the same config and code); "
-                 "--force recomputes it")
+            _say(f"{study.name}: {done.path} is up to date (the same config and code); --force recomputes it")
         else:
-            _say(f"{study.name}: {done.computed} batches run, {done.reused} reused, "
-                 f"{done.wall_seconds:.1f} s; wrote {done.path}")
+            _say(
+                f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+                f"{done.wall_seconds:.1f} s; wrote {done.path}"
+            )
         if done.returned:
-            _say(f"{study.name}: {done.returned} parts written here from the values the "
-                 "workers sent back (they do not see the results folder)")
+            _say(
+                f"{study.name}: {done.returned} parts written here from the values the "
+                "workers sent back (they do not see the results folder)"
+            )
         print(summary)
     return 0
 
@@ -256,6 +298,7 @@ def _summary_text(dataset, wide=False, table_only=False):
     ``wide``)."""
     from rbstudy.analysis.findings import finding_lines, findings
     from rbstudy.analysis.summary import format_table, scheme_rows
+
     rows = scheme_rows(dataset)
     table = format_table(rows, wide=wide)
     return table if table_only else "\n".join(finding_lines(findings(dataset, rows)) + ["", table])
@@ -267,23 +310,33 @@ def _summary(args):
 
     from rbstudy.analysis.findings import csv_rows, markdown_summary, summary_document
     from rbstudy.pipeline.archive import open_archive
+
     datasets = [open_archive(path, verify=not args.no_verify) for path in args.files]  # all
     if args.format == "json":  # checked before anything is printed
         documents = [summary_document(dataset) for dataset in datasets]
-        print(json.dumps(documents[0] if len(documents) == 1 else documents, indent=1,
-                         allow_nan=False))
+        print(json.dumps(documents[0] if len(documents) == 1 else documents, indent=1, allow_nan=False))
     elif args.format == "csv":
         rows = [row for dataset in datasets for row in csv_rows(dataset)]
         writer = csv.DictWriter(sys.stdout, fieldnames=list(rows[0]), lineterminator="\n")
         writer.writeheader()
         writer.writerows(rows)
     else:
+
         def render(dataset):
-            return (markdown_summary(dataset) if args.format == "md"
-                    else _summary_text(dataset, wide=args.wide, table_only=args.quiet))
-        print("\n\n".join(render(dataset) if len(datasets) == 1 or args.format == "md"
-                           else f"== {path}\n{render(dataset)}"
-                           for path, dataset in zip(args.files, datasets, strict=True)))
+            return (
+                markdown_summary(dataset)
+                if args.format == "md"
+                else _summary_text(dataset, wide=args.wide, table_only=args.quiet)
+            )
+
+        print(
+            "\n\n".join(
+                render(dataset)
+                if len(datasets) == 1 or args.format == "md"
+                else f"== {path}\n{render(dataset)}"
+                for path, dataset in zip(args.files, datasets, strict=True)
+            )
+        )
     return 0
 
 
@@ -292,11 +345,15 @@ def _plot(args):
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
+
     if args.select and not args.out:
-        raise RbstudyError("--select needs --out: the selected figures would replace the "
-                           "study's full set beside the archive")
-    folders = {path: pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
-               for path in args.files}
+        raise RbstudyError(
+            "--select needs --out: the selected figures would replace the study's full set beside the archive"
+        )
+    folders = {
+        path: pathlib.Path(args.out) if args.out else pathlib.Path(path).parent / "figures"
+        for path in args.files
+    }
     for folder in dict.fromkeys(folders.values()):
         _check_out(folder, given=bool(args.out))
     opened = functools.partial(open_archive, verify=not args.no_verify)
@@ -304,17 +361,27 @@ def _plot(args):
         studies, opened = _studies(args.files, args, args.select)
         for path, study in zip(args.files, studies, strict=True):
             if args.out and studies.count(study) > 1:
-                raise InputError(f"another file of this command is also study {study!r}: "
-                                 "their figures would overwrite each other in --out",
-                                 "plot them one at a time, each with its own --out", path)
+                raise InputError(
+                    f"another file of this command is also study {study!r}: "
+                    "their figures would overwrite each other in --out",
+                    "plot them one at a time, each with its own --out",
+                    path,
+                )
     formats = tuple(dict.fromkeys(args.format or ("png",)))  # `--format png,svg,png`: once
     for path in args.files:
         folder = folders[path]
-        with Progress(path, f"drawing its figures into {folder}", quiet=args.quiet,
-                      opening="reading") as progress:
+        with Progress(
+            path, f"drawing its figures into {folder}", quiet=args.quiet, opening="reading"
+        ) as progress:
             dataset = _select(opened(path), args.select, path)
-            figures = all_figures(dataset, folder, formats, processes=default_threads(),
-                                  progress=progress, styles=_styles_of(dataset))
+            figures = all_figures(
+                dataset,
+                folder,
+                formats,
+                processes=default_threads(),
+                progress=progress,
+                styles=_styles_of(dataset),
+            )
         kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
         if not args.quiet:
@@ -329,8 +396,11 @@ def _studies(paths, args, select=None):
     that a bad choice fails first), and how to open each in full then (not verified again)."""
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.variables import BOOKKEEPING
-    studies = [str(_select(open_archive(path, BOOKKEEPING, verify=not args.no_verify), select,
-                           path).attrs["study"]) for path in paths]
+
+    studies = [
+        str(_select(open_archive(path, BOOKKEEPING, verify=not args.no_verify), select, path).attrs["study"])
+        for path in paths
+    ]
     return studies, functools.partial(open_archive, verify=False)
 
 
@@ -339,16 +409,21 @@ def _conformance(args):
 
     from rbstudy.pipeline.golden import GOLDEN
     from rbstudy.schemes import expand_groups, get_scheme
+
     started = time.perf_counter()
     _check_out(args.out)
     known = {case.name: case for case in GOLDEN}
     unknown = [name for name in args.cases or () if name not in known]
     if unknown:
-        raise RbstudyError(f"--cases: no golden case {unknown[0]!r}"
-                           f"{did_you_mean(unknown[0], known)}; the cases: {', '.join(known)}")
+        raise RbstudyError(
+            f"--cases: no golden case {unknown[0]!r}"
+            f"{did_you_mean(unknown[0], known)}; the cases: {', '.join(known)}"
+        )
     if not 3 <= args.steps <= MAX_GOLDEN_STEPS:
-        raise RbstudyError(f"--steps: give 3 to {MAX_GOLDEN_STEPS} time steps (an order needs "
-                           f"3; each more doubles the work), got {args.steps}")
+        raise RbstudyError(
+            f"--steps: give 3 to {MAX_GOLDEN_STEPS} time steps (an order needs "
+            f"3; each more doubles the work), got {args.steps}"
+        )
     for option, given in (("--cases", args.cases), ("--schemes", args.schemes)):
         twice = [name for name in given or () if given.count(name) > 1]
         if twice:
@@ -356,8 +431,9 @@ def _conformance(args):
     schemes = expand_groups(args.schemes or ["builtin", "engines"])
     for name in schemes:
         if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
-            raise RbstudyError(f"--schemes: {name} chooses its own steps: it has no order "
-                               "in dt to judge; leave it out")
+            raise RbstudyError(
+                f"--schemes: {name} chooses its own steps: it has no order in dt to judge; leave it out"
+            )
     cases = [known[name] for name in args.cases] if args.cases else list(GOLDEN)
     from rbstudy.analysis.conformance import (
         format_scorecard,
@@ -371,11 +447,13 @@ def _conformance(args):
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
     from rbstudy.pipeline.progress import Progress
     from rbstudy.pipeline.store import source_text, write_dataset_atomic, write_text_atomic
+
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells, failed = {}, {}
-    with Progress("conformance", f"{len(schemes)} schemes x {len(cases)} golden cases",
-                  quiet=args.quiet) as progress:
+    with Progress(
+        "conformance", f"{len(schemes)} schemes x {len(cases)} golden cases", quiet=args.quiet
+    ) as progress:
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
         for case, archive in zip(cases, archives, strict=True):
@@ -387,24 +465,35 @@ def _conformance(args):
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     fixed = "".join(f" ({case.name}: {case.steps})" for case in cases if case.steps)
-    header = [f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps"
-              f"{fixed}; "
-              f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
-              "archives it finds)", f"studies and archives: {out}",
-              "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "
-              f"{', '.join(baseline(schemes))}"]
+    header = [
+        f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps"
+        f"{fixed}; "
+        f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
+        "archives it finds)",
+        f"studies and archives: {out}",
+        "the failure rule's baseline (rbstudy's own schemes of these orders, swept too): "
+        f"{', '.join(baseline(schemes))}",
+    ]
     figures = {case.name: case.figure for case in cases if case.figure is not None}
     if figures:
-        header.append(f"figure yes/no: the scheme reproduces what the source of "
-                      f"{', '.join(figures)} asserts (docs/results.md)")
+        header.append(
+            f"figure yes/no: the scheme reproduces what the source of "
+            f"{', '.join(figures)} asserts (docs/results.md)"
+        )
     header += status_lines(failed)
     print(format_scorecard(cells, names))
     _say("\n".join(header))
-    attrs = {"title": "rbstudy conformance scorecard", "wall_seconds": seconds,
-             "steps": args.steps, "source": source_text(_version())}
+    attrs = {
+        "title": "rbstudy conformance scorecard",
+        "wall_seconds": seconds,
+        "steps": args.steps,
+        "source": source_text(_version()),
+    }
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
-    write_text_atomic(scorecard_html(cells, names, {case.name: case.title for case in cases},
-                                     header, figures), out / "conformance.html")
+    write_text_atomic(
+        scorecard_html(cells, names, {case.name: case.title for case in cases}, header, figures),
+        out / "conformance.html",
+    )
     _say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
     return 0
 
@@ -415,19 +504,29 @@ def _select(dataset, choices, path):
         dim, _, text = choice.partition("=")
         swept = list(dataset["status"].dims)
         if dim not in swept:
-            raise InputError(f"{dim!r} is not a swept dimension here",
-                             f"use one of {', '.join(swept) or 'none'}", path, f"--select {choice}")
+            raise InputError(
+                f"{dim!r} is not a swept dimension here",
+                f"use one of {', '.join(swept) or 'none'}",
+                path,
+                f"--select {choice}",
+            )
         coordinate = dataset[dim].values
         try:
             value = text if coordinate.dtype.kind in "OUS" else float(text)
         except ValueError:
             raise InputError(f"{dim} takes a number", None, path, f"--select {choice}") from None
-        match = [v for v in coordinate if v == value or (
-            coordinate.dtype.kind == "f" and abs(v - value) <= _SELECT_RTOL * abs(value))]
+        match = [
+            v
+            for v in coordinate
+            if v == value or (coordinate.dtype.kind == "f" and abs(v - value) <= _SELECT_RTOL * abs(value))
+        ]
         if not match:
-            raise InputError(f"no {dim} = {text}",
-                             "the values are " + ", ".join(str(v) for v in coordinate), path,
-                             f"--select {choice}")
+            raise InputError(
+                f"no {dim} = {text}",
+                "the values are " + ", ".join(str(v) for v in coordinate),
+                path,
+                f"--select {choice}",
+            )
         dataset = dataset.sel({dim: match})
     return dataset
 
@@ -438,6 +537,7 @@ def _verify(args):
     def proven(path):
         said = verify_file(path)
         return "" if args.quiet else f"{path}: {said}"
+
     return _each_file(args.files, proven)
 
 
@@ -446,6 +546,7 @@ def _report(args):
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
+
     opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) == 1:  # -o names the report folder itself, as cp's target names a copy
         folders = [pathlib.Path(args.out or pathlib.Path(args.files[0]).parent / "report")]
@@ -455,11 +556,18 @@ def _report(args):
     for folder in dict.fromkeys(folders):
         _check_out(folder, given=bool(args.out))
     for path, folder in zip(args.files, folders, strict=True):
-        with Progress(path, f"writing its report into {folder}", quiet=args.quiet,
-                      opening="reading") as progress:
+        with Progress(
+            path, f"writing its report into {folder}", quiet=args.quiet, opening="reading"
+        ) as progress:
             dataset = opened(path)
-            report = write_report(dataset, folder, processes=default_threads(), svg=args.svg,
-                                  progress=progress, styles=_styles_of(dataset))
+            report = write_report(
+                dataset,
+                folder,
+                processes=default_threads(),
+                svg=args.svg,
+                progress=progress,
+                styles=_styles_of(dataset),
+            )
         print(f"{path}: report in {report}")
     return 0
 
@@ -467,18 +575,26 @@ def _report(args):
 def _report_folders(paths, studies, out):
     """The report folder of each archive of several: ``out/<study>``, or else ``report/``
     beside each archive; two archives that would share one are refused."""
-    folders = [pathlib.Path(out, study) if out else pathlib.Path(path).parent / "report"
-               for path, study in zip(paths, studies, strict=True)]
+    folders = [
+        pathlib.Path(out, study) if out else pathlib.Path(path).parent / "report"
+        for path, study in zip(paths, studies, strict=True)
+    ]
     places = [folder.resolve() for folder in folders]
     for path, study, place in zip(paths, studies, places, strict=True):
         if places.count(place) > 1 and out:
-            raise InputError(f"another file of this command is also study {study!r}: their "
-                             f"reports would overwrite each other in {out}",
-                             "report them one at a time, each with its own -o", path)
+            raise InputError(
+                f"another file of this command is also study {study!r}: their "
+                f"reports would overwrite each other in {out}",
+                "report them one at a time, each with its own -o",
+                path,
+            )
         if places.count(place) > 1:
-            raise InputError("another file of this command lies in the same folder: their "
-                             f"reports would both go to {place}",
-                             "give -o DIR (a folder per study inside it)", path)
+            raise InputError(
+                "another file of this command lies in the same folder: their "
+                f"reports would both go to {place}",
+                "give -o DIR (a folder per study inside it)",
+                path,
+            )
     return folders
 
 
@@ -494,11 +610,15 @@ class _Parser(argparse.ArgumentParser):
         usage and options (argparse itself shows the top-level usage)."""
         parsed, unknown = self.parse_known_args(args, namespace)
         if unknown:
-            verbs = {name: sub for action in self._actions
-                     if isinstance(action, argparse._SubParsersAction)
-                     for name, sub in action.choices.items()}
+            verbs = {
+                name: sub
+                for action in self._actions
+                if isinstance(action, argparse._SubParsersAction)
+                for name, sub in action.choices.items()
+            }
             verbs.get(getattr(parsed, "command", None), self).error(
-                f"unrecognized arguments: {' '.join(unknown)}")
+                f"unrecognized arguments: {' '.join(unknown)}"
+            )
         return parsed
 
 
@@ -509,9 +629,12 @@ def _meant(parser, message):
         return did_you_mean(choice[1], re.findall(r"'([^']*)'", choice[2]))
     if not message.startswith("unrecognized arguments: "):
         return ""
-    parsers = [parser] + [sub for action in parser._actions  # the verbs' parsers too
-                          if isinstance(action, argparse._SubParsersAction)
-                          for sub in action.choices.values()]
+    parsers = [parser] + [
+        sub
+        for action in parser._actions  # the verbs' parsers too
+        if isinstance(action, argparse._SubParsersAction)
+        for sub in action.choices.values()
+    ]
     options = {option for each in parsers for option in each._option_string_actions}
     for word in message.split(": ", 1)[1].split():
         option = word.partition("=")[0]  # --wokers=2
@@ -521,126 +644,210 @@ def _meant(parser, message):
 
 
 def build_parser():
-    parser = _Parser(
-        prog="rbstudy", description="Parameter studies of rigid-body rotation integrators.")
+    parser = _Parser(prog="rbstudy", description="Parameter studies of rigid-body rotation integrators.")
     parser.add_argument("--version", action="version", version=f"rbstudy {_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
     sweep = commands.add_parser("sweep", help="run study configs and archive the results")
     sweep.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
-    sweep.add_argument("-o", "--out", metavar="DIR", default="results",
-                       help="results root (default: results/)")
+    sweep.add_argument(
+        "-o", "--out", metavar="DIR", default="results", help="results root (default: results/)"
+    )
     where = sweep.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run on a running dask.distributed scheduler (tcp://host:8786)")
-    where.add_argument("--workers", type=_whole_number, metavar="N",
-                       help="start a local dask.distributed cluster of N worker processes")
-    where.add_argument("--cluster", metavar="FILE",
-                       help="start the cluster a cluster file describes (local, SLURM or PBS; "
-                            "docs/cluster.md)")
+    where.add_argument(
+        "--scheduler", metavar="ADDRESS", help="run on a running dask.distributed scheduler (tcp://host:8786)"
+    )
+    where.add_argument(
+        "--workers",
+        type=_whole_number,
+        metavar="N",
+        help="start a local dask.distributed cluster of N worker processes",
+    )
+    where.add_argument(
+        "--cluster",
+        metavar="FILE",
+        help="start the cluster a cluster file describes (local, SLURM or PBS; docs/cluster.md)",
+    )
     # choices and default named here so that parsing loads no dask (rbstudy.pipeline.cluster)
-    sweep.add_argument("--writer", choices=("auto", "workers", "client"), default="auto",
-                       help="on a cluster, who writes the part files: the workers, this "
-                            "process (from values the workers send back), or auto (the "
-                            "workers where they see the results folder; the default)")
-    sweep.add_argument("--worker-wait", type=float, default=600.0, metavar="SECONDS",
-                       help="end the run when a cluster has had no worker this long (default "
-                            "600: batch jobs may queue)")
-    sweep.add_argument("--force", action="store_true",
-                       help="recompute every batch, even those already stored")
-    sweep.add_argument("--keep-parts", action="store_true",
-                       help="keep parts/ after the archive is written (a changed config then "
-                            "reuses the batches it shares)")
-    sweep.add_argument("-q", "--quiet", action="store_true",
-                       help="no progress bar or forecast line (the findings and the table stay)")
-    sweep.add_argument("--wide", action="store_true",
-                       help="print every column of the summary table (default: the columns "
-                            "that fit 100 characters)")
+    sweep.add_argument(
+        "--writer",
+        choices=("auto", "workers", "client"),
+        default="auto",
+        help="on a cluster, who writes the part files: the workers, this "
+        "process (from values the workers send back), or auto (the "
+        "workers where they see the results folder; the default)",
+    )
+    sweep.add_argument(
+        "--worker-wait",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="end the run when a cluster has had no worker this long (default 600: batch jobs may queue)",
+    )
+    sweep.add_argument(
+        "--force", action="store_true", help="recompute every batch, even those already stored"
+    )
+    sweep.add_argument(
+        "--keep-parts",
+        action="store_true",
+        help="keep parts/ after the archive is written (a changed config then reuses the batches it shares)",
+    )
+    sweep.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bar or forecast line (the findings and the table stay)",
+    )
+    sweep.add_argument(
+        "--wide",
+        action="store_true",
+        help="print every column of the summary table (default: the columns that fit 100 characters)",
+    )
     _limit_arguments(sweep)
     _set_argument(sweep)
     sweep.set_defaults(run=_sweep)
-    validate = commands.add_parser("validate", help="check study configs and forecast their "
-                                                    "cost without running")
+    validate = commands.add_parser(
+        "validate", help="check study configs and forecast their cost without running"
+    )
     validate.add_argument("files", nargs="+", metavar="FILE", help="study YAML files")
-    validate.add_argument("-o", "--out", metavar="DIR", default="results",
-                          help="results root the sweep would write (its free space is checked)")
-    validate.add_argument("-q", "--quiet", action="store_true",
-                          help="no 'ok' line and forecast: only warnings and errors (the exit "
-                               "status tells)")
+    validate.add_argument(
+        "-o",
+        "--out",
+        metavar="DIR",
+        default="results",
+        help="results root the sweep would write (its free space is checked)",
+    )
+    validate.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no 'ok' line and forecast: only warnings and errors (the exit status tells)",
+    )
     _limit_arguments(validate)
     _set_argument(validate)
     validate.set_defaults(run=_validate)
     schemes = commands.add_parser("schemes", help="list the registered schemes")
-    schemes.add_argument("-q", "--quiet", action="store_true",
-                         help="the names alone, one a line (for scripts)")
+    schemes.add_argument(
+        "-q", "--quiet", action="store_true", help="the names alone, one a line (for scripts)"
+    )
     schemes.set_defaults(run=_schemes)
     plot = commands.add_parser("plot", help="draw the figures of results files")
     plot.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    plot.add_argument("-o", "--out", metavar="DIR",
-                      help="figure folder (default: figures/ beside each file)")
-    plot.add_argument("--select", action="append", metavar="DIM=VALUE",
-                      help="only these cases, e.g. --select inertia_ratio=2 --select dt=0.01 "
-                           "(repeatable)")
+    plot.add_argument("-o", "--out", metavar="DIR", help="figure folder (default: figures/ beside each file)")
+    plot.add_argument(
+        "--select",
+        action="append",
+        metavar="DIM=VALUE",
+        help="only these cases, e.g. --select inertia_ratio=2 --select dt=0.01 (repeatable)",
+    )
     # the formats of rbstudy.analysis.plots, named here so that parsing loads no matplotlib
-    _list_argument(plot, "--format", choices=("png", "svg"), metavar="FORMAT",
-                   help="file formats: png, svg (default: png; an SVG takes as long again)")
-    plot.add_argument("-q", "--quiet", action="store_true",
-                      help="no progress and no note of the figures not drawn: a line per file")
+    _list_argument(
+        plot,
+        "--format",
+        choices=("png", "svg"),
+        metavar="FORMAT",
+        help="file formats: png, svg (default: png; an SVG takes as long again)",
+    )
+    plot.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress and no note of the figures not drawn: a line per file",
+    )
     _no_verify_argument(plot)
     plot.set_defaults(run=_plot)
     report = commands.add_parser("report", help="write an HTML report of each results file")
     report.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    report.add_argument("-o", "--out", metavar="DIR",
-                        help="report folder (default: report/ beside each file); with several "
-                             "files, a folder per study inside it")
-    report.add_argument("--svg", action="store_true",
-                        help="also write each figure as SVG in the report's figures/ folder and "
-                             "link it (the report itself embeds the PNGs either way)")
+    report.add_argument(
+        "-o",
+        "--out",
+        metavar="DIR",
+        help="report folder (default: report/ beside each file); with several "
+        "files, a folder per study inside it",
+    )
+    report.add_argument(
+        "--svg",
+        action="store_true",
+        help="also write each figure as SVG in the report's figures/ folder and "
+        "link it (the report itself embeds the PNGs either way)",
+    )
     report.add_argument("-q", "--quiet", action="store_true", help="no progress")
     _no_verify_argument(report)
     report.set_defaults(run=_report)
-    summary = commands.add_parser("summary", help="print the findings and the per-scheme "
-                                                  "table of results files (no rerun)")
+    summary = commands.add_parser(
+        "summary", help="print the findings and the per-scheme table of results files (no rerun)"
+    )
     summary.add_argument("files", nargs="+", metavar="RESULTS.nc", help="results of rbstudy sweep")
-    summary.add_argument("--format", choices=("text", "md", "csv", "json"), default="text",
-                         help="text (default), Markdown, CSV (the table) or JSON (everything, "
-                              "for scripts: docs/outputs.md)")
-    summary.add_argument("--wide", action="store_true",
-                         help="every column of the table in the text form (default: those "
-                              "that fit 100 columns)")
-    summary.add_argument("-q", "--quiet", action="store_true",
-                         help="the table without the findings (text form; the others are "
-                              "unchanged)")
+    summary.add_argument(
+        "--format",
+        choices=("text", "md", "csv", "json"),
+        default="text",
+        help="text (default), Markdown, CSV (the table) or JSON (everything, for scripts: docs/outputs.md)",
+    )
+    summary.add_argument(
+        "--wide",
+        action="store_true",
+        help="every column of the table in the text form (default: those that fit 100 columns)",
+    )
+    summary.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="the table without the findings (text form; the others are unchanged)",
+    )
     _no_verify_argument(summary)
     summary.set_defaults(run=_summary)
     verify = commands.add_parser("verify", help="prove results files intact by their checksums")
-    verify.add_argument("files", nargs="+", metavar="RESULTS.nc",
-                        help="archives (or part files) written by rbstudy sweep")
-    verify.add_argument("-q", "--quiet", action="store_true",
-                        help="no line for an intact file: only the damaged (the exit status "
-                             "tells)")
+    verify.add_argument(
+        "files", nargs="+", metavar="RESULTS.nc", help="archives (or part files) written by rbstudy sweep"
+    )
+    verify.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no line for an intact file: only the damaged (the exit status tells)",
+    )
     verify.set_defaults(run=_verify)
     bench = commands.add_parser("bench", help="print body-steps per second per scheme")
-    bench.add_argument("scheme_names", nargs="*", metavar="SCHEME",
-                       help="schemes to measure, as --schemes takes them (default: all)")
+    bench.add_argument(
+        "scheme_names",
+        nargs="*",
+        metavar="SCHEME",
+        help="schemes to measure, as --schemes takes them (default: all)",
+    )
     _list_argument(bench, "--schemes", metavar="SCHEME", help="schemes to measure")
-    bench.add_argument("--body-steps", type=_whole_number, metavar="N",
-                       help="body-steps per figure (default 1e7, at most 1e9; fewer for a "
-                            "quick look)")
+    bench.add_argument(
+        "--body-steps",
+        type=_whole_number,
+        metavar="N",
+        help="body-steps per figure (default 1e7, at most 1e9; fewer for a quick look)",
+    )
     bench.add_argument("-q", "--quiet", action="store_true", help="no progress")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
-        "conformance", help="judge schemes on the golden set: a pass/fail scorecard")
-    _list_argument(conformance, "--schemes", metavar="SCHEME",
-                   help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), "
-                        "engines, or one engine (mujoco, drake, ...); default: builtin,engines")
-    _list_argument(conformance, "--cases", metavar="CASE",
-                   help="golden cases to run (default: all)")
-    conformance.add_argument("--steps", type=_whole_number, default=4, metavar="N",
-                             help="time steps per case, each half the one before (default "
-                                  "4; at least 3)")
-    conformance.add_argument("-o", "--out", metavar="DIR", default="conformance",
-                             help="folder of the golden studies, their archives and the "
-                                  "scorecard (default: conformance/)")
+        "conformance", help="judge schemes on the golden set: a pass/fail scorecard"
+    )
+    _list_argument(
+        conformance,
+        "--schemes",
+        metavar="SCHEME",
+        help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), "
+        "engines, or one engine (mujoco, drake, ...); default: builtin,engines",
+    )
+    _list_argument(conformance, "--cases", metavar="CASE", help="golden cases to run (default: all)")
+    conformance.add_argument(
+        "--steps",
+        type=_whole_number,
+        default=4,
+        metavar="N",
+        help="time steps per case, each half the one before (default 4; at least 3)",
+    )
+    conformance.add_argument(
+        "-o",
+        "--out",
+        metavar="DIR",
+        default="conformance",
+        help="folder of the golden studies, their archives and the scorecard (default: conformance/)",
+    )
     conformance.add_argument("-q", "--quiet", action="store_true", help="no progress")
     conformance.set_defaults(run=_conformance)
     return parser
@@ -661,6 +868,7 @@ def _list_argument(parser, option, metavar, help, choices=None):
     """``option`` taking one value or a comma list per use, the uses added up (``--format
     png,svg`` or ``--format png --format svg``): never a following positional, as nargs="+"
     took ``plot --format svg X.nc``'s file for a format."""
+
     def names(text):
         listed = [name.strip() for name in text.split(",")]
         for name in listed:
@@ -668,37 +876,61 @@ def _list_argument(parser, option, metavar, help, choices=None):
                 raise argparse.ArgumentTypeError(f"an empty name in {text!r}")
             if choices and name not in choices:  # worded as argparse's own, for `_meant`
                 raise argparse.ArgumentTypeError(
-                    f"invalid choice: {name!r} (choose from {', '.join(map(repr, choices))})")
+                    f"invalid choice: {name!r} (choose from {', '.join(map(repr, choices))})"
+                )
         return listed
-    parser.add_argument(option, action="extend", type=names, metavar=f"{metavar},...",
-                        help=f"{help}; a comma list, or the option again")
+
+    parser.add_argument(
+        option,
+        action="extend",
+        type=names,
+        metavar=f"{metavar},...",
+        help=f"{help}; a comma list, or the option again",
+    )
 
 
 def _no_verify_argument(parser):
-    parser.add_argument("--no-verify", action="store_true",
-                        help="read the archive without proving it intact by its checksums "
-                             "(rbstudy verify): for one known to be damaged")
+    parser.add_argument(
+        "--no-verify",
+        action="store_true",
+        help="read the archive without proving it intact by its checksums "
+        "(rbstudy verify): for one known to be damaged",
+    )
 
 
 def _set_argument(parser):
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a config value before it is checked: KEY a dotted path "
-                             "(sweep.dt.count), VALUE as YAML would read it (3, -0.1, [1, 2], "
-                             "hht); repeatable; applies to every FILE (docs/config.md)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config value before it is checked: KEY a dotted path "
+        "(sweep.dt.count), VALUE as YAML would read it (3, -0.1, [1, 2], "
+        "hht); repeatable; applies to every FILE (docs/config.md)",
+    )
 
 
 def _limit_arguments(parser):
     # defaults named here so that parsing loads nothing heavy (rbstudy.pipeline.estimate)
-    parser.add_argument("--max-body-steps", type=float, default=1e11, metavar="N",
-                        help="refuse a study forecast to take more body-steps (default 1e11: "
-                             "hours of kernels for the compiled schemes)")
-    parser.add_argument("--max-memory", type=float, metavar="MIB",
-                        help="refuse a study forecast to need more memory, in MiB (default: "
-                             "half of this machine's)")
+    parser.add_argument(
+        "--max-body-steps",
+        type=float,
+        default=1e11,
+        metavar="N",
+        help="refuse a study forecast to take more body-steps (default 1e11: "
+        "hours of kernels for the compiled schemes)",
+    )
+    parser.add_argument(
+        "--max-memory",
+        type=float,
+        metavar="MIB",
+        help="refuse a study forecast to need more memory, in MiB (default: half of this machine's)",
+    )
 
 
 def _version():
     from importlib import metadata
+
     try:
         return metadata.version("rbstudy")
     except metadata.PackageNotFoundError:
@@ -725,13 +957,18 @@ def main(argv=None):
         _quiet_stdout()
         return EXIT_PIPE
     except KeyboardInterrupt:
-        print("\nrbstudy: interrupted; finished batches are kept: rerun the same command to "
-              "resume", file=sys.stderr)
+        print(
+            "\nrbstudy: interrupted; finished batches are kept: rerun the same command to resume",
+            file=sys.stderr,
+        )
         return 130
     except Exception:  # noqa: BLE001 (a bug: shown whole, once, with where to report it)
         traceback.print_exc()
-        print("rbstudy: this is a bug in rbstudy, not in your input; please report it with "
-              "the command, the config and the lines above", file=sys.stderr)
+        print(
+            "rbstudy: this is a bug in rbstudy, not in your input; please report it with "
+            "the command, the config and the lines above",
+            file=sys.stderr,
+        )
         return EXIT_BUG
 
 

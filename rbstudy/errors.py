@@ -9,8 +9,16 @@ ever rewritten as text.
 
 import difflib
 
-__all__ = ["RbstudyError", "InputError", "SceneError", "ConfigError", "SchemeError",
-           "MAX_LENGTH", "one_line", "did_you_mean"]
+__all__ = [
+    "RbstudyError",
+    "InputError",
+    "SceneError",
+    "ConfigError",
+    "SchemeError",
+    "MAX_LENGTH",
+    "one_line",
+    "did_you_mean",
+]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
 MAX_LENGTH = 1000
@@ -21,8 +29,7 @@ SIMILAR_NAME = 0.75
 
 def did_you_mean(name, valid):
     """`` (did you mean 'hht'?)`` when ``name`` is a slip of one of ``valid``, else ''."""
-    close = difflib.get_close_matches(str(name), [str(v) for v in valid], n=1,
-                                      cutoff=SIMILAR_NAME)
+    close = difflib.get_close_matches(str(name), [str(v) for v in valid], n=1, cutoff=SIMILAR_NAME)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
@@ -48,7 +55,7 @@ class InputError(RbstudyError):
         text = self.message if not self.fix else f"{self.message}; {self.fix}"
         line = ": ".join(str(part) for part in (self.source, self.key, text) if part)
         line = line.replace("\r", "\\r").replace("\n", "\\n")
-        return line if len(line) <= MAX_LENGTH else f"{line[:MAX_LENGTH - 30]} ... (cut)"
+        return line if len(line) <= MAX_LENGTH else f"{line[: MAX_LENGTH - 30]} ... (cut)"
 
     def located(self, source=None, key=None, kind=None):
         """The same error placed in ``source`` under ``key``, as a ``kind`` (default: its own
@@ -57,8 +64,7 @@ class InputError(RbstudyError):
         file, such as a table the config refers to)."""
         if key and self.key:
             key = f"{key}: {self.key}"
-        return (kind or type(self))(self.message, self.fix, self.source or source,
-                                    key or self.key, self.row)
+        return (kind or type(self))(self.message, self.fix, self.source or source, key or self.key, self.row)
 
 
 class SceneError(InputError):

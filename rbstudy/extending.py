@@ -30,6 +30,22 @@ from rbstudy.numerics.jit import jit
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes import Option, Scheme, SchemeUnavailable, Style
 
-__all__ = ["Scheme", "Option", "Style", "SchemeUnavailable", "jit", "make_entry", "init_nothing",
-           "make_batch_entry", "batch_loads", "later", "algebra", "state", "rotation",
-           "dynamics", "OK", "UNSTABLE", "NOT_CONVERGED"]
+__all__ = [
+    "Scheme",
+    "Option",
+    "Style",
+    "SchemeUnavailable",
+    "jit",
+    "make_entry",
+    "init_nothing",
+    "make_batch_entry",
+    "batch_loads",
+    "later",
+    "algebra",
+    "state",
+    "rotation",
+    "dynamics",
+    "OK",
+    "UNSTABLE",
+    "NOT_CONVERGED",
+]

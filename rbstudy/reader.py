@@ -26,12 +26,16 @@ __all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES", "is_folder_name", "FO
 # The largest input file read: a config is kilobytes, a node table of a million nodes with
 # their inertias ~130 MiB. A larger file is not one written for rbstudy (a log, a mesh, a
 # disk image), and parsing it would take gigabytes.
-MAX_INPUT_BYTES = 256 * 2 ** 20
-_MIB = 2 ** 20
+MAX_INPUT_BYTES = 256 * 2**20
+_MIB = 2**20
 # What a path that is no regular file names, by its `stat` kind.
-_KINDS = {stat.S_IFDIR: "a folder", stat.S_IFIFO: "a FIFO (named pipe)",
-          stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
-          stat.S_IFSOCK: "a socket"}
+_KINDS = {
+    stat.S_IFDIR: "a folder",
+    stat.S_IFIFO: "a FIFO (named pipe)",
+    stat.S_IFCHR: "a character device",
+    stat.S_IFBLK: "a block device",
+    stat.S_IFSOCK: "a socket",
+}
 
 
 def _check_file(info, path, what, fix):
@@ -45,8 +49,12 @@ def _check_file(info, path, what, fix):
 
 
 def _too_large(size, path, what):
-    raise InputError(f"{what} is {size / _MIB:,.0f} MiB, larger than the {MAX_INPUT_BYTES // _MIB} "
-                     "MiB an input file may be", "give the right file, or a smaller one", str(path))
+    raise InputError(
+        f"{what} is {size / _MIB:,.0f} MiB, larger than the {MAX_INPUT_BYTES // _MIB} "
+        "MiB an input file may be",
+        "give the right file, or a smaller one",
+        str(path),
+    )
 
 
 def read_input_file(path, what, fix):
@@ -114,17 +122,17 @@ class Reader:
     def mapping(self, value, key, allowed):
         """``value`` as a mapping whose keys are all in ``allowed`` (None reads as empty)."""
         if isinstance(value, np.ndarray):  # a swept number where a mapping belongs
-            self._first_failure(value, range(len(value)),
-                                lambda entry: self.mapping(entry, key, allowed))
+            self._first_failure(value, range(len(value)), lambda entry: self.mapping(entry, key, allowed))
         if value is None:
             return {}
         if not isinstance(value, dict):
             self.fail(key, f"expected a mapping with keys {', '.join(allowed)}, got {value!r}")
         for name in value:
             if name not in allowed:
-                self.fail(f"{key}.{name}" if key else name,
-                          f"unknown key{did_you_mean(name, allowed)}; valid keys here: "
-                          f"{', '.join(allowed)}")
+                self.fail(
+                    f"{key}.{name}" if key else name,
+                    f"unknown key{did_you_mean(name, allowed)}; valid keys here: {', '.join(allowed)}",
+                )
         return value
 
     def number(self, value, key, positive=False):
@@ -164,15 +172,17 @@ class Reader:
         if isinstance(value, bool) or not whole or value < minimum:
             self.fail(key, f"expected a whole number >= {minimum}, got {value!r}")
         if maximum is not None and value > maximum:
-            self.fail(key, f"{value:,} is too many" if isinstance(value, int)
-                      else f"{value:g} is too many", f"at most {maximum:,}")
+            self.fail(
+                key,
+                f"{value:,} is too many" if isinstance(value, int) else f"{value:g} is too many",
+                f"at most {maximum:,}",
+            )
         return int(value)
 
     def vector(self, value, key, length=3):
         """``value`` as a tuple of ``length`` finite floats (a swept entry: a float array)."""
         if isinstance(value, np.ndarray):  # a swept number where a list belongs
-            self._first_failure(value, range(len(value)),
-                                lambda entry: self.vector(entry, key, length))
+            self._first_failure(value, range(len(value)), lambda entry: self.vector(entry, key, length))
         if not isinstance(value, (list, tuple)) or len(value) != length:
             self.fail(key, f"expected a list of {length} numbers, got {value!r}")
         return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))

@@ -35,8 +35,12 @@ ROUND_OFF_FLOOR = 1e-11
 LOADED = {
     "body": {"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
     "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}, "velocity": [1.0, 0.0, 0.5]},
-    "loads": {"moment_body": [0.2, -0.1, 0.3], "moment_space": [0.0, 0.15, 0.0],
-              "force_body": [0.5, 0.0, 0.0], "gravity": [0.0, 0.0, -9.81]},
+    "loads": {
+        "moment_body": [0.2, -0.1, 0.3],
+        "moment_space": [0.0, 0.15, 0.0],
+        "force_body": [0.5, 0.0, 0.0],
+        "gravity": [0.0, 0.0, -9.81],
+    },
     "duration": 2.0,
 }
 
@@ -45,8 +49,10 @@ def abaqus_mapping(**body):
     """The Abaqus force-free top of docs/theory.md s2: I = (1, 1, 2), A = 0.25, w3 = 2 pi."""
     return {
         "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0], **body},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
-                    "orientation": {"momentum_axis": [0.0, 0.0, 1.0]}},
+        "initial": {
+            "angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
+            "orientation": {"momentum_axis": [0.0, 0.0, 1.0]},
+        },
         "nodes": {"2": [1.0, 0.0, 0.0], "3": [0.0, 1.0, 0.0], "4": [0.0, 0.0, 1.0]},
         "duration": 2.0,
     }
@@ -89,12 +95,17 @@ def abaqus_scene(abaqus_config):
 @pytest.fixture(scope="session")
 def asymmetric_scene():
     """I = (1, 2, 3) tumbling about no principal axis, from a general orientation."""
-    return scene_from_mapping({
-        "body": {"inertia": [1.0, 2.0, 3.0]},
-        "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                    "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}},
-        "duration": 4.0,
-    }, source="test")
+    return scene_from_mapping(
+        {
+            "body": {"inertia": [1.0, 2.0, 3.0]},
+            "initial": {
+                "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+                "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+            },
+            "duration": 4.0,
+        },
+        source="test",
+    )
 
 
 # References computed by the code of `REFERENCE_SCHEME` (exact_split): its exact free flow,

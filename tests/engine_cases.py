@@ -24,24 +24,34 @@ def make_scene(**mapping):
 
 def compared_scenes():
     """The Abaqus top, an asymmetric body from the same start, and a loaded body."""
-    return [make_scene(**{**abaqus_mapping(), "duration": 2.0}),
-            make_scene(**{**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 2.0}),
-            make_scene(**LOADED)]
+    return [
+        make_scene(**{**abaqus_mapping(), "duration": 2.0}),
+        make_scene(**{**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 2.0}),
+        make_scene(**LOADED),
+    ]
 
 
 def run(scheme, scenes, dt, n_steps):
     """Every step of ``scenes`` under ``scheme`` (a name or a `Scheme`): samples
     (B, n_steps + 1, N_STATE)."""
     chosen = get_scheme(scheme) if isinstance(scheme, str) else scheme
-    return run_batch(chosen, np.array([body.state_row() for body in scenes]),
-                     param_rows(scenes), np.zeros((len(scenes), S.N_OPTION)), dt, n_steps,
-                     1).samples
+    return run_batch(
+        chosen,
+        np.array([body.state_row() for body in scenes]),
+        param_rows(scenes),
+        np.zeros((len(scenes), S.N_OPTION)),
+        dt,
+        n_steps,
+        1,
+    ).samples
 
 
 def difference(a, b, scenes, dt):
     """The largest difference (B,) of the samples of schemes ``a`` and ``b`` per scene."""
-    return np.max(np.abs(simulate(scenes, a, dt, 0.01).output.samples
-                         - simulate(scenes, b, dt, 0.01).output.samples), axis=(1, 2))
+    return np.max(
+        np.abs(simulate(scenes, a, dt, 0.01).output.samples - simulate(scenes, b, dt, 0.01).output.samples),
+        axis=(1, 2),
+    )
 
 
 def example_scheme():
@@ -60,9 +70,13 @@ def swept_errors(tmp_path, schemes, origin, **sweep):
     import xarray as xr
 
     from rbstudy.cli import main
-    config = write_study(tmp_path, name="engine", sweep={
-        "scheme": schemes, "dt": [0.01, 0.005, 0.0025], **sweep},
-        scene={**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 1.0})
+
+    config = write_study(
+        tmp_path,
+        name="engine",
+        sweep={"scheme": schemes, "dt": [0.01, 0.005, 0.0025], **sweep},
+        scene={**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 1.0},
+    )
     assert main(["sweep", str(config), "--out", str(tmp_path), "--quiet"]) == 0
     with xr.open_dataset(tmp_path / "engine" / "engine.nc") as ds:
         assert (ds["status"] == 0).all()

@@ -58,8 +58,9 @@ def _extrapolated(y, step, rates):
     return table[-1][-1]
 
 
-def loaded_rotation(inertia, quaternion, omega, duration, step, moment_space=(0.0, 0.0, 0.0),
-                    moment_body=(0.0, 0.0, 0.0)):
+def loaded_rotation(
+    inertia, quaternion, omega, duration, step, moment_space=(0.0, 0.0, 0.0), moment_body=(0.0, 0.0, 0.0)
+):
     """(quaternion (4,), omega (3,)) as float64 after ``duration`` (s), from the float64
     initial values taken as exact, at macro steps of about ``step`` (s)."""
     constants = [np.asarray(v, dtype=LONG) for v in (inertia, moment_space, moment_body)]

@@ -13,13 +13,17 @@ DIGITS = 40
 
 def _qmul(a, b):
     (ax, ay, az, aw), (bx, by, bz, bw) = a, b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
+    )
 
 
 def _tilt(m1, m2, m3):
     """Quaternion of Rot(e1, theta) Rot(e3, psi), cos theta = m3/G, psi = atan2(m1, m2)."""
-    theta = mp.atan2(mp.sqrt(m1 ** 2 + m2 ** 2), m3)
+    theta = mp.atan2(mp.sqrt(m1**2 + m2**2), m3)
     psi = mp.atan2(m1, m2)
     tilt = (mp.sin(theta / 2), 0, 0, mp.cos(theta / 2))
     return _qmul(tilt, (0, 0, mp.sin(psi / 2), mp.cos(psi / 2)))
@@ -57,14 +61,20 @@ def exact_state(inertia, q0, omega0, t):
         amplitude = _unwrap(mp.atan2(sn, cn), half_turns)
         g = mp.sqrt(g2)
         precession = g * t / i3 + g * (i3 - i1) / (i1 * i3 * lam) * (
-            _third(n, amplitude, k2) - _third(n, phi0, k2))
+            _third(n, amplitude, k2) - _third(n, phi0, k2)
+        )
         b0 = _tilt(i1 * w1, i2 * w2, i3 * w3)
         b_t = _tilt(i1 * a1 * cn, i2 * a2 * sn, i3 * a3 * dn)
-        relative = _qmul(_qmul((-b0[0], -b0[1], -b0[2], b0[3]),
-                               (0, 0, mp.sin(precession / 2), mp.cos(precession / 2))), b_t)
+        relative = _qmul(
+            _qmul((-b0[0], -b0[1], -b0[2], b0[3]), (0, 0, mp.sin(precession / 2), mp.cos(precession / 2))),
+            b_t,
+        )
         vector, velocity = [0, 0, 0], [0, 0, 0]
-        for axis, sign, v, x in ((first, s1, relative[0], a1 * cn), (mid, 1, relative[1], a2 * sn),
-                                 (third, 1, relative[2], a3 * dn)):
+        for axis, sign, v, x in (
+            (first, s1, relative[0], a1 * cn),
+            (mid, 1, relative[1], a2 * sn),
+            (third, 1, relative[2], a3 * dn),
+        ):
             vector[axis], velocity[axis] = sign * v, sign * x
         return _qmul(tuple(q0), (*vector, relative[3])), tuple(velocity)
 

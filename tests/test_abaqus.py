@@ -22,8 +22,9 @@ THETA0 = math.atan(A / (2.0 * OMEGA3))  # tan(theta0) = I1 A / (I3 w3)
 @pytest.fixture(scope="module")
 def run(abaqus_config, abaqus_scene):
     spec = abaqus_config["run"]
-    return simulate([abaqus_scene], spec["scheme"], spec["dt"],
-                    abaqus_config["output"]["interval"], spec["options"])
+    return simulate(
+        [abaqus_scene], spec["scheme"], spec["dt"], abaqus_config["output"]["interval"], spec["options"]
+    )
 
 
 def space_omega(run):
@@ -82,5 +83,7 @@ def test_precession_frequency_reported(run, abaqus_scene):
     assert math.isclose(exact, 2.0 * math.pi)
     # trapezoidal Newmark has a phase error of O((W h)^2 / 12): a fraction of a percent here
     assert abs(measured - exact) / exact < 2e-3
-    print(f"\nhht alpha=0, dt=0.01: precession frequency {measured:.4f} rad/s, exact "
-          f"{exact:.4f}, error {measured - exact:+.2e} (Abaqus reports 6.268)")
+    print(
+        f"\nhht alpha=0, dt=0.01: precession frequency {measured:.4f} rad/s, exact "
+        f"{exact:.4f}, error {measured - exact:+.2e} (Abaqus reports 6.268)"
+    )

@@ -23,9 +23,12 @@ def random_symmetric_scene(axis):
     transverse, axial = RNG.uniform(0.5, 2.0), RNG.uniform(0.05, 2.0)
     inertia = [transverse] * 3
     inertia[axis] = min(axial, 2 * transverse)
-    return Scene(body=Body(mass=1.0, inertia=tuple(inertia)),
-                 quaternion=tuple(Rotation.random(random_state=RNG).as_quat()),
-                 omega_body=tuple(RNG.normal(scale=2.0, size=3)), duration=5.0)
+    return Scene(
+        body=Body(mass=1.0, inertia=tuple(inertia)),
+        quaternion=tuple(Rotation.random(random_state=RNG).as_quat()),
+        omega_body=tuple(RNG.normal(scale=2.0, size=3)),
+        duration=5.0,
+    )
 
 
 @pytest.mark.slow
@@ -33,20 +36,23 @@ def random_symmetric_scene(axis):
 def test_symmetric_top_matches_dop853(seed):
     scene = random_symmetric_scene(axis=seed % 3)
     numeric = simulate([scene], "dop853", 0.05, 0.05)
-    quaternion, omega = symmetric_top(scene.body.inertia, scene.quaternion, scene.omega_body,
-                                      numeric.time)
+    quaternion, omega = symmetric_top(scene.body.inertia, scene.quaternion, scene.omega_body, numeric.time)
     assert np.max(orientation_error(numeric.quaternion[0], quaternion)) < 1e-10
     assert np.max(omega_error(numeric.omega_body[0], omega)) < 1e-10
 
 
 def test_axial_moment_matches_dop853():
-    scene = Scene(body=Body(mass=1.0, inertia=(1.0, 1.5, 2.0)),
-                  quaternion=tuple(Rotation.random(random_state=RNG).as_quat()),
-                  omega_body=(0.0, 0.0, 2.0), loads=Loads(moment_body=(0.0, 0.0, -0.3)),
-                  duration=3.0)
+    scene = Scene(
+        body=Body(mass=1.0, inertia=(1.0, 1.5, 2.0)),
+        quaternion=tuple(Rotation.random(random_state=RNG).as_quat()),
+        omega_body=(0.0, 0.0, 2.0),
+        loads=Loads(moment_body=(0.0, 0.0, -0.3)),
+        duration=3.0,
+    )
     numeric = simulate([scene], "dop853", 0.1, 0.1)
-    quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion, scene.omega_body,
-                                     scene.loads.moment_body, numeric.time)
+    quaternion, omega = axial_moment(
+        scene.body.inertia, scene.quaternion, scene.omega_body, scene.loads.moment_body, numeric.time
+    )
     assert np.max(orientation_error(numeric.quaternion[0], quaternion)) < 1e-10
     assert np.allclose(numeric.omega_body[0], omega, atol=1e-10)
 
@@ -56,8 +62,7 @@ def test_reference_records_which_solution_was_used():
     symmetric = random_symmetric_scene(axis=2)
     times = np.linspace(0.0, 1.0, 11)
     assert reference_solution(symmetric, times).name == "symmetric_top"
-    asymmetric = symmetric.with_changes(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
-                                        duration=1.0)
+    asymmetric = symmetric.with_changes(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)), duration=1.0)
     assert reference_solution(asymmetric, times).name == "exact_asymmetric"
     turned = asymmetric.with_changes(loads=Loads(moment_space=(0.0, 0.1, 0.0)))
     fallback = reference_solution(turned, times)
@@ -68,9 +73,14 @@ def test_reference_records_which_solution_was_used():
 
 def test_references_of_a_batch_equal_those_of_each_scene():
     scenes = [random_symmetric_scene(axis=k % 3) for k in range(6)]
-    scenes.append(Scene(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
-                        quaternion=(0.0, 0.0, 0.0, 1.0), omega_body=(0.3, 1.0, 0.2),
-                        duration=1.0))
+    scenes.append(
+        Scene(
+            body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
+            quaternion=(0.0, 0.0, 0.0, 1.0),
+            omega_body=(0.3, 1.0, 0.2),
+            duration=1.0,
+        )
+    )
     times = np.arange(11) * 0.1
     together = reference_solutions(scenes, times)
     assert [r.name for r in together] == ["symmetric_top"] * 6 + ["exact_asymmetric"]
@@ -80,14 +90,21 @@ def test_references_of_a_batch_equal_those_of_each_scene():
         assert np.allclose(batch.omega_body, alone.omega_body, rtol=0, atol=1e-14)
 
 
-@pytest.mark.parametrize("inertia, omega", [
-    ((1.0, 2.0, 3.0), (1e-3, 1.0, 1e-3)),   # the Dzhanibekov flip, ~27.5 s (docs/theory.md s3)
-    ((1.0, 2.0, 3.0), (1.0, 0.2, 0.1)),     # circulating about the minimum axis
-    ((3.0, 1.0, 2.0), (0.2, 0.5, 1.3)),     # axes not sorted
-])
+@pytest.mark.parametrize(
+    "inertia, omega",
+    [
+        ((1.0, 2.0, 3.0), (1e-3, 1.0, 1e-3)),  # the Dzhanibekov flip, ~27.5 s (docs/theory.md s3)
+        ((1.0, 2.0, 3.0), (1.0, 0.2, 0.1)),  # circulating about the minimum axis
+        ((3.0, 1.0, 2.0), (0.2, 0.5, 1.3)),  # axes not sorted
+    ],
+)
 def test_flip_interval_matches_the_sign_changes_of_dop853(inertia, omega):
-    scene = Scene(body=Body(mass=1.0, inertia=inertia), quaternion=(0.0, 0.0, 0.0, 1.0),
-                  omega_body=omega, duration=120.0)
+    scene = Scene(
+        body=Body(mass=1.0, inertia=inertia),
+        quaternion=(0.0, 0.0, 0.0, 1.0),
+        omega_body=omega,
+        duration=120.0,
+    )
     numeric = simulate([scene], "dop853", 0.01, 0.01)
     middle = int(np.argsort(inertia)[1])
     measured = sign_change_interval(numeric.omega_body[0, :, middle], numeric.time)
@@ -95,8 +112,11 @@ def test_flip_interval_matches_the_sign_changes_of_dop853(inertia, omega):
 
 
 def test_no_flip_interval_for_a_steady_spin_or_a_symmetric_body():
-    spin = Scene(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.0, 0.0, 0.0, 1.0),
-                 omega_body=(0.0, 0.0, 1.0))
+    spin = Scene(
+        body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
+        quaternion=(0.0, 0.0, 0.0, 1.0),
+        omega_body=(0.0, 0.0, 1.0),
+    )
     assert np.isnan(flip_interval_exact(spin))
     assert flip_interval_exact(spin.with_changes(body=Body(1.0, (1.0, 1.0, 2.0)))) is None
 
@@ -107,8 +127,14 @@ def test_one_body_and_many_bodies_get_the_same_symmetry_axis():
     rng = np.random.default_rng(7)
     base = rng.uniform(0.5, 2.0, size=(2000, 3))
     edge = 1.0 + np.array([0.0, 0.5e-12, 1.0e-12, 1.5e-12, 3e-12])  # at the edge of 1e-12
-    bodies = [*base, *([1.0, e, 2.0] for e in edge), *([e, 2.0, 2.0 * e] for e in edge),
-              *([2.0, 1.0, e] for e in edge), [1.0, 1.0, 1.0], [3.0, 3.0, 3.0 + 1e-11]]
+    bodies = [
+        *base,
+        *([1.0, e, 2.0] for e in edge),
+        *([e, 2.0, 2.0 * e] for e in edge),
+        *([2.0, 1.0, e] for e in edge),
+        [1.0, 1.0, 1.0],
+        [3.0, 3.0, 3.0 + 1e-11],
+    ]
     for k in range(1, 4):  # symmetric about each axis, in either order
         for body in base[:200]:
             bodies.append(np.roll([body[0], body[0], body[1]], k))

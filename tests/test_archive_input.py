@@ -31,9 +31,13 @@ DAMAGE = ("an edited value", "a bit flipped", "a zeroed block")
 def archive(tmp_path_factory):
     """A real archive of two schemes at two steps over 0.2 s."""
     root = tmp_path_factory.mktemp("archive")
-    config = write_study(root, name="tiny", scene={**abaqus_mapping(), "duration": 0.2},
-                         output={"interval": 0.02},
-                         sweep={"scheme": ["euler", "rk4"], "dt": [0.02, 0.01]})
+    config = write_study(
+        root,
+        name="tiny",
+        scene={**abaqus_mapping(), "duration": 0.2},
+        output={"interval": 0.02},
+        sweep={"scheme": ["euler", "rk4"], "dt": [0.02, 0.01]},
+    )
     return run_study(load_study(config), root / "out", quiet=True).path
 
 
@@ -60,7 +64,7 @@ def _stored_at(path, name):
 
 def _overwrite(path, offset, data):
     blob = bytearray(path.read_bytes())
-    blob[offset:offset + len(data)] = data
+    blob[offset : offset + len(data)] = data
     path.write_bytes(bytes(blob))
 
 
@@ -83,49 +87,58 @@ def _rewritten(path, change):
 
 
 def _text_in_place_of_numbers(ds):
-    return ds.assign(final_orientation_error=(("scheme", "dt"),
-                                              np.array([["a", "b"], ["c", "d"]], dtype=object)))
+    return ds.assign(
+        final_orientation_error=(("scheme", "dt"), np.array([["a", "b"], ["c", "d"]], dtype=object))
+    )
 
 
 def _bookkeeping_of_other_shapes(path):
     """The issue's file: a study attribute and the bookkeeping names, other shapes."""
     path.unlink()
-    xr.Dataset({name: ("x", np.zeros(3)) for name in BOOKKEEPING},
-               attrs={"study": "fake", "source": "a hand"}).to_netcdf(path)
+    xr.Dataset(
+        {name: ("x", np.zeros(3)) for name in BOOKKEEPING}, attrs={"study": "fake", "source": "a hand"}
+    ).to_netcdf(path)
 
 
 # name -> (how the copy is crafted, what the error line says after the file's name)
 CRAFTED = {
     "an edited value": (
-        lambda path: _edit(path, lambda nc: nc["final_orientation_error"].__setitem__(
-            (0, 0), 0.5)),
-        ": damaged: variable final_orientation_error differs from its checksum"),
+        lambda path: _edit(path, lambda nc: nc["final_orientation_error"].__setitem__((0, 0), 0.5)),
+        ": damaged: variable final_orientation_error differs from its checksum",
+    ),
     "a bit flipped": (_flip_a_bit, ": damaged: variable dt differs from its checksum"),
-    "a zeroed block": (_zero_a_block, ": damaged: it cannot be read as netCDF (NetCDF: HDF "
-                                      "error)"),
+    "a zeroed block": (_zero_a_block, ": damaged: it cannot be read as netCDF (NetCDF: HDF error)"),
     "a study up two folders": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "../../escaped")),
         ": study: not an rbstudy archive: the study attribute '../../escaped' is not a study "
-        "name (letters, digits, '-' and '_' only)"),
+        "name (letters, digits, '-' and '_' only)",
+    ),
     "a study with a slash": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "sub/escaped")),
-        ": study: not an rbstudy archive: the study attribute 'sub/escaped' is not"),
-    "no dt": (lambda path: _rewritten(path, lambda ds: ds.drop_vars("dt")),
-              ": not an rbstudy archive: it lacks dt (written by rbstudy"),
+        ": study: not an rbstudy archive: the study attribute 'sub/escaped' is not",
+    ),
+    "no dt": (
+        lambda path: _rewritten(path, lambda ds: ds.drop_vars("dt")),
+        ": not an rbstudy archive: it lacks dt (written by rbstudy",
+    ),
     "dt along another dimension": (
-        lambda path: _rewritten(path, lambda ds: ds.drop_vars("dt").rename_dims(dt="step")
-                                .assign(dt=("x", [0.1, 0.2, 0.3]))),
-        ": dt: not an rbstudy archive: dt lies along (x), not a single value (swept: scheme, "
-        "step)"),
+        lambda path: _rewritten(
+            path, lambda ds: ds.drop_vars("dt").rename_dims(dt="step").assign(dt=("x", [0.1, 0.2, 0.3]))
+        ),
+        ": dt: not an rbstudy archive: dt lies along (x), not a single value (swept: scheme, step)",
+    ),
     "text in place of numbers": (
         lambda path: _rewritten(path, _text_in_place_of_numbers),
-        ": final_orientation_error: not an rbstudy archive: final_orientation_error holds "
-        "text, not float64"),
+        ": final_orientation_error: not an rbstudy archive: final_orientation_error holds text, not float64",
+    ),
     "the bookkeeping names of other shapes": (
         _bookkeeping_of_other_shapes,
-        ": not an rbstudy archive: it lacks scheme, dt (written by a hand)"),
-    "a YAML file": (lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
-                    ": not an rbstudy archive: not a netCDF file"),
+        ": not an rbstudy archive: it lacks scheme, dt (written by a hand)",
+    ),
+    "a YAML file": (
+        lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
+        ": not an rbstudy archive: not a netCDF file",
+    ),
 }
 
 
@@ -141,10 +154,13 @@ def _files(folder):
     return sorted(p for p in pathlib.Path(folder).rglob("*") if p.is_file())
 
 
-@pytest.mark.parametrize(("kind", "verb"), [(kind, verb) for kind in CRAFTED for verb in VERBS
-                                            if not (verb == "verify" and kind in DAMAGE)])
+@pytest.mark.parametrize(
+    ("kind", "verb"),
+    [(kind, verb) for kind in CRAFTED for verb in VERBS if not (verb == "verify" and kind in DAMAGE)],
+)
 def test_a_damaged_or_foreign_archive_is_one_line_and_nothing_is_written(
-        archive, tmp_path, capsys, kind, verb):
+    archive, tmp_path, capsys, kind, verb
+):
     path = _crafted(archive, tmp_path, kind)
     out = tmp_path / "top" / "middle" / "out"  # "../../escaped" would land in top/
     before = _files(tmp_path)
@@ -157,8 +173,7 @@ def test_a_damaged_or_foreign_archive_is_one_line_and_nothing_is_written(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("verb", ("plot", "report"))
-def test_only_no_verify_reads_an_edited_archive_and_never_an_unreadable_one(
-        archive, tmp_path, capsys, verb):
+def test_only_no_verify_reads_an_edited_archive_and_never_an_unreadable_one(archive, tmp_path, capsys, verb):
     assert main([verb, str(archive), "--out", str(tmp_path / "intact")]) == 0
     path = _crafted(archive, tmp_path / "edited", "an edited value")
     out = tmp_path / "out"
@@ -169,9 +184,11 @@ def test_only_no_verify_reads_an_edited_archive_and_never_an_unreadable_one(
     capsys.readouterr()
     assert main([verb, str(zeroed), "--out", str(tmp_path / "out2"), "--no-verify"]) == 1
     error = capsys.readouterr().err
-    assert error == (f"rbstudy: error: {zeroed}: damaged: it cannot be read (NetCDF: HDF "
-                     "error); rerun its sweep (rbstudy sweep <config>): a damaged archive is "
-                     "rebuilt\n")
+    assert error == (
+        f"rbstudy: error: {zeroed}: damaged: it cannot be read (NetCDF: HDF "
+        "error); rerun its sweep (rbstudy sweep <config>): a damaged archive is "
+        "rebuilt\n"
+    )
     assert not (tmp_path / "out2").exists()
 
 

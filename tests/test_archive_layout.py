@@ -32,30 +32,44 @@ CHECKOUT = pathlib.Path(__file__).resolve().parents[1]
 
 def test_dt_is_ascending_whatever_order_the_config_gives(tmp_path):
     for given in ({"halving": 0.02, "count": 3}, [0.01, 0.02, 0.005], [0.005, 0.01, 0.02]):
-        study = load_study(write_study(tmp_path, sweep={"dt": given, "scheme": ["euler"]},
-                                       output={"interval": 0.02}))
-        dts = next(axis.values for d in study.dimensions for axis in d.axes
-                   if axis.target == "dt")
+        study = load_study(
+            write_study(tmp_path, sweep={"dt": given, "scheme": ["euler"]}, output={"interval": 0.02})
+        )
+        dts = next(axis.values for d in study.dimensions for axis in d.axes if axis.target == "dt")
         assert dts == (0.005, 0.01, 0.02), given
         # the cases follow: the first case runs the smallest step
         assert study.cases[0].dt == 0.005
 
 
 def test_a_swept_option_is_labelled_by_the_option_with_its_units(tmp_path):
-    config = write_study(tmp_path, name="damping", scene={**abaqus_mapping(), "duration": 0.1},
-                         output={"interval": 0.02}, run={"scheme": "hht", "dt": 0.02},
-                         sweep={"run.options.alpha": [0.0, -0.1]})
+    config = write_study(
+        tmp_path,
+        name="damping",
+        scene={**abaqus_mapping(), "duration": 0.1},
+        output={"interval": 0.02},
+        run={"scheme": "hht", "dt": 0.02},
+        sweep={"run.options.alpha": [0.0, -0.1]},
+    )
     ds = open_archive(run_study(load_study(config), tmp_path / "out", quiet=True).path)
-    assert ds.alpha.attrs == {"long_name": "HHT numerical dissipation alpha", "units": "1",
-                              "sweep_path": "run.options.alpha"}
+    assert ds.alpha.attrs == {
+        "long_name": "HHT numerical dissipation alpha",
+        "units": "1",
+        "sweep_path": "run.options.alpha",
+    }
     # a label (an axis order such as "213") has no units
-    orders = load_study(write_study(tmp_path, name="orders", run={"scheme": "splitting",
-                                                                  "dt": 0.01},
-                                    sweep={"run.options.axis_order": ["123", "213"],
-                                           "run.options.composition": [2, 4]}))
+    orders = load_study(
+        write_study(
+            tmp_path,
+            name="orders",
+            run={"scheme": "splitting", "dt": 0.01},
+            sweep={"run.options.axis_order": ["123", "213"], "run.options.composition": [2, 4]},
+        )
+    )
     coordinates = grid_coordinates(orders)
-    assert coordinates["axis_order"][2] == {"long_name": "order of the axes' free sub-flows",
-                                            "sweep_path": "run.options.axis_order"}
+    assert coordinates["axis_order"][2] == {
+        "long_name": "order of the axes' free sub-flows",
+        "sweep_path": "run.options.axis_order",
+    }
     assert coordinates["composition"][2]["units"] == "1"
 
 
@@ -68,8 +82,7 @@ def test_every_option_of_rbstudy_s_schemes_has_a_label_for_the_archive():
 
 def test_source_names_the_version_and_the_commit_of_a_checkout(monkeypatch):
     if (CHECKOUT / ".git").exists():
-        assert re.fullmatch(r"rbstudy 9\.9 \(commit [0-9a-f]{7,}(, modified)?\)",
-                            source_text("9.9"))
+        assert re.fullmatch(r"rbstudy 9\.9 \(commit [0-9a-f]{7,}(, modified)?\)", source_text("9.9"))
 
     def no_git(*args, **kwargs):
         raise FileNotFoundError("git")
@@ -97,8 +110,7 @@ def test_a_0_3_archive_reads_as_it_would_be_written_now():
     now = _as_now(legacy)
     assert now.inertia.dims == ("inertia_ratio", "axis")
     assert summary_document(legacy) == summary_document(now)
-    assert summary_document(now)["findings"][0]["text"].startswith(
-        "recommended: euler at dt=0.02 s")
+    assert summary_document(now)["findings"][0]["text"].startswith("recommended: euler at dt=0.02 s")
 
 
 @pytest.mark.slow
@@ -136,13 +148,21 @@ def test_a_damaged_0_3_archive_is_still_caught(tmp_path, capsys):
 def test_the_scene_variables_of_a_zipped_option_and_body_lie_along_their_dimension(tmp_path):
     """A dimension that zips a scheme option with a body parameter changes the scene: the
     scene's variables lie along it; scheme and dt they never lie along."""
-    config = write_study(tmp_path, name="zipped", scene={**abaqus_mapping(), "duration": 0.1},
-                         output={"interval": 0.02}, run={"scheme": "hht", "dt": 0.02},
-                         sweep={"dt": [0.02, 0.01], "zip": {"pair": {
-                             "run.options.alpha": [0.0, -0.1], "scene.body.mass": [1.0, 2.0]}}})
+    config = write_study(
+        tmp_path,
+        name="zipped",
+        scene={**abaqus_mapping(), "duration": 0.1},
+        output={"interval": 0.02},
+        run={"scheme": "hht", "dt": 0.02},
+        sweep={
+            "dt": [0.02, 0.01],
+            "zip": {"pair": {"run.options.alpha": [0.0, -0.1], "scene.body.mass": [1.0, 2.0]}},
+        },
+    )
     ds = open_archive(run_study(load_study(config), tmp_path / "out", quiet=True).path)
     assert ds.status.dims == ("dt", "pair")
     assert ds.inertia.dims == ("pair", "axis") and ds.initial_spin.dims == ("pair",)
-    assert np.array_equal(ds.initial_spin.values,
-                          np.linalg.norm(ds.omega_body.isel(time=0, dt=0).values, axis=-1))
+    assert np.array_equal(
+        ds.initial_spin.values, np.linalg.norm(ds.omega_body.isel(time=0, dt=0).values, axis=-1)
+    )
     assert store.archive_dims(load_study(config), "inertia") == ("pair", "axis")

@@ -10,8 +10,12 @@ from rbstudy.physics.simulate import simulate
 
 
 def spinner(omega, inertia=(1.0, 2.0, 3.0), duration=200.0):
-    return Scene(body=Body(mass=1.0, inertia=inertia), quaternion=(0.0, 0.0, 0.0, 1.0),
-                 omega_body=omega, duration=duration)
+    return Scene(
+        body=Body(mass=1.0, inertia=inertia),
+        quaternion=(0.0, 0.0, 0.0, 1.0),
+        omega_body=omega,
+        duration=duration,
+    )
 
 
 def test_euler_near_the_intermediate_axis_is_flagged_unstable_with_a_time():
@@ -42,6 +46,7 @@ def test_every_scheme_gives_a_result_or_a_clean_unstable_at_huge_steps():
     failure time names: sampled at every step, its samples before that time are finite and
     the rest NaN, and the same body run to the step before ends ok with those samples."""
     from rbstudy.schemes import BUILTIN
+
     scene = spinner((1.0, 2.0, 1.5), duration=30.0)
     h = 3.0 / np.linalg.norm(scene.omega_body)
     steps = round(30.0 / h)
@@ -70,15 +75,21 @@ def test_bodies_run_side_by_side_equal_their_solo_runs_in_every_result():
     """leapfrog runs two bodies of a batch per loop (`make_entry(..., lanes=2)`): a pair
     whose first or second body blows up, a pair of two stable bodies and the odd body out
     give every sample and every result a body gives alone."""
-    scenes = [spinner((0.0, 0.0, 0.5), duration=20.0), spinner((0.1, 10.0, 0.1), duration=20.0),
-              spinner((0.2, 12.0, 0.1), duration=20.0), spinner((0.02, 0.0, 0.3), duration=20.0),
-              spinner((0.3, 0.1, 0.2), duration=20.0)]
+    scenes = [
+        spinner((0.0, 0.0, 0.5), duration=20.0),
+        spinner((0.1, 10.0, 0.1), duration=20.0),
+        spinner((0.2, 12.0, 0.1), duration=20.0),
+        spinner((0.02, 0.0, 0.3), duration=20.0),
+        spinner((0.3, 0.1, 0.2), duration=20.0),
+    ]
     batch = simulate(scenes, "leapfrog", 0.1, 1.0, threads=1)  # rows (0,1), (2,3), (4)
     assert list(batch.results["status"]) == [OK, UNSTABLE, UNSTABLE, OK, OK]
     for i, scene in enumerate(scenes):
         alone = simulate([scene], "leapfrog", 0.1, 1.0)
         for field in ("quaternion", "omega_body", "position"):
-            assert np.array_equal(getattr(batch, field)[i], getattr(alone, field)[0],
-                                  equal_nan=True), (i, field)
+            assert np.array_equal(getattr(batch, field)[i], getattr(alone, field)[0], equal_nan=True), (
+                i,
+                field,
+            )
         for name, values in batch.results.items():
             assert np.array_equal(values[i], alone.results[name][0], equal_nan=True), (i, name)

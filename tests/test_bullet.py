@@ -15,9 +15,14 @@ BULLET = ("bullet_multibody", "bullet_rigidbody")
 
 def _asymmetric(duration):
     """I = (1, 2, 3) tumbling about no principal axis (tests/conftest.py's asymmetric body)."""
-    return make_scene(body={"inertia": [1.0, 2.0, 3.0]}, duration=duration,
-                      initial={"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                               "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}})
+    return make_scene(
+        body={"inertia": [1.0, 2.0, 3.0]},
+        duration=duration,
+        initial={
+            "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+            "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+        },
+    )
 
 
 def test_the_rigid_body_is_the_linearised_backward_euler_on_free_bodies():
@@ -28,9 +33,18 @@ def test_the_rigid_body_is_the_linearised_backward_euler_on_free_bodies():
     gyroscopic step, the example solves for both at once."""
     scenes = compared_scenes()
     example = example_scheme()
-    coarse, fine = ([np.max(np.abs(run("bullet_rigidbody", [body], dt, round(0.5 / dt))
-                                   - run(example, [body], dt, round(0.5 / dt))))
-                     for body in scenes] for dt in (0.01, 0.005))
+    coarse, fine = (
+        [
+            np.max(
+                np.abs(
+                    run("bullet_rigidbody", [body], dt, round(0.5 / dt))
+                    - run(example, [body], dt, round(0.5 / dt))
+                )
+            )
+            for body in scenes
+        ]
+        for dt in (0.01, 0.005)
+    )
     assert max(coarse[:2]) < 1e-12
     assert coarse[2] > 1e-4
     assert np.log2(coarse[2] / fine[2]) == pytest.approx(1.0, abs=0.1)
@@ -82,8 +96,11 @@ def test_a_step_of_more_than_an_eighth_of_a_turn_is_cut_short(scheme):
     not 1 rad, in a step, and keeps its rate; at 200 rad/s, by 1.62 rad, not 2."""
     dt = 0.01
     for rate in (100.0, 200.0):
-        body = make_scene(body={"inertia": [1.0, 2.0, 3.0]}, duration=dt,
-                          initial={"angular_velocity": {"body": [0.0, 0.0, rate]}})
+        body = make_scene(
+            body={"inertia": [1.0, 2.0, 3.0]},
+            duration=dt,
+            initial={"angular_velocity": {"body": [0.0, 0.0, rate]}},
+        )
         after = run(scheme, [body], dt, 1)[0, 1]
         assert after[12] == pytest.approx(rate, rel=1e-12)
         turn = Rotation.from_quat(after[3:7]).magnitude()

@@ -30,39 +30,67 @@ TIMINGS = ["run_time"]
 
 
 def _small_study(folder):
-    return write_study(folder, name="small", sweep={
-        "scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]})
+    return write_study(
+        folder,
+        name="small",
+        sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]},
+    )
 
 
 def _slow_study(folder):
     """Eight batches of about a second of kernels each (two worker processes)."""
-    return write_study(folder, name="slow", scene={
-        "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}},
-        "duration": 60.0}, output={"interval": 0.1}, sweep={
-        "scheme": ["rk4", "midpoint", "splitting", "leapfrog"], "dt": [1e-4, 2e-4],
-        "inertia_ratio": [0.5, 0.8, 1.5, 2.0]})
+    return write_study(
+        folder,
+        name="slow",
+        scene={
+            "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
+            "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}},
+            "duration": 60.0,
+        },
+        output={"interval": 0.1},
+        sweep={
+            "scheme": ["rk4", "midpoint", "splitting", "leapfrog"],
+            "dt": [1e-4, 2e-4],
+            "inertia_ratio": [0.5, 0.8, 1.5, 2.0],
+        },
+    )
 
 
 def _assert_same_numbers(path_a, path_b):
     a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
-                                b.drop_vars(TIMINGS).drop_attrs())
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 def _parts(folder):
     """The finished part files of a study folder (each with its digest beside it)."""
-    return sorted(path.name for path in (folder / "parts").glob("*.nc")
-                  if path.with_name(path.name + ".sha256").exists())
+    return sorted(
+        path.name
+        for path in (folder / "parts").glob("*.nc")
+        if path.with_name(path.name + ".sha256").exists()
+    )
 
 
 def _start_workers(address, count, cwd):
     """``count`` single-threaded ``dask worker`` processes without a nanny (a killed one
     stays dead, as a batch job at its walltime), working in ``cwd``."""
-    return [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address,
-                              "--nthreads", "1", "--no-nanny", "--no-dashboard"],
-                             cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            for _ in range(count)]
+    return [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "distributed.cli.dask_worker",
+                address,
+                "--nthreads",
+                "1",
+                "--no-nanny",
+                "--no-dashboard",
+            ],
+            cwd=cwd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for _ in range(count)
+    ]
 
 
 def _stop(processes):
@@ -73,6 +101,7 @@ def _stop(processes):
 
 def _when_parts_appear(folder, action):
     """Run ``action`` in a thread as soon as ``folder`` holds a finished part."""
+
     def watch():
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
@@ -80,14 +109,14 @@ def _when_parts_appear(folder, action):
                 action()
                 return
             time.sleep(0.01)
+
     thread = threading.Thread(target=watch, daemon=True)
     thread.start()
     return thread
 
 
 @pytest.mark.slow
-def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_path,
-                                                                        monkeypatch):
+def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_path, monkeypatch):
     """Workers in another working directory: the relative results folder the client names
     is not theirs. auto has them send every part back; workers refuses in one line; the
     parts the client writes are the parts a threaded run writes (a rerun reuses them)."""
@@ -102,13 +131,23 @@ def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_p
         try:
             with Client(cluster) as client:
                 client.wait_for_workers(2, timeout=60)
-            with pytest.raises(RbstudyError, match="does not see this results folder; use "
-                                                   "--writer auto or client") as refused:
-                run_study(load_study(config), "results", quiet=True,
-                          where=Where(scheduler=cluster.scheduler_address, writer="workers"))
+            with pytest.raises(
+                RbstudyError, match="does not see this results folder; use --writer auto or client"
+            ) as refused:
+                run_study(
+                    load_study(config),
+                    "results",
+                    quiet=True,
+                    where=Where(scheduler=cluster.scheduler_address, writer="workers"),
+                )
             assert "\n" not in str(refused.value)
-            remote = run_study(load_study(config), "results", keep_parts=True,
-                               where=Where(scheduler=cluster.scheduler_address), quiet=True)
+            remote = run_study(
+                load_study(config),
+                "results",
+                keep_parts=True,
+                where=Where(scheduler=cluster.scheduler_address),
+                quiet=True,
+            )
         finally:
             _stop(workers)
     assert remote.returned == remote.computed == 4
@@ -126,11 +165,18 @@ def test_client_writer_on_a_shared_folder_gives_the_same_parts(tmp_path):
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
-        shared = run_study(load_study(config), tmp_path / "shared",
-                           where=Where(scheduler=cluster.scheduler_address), quiet=True)
-        sent = run_study(load_study(config), tmp_path / "sent",
-                         where=Where(scheduler=cluster.scheduler_address, writer="client"),
-                         quiet=True)
+        shared = run_study(
+            load_study(config),
+            tmp_path / "shared",
+            where=Where(scheduler=cluster.scheduler_address),
+            quiet=True,
+        )
+        sent = run_study(
+            load_study(config),
+            tmp_path / "sent",
+            where=Where(scheduler=cluster.scheduler_address, writer="client"),
+            quiet=True,
+        )
     assert (shared.returned, sent.returned) == (0, 4)
     _assert_same_numbers(threaded.path, shared.path)
     _assert_same_numbers(threaded.path, sent.path)
@@ -147,11 +193,9 @@ def test_a_killed_worker_keeps_the_finished_parts_and_a_rerun_resumes(tmp_path):
     with cluster:
         with Client(cluster) as client:  # closed before the run: one client per process
             pids = list(client.run(os.getpid).values())
-        killer = _when_parts_appear(out / "slow",
-                                    lambda: [os.kill(pid, signal.SIGKILL) for pid in pids])
+        killer = _when_parts_appear(out / "slow", lambda: [os.kill(pid, signal.SIGKILL) for pid in pids])
         with pytest.raises(RbstudyError) as killed:
-            run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address),
-                      quiet=True)
+            run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address), quiet=True)
         killer.join()
     message = str(killed.value)
     assert "KilledWorker" in message and "rerun the same command to resume" in message
@@ -174,8 +218,7 @@ def test_a_scheduler_that_goes_away_keeps_the_finished_parts(tmp_path):
     closer = _when_parts_appear(out / "slow", cluster.close)
     started = time.monotonic()
     with pytest.raises(RbstudyError, match="went away") as gone:
-        run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address),
-                  quiet=True)
+        run_study(load_study(config), out, where=Where(scheduler=cluster.scheduler_address), quiet=True)
     assert time.monotonic() - started < 60  # ends, without waiting out reconnection
     closer.join()
     kept = _parts(out / "slow")
@@ -191,8 +234,22 @@ def test_workers_that_never_come_or_all_leave_end_the_run_in_one_line(tmp_path, 
     out = tmp_path / "out"
     with LocalCluster(n_workers=0, dashboard_address=None) as cluster:
         address = cluster.scheduler_address
-        assert main(["sweep", str(config), "--out", str(out), "--quiet", "--scheduler",
-                     address, "--worker-wait", "1"]) == 1
+        assert (
+            main(
+                [
+                    "sweep",
+                    str(config),
+                    "--out",
+                    str(out),
+                    "--quiet",
+                    "--scheduler",
+                    address,
+                    "--worker-wait",
+                    "1",
+                ]
+            )
+            == 1
+        )
         error = capsys.readouterr().err.strip()
         assert f"no worker joined {address} for 1 s" in error and "\n" not in error
         assert "0 of 8 batches are kept" in error
@@ -200,8 +257,7 @@ def test_workers_that_never_come_or_all_leave_end_the_run_in_one_line(tmp_path, 
         try:
             killer = _when_parts_appear(out / "slow", lambda: _stop(workers))
             with pytest.raises(RbstudyError, match=f"every worker left {address} for 2 s"):
-                run_study(load_study(config), out, where=Where(scheduler=address, worker_wait=2),
-                          quiet=True)
+                run_study(load_study(config), out, where=Where(scheduler=address, worker_wait=2), quiet=True)
             killer.join()
         finally:
             _stop(workers)
@@ -213,27 +269,35 @@ def test_a_local_cluster_file_runs_the_study(tmp_path, capsys):
     config = _small_study(tmp_path)
     cluster = tmp_path / "cluster.yaml"
     cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 2}))
-    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet",
-                 "--cluster", str(cluster)]) == 0
+    assert (
+        main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet", "--cluster", str(cluster)])
+        == 0
+    )
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     _assert_same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("kind: lsf\njobs: 2\n", "kind: expected one of local, slurm, pbs, got 'lsf'"),
-    ("kind: slurm\n", "jobs: give either jobs"),
-    ("kind: slurm\njobs: 2\nadaptive: {minimum: 0, maximum: 4}\n", "jobs: give either jobs"),
-    ("kind: slurm\nadaptive: {minimum: 3, maximum: 2}\n", "adaptive.maximum: 2 is below"),
-    ("kind: slurm\njobs: 0\n", "jobs: expected a whole number >= 1"),
-    ("kind: pbs\njobs: 1\nqueue: short\n", "queue: unknown key; valid keys here: kind, jobs"),
-    ("kind: local\njobs: 1\noptions: {no_such_option: 1}\n",
-     "options: .*no_such_option.*; see the keyword arguments of LocalCluster"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("kind: lsf\njobs: 2\n", "kind: expected one of local, slurm, pbs, got 'lsf'"),
+        ("kind: slurm\n", "jobs: give either jobs"),
+        ("kind: slurm\njobs: 2\nadaptive: {minimum: 0, maximum: 4}\n", "jobs: give either jobs"),
+        ("kind: slurm\nadaptive: {minimum: 3, maximum: 2}\n", "adaptive.maximum: 2 is below"),
+        ("kind: slurm\njobs: 0\n", "jobs: expected a whole number >= 1"),
+        ("kind: pbs\njobs: 1\nqueue: short\n", "queue: unknown key; valid keys here: kind, jobs"),
+        (
+            "kind: local\njobs: 1\noptions: {no_such_option: 1}\n",
+            "options: .*no_such_option.*; see the keyword arguments of LocalCluster",
+        ),
+    ],
+)
 def test_a_bad_cluster_file_is_one_line_naming_the_key(tmp_path, text, message):
     path = tmp_path / "cluster.yaml"
     path.write_text(text)
     with pytest.raises(ConfigError, match=message) as error:
         from rbstudy.pipeline.cluster import connect
+
         with connect(cluster=read_cluster_file(path)):
             pass
     assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
@@ -245,10 +309,17 @@ def test_a_batch_cluster_file_becomes_dask_jobqueue_jobs(tmp_path, kind):
     submission itself fails, which the cluster object reports, not rbstudy)."""
     jobqueue = pytest.importorskip("dask_jobqueue")
     from rbstudy.pipeline.cluster import JOB_CLUSTERS, _start
+
     path = tmp_path / "cluster.yaml"
-    path.write_text(yaml.safe_dump({"kind": kind, "adaptive": {"minimum": 0, "maximum": 3},
-                                    "options": {"cores": 4, "processes": 4, "memory": "8GB",
-                                                "walltime": "00:30:00"}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "kind": kind,
+                "adaptive": {"minimum": 0, "maximum": 3},
+                "options": {"cores": 4, "processes": 4, "memory": "8GB", "walltime": "00:30:00"},
+            }
+        )
+    )
     cluster = _start(read_cluster_file(path))
     try:
         assert isinstance(cluster, getattr(jobqueue, JOB_CLUSTERS[kind]))

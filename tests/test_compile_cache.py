@@ -40,8 +40,13 @@ GET_READY = textwrap.dedent("""
 
 
 def get_ready(cache):
-    done = subprocess.run([sys.executable, "-c", GET_READY], capture_output=True, text=True,
-                          env={**os.environ, "NUMBA_CACHE_DIR": str(cache)}, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", GET_READY],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "NUMBA_CACHE_DIR": str(cache)},
+        check=True,
+    )
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -57,12 +62,14 @@ def test_a_second_process_loads_every_entry_point_without_compiling(tmp_path):
 
 def test_changed_code_gets_another_entry_module(tmp_path):
     kernels = tmp_path / "my_kernels.py"
-    source = "from rbstudy.numerics.jit import jit\n\n@jit\ndef step(y, p, opt, t, h, work):\n" \
-             "    return 0, 0\n"
+    source = (
+        "from rbstudy.numerics.jit import jit\n\n@jit\ndef step(y, p, opt, t, h, work):\n    return 0, 0\n"
+    )
     kernels.write_text(source)
     sys.path.insert(0, str(tmp_path))
     try:
         import my_kernels
+
         text, name = _module_text(my_kernels.step, my_kernels.step, 0)
         assert "from my_kernels import step as step" in text
         wrapped, other = _module_text(my_kernels.step, my_kernels.step, 0, my_kernels.step)
@@ -94,8 +101,13 @@ IN_CHILDREN = textwrap.dedent("""
 
 @pytest.mark.slow
 def test_a_cold_cache_is_filled_by_child_processes_and_loaded_here(tmp_path):
-    done = subprocess.run([sys.executable, "-c", IN_CHILDREN], capture_output=True, text=True,
-                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", IN_CHILDREN],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)},
+        check=True,
+    )
     ready = json.loads(done.stdout.strip().splitlines()[-1])
     assert ready["before"] == [False, False, False]
     assert ready["in_children"] == 3
@@ -103,6 +115,11 @@ def test_a_cold_cache_is_filled_by_child_processes_and_loaded_here(tmp_path):
     assert ready["misses"] == {"leapfrog": 0, "rk4": 0}
     assert ready["hits"] == {"leapfrog": 1, "rk4": 2}
     assert ready["after"] == [True, True, True]
-    again = subprocess.run([sys.executable, "-c", IN_CHILDREN], capture_output=True, text=True,
-                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}, check=True)
+    again = subprocess.run(
+        [sys.executable, "-c", IN_CHILDREN],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)},
+        check=True,
+    )
     assert json.loads(again.stdout.strip().splitlines()[-1])["in_children"] == 0  # all cached

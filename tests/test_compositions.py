@@ -20,8 +20,9 @@ from rbstudy.schemes import BUILTIN, COMPOSITION_ORDERS, composition_reach, get_
 from rbstudy.schemes._composition import stage_weights
 
 ORDER_TOLERANCE = 0.3  # the issue's bound on a composition's observed order
-COMPOSABLE = [name for name, scheme in BUILTIN.items()
-              if any(option.name == "composition" for option in scheme.options)]
+COMPOSABLE = [
+    name for name, scheme in BUILTIN.items() if any(option.name == "composition" for option in scheme.options)
+]
 
 
 def fitted(dts, errors, floor=1e-11):
@@ -46,7 +47,7 @@ def test_the_weights_meet_the_order_conditions_they_must(order):
     assert np.array_equal(g, g[::-1])
     assert abs(g.sum() - 1.0) < 4e-16
     for power in range(3, order, 2):
-        assert abs(np.sum(g ** power)) < 2e-15 * np.sum(np.abs(g) ** power), power
+        assert abs(np.sum(g**power)) < 2e-15 * np.sum(np.abs(g) ** power), power
 
 
 def test_the_triple_jump_steps_outside_its_step_and_kahan_li_does_not():
@@ -98,8 +99,7 @@ def test_a_composition_takes_tabulated_loads_at_its_stage_times():
     run): the triple jump keeps order 4 only if every stage takes the load at its own time,
     including those before the step's start. Measured 3.98."""
     table = [[-1.0, -0.09375, -0.0625, 0.03125], [4.2, 0.39375, 0.2625, -0.13125]]
-    scene = scene_from_mapping({**LOADED_LONGER, "loads": {"moment_space": {"table": table}}},
-                               source="test")
+    scene = scene_from_mapping({**LOADED_LONGER, "loads": {"moment_space": {"table": table}}}, source="test")
     dts = 0.4 / 2.0 ** np.arange(5)
     runs = [simulate([scene], "exact_split", dt, 0.8, {"composition": 4}) for dt in dts]
     # not the archive's reference: that is exact_split composed, the code under test
@@ -122,10 +122,14 @@ def test_exact_split_integrates_a_free_body_exactly_at_any_step(body):
     """dt = T, T/10, T/100 (T = 10 s) against the solution written in mpmath at 40 digits:
     <= 1e-13 rad and 1e-13 relative in w (measured 1e-15 to 3e-14)."""
     inertia, omega = FREE_BODIES[body]
-    scene = scene_from_mapping({"body": {"inertia": inertia},
-                                "initial": {"angular_velocity": {"body": omega},
-                                            "orientation": {"rotation_vector": ROTATION}},
-                                "duration": 10.0}, source="test")
+    scene = scene_from_mapping(
+        {
+            "body": {"inertia": inertia},
+            "initial": {"angular_velocity": {"body": omega}, "orientation": {"rotation_vector": ROTATION}},
+            "duration": 10.0,
+        },
+        source="test",
+    )
     q0 = reference_solution(scene, np.array([0.0])).quaternion[0]
     q_exact, w_exact = exact_state(inertia, q0, omega, 10.0)
     w_exact = np.array([float(v) for v in w_exact])
@@ -164,43 +168,61 @@ def test_the_forecast_and_the_order_follow_the_composition():
 def test_a_swept_composition_is_archived_and_summarised_per_order(tmp_path):
     """nominal_order runs along (scheme, composition); the summary gives each composed
     scheme a row per order, fitted there alone, and rk4 (no such option) one row."""
-    config = write_study(tmp_path, name="composed", sweep={
-        "scheme": ["splitting", "rk4"], "run.options.composition": [2, 4, 6],
-        "dt": {"halving": 0.4, "count": 4}},
-        scene={"body": {"inertia": [1.0, 2.0, 3.0]},
-               "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}},
-               "duration": 4.0},
-        output={"interval": 0.8})
+    config = write_study(
+        tmp_path,
+        name="composed",
+        sweep={
+            "scheme": ["splitting", "rk4"],
+            "run.options.composition": [2, 4, 6],
+            "dt": {"halving": 0.4, "count": 4},
+        },
+        scene={
+            "body": {"inertia": [1.0, 2.0, 3.0]},
+            "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}},
+            "duration": 4.0,
+        },
+        output={"interval": 0.8},
+    )
     done = run_study(load_study(config), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
     assert ds["nominal_order"].dims == ("scheme", "composition")
     assert ds["nominal_order"].sel(scheme="splitting").values.tolist() == [2, 4, 6]
     assert ds["nominal_order"].sel(scheme="rk4").values.tolist() == [4, 4, 4]
     rows = {row["scheme"]: row for row in scheme_rows(ds)}
-    assert list(rows) == ["splitting, composition 2", "splitting, composition 4",
-                          "splitting, composition 6", "rk4"]
+    assert list(rows) == [
+        "splitting, composition 2",
+        "splitting, composition 4",
+        "splitting, composition 6",
+        "rk4",
+    ]
     for row in rows.values():
         assert abs(row["order"][0] - row["nominal"]) <= ORDER_TOLERANCE, row
 
 
 def test_the_triple_jump_under_tabulated_loads_is_warned_about(tmp_path):
     table = [[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 1.0]]
-    config = write_study(tmp_path, name="jump", run={"scheme": "splitting", "dt": 0.01,
-                                                     "options": {"composition": 4}},
-                         scene={"body": {"inertia": [1.0, 2.0, 3.0]},
-                                "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}},
-                                "loads": {"moment_body": {"table": table}},
-                                "duration": 2.0})
+    config = write_study(
+        tmp_path,
+        name="jump",
+        run={"scheme": "splitting", "dt": 0.01, "options": {"composition": 4}},
+        scene={
+            "body": {"inertia": [1.0, 2.0, 3.0]},
+            "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}},
+            "loads": {"moment_body": {"table": table}},
+            "duration": 2.0,
+        },
+    )
     (warning,) = load_study(config).warnings
     assert "composition 4" in warning and "0.35 dt outside each step" in warning
     assert "use composition 6 or 8" in warning
 
 
 # The plate of configs/long_run_convergence.yaml: about 160 wobble periods in 1000 s
-PLATE = {"body": {"inertia": [0.35, 0.65, 1.0]},
-         "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                     "orientation": {"rotation_vector": ROTATION}},
-         "duration": 1000.0}
+PLATE = {
+    "body": {"inertia": [0.35, 0.65, 1.0]},
+    "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]}, "orientation": {"rotation_vector": ROTATION}},
+    "duration": 1000.0,
+}
 LONG_RUN_DTS = 0.02 / 2.0 ** np.arange(5)  # 0.02 .. 0.00125 s: 5e4 .. 8e5 steps
 
 
@@ -209,8 +231,9 @@ def plate_at_the_end():
     """The plate's scene and its quaternion at 1000 s from the 40-digit solution."""
     scene = scene_from_mapping(PLATE, source="test")
     q0 = reference_solution(scene, np.array([0.0])).quaternion[0]
-    q_exact, _ = exact_state(PLATE["body"]["inertia"], q0, PLATE["initial"]["angular_velocity"]
-                             ["body"], PLATE["duration"])
+    q_exact, _ = exact_state(
+        PLATE["body"]["inertia"], q0, PLATE["initial"]["angular_velocity"]["body"], PLATE["duration"]
+    )
     return scene, q_exact
 
 

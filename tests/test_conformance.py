@@ -23,8 +23,22 @@ PLUGIN = "semi_implicit_numpy"
 def scorecard(tmp_path_factory):
     """euler, midpoint and rk4 on the Abaqus top and the flipping T-handle, three steps."""
     out = tmp_path_factory.mktemp("conformance")
-    code = main(["conformance", "--cases", "abaqus_top,t_handle", "--schemes", "euler",
-                 "--schemes", "midpoint,rk4", "--steps", "3", "--out", str(out), "--quiet"])
+    code = main(
+        [
+            "conformance",
+            "--cases",
+            "abaqus_top,t_handle",
+            "--schemes",
+            "euler",
+            "--schemes",
+            "midpoint,rk4",
+            "--steps",
+            "3",
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert code == 0
     with xr.open_dataset(out / "conformance.nc") as ds:
         return out, ds.load()
@@ -48,8 +62,7 @@ def test_sound_schemes_pass_every_rule_with_their_orders(scorecard):
     _, ds = scorecard
     for scheme, order in (("midpoint", 2), ("rk4", 4)):
         assert (ds["passed"].sel(scheme=scheme) == 1).all()
-        assert float(ds["value"].sel(scheme=scheme, case="abaqus_top")) == pytest.approx(
-            order, abs=0.1)
+        assert float(ds["value"].sel(scheme=scheme, case="abaqus_top")) == pytest.approx(order, abs=0.1)
     # midpoint claims the energy and L: checked; rk4 claims nothing
     assert _rule(ds, "midpoint", "abaqus_top", "invariants") == 1
     assert _rule(ds, "rk4", "abaqus_top", "invariants") == -1
@@ -91,8 +104,23 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
     out, ds = scorecard
     archive = out / "conformance_t_handle" / "conformance_t_handle.nc"
     written = archive.stat().st_mtime_ns
-    assert main(["conformance", "--cases", "abaqus_top,t_handle", "--schemes",
-                 "euler,midpoint,rk4", "--steps", "3", "-o", str(out), "-q"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                "abaqus_top,t_handle",
+                "--schemes",
+                "euler,midpoint,rk4",
+                "--steps",
+                "3",
+                "-o",
+                str(out),
+                "-q",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "euler" in printed and "FAIL" in printed
     with xr.open_dataset(out / "conformance.nc") as again:
@@ -108,27 +136,43 @@ def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, m
     rbstudy's own schemes of the order only, which every golden study sweeps."""
     monkeypatch.syspath_prepend(str(EXAMPLE))
     importlib.import_module("rbstudy_semi_implicit.vectorised")  # here: no probing child
-    entry = importlib.metadata.EntryPoint(PLUGIN, "rbstudy_semi_implicit.vectorised:SCHEME",
-                                          GROUP)
-    monkeypatch.setattr(importlib.metadata, "entry_points",
-                        lambda group=None: [entry] if group == GROUP else ())
+    entry = importlib.metadata.EntryPoint(PLUGIN, "rbstudy_semi_implicit.vectorised:SCHEME", GROUP)
+    monkeypatch.setattr(
+        importlib.metadata, "entry_points", lambda group=None: [entry] if group == GROUP else ()
+    )
     monkeypatch.setattr(SCHEMES, "_groups", {})  # the registry loads the plug-in afresh
 
     def card(*schemes):
         out = tmp_path / "_".join(schemes)
-        assert main(["conformance", "--cases", "t_handle", "--schemes", ",".join(schemes), "--steps",
-                     "3", "--out", str(out), "--quiet"]) == 0
+        assert (
+            main(
+                [
+                    "conformance",
+                    "--cases",
+                    "t_handle",
+                    "--schemes",
+                    ",".join(schemes),
+                    "--steps",
+                    "3",
+                    "--out",
+                    str(out),
+                    "--quiet",
+                ]
+            )
+            == 0
+        )
         with xr.open_dataset(out / "conformance.nc") as ds:
-            return {scheme: ds[["passed", "rule_passed", "rule_text"]].sel(scheme=scheme).load()
-                    for scheme in schemes}
+            return {
+                scheme: ds[["passed", "rule_passed", "rule_text"]].sel(scheme=scheme).load()
+                for scheme in schemes
+            }
 
     alone = {**card("euler"), **card(PLUGIN)}
     together = card("euler", PLUGIN)
     beside_others = scorecard[1].sel(scheme="euler", case=["t_handle"])
     for scheme in ("euler", PLUGIN):
         xr.testing.assert_equal(together[scheme], alone[scheme])  # attrs: wall time
-    xr.testing.assert_equal(alone["euler"], beside_others[["passed", "rule_passed",
-                                                                 "rule_text"]])
+    xr.testing.assert_equal(alone["euler"], beside_others[["passed", "rule_passed", "rule_text"]])
     failure = together["euler"]["rule_passed"].sel(case="t_handle", rule="failure")
     assert int(failure) == 1  # the plug-in's survival is not held against euler
     assert int(together[PLUGIN]["passed"].sel(case="t_handle")) == 0  # order 0.6, not 1
@@ -136,14 +180,17 @@ def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, m
 
 def test_bad_options_are_one_line_errors(tmp_path, capsys):
     for argv, said in (
-            (["--cases", "nope"], "--cases: no golden case 'nope'; the cases: abaqus_top, "),
-            (["--steps", "2"], "--steps: give 3 to 8 time steps"),
-            (["--steps", "9"], "--steps: give 3 to 8 time steps"),
-            (["--schemes", "rk4,rk4"], "--schemes: rk4 is given twice; name it once"),
-            (["--cases", "t_handle", "--cases", "t_handle"], "--cases: t_handle is given twice"),
-            (["--schemes", "dop853"], "--schemes: dop853 chooses its own steps: it has no "
-                                      "order in dt to judge; leave it out"),
-            (["--schemes", "nope"], "unknown scheme 'nope'")):
+        (["--cases", "nope"], "--cases: no golden case 'nope'; the cases: abaqus_top, "),
+        (["--steps", "2"], "--steps: give 3 to 8 time steps"),
+        (["--steps", "9"], "--steps: give 3 to 8 time steps"),
+        (["--schemes", "rk4,rk4"], "--schemes: rk4 is given twice; name it once"),
+        (["--cases", "t_handle", "--cases", "t_handle"], "--cases: t_handle is given twice"),
+        (
+            ["--schemes", "dop853"],
+            "--schemes: dop853 chooses its own steps: it has no order in dt to judge; leave it out",
+        ),
+        (["--schemes", "nope"], "unknown scheme 'nope'"),
+    ):
         assert main(["conformance", "--out", str(tmp_path), *argv]) == 1
         error = capsys.readouterr().err
         assert error.startswith(f"rbstudy: error: {said}") or said in error, error
@@ -158,14 +205,17 @@ def test_every_golden_case_names_known_rules():
 
 # Each rule on a golden archive with one thing made wrong, so that the rule must see it.
 
+
 def _golden(scorecard, case="t_handle"):
     from rbstudy.pipeline.store import open_results
+
     out, _ = scorecard
     return open_results(out / f"conformance_{case}" / f"conformance_{case}.nc")
 
 
 def _judge(ds, case="t_handle"):
     from rbstudy.analysis.conformance import score_case
+
     return score_case(ds, next(c for c in GOLDEN if c.name == case).rules)
 
 
@@ -230,7 +280,8 @@ def test_invariants_are_not_judged_where_no_case_finished(scorecard):
 def test_an_unwritable_out_is_a_one_line_error(tmp_path, capsys):
     blocked = tmp_path / "file"
     blocked.write_text("")
-    assert main(["conformance", "--cases", "abaqus_top", "--schemes", "rk4", "--out",
-                 str(blocked / "sub")]) == 1
+    assert (
+        main(["conformance", "--cases", "abaqus_top", "--schemes", "rk4", "--out", str(blocked / "sub")]) == 1
+    )
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "choose another folder with --out" in error

@@ -28,16 +28,23 @@ DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"
 
 def test_archived_codes_keep_their_meaning():
     """Archives store codes: the names behind them are append-only."""
-    assert REFERENCE_KINDS[:6] == ("symmetric_top", "axial_moment", "dop853", "none",
-                                   "exact_asymmetric", "exact_split_composition")
+    assert REFERENCE_KINDS[:6] == (
+        "symmetric_top",
+        "axial_moment",
+        "dop853",
+        "none",
+        "exact_asymmetric",
+        "exact_split_composition",
+    )
     assert S.STATUS_NAMES[:3] == ("ok", "unstable", "not_converged")
 
 
 def documented_flags(variable):
     """The codes and names docs/config.md's table of variables gives ``variable``'s flags
     ("0 ok, 1 unstable (...), 2 not_converged"), as a tuple of names in code order."""
-    row = next(line for line in (DOCS / "config.md").read_text().splitlines()
-               if line.startswith(f"| `{variable}` "))
+    row = next(
+        line for line in (DOCS / "config.md").read_text().splitlines() if line.startswith(f"| `{variable}` ")
+    )
     pairs = re.findall(r"(?:: |, )(\d+) ([a-z][a-z0-9_]*)", row.split("| flags |")[1])
     assert [int(code) for code, _ in pairs] == list(range(len(pairs))), row
     return tuple(name for _, name in pairs)
@@ -48,9 +55,13 @@ def test_an_archive_says_what_its_codes_mean_as_the_documentation_does(tmp_path)
     documentation gives their codes, and the codes stored are those of what happened: euler
     on the symmetric top over 5 s finishes at dt = 0.01 s, blows up at 0.25 s (dt |w| = 1.6),
     and the top's reference is its closed form."""
-    config = write_study(tmp_path, scene={**abaqus_mapping(), "duration": 5.0},
-                         output={"interval": 0.25}, run={"scheme": "euler", "dt": 0.01},
-                         sweep={"dt": [0.01, 0.25]})
+    config = write_study(
+        tmp_path,
+        scene={**abaqus_mapping(), "duration": 5.0},
+        output={"interval": 0.25},
+        run={"scheme": "euler", "dt": 0.01},
+        sweep={"dt": [0.01, 0.25]},
+    )
     path = run_study(load_study(config), tmp_path / "out", quiet=True).path
     with netCDF4.Dataset(path) as ds:
         ds.set_auto_mask(False)
@@ -80,8 +91,10 @@ def test_every_driver_result_is_stored_under_its_name_and_type():
 
 def test_a_result_left_unset_is_a_bug_not_a_number():
     """NaN cast to int8 is 0, the code of "ok": a scheme that fills no status must fail."""
-    def run_nothing(start, stop, state0, params, options, h, n_steps, every, bound, samples,
-                    results, halt, clock):
+
+    def run_nothing(
+        start, stop, state0, params, options, h, n_steps, every, bound, samples, results, halt, clock
+    ):
         samples[:] = 0.0
 
     silent = dataclasses.replace(SCHEMES["euler"], name="silent", run_bodies_inplace=run_nothing)
@@ -96,9 +109,12 @@ def test_a_result_left_unset_is_a_bug_not_a_number():
 def test_dop853_reports_energy_and_momentum_drift_apart():
     """Each drift equals its own measure taken independently from the samples (it used to
     report one combined drift as both)."""
-    scene = Scene(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
-                  quaternion=tuple(Rotation.from_rotvec([0.3, -0.2, 0.5]).as_quat()),
-                  omega_body=(0.6, 1.5, 0.9), duration=20.0)
+    scene = Scene(
+        body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)),
+        quaternion=tuple(Rotation.from_rotvec([0.3, -0.2, 0.5]).as_quat()),
+        omega_body=(0.6, 1.5, 0.9),
+        duration=20.0,
+    )
     run = simulate([scene], "dop853", 0.05, 0.05)
     w = run.omega_body[0]
     inertia = np.array(scene.body.inertia)
@@ -117,7 +133,11 @@ def test_an_input_error_carries_its_place_and_fix():
     placed = error.located("study.yaml", "sweep (body_mass[1] = -1.0)", ConfigError)
     assert isinstance(placed, ConfigError)
     assert (placed.source, placed.key, placed.message, placed.fix) == (
-        "study.yaml", "sweep (body_mass[1] = -1.0): scene.body.mass", error.message, error.fix)
+        "study.yaml",
+        "sweep (body_mass[1] = -1.0): scene.body.mass",
+        error.message,
+        error.fix,
+    )
     inner = InputError("bad row", source="nodes.csv", key="line 3")
     assert inner.located("study.yaml", "scene.nodes").source == "nodes.csv"  # the specific file
 
@@ -126,9 +146,11 @@ def test_a_dotted_path_through_a_number_is_one_line(tmp_path):
     path = write_study(tmp_path, sweep={"scene.body.mass.x": [1.0]})
     with pytest.raises(ConfigError) as error:
         load_study(path)
-    assert str(error.value) == (f"{path}: sweep: scene.body.mass.x: "
-                                "scene.body.mass holds 1.0, not a mapping or list; sweep a "
-                                "path that exists in the study")
+    assert str(error.value) == (
+        f"{path}: sweep: scene.body.mass.x: "
+        "scene.body.mass holds 1.0, not a mapping or list; sweep a "
+        "path that exists in the study"
+    )
 
 
 def test_a_short_axis_names_the_key_it_needs(tmp_path):

@@ -27,8 +27,11 @@ def public_functions(tree):
             yield node.name, node
         if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
             for method in node.body:
-                if isinstance(method, ast.FunctionDef) and not method.name.startswith("_") \
-                        and not any("property" in ast.unparse(d) for d in method.decorator_list):
+                if (
+                    isinstance(method, ast.FunctionDef)
+                    and not method.name.startswith("_")
+                    and not any("property" in ast.unparse(d) for d in method.decorator_list)
+                ):
                     yield f"{node.name}.{method.name}", method
 
 
@@ -48,8 +51,11 @@ def returns_value(function):
         node = pending.pop()
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda | ast.ClassDef):
             continue
-        if isinstance(node, ast.Return) and node.value is not None and not (
-                isinstance(node.value, ast.Constant) and node.value.value is None):
+        if (
+            isinstance(node, ast.Return)
+            and node.value is not None
+            and not (isinstance(node.value, ast.Constant) and node.value.value is None)
+        ):
             return True
         pending.extend(ast.iter_child_nodes(node))
     return False
@@ -61,7 +67,7 @@ def sections(docstring):
     if not heads:
         return {}
     ends = [m.start() for m in heads[1:]] + [len(docstring)]
-    return {m.group(1): docstring[m.end():end] for m, end in zip(heads, ends, strict=True)}
+    return {m.group(1): docstring[m.end() : end] for m, end in zip(heads, ends, strict=True)}
 
 
 def entries(text):
@@ -98,8 +104,7 @@ def problems(function):
 @pytest.mark.parametrize("path", DOCUMENTED, ids=lambda path: path.name)
 def test_public_numerical_functions_document_parameters_returns_and_shapes(path):
     tree = ast.parse(path.read_text())
-    missing = {name: lacking for name, function in public_functions(tree)
-               if (lacking := problems(function))}
+    missing = {name: lacking for name, function in public_functions(tree) if (lacking := problems(function))}
     assert not missing, f"{path.relative_to(PACKAGE.parent)}: numpydoc lacks {missing}"
 
 

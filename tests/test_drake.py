@@ -22,9 +22,14 @@ _TURN_TOLERANCE = {"drake_implicit_euler": 5e-4}
 
 def _asymmetric(duration):
     """I = (1, 2, 3) tumbling about no principal axis (tests/conftest.py's asymmetric body)."""
-    return make_scene(body={"inertia": [1.0, 2.0, 3.0]}, duration=duration,
-                      initial={"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                               "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}})
+    return make_scene(
+        body={"inertia": [1.0, 2.0, 3.0]},
+        duration=duration,
+        initial={
+            "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+            "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+        },
+    )
 
 
 def _turn(scheme, angle):
@@ -35,10 +40,12 @@ def _turn(scheme, angle):
     plant adds dt N(q) v (1, half); Drake's implicit Euler takes two backward Euler steps of
     dt/2, its pair for the error estimate, each dividing by (1 - (0, w) dt/4)."""
     half, quarter = angle / 2, angle / 4
-    c, s = {"drake_rk2": (1 - half**2 / 2, half),
-            "drake_rk3": (1 - half**2 / 2, half - half**3 / 6),
-            "drake_implicit_euler": (1 - quarter**2, 2 * quarter),
-            "drake_discrete": (1.0, half)}[scheme]
+    c, s = {
+        "drake_rk2": (1 - half**2 / 2, half),
+        "drake_rk3": (1 - half**2 / 2, half - half**3 / 6),
+        "drake_implicit_euler": (1 - quarter**2, 2 * quarter),
+        "drake_discrete": (1.0, half),
+    }[scheme]
     return 2 * np.arctan2(s, c)
 
 
@@ -48,8 +55,11 @@ def test_a_step_of_a_constant_spin_turns_by_the_schemes_own_polynomial(scheme):
     (RK3), 0.4975 (implicit Euler), 0.4900 (discrete); the rate is kept to round-off."""
     dt = 0.01
     for rate in (2.5, 50.0):
-        body = make_scene(body={"inertia": [1.0, 2.0, 3.0]}, duration=dt,
-                          initial={"angular_velocity": {"body": [0.0, rate, 0.0]}})
+        body = make_scene(
+            body={"inertia": [1.0, 2.0, 3.0]},
+            duration=dt,
+            initial={"angular_velocity": {"body": [0.0, rate, 0.0]}},
+        )
         after = run(scheme, [body], dt, 1)[0, 1]
         assert after[11] == pytest.approx(rate, rel=1e-13)
         turn = Rotation.from_quat(after[3:7]).magnitude()
@@ -59,8 +69,9 @@ def test_a_step_of_a_constant_spin_turns_by_the_schemes_own_polynomial(scheme):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scheme, order", [("drake_rk2", 2), ("drake_rk3", 3),
-                                           ("drake_implicit_euler", 1), ("drake_discrete", 1)])
+@pytest.mark.parametrize(
+    "scheme, order", [("drake_rk2", 2), ("drake_rk3", 3), ("drake_implicit_euler", 1), ("drake_discrete", 1)]
+)
 def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
     errors = final_orientation_errors(_asymmetric(4.0), scheme, [0.01, 0.005, 0.0025], 0.04)
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.15)
@@ -94,8 +105,7 @@ def test_the_discrete_plant_is_semi_implicit_euler_but_for_its_turn():
     coarse, fine = (difference("drake_discrete", "euler", scenes, dt) for dt in (0.01, 0.005))
     assert np.log2(coarse[2] / fine[2]) == pytest.approx(1.0, abs=0.1)
     pytest.importorskip("mujoco")
-    coarse, fine = (difference("drake_discrete", "mujoco_euler", scenes, dt)
-                    for dt in (0.01, 0.005))
+    coarse, fine = (difference("drake_discrete", "mujoco_euler", scenes, dt) for dt in (0.01, 0.005))
     np.testing.assert_allclose(np.log2(coarse / fine), 2.0, atol=0.05)
 
 
@@ -114,8 +124,9 @@ def test_tamsi_and_sap_step_a_free_body_alike(monkeypatch):
 def test_drake_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme, on the asymmetric top: statuses, Drake's version
     in the archive, and the orders from the archived errors."""
-    errors = swept_errors(tmp_path, ["drake_rk3", "drake_discrete"],
-                          f"rbstudy's adapter of Drake {drake.VERSION}")
+    errors = swept_errors(
+        tmp_path, ["drake_rk3", "drake_discrete"], f"rbstudy's adapter of Drake {drake.VERSION}"
+    )
     for scheme, order in (("drake_rk3", 3), ("drake_discrete", 1)):
         e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
         assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme

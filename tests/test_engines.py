@@ -65,8 +65,7 @@ def test_the_extra_an_install_hint_names_installs_that_engine(adapter):
 
 
 @pytest.mark.parametrize("adapter", sorted(BINDINGS))
-def test_without_its_engine_each_scheme_is_unavailable_with_the_install_hint(adapter,
-                                                                               monkeypatch):
+def test_without_its_engine_each_scheme_is_unavailable_with_the_install_hint(adapter, monkeypatch):
     binding, package, extra = BINDINGS[adapter]
     fix = f'pip install "{package}" (rbstudy\'s extra "{extra}")'
     monkeypatch.setitem(sys.modules, binding, None)  # import <binding> raises ImportError
@@ -93,10 +92,15 @@ def test_a_body_at_rest_stays_where_it_is(engine_scheme):
     """At rest, at an arbitrary place and orientation: every step leaves the state as it was
     (the quaternion's order is checked by the constant spins below)."""
     turned = Rotation.from_rotvec([0.3, -1.1, 0.7])
-    scene = make_scene(body={"mass": 2.0, "inertia": [1.0, 2.0, 3.0]}, duration=1.0,
-                   initial={"position": [1.0, -2.0, 0.5],
-                            "orientation": {"quaternion": turned.as_quat().tolist()},
-                            "angular_velocity": {"body": [0.0, 0.0, 0.0]}})
+    scene = make_scene(
+        body={"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
+        duration=1.0,
+        initial={
+            "position": [1.0, -2.0, 0.5],
+            "orientation": {"quaternion": turned.as_quat().tolist()},
+            "angular_velocity": {"body": [0.0, 0.0, 0.0]},
+        },
+    )
     samples = run(engine_scheme, [scene], 0.01, 20)[0]
     assert np.all(np.isfinite(samples))
     np.testing.assert_allclose(samples - samples[0], 0.0, atol=1e-15)
@@ -111,14 +115,19 @@ def test_a_constant_spin_turns_the_body_about_its_own_axis(engine_scheme, axis):
     turned = Rotation.from_rotvec([0.3, -1.1, 0.7])
     spin = np.zeros(3)
     spin[axis] = 2.5
-    scene = make_scene(body={"mass": 2.0, "inertia": [1.0, 2.0, 3.0]}, duration=1.0,
-                   initial={"orientation": {"quaternion": turned.as_quat().tolist()},
-                            "angular_velocity": {"body": spin.tolist()},
-                            "velocity": [0.5, -0.25, 1.0]})
+    scene = make_scene(
+        body={"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
+        duration=1.0,
+        initial={
+            "orientation": {"quaternion": turned.as_quat().tolist()},
+            "angular_velocity": {"body": spin.tolist()},
+            "velocity": [0.5, -0.25, 1.0],
+        },
+    )
     dt, n_steps = 0.01, 80
     samples = run(engine_scheme, [scene], dt, n_steps)[0]
     times = dt * np.arange(n_steps + 1)
-    reached = Rotation.from_quat(samples[:, S.QUATERNION:S.QUATERNION + 4])
+    reached = Rotation.from_quat(samples[:, S.QUATERNION : S.QUATERNION + 4])
     if engine_scheme.split("_")[0] in RATE_TOLERANCE:  # the engine's turn of one step
         rate = (reached[0].inv() * reached[1]).magnitude() / dt
         assert rate == pytest.approx(2.5, abs=RATE_TOLERANCE[engine_scheme.split("_")[0]])
@@ -127,10 +136,10 @@ def test_a_constant_spin_turns_the_body_about_its_own_axis(engine_scheme, axis):
     expected = turned * Rotation.from_rotvec(times[:, None] * spin * (rate / 2.5))
     bound = STEADY_SPIN_ERROR.get(engine_scheme, 1e-12)
     assert np.max((expected.inv() * reached).magnitude()) < bound
-    np.testing.assert_allclose(samples[:, S.OMEGA:S.OMEGA + 3], np.tile(spin, (n_steps + 1, 1)),
-                               atol=bound)
-    np.testing.assert_allclose(samples[:, S.POSITION:S.POSITION + 3],
-                               times[:, None] * [0.5, -0.25, 1.0], atol=1e-12)
+    np.testing.assert_allclose(samples[:, S.OMEGA : S.OMEGA + 3], np.tile(spin, (n_steps + 1, 1)), atol=bound)
+    np.testing.assert_allclose(
+        samples[:, S.POSITION : S.POSITION + 3], times[:, None] * [0.5, -0.25, 1.0], atol=1e-12
+    )
     wrong = Rotation.from_rotvec(times[:, None] * spin) * turned  # w taken in the world frame
     assert np.max((wrong.inv() * reached).magnitude()) > 0.5
 
@@ -172,8 +181,7 @@ def test_rk4_and_euler_agree_with_rbstudys_to_the_order_of_the_step():
     np.testing.assert_allclose(np.log2(coarse / fine), 1.0, atol=0.15)
 
 
-@pytest.mark.parametrize("scheme, order", [("mujoco_rk4", 4), ("mujoco_implicit", 1),
-                                           ("mujoco_euler", 1)])
+@pytest.mark.parametrize("scheme, order", [("mujoco_rk4", 4), ("mujoco_implicit", 1), ("mujoco_euler", 1)])
 def test_each_shows_its_order_against_the_exact_solution(scheme, order):
     scene = make_scene(**{**abaqus_mapping(inertia=[1.0, 2.0, 3.0]), "duration": 2.0})
     errors = final_orientation_errors(scene, scheme, [0.01, 0.005, 0.0025], 0.01)
@@ -183,8 +191,9 @@ def test_each_shows_its_order_against_the_exact_solution(scheme, order):
 def test_mujoco_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: statuses, the engine's version in the archive,
     and orders from the archived errors."""
-    errors = swept_errors(tmp_path, ["mujoco_rk4", "mujoco_implicitfast"],
-                          f"rbstudy's adapter of mujoco {mujoco.__version__}")
+    errors = swept_errors(
+        tmp_path, ["mujoco_rk4", "mujoco_implicitfast"], f"rbstudy's adapter of mujoco {mujoco.__version__}"
+    )
     for scheme, order in (("mujoco_rk4", 4), ("mujoco_implicitfast", 1)):
         e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
         assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
@@ -196,12 +205,21 @@ def test_a_state_mujoco_refuses_is_a_blow_up_of_that_body_alone(scheme, tmp_path
     body beside it runs on, and MuJoCo leaves no log file behind."""
     monkeypatch.chdir(tmp_path)
     fine = make_scene(**{**abaqus_mapping(), "duration": 1.0})
-    wild = make_scene(body={"mass": 1.0, "inertia": [1.0, 2.0, 3.0]}, duration=1.0,
-                  initial={"angular_velocity": {"body": [0.0, 0.0, 0.0]},
-                           "velocity": [2e10, 0.0, 0.0]})
+    wild = make_scene(
+        body={"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+        duration=1.0,
+        initial={"angular_velocity": {"body": [0.0, 0.0, 0.0]}, "velocity": [2e10, 0.0, 0.0]},
+    )
     chosen = get_scheme(scheme)
-    output = run_batch(chosen, np.array([fine.state_row(), wild.state_row()]),
-                       param_rows([fine, wild]), np.zeros((2, S.N_OPTION)), 0.01, 50, 1)
+    output = run_batch(
+        chosen,
+        np.array([fine.state_row(), wild.state_row()]),
+        param_rows([fine, wild]),
+        np.zeros((2, S.N_OPTION)),
+        0.01,
+        50,
+        1,
+    )
     assert list(output.results["status"]) == [0, 1]
     assert output.results["failure_time"][1] == pytest.approx(0.01)
     assert np.all(np.isfinite(output.samples[0]))

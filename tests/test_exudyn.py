@@ -22,14 +22,19 @@ INERTIA = np.array([1.0, 2.0, 3.0])
 
 def _asymmetric(duration):
     """I = (1, 2, 3) tumbling about no principal axis (tests/conftest.py's asymmetric body)."""
-    return make_scene(body={"inertia": INERTIA.tolist()}, duration=duration,
-                      initial={"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                               "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}})
+    return make_scene(
+        body={"inertia": INERTIA.tolist()},
+        duration=duration,
+        initial={
+            "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+            "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+        },
+    )
 
 
 def _energy_change(samples):
     """The relative change of the rotational energy over ``samples`` (T, N_STATE)."""
-    w = samples[:, S.OMEGA:S.OMEGA + 3]
+    w = samples[:, S.OMEGA : S.OMEGA + 3]
     energy = 0.5 * (INERTIA * w * w).sum(axis=1)
     return energy[-1] / energy[0] - 1.0
 
@@ -57,14 +62,15 @@ EXUDYN_CONVERGED_OMEGA_Y = -106.16380414306643  # DOPRI5, atol 1e-14
 
 def _space_spin_y(scheme):
     mass = 15.0
-    top = make_scene(body={"mass": mass, "inertia": [0.234375 + mass, 0.46875,
-                                                     0.234375 + mass]},
-                     duration=2.0, nodes={"top": [0.0, 1.0, 0.0]},
-                     initial={"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
-                     loads={"nodes": {"top": {"force_space": [0.0, 0.0, -mass * 9.81]}}})
+    top = make_scene(
+        body={"mass": mass, "inertia": [0.234375 + mass, 0.46875, 0.234375 + mass]},
+        duration=2.0,
+        nodes={"top": [0.0, 1.0, 0.0]},
+        initial={"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
+        loads={"nodes": {"top": {"force_space": [0.0, 0.0, -mass * 9.81]}}},
+    )
     end = simulate([top], scheme, 1e-3, 2.0).output.samples[0, -1]
-    return Rotation.from_quat(end[S.QUATERNION:S.QUATERNION + 4]).apply(
-        end[S.OMEGA:S.OMEGA + 3])[1]
+    return Rotation.from_quat(end[S.QUATERNION : S.QUATERNION + 4]).apply(end[S.OMEGA : S.OMEGA + 3])[1]
 
 
 def test_exudyns_own_test_of_its_lie_group_rk44_is_reproduced():
@@ -75,8 +81,9 @@ def test_exudyns_own_test_of_its_lie_group_rk44_is_reproduced():
     assert _space_spin_y("dop853") == pytest.approx(EXUDYN_CONVERGED_OMEGA_Y, rel=1e-11)
 
 
-@pytest.mark.parametrize("scheme, order", [("exudyn_genalpha", 2), ("exudyn_rk44", 4),
-                                           ("exudyn_midpoint", 2)])
+@pytest.mark.parametrize(
+    "scheme, order", [("exudyn_genalpha", 2), ("exudyn_rk44", 4), ("exudyn_midpoint", 2)]
+)
 def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
     errors = final_orientation_errors(_asymmetric(4.0), scheme, [0.01, 0.005, 0.0025], 0.04)
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.1)
@@ -95,10 +102,11 @@ def test_loads_tabulated_in_time_are_held_over_the_step():
     """A moment tabulated as a constant in time is the constant moment held over each step:
     the two runs differ by O(h)."""
     held = {"moment_body": {"table": [[0.0, 0.2, -0.1, 0.3], [5.0, 0.2, -0.1, 0.3]]}}
-    scenes = [make_scene(**{**LOADED, "loads": loads}) for loads in
-              ({"moment_body": [0.2, -0.1, 0.3]}, held)]
-    coarse, fine = (np.max(np.abs(np.diff(simulate(scenes, "exudyn_rk44", dt, 0.01)
-                                          .output.samples, axis=0))) for dt in (0.01, 0.005))
+    scenes = [make_scene(**{**LOADED, "loads": loads}) for loads in ({"moment_body": [0.2, -0.1, 0.3]}, held)]
+    coarse, fine = (
+        np.max(np.abs(np.diff(simulate(scenes, "exudyn_rk44", dt, 0.01).output.samples, axis=0)))
+        for dt in (0.01, 0.005)
+    )
     assert coarse > 1e-4
     assert np.log2(coarse / fine) == pytest.approx(1.0, abs=0.1)
 
@@ -109,8 +117,10 @@ def test_on_the_abaqus_top_generalized_alpha_is_of_hhts_order_with_a_larger_erro
     turns the frame by the exponential map and keeps the spin w3 exactly; Exudyn integrates
     the Euler parameters as coordinates, which misses the fast spin's phase by O(h^2)."""
     top = make_scene(**abaqus_mapping())
-    errors = {scheme: final_orientation_errors(top, scheme, [0.01, 0.005, 0.0025], 0.01)
-              for scheme in ("exudyn_genalpha", "hht")}
+    errors = {
+        scheme: final_orientation_errors(top, scheme, [0.01, 0.005, 0.0025], 0.01)
+        for scheme in ("exudyn_genalpha", "hht")
+    }
     for scheme, e in errors.items():
         np.testing.assert_allclose(np.log2(e[:-1] / e[1:]), 2.0, atol=0.05, err_msg=scheme)
     assert 5.0 < errors["exudyn_genalpha"][0] / errors["hht"][0] < 30.0
@@ -120,8 +130,11 @@ def test_generalized_alpha_on_euler_parameters_misses_a_steady_spin_by_h_squared
     """The Euler parameters are integrated as coordinates, not on the rotation group: a
     spin about a principal axis is not kept exactly (the bound of tests/test_engines.py),
     and the miss falls as h^2. Exudyn's Lie-group solvers keep it to round-off."""
-    scene = make_scene(body={"inertia": INERTIA.tolist()}, duration=1.0,
-                       initial={"angular_velocity": {"body": [0.0, 2.5, 0.0]}})
+    scene = make_scene(
+        body={"inertia": INERTIA.tolist()},
+        duration=1.0,
+        initial={"angular_velocity": {"body": [0.0, 2.5, 0.0]}},
+    )
     misses = {}
     for scheme in ("exudyn_genalpha", "exudyn_midpoint"):
         for dt in (0.01, 0.005):
@@ -130,8 +143,9 @@ def test_generalized_alpha_on_euler_parameters_misses_a_steady_spin_by_h_squared
             reached = Rotation.from_quat(run.quaternion[0])
             misses[scheme, dt] = np.max((exact.inv() * reached).magnitude())
     assert misses["exudyn_genalpha", 0.01] > 1e-5
-    assert np.log2(misses["exudyn_genalpha", 0.01] / misses["exudyn_genalpha", 0.005]) \
-        == pytest.approx(2.0, abs=0.1)
+    assert np.log2(misses["exudyn_genalpha", 0.01] / misses["exudyn_genalpha", 0.005]) == pytest.approx(
+        2.0, abs=0.1
+    )
     assert misses["exudyn_midpoint", 0.01] < 1e-12
 
 
@@ -139,9 +153,10 @@ def test_the_spectral_radius_sets_the_damping():
     """Over 20 s at dt = 0.01 s, generalized alpha at spectral radius 0 (the most numerical
     damping) loses ten times the energy it loses at Exudyn's default 0.9; near 1 the index-3
     constraint leaves it unstable (at 0.999 the run stops before 20 s)."""
-    changes = {rho: simulate([_asymmetric(20.0)], "exudyn_genalpha", 0.01, 1.0,
-                             {"spectral_radius": rho})
-               for rho in (0.0, 0.9, 0.999)}
+    changes = {
+        rho: simulate([_asymmetric(20.0)], "exudyn_genalpha", 0.01, 1.0, {"spectral_radius": rho})
+        for rho in (0.0, 0.9, 0.999)
+    }
     damped, default = (_energy_change(changes[rho].output.samples[0]) for rho in (0.0, 0.9))
     assert damped < 0.0
     assert abs(default) < abs(damped) / 10.0
@@ -162,17 +177,18 @@ def test_the_explicit_solvers_refuse_euler_parameter_nodes():
     kind = adapter._Kind(exudyn.DynamicSolverType.RK44, euler_parameters=True)
     top = make_scene(**abaqus_mapping())
     with pytest.raises(exudyn.ModelError, match="algebraic variables"):
-        adapter._Body(kind, kind.node(top.state_row()[None, :])[0], param_rows([top])[0], 0.01,
-                      0.9)
+        adapter._Body(kind, kind.node(top.state_row()[None, :])[0], param_rows([top])[0], 0.01, 0.9)
 
 
-def test_a_failed_newton_stops_that_body_and_nothing_is_written_or_printed(tmp_path,
-                                                                            monkeypatch, capfd):
+def test_a_failed_newton_stops_that_body_and_nothing_is_written_or_printed(tmp_path, monkeypatch, capfd):
     """A spin too fast for generalized alpha's Newton at this step ends the body as
     not converged; Exudyn leaves no file in the working folder and prints nothing."""
     monkeypatch.chdir(tmp_path)
-    wild = make_scene(body={"inertia": INERTIA.tolist()}, duration=0.5,
-                      initial={"angular_velocity": {"body": [300.0, 1000.0, 200.0]}})
+    wild = make_scene(
+        body={"inertia": INERTIA.tolist()},
+        duration=0.5,
+        initial={"angular_velocity": {"body": [300.0, 1000.0, 200.0]}},
+    )
     calm = make_scene(**{**abaqus_mapping(), "duration": 0.5})
     run = simulate([calm, wild], "exudyn_genalpha", 0.01, 0.01)
     assert run.status_names == ["ok", "not_converged"]
@@ -184,9 +200,12 @@ def test_a_failed_newton_stops_that_body_and_nothing_is_written_or_printed(tmp_p
 def test_exudyn_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: the engine's version in the archive, the
     spectral radius swept as an option, and orders from the archived errors."""
-    errors = swept_errors(tmp_path, ["exudyn_genalpha", "exudyn_rk44"],
-                          f"rbstudy's adapter of Exudyn {exudyn.__version__}",
-                          **{"run.options.spectral_radius": [0.5, 0.9]})
+    errors = swept_errors(
+        tmp_path,
+        ["exudyn_genalpha", "exudyn_rk44"],
+        f"rbstudy's adapter of Exudyn {exudyn.__version__}",
+        **{"run.options.spectral_radius": [0.5, 0.9]},
+    )
     for scheme, order in (("exudyn_genalpha", 2), ("exudyn_rk44", 4)):
         e = errors.sel(scheme=scheme).isel(spectral_radius=-1).values  # finest first
         assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme

@@ -44,8 +44,7 @@ def shrunk_config(name, folder):
             listed = [values[0]] if isinstance(values, list) else composed
             sweep[axis] = SHRUNK_SCHEMES + [s for s in listed if s not in SHRUNK_SCHEMES]
         elif axis == "zip":
-            sweep[axis] = {dim: {a: _shrink(v) for a, v in group.items()}
-                           for dim, group in values.items()}
+            sweep[axis] = {dim: {a: _shrink(v) for a, v in group.items()} for dim, group in values.items()}
         else:
             sweep[axis] = _shrink(values)
     interval = study["output"]["interval"]
@@ -62,8 +61,7 @@ def candidate_figures(ds):
     names = {"stability_map"}
     if "dt" in ds.dims:
         names.add("work_precision")
-        names |= {f"convergence_{key}" for key, measure in ERROR_MEASURES.items()
-                  if measure.variable in ds}
+        names |= {f"convergence_{key}" for key, measure in ERROR_MEASURES.items() if measure.variable in ds}
     if "energy_error" in ds:
         names.add("invariant_drift")
     if "precession_frequency" in ds and "node_offset" in ds:
@@ -98,15 +96,19 @@ def test_every_shipped_study_gives_its_figures(name, tmp_path):
 
 @pytest.mark.slow
 def test_the_report_table_shows_every_column_with_the_summary_numbers(tmp_path, capsys):
-    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True)
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     assert main(["report", str(done.path), "--out", str(tmp_path / "report"), "--quiet"]) == 0
     text = (tmp_path / "report" / "report.html").read_text()  # its images: test_report.py
     rows = scheme_rows(open_results(done.path))
     keys = [column.key for column in table_columns(rows)]  # the report shows every column
-    table = {cells[0]: cells for cells in (
-        [cell.strip() for cell in re.findall(r"<td[^>]*>([^<]*)</td>", line)]
-        for line in text.splitlines() if line.startswith("<tr><td>"))}
+    table = {
+        cells[0]: cells
+        for cells in (
+            [cell.strip() for cell in re.findall(r"<td[^>]*>([^<]*)</td>", line)]
+            for line in text.splitlines()
+            if line.startswith("<tr><td>")
+        )
+    }
     assert set(SHRUNK_SCHEMES) <= set(table)
     for row in rows:  # the table shows the summary's numbers, each in its column
         cells = table[row["scheme"]]
@@ -140,19 +142,34 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_plot_select_narrows_the_cases(tmp_path, capsys):
-    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True)
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     from rbstudy.cli import _select
+
     narrowed = _select(open_results(done.path), ["scheme=hht", "inertia_ratio=2"], "x")
     assert (narrowed.sizes["scheme"], narrowed.sizes["inertia_ratio"]) == (1, 1)
     assert str(narrowed.scheme.values[0]) == "hht" and float(narrowed.inertia_ratio[0]) == 2.0
     capsys.readouterr()
-    assert main(["plot", str(done.path), "--out", str(tmp_path / "one"),
-                 "--select", "scheme=hht", "--select", "inertia_ratio=2"]) == 0
+    assert (
+        main(
+            [
+                "plot",
+                str(done.path),
+                "--out",
+                str(tmp_path / "one"),
+                "--select",
+                "scheme=hht",
+                "--select",
+                "inertia_ratio=2",
+            ]
+        )
+        == 0
+    )
     reported = int(capsys.readouterr().out.split(": ")[1].split()[0])
     assert len(list((tmp_path / "one").glob("*.png"))) == reported > 0
-    for bad, message in ((["--select", "dt=fast"], "--select dt=fast: dt takes a number"),
-                         (["--select", "time=1"], "'time' is not a swept dimension")):
+    for bad, message in (
+        (["--select", "dt=fast"], "--select dt=fast: dt takes a number"),
+        (["--select", "time=1"], "'time' is not a swept dimension"),
+    ):
         assert main(["plot", str(done.path), "--out", str(tmp_path / "x"), *bad]) == 1
         assert message in capsys.readouterr().err
     assert main(["plot", str(done.path), "--select", "dt=0.01"]) == 1
@@ -160,15 +177,19 @@ def test_plot_select_narrows_the_cases(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_archive(
-        tmp_path, capsys):
+def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_archive(tmp_path, capsys):
     """`plot a.nc b.nc --out DIR` used to leave 13 of 50 figures: names now carry the study;
     a report goes beside its archive by default and never into another study's folder."""
-    paths = [run_study(load_study(shrunk_config(name, tmp_path)), tmp_path / "out",
-                       quiet=True).path for name in ("long_run.yaml", "high_spin.yaml")]
+    paths = [
+        run_study(load_study(shrunk_config(name, tmp_path)), tmp_path / "out", quiet=True).path
+        for name in ("long_run.yaml", "high_spin.yaml")
+    ]
     assert main(["plot", *map(str, paths), "--out", str(tmp_path / "both")]) == 0
-    counts = [int(line.split(": ")[1].split()[0]) for line in capsys.readouterr().out.splitlines()
-              if "figures (PNG)" in line]
+    counts = [
+        int(line.split(": ")[1].split()[0])
+        for line in capsys.readouterr().out.splitlines()
+        if "figures (PNG)" in line
+    ]
     assert len(list((tmp_path / "both").glob("*.png"))) == sum(counts) > counts[0]
     assert main(["report", str(paths[0])]) == 0
     assert (paths[0].parent / "report" / "report.html").is_file()
@@ -181,8 +202,7 @@ def test_figures_of_two_studies_share_a_folder_and_a_report_sits_beside_its_arch
 
 @pytest.mark.slow
 def test_a_convergence_figure_with_nothing_to_show_is_left_out_with_why(tmp_path):
-    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True)
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
     ds["final_orientation_error"][:] = float("nan")  # every case failed
     figures = convergence(ds, tmp_path / "figures")
@@ -195,13 +215,20 @@ def test_every_scheme_registers_a_style_of_its_own():
     """rbstudy's own schemes and the engines', each in its file (plug-ins may leave it out)."""
     from rbstudy.schemes import scheme_styles
     from rbstudy.schemes._plugins import ENGINES
+
     own = [*BUILTIN, *ENGINES]
     styles = scheme_styles(own)
     assert set(styles) == set(own)
     assert len({style.color for style in styles.values()}) == len(own)
-    for a, b in (("euler", "leapfrog"), ("splitting", "no_squish"), ("rk4", "rkmk4"),
-                 ("mujoco_implicitfast", "mujoco_implicit"), ("bullet_multibody", "mujoco_euler"),
-                 ("bullet_rigidbody", "mujoco_implicit"), ("exudyn_rk44", "rkmk4")):
+    for a, b in (
+        ("euler", "leapfrog"),
+        ("splitting", "no_squish"),
+        ("rk4", "rkmk4"),
+        ("mujoco_implicitfast", "mujoco_implicit"),
+        ("bullet_multibody", "mujoco_euler"),
+        ("bullet_rigidbody", "mujoco_implicit"),
+        ("exudyn_rk44", "rkmk4"),
+    ):
         # curves that coincide: another marker and another dash, so that both show
         assert styles[a][1:] != styles[b][1:]
         assert styles[a].dash != styles[b].dash
@@ -212,6 +239,7 @@ def test_a_scheme_without_a_style_gets_one_no_other_line_of_the_study_wears():
     euler's own or another plug-in's."""
     from rbstudy.analysis.plots import line_styles
     from rbstudy.schemes import scheme_styles
+
     registered = scheme_styles(["euler", "leapfrog", "rk4"])
     plugins = [f"plugin_{k}" for k in range(30)]
     styles = line_styles(["euler", "leapfrog", "rk4", *plugins], registered)
@@ -221,8 +249,10 @@ def test_a_scheme_without_a_style_gets_one_no_other_line_of_the_study_wears():
     # while colours are left, a plug-in takes one no registered line wears
     assert not colours & {styles[name][0] for name in plugins[:5]}
     # and the same study gives a plug-in the same style in every figure, whatever the order
-    assert line_styles(["rk4", "plugin_0"], registered)["plugin_0"] == \
-        line_styles(["plugin_0", "rk4"], registered)["plugin_0"]
+    assert (
+        line_styles(["rk4", "plugin_0"], registered)["plugin_0"]
+        == line_styles(["plugin_0", "rk4"], registered)["plugin_0"]
+    )
 
 
 def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
@@ -230,12 +260,14 @@ def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
     import numpy as np
 
     from rbstudy.analysis.plots import plot_with_zeros, zero_floor
+
     errors = np.array([3e-4, 0.0, np.nan, 2e-6])  # a zero, and a failed case
     floor = zero_floor(errors)
-    assert floor == 10 ** -7.5  # between the tick labels 1e-8 and 1e-7, below every value
+    assert floor == 10**-7.5  # between the tick labels 1e-8 and 1e-7, below every value
     fig, ax = plt.subplots()
-    style = dict(color="k", marker="o", linestyle="-", markersize=4, markerfacecolor="k",
-                 zorder=2, linewidth=1)
+    style = dict(
+        color="k", marker="o", linestyle="-", markersize=4, markerfacecolor="k", zorder=2, linewidth=1
+    )
     plot_with_zeros(ax, np.arange(4.0), errors, floor, "x", style)
     line, zeros = ax.lines
     assert np.isnan(line.get_ydata()[1]) and np.isnan(line.get_ydata()[2])
@@ -249,6 +281,7 @@ def drawn_figures(monkeypatch):
     import matplotlib.pyplot as plt
 
     from rbstudy.analysis import plots
+
     kept = {}
 
     def keep(fig, folder, ds, name, formats):
@@ -261,14 +294,13 @@ def drawn_figures(monkeypatch):
     plt.close("all")
 
 
-def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path,
-                                                                          drawn_figures):
+def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path, drawn_figures):
     import matplotlib.colors as colors
 
     from rbstudy.analysis.plots import ZERO_LABEL
     from rbstudy.cli import _styles_of
-    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True)
+
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
     styles = _styles_of(ds)  # what `rbstudy plot` reads from the registry
     assert styles == {name: SCHEMES[name].style for name in SHRUNK_SCHEMES}
@@ -276,15 +308,14 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
     fig = drawn_figures["convergence_energy"]
     fig.canvas.draw()
     panels = [ax for ax in fig.axes if ax.get_visible()]
-    legend, = fig.legends
+    (legend,) = fig.legends
     # the figure's one legend lies right of every panel, not over one
     assert legend.get_window_extent().x0 >= max(ax.get_window_extent().x1 for ax in panels)
     styled = set()
     for ax in panels:
         assert ax.get_legend() is None
         for line in ax.get_lines():
-            scheme = next((s for s in styles if colors.same_color(
-                line.get_color(), styles[s].color)), None)
+            scheme = next((s for s in styles if colors.same_color(line.get_color(), styles[s].color)), None)
             if scheme is not None and line.get_marker() == styles[scheme].marker:
                 styled.add(scheme)
     assert styled == set(SHRUNK_SCHEMES)  # every scheme drawn, each in its own style
@@ -304,20 +335,24 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
 def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
     import numpy as np
     import xarray as xr
-    done = run_study(load_study(shrunk_config("long_run.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True, keep_parts=True)
+
+    done = run_study(
+        load_study(shrunk_config("long_run.yaml", tmp_path)), tmp_path / "out", quiet=True, keep_parts=True
+    )
     part = next((done.path.parent / "parts").glob("*.nc"))
     foreign = tmp_path / "foreign.nc"
     xr.Dataset({"status": ("x", np.zeros(3)), "omega_body": ("x", np.ones(3))}).to_netcdf(foreign)
     stripped = tmp_path / "stripped.nc"
     open_results(done.path).drop_vars(["accuracy", "run_time"]).to_netcdf(stripped)
-    for path, message in ((part, "is one batch's part file, not a study's archive"),
-                          (foreign, "not an rbstudy archive: no study attribute; it holds "
-                                    "status, omega_body"),
-                          (stripped, "not an rbstudy archive: it lacks accuracy, run_time (written by "
-                                     "rbstudy ")):
-        for verb in (["plot", str(path), "--out", str(tmp_path / "figs")],
-                     ["report", str(path), "--out", str(tmp_path / "rep")]):
+    for path, message in (
+        (part, "is one batch's part file, not a study's archive"),
+        (foreign, "not an rbstudy archive: no study attribute; it holds status, omega_body"),
+        (stripped, "not an rbstudy archive: it lacks accuracy, run_time (written by rbstudy "),
+    ):
+        for verb in (
+            ["plot", str(path), "--out", str(tmp_path / "figs")],
+            ["report", str(path), "--out", str(tmp_path / "rep")],
+        ):
             assert main(verb) == 1
             error = capsys.readouterr().err.strip()
             assert "\n" not in error and f"{path}: {message}" in error, error
@@ -329,9 +364,10 @@ def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     the same, byte for byte, in the same order, with the same figures left out and why."""
     import subprocess
     import sys
-    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True)
+
+    done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     from rbstudy.schemes import scheme_styles
+
     styles = scheme_styles(SHRUNK_SCHEMES)  # as the command line reads them
     serial = all_figures(open_results(done.path), tmp_path / "one", styles=styles)
     forked = all_figures(open_results(done.path), tmp_path / "two", processes=2, styles=styles)
@@ -339,8 +375,12 @@ def test_figures_drawn_in_forked_processes_are_those_drawn_in_one(tmp_path):
     assert forked.absent == serial.absent
     for one, two in zip(serial.written, forked.written, strict=True):
         assert one.read_bytes() == two.read_bytes(), one.name
-    command = subprocess.run([sys.executable, "-m", "rbstudy", "plot", str(done.path), "--out",
-                              str(tmp_path / "cli")], capture_output=True, text=True, check=True)
+    command = subprocess.run(
+        [sys.executable, "-m", "rbstudy", "plot", str(done.path), "--out", str(tmp_path / "cli")],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert f"{len(serial.written)} figures (PNG)" in command.stdout
     for one in serial.written:
         assert (tmp_path / "cli" / one.name).read_bytes() == one.read_bytes(), one.name
@@ -358,10 +398,10 @@ def top_with_twins(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, tmp_path,
-                                                               drawn_figures):
+def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, tmp_path, drawn_figures):
     """It was a 9-entry legend in each of 4 panels, and up to 5 of 9 lines hidden."""
     import numpy as np
+
     all_figures(top_with_twins, tmp_path)
     for name, fig in drawn_figures.items():
         in_panels = sum(ax.get_legend() is not None for ax in fig.axes)
@@ -371,8 +411,11 @@ def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, t
     assert texts[0].startswith("euler = leapfrog to 3 digits (order 2.00"), texts
     assert texts[1].startswith("hht (order 2.00") and len(texts) == 2, texts
     for ax in [ax for ax in fig.axes if ax.get_visible()]:  # both twins drawn, their
-        twins = [line for line in ax.get_lines()  # markers on alternate points
-                 if line.get_markevery() is not None]
+        twins = [
+            line
+            for line in ax.get_lines()  # markers on alternate points
+            if line.get_markevery() is not None
+        ]
         assert [line.get_markevery() for line in twins] == [(0, 2), (1, 2)]
         assert np.allclose(twins[0].get_ydata(), twins[1].get_ydata(), rtol=1e-3)
         assert twins[0].get_markerfacecolor() == "none" != twins[1].get_markerfacecolor()
@@ -380,25 +423,30 @@ def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, t
 
 
 @pytest.mark.slow
-def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_twins, tmp_path,
-                                                                      drawn_figures):
+def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_twins, tmp_path, drawn_figures):
     import matplotlib.colors as colors
     import numpy as np
+
     all_figures(top_with_twins, tmp_path)
     fig = drawn_figures["convergence_orientation"]
     fig.canvas.draw()
     for ax in [ax for ax in fig.axes if ax.get_visible()]:
-        guides = [line for line in ax.get_lines() if line.get_linestyle() == ":"
-                  and colors.same_color(line.get_color(), "0.6")]
-        data = [line for line in ax.get_lines() if line.get_linestyle() != "None"
-                and line not in guides and line.get_xdata().size > 2]
+        guides = [
+            line
+            for line in ax.get_lines()
+            if line.get_linestyle() == ":" and colors.same_color(line.get_color(), "0.6")
+        ]
+        data = [
+            line
+            for line in ax.get_lines()
+            if line.get_linestyle() != "None" and line not in guides and line.get_xdata().size > 2
+        ]
         assert len(guides) == 3 and data  # orders 1, 2 and 4
         for guide in guides:
             x, y = np.log10(guide.get_xdata()), np.log10(guide.get_ydata())
             for line in data:
                 xs, ys = np.log10(line.get_xdata()), np.log10(line.get_ydata())
-                gaps = np.interp(x, xs[::-1], ys[::-1]) - y if xs[0] > xs[-1] else \
-                    np.interp(x, xs, ys) - y
+                gaps = np.interp(x, xs[::-1], ys[::-1]) - y if xs[0] > xs[-1] else np.interp(x, xs, ys) - y
                 gaps = gaps[np.isfinite(gaps)]
                 # one side of the line all along (straight between steps on log axes), and
                 # clear of it: it used to start on the median error, a point of some line
@@ -407,27 +455,29 @@ def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_tw
         assert labels and all(label.startswith("$") and "10^{" in label for label in labels)
 
 
-def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_path,
-                                                           drawn_figures):
+def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_path, drawn_figures):
     all_figures(top_with_twins, tmp_path)
     fig = drawn_figures["invariant_drift"]
     title = fig._suptitle.get_text().replace("\n", " ")
     ratio = float(top_with_twins["inertia_ratio"][0])
-    assert (f"case: inertia_ratio = {ratio:g}, dt = 0.01 s (the first value of each swept "
-            "axis; the largest dt at which every scheme ran stable)") in title
-    legend, = fig.legends
+    assert (
+        f"case: inertia_ratio = {ratio:g}, dt = 0.01 s (the first value of each swept "
+        "axis; the largest dt at which every scheme ran stable)"
+    ) in title
+    (legend,) = fig.legends
     assert [text.get_text() for text in legend.get_texts()] == ["euler", "leapfrog", "hht"]
 
 
-def test_one_swept_axis_gives_a_strip_chart_and_an_all_accurate_map_is_left_out(
-        tmp_path, drawn_figures):
+def test_one_swept_axis_gives_a_strip_chart_and_an_all_accurate_map_is_left_out(tmp_path, drawn_figures):
     """high_spin (spin only) drew 9 panels of one diagonal."""
     from rbstudy.analysis.plots import stability_map
-    ds = open_results(run_study(load_study(shrunk_config("high_spin.yaml", tmp_path)),
-                                tmp_path / "out", quiet=True).path)
+
+    ds = open_results(
+        run_study(load_study(shrunk_config("high_spin.yaml", tmp_path)), tmp_path / "out", quiet=True).path
+    )
     stability_map(ds, tmp_path / "figures")
     fig = drawn_figures["stability_map"]
-    ax, = fig.axes
+    (ax,) = fig.axes
     assert [tick.get_text() for tick in ax.get_yticklabels()] == SHRUNK_SCHEMES
     assert ax.get_xscale() == "log" and ax.get_xlabel() == "dt |w0| (rad)"
     # each scheme's cases in its row, at their dt |w0|
@@ -449,7 +499,15 @@ def test_lines_coincide_when_every_point_agrees_to_three_digits():
     import numpy as np
 
     from rbstudy.analysis.plots import _coincident
+
     nan = float("nan")
-    errors = np.array([[1e-3, 2e-6, nan], [1.0004e-3, 2.0008e-6, nan], [nan, nan, nan],
-                       [nan, nan, nan], [1e-3, 2.01e-6, nan]])
+    errors = np.array(
+        [
+            [1e-3, 2e-6, nan],
+            [1.0004e-3, 2.0008e-6, nan],
+            [nan, nan, nan],
+            [nan, nan, nan],
+            [1e-3, 2.01e-6, nan],
+        ]
+    )
     assert _coincident(errors) == [[0, 1], [2], [3], [4]]

@@ -85,8 +85,7 @@ def _points_into(link, folder):
 
 def _same_numbers(path_a, path_b):
     a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
-                                b.drop_vars(TIMINGS).drop_attrs())
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 def _verbs(tmp_path, out):
@@ -94,9 +93,12 @@ def _verbs(tmp_path, out):
     the folder is checked first."""
     config = write_study(tmp_path, name="small")
     absent = str(tmp_path / "small.nc")
-    return [["sweep", str(config), "--out", out], ["plot", absent, "--out", out],
-            ["report", absent, "--out", out],
-            ["conformance", "--cases", "t_handle", "--schemes", "euler", "--out", out]]
+    return [
+        ["sweep", str(config), "--out", out],
+        ["plot", absent, "--out", out],
+        ["report", absent, "--out", out],
+        ["conformance", "--cases", "t_handle", "--schemes", "euler", "--out", out],
+    ]
 
 
 def test_an_out_that_is_a_file_lies_under_one_or_is_proc_is_one_line_first(tmp_path, capsys):
@@ -104,11 +106,11 @@ def test_an_out_that_is_a_file_lies_under_one_or_is_proc_is_one_line_first(tmp_p
     a traceback (exit 70)."""
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    cases = {str(blocker): f"--out {blocker}: is a file, not a folder",
-             str(blocker / "sub"): f"--out {blocker}/sub: lies under the file {blocker}, not "
-                                   "a folder",
-             PROC_FOLDER: f"--out {PROC_FOLDER}: cannot write results there (its file system "
-                          "takes no new files)"}
+    cases = {
+        str(blocker): f"--out {blocker}: is a file, not a folder",
+        str(blocker / "sub"): f"--out {blocker}/sub: lies under the file {blocker}, not a folder",
+        PROC_FOLDER: f"--out {PROC_FOLDER}: cannot write results there (its file system takes no new files)",
+    }
     for out, message in cases.items():
         for verb in _verbs(tmp_path, out):
             assert main(verb) == 1, verb
@@ -118,8 +120,10 @@ def test_an_out_that_is_a_file_lies_under_one_or_is_proc_is_one_line_first(tmp_p
 
 
 def test_a_read_only_or_immutable_out_is_one_line_first(tmp_path, capsys):
-    for kind, protect, reason in (("read-only", _read_only, "Read-only file system"),
-                                  ("immutable", _immutable, "Operation not permitted")):
+    for kind, protect, reason in (
+        ("read-only", _read_only, "Read-only file system"),
+        ("immutable", _immutable, "Operation not permitted"),
+    ):
         out = tmp_path / kind
         out.mkdir()
         with protect(out):
@@ -127,7 +131,8 @@ def test_a_read_only_or_immutable_out_is_one_line_first(tmp_path, capsys):
                 assert main(verb) == 1, verb
                 assert _one_line_only(capsys) == (
                     f"rbstudy: error: --out {out}: cannot write results there ({reason}); "
-                    "choose another folder with --out"), verb
+                    "choose another folder with --out"
+                ), verb
         assert list(out.iterdir()) == []
 
 
@@ -146,7 +151,8 @@ def test_force_on_an_immutable_study_folder_is_one_line(swept, capsys):
         assert main(["sweep", str(config), "--out", str(folder.parent), "--force"]) == 1
         assert _one_line_only(capsys) == (
             f"rbstudy: error: {folder}: cannot write results there (Operation not permitted); "
-            "choose another folder with --out")
+            "choose another folder with --out"
+        )
     assert (folder / "small.nc").read_bytes() == archive
 
 
@@ -166,7 +172,8 @@ def test_a_read_only_study_folder_answers_an_up_to_date_rerun(swept, capsys):
             assert main([*sweep, str(config)] + ([] if retitle else ["--force"])) == 1
             assert _one_line_only(capsys) == (
                 f"rbstudy: error: {folder}: cannot write results there (Read-only file "
-                "system); choose another folder with --out")
+                "system); choose another folder with --out"
+            )
     assert (folder / "small.nc").read_bytes() == archive
 
 
@@ -178,19 +185,19 @@ def test_a_full_disk_before_the_first_write_is_one_line_and_leaves_nothing(tmp_p
         (disk / "filler").write_bytes(bytes(16 * PAGE))
         assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1
         error = capsys.readouterr().err.strip()
-        assert error == (f"rbstudy: error: {disk}/out/small: no space left on the file system "
-                         f"at {disk}; free space and rerun the same command (a sweep keeps its "
-                         "finished parts and resumes)")
+        assert error == (
+            f"rbstudy: error: {disk}/out/small: no space left on the file system "
+            f"at {disk}; free space and rerun the same command (a sweep keeps its "
+            "finished parts and resumes)"
+        )
         assert sorted(path.name for path in disk.iterdir()) == ["filler"]
 
 
-def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, capsys,
-                                                                     monkeypatch):
+def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, capsys, monkeypatch):
     """A real file system fills at the third of four parts: one line, the two finished
     parts kept and sealed, no temporary left; once the disk is larger the rerun reuses them,
     and the archive holds the numbers of an uninterrupted run."""
-    config = write_study(tmp_path, name="small", sweep={"scheme": ["euler", "midpoint"],
-                                                        "dt": [0.01, 0.005]})
+    config = write_study(tmp_path, name="small", sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]})
     whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
     part = max(path.stat().st_size for path in (whole.path.parent / "parts").glob("*.nc"))
     pages = -(-part // PAGE) + 1  # a part and its digest
@@ -204,17 +211,18 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         # stderr is no terminal: the run's start line, then the error in one line
         start, error = capsys.readouterr().err.strip().splitlines()
         assert start == "small: 4 cases in 4 batches"
-        assert error.endswith(f": no space left on the file system at {disk}; free space "
-                              "and rerun the same command (a sweep keeps its finished parts "
-                              "and resumes)")
+        assert error.endswith(
+            f": no space left on the file system at {disk}; free space "
+            "and rerun the same command (a sweep keeps its finished parts "
+            "and resumes)"
+        )
         parts = disk / "out" / "small" / "parts"
         kept = sorted(parts.glob("*.nc"))
         assert len(kept) == 2 and len(list(parts.glob("*.sha256"))) == 2
         assert not list(parts.glob(".*"))  # no temporary
         assert all(main(["verify", str(path)]) == 0 for path in kept)  # sealed, intact
         # HDF5 kept a failed temporary open, and its space taken (`netcdf_writer`)
-        assert not [fd for fd in os.listdir("/proc/self/fd")
-                    if _points_into(f"/proc/self/fd/{fd}", disk)]
+        assert not [fd for fd in os.listdir("/proc/self/fd") if _points_into(f"/proc/self/fd/{fd}", disk)]
         kept_times = [path.stat().st_mtime_ns for path in kept]
         capsys.readouterr()
         subprocess.run(["mount", "-o", "remount,size=4m", disk], check=True)
@@ -224,8 +232,7 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         _same_numbers(whole.path, disk / "out" / "small" / "small.nc")
 
 
-def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, capsys,
-                                                                     monkeypatch):
+def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, capsys, monkeypatch):
     """The disk holds the first part but not its digest: before, the part stayed without its
     digest (a rerun recomputes it, but it was left behind half finished, and with it the
     folders); now it goes too."""

@@ -30,19 +30,20 @@ def _reduced_axis(name, axis):
     if name == "scheme":
         return _SCHEMES if axis == "all" else axis[:3]
     if isinstance(axis, list):
-        return axis[:_STEPS if name == "dt" else _VALUES]
+        return axis[: _STEPS if name == "dt" else _VALUES]
     if "halving" in axis:
         return {**axis, "count": _STEPS}
     if "zip" == name:
-        return {key: {inner: _reduced_axis(inner, value) for inner, value in zipped.items()}
-                for key, zipped in axis.items()}
+        return {
+            key: {inner: _reduced_axis(inner, value) for inner, value in zipped.items()}
+            for key, zipped in axis.items()
+        }
     kind, (low, high, _) = next(iter(axis.items()))  # logspace / linspace
     return {kind: [low, high, _VALUES]}
 
 
 def _reduced(config):
-    config["sweep"] = {name: _reduced_axis(name, axis)
-                       for name, axis in config.get("sweep", {}).items()}
+    config["sweep"] = {name: _reduced_axis(name, axis) for name, axis in config.get("sweep", {}).items()}
     config["scene"]["duration"] = _INTERVALS * config["output"]["interval"]
     return config
 
@@ -78,9 +79,13 @@ def _pooled_cost(ds):
 
     def spread(name):
         values = ds[name]
-        return np.broadcast_to(values.transpose(*[d for d in dims if d in values.dims]).values
-                               .reshape([shape[k] if d in values.dims else 1
-                                         for k, d in enumerate(dims)]), shape).astype(float)
+        return np.broadcast_to(
+            values.transpose(*[d for d in dims if d in values.dims]).values.reshape(
+                [shape[k] if d in values.dims else 1 for k, d in enumerate(dims)]
+            ),
+            shape,
+        ).astype(float)
+
     run_time, steps = spread("run_time"), spread("n_steps")
     if "dt" not in dims:
         return run_time
@@ -92,10 +97,9 @@ def _expected_picks(ds):
     """The cheapest accurate (scheme, dt, seconds) per value of the other axes, numpy only."""
     status, accuracy = ds["status"], ds["accuracy"]
     order = _first_axes(ds) + _others(ds)
-    good = ((accuracy.values == 0) & (status.values == 0))
+    good = (accuracy.values == 0) & (status.values == 0)
     good = np.moveaxis(good, [status.dims.index(d) for d in order], range(len(order)))
-    cost = np.moveaxis(_pooled_cost(ds), [status.dims.index(d) for d in order],
-                       range(len(order)))
+    cost = np.moveaxis(_pooled_cost(ds), [status.dims.index(d) for d in order], range(len(order)))
     lead = len(_first_axes(ds))
     schemes = np.atleast_1d(ds["scheme"].values)
     dts = np.atleast_1d(ds["dt"].values)
@@ -106,10 +110,8 @@ def _expected_picks(ds):
         if not np.isfinite(seconds).any():
             picks.append(None)
             continue
-        at = dict(zip(_first_axes(ds), np.unravel_index(np.argmin(seconds), seconds.shape),
-                      strict=True))
-        picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]),
-                      float(seconds.min())))
+        at = dict(zip(_first_axes(ds), np.unravel_index(np.argmin(seconds), seconds.shape), strict=True))
+        picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]), float(seconds.min())))
     return picks
 
 
@@ -119,9 +121,9 @@ def test_the_recommendation_is_the_cheapest_accurate_case(archives, name):
     ds = open_archive(archives[name])
     expected = _expected_picks(ds)
     found = recommendations(ds)
-    assert [None if r is None else (r.scheme, r.dt, pytest.approx(r.seconds_per_case,
-                                                                  rel=1e-12))
-            for r in found] == expected
+    assert [
+        None if r is None else (r.scheme, r.dt, pytest.approx(r.seconds_per_case, rel=1e-12)) for r in found
+    ] == expected
     first = findings(ds)[0]
     if not any(expected):
         assert first.kind == "no_recommendation"
@@ -146,44 +148,48 @@ def _agree(a, b):
     finite = np.isfinite(a) & np.isfinite(b)
     if not finite.any() or (np.isnan(a) != np.isnan(b)).any():
         return False
-    return bool(np.all(np.abs(a[finite] - b[finite])
-                       <= 5e-4 * np.maximum(np.abs(a[finite]), np.abs(b[finite]))))
+    return bool(
+        np.all(np.abs(a[finite] - b[finite]) <= 5e-4 * np.maximum(np.abs(a[finite]), np.abs(b[finite])))
+    )
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
 def test_coincidences_are_exactly_the_schemes_agreeing_to_three_digits(archives, name):
     ds = open_archive(archives[name])
-    found = {tuple(case["scheme"] for case in f.cases) for f in findings(ds)
-             if f.kind == "coincidence"}
+    found = {tuple(case["scheme"] for case in f.cases) for f in findings(ds) if f.kind == "coincidence"}
     expected = set()
     if "final_orientation_error" in ds and "scheme" in ds["status"].dims:
         errors = ds["final_orientation_error"].transpose("scheme", ...).values
         schemes = [str(s) for s in ds["scheme"].values]
-        expected = {(schemes[i], schemes[j]) for i in range(len(schemes))
-                    for j in range(i + 1, len(schemes))
-                    if _agree(np.abs(errors[i]), np.abs(errors[j]))}
+        expected = {
+            (schemes[i], schemes[j])
+            for i in range(len(schemes))
+            for j in range(i + 1, len(schemes))
+            if _agree(np.abs(errors[i]), np.abs(errors[j]))
+        }
     assert found == expected
-
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("relative", "coincide"), [(2e-4, True), (2e-3, False)])
-def test_a_scheme_within_three_digits_of_another_is_named_as_coinciding(archives, relative,
-                                                                        coincide):
+def test_a_scheme_within_three_digits_of_another_is_named_as_coinciding(archives, relative, coincide):
     """The shipped studies' reduced copies have no coincidence: here leapfrog's errors are
     made euler's times (1 + relative), within and past 3 digits, in every case."""
     ds = open_archive(archives["abaqus_top"])
     errors = ds["final_orientation_error"]
     errors.loc[{"scheme": "leapfrog"}] = errors.sel(scheme="euler") * (1 + relative)
     found = [f for f in findings(ds) if f.kind == "coincidence"]
-    assert [tuple(case["scheme"] for case in f.cases) for f in found] == \
-        ([("euler", "leapfrog")] if coincide else [])
+    assert [tuple(case["scheme"] for case in f.cases) for f in found] == (
+        [("euler", "leapfrog")] if coincide else []
+    )
     if coincide:
-        assert found[0].numbers["largest_relative_difference"] == pytest.approx(
-            relative / (1 + relative))
-        assert found[0].text == (f"leapfrog gives euler's errors to 3 digits in all "
-                                 f"{errors.sel(scheme='euler').size} cases (their lines overlap)")
+        assert found[0].numbers["largest_relative_difference"] == pytest.approx(relative / (1 + relative))
+        assert found[0].text == (
+            f"leapfrog gives euler's errors to 3 digits in all "
+            f"{errors.sel(scheme='euler').size} cases (their lines overlap)"
+        )
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
@@ -203,20 +209,25 @@ def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
         assert found.numbers.get("past_radioss_limit", 0) == radioss
         if failed:
             load = (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"]).sel(pick).values
-            real = (ds["physical_body"].broadcast_like(ds["status"]).sel(pick).values == 1)
+            real = ds["physical_body"].broadcast_like(ds["status"]).sel(pick).values == 1
             first = load[(status != 0) & real]
-            assert found.numbers["first_failed_dt_w0"] == pytest.approx(first.min()) \
-                if first.size else np.isnan(found.numbers["first_failed_dt_w0"])
-        kept = np.nanmax(ds["max_energy_error"].sel(pick).values[status == 0], initial=0) \
-            < 1e-10 if "max_energy_error" in ds else True
+            assert (
+                found.numbers["first_failed_dt_w0"] == pytest.approx(first.min())
+                if first.size
+                else np.isnan(found.numbers["first_failed_dt_w0"])
+            )
+        kept = (
+            np.nanmax(ds["max_energy_error"].sel(pick).values[status == 0], initial=0) < 1e-10
+            if "max_energy_error" in ds
+            else True
+        )
         if "energy_error" in ds and not kept:
             end = ds["energy_error"].sel(pick).isel(time=-1).values[status == 0]
             end = end[np.abs(end) >= 1e-10]  # NaN and round-off left out
             if end.size:
                 largest = end[np.argmax(np.abs(end))] / float(ds["time"][-1])
                 assert found.numbers["energy_rate_per_s"] == pytest.approx(largest)
-                word = "gains" if np.all(end > 0) else "loses" if np.all(end < 0) else \
-                    "gains or loses"
+                word = "gains" if np.all(end > 0) else "loses" if np.all(end < 0) else "gains or loses"
                 assert f"; {word} energy, up to " in found.text
 
 
@@ -238,16 +249,17 @@ def test_summary_json_keeps_its_contract(archives, capsys):
     ds = open_archive(archives["abaqus_top"])
     expected = _expected_picks(ds)
     ratios = ds["inertia_ratio"].values
-    assert [(r["scheme"], r["dt"], pytest.approx(r["seconds_per_case"], rel=1e-12),
-             r["inertia_ratio"]) for r in document["recommended"]] \
-        == [(*pick, float(ratio)) for pick, ratio in zip(expected, ratios, strict=True)]
+    assert [
+        (r["scheme"], r["dt"], pytest.approx(r["seconds_per_case"], rel=1e-12), r["inertia_ratio"])
+        for r in document["recommended"]
+    ] == [(*pick, float(ratio)) for pick, ratio in zip(expected, ratios, strict=True)]
     for record in document["recommended"]:
-        case = ds["final_orientation_error"].sel(scheme=record["scheme"], dt=record["dt"],
-                                                 inertia_ratio=record["inertia_ratio"])
+        case = ds["final_orientation_error"].sel(
+            scheme=record["scheme"], dt=record["dt"], inertia_ratio=record["inertia_ratio"]
+        )
         assert record["error"] == float(abs(case))
     assert [row["scheme"] for row in document["schemes"]] == _SCHEMES
-    assert {"error_rad", "ns_per_body_step", "accurate_up_to_dt_w0"} <= set(
-        document["schemes"][0])
+    assert {"error_rad", "ns_per_body_step", "accurate_up_to_dt_w0"} <= set(document["schemes"][0])
 
 
 def test_no_recommendation_when_no_case_meets_the_bound(tmp_path, capsys):
@@ -271,8 +283,10 @@ def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys)
     assert main(["summary", str(text), "--format", "json"]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err == (f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
-                            "file (a text file); give the <study>.nc written by rbstudy sweep\n")
+    assert captured.err == (
+        f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
+        "file (a text file); give the <study>.nc written by rbstudy sweep\n"
+    )
 
 
 @pytest.mark.slow
@@ -286,8 +300,9 @@ def test_each_stated_order_is_the_slope_of_the_errors_over_dt(archives, name):
         pytest.skip(f"{name} sweeps no dt: no order to state")
     checked = 0
     for found in findings(ds):
-        if found.kind != "verdict" or "order_low" not in found.numbers or \
-                found.text.split(":")[0].count(","):  # a composition row: its own slice
+        if (
+            found.kind != "verdict" or "order_low" not in found.numbers or found.text.split(":")[0].count(",")
+        ):  # a composition row: its own slice
             continue
         error = ds["final_orientation_error"]
         if "scheme" in error.dims:
@@ -300,8 +315,10 @@ def test_each_stated_order_is_the_slope_of_the_errors_over_dt(archives, name):
             # and says so with its (k/n))
             if np.all((column > 1e-10) & (column < 0.1)) and np.ptp(local) < 0.3:
                 slope = np.polyfit(dts, np.log10(column), 1)[0]
-                assert found.numbers["order_low"] - 0.1 <= slope \
-                    <= found.numbers["order_high"] + 0.1, (found.text, slope)
+                assert found.numbers["order_low"] - 0.1 <= slope <= found.numbers["order_high"] + 0.1, (
+                    found.text,
+                    slope,
+                )
                 checked += 1
     if not checked:
         pytest.skip(f"{name}: no value of the other axes has all its errors in the window")

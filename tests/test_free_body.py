@@ -28,8 +28,11 @@ BODIES = {
     "axes unsorted (even order)": ((2.0, 3.0, 1.0), (0.4, -0.1, 0.2), (-0.7, 0.3, 1.1)),
     "negative spin": ((1.0, 2.0, 3.0), (0.0, 0.0, 0.0), (-0.3, 0.4, -1.0)),
     # k'^2 = 1e-6 (k^2 = 0.999999): G^2 - 2 E I2 = 3 w3^2 - w1^2 is 1e-6 of G^2 - 2 E I1
-    "near the separatrix": ((1.0, 2.0, 3.0), (0.2, 0.1, -0.3),
-                            (0.8, 0.3, 0.8 / math.sqrt(3.0) * (1.0 + 5.7e-7))),
+    "near the separatrix": (
+        (1.0, 2.0, 3.0),
+        (0.2, 0.1, -0.3),
+        (0.8, 0.3, 0.8 / math.sqrt(3.0) * (1.0 + 5.7e-7)),
+    ),
 }
 
 
@@ -47,24 +50,25 @@ def _complement(inertia, omega):
 
     lo, mid, hi = np.argsort(inertia)
     first, third = (lo, hi) if excess(mid) > 0 else (hi, lo)
-    return ((inertia[third] - inertia[first]) * excess(mid)
-            / ((inertia[third] - inertia[mid]) * excess(first)))
+    return (inertia[third] - inertia[first]) * excess(mid) / ((inertia[third] - inertia[mid]) * excess(first))
 
 
 def test_the_near_separatrix_body_is_where_it_says():
     assert _complement(*[np.array(v) for v in BODIES["near the separatrix"][::2]]) == (
-        pytest.approx(1e-6, rel=0.02))
+        pytest.approx(1e-6, rel=0.02)
+    )
 
 
 # --- the special functions -------------------------------------------------------------
 
+
 def test_carlson_integrals_agree_with_mpmath():
     with mp.workdps(30):
         for x, y, z, p in RNG.uniform(0.0, 4.0, (200, 4)):
-            assert elliptic.carlson_rf(x, y, z) == pytest.approx(float(mp.elliprf(x, y, z)),
-                                                                 rel=1e-15)
+            assert elliptic.carlson_rf(x, y, z) == pytest.approx(float(mp.elliprf(x, y, z)), rel=1e-15)
             assert elliptic.carlson_rj(x, y, z, p + 0.05) == pytest.approx(
-                float(mp.elliprj(x, y, z, p + 0.05)), rel=1e-15)
+                float(mp.elliprj(x, y, z, p + 0.05)), rel=1e-15
+            )
 
 
 @pytest.mark.parametrize("complement", ["0.7", "1e-3", "1e-6", "1e-12", "1e-20"])
@@ -83,8 +87,10 @@ def test_jacobi_functions_and_the_third_kind_keep_their_accuracy_up_to_the_separ
         for u in np.linspace(-2.0, 2.0, 37)[1:-1] * quarter + 0.013:
             values = elliptic.jacobi(u, float(m), float(m1), quarter)
             exact = [mp.ellipfun(name, mp.mpf(u), m=m) for name in ("sn", "cn", "dn")]
-            worst_relative = max(worst_relative, *(
-                abs(v - float(e)) / abs(float(e)) for v, e in zip(values, exact, strict=True)))
+            worst_relative = max(
+                worst_relative,
+                *(abs(v - float(e)) / abs(float(e)) for v, e in zip(values, exact, strict=True)),
+            )
             amplitude = mp.atan2(exact[0], exact[1])
             amplitude += 2 * mp.pi * mp.nint((u / float(quarter) * mp.pi / 2 - amplitude) / (2 * mp.pi))
             third = elliptic.third_kind(n, *values, u, whole)
@@ -100,6 +106,7 @@ def test_jacobi_functions_and_the_third_kind_keep_their_accuracy_up_to_the_separ
 
 # --- the flow --------------------------------------------------------------------------
 
+
 def _rhs(t, y, inertia):
     rotation, w = y[:9].reshape(3, 3), y[9:]
     skew = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
@@ -108,8 +115,9 @@ def _rhs(t, y, inertia):
 
 def _dop853(inertia, q0, omega0, duration):
     start = np.concatenate([Rotation.from_quat(q0).as_matrix().ravel(), omega0])
-    run = solve_ivp(_rhs, (0.0, duration), start, method="DOP853", rtol=1e-13, atol=1e-13,
-                    args=(np.asarray(inertia),))
+    run = solve_ivp(
+        _rhs, (0.0, duration), start, method="DOP853", rtol=1e-13, atol=1e-13, args=(np.asarray(inertia),)
+    )
     return Rotation.from_matrix(run.y[:9, -1].reshape(3, 3)).as_quat(), run.y[9:, -1]
 
 
@@ -136,8 +144,9 @@ def _one_ulp_spread(inertia, q0, omega0, duration):
         for direction in (-np.inf, np.inf):
             nudged = list(omega0)
             nudged[k] = float(np.nextafter(omega0[k], direction))
-            moved.append(angle_between(exact, [float(v) for v in exact_state(
-                inertia, q0, nudged, duration)[0]]))
+            moved.append(
+                angle_between(exact, [float(v) for v in exact_state(inertia, q0, nudged, duration)[0]])
+            )
     return max(moved)
 
 
@@ -148,8 +157,7 @@ def test_long_runs_stay_at_the_accuracy_float64_input_allows(name):
     measured) and stays within a few times the spread of the exact solution under a one-ulp
     change of w0 (no phase is integrated, so nothing else accumulates)."""
     inertia, q0, omega0 = _state(name)
-    scene = Scene(body=Body(mass=1.0, inertia=inertia), quaternion=q0, omega_body=omega0,
-                  duration=1.0)
+    scene = Scene(body=Body(mass=1.0, inertia=inertia), quaternion=q0, omega_body=omega0, duration=1.0)
     period = 2.0 * flip_interval_exact(scene)
     errors = []
     for periods in (1, 100, 10_000):
@@ -170,8 +178,7 @@ def test_the_flow_is_a_group(duration):
     whole_q, whole_w = free_flow(inertia, q0, omega0, duration)
     half_q, half_w = free_flow(inertia, q0, omega0, 0.37 * duration)
     joined_q, joined_w = free_flow(inertia, half_q, half_w, 0.63 * duration)
-    bound = 1e-14 if duration <= 10.0 else 4.0 * _one_ulp_spread(
-        inertia, half_q, half_w, 0.63 * duration)
+    bound = 1e-14 if duration <= 10.0 else 4.0 * _one_ulp_spread(inertia, half_q, half_w, 0.63 * duration)
     assert orientation_error(np.array(whole_q), np.array(joined_q)) < bound
     assert np.max(np.abs(np.array(whole_w) - joined_w)) < bound
 
@@ -197,7 +204,8 @@ def test_the_exact_flow_satisfies_euler_s_equations_and_keeps_the_invariants(nam
         assert abs(0.5 * np.dot(w, inertia_a * w) - energy0) <= 1e-15 * energy0 * 4
         momentum = Rotation.from_quat(q).apply(inertia_a * w)
         assert abs(np.linalg.norm(momentum) - np.linalg.norm(momentum0)) <= (
-            4e-15 * np.linalg.norm(momentum0))
+            4e-15 * np.linalg.norm(momentum0)
+        )
         assert np.max(np.abs(momentum - momentum0)) < 1e-13 * np.linalg.norm(momentum0)
 
 
@@ -213,9 +221,13 @@ def _angular_rate(q, q_dot):
     x, y, z, w = q
     dx, dy, dz, dw = q_dot
     # (q_dot * conj(q)), vector part, scalar-last Hamilton product
-    return 2.0 * np.array([dw * -x + dx * w + dy * -z - dz * -y,
-                           dw * -y - dx * -z + dy * w + dz * -x,
-                           dw * -z + dx * -y - dy * -x + dz * w])
+    return 2.0 * np.array(
+        [
+            dw * -x + dx * w + dy * -z - dz * -y,
+            dw * -y - dx * -z + dy * w + dz * -x,
+            dw * -z + dx * -y - dy * -x + dz * w,
+        ]
+    )
 
 
 SEPARATRIX = ((3.0, 4.0, 6.0), (2.0, 0.7, 1.0))  # I1 (I2 - I1) w1^2 = I3 (I3 - I2) w3^2: exact
@@ -224,8 +236,11 @@ SEPARATRIX = ((3.0, 4.0, 6.0), (2.0, 0.7, 1.0))  # I1 (I2 - I1) w1^2 = I3 (I3 - 
 def test_on_the_separatrix_the_body_turns_towards_its_intermediate_axis():
     inertia, omega0 = SEPARATRIX
     m = np.array(inertia) * omega0
-    assert m[0] ** 2 * (inertia[0] - inertia[1]) / inertia[0] + (
-        m[2] ** 2 * (inertia[2] - inertia[1]) / inertia[2]) == 0.0
+    assert (
+        m[0] ** 2 * (inertia[0] - inertia[1]) / inertia[0]
+        + (m[2] ** 2 * (inertia[2] - inertia[1]) / inertia[2])
+        == 0.0
+    )
     q0 = tuple(Rotation.from_rotvec((0.1, 0.2, 0.3)).as_quat())
     q, omega = free_flow(inertia, q0, omega0, 10.0)
     q_dop, omega_dop = _dop853(inertia, q0, np.array(omega0), 10.0)
@@ -252,8 +267,10 @@ def test_permanent_rotations_turn_at_constant_rate(axis, inertia):
     assert orientation_error(np.array(q), expected) < 1e-15
 
 
-@pytest.mark.parametrize("inertia, gap", [((1.0, 1.0, 2.0), 0.0), ((2.0, 1.0, 1.0), 0.0),
-                                          ((1.0, 1.0, 2.0), 1e-13), ((1.5, 1.0, 1.5), 1e-13)])
+@pytest.mark.parametrize(
+    "inertia, gap",
+    [((1.0, 1.0, 2.0), 0.0), ((2.0, 1.0, 1.0), 0.0), ((1.0, 1.0, 2.0), 1e-13), ((1.5, 1.0, 1.5), 1e-13)],
+)
 def test_the_symmetric_limit_is_the_closed_form(inertia, gap):
     """Symmetric bodies (and bodies 1e-13 from symmetric) agree with the symmetric top's
     closed form: the elliptic solution tends to it as k -> 0."""
@@ -281,8 +298,12 @@ def test_a_batch_equals_its_bodies_one_by_one_and_is_the_reference_of_free_bodie
         for k, t in enumerate(times):
             q, w = free_flow(tuple(inertia[b]), tuple(quaternion[b]), tuple(omega[b]), t)
             assert tuple(q_out[b, k]) == q and tuple(w_out[b, k]) == w
-        scene = Scene(body=Body(mass=1.0, inertia=tuple(inertia[b])),
-                      quaternion=tuple(quaternion[b]), omega_body=tuple(omega[b]), duration=50.0)
+        scene = Scene(
+            body=Body(mass=1.0, inertia=tuple(inertia[b])),
+            quaternion=tuple(quaternion[b]),
+            omega_body=tuple(omega[b]),
+            duration=50.0,
+        )
         reference = reference_solution(scene, times)
         assert reference.name == "exact_asymmetric"
         assert np.array_equal(reference.quaternion, q_out[b])

@@ -21,9 +21,23 @@ _CARD_CASES = "radioss_rota,drake_free_body,drake_floating_body,abaqus_top"
 def card(tmp_path_factory):
     """rk4, midpoint and euler on three peers' cases and the Abaqus top, three steps."""
     out = tmp_path_factory.mktemp("figures")
-    assert main(["conformance", "--cases", _CARD_CASES,
-                 "--schemes", "rk4,midpoint,euler", "--steps", "3", "--out", str(out),
-                 "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                _CARD_CASES,
+                "--schemes",
+                "rk4,midpoint,euler",
+                "--steps",
+                "3",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with xr.open_dataset(out / "conformance.nc") as ds:
         return out, ds.load()
 
@@ -55,18 +69,35 @@ def test_second_and_fourth_order_schemes_pass_and_reproduce_the_figures(card):
     # explicit Euler blows up on the cylinder at Drake's step: it does not reproduce it
     assert int(ds["figure"].sel(scheme="euler", case="drake_free_body")) == 0
     assert "failed at dt = 0.03125 s" in str(
-        ds["figure_text"].sel(scheme="euler", case="drake_free_body").values)
+        ds["figure_text"].sel(scheme="euler", case="drake_free_body").values
+    )
     # a case of rbstudy's own asserts no figure
     assert (ds["figure"].sel(case="abaqus_top") == -1).all()
     assert "cycles 10001 (asserted 10001)" in str(
-        ds["figure_text"].sel(scheme="rk4", case="radioss_rota").values)
+        ds["figure_text"].sel(scheme="rk4", case="radioss_rota").values
+    )
 
 
 @pytest.mark.slow
 def test_the_card_says_figure_yes_or_no_within_the_terminal(card, capsys):
     out, _ = card
-    assert main(["conformance", "--cases", _CARD_CASES, "--schemes", "rk4,midpoint,euler",
-                 "--steps", "3", "-o", str(out), "-q"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                _CARD_CASES,
+                "--schemes",
+                "rk4,midpoint,euler",
+                "--steps",
+                "3",
+                "-o",
+                str(out),
+                "-q",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "figure yes" in printed and "figure no" in printed
     assert "x 3 time steps (radioss_rota: 1);" in printed
@@ -112,8 +143,23 @@ def test_exudyns_rk44_reproduces_its_own_figure_asked_of_it_alone(tmp_path):
     """Exudyn's Lie-group test asserts its RK44's own number at h = 1e-3 s: exudyn_rk44 gives
     it on the card; rk4, whose truncation error differs, is not asked for it."""
     pytest.importorskip("exudyn")
-    assert main(["conformance", "--cases", "exudyn_heavy_top", "--schemes", "exudyn_rk44,rk4",
-                 "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                "exudyn_heavy_top",
+                "--schemes",
+                "exudyn_rk44,rk4",
+                "--steps",
+                "3",
+                "--out",
+                str(tmp_path),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with xr.open_dataset(tmp_path / "conformance.nc") as ds:
         assert int(ds["figure"].sel(scheme="exudyn_rk44", case="exudyn_heavy_top")) == 1
         assert int(ds["figure"].sel(scheme="rk4", case="exudyn_heavy_top")) == -1
@@ -161,8 +207,11 @@ def test_the_floating_body_passes_for_rbstudys_schemes_and_only_rk4_meets_drakes
     for scheme in ("rk4", "midpoint"):
         assert int(ds["passed"].sel(scheme=scheme, case="drake_floating_body")) == 1, scheme
     figure = ds["figure"].sel(case="drake_floating_body")
-    assert (int(figure.sel(scheme="rk4")), int(figure.sel(scheme="midpoint")),
-            int(figure.sel(scheme="euler"))) == (1, 0, 0)
+    assert (
+        int(figure.sel(scheme="rk4")),
+        int(figure.sel(scheme="midpoint")),
+        int(figure.sel(scheme="euler")),
+    ) == (1, 0, 0)
     said = str(ds["figure_text"].sel(scheme="rk4", case="drake_floating_body").values)
     assert said.startswith("at dt = 0.0125 s: orientation_error") and "position_z -490.5" in said
 
@@ -186,8 +235,23 @@ def test_drakes_rk3_reproduces_its_floating_body_figure_and_its_rk2_does_not(tmp
     """The figure is of the motion, asked of every scheme: fixed-step RK3 at 1/80 s is
     within it (orientation 6.9e-6 rad); RK2 misses w_WB by up to 1.8e-5 rad/s."""
     pytest.importorskip("pydrake")
-    assert main(["conformance", "--cases", "drake_floating_body", "--schemes",
-                 "drake_rk3,drake_rk2", "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                "drake_floating_body",
+                "--schemes",
+                "drake_rk3,drake_rk2",
+                "--steps",
+                "3",
+                "--out",
+                str(tmp_path),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     with xr.open_dataset(tmp_path / "conformance.nc") as ds:
         figure = ds["figure"].sel(case="drake_floating_body")
         assert (int(figure.sel(scheme="drake_rk3")), int(figure.sel(scheme="drake_rk2"))) == (1, 0)
@@ -205,12 +269,26 @@ def test_the_card_marks_the_heavy_top_cells_that_judge_an_adapters_held_load(tmp
     over each step: the card says so beside the cell and in a footnote, not on rk4's cell nor
     on the moment-free floating body."""
     pytest.importorskip("mujoco")
-    assert main(["conformance", "--cases", "exudyn_heavy_top,drake_floating_body", "--schemes",
-                 "mujoco_rk4,rk4", "--steps", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "conformance",
+                "--cases",
+                "exudyn_heavy_top,drake_floating_body",
+                "--schemes",
+                "mujoco_rk4,rk4",
+                "--steps",
+                "3",
+                "--out",
+                str(tmp_path),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     rows = {line.split()[0]: line for line in printed.splitlines()[1:3]}
-    assert rows["mujoco_rk4"].split()[2:] == ["FAIL", "order", "*", "order", "4.00,", "figure",
-                                              "yes"]
+    assert rows["mujoco_rk4"].split()[2:] == ["FAIL", "order", "*", "order", "4.00,", "figure", "yes"]
     assert "*" not in rows["rk4"]
     assert "\n* the adapter holds the loads of each step's start over the step" in printed
     assert max(map(len, printed.splitlines())) <= TERMINAL_WIDTH

@@ -39,7 +39,7 @@ def _mutated(study, kind, path):
     if kind == "mapping":
         node["bogus_key"] = 1
     else:
-        node[path[-1]] = [[]] if kind == "scalar" else 10 ** 400
+        node[path[-1]] = [[]] if kind == "scalar" else 10**400
     return study
 
 

@@ -25,10 +25,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 TIMEOUT = 90
 # The address space a command may take: a reader gone wrong fails here instead of taking the
 # machine's memory (the old reader of a link to /dev/zero reached 17 GB in a minute).
-ADDRESS_SPACE = 8 * 2 ** 30
+ADDRESS_SPACE = 8 * 2**30
 # What a refused command may hold: the interpreter and the libraries it loads (validate of a
 # plain config peaks at ~170 MB); the old readers grew past 1.4 GB on these inputs.
-REFUSED_PEAK_BYTES = 600 * 2 ** 20
+REFUSED_PEAK_BYTES = 600 * 2**20
 # The command, run by a parent of its own: its peak is then the parent's only child's, and
 # the parent kills it past the timeout (an orphan would go on reading a FIFO or a device).
 _MEASURED = """
@@ -50,23 +50,48 @@ def rbstudy(*args):
     """Run ``rbstudy args`` from this checkout: its exit code (None past `TIMEOUT`), stdout,
     stderr and peak resident bytes."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-c", _MEASURED, str(TIMEOUT), str(ADDRESS_SPACE),
-                           sys.executable, "-m", "rbstudy", *map(str, args)],
-                          capture_output=True, text=True, timeout=TIMEOUT + 30, env=env,
-                          check=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _MEASURED,
+            str(TIMEOUT),
+            str(ADDRESS_SPACE),
+            sys.executable,
+            "-m",
+            "rbstudy",
+            *map(str, args),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT + 30,
+        env=env,
+        check=True,
+    )
     result = json.loads(done.stdout)
     return result["code"], result["out"], result["err"], result["peak"]
 
 
 def study(folder, name="study", loads=None, spin=(0.3, 1.0, 0.2), scheme="rk4", duration=0.5):
     """A small study config in ``folder`` (an asymmetric body, 0.5 s), its path."""
-    scene = {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
-             "initial": {"angular_velocity": {"body": list(spin)}}, "duration": duration}
+    scene = {
+        "body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+        "initial": {"angular_velocity": {"body": list(spin)}},
+        "duration": duration,
+    }
     if loads:
         scene["loads"] = loads
     path = pathlib.Path(folder) / f"{name}.yaml"
-    path.write_text(yaml.safe_dump({"name": name, "scene": scene, "output": {"interval": 0.01},
-                                    "run": {"scheme": scheme, "dt": 0.01}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": name,
+                "scene": scene,
+                "output": {"interval": 0.01},
+                "run": {"scheme": scheme, "dt": 0.01},
+            }
+        )
+    )
     return path
 
 
@@ -86,8 +111,10 @@ def table_study(folder, table="load.csv"):
 def test_a_fifo_config_or_table_is_refused_without_opening_it(tmp_path, command):
     os.mkfifo(tmp_path / "load.csv")
     os.mkfifo(tmp_path / "fifo.yaml")
-    for config, where in ((table_study(tmp_path), "load.csv: table: cannot read the load table"),
-                          (tmp_path / "fifo.yaml", "fifo.yaml: cannot read the file")):
+    for config, where in (
+        (table_study(tmp_path), "load.csv: table: cannot read the load table"),
+        (tmp_path / "fifo.yaml", "fifo.yaml: cannot read the file"),
+    ):
         code, _, err, _ = rbstudy(command, config, "--out", tmp_path / "out")
         line = one_error_line(code, err)
         assert f"{where}: it is a FIFO (named pipe), not a regular file" in line
@@ -98,8 +125,10 @@ def test_a_fifo_config_or_table_is_refused_without_opening_it(tmp_path, command)
 def test_a_link_to_a_device_is_refused_in_bounded_memory(tmp_path):
     (tmp_path / "load.csv").symlink_to("/dev/zero")
     (tmp_path / "zero.yaml").symlink_to("/dev/zero")
-    for config, where in ((table_study(tmp_path), "load.csv: table: cannot read the load table"),
-                          (tmp_path / "zero.yaml", "zero.yaml: cannot read the file")):
+    for config, where in (
+        (table_study(tmp_path), "load.csv: table: cannot read the load table"),
+        (tmp_path / "zero.yaml", "zero.yaml: cannot read the file"),
+    ):
         code, _, err, peak = rbstudy("validate", config)
         assert f"{where}: it is a character device" in one_error_line(code, err)
         assert peak < REFUSED_PEAK_BYTES
@@ -109,10 +138,11 @@ def test_a_link_to_a_device_is_refused_in_bounded_memory(tmp_path):
 def test_a_table_or_config_past_the_size_bound_is_refused(tmp_path):
     config = table_study(tmp_path)
     with open(tmp_path / "load.csv", "wb") as table:  # sparse: no disk, no time
-        table.truncate(MAX_INPUT_BYTES + 2 ** 20)
+        table.truncate(MAX_INPUT_BYTES + 2**20)
     code, _, err, peak = rbstudy("validate", config)
-    assert ("load.csv: table: the load table is 257 MiB, larger than the 256 MiB an input "
-            "file may be") in one_error_line(code, err)
+    assert (
+        "load.csv: table: the load table is 257 MiB, larger than the 256 MiB an input file may be"
+    ) in one_error_line(code, err)
     assert peak < REFUSED_PEAK_BYTES
     with open(config, "ab") as padded:
         padded.truncate(MAX_INPUT_BYTES + 1)
@@ -123,8 +153,7 @@ def test_a_table_or_config_past_the_size_bound_is_refused(tmp_path):
 def write_knots(path, count):
     """A load table of ``count`` rows 10 us apart (half of them inside a 0.5 s run)."""
     times = np.arange(count) * 1e-5
-    np.savetxt(path, np.column_stack([times, np.zeros((count, 2)), 0.1 * np.sin(times * 100)]),
-               fmt="%.5f")
+    np.savetxt(path, np.column_stack([times, np.zeros((count, 2)), 0.1 * np.sin(times * 100)]), fmt="%.5f")
 
 
 @pytest.mark.slow
@@ -132,7 +161,7 @@ def test_a_table_of_many_knots_is_forecast_within_twice_its_peak(tmp_path):
     write_knots(tmp_path / "load.csv", 100_000)
     code, out, err, peak = rbstudy("sweep", table_study(tmp_path), "--out", tmp_path / "out")
     assert code == 0, err
-    forecast = float(re.search(r"peak memory ~([\d,]+) MiB", out)[1].replace(",", "")) * 2 ** 20
+    forecast = float(re.search(r"peak memory ~([\d,]+) MiB", out)[1].replace(",", "")) * 2**20
     # measured: forecast 457 MiB, peak ~450 MiB (2,277 MiB before the knot search was bounded)
     assert forecast / 2 < peak < 2 * forecast
 
@@ -151,15 +180,15 @@ def test_bench_refuses_more_body_steps_than_it_can_hold(steps):
 
 
 def test_dop853_at_an_extreme_spin_is_forecast_and_refused(tmp_path):
-    code, _, err, _ = rbstudy("validate", study(tmp_path, spin=(1e20, 1.0, 0.2),
-                                                scheme="dop853"))
+    code, _, err, _ = rbstudy("validate", study(tmp_path, spin=(1e20, 1.0, 0.2), scheme="dop853"))
     assert "run.dt: needs 3.2e+20 body-steps" in one_error_line(code, err)
 
 
 @pytest.mark.parametrize("scheme", ["dop853", "rk4"])
 def test_a_spin_past_the_float_range_of_its_square_warns_nothing(tmp_path, scheme):
-    code, out, err, _ = rbstudy("validate", "--max-body-steps", 1e300,
-                                study(tmp_path, spin=(1e150, 1.0, 0.2), scheme=scheme))
+    code, out, err, _ = rbstudy(
+        "validate", "--max-body-steps", 1e300, study(tmp_path, spin=(1e150, 1.0, 0.2), scheme=scheme)
+    )
     assert code == 0 and err == "", err
     assert "1 case" in out
 
@@ -171,10 +200,10 @@ def test_dop853_as_a_scheme_stops_at_its_step_cap_as_not_converged(monkeypatch, 
     from rbstudy.numerics.state import STATUS_NAMES
     from rbstudy.physics.simulate import simulate
     from rbstudy.schemes import dop853
+
     monkeypatch.setattr(dop853, "MAX_STEPS", 20)
     capped = simulate([asymmetric_scene], "dop853", 0.05)
     assert STATUS_NAMES[int(capped.results["status"][0])] == "not_converged"
     assert int(capped.results["n_steps"][0]) == 20
-    monkeypatch.setattr(dop853, "MAX_STEPS", 10 ** 7)
-    assert STATUS_NAMES[int(simulate([asymmetric_scene], "dop853", 0.05)
-                             .results["status"][0])] == "ok"
+    monkeypatch.setattr(dop853, "MAX_STEPS", 10**7)
+    assert STATUS_NAMES[int(simulate([asymmetric_scene], "dop853", 0.05).results["status"][0])] == "ok"

@@ -26,8 +26,11 @@ def clean(tmp_path_factory):
     """A four-batch study run once with its parts kept: (config, results root, a copy of the
     undamaged folder)."""
     root = tmp_path_factory.mktemp("integrity")
-    config = write_study(root, name="small", sweep={
-        "scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]})
+    config = write_study(
+        root,
+        name="small",
+        sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]},
+    )
     run_study(load_study(config), root / "out", quiet=True, keep_parts=True)
     shutil.copytree(root / "out" / "small", root / "pristine")
     return config, root
@@ -55,7 +58,7 @@ def _data_offset(path, name):
 
 def _overwrite(path, offset, data):
     blob = bytearray(path.read_bytes())
-    blob[offset:offset + len(data)] = data
+    blob[offset : offset + len(data)] = data
     path.write_bytes(bytes(blob))
 
 
@@ -80,13 +83,12 @@ CORRUPTIONS = {
     "garbage at the tail": lambda path, other: path.write_bytes(path.read_bytes() + b"junk" * 99),
     "zeroed data": _zero_data,
     "random data": _random_data,
-    "an edited value": lambda path, other: _edit(
-        path, lambda nc: nc[VICTIM].__setitem__(0, 0.5)),
-    "a wrong batch attribute": lambda path, other: _edit(
-        path, lambda nc: nc.setncattr("batch", other.stem)),
+    "an edited value": lambda path, other: _edit(path, lambda nc: nc[VICTIM].__setitem__(0, 0.5)),
+    "a wrong batch attribute": lambda path, other: _edit(path, lambda nc: nc.setncattr("batch", other.stem)),
     "another batch's part copied in": lambda path, other: shutil.copyfile(other, path),
     "changed units": lambda path, other: _edit(
-        path, lambda nc: nc["omega_body"].setncattr("units", "deg s-1")),
+        path, lambda nc: nc["omega_body"].setncattr("units", "deg s-1")
+    ),
     "an empty file": lambda path, other: path.write_bytes(b""),
     "a deleted part": lambda path, other: path.unlink(),
 }
@@ -94,8 +96,7 @@ CORRUPTIONS = {
 
 def _same_numbers(path_a, path_b):
     a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
-                                b.drop_vars(TIMINGS).drop_attrs())
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 @pytest.mark.slow
@@ -142,8 +143,7 @@ def test_a_tampered_archive_is_refused_by_verify_and_rebuilt_by_the_sweep(study,
     assert main(["verify", str(archive)]) == 0
 
 
-def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meaning(
-        study, capsys):
+def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meaning(study, capsys):
     config, out, folder = study
     archive, edited = folder / "small.nc", folder / "edited.nc"
     shutil.copyfile(archive, edited)
@@ -184,8 +184,7 @@ def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):
     _edit(unsealed, lambda nc: nc[f"/{GROUP}"].delncattr("checksums"))
     assert main(["verify", str(unsealed)]) == 1
     assert "cannot be proven intact: it carries no checksums" in capsys.readouterr().err
-    _edit(archive, lambda nc: nc[f"/{GROUP}"].setncattr("part_checksums",
-                                                         '[["other", "sha256:0"]]'))
+    _edit(archive, lambda nc: nc[f"/{GROUP}"].setncattr("part_checksums", '[["other", "sha256:0"]]'))
     assert main(["verify", str(archive)]) == 1
     assert "do not name the batches" in capsys.readouterr().err
     assert main(["verify", str(tmp_path / "absent.nc")]) == 1
@@ -197,8 +196,8 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     import collections
 
     from rbstudy.pipeline import store
-    config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"],
-                                                       "dt": [0.01, 0.005]})
+
+    config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]})
     written = []
     real_write = store._write_part_file
     usage = collections.namedtuple("usage", "total used free")
@@ -215,8 +214,9 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()
     assert "\n" not in error and "/full/parts: no space left on the file system at /" in error
-    assert error.endswith("free space and rerun the same command (a sweep keeps its finished "
-                          "parts and resumes)")
+    assert error.endswith(
+        "free space and rerun the same command (a sweep keeps its finished parts and resumes)"
+    )
     parts = tmp_path / "out" / "full" / "parts"
     assert len(list(parts.glob("*.nc.sha256"))) == 2 and not list(parts.glob(".*"))
     monkeypatch.undo()

@@ -33,8 +33,18 @@ OUTSIDE = {
     "schemes": {"numpy", "numba"},
     "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
-    "pipeline": {"numpy", "scipy", "xarray", "netCDF4", "dask", "distributed", "dask_jobqueue",
-                 "yaml", "filelock", "rich"},
+    "pipeline": {
+        "numpy",
+        "scipy",
+        "xarray",
+        "netCDF4",
+        "dask",
+        "distributed",
+        "dask_jobqueue",
+        "yaml",
+        "filelock",
+        "rich",
+    },
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
     "shared": {"numpy"},  # the reader checks a swept column of values at once
@@ -49,11 +59,20 @@ PLUGIN_LAYER = "engines"
 # Modules the archive readers rely on: every module of the analysis layer and these below it.
 # None of them may load numba (or the schemes), so that figures, tables and reports start in
 # a moment and need no compiler.
-NUMBA_FREE = (*(f"rbstudy.analysis.{path.stem}"
-                for path in sorted((PACKAGE / "analysis").glob("*.py")) if path.stem != "__init__"),
-              "rbstudy.pipeline.archive", "rbstudy.pipeline.store", "rbstudy.pipeline.variables",
-              "rbstudy.pipeline.outputs",
-              "rbstudy.pipeline.batches", "rbstudy.physics.analytic", "rbstudy.reader")
+NUMBA_FREE = (
+    *(
+        f"rbstudy.analysis.{path.stem}"
+        for path in sorted((PACKAGE / "analysis").glob("*.py"))
+        if path.stem != "__init__"
+    ),
+    "rbstudy.pipeline.archive",
+    "rbstudy.pipeline.store",
+    "rbstudy.pipeline.variables",
+    "rbstudy.pipeline.outputs",
+    "rbstudy.pipeline.batches",
+    "rbstudy.physics.analytic",
+    "rbstudy.reader",
+)
 # The calls that import the module their first argument names.
 IMPORT_CALLS = ("import_module", "__import__")
 
@@ -83,8 +102,13 @@ def imports(path):
     on absolute names)."""
     tree = ast.parse(path.read_text())
     for node in ast.walk(tree):
-        if (isinstance(node, ast.Call) and _called(node) in IMPORT_CALLS and node.args
-                and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+        if (
+            isinstance(node, ast.Call)
+            and _called(node) in IMPORT_CALLS
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
             yield node.args[0].value
         elif isinstance(node, ast.Import):
             yield from (alias.name for alias in node.names)
@@ -132,14 +156,17 @@ def entry_point_violations(entry_points):
         if module.split(".")[0] == "rbstudy":
             layer = layer_of(tuple(module.split(".")[1:]))
             if layer != PLUGIN_LAYER:
-                found.append(f"entry point {name} = {value!r}: the scheme registry would load "
-                             f"the {layer} layer; register schemes from the {PLUGIN_LAYER} layer")
+                found.append(
+                    f"entry point {name} = {value!r}: the scheme registry would load "
+                    f"the {layer} layer; register schemes from the {PLUGIN_LAYER} layer"
+                )
     return found
 
 
 def test_every_module_sits_in_a_layer_and_imports_downwards_only():
-    violations = {"/".join(parts): found for path, parts in modules()
-                  if (found := violations_of(path, parts))}
+    violations = {
+        "/".join(parts): found for path, parts in modules() if (found := violations_of(path, parts))
+    }
     assert not violations, violations
 
 
@@ -163,8 +190,10 @@ def test_the_contract_names_what_exists():
 def test_an_upward_import_is_caught(tmp_path):
     """The check itself can fail: a physics module importing the pipeline is reported."""
     bad = tmp_path / "bad.py"
-    bad.write_text("from rbstudy.pipeline.store import open_results\nimport matplotlib\n"
-                   "from .metrics import node_error\n")
+    bad.write_text(
+        "from rbstudy.pipeline.store import open_results\nimport matplotlib\n"
+        "from .metrics import node_error\n"
+    )
     found = violations_of(bad, ("physics", "bad"))
     assert len(found) == 3 and "physics -> pipeline" in found[0] and "matplotlib" in found[1]
     assert "relative import" in found[2]
@@ -175,29 +204,35 @@ def test_an_upward_import_by_a_string_is_caught(tmp_path):
     adapter or the physics by name, or the analysis layer loading numba, is reported; a name
     built at run time (the registry's own scheme modules) is not a module name to check."""
     bad = tmp_path / "bad.py"
-    bad.write_text("import importlib\nfrom importlib import import_module\n"
-                   "importlib.import_module('rbstudy.engines.mujoco')\n"
-                   "import_module('rbstudy.physics.scenes')\n__import__('numba')\n"
-                   "importlib.import_module(f'{__name__}.euler')\n")
+    bad.write_text(
+        "import importlib\nfrom importlib import import_module\n"
+        "importlib.import_module('rbstudy.engines.mujoco')\n"
+        "import_module('rbstudy.physics.scenes')\n__import__('numba')\n"
+        "importlib.import_module(f'{__name__}.euler')\n"
+    )
     found = violations_of(bad, ("schemes", "bad"))
     assert len(found) == 2, found
     assert "schemes -> engines" in found[0] and "schemes -> physics" in found[1]
-    assert violations_of(bad, ("analysis", "bad"))[-1] == \
-        "numba: not a package the analysis layer may use"
+    assert violations_of(bad, ("analysis", "bad"))[-1] == "numba: not a package the analysis layer may use"
 
 
 def test_an_entry_point_into_another_layer_is_caught():
-    found = entry_point_violations({"mujoco_euler": "rbstudy.engines.mujoco:EULER",
-                                    "odd": "rbstudy.pipeline.bench:SCHEME",
-                                    "other": "rbstudy_semi_implicit.compiled:SCHEME"})
+    found = entry_point_violations(
+        {
+            "mujoco_euler": "rbstudy.engines.mujoco:EULER",
+            "odd": "rbstudy.pipeline.bench:SCHEME",
+            "other": "rbstudy_semi_implicit.compiled:SCHEME",
+        }
+    )
     assert len(found) == 1 and "odd" in found[0] and "the pipeline layer" in found[0]
 
 
 def test_the_archive_readers_never_load_numba():
-    script = ("import sys\n" + "".join(f"import {name}\n" for name in NUMBA_FREE)
-              + "loaded = [m for m in ('numba', 'rbstudy.schemes', 'rbstudy.numerics.driver') "
-                "if m in sys.modules]\nassert not loaded, loaded\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                          timeout=120)
+    script = (
+        "import sys\n"
+        + "".join(f"import {name}\n" for name in NUMBA_FREE)
+        + "loaded = [m for m in ('numba', 'rbstudy.schemes', 'rbstudy.numerics.driver') "
+        "if m in sys.modules]\nassert not loaded, loaded\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-

@@ -22,8 +22,13 @@ INTERRUPTED = "rbstudy: interrupted; finished batches are kept: rerun the same c
 
 
 def _rbstudy(*args, **popen):
-    return subprocess.Popen([sys.executable, "-m", "rbstudy", *args], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, **popen)
+    return subprocess.Popen(
+        [sys.executable, "-m", "rbstudy", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        **popen,
+    )
 
 
 @pytest.mark.slow
@@ -32,15 +37,17 @@ def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
     as leaked by Python's resource tracker (a warning of two lines, twice) after the error."""
     config = write_study(tmp_path, name="small")
     cluster = tmp_path / "cluster.yaml"
-    cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1,
-                                       "options": {"threads_per_worker": -1}}))
-    process = _rbstudy("sweep", str(config), "--cluster", str(cluster), "--out",
-                       str(tmp_path / "out"), "--quiet")
+    cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1, "options": {"threads_per_worker": -1}}))
+    process = _rbstudy(
+        "sweep", str(config), "--cluster", str(cluster), "--out", str(tmp_path / "out"), "--quiet"
+    )
     error = process.communicate(timeout=300)[1]
     assert process.returncode == 1
-    assert error == (f"rbstudy: error: {cluster}: options: Nanny failed to start. (ValueError: "
-                     "max_workers must be greater than 0); see the keyword arguments of "
-                     "LocalCluster\n")
+    assert error == (
+        f"rbstudy: error: {cluster}: options: Nanny failed to start. (ValueError: "
+        "max_workers must be greater than 0); see the keyword arguments of "
+        "LocalCluster\n"
+    )
 
 
 @pytest.mark.slow
@@ -50,8 +57,9 @@ def test_ctrl_c_of_the_process_group_ends_a_sweep_with_workers_in_one_line(tmp_p
     one line, exit 130, and a rerun reuses the batches that had finished."""
     config = _slow_study(tmp_path)
     folder = tmp_path / "out" / "slow"
-    process = _rbstudy("sweep", str(config), "--workers", "2", "--out", str(folder.parent),
-                       "--quiet", start_new_session=True)
+    process = _rbstudy(
+        "sweep", str(config), "--workers", "2", "--out", str(folder.parent), "--quiet", start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 300
         while not ((folder / "parts").exists() and _parts(folder)) and process.poll() is None:
@@ -72,13 +80,15 @@ def test_ctrl_c_of_the_process_group_ends_a_sweep_with_workers_in_one_line(tmp_p
 
 
 def test_a_library_message_of_several_lines_is_passed_on_whole_in_one_line():
-    xarray_said = ValueError("did not find a match in any of xarray's currently installed IO "
-                             "backends ['netcdf4']. Consider ... installing additional IO "
-                             "dependencies, see:\nhttps://docs.xarray.dev/en/stable/"
-                             "getting-started-guide/installing.html\n")
+    xarray_said = ValueError(
+        "did not find a match in any of xarray's currently installed IO "
+        "backends ['netcdf4']. Consider ... installing additional IO "
+        "dependencies, see:\nhttps://docs.xarray.dev/en/stable/"
+        "getting-started-guide/installing.html\n"
+    )
     assert one_line(xarray_said).endswith(
-        "dependencies, see: https://docs.xarray.dev/en/stable/getting-started-guide/"
-        "installing.html")
+        "dependencies, see: https://docs.xarray.dev/en/stable/getting-started-guide/installing.html"
+    )
     assert one_line(KeyError()) == "KeyError"
 
 
@@ -89,21 +99,30 @@ def test_a_job_cluster_s_advice_is_shown_whole(tmp_path, capsys):
     cluster = tmp_path / "slurm.yaml"
     cluster.write_text(yaml.safe_dump({"kind": "slurm", "jobs": 1, "options": {"queue": "x"}}))
     config = write_study(tmp_path, name="small")
-    assert main(["sweep", str(config), "--cluster", str(cluster), "--out",
-                 str(tmp_path / "out"), "--quiet"]) == 1
+    assert (
+        main(["sweep", str(config), "--cluster", str(cluster), "--out", str(tmp_path / "out"), "--quiet"])
+        == 1
+    )
     error = capsys.readouterr().err
     assert error.count("\n") == 1
-    assert ("for example: cluster = SLURMCluster(cores=8, memory='24GB'); see the keyword "
-            "arguments of SLURMCluster") in error
+    assert (
+        "for example: cluster = SLURMCluster(cores=8, memory='24GB'); see the keyword "
+        "arguments of SLURMCluster"
+    ) in error
 
 
-@pytest.mark.parametrize("make, said", [
-    (lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
-     "not an rbstudy archive: not a netCDF file (a text file)"),
-    (lambda path: path.write_bytes(b""), "not an rbstudy archive: not a netCDF file (an empty file)"),
-    (lambda path: path.write_bytes(bytes(range(256))), "not an rbstudy archive: not a netCDF file;"),
-    (lambda path: path.mkdir(), "not an rbstudy archive: a folder, not a file"),
-])
+@pytest.mark.parametrize(
+    "make, said",
+    [
+        (
+            lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
+            "not an rbstudy archive: not a netCDF file (a text file)",
+        ),
+        (lambda path: path.write_bytes(b""), "not an rbstudy archive: not a netCDF file (an empty file)"),
+        (lambda path: path.write_bytes(bytes(range(256))), "not an rbstudy archive: not a netCDF file;"),
+        (lambda path: path.mkdir(), "not an rbstudy archive: a folder, not a file"),
+    ],
+)
 def test_verify_calls_a_non_archive_a_non_archive(tmp_path, capsys, make, said):
     path = tmp_path / "config.yaml"
     make(path)

@@ -39,15 +39,18 @@ print(json.dumps(out))
 
 def run(disable):
     env = dict(os.environ, NUMBA_DISABLE_JIT="1" if disable else "0")
-    result = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True,
-                            text=True, check=True, timeout=600)
+    result = subprocess.run(
+        [sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, check=True, timeout=600
+    )
     import json
+
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
 @pytest.mark.slow
 def test_interpreted_kernels_match_compiled():
     import numpy as np
+
     compiled, interpreted = run(False), run(True)
     assert compiled.keys() == interpreted.keys()
     for name in compiled:

@@ -28,8 +28,16 @@ def _said(capsys):
 
 def test_an_override_is_applied_and_recorded_in_the_archive(tmp_path, capsys):
     config = write_study(tmp_path, name="top", sweep=SWEEP)
-    _sweep(config, tmp_path / "out", "--set", "sweep.dt.count=3", "--set",
-           "run.options.alpha=-0.1", "--set", "title=Three steps")
+    _sweep(
+        config,
+        tmp_path / "out",
+        "--set",
+        "sweep.dt.count=3",
+        "--set",
+        "run.options.alpha=-0.1",
+        "--set",
+        "title=Three steps",
+    )
     ds = open_results(tmp_path / "out" / "top" / "top.nc")
     assert ds.sizes["dt"] == 3 and ds.attrs["title"] == "Three steps"
     assert ds.attrs["overrides"] == "sweep.dt.count=3\nrun.options.alpha=-0.1\ntitle=Three steps"
@@ -41,8 +49,10 @@ def test_an_override_is_applied_and_recorded_in_the_archive(tmp_path, capsys):
     assert values["run"] == {"scheme": "rk4", "dt": 0.01, "options": {"alpha": -0.1}}
     rerun = tmp_path / "stored.yaml"
     rerun.write_text(stored)
-    assert load_study(rerun).batches == load_study(config, ["sweep.dt.count=3",
-                                                            "run.options.alpha=-0.1"]).batches
+    assert (
+        load_study(rerun).batches
+        == load_study(config, ["sweep.dt.count=3", "run.options.alpha=-0.1"]).batches
+    )
     resolved = yaml.safe_load((tmp_path / "out" / "top" / "study.yaml").read_text())
     assert resolved["run"]["options"] == {"alpha": -0.1} and resolved["cases"] == 6
     # without overrides the archive stores the file's text itself
@@ -54,18 +64,22 @@ def test_an_override_is_applied_and_recorded_in_the_archive(tmp_path, capsys):
     assert "rk4" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize(("assignment", "path", "value"), [
-    ("run.dt=5e-3", ("run", "dt"), 0.005),
-    ("run.scheme=hht", ("run", "scheme"), "hht"),
-    ("scene.body.inertia.2=1.5", ("scene", "body", "inertia", 2), 1.5),
-    ("scene.body.inertia=[2, 2, 3]", ("scene", "body", "inertia"), [2, 2, 3]),
-    ("output.accuracy_bound=0.1", ("output", "accuracy_bound"), 0.1),  # not in the file
-    ("sweep.scene.body.mass=[1, 2]", ("sweep", "scene.body.mass"), [1, 2]),  # a new axis
-    ("sweep.dt=[0.01]", ("sweep", "dt"), [0.01])])
+@pytest.mark.parametrize(
+    ("assignment", "path", "value"),
+    [
+        ("run.dt=5e-3", ("run", "dt"), 0.005),
+        ("run.scheme=hht", ("run", "scheme"), "hht"),
+        ("scene.body.inertia.2=1.5", ("scene", "body", "inertia", 2), 1.5),
+        ("scene.body.inertia=[2, 2, 3]", ("scene", "body", "inertia"), [2, 2, 3]),
+        ("output.accuracy_bound=0.1", ("output", "accuracy_bound"), 0.1),  # not in the file
+        ("sweep.scene.body.mass=[1, 2]", ("sweep", "scene.body.mass"), [1, 2]),  # a new axis
+        ("sweep.dt=[0.01]", ("sweep", "dt"), [0.01]),
+    ],
+)
 def test_values_are_read_as_yaml_and_missing_keys_the_study_knows_are_created(
-        tmp_path, assignment, path, value):
-    config = write_study(tmp_path, run={"scheme": "rk4", "dt": 0.01},
-                         sweep={"dt": [0.01, 0.005]})
+    tmp_path, assignment, path, value
+):
+    config = write_study(tmp_path, run={"scheme": "rk4", "dt": 0.01}, sweep={"dt": [0.01, 0.005]})
     file_text = config.read_text()
     study = load_study(config, [assignment])
     node = yaml.safe_load(study.archived_text)
@@ -80,7 +94,8 @@ def test_an_alias_of_the_file_keeps_its_value_where_it_is_not_overridden(tmp_pat
     config.write_text(
         "name: alias\nscene:\n  body: {mass: 1.0, inertia: &m [1.0, 1.0, 2.0]}\n"
         "  initial: {angular_velocity: {body: [0.25, 0.0, 6.0]}}\n  nodes: {tip: *m}\n"
-        "  duration: 0.5\noutput: {interval: 0.01}\nrun: {scheme: rk4, dt: 0.01}\n")
+        "  duration: 0.5\noutput: {interval: 0.01}\nrun: {scheme: rk4, dt: 0.01}\n"
+    )
     study = load_study(config, ["scene.body.inertia.2=1.5"])
     assert study.base["scene"]["body"]["inertia"] == [1.0, 1.0, 1.5]
     assert study.base["scene"]["nodes"]["tip"] == [1.0, 1.0, 2.0]  # the alias: the file's
@@ -91,51 +106,86 @@ def test_an_empty_mapping_and_a_name_yaml_reads_as_a_number_take_overrides(tmp_p
     config.write_text(
         "name: empty\nscene:\n  body: {mass: 1.0, inertia: [1.0, 1.0, 2.0]}\n"
         "  initial: {angular_velocity: {body: [0.25, 0.0, 6.0]}}\n  nodes: {2: [1.0, 0.0, 0.0]}\n"
-        "  duration: 0.5\noutput:\nrun: {scheme: rk4, dt: 0.01}\n")
+        "  duration: 0.5\noutput:\nrun: {scheme: rk4, dt: 0.01}\n"
+    )
     study = load_study(config, ["output.interval=0.05", "scene.nodes.2=[0, 0, 2]"])
     assert study.output_interval == 0.05 and study.base["scene"]["nodes"] == {2: [0, 0, 2]}
 
 
-@pytest.mark.parametrize(("argv", "line"), [
-    (["--set", "sweep.dt.count=0"], "{config}: --set sweep.dt.count: expected a whole number "
-                                    ">= 1, got 0"),
-    (["--set", "sweep.dt.count3"], "{config}: --set sweep.dt.count3: no '=' in "
-                                   "'sweep.dt.count3'; write it as KEY=VALUE, for example "
-                                   "--set sweep.dt.count=3"),
-    (["--set", "sweep.dt=[0.01, 0.005"], "{config}: --set sweep.dt: line 1: malformed YAML: "
-                                         "expected ',' or ']', but got '<stream end>'"),
-    (["--set", "run.dt.x=1"], "{config}: --set run.dt.x: run.dt holds 0.01, not a mapping or "
-                              "list; set run.dt itself, or a key under a mapping"),
-    (["--set", "scene.body.inertia.3=1"], "{config}: --set scene.body.inertia.3: '3' is not an "
-                                          "entry of the list of 3 at scene.body.inertia; use "
-                                          "an index 0..2"),
-    (["--set", "scene.body.inertia.1=-1"], "{config}: --set scene.body.inertia[1]: must be > 0 "
-                                           "kg m^2, got -1"),
-    (["--set", "run.scheme=hhtt"], "{config}: --set run.scheme: unknown scheme 'hhtt' (did you "
-                                   "mean 'hht'?); valid schemes: "),
-    # a key no study knows is refused with the one that was meant, made or not by the file
-    (["--set", "scene.duraton=1"], "{config}: --set scene.duraton: unknown key (did you mean "
-                                   "'duration'?); valid keys here: body, assembly, initial, "
-                                   "nodes, loads, duration"),
-    (["--set", "scene.laods.moment_body=[0, 0, 1]"], "{config}: --set scene.laods: unknown key "
-                                                     "(did you mean 'loads'?); valid keys here"),
-    (["--set", "run.options.alpah=-0.1"], "{config}: --set run.options: alpah is an option of "
-                                          "none of the study's schemes (hht, rk4) (did you mean "
-                                          "'alpha'?); see `rbstudy schemes`"),
-    (["--set", "sweep.dt.cout=3"], "{config} (with --set sweep.dt.cout=3): sweep.dt: expected "
-                                   "a list of values, "),
-    # an error elsewhere that an override may have caused names the file with the overrides
-    (["--set", "output.interval=0.003"], "{config} (with --set output.interval=0.003): sweep "
-                                         "(scheme[0] = 'rk4', dt[0] = 0.005): run.dt: dt = 0.005 s "
-                                         "does not divide the output interval 0.003 s"),
-])
+@pytest.mark.parametrize(
+    ("argv", "line"),
+    [
+        (
+            ["--set", "sweep.dt.count=0"],
+            "{config}: --set sweep.dt.count: expected a whole number >= 1, got 0",
+        ),
+        (
+            ["--set", "sweep.dt.count3"],
+            "{config}: --set sweep.dt.count3: no '=' in "
+            "'sweep.dt.count3'; write it as KEY=VALUE, for example "
+            "--set sweep.dt.count=3",
+        ),
+        (
+            ["--set", "sweep.dt=[0.01, 0.005"],
+            "{config}: --set sweep.dt: line 1: malformed YAML: expected ',' or ']', but got '<stream end>'",
+        ),
+        (
+            ["--set", "run.dt.x=1"],
+            "{config}: --set run.dt.x: run.dt holds 0.01, not a mapping or "
+            "list; set run.dt itself, or a key under a mapping",
+        ),
+        (
+            ["--set", "scene.body.inertia.3=1"],
+            "{config}: --set scene.body.inertia.3: '3' is not an "
+            "entry of the list of 3 at scene.body.inertia; use "
+            "an index 0..2",
+        ),
+        (
+            ["--set", "scene.body.inertia.1=-1"],
+            "{config}: --set scene.body.inertia[1]: must be > 0 kg m^2, got -1",
+        ),
+        (
+            ["--set", "run.scheme=hhtt"],
+            "{config}: --set run.scheme: unknown scheme 'hhtt' (did you mean 'hht'?); valid schemes: ",
+        ),
+        # a key no study knows is refused with the one that was meant, made or not by the file
+        (
+            ["--set", "scene.duraton=1"],
+            "{config}: --set scene.duraton: unknown key (did you mean "
+            "'duration'?); valid keys here: body, assembly, initial, "
+            "nodes, loads, duration",
+        ),
+        (
+            ["--set", "scene.laods.moment_body=[0, 0, 1]"],
+            "{config}: --set scene.laods: unknown key (did you mean 'loads'?); valid keys here",
+        ),
+        (
+            ["--set", "run.options.alpah=-0.1"],
+            "{config}: --set run.options: alpah is an option of "
+            "none of the study's schemes (hht, rk4) (did you mean "
+            "'alpha'?); see `rbstudy schemes`",
+        ),
+        (
+            ["--set", "sweep.dt.cout=3"],
+            "{config} (with --set sweep.dt.cout=3): sweep.dt: expected a list of values, ",
+        ),
+        # an error elsewhere that an override may have caused names the file with the overrides
+        (
+            ["--set", "output.interval=0.003"],
+            "{config} (with --set output.interval=0.003): sweep "
+            "(scheme[0] = 'rk4', dt[0] = 0.005): run.dt: dt = 0.005 s "
+            "does not divide the output interval 0.003 s",
+        ),
+    ],
+)
 def test_a_bad_override_is_one_line_and_writes_nothing(tmp_path, capsys, argv, line):
     config = write_study(tmp_path, sweep=SWEEP)
     for verb in ("validate", "sweep"):
         assert main([verb, str(config), "--out", str(tmp_path / "out"), *argv]) == 1
         error = capsys.readouterr().err
-        assert error.count("\n") == 1 and error.startswith(
-            "rbstudy: error: " + line.format(config=config)), error
+        assert error.count("\n") == 1 and error.startswith("rbstudy: error: " + line.format(config=config)), (
+            error
+        )
     assert not (tmp_path / "out").exists()
     if "cout" in argv[1]:
         assert error.rstrip().endswith("(did you mean 'count'?)")
@@ -150,12 +200,20 @@ def test_several_files_each_take_the_overrides_or_refuse_them(tmp_path, capsys):
     said = _said(capsys)
     assert "damped: 2 cases (scheme 2 x dt 1)" in said and "plain: 1 case" in said
     # alpha means something to one of them only: the other is refused, and nothing is run
-    argv = ["sweep", str(damped), str(plain), "--out", str(tmp_path / "out"),
-            "--set", "run.options.alpha=-0.1"]
+    argv = [
+        "sweep",
+        str(damped),
+        str(plain),
+        "--out",
+        str(tmp_path / "out"),
+        "--set",
+        "run.options.alpha=-0.1",
+    ]
     assert main(argv) == 1
     assert capsys.readouterr().err == (
         f"rbstudy: error: {plain}: --set run.options: alpha is an option of none of the "
-        "study's schemes (rk4); see `rbstudy schemes`\n")
+        "study's schemes (rk4); see `rbstudy schemes`\n"
+    )
     assert not (tmp_path / "out").exists()
 
 

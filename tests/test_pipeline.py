@@ -53,20 +53,35 @@ def abaqus_results(tmp_path_factory):
 def test_default_study_follows_the_dataset_contract(abaqus_results):
     ds = open_results(abaqus_results)
     fixed = [name for name, s in BUILTIN.items() if not s.adaptive]
-    assert list(ds.sizes) == ["scheme", "dt", "inertia_ratio", "time", "axis", "component",
-                              "node"]
+    assert list(ds.sizes) == ["scheme", "dt", "inertia_ratio", "time", "axis", "component", "node"]
     assert list(ds.scheme.values) == fixed
-    assert np.allclose(ds.dt, [0.01 / 2 ** k for k in range(5, -1, -1)])  # ascending
+    assert np.allclose(ds.dt, [0.01 / 2**k for k in range(5, -1, -1)])  # ascending
     assert list(ds.sel(dt=slice(0.001, 0.006)).dt.values) == [0.00125, 0.0025, 0.005]
     assert list(ds.inertia_ratio.values) == [0.1, 0.5, 1.5, 2.0]
     assert ds.omega_body.dims == ("scheme", "dt", "inertia_ratio", "time", "axis")
     assert ds.node_displacement.dims[-2:] == ("node", "axis")
-    for name in ("omega_space", "quaternion", "energy_error", "momentum_error",
-                 "orientation_error", "omega_error", "node_error", "precession_frequency",
-                 "precession_frequency_exact", "precession_frequency_error", "status",
-                 "failure_time", "n_steps", "iterations", "run_time", "max_energy_error",
-                 "max_momentum_magnitude_error", "max_momentum_error", "final_orientation_error",
-                 "accuracy"):
+    for name in (
+        "omega_space",
+        "quaternion",
+        "energy_error",
+        "momentum_error",
+        "orientation_error",
+        "omega_error",
+        "node_error",
+        "precession_frequency",
+        "precession_frequency_exact",
+        "precession_frequency_error",
+        "status",
+        "failure_time",
+        "n_steps",
+        "iterations",
+        "run_time",
+        "max_energy_error",
+        "max_momentum_magnitude_error",
+        "max_momentum_error",
+        "final_orientation_error",
+        "accuracy",
+    ):
         assert name in ds, name
     assert "position" not in ds  # the top does not translate: absent, not NaN
     assert ds.status.attrs["flag_meanings"] == "ok unstable not_converged"
@@ -114,11 +129,15 @@ def test_the_dop853_forecast_is_within_a_factor_two_of_its_steps(tmp_path):
     (integrated twice: the composition's steps are forecast exactly); free, the same bodies
     need no integration."""
     for spin in (1.0, 10.0, 100.0):
-        scene = {"body": {"inertia": [1.0, 2.0, 3.0]}, "duration": 10.0,
-                 "initial": {"angular_velocity": {"body": [0.6 * spin, 1.5 * spin, 0.9 * spin]}},
-                 "loads": {"moment_space": [0.0, 0.0, 0.01]}}
-        config = write_study(tmp_path, name="dop", scene=scene, output={"interval": 0.1},
-                             run={"scheme": "dop853", "dt": 0.1})
+        scene = {
+            "body": {"inertia": [1.0, 2.0, 3.0]},
+            "duration": 10.0,
+            "initial": {"angular_velocity": {"body": [0.6 * spin, 1.5 * spin, 0.9 * spin]}},
+            "loads": {"moment_space": [0.0, 0.0, 0.01]},
+        }
+        config = write_study(
+            tmp_path, name="dop", scene=scene, output={"interval": 0.1}, run={"scheme": "dop853", "dt": 0.1}
+        )
         study = load_study(config)
         taken = simulate([study.cases[0].scene], "dop853", 0.1).results["n_steps"][0]
         forecast = estimate(study)
@@ -127,9 +146,17 @@ def test_the_dop853_forecast_is_within_a_factor_two_of_its_steps(tmp_path):
         assert forecast.reference_steps == forecast.body_steps + composed
         assert 0.5 < forecast.body_steps / taken < 2.0, (spin, forecast.body_steps, taken)
         del scene["loads"]
-        free = estimate(load_study(write_study(tmp_path, name="dop", scene=scene,
-                                               output={"interval": 0.1},
-                                               run={"scheme": "dop853", "dt": 0.1})))
+        free = estimate(
+            load_study(
+                write_study(
+                    tmp_path,
+                    name="dop",
+                    scene=scene,
+                    output={"interval": 0.1},
+                    run={"scheme": "dop853", "dt": 0.1},
+                )
+            )
+        )
         assert free.references == 0 and free.reference_steps == 0
 
 
@@ -142,13 +169,30 @@ TIME_RULE = "Coordinate variable 'time' should have standard_name='time', found:
 @pytest.mark.slow
 def test_default_study_is_cf_compliant_at_strict_criteria(abaqus_results, tmp_path):
     checker = shutil.which("compliance-checker") or os.path.join(
-        os.path.dirname(sys.executable), "compliance-checker")
+        os.path.dirname(sys.executable), "compliance-checker"
+    )
     report = tmp_path / "cf.json"
-    subprocess.run([checker, "--test=cf:1.11", "--criteria=strict", "-f", "json", "-o",
-                    str(report), str(abaqus_results)], capture_output=True, check=False)
+    subprocess.run(
+        [
+            checker,
+            "--test=cf:1.11",
+            "--criteria=strict",
+            "-f",
+            "json",
+            "-o",
+            str(report),
+            str(abaqus_results),
+        ],
+        capture_output=True,
+        check=False,
+    )
     result = json.loads(report.read_text())["cf:1.11"]
-    findings = {message for level in ("high_priorities", "medium_priorities", "low_priorities")
-                for check in result[level] for message in check["msgs"]}
+    findings = {
+        message
+        for level in ("high_priorities", "medium_priorities", "low_priorities")
+        for check in result[level]
+        for message in check["msgs"]
+    }
     assert findings <= {TIME_RULE}, findings
 
 
@@ -173,8 +217,9 @@ def test_summary_orders_match_each_scheme(abaqus_results):
 
 def test_stored_case_equals_a_direct_run(abaqus_results):
     study = load_study(CONFIGS / "abaqus_top.yaml")
-    case = next(c for c in study.cases if c.scheme == "rkmk4" and c.dt == 0.0025
-                and c.scene.body.inertia[2] == 0.5)
+    case = next(
+        c for c in study.cases if c.scheme == "rkmk4" and c.dt == 0.0025 and c.scene.body.inertia[2] == 0.5
+    )
     direct = simulate([case.scene], "rkmk4", 0.0025, 0.01)
     stored = open_results(abaqus_results).sel(scheme="rkmk4", dt=0.0025, inertia_ratio=0.5)
     assert np.array_equal(stored.quaternion.values, direct.quaternion[0])
@@ -182,15 +227,16 @@ def test_stored_case_equals_a_direct_run(abaqus_results):
 
 
 def _small_study(folder, **changes):
-    return write_study(folder, name="small", sweep={
-        "scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0],
-        **changes})
+    return write_study(
+        folder,
+        name="small",
+        sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0], **changes},
+    )
 
 
 def _assert_same_numbers(path_a, path_b):
     a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(),
-                                b.drop_vars(TIMINGS).drop_attrs())
+    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 @pytest.mark.slow
@@ -206,20 +252,22 @@ def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tm
     assert sorted((out / "small" / "parts").iterdir()) == parts
     forced = run_study(load_study(config), out, force=True, quiet=True, keep_parts=True)
     assert (forced.computed, forced.reused) == (4, 0)
-    changed = run_study(load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out,
-                        quiet=True, keep_parts=True)
+    changed = run_study(
+        load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out, quiet=True, keep_parts=True
+    )
     assert changed.computed == 4  # no batch of the old config is reused...
     assert not set(parts) & set((out / "small" / "parts").iterdir())  # ...or left behind
     ds = open_results(changed.path)
-    reordered = run_study(load_study(_small_study(tmp_path, inertia_ratio=[1.5, 0.5])), out,
-                          quiet=True, keep_parts=True)
+    reordered = run_study(
+        load_study(_small_study(tmp_path, inertia_ratio=[1.5, 0.5])), out, quiet=True, keep_parts=True
+    )
     assert reordered.computed == 4  # same cases, other cells: recomputed, never misplaced
-    assert np.array_equal(open_results(reordered.path).quaternion.sel(inertia_ratio=1.5),
-                          ds.quaternion.sel(inertia_ratio=1.5))
+    assert np.array_equal(
+        open_results(reordered.path).quaternion.sel(inertia_ratio=1.5), ds.quaternion.sel(inertia_ratio=1.5)
+    )
     assert list(ds.inertia_ratio.values) == [0.5, 1.5]
     w3 = ds.omega_body.isel(time=0).sel(scheme="euler", dt=0.01, axis="z")
-    assert np.allclose(ds.precession_frequency_exact, w3 * (ds.inertia_ratio - 1.0),
-                       rtol=1e-14)
+    assert np.allclose(ds.precession_frequency_exact, w3 * (ds.inertia_ratio - 1.0), rtol=1e-14)
 
 
 def test_a_damaged_part_is_recomputed_not_trusted(tmp_path):
@@ -252,10 +300,17 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
     folder = tmp_path / "study"
     folder.mkdir()
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\n"
-         "from rbstudy.pipeline.execute import study_lock\n"
-         f"lock = study_lock(__import__('pathlib').Path({str(folder)!r}))\n"
-         "print('held', flush=True)\ntime.sleep(600)"], stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\n"
+            "from rbstudy.pipeline.execute import study_lock\n"
+            f"lock = study_lock(__import__('pathlib').Path({str(folder)!r}))\n"
+            "print('held', flush=True)\ntime.sleep(600)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline() == "held\n"
         with pytest.raises(RbstudyError) as refused:  # at once: a wait would outlast the test
@@ -271,13 +326,14 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
 
 @pytest.mark.slow
 def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
-    sweep = {"scheme": ["rkmk4"], "dt": [0.01 / k for k in range(1, 11)],
-             "inertia_ratio": {"linspace": [0.2, 2.0, 40]}}
-    config = write_study(tmp_path, name="long", sweep=sweep,
-                         scene={**abaqus_mapping(), "duration": 40.0})
+    sweep = {
+        "scheme": ["rkmk4"],
+        "dt": [0.01 / k for k in range(1, 11)],
+        "inertia_ratio": {"linspace": [0.2, 2.0, 40]},
+    }
+    config = write_study(tmp_path, name="long", sweep=sweep, scene={**abaqus_mapping(), "duration": 40.0})
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out),
-               "--quiet"]
+    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     parts = out / "long" / "parts"
     deadline = time.monotonic() + 120
@@ -305,13 +361,19 @@ def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path
     at once (it used to wait for the kernel), the study's lock is free only then, and the
     rerun computes the halted batch to the numbers of an uninterrupted run."""
     scene = {**abaqus_mapping(), "duration": 40.0}
-    config = write_study(tmp_path, name="long", scene=scene, output={"interval": 0.1},
-                         sweep={"scheme": ["rk4"], "dt": [0.01, 1e-5],
-                                "inertia_ratio": [0.5, 1.0, 1.5, 2.0]})
+    config = write_study(
+        tmp_path,
+        name="long",
+        scene=scene,
+        output={"interval": 0.1},
+        sweep={"scheme": ["rk4"], "dt": [0.01, 1e-5], "inertia_ratio": [0.5, 1.0, 1.5, 2.0]},
+    )
     out = tmp_path / "out"
-    process = subprocess.Popen([sys.executable, "-m", "rbstudy", "sweep", str(config), "--out",
-                                str(out), "--quiet"], stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     parts = out / "long" / "parts"
     deadline = time.monotonic() + 120
     while not (parts.exists() and list(parts.glob("*.sha256"))) and process.poll() is None:
@@ -338,11 +400,15 @@ def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, m
     force through the centre leaves the rotation free, but couples nothing the closed forms
     know: the reference is DOP853's.)"""
     monkeypatch.setattr(references, "REFERENCE_MAX_STEPS", 20)
-    scene = {"body": {"inertia": [1.0, 2.0, 3.0]}, "duration": 1.0,
-             "initial": {"angular_velocity": {"body": [0.6, 15.0, 0.9]}},
-             "loads": {"force_body": [0.0, 0.0, 1e-3]}}
-    config = write_study(tmp_path, name="budget", scene=scene,
-                         sweep={"scheme": ["rk4", "euler"], "dt": [0.01, 0.005]})
+    scene = {
+        "body": {"inertia": [1.0, 2.0, 3.0]},
+        "duration": 1.0,
+        "initial": {"angular_velocity": {"body": [0.6, 15.0, 0.9]}},
+        "loads": {"force_body": [0.0, 0.0, 1e-3]},
+    }
+    config = write_study(
+        tmp_path, name="budget", scene=scene, sweep={"scheme": ["rk4", "euler"], "dt": [0.01, 0.005]}
+    )
     done = run_study(load_study(config), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
     assert set(ds.reference.values.ravel()) == {REFERENCE_KINDS.index("none")}
@@ -374,15 +440,14 @@ def test_a_failed_run_leaves_later_runs_free_to_finish(tmp_path, monkeypatch):
         run_study(load_study(config), tmp_path / "out", quiet=True)
     monkeypatch.undo()
     assert not HALT_FLAG[0]
-    asymmetric = load_study(config).cases[0].scene.with_changes(
-        body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)))
+    asymmetric = load_study(config).cases[0].scene.with_changes(body=Body(mass=1.0, inertia=(1.0, 2.0, 3.0)))
     assert simulate([asymmetric], "rk4", 0.01).results["status"][0] == 0
-    assert (references.reference_solution(asymmetric, np.arange(51) * 0.01).name
-            == "exact_asymmetric")
+    assert references.reference_solution(asymmetric, np.arange(51) * 0.01).name == "exact_asymmetric"
 
 
 def test_a_resume_needs_the_disk_for_what_is_left_only(tmp_path, monkeypatch):
     from rbstudy.pipeline import estimate as forecast
+
     config = _small_study(tmp_path)
     study = load_study(config)
     run_study(study, tmp_path / "out", quiet=True, keep_parts=True).path.unlink()
@@ -403,42 +468,63 @@ def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(
 
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
-    cluster = run_study(load_study(config), tmp_path / "cluster", where=Where(workers=2),
-                        quiet=True)
+    cluster = run_study(load_study(config), tmp_path / "cluster", where=Where(workers=2), quiet=True)
     _assert_same_numbers(threaded.path, cluster.path)
-    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                      dashboard_address=None) as running:
-        remote = run_study(load_study(config), tmp_path / "remote",
-                           where=Where(scheduler=running.scheduler_address), quiet=True)
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as running:
+        remote = run_study(
+            load_study(config),
+            tmp_path / "remote",
+            where=Where(scheduler=running.scheduler_address),
+            quiet=True,
+        )
     _assert_same_numbers(threaded.path, remote.path)
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "1s")
     config = _small_study(tmp_path)
-    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet",
-                 "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    assert (
+        main(
+            [
+                "sweep",
+                str(config),
+                "--out",
+                str(tmp_path / "out"),
+                "--quiet",
+                "--scheduler",
+                "tcp://127.0.0.1:9",
+            ]
+        )
+        == 1
+    )
     error = capsys.readouterr().err.strip()
     assert "--scheduler tcp://127.0.0.1:9: cannot connect" in error and "\n" not in error
     assert not (tmp_path / "out" / "small").exists()  # no empty folder, .lock or parts/ left
 
 
 def test_unstable_cases_are_results_not_crashes(tmp_path, capsys):
-    config = write_study(tmp_path, name="blowup", scene={
-        "body": {"inertia": [1.0, 2.0, 3.0]},
-        "initial": {"angular_velocity": {"body": [0.1, 10.0, 0.1]}}, "duration": 2.0},
-        output={"interval": 0.1}, run={"scheme": "euler", "dt": 0.1},
-        sweep={"scheme": ["euler", "midpoint"], "dt": [0.1, 0.01]})
+    config = write_study(
+        tmp_path,
+        name="blowup",
+        scene={
+            "body": {"inertia": [1.0, 2.0, 3.0]},
+            "initial": {"angular_velocity": {"body": [0.1, 10.0, 0.1]}},
+            "duration": 2.0,
+        },
+        output={"interval": 0.1},
+        run={"scheme": "euler", "dt": 0.1},
+        sweep={"scheme": ["euler", "midpoint"], "dt": [0.1, 0.01]},
+    )
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     ds = open_results(tmp_path / "out" / "blowup" / "blowup.nc")
     euler = ds.sel(scheme="euler", dt=0.1)
     assert int(euler.status) == 1 and 0 < float(euler.failure_time) <= 2.0
     assert int(ds.status.sel(scheme="midpoint", dt=0.01)) == 0
-    euler_row = next(line.split() for line in capsys.readouterr().out.splitlines()
-                     if line.startswith("euler "))  # the table row
+    euler_row = next(
+        line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("euler ")
+    )  # the table row
     assert "1/2" in euler_row  # one of its two cases unstable
-    assert (ds.reference.attrs["flag_meanings"].split()[int(euler.reference)]
-            == "exact_asymmetric")
+    assert ds.reference.attrs["flag_meanings"].split()[int(euler.reference)] == "exact_asymmetric"
 
 
 def test_unwritable_results_folder_is_one_line(tmp_path):
@@ -455,16 +541,20 @@ def test_node_velocity_is_the_rate_of_the_stored_node_positions(tmp_path):
     scene = {**abaqus_mapping(), "duration": 0.5}
     scene["initial"] = {**scene["initial"], "velocity": [1.0, -2.0, 3.0]}
     scene["loads"] = {"gravity": [0.0, 0.0, -9.81]}
-    config = write_study(tmp_path, name="nodes", scene=scene, output={"interval": interval},
-                         run={"scheme": "rk4", "dt": interval})
+    config = write_study(
+        tmp_path,
+        name="nodes",
+        scene=scene,
+        output={"interval": interval},
+        run={"scheme": "rk4", "dt": interval},
+    )
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
     assert ds.node_velocity.dims == ("time", "node", "axis")
     assert ds.node_velocity.attrs["units"] == "m s-1"
     x = ds.node_displacement.values  # (T, N, 3)
     rate = (x[2:] - x[:-2]) / (2 * interval)
     velocity = ds.node_velocity.values[1:-1]
-    spin = np.linalg.norm(velocity - ds.node_velocity.values[1:-1].mean(axis=1, keepdims=True),
-                          axis=-1)
+    spin = np.linalg.norm(velocity - ds.node_velocity.values[1:-1].mean(axis=1, keepdims=True), axis=-1)
     assert spin.max() > 4.0  # the nodes turn at ~2 pi rad/s at unit distance
     # central differences err by h^2/6 |x'''|, |x'''| ~ (2 pi)^3 at unit distance: 4.1e-5 m/s
     assert np.max(np.abs(rate - velocity)) < 6e-5
@@ -478,6 +568,7 @@ def test_a_finished_study_keeps_a_compressed_archive_and_no_parts(tmp_path):
     again = run_study(load_study(config), out, quiet=True)
     assert (again.computed, again.up_to_date) == (0, True)  # the archive is current
     import netCDF4
+
     with netCDF4.Dataset(first.path) as nc:
         assert nc["omega_body"].filters()["zlib"] and nc["omega_body"].filters()["shuffle"]
     retitled = config.read_text().replace("name: small", "name: small\ntitle: New title")
@@ -486,8 +577,7 @@ def test_a_finished_study_keeps_a_compressed_archive_and_no_parts(tmp_path):
     assert (again.computed, again.up_to_date) == (0, True)  # the same cases: no recomputation
     assert open_results(again.path).attrs["title"] == "New title"  # but the new description
     assert "New title" in (out / "small" / "study.yaml").read_text()
-    changed = run_study(load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out,
-                        quiet=True)
+    changed = run_study(load_study(_small_study(tmp_path, inertia_ratio=[0.5, 1.5])), out, quiet=True)
     assert (changed.computed, changed.up_to_date) == (4, False)
 
 
@@ -495,12 +585,21 @@ def test_finite_but_meaningless_is_inaccurate_not_ok(tmp_path):
     """The flat disk at |w| = 200 rad/s: euler at dt = 1.25e-4 s ends with status ok but a
     final orientation error of 0.36 rad and 1.7% energy drift. Blow-up stays `unstable`; the
     verdict says `inaccurate`, and "largest accurate dt|w0|" does not count it."""
-    scene = {"body": {"inertia": [1.0, 1.0, 2.0]},
-             "initial": {"angular_velocity": {"body": [0.25, 0.0, 200.0]},
-                         "orientation": {"momentum_axis": [0.0, 0.0, 1.0]}},
-             "duration": 2.0}
-    config = write_study(tmp_path, name="spin200", scene=scene, output={"interval": 0.01},
-                         sweep={"scheme": ["euler", "rk4"], "dt": [1.25e-4, 6.25e-5]})
+    scene = {
+        "body": {"inertia": [1.0, 1.0, 2.0]},
+        "initial": {
+            "angular_velocity": {"body": [0.25, 0.0, 200.0]},
+            "orientation": {"momentum_axis": [0.0, 0.0, 1.0]},
+        },
+        "duration": 2.0,
+    }
+    config = write_study(
+        tmp_path,
+        name="spin200",
+        scene=scene,
+        output={"interval": 0.01},
+        sweep={"scheme": ["euler", "rk4"], "dt": [1.25e-4, 6.25e-5]},
+    )
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
     assert ds.accuracy.attrs["flag_meanings"] == "accurate inaccurate failed unjudged"
     assert ds.attrs["accuracy_bound"] == 0.01
@@ -523,8 +622,9 @@ def test_the_verdict_judges_the_largest_error_not_the_last(tmp_path):
     spin = float(np.geomspace(1.0, np.pi / 0.01, 13)[8])  # 46.2 rad/s, a value of the study
     w = np.array(scene["initial"]["angular_velocity"]["body"])
     scene["initial"]["angular_velocity"]["body"] = (w / np.linalg.norm(w) * spin).tolist()
-    config = write_study(tmp_path, name="wrap", scene=scene, output={"interval": 0.01},
-                         run={"scheme": "splitting", "dt": 0.01})
+    config = write_study(
+        tmp_path, name="wrap", scene=scene, output={"interval": 0.01}, run={"scheme": "splitting", "dt": 0.01}
+    )
     ds = open_results(run_study(load_study(config), tmp_path / "out", quiet=True).path)
     assert float(ds.final_orientation_error) < 0.005 < 0.03 < float(ds.orientation_error.max())
     assert int(ds.status) == 0 and int(ds.accuracy) == 1
@@ -535,12 +635,15 @@ def test_every_file_is_synced_before_and_after_its_rename(tmp_path, monkeypatch)
     """A machine crash must not leave a renamed but empty part: the file is fsynced before
     the rename, its folder after."""
     from rbstudy.pipeline import store
+
     calls = []
     real_replace = os.replace
-    monkeypatch.setattr(store.os, "fsync", lambda fd: calls.append(("fsync", os.readlink(
-        f"/proc/self/fd/{fd}"))))
-    monkeypatch.setattr(store.os, "replace", lambda a, b: (calls.append(("replace", str(b))),
-                                                           real_replace(a, b)))
+    monkeypatch.setattr(
+        store.os, "fsync", lambda fd: calls.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+    )
+    monkeypatch.setattr(
+        store.os, "replace", lambda a, b: (calls.append(("replace", str(b))), real_replace(a, b))
+    )
     target = tmp_path / "x.txt"
     store.write_text_atomic("data", target)
     assert [kind for kind, _ in calls] == ["fsync", "replace", "fsync"]
@@ -554,11 +657,11 @@ def test_every_run_of_consecutive_cases_is_written_as_few_slabs_in_order(shape):
     of consecutive cases of every grid up to four dimensions is covered exactly, in order,
     by at most 2 ndim - 1 slabs."""
     from rbstudy.pipeline.store import _slabs
+
     grid = np.arange(math.prod(shape)).reshape(shape)
     for first in range(grid.size + 1):
         for stop in range(first, grid.size + 1):
             slabs = _slabs(first, stop, shape)
             assert len(slabs) <= 2 * len(shape) - 1
             covered = [grid[index].ravel() for index in slabs]
-            assert np.array_equal(np.concatenate(covered) if covered else [],
-                                  np.arange(first, stop))
+            assert np.array_equal(np.concatenate(covered) if covered else [], np.arange(first, stop))

@@ -37,17 +37,36 @@ def installed(tmp_path_factory):
     target = tmp_path_factory.mktemp("site")
     # built from a copy: setuptools leaves build/ and *.egg-info in the folder it builds
     source = tmp_path_factory.mktemp("example") / "semi_implicit"
-    shutil.copytree(EXAMPLE, source,
-                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
-    subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
-                    "--disable-pip-version-check", "--target", str(target), str(source)],
-                   check=True, capture_output=True, text=True)
+    shutil.copytree(EXAMPLE, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--disable-pip-version-check",
+            "--target",
+            str(target),
+            str(source),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), str(ROOT)])}
 
 
 def _rbstudy(env, *args, cwd):
-    return subprocess.run([sys.executable, "-m", "rbstudy", *args], env=env, cwd=cwd,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "rbstudy", *args],
+        env=env,
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 @pytest.mark.slow
@@ -64,8 +83,15 @@ def test_installed_example_is_listed_as_a_plugin(installed, tmp_path):
 def test_installed_example_sweeps_with_its_nominal_order(installed, tmp_path):
     """Both kinds of the example sweep like built-ins; they show order 1 on the Abaqus top,
     agree with each other to round-off, and the archive names where they come from."""
-    swept = _rbstudy(installed, "sweep", str(EXAMPLE / "semi_implicit_top.yaml"), "--out",
-                     str(tmp_path), "--quiet", cwd=tmp_path)
+    swept = _rbstudy(
+        installed,
+        "sweep",
+        str(EXAMPLE / "semi_implicit_top.yaml"),
+        "--out",
+        str(tmp_path),
+        "--quiet",
+        cwd=tmp_path,
+    )
     assert swept.returncode == 0, swept.stderr
     archive = tmp_path / "semi_implicit_top" / "semi_implicit_top.nc"
     with xr.open_dataset(archive) as ds:
@@ -81,12 +107,14 @@ def test_installed_example_sweeps_with_its_nominal_order(installed, tmp_path):
                 error = errors.sel(scheme=scheme, inertia_ratio=ratio).values
                 slope = np.polyfit(np.log(dts), np.log(error), 1)[0]
                 assert abs(slope - 1.0) < 0.1, (scheme, ratio, slope)
-        compiled, vectorised = (ds["quaternion"].sel(scheme=name).values
-                                for name in ("semi_implicit", "semi_implicit_numpy"))
+        compiled, vectorised = (
+            ds["quaternion"].sel(scheme=name).values for name in ("semi_implicit", "semi_implicit_numpy")
+        )
         assert np.max(np.abs(compiled - vectorised)) < 1e-12
         # the vectorised kind is timed the same way, and is the slower
-        assert (ds["run_time"].sel(scheme="semi_implicit_numpy")
-                > ds["run_time"].sel(scheme="semi_implicit")).all()
+        assert (
+            ds["run_time"].sel(scheme="semi_implicit_numpy") > ds["run_time"].sel(scheme="semi_implicit")
+        ).all()
 
 
 def _row_by_row(module):
@@ -111,19 +139,36 @@ def test_vectorised_driver_books_like_the_compiled_driver(name):
     """Samples, statuses, failure times, step and iteration counts, drifts and step angles of
     every body, blow-ups included, equal those of the compiled driver, bit for bit; `hht`
     starts its carry in ``init`` and iterates Newton."""
-    fast = {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
-            "initial": {"angular_velocity": {"body": [4.0, 0.3, 4.0]}}, "duration": 10.0}
-    scenes = [scene_from_mapping(mapping, "test") for mapping in (
-        {**abaqus_mapping(), "duration": 10.0}, fast, {**LOADED, "duration": 10.0},
-        {**fast, "initial": {"angular_velocity": {"body": [0.0, 0.0, 0.0]}}},
-        {**fast, "initial": {"angular_velocity": {"body": [6.0, 0.1, 2.0]}}})]
+    fast = {
+        "body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+        "initial": {"angular_velocity": {"body": [4.0, 0.3, 4.0]}},
+        "duration": 10.0,
+    }
+    scenes = [
+        scene_from_mapping(mapping, "test")
+        for mapping in (
+            {**abaqus_mapping(), "duration": 10.0},
+            fast,
+            {**LOADED, "duration": 10.0},
+            {**fast, "initial": {"angular_velocity": {"body": [0.0, 0.0, 0.0]}}},
+            {**fast, "initial": {"angular_velocity": {"body": [6.0, 0.1, 2.0]}}},
+        )
+    ]
     compiled = get_scheme(name)
-    row_by_row = dataclasses.replace(compiled, name=f"{name}_rows",
-                                     run_bodies_inplace=_row_by_row(
-                                         importlib.import_module(f"rbstudy.schemes.{name}")))
+    row_by_row = dataclasses.replace(
+        compiled,
+        name=f"{name}_rows",
+        run_bodies_inplace=_row_by_row(importlib.import_module(f"rbstudy.schemes.{name}")),
+    )
     dt = {"euler": 0.02, "hht": 1.0}[name]
-    arguments = (np.array([scene.state_row() for scene in scenes]), param_rows(scenes),
-                 np.repeat(compiled.option_row()[None, :], len(scenes), axis=0), dt, 500, 3)
+    arguments = (
+        np.array([scene.state_row() for scene in scenes]),
+        param_rows(scenes),
+        np.repeat(compiled.option_row()[None, :], len(scenes), axis=0),
+        dt,
+        500,
+        3,
+    )
     expected, got = run_batch(compiled, *arguments), run_batch(row_by_row, *arguments)
     statuses = expected.results["status"]
     assert 0 < np.count_nonzero(statuses) < len(scenes)  # blow-ups beside finished bodies
@@ -143,28 +188,45 @@ def fake_plugins(tmp_path, monkeypatch):
 
     def register(points):
         entries = importlib.metadata.EntryPoints(
-            importlib.metadata.EntryPoint(name, value, GROUP) for name, value in points.items())
-        monkeypatch.setattr(importlib.metadata, "entry_points",
-                            lambda group=None: entries if group == GROUP else ())
+            importlib.metadata.EntryPoint(name, value, GROUP) for name, value in points.items()
+        )
+        monkeypatch.setattr(
+            importlib.metadata, "entry_points", lambda group=None: entries if group == GROUP else ()
+        )
         monkeypatch.setattr(SCHEMES, "_groups", {})  # loaded again on first use
+
     return tmp_path, register
 
 
 def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
     folder, register = fake_plugins
-    _plugin_module(folder, "engine_plugin", """
+    _plugin_module(
+        folder,
+        "engine_plugin",
+        """
         from rbstudy.extending import SchemeUnavailable
         raise SchemeUnavailable("needs the mujoco package", 'pip install "rbstudy[engines]"')
-        """)
+        """,
+    )
     _plugin_module(folder, "broken_plugin", "import a_module_nobody_has\n")
-    _plugin_module(folder, "odd_plugin", """
+    _plugin_module(
+        folder,
+        "odd_plugin",
+        """
         from rbstudy.schemes import BUILTIN
         NOT_A_SCHEME = 3
         EULER = BUILTIN["euler"]
-        """)
-    register({"engine_rk4": "engine_plugin:SCHEME", "broken": "broken_plugin:SCHEME",
-              "odd": "odd_plugin:NOT_A_SCHEME", "renamed": "odd_plugin:EULER",
-              "euler": "odd_plugin:EULER"})
+        """,
+    )
+    register(
+        {
+            "engine_rk4": "engine_plugin:SCHEME",
+            "broken": "broken_plugin:SCHEME",
+            "odd": "odd_plugin:NOT_A_SCHEME",
+            "renamed": "odd_plugin:EULER",
+            "euler": "odd_plugin:EULER",
+        }
+    )
     missing = unavailable_schemes()
     assert set(missing) == {"engine_rk4", "broken", "odd", "renamed", "euler"}
     assert missing["engine_rk4"].fix == 'pip install "rbstudy[engines]"'
@@ -173,10 +235,14 @@ def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
     assert "is the scheme 'euler'" in missing["renamed"].reason
     assert "taken by rbstudy's own scheme" in missing["euler"].reason
     assert get_scheme("euler") is BUILTIN["euler"]  # the built-in keeps its name
-    with pytest.raises(SchemeError, match=r"not available here: needs the mujoco package; "
-                                          r'pip install "rbstudy\[engines\]"'):
+    with pytest.raises(
+        SchemeError,
+        match=r"not available here: needs the mujoco package; "
+        r'pip install "rbstudy\[engines\]"',
+    ):
         get_scheme("engine_rk4")
     from rbstudy.cli import main
+
     assert main(["schemes"]) == 0
     listed = listed_schemes(capsys.readouterr().out)
     assert 'fix: pip install "rbstudy[engines]"' in listed["engine_rk4"]
@@ -189,8 +255,11 @@ def test_builtin_and_engine_names_import_no_plugin(fake_plugins):
     # a failed import leaves nothing in sys.modules, and the probe imports in a child: the
     # module's own mark, a file, tells whether any process ran it
     mark = folder / "never_plugin-ran"
-    _plugin_module(folder, "never_plugin", f"import pathlib\npathlib.Path({str(mark)!r}).touch()\n"
-                                           "raise SystemExit('imported')\n")
+    _plugin_module(
+        folder,
+        "never_plugin",
+        f"import pathlib\npathlib.Path({str(mark)!r}).touch()\nraise SystemExit('imported')\n",
+    )
     register({"never": "never_plugin:SCHEME"})
     assert get_scheme("euler") is BUILTIN["euler"]
     assert SCHEMES.find("mujoco_euler").name == "mujoco_euler"  # a Scheme, or Unavailable
@@ -201,19 +270,25 @@ def test_builtin_and_engine_names_import_no_plugin(fake_plugins):
 
 def test_a_config_naming_an_unavailable_scheme_fails_in_one_line(fake_plugins, tmp_path):
     folder, register = fake_plugins
-    _plugin_module(folder, "engine_plugin2", """
+    _plugin_module(
+        folder,
+        "engine_plugin2",
+        """
         from rbstudy.extending import SchemeUnavailable
         raise SchemeUnavailable("needs the mujoco package", 'pip install "rbstudy[engines]"')
-        """)
+        """,
+    )
     register({"engine_euler": "engine_plugin2:SCHEME"})
     config = tmp_path / "study.yaml"
-    config.write_text(textwrap.dedent("""
+    config.write_text(
+        textwrap.dedent("""
         name: study
         scene: {body: {mass: 1.0, inertia: [1.0, 2.0, 3.0]}, duration: 0.1,
                 initial: {angular_velocity: {body: [1.0, 0.0, 0.0]}}}
         output: {interval: 0.01}
         run: {scheme: engine_euler, dt: 0.01}
-        """))
+        """)
+    )
     with pytest.raises(InputError) as raised:
         load_study(config)
     message = str(raised.value)
@@ -224,11 +299,15 @@ def test_a_config_naming_an_unavailable_scheme_fails_in_one_line(fake_plugins, t
 def test_a_working_plugin_joins_the_registry_but_not_scheme_all(fake_plugins):
     folder, register = fake_plugins
     (folder / "good_plugin").mkdir()
-    _plugin_module(folder / "good_plugin", "__init__", """
+    _plugin_module(
+        folder / "good_plugin",
+        "__init__",
+        """
         from dataclasses import replace
         from rbstudy.schemes import BUILTIN
         SCHEME = replace(BUILTIN["rk4"], name="my_rk4")
-        """)
+        """,
+    )
     register({"my_rk4": "good_plugin:SCHEME"})
     found, missing = load_plugins(BUILTIN)
     assert missing == {} and found["my_rk4"].origin == "good_plugin:SCHEME"  # no distribution
@@ -251,9 +330,15 @@ def test_a_plugins_code_enters_its_batch_ids(tmp_path, monkeypatch):
     (package / "kernels.py").write_text("# a helper module of the plug-in\n")
     assert package_digest("digest_plugin.kernels") != before
     study = load_study(CONFIGS / "abaqus_top.yaml")
-    plan = dict(cases=study.cases, scene=study.base["scene"], dimensions=study.dimensions,
-                output_interval=study.output_interval, variables=study.variables,
-                max_cases=64, verdict={"accuracy_bound": study.accuracy_bound})
+    plan = dict(
+        cases=study.cases,
+        scene=study.base["scene"],
+        dimensions=study.dimensions,
+        output_interval=study.output_interval,
+        variables=study.variables,
+        max_cases=64,
+        verdict={"accuracy_bound": study.accuracy_bound},
+    )
     plain = [batch.id for batch in plan_batches(**plan)]
     unchanged = [batch.id for batch in plan_batches(**plan, code_digests={"rk4": None})]
     assert unchanged == plain
@@ -267,11 +352,15 @@ def test_a_plugins_code_enters_its_batch_ids(tmp_path, monkeypatch):
 def test_a_namespace_package_plugin_loads_with_a_digest(fake_plugins):
     folder, register = fake_plugins
     (folder / "spread" / "part").mkdir(parents=True)  # no __init__.py: a namespace package
-    _plugin_module(folder / "spread" / "part", "mod", """
+    _plugin_module(
+        folder / "spread" / "part",
+        "mod",
+        """
         from dataclasses import replace
         from rbstudy.schemes import BUILTIN
         SCHEME = replace(BUILTIN["rk4"], name="spread_rk4")
-        """)
+        """,
+    )
     register({"spread_rk4": "spread.part.mod:SCHEME"})
     assert unavailable_schemes() == {}
     assert get_scheme("spread_rk4").code_digest == package_digest("spread.part.mod")
@@ -281,18 +370,22 @@ def test_threads_reading_the_registry_first_wait_for_the_plugins(fake_plugins):
     """A second thread that reads the registry while the first is loading a slow plug-in
     finds the plug-in, not a registry of rbstudy's own schemes only."""
     import threading
+
     folder, register = fake_plugins
-    _plugin_module(folder, "slow_plugin", """
+    _plugin_module(
+        folder,
+        "slow_plugin",
+        """
         import time
         from dataclasses import replace
         from rbstudy.schemes import BUILTIN
         time.sleep(0.5)
         SCHEME = replace(BUILTIN["rk4"], name="slow_rk4")
-        """)
+        """,
+    )
     register({"slow_rk4": "slow_plugin:SCHEME"})
     found = []
-    readers = [threading.Thread(target=lambda: found.append(get_scheme("slow_rk4").name))
-               for _ in range(2)]
+    readers = [threading.Thread(target=lambda: found.append(get_scheme("slow_rk4").name)) for _ in range(2)]
     for reader in readers:
         reader.start()
     for reader in readers:
@@ -323,30 +416,38 @@ def test_an_edited_helper_of_a_plugin_is_compiled_again(tmp_path):
     under a digest of its whole package, so a changed helper module is not run stale."""
     package = tmp_path / "edited_plugin"
     package.mkdir()
-    (package / "__init__.py").write_text(textwrap.dedent("""
+    (package / "__init__.py").write_text(
+        textwrap.dedent("""
         from dataclasses import replace
         from rbstudy.extending import init_nothing, make_entry
         from rbstudy.schemes import BUILTIN
         from edited_plugin.kernel import step_inplace
         SCHEME = replace(BUILTIN["euler"], name="edited",
                          run_bodies_inplace=make_entry(step_inplace, init_nothing, 0))
-        """))
-    (package / "kernel.py").write_text(textwrap.dedent("""
+        """)
+    )
+    (package / "kernel.py").write_text(
+        textwrap.dedent("""
         from rbstudy.extending import OK, jit
         from edited_plugin.helper import shift
         @jit
         def step_inplace(y, p, opt, t, h, work):
             y[0] += shift()
             return OK, 0
-        """))
+        """)
+    )
     helper = package / "helper.py"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     moved = []
     for value in (1.0, 2.0):
-        helper.write_text(f"from rbstudy.extending import jit\n@jit\ndef shift():\n"
-                          f"    return {value}\n")
-        run = subprocess.run([sys.executable, "-c", _EDITED_HELPER, str(tmp_path)], env=env,
-                             capture_output=True, text=True, timeout=600)
+        helper.write_text(f"from rbstudy.extending import jit\n@jit\ndef shift():\n    return {value}\n")
+        run = subprocess.run(
+            [sys.executable, "-c", _EDITED_HELPER, str(tmp_path)],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert run.returncode == 0, run.stderr
         moved.append(float(run.stdout))
     assert moved == [1.0, 2.0]

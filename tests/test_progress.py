@@ -47,9 +47,13 @@ def _sweep(config, out, cache, *options):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
     env.pop("CI", None)
     started = time.monotonic()
-    process = subprocess.Popen([sys.executable, "-m", "rbstudy.cli", "sweep", str(config),
-                                "--out", str(out), *options], env=env, text=True,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "rbstudy.cli", "sweep", str(config), "--out", str(out), *options],
+        env=env,
+        text=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     lines = [(time.monotonic() - started, line.rstrip("\n")) for line in process.stderr]
     assert process.wait() == 0, lines
     return lines
@@ -59,8 +63,9 @@ def _sweep(config, out, cache, *options):
 def one_scheme(tmp_path_factory):
     """A study of one scheme, and a first sweep of it with an empty numba cache."""
     folder = tmp_path_factory.mktemp("first_run")
-    config = write_study(folder, name="first", run={"scheme": "euler", "dt": 0.01},
-                         sweep={"dt": [0.01, 0.005]})
+    config = write_study(
+        folder, name="first", run={"scheme": "euler", "dt": 0.01}, sweep={"dt": [0.01, 0.005]}
+    )
     cache = folder / "numba-cache"
     return config, folder, cache, _sweep(config, folder / "out", cache)
 
@@ -68,8 +73,9 @@ def one_scheme(tmp_path_factory):
 @pytest.mark.slow
 def test_a_first_run_says_it_compiles_before_it_does(one_scheme):
     _, _, cache, lines = one_scheme
-    announced = [(seconds, line) for seconds, line in lines
-                 if line.startswith("first: compiling 1 scheme first")]
+    announced = [
+        (seconds, line) for seconds, line in lines if line.startswith("first: compiling 1 scheme first")
+    ]
     assert len(announced) == 1, lines
     seconds, line = announced[0]
     assert seconds < ANNOUNCED_WITHIN, lines
@@ -143,10 +149,11 @@ class _Client:
 
 def test_the_dashboard_link_or_how_to_get_one(monkeypatch):
     monkeypatch.setattr(cluster, "_bokeh", lambda: True)
-    assert (dashboard_line(_Client({"dashboard": 8787}))
-            == "dask dashboard at http://127.0.0.1:8787/status")
+    assert dashboard_line(_Client({"dashboard": 8787})) == "dask dashboard at http://127.0.0.1:8787/status"
     assert dashboard_line(_Client({})) == "no dask dashboard: the scheduler runs none"
     # without bokeh the scheduler still names a dashboard, whose pages are empty
     monkeypatch.setattr(cluster, "_bokeh", lambda: False)
-    assert (dashboard_line(_Client({"dashboard": 8787}))
-            == "no dask dashboard: it needs bokeh; pip install 'rbstudy[dashboard]'")
+    assert (
+        dashboard_line(_Client({"dashboard": 8787}))
+        == "no dask dashboard: it needs bokeh; pip install 'rbstudy[dashboard]'"
+    )

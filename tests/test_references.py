@@ -16,20 +16,24 @@ from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
 
-TUMBLING = {"body": {"inertia": [1.0, 2.0, 3.0]},
-            "initial": {"angular_velocity": {"body": [0.6, 1.5, 0.9]},
-                        "orientation": {"rotation_vector": [0.3, -0.2, 0.5]}}}
+TUMBLING = {
+    "body": {"inertia": [1.0, 2.0, 3.0]},
+    "initial": {
+        "angular_velocity": {"body": [0.6, 1.5, 0.9]},
+        "orientation": {"rotation_vector": [0.3, -0.2, 0.5]},
+    },
+}
 
 
 def loaded(duration, **loads):
-    return scene_from_mapping({**TUMBLING, "duration": duration, "loads": loads},
-                              source="test")
+    return scene_from_mapping({**TUMBLING, "duration": duration, "loads": loads}, source="test")
 
 
 def oracle(scene, step, **moments):
     """The extended-precision orientation at the end of ``scene``."""
-    return loaded_rotation(scene.body.inertia, scene.quaternion, scene.omega_body,
-                           scene.duration, step, **moments)[0]
+    return loaded_rotation(
+        scene.body.inertia, scene.quaternion, scene.omega_body, scene.duration, step, **moments
+    )[0]
 
 
 @pytest.mark.slow
@@ -76,9 +80,17 @@ def test_knots_off_the_composition_s_steps_leave_dop853_the_reference():
     """A load table with a knot at 1/sqrt(2) s, which no step dividing the output interval 0.1 s
     puts on a step boundary: the composition would straddle the kink, so DOP853 (which
     restarts there) is the reference, unchecked; knots at 0.25 s and 1 s fit."""
+
     def tabled(knot):
-        return scene_from_mapping({**TUMBLING, "duration": 2.0, "loads": {"moment_body": {
-            "table": [[knot, 0.0, 0.0, 0.0], [1.0, 0.6, -0.4, 1.2]]}}}, source="test")
+        return scene_from_mapping(
+            {
+                **TUMBLING,
+                "duration": 2.0,
+                "loads": {"moment_body": {"table": [[knot, 0.0, 0.0, 0.0], [1.0, 0.6, -0.4, 1.2]]}},
+            },
+            source="test",
+        )
+
     times = np.arange(21) * 0.1
     off = reference_solution(tabled(1.0 / np.sqrt(2.0)), times)
     assert off.name == "dop853" and off.uncertainty == {}
@@ -88,7 +100,7 @@ def test_knots_off_the_composition_s_steps_leave_dop853_the_reference():
 
 def test_the_fit_skips_errors_within_ten_times_the_uncertainty():
     dts = 0.1 / 2.0 ** np.arange(6)
-    errors = 3.0 * dts ** 4
+    errors = 3.0 * dts**4
     assert fitted_order(dts, errors, "orientation").used.all()
     uncertainty = np.full(dts.size, errors[-2] / UNCERTAINTY_FACTOR * 1.5)
     fit = fitted_order(dts, errors, "orientation", uncertainty)
@@ -101,10 +113,13 @@ def test_the_fit_skips_errors_within_ten_times_the_uncertainty():
 def mixed_archive(tmp_path_factory):
     """rk4 over dt on the tumbling body, free and under a space-fixed moment."""
     folder = tmp_path_factory.mktemp("mixed")
-    config = write_study(folder, name="mixed", sweep={
-        "scene.loads.moment_space.1": [0.0, 0.1], "dt": {"halving": 0.1, "count": 5}},
+    config = write_study(
+        folder,
+        name="mixed",
+        sweep={"scene.loads.moment_space.1": [0.0, 0.1], "dt": {"halving": 0.1, "count": 5}},
         scene={**TUMBLING, "duration": 4.0, "loads": {"moment_space": [0.0, 0.0, 0.0]}},
-        output={"interval": 0.1, "variables": ["final_orientation_error"]})
+        output={"interval": 0.1, "variables": ["final_orientation_error"]},
+    )
     return open_results(run_study(load_study(config), folder / "out", quiet=True).path)
 
 
@@ -116,8 +131,9 @@ def test_the_uncertainty_is_archived_where_the_reference_is_integrated(mixed_arc
     assert ((pushed > 0.0) & (pushed < 1e-11)).all()
     assert "reference_node_uncertainty" not in ds  # no nodes
     kinds = ds["reference"].attrs["flag_meanings"].split()
-    assert {kinds[int(c)] for c in ds["reference"].isel(loads_moment_space_1=1).values.ravel()} \
-        == {"exact_split_composition"}
+    assert {kinds[int(c)] for c in ds["reference"].isel(loads_moment_space_1=1).values.ravel()} == {
+        "exact_split_composition"
+    }
 
 
 def test_the_summary_fits_no_order_through_an_uncertain_reference(mixed_archive):
@@ -127,8 +143,9 @@ def test_the_summary_fits_no_order_through_an_uncertain_reference(mixed_archive)
     (row,) = scheme_rows(ds)
     assert row["fit_dt"][0] == pytest.approx(0.1 / 16) and abs(row["order"][0] - 4.0) < 0.3
     errors = ds["final_orientation_error"].values.ravel()  # dt ascending: the finest first
-    raised = ds.assign(reference_uncertainty=ds["reference_uncertainty"] * 0
-                       + errors[1] / UNCERTAINTY_FACTOR * 1.5)
+    raised = ds.assign(
+        reference_uncertainty=ds["reference_uncertainty"] * 0 + errors[1] / UNCERTAINTY_FACTOR * 1.5
+    )
     (row,) = scheme_rows(raised)
     assert row["fit_dt"][0] == pytest.approx(0.1 / 4) and abs(row["order"][0] - 4.0) < 0.3
     swamped = ds.assign(reference_uncertainty=ds["reference_uncertainty"] * 0 + errors.max())

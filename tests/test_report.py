@@ -24,8 +24,7 @@ PNG_URI = "data:image/png;base64,"
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
-    return run_study(load_study(shrunk_config("abaqus_top.yaml", folder)), folder / "out",
-                     quiet=True).path
+    return run_study(load_study(shrunk_config("abaqus_top.yaml", folder)), folder / "out", quiet=True).path
 
 
 class _Page(html.parser.HTMLParser):
@@ -77,7 +76,7 @@ def test_the_report_is_one_file_with_the_answer_first(archive, tmp_path, capsys)
     assert len(page.images) == len(drawn) > 5
     for source in page.images:  # every image inside the file, a PNG
         assert source.startswith(PNG_URI)
-        assert base64.b64decode(source[len(PNG_URI):])[:8] == b"\x89PNG\r\n\x1a\n"
+        assert base64.b64decode(source[len(PNG_URI) :])[:8] == b"\x89PNG\r\n\x1a\n"
     # no file beside it is needed: every link is to a place in the page, and without --svg
     # no SVG is written
     assert page.links and all(link.startswith("#") for link in page.links)
@@ -114,14 +113,12 @@ def _progress(capsys):
     on stderr, which is not a terminal here: a start line and an end line."""
     start, end = capsys.readouterr().err.splitlines()
     assert " writing its report into " in start
-    drawn, reused = re.fullmatch(r".*: (\d+) figures? drawn, (\d+) reused in [\d.]+ s",
-                                 end).groups()
+    drawn, reused = re.fullmatch(r".*: (\d+) figures? drawn, (\d+) reused in [\d.]+ s", end).groups()
     return int(drawn), int(reused)
 
 
 @pytest.mark.slow
-def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archive, tmp_path,
-                                                                          capsys):
+def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archive, tmp_path, capsys):
     out = tmp_path / "report"
     capsys.readouterr()
     report = _report(archive, out)
@@ -158,14 +155,15 @@ def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archiv
 @pytest.mark.slow
 def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_path, capsys):
     report = _report(archive, tmp_path / "report", "--quiet").read_text()
-    cell = Cell(passed=False, value=float("nan"),
-                verdicts={"order": Verdict(False, 0.5, "order 0.50 <b>"),
-                          "energy": Verdict(None, 0.0, "not judged")})
-    page = scorecard_html({"case_a": {"euler": cell}}, ["case_a"], {"case_a": "A & B"},
-                          ["a header line"])
-    head = report[:report.index("<title>")]
+    cell = Cell(
+        passed=False,
+        value=float("nan"),
+        verdicts={"order": Verdict(False, 0.5, "order 0.50 <b>"), "energy": Verdict(None, 0.0, "not judged")},
+    )
+    page = scorecard_html({"case_a": {"euler": cell}}, ["case_a"], {"case_a": "A & B"}, ["a header line"])
+    head = report[: report.index("<title>")]
     assert page.startswith(head) and head.count("viewport") == 1
-    base_style = report[report.index("<style>"):report.index("small, .muted")]
+    base_style = report[report.index("<style>") : report.index("small, .muted")]
     assert base_style in page
     assert "order 0.50 &lt;b&gt;" in page and 'title="A &amp; B"' in page  # escaped
     assert page.count('class="fail"') == 1 and "✗ order" in page and "· energy" in page
@@ -174,8 +172,9 @@ def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_pa
 @pytest.mark.slow
 def test_the_report_of_another_shipped_study_has_distinct_captions(tmp_path, capsys):
     """A one-scheme study (hht's damping swept): lines are the swept option's values."""
-    path = run_study(load_study(shrunk_config("hht_damping.yaml", tmp_path)), tmp_path / "out",
-                     quiet=True).path
+    path = run_study(
+        load_study(shrunk_config("hht_damping.yaml", tmp_path)), tmp_path / "out", quiet=True
+    ).path
     page = _parsed(_report(path, tmp_path / "report", "--quiet"))
     assert len(set(page.captions)) == len(page.captions) > 3
     assert any(re.search(r"a line per alpha \(", caption) for caption in page.captions)

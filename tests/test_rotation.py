@@ -23,8 +23,7 @@ def test_quat_mul_matches_scipy_composition():
 def test_rotate_and_inverse_match_scipy():
     q, v = random_quaternion(), tuple(RNG.normal(size=3))
     assert np.allclose(r.quat_rotate(q, v), Rotation.from_quat(q).apply(v), atol=1e-14)
-    assert np.allclose(r.quat_rotate_inverse(q, v), Rotation.from_quat(q).inv().apply(v),
-                       atol=1e-14)
+    assert np.allclose(r.quat_rotate_inverse(q, v), Rotation.from_quat(q).inv().apply(v), atol=1e-14)
 
 
 @pytest.mark.parametrize("angle", [0.0, 1e-9, 5e-5, 1e-4, 0.3, 3.0])

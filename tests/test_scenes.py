@@ -21,22 +21,24 @@ def fails(mapping, message):
 
 
 def test_non_positive_inertia_is_rejected():
-    fails({"body": {"inertia": [1.0, -1.0, 1.0]}},
-          "scene.body.inertia[1]: must be > 0 kg m^2, got -1.0")
+    fails({"body": {"inertia": [1.0, -1.0, 1.0]}}, "scene.body.inertia[1]: must be > 0 kg m^2, got -1.0")
     fails({"body": {"inertia": [1.0, 0, 1.0]}}, "scene.body.inertia[1]: must be > 0")
 
 
 def test_non_finite_values_are_rejected():
-    fails({"body": {"inertia": [1.0, 1.0, float("nan")]}},
-          "scene.body.inertia[2]: must be finite, got nan")
-    fails({"body": {"inertia": [1, 1, 1]}, "initial": {"velocity": [0, float("inf"), 0]}},
-          "scene.initial.velocity[1]: must be finite")
+    fails({"body": {"inertia": [1.0, 1.0, float("nan")]}}, "scene.body.inertia[2]: must be finite, got nan")
+    fails(
+        {"body": {"inertia": [1, 1, 1]}, "initial": {"velocity": [0, float("inf"), 0]}},
+        "scene.initial.velocity[1]: must be finite",
+    )
 
 
 def test_triangle_inequality_unless_flagged():
-    fails({"body": {"inertia": [1.0, 1.0, 2.5]}},
-          "violates the triangle inequality I1 + I2 >= I3 (and cyclic): no rigid body has it; "
-          "set allow_unphysical: true")
+    fails(
+        {"body": {"inertia": [1.0, 1.0, 2.5]}},
+        "violates the triangle inequality I1 + I2 >= I3 (and cyclic): no rigid body has it; "
+        "set allow_unphysical: true",
+    )
     scene = scene_from_mapping({"body": {"inertia": [1.0, 1.0, 2.5], "allow_unphysical": True}})
     assert not scene.body.physical and scene.body.allow_unphysical
 
@@ -46,11 +48,14 @@ def test_flat_disk_at_the_edge_is_physical():
 
 
 def test_unknown_keys_and_wrong_types_are_named():
-    fails({"body": {"inertia": [1, 1, 1], "mas": 2}},
-          "scene.body.mas: unknown key (did you mean 'mass'?); valid keys here: mass, inertia, "
-          "allow_unphysical")
-    fails({"body": {"inertia": [1, 1, 1], "mass": "heavy"}},
-          "scene.body.mass: expected a number, got 'heavy'")
+    fails(
+        {"body": {"inertia": [1, 1, 1], "mas": 2}},
+        "scene.body.mas: unknown key (did you mean 'mass'?); valid keys here: mass, inertia, "
+        "allow_unphysical",
+    )
+    fails(
+        {"body": {"inertia": [1, 1, 1], "mass": "heavy"}}, "scene.body.mass: expected a number, got 'heavy'"
+    )
     fails({"body": {"inertia": [1, 1]}}, "scene.body.inertia: expected a list of 3 numbers")
     fails({"body": {"inertia": [1, 1, 1]}, "duration": 0}, "scene.duration: must be > 0, got 0")
 
@@ -66,8 +71,7 @@ def test_momentum_axis_puts_l_on_the_axis():
         mapping = abaqus_mapping()
         mapping["initial"]["orientation"] = {"momentum_axis": axis}
         scene = scene_from_mapping(mapping)
-        momentum = Rotation.from_quat(scene.quaternion).apply(
-            np.array(scene.body.inertia) * scene.omega_body)
+        momentum = Rotation.from_quat(scene.quaternion).apply(np.array(scene.body.inertia) * scene.omega_body)
         direction = np.array(axis) / np.linalg.norm(axis)
         assert np.allclose(momentum / np.linalg.norm(momentum), direction, atol=1e-14)
 
@@ -77,10 +81,13 @@ def test_inertia_tensor_is_diagonalised_and_vectors_follow():
     principal = np.diag([1.0, 2.0, 2.5])
     tensor = turn.as_matrix() @ principal @ turn.as_matrix().T
     omega_input = np.array([0.3, -1.0, 2.0])
-    scene = scene_from_mapping({
-        "body": {"inertia": tensor.tolist()},
-        "initial": {"angular_velocity": {"body": omega_input.tolist()}},
-        "nodes": {"tip": [1.0, 0.0, 0.0]}})
+    scene = scene_from_mapping(
+        {
+            "body": {"inertia": tensor.tolist()},
+            "initial": {"angular_velocity": {"body": omega_input.tolist()}},
+            "nodes": {"tip": [1.0, 0.0, 0.0]},
+        }
+    )
     assert np.allclose(scene.body.inertia, [1.0, 2.0, 2.5])
     # same physics in both frames: energy, and the node seen from space
     energy_input = 0.5 * omega_input @ tensor @ omega_input
@@ -91,10 +98,15 @@ def test_inertia_tensor_is_diagonalised_and_vectors_follow():
 
 
 def test_space_angular_velocity_is_turned_into_the_body():
-    scene = scene_from_mapping({
-        "body": {"inertia": [1, 2, 3]},
-        "initial": {"angular_velocity": {"space": [0.0, 0.0, 2.0]},
-                    "orientation": {"euler_zxz_deg": [10, 30, 50]}}})
+    scene = scene_from_mapping(
+        {
+            "body": {"inertia": [1, 2, 3]},
+            "initial": {
+                "angular_velocity": {"space": [0.0, 0.0, 2.0]},
+                "orientation": {"euler_zxz_deg": [10, 30, 50]},
+            },
+        }
+    )
     space = Rotation.from_quat(scene.quaternion).apply(scene.omega_body)
     assert np.allclose(space, [0.0, 0.0, 2.0], atol=1e-14)
 
@@ -112,8 +124,11 @@ def test_a_symmetric_body_given_as_a_rotated_tensor_is_symmetric(tmp_path):
     tensor = turn @ np.diag([1.0, 1.0, 2.0]) @ turn.T
     assert len(set(np.linalg.eigh(tensor)[0])) == 3  # round-off makes the values differ
     w_input = turn @ np.array([0.25, 0.0, 2.0 * math.pi])  # (A, 0, w3) in principal axes
-    scene_spec = {"body": {"inertia": tensor.tolist()},
-                  "initial": {"angular_velocity": {"body": w_input.tolist()}}, "duration": 0.5}
+    scene_spec = {
+        "body": {"inertia": tensor.tolist()},
+        "initial": {"angular_velocity": {"body": w_input.tolist()}},
+        "duration": 0.5,
+    }
     scene = scene_from_mapping(scene_spec)
     assert scene.body.symmetry_axis is not None
     assert list(scene_table(scene_spec).reference_kinds) == ["symmetric_top"]

@@ -15,8 +15,9 @@ def test_each_engine_of_the_registry_is_a_group_of_its_adapters():
     engines = {value.split(":")[0].rsplit(".", 1)[1] for value in ENGINES.values()}
     assert {"mujoco", "bullet", "exudyn", "drake"} <= engines
     for engine in engines:
-        assert groups[engine] == [name for name, value in ENGINES.items()
-                                  if value.startswith(f"rbstudy.engines.{engine}:")]
+        assert groups[engine] == [
+            name for name, value in ENGINES.items() if value.startswith(f"rbstudy.engines.{engine}:")
+        ]
     assert groups["engines"] == list(ENGINES)
     assert groups["builtin"] == [name for name, scheme in BUILTIN.items() if not scheme.adaptive]
     assert "dop853" not in groups["builtin"] and "rk4" in groups["builtin"]
@@ -37,13 +38,17 @@ def _without_drake(monkeypatch):
         if name.startswith("drake_"):
             return Unavailable(name, "needs the pydrake package", "pip install drake", "rbstudy")
         return find(name)
+
     monkeypatch.setattr(SCHEMES, "find", find_without_drake)
 
 
 def test_a_group_whose_engine_is_absent_is_refused_with_the_install_command(monkeypatch):
     _without_drake(monkeypatch)
-    with pytest.raises(SchemeError, match="--schemes: the group 'drake' has no scheme available "
-                                          "here: needs the pydrake package; pip install drake"):
+    with pytest.raises(
+        SchemeError,
+        match="--schemes: the group 'drake' has no scheme available "
+        "here: needs the pydrake package; pip install drake",
+    ):
         expand_groups(["rk4", "drake"])
     assert not any(name.startswith("drake_") for name in expand_groups(["engines"]))
 
@@ -52,8 +57,10 @@ def test_the_command_refuses_an_absent_engine_in_one_line(monkeypatch, tmp_path,
     _without_drake(monkeypatch)
     assert main(["conformance", "--schemes", "rk4,drake", "--out", str(tmp_path)]) == 1
     error = capsys.readouterr().err
-    assert error == ("rbstudy: error: --schemes: the group 'drake' has no scheme available here: "
-                     "needs the pydrake package; pip install drake\n")
+    assert error == (
+        "rbstudy: error: --schemes: the group 'drake' has no scheme available here: "
+        "needs the pydrake package; pip install drake\n"
+    )
     assert not list(tmp_path.iterdir())
 
 
@@ -70,4 +77,5 @@ def test_bench_refuses_an_absent_engine_in_one_line(monkeypatch, capsys):
     assert main(["bench", "drake", "--body-steps", "200", "--quiet"]) == 1
     assert capsys.readouterr().err == (
         "rbstudy: error: --schemes: the group 'drake' has no scheme available here: needs the "
-        "pydrake package; pip install drake\n")
+        "pydrake package; pip install drake\n"
+    )

@@ -53,8 +53,6 @@ def test_observed_order_on_asymmetric_body(name, asymmetric_scene):
     assert_order_on_a_free_body(name, dts, errors)
 
 
-
-
 @pytest.mark.parametrize("name", FIXED_STEP)
 def test_loads_keep_the_order(name):
     """Moments in body and space axes, a body-fixed force and gravity: still nominal order,
@@ -83,13 +81,14 @@ def test_claimed_invariants_to_round_off(name, asymmetric_scene):
         assert run.results["max_momentum_magnitude_error"][0] < 1e-12
     if "momentum_vector" in keeps:
         from rbstudy.physics.metrics import momentum_error
-        vector = momentum_error(run.quaternion[0], run.omega_body[0],
-                                np.array(asymmetric_scene.body.inertia))
+
+        vector = momentum_error(run.quaternion[0], run.omega_body[0], np.array(asymmetric_scene.body.inertia))
         assert np.max(vector) < 1e-12
 
 
 def test_midpoint_keeps_energy_and_space_momentum_vector(asymmetric_scene):
     from rbstudy.physics.metrics import energy_error, momentum_error
+
     scene = asymmetric_scene.with_changes(duration=1000.0)
     run = simulate([scene], "midpoint", 0.1, 10.0)  # 10,000 steps, h |w| ~ 0.18
     assert run.results["n_steps"][0] == 10_000
@@ -100,6 +99,7 @@ def test_midpoint_keeps_energy_and_space_momentum_vector(asymmetric_scene):
 
 def test_splitting_keeps_space_momentum_vector(asymmetric_scene):
     from rbstudy.physics.metrics import momentum_error
+
     scene = asymmetric_scene.with_changes(duration=1000.0)
     run = simulate([scene], "splitting", 0.1, 10.0)
     inertia = np.array(scene.body.inertia)
@@ -123,8 +123,11 @@ def test_axis_order_changes_the_answer(asymmetric_scene):
 
 @pytest.mark.parametrize("name", list(BUILTIN))
 def test_batch_equals_case_by_case_bit_for_bit(name, abaqus_scene, asymmetric_scene):
-    scenes = [abaqus_scene.with_changes(duration=1.0), asymmetric_scene.with_changes(duration=1.0),
-              scene_from_mapping(LOADED, source="test").with_changes(duration=1.0)] * 3
+    scenes = [
+        abaqus_scene.with_changes(duration=1.0),
+        asymmetric_scene.with_changes(duration=1.0),
+        scene_from_mapping(LOADED, source="test").with_changes(duration=1.0),
+    ] * 3
     batch = simulate(scenes, name, 0.01, 0.1)
     for i, scene in enumerate(scenes[:3]):
         alone = simulate([scene], name, 0.01, 0.1)
@@ -147,13 +150,18 @@ def test_hht_negative_alpha_damps_and_is_first_order_for_a_rigid_body(abaqus_sce
     assert abs(amplitude(undamped) - 0.25) < 1e-3
 
 
-@pytest.mark.parametrize("options, message", [
-    ({"alpha": 0.2}, "option 'alpha': got 0.2; expected a number in [-0.333333, 0]"),
-    ({"beta": 0.1}, "scheme 'hht' has no option 'beta'; its options: alpha"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"alpha": 0.2}, "option 'alpha': got 0.2; expected a number in [-0.333333, 0]"),
+        ({"beta": 0.1}, "scheme 'hht' has no option 'beta'; its options: alpha"),
+    ],
+)
 def test_bad_scheme_options_are_named(options, message):
-    with pytest.raises(SchemeError, match=message.replace("[", r"\[").replace("(", r"\(")
-                       .replace(")", r"\)").replace("]", r"\]")):
+    with pytest.raises(
+        SchemeError,
+        match=message.replace("[", r"\[").replace("(", r"\(").replace(")", r"\)").replace("]", r"\]"),
+    ):
         get_scheme("hht").option_row(options)
 
 
@@ -166,10 +174,15 @@ def test_unknown_scheme_lists_the_valid_ones():
 
 def test_constant_axial_moment_is_exact_for_splitting_schemes():
     """Spin about e3 with a constant axial moment: w3 grows linearly, exactly."""
-    scene = scene_from_mapping({
-        "body": {"inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.0, 0.0, 3.0]}},
-        "loads": {"moment_body": [0.0, 0.0, 0.4]}, "duration": 2.0}, source="test")
+    scene = scene_from_mapping(
+        {
+            "body": {"inertia": [1.0, 1.0, 2.0]},
+            "initial": {"angular_velocity": {"body": [0.0, 0.0, 3.0]}},
+            "loads": {"moment_body": [0.0, 0.0, 0.4]},
+            "duration": 2.0,
+        },
+        source="test",
+    )
     run = simulate([scene], "splitting", 0.01, 0.1)
     reference = reference_solution(scene, run.time)
     assert reference.name == "axial_moment"
@@ -178,12 +191,15 @@ def test_constant_axial_moment_is_exact_for_splitting_schemes():
 
 
 def test_gravity_parabola_and_free_rotation():
-    scene = scene_from_mapping({
-        "body": {"mass": 3.0, "inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 2 * math.pi]},
-                    "velocity": [1.0, 2.0, 3.0]},
-        "loads": {"gravity": [0.0, 0.0, -9.81], "force_space": [0.3, 0.0, 0.0]},
-        "duration": 2.0}, source="test")
+    scene = scene_from_mapping(
+        {
+            "body": {"mass": 3.0, "inertia": [1.0, 1.0, 2.0]},
+            "initial": {"angular_velocity": {"body": [0.25, 0.0, 2 * math.pi]}, "velocity": [1.0, 2.0, 3.0]},
+            "loads": {"gravity": [0.0, 0.0, -9.81], "force_space": [0.3, 0.0, 0.0]},
+            "duration": 2.0,
+        },
+        source="test",
+    )
     acceleration = np.array([0.1, 0.0, -9.81])
     for name in ("leapfrog", "splitting", "rk4", "hht"):
         run = simulate([scene], name, 0.01, 0.5)

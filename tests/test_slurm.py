@@ -48,19 +48,28 @@ def _slurm_missing():
     """Why the tests cannot run here, or None."""
     if shutil.which("sinfo") is None:
         return f"no SLURM here (sinfo not found): {START}"
-    config = subprocess.run(["scontrol", "show", "config"], capture_output=True, text=True,
-                            timeout=30, check=False).stdout
+    config = subprocess.run(
+        ["scontrol", "show", "config"], capture_output=True, text=True, timeout=30, check=False
+    ).stdout
     name = re.search(r"^ClusterName\s*=\s*(\S+)", config, re.MULTILINE)
     if name is None or name.group(1) != CLUSTER_NAME:
-        return (f"the SLURM here is not the local one ({name and name.group(1)!r} is not "
-                f"{CLUSTER_NAME!r}), whose partition the tests take down: {START}")
-    answer = subprocess.run(["sinfo", "--noheader", f"--partition={PARTITION}",
-                             "--format=partition %a, node %T"], capture_output=True, text=True,
-                            timeout=30, check=False)
+        return (
+            f"the SLURM here is not the local one ({name and name.group(1)!r} is not "
+            f"{CLUSTER_NAME!r}), whose partition the tests take down: {START}"
+        )
+    answer = subprocess.run(
+        ["sinfo", "--noheader", f"--partition={PARTITION}", "--format=partition %a, node %T"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
     found = answer.stdout.strip()
     if answer.returncode or found not in ("partition up, node idle", "partition up, node mixed"):
-        return (f"SLURM partition {PARTITION} is not up with an idle node "
-                f"({found or answer.stderr.strip() or 'no node'}): {START}")
+        return (
+            f"SLURM partition {PARTITION} is not up with an idle node "
+            f"({found or answer.stderr.strip() or 'no node'}): {START}"
+        )
     return None
 
 
@@ -74,16 +83,41 @@ def _cluster_file(folder, **options):
     its own (so that a test cancels its jobs only)."""
     name = f"rbstudy-test-{uuid.uuid4().hex[:8]}"
     path = folder / "slurm.yaml"
-    path.write_text(yaml.safe_dump({"kind": "slurm", "jobs": 1, "options": {
-        "cores": 2, "processes": 2, "memory": "2GB", "queue": PARTITION,
-        "walltime": "00:10:00", "job_name": name, **options}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "kind": "slurm",
+                "jobs": 1,
+                "options": {
+                    "cores": 2,
+                    "processes": 2,
+                    "memory": "2GB",
+                    "queue": PARTITION,
+                    "walltime": "00:10:00",
+                    "job_name": name,
+                    **options,
+                },
+            }
+        )
+    )
     return path, name
 
 
 def _sweep(config, out, cluster, capsys, worker_wait=ENDED_WAIT):
     """Exit code and stderr of ``rbstudy sweep`` on ``cluster``."""
-    code = main(["sweep", str(config), "--out", str(out), "--quiet", "--cluster", str(cluster),
-                 "--worker-wait", str(worker_wait)])
+    code = main(
+        [
+            "sweep",
+            str(config),
+            "--out",
+            str(out),
+            "--quiet",
+            "--cluster",
+            str(cluster),
+            "--worker-wait",
+            str(worker_wait),
+        ]
+    )
     return code, capsys.readouterr().err.strip()
 
 
@@ -132,8 +166,9 @@ def test_a_cancelled_worker_job_is_named_and_the_rerun_resumes(tmp_path, capsys,
     config, uninterrupted = slow
     cluster, name = _cluster_file(tmp_path)
     out = tmp_path / "out"
-    cancel = _when_parts_appear(out / "slow", lambda: subprocess.run(
-        ["scancel", f"--name={name}"], check=True))
+    cancel = _when_parts_appear(
+        out / "slow", lambda: subprocess.run(["scancel", f"--name={name}"], check=True)
+    )
     code, error = _sweep(config, out, cluster, capsys)
     cancel.join()
     assert code == 1 and "\n" not in error, error
@@ -150,23 +185,35 @@ def test_a_cancelled_worker_job_is_named_and_the_rerun_resumes(tmp_path, capsys,
 def test_a_walltime_shorter_than_the_study_is_named(tmp_path, capsys):
     """A job of one minute, which sleeps through most of it (`WALLTIME_SLEEP`); the
     uninterrupted run is computed meanwhile, in a process of its own."""
-    config = write_study(tmp_path, name="long", scene={
-        "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}},
-        "duration": 720.0}, output={"interval": 0.5}, sweep={
-        "scheme": ["rk4", "midpoint", "splitting", "leapfrog"],
-        "dt": [1e-4, 1.25e-4, 1.5625e-4, 1.6e-4, 2e-4, 2.5e-4, 3.125e-4, 4e-4],
-        "inertia_ratio": [0.5, 0.8, 1.5, 2.0]})
-    whole = subprocess.Popen([sys.executable, "-m", "rbstudy", "sweep", str(config), "--out",
-                              str(tmp_path / "whole"), "--quiet"], stdout=subprocess.DEVNULL)
-    cluster, _ = _cluster_file(tmp_path, cores=1, processes=1, walltime="00:01:00",
-                               job_script_prologue=[f"sleep {WALLTIME_SLEEP}"])
+    config = write_study(
+        tmp_path,
+        name="long",
+        scene={
+            "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
+            "initial": {"angular_velocity": {"body": [0.25, 0.0, 6.283185307179586]}},
+            "duration": 720.0,
+        },
+        output={"interval": 0.5},
+        sweep={
+            "scheme": ["rk4", "midpoint", "splitting", "leapfrog"],
+            "dt": [1e-4, 1.25e-4, 1.5625e-4, 1.6e-4, 2e-4, 2.5e-4, 3.125e-4, 4e-4],
+            "inertia_ratio": [0.5, 0.8, 1.5, 2.0],
+        },
+    )
+    whole = subprocess.Popen(
+        [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(tmp_path / "whole"), "--quiet"],
+        stdout=subprocess.DEVNULL,
+    )
+    cluster, _ = _cluster_file(
+        tmp_path, cores=1, processes=1, walltime="00:01:00", job_script_prologue=[f"sleep {WALLTIME_SLEEP}"]
+    )
     out = tmp_path / "out"
     code, error = _sweep(config, out, cluster, capsys)
     assert code == 1 and "\n" not in error, error
     assert "every worker left" in error and "and every job ended (SLURM: job " in error, error
-    assert " TIMEOUT (walltime 1:00)); " in error and error.endswith("with a longer walltime "
-                                                                     "in the cluster file")
+    assert " TIMEOUT (walltime 1:00)); " in error and error.endswith(
+        "with a longer walltime in the cluster file"
+    )
     kept = _parts(out / "long")
     assert 1 <= len(kept) < 32
     assert whole.wait() == 0
@@ -184,14 +231,14 @@ def test_a_job_that_never_starts_says_why_and_the_rerun_runs_on_slurm(tmp_path, 
     try:
         code, error = _sweep(config, out, cluster, capsys, PENDING_WAIT)
     finally:
-        subprocess.run(["scontrol", "update", f"PartitionName={PARTITION}", "State=UP"],
-                       check=True)
+        subprocess.run(["scontrol", "update", f"PartitionName={PARTITION}", "State=UP"], check=True)
     assert code == 1 and "\n" not in error, error
     assert f"for {PENDING_WAIT} s (SLURM: job " in error, error
     assert "no worker joined" in error and " PENDING (PartitionDown)); " in error, error
     assert "0 of 8 batches are kept" in error and "wait longer with --worker-wait" in error
-    left = subprocess.run(["squeue", "--noheader", f"--name={name}"], capture_output=True,
-                          text=True, check=True)
+    left = subprocess.run(
+        ["squeue", "--noheader", f"--name={name}"], capture_output=True, text=True, check=True
+    )
     assert not left.stdout.strip()  # the pending job was cancelled with the sweep
     assert _sweep(config, out, cluster, capsys) == (0, "")
     _assert_same_numbers(uninterrupted, out / "slow" / "slow.nc")

@@ -17,13 +17,17 @@ from rbstudy.pipeline.execute import run_study
 
 # A fast spin about the middle axis at steps up to dt |w0| = 4: euler blows up at every step,
 # the implicit midpoint and hht find no Newton solution at the largest.
-FAILING = {"name": "failing",
-           "scene": {"body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
-                     "initial": {"angular_velocity": {"body": [1.0, 10.0, 1.0]}},
-                     "duration": 2.0},
-           "output": {"interval": 0.4},
-           "run": {"scheme": "euler", "dt": 0.4},
-           "sweep": {"scheme": ["euler", "hht", "midpoint"], "dt": [0.1, 0.2, 0.4]}}
+FAILING = {
+    "name": "failing",
+    "scene": {
+        "body": {"mass": 1.0, "inertia": [1.0, 2.0, 3.0]},
+        "initial": {"angular_velocity": {"body": [1.0, 10.0, 1.0]}},
+        "duration": 2.0,
+    },
+    "output": {"interval": 0.4},
+    "run": {"scheme": "euler", "dt": 0.4},
+    "sweep": {"scheme": ["euler", "hht", "midpoint"], "dt": [0.1, 0.2, 0.4]},
+}
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +41,7 @@ def _counted(ds, code):
     """scheme -> cases of status ``code``, counted here with numpy alone."""
     status = ds["status"].transpose("scheme", ...).values.reshape(ds.sizes["scheme"], -1)
     counts = (status == code).sum(axis=1)
-    return {str(scheme): int(n) for scheme, n in zip(ds["scheme"].values, counts, strict=True)
-            if n}
+    return {str(scheme): int(n) for scheme, n in zip(ds["scheme"].values, counts, strict=True) if n}
 
 
 def test_each_status_of_failed_cases_is_a_finding_with_its_message_and_fix(failing):
@@ -48,13 +51,12 @@ def test_each_status_of_failed_cases_is_a_finding_with_its_message_and_fix(faili
     found = [finding for finding in findings(ds) if finding.kind == "failure"]
     assert [finding.numbers for finding in found] == [
         {"status": "unstable", "cases": sum(unstable.values())},
-        {"status": "not_converged", "cases": sum(unconverged.values())}]
-    for finding, code, counted in zip(found, (UNSTABLE, NOT_CONVERGED), (unstable, unconverged),
-                                      strict=True):
+        {"status": "not_converged", "cases": sum(unconverged.values())},
+    ]
+    for finding, code, counted in zip(found, (UNSTABLE, NOT_CONVERGED), (unstable, unconverged), strict=True):
         name, message, fix = STATUSES[code]
         listed = ", ".join(f"{scheme} {count}" for scheme, count in counted.items())
-        assert finding.text == (f"{name}: {sum(counted.values())} cases ({listed}): "
-                                f"{message}; {fix}")
+        assert finding.text == (f"{name}: {sum(counted.values())} cases ({listed}): {message}; {fix}")
     # the archive describes the codes in the table's words
     description = ds["status"].attrs["description"]
     assert all(f"{name}: {message}" in description for name, message, _ in STATUSES[1:])

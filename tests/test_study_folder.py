@@ -17,14 +17,27 @@ NODE_TABLE = "id, x, y, z, mass\n1, 1.0, 0.2, 0.0, 2.0\n2, -0.8, 0.5, 0.1, 1.0\n
 # Two tables of the same node ids that make different bodies, and two load tables of
 # different knots: each swapped pair gives every case other numbers.
 TABLES = {
-    "nodes": ("scene.assembly.nodes", NODE_TABLE.format(1.5), NODE_TABLE.format(4.0),
-              {"assembly": {"master": {"position": [0.1, 0.0, 0.2], "mass": 1.0}, "nodes": "a.csv"},
-               "initial": {"angular_velocity": {"space": [0.4, 1.1, -0.6]}}, "duration": 0.2}),
-    "loads": ("scene.loads.moment_body.table", "0 0 0 0\n0.1 0 0 1\n",
-              "0 0 0 0\n0.1 0.5 0 0\n0.2 0 -1 0\n",
-              {"body": {"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
-               "initial": {"angular_velocity": {"body": [0.3, 1.0, 0.2]}},
-               "loads": {"moment_body": {"table": "a.csv"}}, "duration": 0.2}),
+    "nodes": (
+        "scene.assembly.nodes",
+        NODE_TABLE.format(1.5),
+        NODE_TABLE.format(4.0),
+        {
+            "assembly": {"master": {"position": [0.1, 0.0, 0.2], "mass": 1.0}, "nodes": "a.csv"},
+            "initial": {"angular_velocity": {"space": [0.4, 1.1, -0.6]}},
+            "duration": 0.2,
+        },
+    ),
+    "loads": (
+        "scene.loads.moment_body.table",
+        "0 0 0 0\n0.1 0 0 1\n",
+        "0 0 0 0\n0.1 0.5 0 0\n0.2 0 -1 0\n",
+        {
+            "body": {"mass": 2.0, "inertia": [1.0, 2.0, 3.0]},
+            "initial": {"angular_velocity": {"body": [0.3, 1.0, 0.2]}},
+            "loads": {"moment_body": {"table": "a.csv"}},
+            "duration": 0.2,
+        },
+    ),
 }
 
 
@@ -35,8 +48,13 @@ def _table_study(folder, kind, swapped=False):
     key, first, second, scene = TABLES[kind]
     (folder / "a.csv").write_text(second if swapped else first)
     (folder / "b.csv").write_text(first if swapped else second)
-    return write_study(folder, scene=scene, sweep={key: ["a.csv", "b.csv"]},
-                       run={"scheme": "rk4", "dt": 0.02}, output={"interval": 0.1})
+    return write_study(
+        folder,
+        scene=scene,
+        sweep={key: ["a.csv", "b.csv"]},
+        run={"scheme": "rk4", "dt": 0.02},
+        output={"interval": 0.1},
+    )
 
 
 def _same_numbers(path_a, path_b):
@@ -59,24 +77,34 @@ def test_swapped_table_contents_are_recomputed(tmp_path, kind, keep_parts):
         first.path.unlink()
     again = run_study(load_study(config), out, quiet=True, keep_parts=keep_parts)
     assert (again.up_to_date, again.reused, again.computed) == (False, 0, first.computed)
-    fresh = run_study(load_study(_table_study(tmp_path / "fresh", kind, swapped=True)),
-                      tmp_path / "fresh_out", quiet=True)
+    fresh = run_study(
+        load_study(_table_study(tmp_path / "fresh", kind, swapped=True)), tmp_path / "fresh_out", quiet=True
+    )
     _same_numbers(again.path, fresh.path)
     with pytest.raises(AssertionError):  # the swap changed the numbers: the check can fail
-        _same_numbers(again.path, run_study(load_study(_table_study(tmp_path / "old", kind)),
-                                            tmp_path / "old_out", quiet=True).path)
+        _same_numbers(
+            again.path,
+            run_study(
+                load_study(_table_study(tmp_path / "old", kind)), tmp_path / "old_out", quiet=True
+            ).path,
+        )
 
 
 def _refusal(config, folder, owner):
     """The one line that refuses ``config`` the study folder ``folder`` of ``owner``."""
-    return (f"rbstudy: error: {config}: name: {folder} holds the study of another config of "
-            f"this name, {owner.resolve()}; give this study another name or another --out "
-            "(--force replaces that study)\n")
+    return (
+        f"rbstudy: error: {config}: name: {folder} holds the study of another config of "
+        f"this name, {owner.resolve()}; give this study another name or another --out "
+        "(--force replaces that study)\n"
+    )
 
 
 def _folder_bytes(folder):
-    return {path.relative_to(folder): path.read_bytes() for path in sorted(folder.rglob("*"))
-            if path.is_file() and path.name not in (".lock", ".lock.pid")}
+    return {
+        path.relative_to(folder): path.read_bytes()
+        for path in sorted(folder.rglob("*"))
+        if path.is_file() and path.name not in (".lock", ".lock.pid")
+    }
 
 
 def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp_path, capsys):
@@ -97,11 +125,11 @@ def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp
     assert capsys.readouterr().err == _refusal(second, folder, first)
     assert _folder_bytes(folder) == kept
 
-    assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet",
-                 "--force"]) == 0
+    assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet", "--force"]) == 0
     said = " ".join(capsys.readouterr().out.split())  # the line is broken at 100 columns
-    assert (f"top: --force replaces the study of {first.resolve()} in {folder} (its archive and "
-            "1 kept part) ") in said
+    assert (
+        f"top: --force replaces the study of {first.resolve()} in {folder} (its archive and 1 kept part) "
+    ) in said
     assert open_results(folder / "top.nc").attrs["config_path"] == str(second)
     first_parts = {name for name in kept if name.parent.name == "parts"}
     assert not first_parts & set(_folder_bytes(folder))  # the first's kept parts are gone

@@ -32,17 +32,32 @@ CONFIG_FILES = sorted(CONFIGS.glob("*.yaml"))
 MAX_NOTE_LINES = 6
 # The columns every study's wide table has, and of them those the default narrow one shows
 # (a study adds "error_small" where dt is swept, "radioss" where the limit was passed).
-WIDE_COLUMNS = {"scheme", "nominal", "order", "finest", "fit_dt", "error", "ns_per_step",
-                "accurate_hw", "inaccurate_hw", "unstable_hw", "inaccurate", "failed", "kept"}
-NARROW_COLUMNS = {"scheme", "nominal", "order", "error", "ns_per_step", "accurate_hw",
-                  "failed", "kept"}
+WIDE_COLUMNS = {
+    "scheme",
+    "nominal",
+    "order",
+    "finest",
+    "fit_dt",
+    "error",
+    "ns_per_step",
+    "accurate_hw",
+    "inaccurate_hw",
+    "unstable_hw",
+    "inaccurate",
+    "failed",
+    "kept",
+}
+NARROW_COLUMNS = {"scheme", "nominal", "order", "error", "ns_per_step", "accurate_hw", "failed", "kept"}
 
 
 def _sweep(folder, *options):
     """``rbstudy sweep`` of every shipped config in ``folder``: (stdout, stderr)."""
     out, err = io.StringIO(), io.StringIO()
-    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(out), \
-            contextlib.redirect_stderr(err):
+    with (
+        pytest.MonkeyPatch.context() as patch,
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+    ):
         patch.chdir(folder)
         assert main(["sweep", *(path.name for path in CONFIG_FILES), *options]) == 0
     return out.getvalue(), err.getvalue()
@@ -60,8 +75,11 @@ def shipped(tmp_path_factory):
         config["scene"]["duration"] = config["output"]["interval"]
         (folder / path.name).write_text(yaml.safe_dump(config, sort_keys=False))
     printed = _sweep(folder)
-    return folder, {path.stem: folder / "results" / path.stem / f"{path.stem}.nc"
-                    for path in CONFIG_FILES}, printed
+    return (
+        folder,
+        {path.stem: folder / "results" / path.stem / f"{path.stem}.nc" for path in CONFIG_FILES},
+        printed,
+    )
 
 
 @pytest.mark.slow
@@ -128,8 +146,11 @@ class _Cells(html.parser.HTMLParser):
 
 def _markdown_cells(text):
     table = [line for line in text.splitlines() if line.startswith("|")]
-    return [[cell.strip().replace("\\|", "|") for cell in re.split(r"(?<!\\)\|", line)[1:-1]]
-            for k, line in enumerate(table) if k != 1]  # not the rule under the header
+    return [
+        [cell.strip().replace("\\|", "|") for cell in re.split(r"(?<!\\)\|", line)[1:-1]]
+        for k, line in enumerate(table)
+        if k != 1
+    ]  # not the rule under the header
 
 
 @pytest.mark.slow
@@ -137,8 +158,7 @@ def _markdown_cells(text):
 def test_markdown_csv_and_html_hold_the_values_of_the_text(shipped, wide):
     """radioss_spin_limit: the one table with the Radioss column, and "|" in its cells."""
     _, archives, _ = shipped
-    rows = scheme_rows(open_archive(archives["radioss_spin_limit"], SUMMARY_VARIABLES,
-                                    verify=False))
+    rows = scheme_rows(open_archive(archives["radioss_spin_limit"], SUMMARY_VARIABLES, verify=False))
     values = list(csv.reader(io.StringIO(format_table(rows, wide=wide, fmt="csv"))))
     assert len(values) == len(rows) + 1 and any("|L|" in line[-1] for line in values)
     assert _markdown_cells(format_table(rows, wide=wide, fmt="markdown")) == values
@@ -159,13 +179,19 @@ def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
     "pass 1.09"); the mark's footnote last."""
     cases = [case.name for case in GOLDEN]
     schemes = ["euler", "exact_split", "mujoco_implicitfast", *(f"scheme{k}" for k in range(10))]
-    worst = Cell(False, np.nan, {rule: Verdict(False, np.nan, "") for rule in
-                                 ("order", "energy", "failure")}, Verdict(False, np.nan, ""),
-                 load_held=True)
+    worst = Cell(
+        False,
+        np.nan,
+        {rule: Verdict(False, np.nan, "") for rule in ("order", "energy", "failure")},
+        Verdict(False, np.nan, ""),
+        load_held=True,
+    )
     order = Cell(True, 1.0937, {"order": Verdict(True, 1.0937, "")})
     exact = Cell(True, np.nan, {"order": Verdict(True, np.nan, "")})
-    cells = {case: {scheme: {"euler": worst, "exact_split": exact}.get(scheme, order)
-                    for scheme in schemes} for case in cases}
+    cells = {
+        case: {scheme: {"euler": worst, "exact_split": exact}.get(scheme, order) for scheme in schemes}
+        for case in cases
+    }
     text = format_scorecard(cells, cases)
     lines = text.splitlines()
     assert max(map(len, lines)) <= TERMINAL_WIDTH
@@ -174,9 +200,11 @@ def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
     assert footnote.startswith(HELD_LOAD_NOTE[:40])
     for block in blocks:  # each block: the header, then every scheme with its count
         assert [line.split()[:2] for line in block.splitlines()] == [
-            ["scheme", "passed"], ["euler", f"0/{len(cases)}"],
+            ["scheme", "passed"],
+            ["euler", f"0/{len(cases)}"],
             ["exact_split", f"{len(cases)}/{len(cases)}"],
-            *([scheme, f"{len(cases)}/{len(cases)}"] for scheme in schemes[2:])]
+            *([scheme, f"{len(cases)}/{len(cases)}"] for scheme in schemes[2:]),
+        ]
     assert [case for block in blocks for case in block.splitlines()[0].split()[2:]] == cases
     euler = [line for line in lines if line.startswith("euler")]
     assert all(line.count("FAIL order, energy, failure, figure no *") >= 1 for line in euler)
@@ -186,6 +214,5 @@ def test_the_scorecard_fits_100_columns_and_says_what_its_numbers_are():
 def test_a_long_line_breaks_after_its_clauses_and_never_inside_a_path():
     path = "results/" + "a" * 120 + ".nc"
     line = f"{'x' * 60}; {'y' * 30}; z z; wrote {path}"
-    assert wrap_clauses(line, indent="  ") == [f"{'x' * 60}; {'y' * 30}; z z;", "  wrote",
-                                               f"  {path}"]
+    assert wrap_clauses(line, indent="  ") == [f"{'x' * 60}; {'y' * 30}; z z;", "  wrote", f"  {path}"]
     assert wrap_clauses(f"{'x' * 60}; {'y' * 40}") == [f"{'x' * 60};", f"{'y' * 40}"]

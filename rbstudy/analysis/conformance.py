@@ -60,10 +60,25 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.numerics.state import INVARIANTS
 
-__all__ = ["RULES", "ORDER_TOLERANCE", "ENERGY_GAIN", "SLOPE_CEILING", "ORIGIN_RBSTUDY",
-           "FIGURE_MEASURES", "HELD_LOAD_MARK", "HELD_LOAD_NOTE", "Verdict", "Cell", "judge_figure",
-           "score_case", "format_scorecard", "scorecard_dataset", "scorecard_html", "tally_statuses",
-           "status_lines"]
+__all__ = [
+    "RULES",
+    "ORDER_TOLERANCE",
+    "ENERGY_GAIN",
+    "SLOPE_CEILING",
+    "ORIGIN_RBSTUDY",
+    "FIGURE_MEASURES",
+    "HELD_LOAD_MARK",
+    "HELD_LOAD_NOTE",
+    "Verdict",
+    "Cell",
+    "judge_figure",
+    "score_case",
+    "format_scorecard",
+    "scorecard_dataset",
+    "scorecard_html",
+    "tally_statuses",
+    "status_lines",
+]
 
 ORDER_TOLERANCE = 0.3
 ENERGY_GAIN = 1e-3
@@ -83,9 +98,11 @@ _GAP = "  "
 # The card's footnote on a cell whose scheme holds the loads over each step under a moment
 # (`rbstudy.schemes.Scheme.loads_held`): its order there is the adapter's, not the engine's.
 HELD_LOAD_MARK = "*"
-HELD_LOAD_NOTE = (f"{HELD_LOAD_MARK} the adapter holds the loads of each step's start over the "
-                  "step, as a caller hands them to the engine (docs/engines.md): where a moment "
-                  "acts, a cell so marked judges that, not the engine's integrator")
+HELD_LOAD_NOTE = (
+    f"{HELD_LOAD_MARK} the adapter holds the loads of each step's start over the "
+    "step, as a caller hands them to the engine (docs/engines.md): where a moment "
+    "acts, a cell so marked judges that, not the engine's integrator"
+)
 RULES = {
     "order": f"observed order within {ORDER_TOLERANCE} of the nominal order",
     "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
@@ -124,10 +141,11 @@ class Cell:
         ``exact`` for one exact on the body, ``pass`` where no order is judged, or the rules
         it failed (``FAIL energy, failure``); then ``figure yes`` or ``figure no`` where the
         source asserts a figure; then `HELD_LOAD_MARK` where the load is held."""
-        return (self._verdict()
-                + ("" if self.figure is None
-                   else f", figure {'yes' if self.figure.passed else 'no'}")
-                + (f" {HELD_LOAD_MARK}" if self.load_held else ""))
+        return (
+            self._verdict()
+            + ("" if self.figure is None else f", figure {'yes' if self.figure.passed else 'no'}")
+            + (f" {HELD_LOAD_MARK}" if self.load_held else "")
+        )
 
     def _verdict(self):
         if self.passed:
@@ -156,8 +174,11 @@ def _order(ds, scheme, row):
         usable = np.isfinite(series) & (series > EXACT) & (series < SLOPE_CEILING)
         pairs = [k for k in range(len(series) - 1) if usable[k] and usable[k + 1]]
         if not pairs:
-            return Verdict(False, np.nan, "no order shows at these steps (failed, at "
-                                          f"round-off, or errors past {SLOPE_CEILING} rad)")
+            return Verdict(
+                False,
+                np.nan,
+                f"no order shows at these steps (failed, at round-off, or errors past {SLOPE_CEILING} rad)",
+            )
         k = pairs[0]  # the finest pair of neighbouring steps with usable errors
         observed = float(np.log(series[k + 1] / series[k]) / np.log(dts[k + 1] / dts[k]))
         how = f"the slope between dt = {dts[k]:g} and {dts[k + 1]:g} s"
@@ -174,8 +195,11 @@ def _invariants(ds, scheme, row):
         return Verdict(None, np.nan, "no case finished")
     labels = [INVARIANTS[name] for name in claimed]
     lost = [label for label in labels if label not in row["kept"]]
-    return Verdict(not lost, np.nan, f"claims {', '.join(labels)}; "
-                   + (f"lost {', '.join(lost)}" if lost else "all kept"))
+    return Verdict(
+        not lost,
+        np.nan,
+        f"claims {', '.join(labels)}; " + (f"lost {', '.join(lost)}" if lost else "all kept"),
+    )
 
 
 def _energy(ds, scheme, row):
@@ -183,9 +207,11 @@ def _energy(ds, scheme, row):
     if not bool(change.notnull().any()):
         return Verdict(None, np.nan, "no finished case")
     gain, loss = float(change.max()), float(-change.min())
-    return Verdict(gain <= ENERGY_GAIN, gain,
-                   f"largest gain {max(gain, 0.0) + 0.0:.2g}, largest loss "
-                   f"{max(loss, 0.0) + 0.0:.2g} (relative)")  # + 0.0: no "-0"
+    return Verdict(
+        gain <= ENERGY_GAIN,
+        gain,
+        f"largest gain {max(gain, 0.0) + 0.0:.2g}, largest loss {max(loss, 0.0) + 0.0:.2g} (relative)",
+    )  # + 0.0: no "-0"
 
 
 def _flip(ds, scheme, row):
@@ -200,9 +226,11 @@ def _flip(ds, scheme, row):
     # in time steps; the flip times are placed between samples to ~1e-5 s at best
     steps = values / dts
     passed = bool(np.all((values <= dts) | (values <= FLIP_FLOOR)))
-    return Verdict(passed, float(steps.max()),
-                   f"flip interval error up to {steps.max():.2g} time steps "
-                   f"({values.max():.2g} s)")
+    return Verdict(
+        passed,
+        float(steps.max()),
+        f"flip interval error up to {steps.max():.2g} time steps ({values.max():.2g} s)",
+    )
 
 
 def _failure(ds, scheme, row):
@@ -211,30 +239,42 @@ def _failure(ds, scheme, row):
     if not failed.any():
         return Verdict(True, 0.0, "no case failed")
     nominal = row["nominal"]
-    peers = [other for other in schemes_of(ds) if other != scheme
-             and str(per_scheme(ds["scheme_origin"], other).values) == ORIGIN_RBSTUDY
-             and int(per_scheme(ds["nominal_order"], other)) == nominal]
+    peers = [
+        other
+        for other in schemes_of(ds)
+        if other != scheme
+        and str(per_scheme(ds["scheme_origin"], other).values) == ORIGIN_RBSTUDY
+        and int(per_scheme(ds["nominal_order"], other)) == nominal
+    ]
     if not peers:
-        return Verdict(None, float(failed.sum()), f"{_cases(failed.sum())} failed; no other "
-                       f"rbstudy scheme of order {nominal} to compare with")
+        return Verdict(
+            None,
+            float(failed.sum()),
+            f"{_cases(failed.sum())} failed; no other rbstudy scheme of order {nominal} to compare with",
+        )
     for peer in peers:
         survived = (per_scheme(status, peer) == 0).values
         if np.any(failed & survived):
             # the largest such step: dt ascends in the archive
             dt = float(ds["dt"].values[np.flatnonzero(failed & survived)[-1]])
-            return Verdict(False, float(failed.sum()),
-                           f"{_cases(failed.sum())} failed; {peer} (order {nominal}) "
-                           f"finished at dt = {dt:g} s")
-    return Verdict(True, float(failed.sum()), f"{_cases(failed.sum())} failed, where no "
-                   f"rbstudy scheme of order {nominal} finished ({', '.join(peers)})")
+            return Verdict(
+                False,
+                float(failed.sum()),
+                f"{_cases(failed.sum())} failed; {peer} (order {nominal}) finished at dt = {dt:g} s",
+            )
+    return Verdict(
+        True,
+        float(failed.sum()),
+        f"{_cases(failed.sum())} failed, where no "
+        f"rbstudy scheme of order {nominal} finished ({', '.join(peers)})",
+    )
 
 
 def _cases(count):
     return f"{int(count)} case{'s' if count != 1 else ''}"
 
 
-_JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip": _flip,
-           "failure": _failure}
+_JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip": _flip, "failure": _failure}
 
 
 def _rotational_energy(run):
@@ -251,9 +291,11 @@ FIGURE_MEASURES = {
     # rad/s; |w - w_exact| where |w_exact| stays |w(0)|: a symmetric top, a spherical body
     "omega_error_magnitude": lambda run: run["omega_error"] * run["initial_spin"],
     # a component of the angular velocity in space (rad/s) or of the centre's position (m)
-    **{f"{variable}_{axis}": (lambda run, variable=variable, axis=axis:
-                              run[variable].sel(axis=axis))
-       for variable in ("omega_space", "position") for axis in "xyz"},
+    **{
+        f"{variable}_{axis}": (lambda run, variable=variable, axis=axis: run[variable].sel(axis=axis))
+        for variable in ("omega_space", "position")
+        for axis in "xyz"
+    },
 }
 
 
@@ -273,17 +315,22 @@ def judge_figure(ds, scheme, figure):
         times = measured["time"] if "time" in measured.dims else check.at or 0.0
         allowed = check.tolerance + check.growth * times
         deviation = np.abs(measured - check.expected)
-        share = float((deviation / allowed).max()) if check.tolerance else float(
-            np.inf if deviation.max() > 0 else 0.0)
+        share = (
+            float((deviation / allowed).max())
+            if check.tolerance
+            else float(np.inf if deviation.max() > 0 else 0.0)
+        )
         worst = max(worst, share)
         allowance = (f" +- {check.tolerance:g}" if check.tolerance else "") + (
-            f" + {check.growth:g} t" if check.growth else "")
+            f" + {check.growth:g} t" if check.growth else ""
+        )
         farthest = float(measured.values.flat[int(np.argmax(deviation.values))])  # signed
         # six figures hide a miss of 1e-10 in -106.16651966442174: say the miss as well
-        off = (f"; off by {float(deviation.max()):.2g}"
-               if check.expected and check.tolerance else "")
-        said.append(f"{check.measure} {'up to ' if 'time' in measured.dims else ''}"
-                    f"{farthest:.6g} (asserted {check.expected:g}{allowance}{off})")
+        off = f"; off by {float(deviation.max()):.2g}" if check.expected and check.tolerance else ""
+        said.append(
+            f"{check.measure} {'up to ' if 'time' in measured.dims else ''}"
+            f"{farthest:.6g} (asserted {check.expected:g}{allowance}{off})"
+        )
     return Verdict(worst <= 1.0, worst, f"at dt = {dt:g} s: {'; '.join(said)}")
 
 
@@ -297,10 +344,15 @@ def score_case(ds, rules, schemes=None, figure=None, loads_held=()):
     for scheme in schemes or schemes_of(ds):
         verdicts = {rule: _JUDGES[rule](ds, scheme, rows[scheme]) for rule in rules}
         order = verdicts.get("order")
-        cells[scheme] = Cell(all(v.passed is not False for v in verdicts.values()),
-                             np.nan if order is None else order.value, verdicts,
-                             None if figure is None or figure.scheme not in (None, scheme)
-                             else judge_figure(ds, scheme, figure), scheme in loads_held)
+        cells[scheme] = Cell(
+            all(v.passed is not False for v in verdicts.values()),
+            np.nan if order is None else order.value,
+            verdicts,
+            None
+            if figure is None or figure.scheme not in (None, scheme)
+            else judge_figure(ds, scheme, figure),
+            scheme in loads_held,
+        )
     return cells
 
 
@@ -325,14 +377,13 @@ def format_scorecard(cells, cases):
     `Cell`), and the count of cases passed; the cases in as many blocks under each other as
     keep every line within `TERMINAL_WIDTH`; then `HELD_LOAD_NOTE` if a cell is so marked."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
-    passed = [f"{sum(cells[c][s].passed for c in cases if s in cells[c])}/{len(cases)}"
-              for s in schemes]
-    columns = {c: [c, *(cells[c][s].short() if s in cells[c] else "-" for s in schemes)]
-               for c in cases}
+    passed = [f"{sum(cells[c][s].passed for c in cases if s in cells[c])}/{len(cases)}" for s in schemes]
+    columns = {c: [c, *(cells[c][s].short() if s in cells[c] else "-" for s in schemes)] for c in cases}
     fixed = [["scheme", *schemes], ["passed", *passed]]
 
     def width(column):
         return max(map(len, column)) + len(_GAP)
+
     start = sum(map(width, fixed)) - len(_GAP)  # no gap before the first column
     blocks, used = [[]], start
     for case in cases:
@@ -342,10 +393,17 @@ def format_scorecard(cells, cases):
         blocks[-1].append(case)
         used += width(columns[case])
     return "\n\n".join(
-        [tabulate(list(zip(*fixed, *(columns[c] for c in block), strict=True)), tablefmt="plain",
-                  colalign=["left", "right"] + ["left"] * len(block), disable_numparse=True)
-         for block in blocks]
-        + (["\n".join(wrap_clauses(HELD_LOAD_NOTE, indent="  "))] if _held(cells, cases) else []))
+        [
+            tabulate(
+                list(zip(*fixed, *(columns[c] for c in block), strict=True)),
+                tablefmt="plain",
+                colalign=["left", "right"] + ["left"] * len(block),
+                disable_numparse=True,
+            )
+            for block in blocks
+        ]
+        + (["\n".join(wrap_clauses(HELD_LOAD_NOTE, indent="  "))] if _held(cells, cases) else [])
+    )
 
 
 def _held(cells, cases):
@@ -384,33 +442,68 @@ def scorecard_dataset(cells, cases, attrs):
                     rule_passed[i, j, k] = -1 if verdict.passed is None else verdict.passed
                     rule_value[i, j, k], text[i, j, k] = verdict.value, verdict.text
     return xr.Dataset(
-        {"passed": (("scheme", "case"), passed,
-                    {"long_name": "the scheme passed every rule of the case",
-                     "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                     "flag_meanings": "not_run fail pass"}),
-         "value": (("scheme", "case"), value,
-                   {"long_name": "observed order of the final orientation error"}),
-         "rule_passed": (("scheme", "case", "rule"), rule_passed,
-                         {"long_name": "the scheme passed the rule",
-                          "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                          "flag_meanings": "not_applicable fail pass"}),
-         "rule_value": (("scheme", "case", "rule"), rule_value,
-                        {"long_name": "the rule's measured number: the observed order, the "
-                                      "largest relative energy gain, the largest flip "
-                                      "interval error in time steps, the failed cases"}),
-         "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"}),
-         "figure": (("scheme", "case"), figure,
-                    {"long_name": "the scheme reproduces the figure the source asserts",
-                     "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                     "flag_meanings": "not_asserted no yes"}),
-         "figure_value": (("scheme", "case"), figure_value,
-                          {"long_name": "largest deviation from the figure, share of allowed"}),
-         "figure_text": (("scheme", "case"), figure_text,
-                         {"long_name": "what was measured against the figure"})},
-        coords={"scheme": np.array(schemes, dtype=object), "case": np.array(cases, dtype=object),
-                "rule": np.array(rules, dtype=object),
-                "rule_meaning": ("rule", np.array([RULES[r] for r in rules], dtype=object))},
-        attrs=attrs)
+        {
+            "passed": (
+                ("scheme", "case"),
+                passed,
+                {
+                    "long_name": "the scheme passed every rule of the case",
+                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                    "flag_meanings": "not_run fail pass",
+                },
+            ),
+            "value": (
+                ("scheme", "case"),
+                value,
+                {"long_name": "observed order of the final orientation error"},
+            ),
+            "rule_passed": (
+                ("scheme", "case", "rule"),
+                rule_passed,
+                {
+                    "long_name": "the scheme passed the rule",
+                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                    "flag_meanings": "not_applicable fail pass",
+                },
+            ),
+            "rule_value": (
+                ("scheme", "case", "rule"),
+                rule_value,
+                {
+                    "long_name": "the rule's measured number: the observed order, the "
+                    "largest relative energy gain, the largest flip "
+                    "interval error in time steps, the failed cases"
+                },
+            ),
+            "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"}),
+            "figure": (
+                ("scheme", "case"),
+                figure,
+                {
+                    "long_name": "the scheme reproduces the figure the source asserts",
+                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
+                    "flag_meanings": "not_asserted no yes",
+                },
+            ),
+            "figure_value": (
+                ("scheme", "case"),
+                figure_value,
+                {"long_name": "largest deviation from the figure, share of allowed"},
+            ),
+            "figure_text": (
+                ("scheme", "case"),
+                figure_text,
+                {"long_name": "what was measured against the figure"},
+            ),
+        },
+        coords={
+            "scheme": np.array(schemes, dtype=object),
+            "case": np.array(cases, dtype=object),
+            "rule": np.array(rules, dtype=object),
+            "rule_meaning": ("rule", np.array([RULES[r] for r in rules], dtype=object)),
+        },
+        attrs=attrs,
+    )
 
 
 def scorecard_html(cells, cases, titles, header, figures=None):
@@ -421,6 +514,14 @@ def scorecard_html(cells, cases, titles, header, figures=None):
     one)."""
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
     rows = [(s, [cells[c].get(s) for c in cases]) for s in schemes]
-    return render("conformance.html.j2", title="rbstudy conformance scorecard", header=header,
-                  rules=RULES, cases=cases, titles=titles, rows=rows, figures=figures or {},
-                  held_load_note=HELD_LOAD_NOTE if _held(cells, cases) else None)
+    return render(
+        "conformance.html.j2",
+        title="rbstudy conformance scorecard",
+        header=header,
+        rules=RULES,
+        cases=cases,
+        titles=titles,
+        rows=rows,
+        figures=figures or {},
+        held_load_note=HELD_LOAD_NOTE if _held(cells, cases) else None,
+    )

@@ -43,10 +43,22 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.numerics.state import INVARIANTS, STATUS_NAMES
 
-__all__ = ["Finding", "Recommendation", "findings", "recommendations",
-           "table_records", "VERDICT_ACCURATE", "MAX_FINDING_LINES", "summary_document",
-           "finding_lines", "markdown_summary", "csv_rows", "energy_rates",
-           "FINDINGS_VARIABLES", "case_seconds"]
+__all__ = [
+    "Finding",
+    "Recommendation",
+    "findings",
+    "recommendations",
+    "table_records",
+    "VERDICT_ACCURATE",
+    "MAX_FINDING_LINES",
+    "summary_document",
+    "finding_lines",
+    "markdown_summary",
+    "csv_rows",
+    "energy_rates",
+    "FINDINGS_VARIABLES",
+    "case_seconds",
+]
 
 # What `findings` reads: the table's per-case scalars, and the energy series whose last value
 # says whether a scheme gains or loses energy.
@@ -73,6 +85,7 @@ class Finding:
     in the names); cases: the cases it rests on, each a mapping of coordinate names to values
     (a coordinate not named: every value of it).
     """
+
     kind: str
     text: str
     numbers: dict
@@ -86,6 +99,7 @@ class Recommendation:
     axes: those values (coordinate name -> value; empty when nothing else is swept);
     error: the case's final orientation error (rad); seconds_per_case: its kernel time.
     """
+
     scheme: str
     dt: float
     error: float
@@ -118,8 +132,7 @@ def _labels(ds, dim, index):
 
 
 def _label_text(labels):
-    return ", ".join(f"{name}={_g(v) if isinstance(v, float) else v}"
-                     for name, v in labels.items())
+    return ", ".join(f"{name}={_g(v) if isinstance(v, float) else v}" for name, v in labels.items())
 
 
 def _where(labels):
@@ -128,11 +141,16 @@ def _where(labels):
     left out beside its coordinates, and more than `_SHOWN_VALUES` values are cut."""
     names = list(labels[0])
     if len(names) > 1:  # a zipped axis: its index (the axis's own name) says nothing
-        names = [name for name in names if not any(name == f"{a}_{b}" or "_" in name
-                                                   and name.split("_")[0] in names
-                                                   for a in names for b in names)] or names
-    return "; ".join(f"{name} " + _series([label[name] for label in labels])
-                     for name in names)
+        names = [
+            name
+            for name in names
+            if not any(
+                name == f"{a}_{b}" or "_" in name and name.split("_")[0] in names
+                for a in names
+                for b in names
+            )
+        ] or names
+    return "; ".join(f"{name} " + _series([label[name] for label in labels]) for name in names)
 
 
 def _cases(ds):
@@ -168,7 +186,7 @@ def recommendations(ds):
     if "accuracy" not in ds:
         return []
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
-    meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
+    meets = (ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)
     cost = case_seconds(ds)
     error = error_measure(ds, "orientation")
     schemes = np.array(schemes_of(ds))
@@ -183,10 +201,15 @@ def recommendations(ds):
         flat = int(np.argmin(seconds))
         position = np.unravel_index(flat, seconds.shape) if seconds.ndim else ()
         pick = dict(zip(order, position, strict=True))
-        found.append(Recommendation(
-            scheme=str(schemes[pick.get("scheme", 0)]), dt=float(dts[pick.get("dt", 0)]),
-            error=float(error.isel(where).isel(pick)) if error is not None else math.nan,
-            seconds_per_case=float(seconds.flat[flat]), axes=labels))
+        found.append(
+            Recommendation(
+                scheme=str(schemes[pick.get("scheme", 0)]),
+                dt=float(dts[pick.get("dt", 0)]),
+                error=float(error.isel(where).isel(pick)) if error is not None else math.nan,
+                seconds_per_case=float(seconds.flat[flat]),
+                axes=labels,
+            )
+        )
     return found
 
 
@@ -201,69 +224,105 @@ def _uniform(ds):
     if not np.isfinite(seconds).any():
         return None
     flat = int(np.argmin(seconds))
-    pick = dict(zip(order, np.unravel_index(flat, seconds.shape) if seconds.ndim else (),
-                    strict=True))
+    pick = dict(zip(order, np.unravel_index(flat, seconds.shape) if seconds.ndim else (), strict=True))
     error = error_measure(ds, "orientation")
     worst = float(error.isel(pick).max()) if error is not None else math.nan
-    return (schemes_of(ds)[pick.get("scheme", 0)], float(np.atleast_1d(ds["dt"].values)[
-        pick.get("dt", 0)]), float(seconds.flat[flat]), worst)
+    return (
+        schemes_of(ds)[pick.get("scheme", 0)],
+        float(np.atleast_1d(ds["dt"].values)[pick.get("dt", 0)]),
+        float(seconds.flat[flat]),
+        worst,
+    )
 
 
 def _recommendation_findings(ds):
     bound = ds.attrs.get("accuracy_bound")
     if "accuracy" not in ds:
-        return [Finding(kind="no_recommendation", numbers={}, cases=(),
-                        text="no recommendation: the archive has no accuracy verdict")]
+        return [
+            Finding(
+                kind="no_recommendation",
+                numbers={},
+                cases=(),
+                text="no recommendation: the archive has no accuracy verdict",
+            )
+        ]
     found = recommendations(ds)
     if not any(found):
-        return [Finding(kind="no_recommendation", numbers={"accuracy_bound": bound}, cases=(),
-                        text=f"no scheme and step meet the accuracy bound {_g(bound)} in any "
-                             "case")]
+        return [
+            Finding(
+                kind="no_recommendation",
+                numbers={"accuracy_bound": bound},
+                cases=(),
+                text=f"no scheme and step meet the accuracy bound {_g(bound)} in any case",
+            )
+        ]
     result = []
     uniform = _uniform(ds)
     if uniform is not None:
         scheme, dt, seconds, worst = uniform
         everywhere = ", every case" if _other_dims(ds) else ""
-        result.append(Finding(
-            kind="recommendation", cases=({"scheme": scheme, "dt": dt},),
-            numbers={"dt_s": dt, "seconds_per_case": seconds, "error_rad": worst,
-                     "accuracy_bound": bound},
-            text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s a case, error "
-                 f"{_g(worst)} rad (bound {_g(bound)}{everywhere})"))
+        result.append(
+            Finding(
+                kind="recommendation",
+                cases=({"scheme": scheme, "dt": dt},),
+                numbers={
+                    "dt_s": dt,
+                    "seconds_per_case": seconds,
+                    "error_rad": worst,
+                    "accuracy_bound": bound,
+                },
+                text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s a case, error "
+                f"{_g(worst)} rad (bound {_g(bound)}{everywhere})",
+            )
+        )
     answers = {(r.scheme, r.dt) for r in found if r is not None}
     if uniform is None or len(answers) > 1 or None in found:
         groups = {}
         for labels, pick in zip((labels for labels, _ in _cases(ds)), found, strict=True):
-            groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append(
-                (labels, pick))
+            groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append((labels, pick))
         for answer, members in groups.items():
             where = _where([labels for labels, _ in members])
             if answer is None:
-                result.append(Finding(
-                    kind="no_recommendation", numbers={"accuracy_bound": bound},
-                    cases=tuple(labels for labels, _ in members),
-                    text=f"no scheme and step meet the bound {_g(bound)} at {where}"))
+                result.append(
+                    Finding(
+                        kind="no_recommendation",
+                        numbers={"accuracy_bound": bound},
+                        cases=tuple(labels for labels, _ in members),
+                        text=f"no scheme and step meet the bound {_g(bound)} at {where}",
+                    )
+                )
                 continue
             seconds = [pick.seconds_per_case for _, pick in members]
             errors = [pick.error for _, pick in members]
-            result.append(Finding(
-                kind="recommendation",
-                cases=tuple({"scheme": answer[0], "dt": answer[1], **labels}
-                            for labels, _ in members),
-                numbers={"dt_s": answer[1], "seconds_per_case": max(seconds),
-                         "error_rad": max(errors), "accuracy_bound": bound},
-                text=f"cheapest at {where}: {answer[0]} at dt={_g(answer[1])} s, "
-                     f"{_g(max(seconds), 2)} s a case, error {_g(max(errors))} rad"))
+            result.append(
+                Finding(
+                    kind="recommendation",
+                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels} for labels, _ in members),
+                    numbers={
+                        "dt_s": answer[1],
+                        "seconds_per_case": max(seconds),
+                        "error_rad": max(errors),
+                        "accuracy_bound": bound,
+                    },
+                    text=f"cheapest at {where}: {answer[0]} at dt={_g(answer[1])} s, "
+                    f"{_g(max(seconds), 2)} s a case, error {_g(max(errors))} rad",
+                )
+            )
     return result
 
 
 def _failures(ds):
     """A finding per status of failed cases: how many of each scheme, what it means, what to
     try."""
-    return [Finding(kind="failure", text=status_text(code, cases),
-                    numbers={"status": STATUS_NAMES[code], "cases": sum(cases.values())},
-                    cases=tuple({"scheme": scheme} for scheme in cases))
-            for code, cases in status_counts(ds).items()]
+    return [
+        Finding(
+            kind="failure",
+            text=status_text(code, cases),
+            numbers={"status": STATUS_NAMES[code], "cases": sum(cases.values())},
+            cases=tuple({"scheme": scheme} for scheme in cases),
+        )
+        for code, cases in status_counts(ds).items()
+    ]
 
 
 def _coincidences(ds):
@@ -273,12 +332,19 @@ def _coincidences(ds):
         a, b = per_scheme(error, first).values, per_scheme(error, second).values
         both = np.isfinite(a) & np.isfinite(b)
         gap = float(np.max(np.abs(a - b)[both] / np.fmax(np.abs(a), np.abs(b))[both]))
-        result.append(Finding(
-            kind="coincidence", cases=({"scheme": first}, {"scheme": second}),
-            numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
-            text=f"{second} gives {first}'s errors to {COINCIDENT_DIGITS} digits in "
-                 + (f"all {int(both.sum())} cases (their lines overlap)"
-                    if both.sum() > 1 else "the study's one case")))
+        result.append(
+            Finding(
+                kind="coincidence",
+                cases=({"scheme": first}, {"scheme": second}),
+                numbers={"largest_relative_difference": gap, "cases": int(both.sum())},
+                text=f"{second} gives {first}'s errors to {COINCIDENT_DIGITS} digits in "
+                + (
+                    f"all {int(both.sum())} cases (their lines overlap)"
+                    if both.sum() > 1
+                    else "the study's one case"
+                ),
+            )
+        )
     return result
 
 
@@ -302,8 +368,7 @@ def _energy_text(rates, stable):
     if not values.size:
         return None, None
     largest = float(values[np.argmax(np.abs(values))])
-    trend = "gains" if np.all(values > 0) else "loses" if np.all(values < 0) else \
-        "gains or loses"
+    trend = "gains" if np.all(values > 0) else "loses" if np.all(values < 0) else "gains or loses"
     return largest, f"{trend} energy, up to {_g(abs(largest), 2)}/s"
 
 
@@ -315,14 +380,15 @@ def _verdict(ds, row, rates):
     name, numbers = row["scheme"], {}
     floor = ERROR_MEASURES["orientation"].floor
     largest = row.get("error")
-    if row["order"] is None and largest is not None and np.isfinite(largest) and \
-            largest <= floor:
+    if row["order"] is None and largest is not None and np.isfinite(largest) and largest <= floor:
         parts = ["exact to round-off"]
         numbers["error_rad"] = largest
     elif row["order"] is not None:
         numbers["order_low"], numbers["order_high"] = row["order"]
-        parts = [f"order {order_text(row)}"
-                 + (f" (nominal {row['nominal']})" if row["nominal"] is not None else "")]
+        parts = [
+            f"order {order_text(row)}"
+            + (f" (nominal {row['nominal']})" if row["nominal"] is not None else "")
+        ]
     else:
         parts = ["no order fitted"]
     if row["nominal"] is not None:
@@ -340,16 +406,16 @@ def _verdict(ds, row, rates):
             parts.append(text)
     if row["unstable"]:
         numbers["failed_cases"] = row["unstable"]
-        start = f" from dt|w0| {_g(row['unstable_hw'])}" if np.isfinite(row["unstable_hw"]) \
-            else ""
+        start = f" from dt|w0| {_g(row['unstable_hw'])}" if np.isfinite(row["unstable_hw"]) else ""
         numbers["first_failed_dt_w0"] = row["unstable_hw"]
         parts.append(f"fails {row['unstable']}/{row['cases']}{start}")
     if row["radioss"]:
         numbers["past_radioss_limit"] = row["radioss"]
         parts.append(f"past Radioss limit {row['radioss']}/{row['cases']}")
     numbers["cases"] = row["cases"]
-    return Finding(kind="verdict", text=f"{name}: " + "; ".join(parts), numbers=numbers,
-                   cases=({"scheme": scheme},))
+    return Finding(
+        kind="verdict", text=f"{name}: " + "; ".join(parts), numbers=numbers, cases=({"scheme": scheme},)
+    )
 
 
 def _series(values):
@@ -364,35 +430,37 @@ def _questions(ds, rates):
     result = []
     for dim in _other_dims(ds):
         size = ds.sizes[dim]
-        values = ["/".join(_g(v) if isinstance(v, float) else str(v)
-                           for v in _labels(ds, dim, k).values()) for k in range(size)]
+        values = [
+            "/".join(_g(v) if isinstance(v, float) else str(v) for v in _labels(ds, dim, k).values())
+            for k in range(size)
+        ]
         axis = "/".join(_labels(ds, dim, 0))
         per_value = [scheme_rows(ds.isel({dim: k})) for k in range(size)]
         for scheme in schemes_of(ds):
             rows = [next(r for r in rows if _row_scheme(r) == scheme) for rows in per_value]
             numbers = {"values": [_labels(ds, dim, k) for k in range(size)]}
             if "dt" in ds["status"].dims:
-                numbers["order"] = [None if r["order"] is None else r["order"][0]
-                                    for r in rows]
+                numbers["order"] = [None if r["order"] is None else r["order"][0] for r in rows]
                 orders = [order_text(r) for r in rows]
                 parts, serieses = [f"order {_series(orders)}"], [orders]
                 if rates is not None:
                     along = per_scheme(rates, scheme)
                     status = per_scheme(ds["status"], scheme)
-                    changes = [_energy_text(along.isel({dim: k}),
-                                            status.isel({dim: k}).values == 0)[0]
-                               for k in range(size)]
+                    changes = [
+                        _energy_text(along.isel({dim: k}), status.isel({dim: k}).values == 0)[0]
+                        for k in range(size)
+                    ]
                     if any(c is not None for c in changes):
                         numbers["energy_rate_per_s"] = changes
                         energy = ["kept" if c is None else f"{c:+.1e}" for c in changes]
                         parts.append("energy per s " + _series(energy))
                         serieses.append(energy)
             else:
-                numbers["accurate_cases"] = [r["cases"] - r["unstable"] - (r["inaccurate"] or 0)
-                                             - r["unjudged"] for r in rows]
+                numbers["accurate_cases"] = [
+                    r["cases"] - r["unstable"] - (r["inaccurate"] or 0) - r["unjudged"] for r in rows
+                ]
                 numbers["failed_cases"] = [r["unstable"] for r in rows]
-                accurate = [f"{a}/{r['cases']}" for a, r in
-                            zip(numbers["accurate_cases"], rows, strict=True)]
+                accurate = [f"{a}/{r['cases']}" for a, r in zip(numbers["accurate_cases"], rows, strict=True)]
                 failed = [f"{r['unstable']}/{r['cases']}" for r in rows]
                 parts = [f"accurate {_series(accurate)}", f"failed {_series(failed)}"]
                 serieses = [accurate, failed]
@@ -401,10 +469,13 @@ def _questions(ds, rates):
             head = f"{scheme} over {axis} {_series(values)}: "
             texts = [head + "; ".join(parts)]
             if len(texts[0]) > MAX_LINE:  # a line a part, those that change along the axis
-                texts = [head + part for part, series in zip(parts, serieses, strict=True)
-                         if len(set(series)) > 1]
-            result.extend(Finding(kind="question", numbers=numbers, cases=({"scheme": scheme},),
-                                  text=text) for text in texts)
+                texts = [
+                    head + part for part, series in zip(parts, serieses, strict=True) if len(set(series)) > 1
+                ]
+            result.extend(
+                Finding(kind="question", numbers=numbers, cases=({"scheme": scheme},), text=text)
+                for text in texts
+            )
     return result
 
 
@@ -413,20 +484,36 @@ def findings(ds, rows=None):
     ``rows``: its `scheme_rows`, where the caller has them already."""
     rates = energy_rates(ds)
     rows = scheme_rows(ds) if rows is None else rows
-    return (_recommendation_findings(ds) + _failures(ds) + _coincidences(ds)
-            + [_verdict(ds, row, rates) for row in rows] + _questions(ds, rates))
+    return (
+        _recommendation_findings(ds)
+        + _failures(ds)
+        + _coincidences(ds)
+        + [_verdict(ds, row, rates) for row in rows]
+        + _questions(ds, rates)
+    )
 
 
 # The table's fields for scripts: (JSON/CSV name, row key). Units are in the names.
 _RECORD_FIELDS = (
-    ("scheme", "scheme"), ("nominal_order", "nominal"), ("cases", "cases"),
-    ("failed_cases", "unstable"), ("inaccurate_cases", "inaccurate"),
-    ("unjudged_cases", "unjudged"), ("past_radioss_limit_cases", "radioss"),
-    ("order_low", None), ("order_high", None), ("fits", "fits"), ("fit_tries", "tries"),
-    ("error_rad", "error"), ("error_dt_s", "error_dt"),
-    ("error_small_dt_rad", "error_small"), ("small_dt_s", "error_small_dt"),
-    ("ns_per_body_step", "ns_per_step"), ("accurate_up_to_dt_w0", "accurate_hw"),
-    ("first_inaccurate_dt_w0", "inaccurate_hw"), ("first_failed_dt_w0", "unstable_hw"),
+    ("scheme", "scheme"),
+    ("nominal_order", "nominal"),
+    ("cases", "cases"),
+    ("failed_cases", "unstable"),
+    ("inaccurate_cases", "inaccurate"),
+    ("unjudged_cases", "unjudged"),
+    ("past_radioss_limit_cases", "radioss"),
+    ("order_low", None),
+    ("order_high", None),
+    ("fits", "fits"),
+    ("fit_tries", "tries"),
+    ("error_rad", "error"),
+    ("error_dt_s", "error_dt"),
+    ("error_small_dt_rad", "error_small"),
+    ("small_dt_s", "error_small_dt"),
+    ("ns_per_body_step", "ns_per_step"),
+    ("accurate_up_to_dt_w0", "accurate_hw"),
+    ("first_inaccurate_dt_w0", "inaccurate_hw"),
+    ("first_failed_dt_w0", "unstable_hw"),
     ("kept", "kept"),
 )
 
@@ -467,24 +554,35 @@ def summary_document(ds):
     meets the bound) and schemes (`table_records`)."""
     recommended = []
     for (labels, _), pick in zip(_cases(ds), recommendations(ds), strict=True):
-        fields = dict.fromkeys(("scheme", "dt", "error", "seconds_per_case")) if pick is None \
-            else {"scheme": pick.scheme, "dt": pick.dt, "error": pick.error,
-                  "seconds_per_case": pick.seconds_per_case}
+        fields = (
+            dict.fromkeys(("scheme", "dt", "error", "seconds_per_case"))
+            if pick is None
+            else {
+                "scheme": pick.scheme,
+                "dt": pick.dt,
+                "error": pick.error,
+                "seconds_per_case": pick.seconds_per_case,
+            }
+        )
         recommended.append({**fields, **labels})
     rows = scheme_rows(ds)
-    return _json_value({
-        "study": str(ds.attrs["study"]),
-        "findings": [dataclasses.asdict(finding) for finding in findings(ds, rows)],
-        "recommended": recommended,
-        "schemes": table_records(rows),
-    })
+    return _json_value(
+        {
+            "study": str(ds.attrs["study"]),
+            "findings": [dataclasses.asdict(finding) for finding in findings(ds, rows)],
+            "recommended": recommended,
+            "schemes": table_records(rows),
+        }
+    )
 
 
 def finding_lines(found):
     """The texts of ``found``, each wrapped at `MAX_LINE` (later lines indented), at most
     `MAX_FINDING_LINES` lines: the last says how many more the JSON form holds."""
-    lines = [textwrap.wrap(finding.text, MAX_LINE, subsequent_indent="  ",
-                           break_on_hyphens=False) for finding in found]
+    lines = [
+        textwrap.wrap(finding.text, MAX_LINE, subsequent_indent="  ", break_on_hyphens=False)
+        for finding in found
+    ]
     if sum(map(len, lines)) <= MAX_FINDING_LINES:
         return [line for wrapped in lines for line in wrapped]
     shown = []
@@ -508,13 +606,19 @@ def markdown_summary(ds):
     """The findings as a list, then the table (every column) as Markdown, rendered from the
     table's one definition (`rbstudy.analysis.summary.format_table`)."""
     rows = scheme_rows(ds)
-    return "\n".join([f"## {ds.attrs['study']}", ""]
-                     + [f"- {finding.text}" for finding in findings(ds, rows)]
-                     + ["", format_table(rows, wide=True, fmt="markdown")])
+    return "\n".join(
+        [f"## {ds.attrs['study']}", ""]
+        + [f"- {finding.text}" for finding in findings(ds, rows)]
+        + ["", format_table(rows, wide=True, fmt="markdown")]
+    )
 
 
 def csv_rows(ds):
     """The table's records with the study's name first, as rows for `csv.DictWriter`."""
-    return [{"study": str(ds.attrs["study"]), **{name: _cell(value) if isinstance(value, list)
-                                                 else value for name, value in record.items()}}
-            for record in table_records(scheme_rows(ds))]
+    return [
+        {
+            "study": str(ds.attrs["study"]),
+            **{name: _cell(value) if isinstance(value, list) else value for name, value in record.items()},
+        }
+        for record in table_records(scheme_rows(ds))
+    ]

@@ -14,9 +14,12 @@ __all__ = ["render", "TEMPLATES"]
 TEMPLATES = pathlib.Path(__file__).resolve().parent / "templates"
 
 # Autoescape every template: the texts come from archives and configs, which are input.
-_ENVIRONMENT = jinja2.Environment(loader=jinja2.FileSystemLoader(TEMPLATES),
-                                  autoescape=True, undefined=jinja2.StrictUndefined,
-                                  keep_trailing_newline=True)
+_ENVIRONMENT = jinja2.Environment(
+    loader=jinja2.FileSystemLoader(TEMPLATES),
+    autoescape=True,
+    undefined=jinja2.StrictUndefined,
+    keep_trailing_newline=True,
+)
 
 
 def render(template, **context):

@@ -74,10 +74,27 @@ from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 from rbstudy.pipeline.progress import SILENT  # noqa: E402
 from rbstudy.pipeline.store import inside, write_text_atomic  # noqa: E402
 
-__all__ = ["MAX_FACETS", "MAX_LINES", "line_styles", "ZERO_LABEL", "FORMATS", "ALL_FORMATS",
-           "Figures", "convergence",
-           "work_precision", "stability_map", "invariant_drift", "benchmark", "all_figures",
-           "CAPTIONS", "figure_name", "figure_layout", "benchmark_case", "zero_floor", "plot_with_zeros"]
+__all__ = [
+    "MAX_FACETS",
+    "MAX_LINES",
+    "line_styles",
+    "ZERO_LABEL",
+    "FORMATS",
+    "ALL_FORMATS",
+    "Figures",
+    "convergence",
+    "work_precision",
+    "stability_map",
+    "invariant_drift",
+    "benchmark",
+    "all_figures",
+    "CAPTIONS",
+    "figure_name",
+    "figure_layout",
+    "benchmark_case",
+    "zero_floor",
+    "plot_with_zeros",
+]
 
 MAX_FACETS = 4
 MAX_LINES = 8
@@ -99,17 +116,29 @@ LOG_AXIS_RATIO = 50
 BENCHMARK_PICKS = {"scheme": "hht", "inertia_ratio": 2.0}
 BENCHMARK_NODE = "4"
 # No "1e-7 + 6.28691" offsets on linear axes: every tick reads as its value.
-_RC = {"font.size": 10, "axes.titlesize": 10, "legend.fontsize": 8, "figure.titlesize": 10,
-       "axes.formatter.useoffset": False}
+_RC = {
+    "font.size": 10,
+    "axes.titlesize": 10,
+    "legend.fontsize": 8,
+    "figure.titlesize": 10,
+    "axes.formatter.useoffset": False,
+}
 _CASE_DIMS_EXCLUDED = ("time", "node", "axis", "component")
 _NO_REFERENCE = REFERENCE_KINDS.index("none")
 
 # (colour, marker, line style) of lines that are not schemes (the values of a swept axis), in
 # turn; a scheme that registers no style (`rbstudy.schemes.Style`) takes the first of them no
 # registered line of the study wears, then the same colours with `_MORE_MARKERS`.
-_OTHER_STYLES = [("tab:blue", "o", "-"), ("tab:orange", "s", "--"), ("tab:green", "^", "-."),
-                 ("tab:red", "D", ":"), ("tab:purple", "v", "-"), ("tab:brown", "P", "--"),
-                 ("tab:pink", "X", "-."), ("tab:gray", "*", ":")]
+_OTHER_STYLES = [
+    ("tab:blue", "o", "-"),
+    ("tab:orange", "s", "--"),
+    ("tab:green", "^", "-."),
+    ("tab:red", "D", ":"),
+    ("tab:purple", "v", "-"),
+    ("tab:brown", "P", "--"),
+    ("tab:pink", "X", "-."),
+    ("tab:gray", "*", ":"),
+]
 _MORE_MARKERS = ("<", ">", "h", "d", "p", "8", "H", "x")
 ZERO_LABEL = "0 (exact)"
 # File formats: PNG by default (an SVG takes as long again to write); SVG on request.
@@ -186,10 +215,11 @@ def line_styles(schemes, styles=None):
     chosen = {name: tuple(styles[name]) for name in schemes if name in styles}
     colours = {colour for colour, _, _ in chosen.values()}
     # the colours no registered line wears first; then every colour with other markers
-    candidates = ([style for style in _OTHER_STYLES if style[0] not in colours]
-                  + [style for style in _OTHER_STYLES if style[0] in colours]
-                  + [(colour, marker, dash) for marker in _MORE_MARKERS
-                     for colour, _, dash in _OTHER_STYLES])
+    candidates = (
+        [style for style in _OTHER_STYLES if style[0] not in colours]
+        + [style for style in _OTHER_STYLES if style[0] in colours]
+        + [(colour, marker, dash) for marker in _MORE_MARKERS for colour, _, dash in _OTHER_STYLES]
+    )
     worn = {style[:2] for style in chosen.values()}
     free = (style for style in candidates if style[:2] not in worn)
     for name in schemes:
@@ -202,12 +232,17 @@ def line_styles(schemes, styles=None):
 def _style(key, schemes):
     """Keyword arguments that draw the line ``key``: a scheme name, in its style of
     ``schemes`` (`line_styles`), or the number of a line of other values."""
-    color, marker, dash = (schemes[key] if key in schemes
-                           else _OTHER_STYLES[key % len(_OTHER_STYLES)])
+    color, marker, dash = schemes[key] if key in schemes else _OTHER_STYLES[key % len(_OTHER_STYLES)]
     solid = dash == "-"
-    return dict(color=color, marker=marker, linestyle=dash, linewidth=2.0 if solid else 1.2,
-                markersize=7 if solid else 4, zorder=2 if solid else 3,
-                markerfacecolor="none" if solid else color)
+    return dict(
+        color=color,
+        marker=marker,
+        linestyle=dash,
+        linewidth=2.0 if solid else 1.2,
+        markersize=7 if solid else 4,
+        zorder=2 if solid else 3,
+        markerfacecolor="none" if solid else color,
+    )
 
 
 def _worst(da, reduced):
@@ -218,9 +253,8 @@ def _worst(da, reduced):
 def _power_of_ten(value, _position=None):
     """``10^{-2}`` or ``2x10^{-3}`` in mathtext: the tick label of a log axis."""
     exponent = int(np.floor(np.log10(value) + 1e-9))
-    mantissa = round(value / 10.0 ** exponent)
-    return (f"$10^{{{exponent}}}$" if mantissa == 1
-            else f"${mantissa}\\times10^{{{exponent}}}$")
+    mantissa = round(value / 10.0**exponent)
+    return f"$10^{{{exponent}}}$" if mantissa == 1 else f"${mantissa}\\times10^{{{exponent}}}$"
 
 
 def _log_labels(fig):
@@ -235,8 +269,7 @@ def _log_labels(fig):
                 # tick (or none) would be labelled; no unlabelled minor ticks between them
                 # (a sixth of each figure's drawing time)
                 short = 0 < low and high / low < 100
-                axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)) if short
-                                       else LogLocator(numticks=8))
+                axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)) if short else LogLocator(numticks=8))
                 axis.set_major_formatter(FuncFormatter(_power_of_ten))
                 if short:
                     axis.set_minor_locator(NullLocator())
@@ -261,9 +294,13 @@ def _grid(count, width=5.4, height=4.2, columns=2, legend_width=0.0):
     them for the figure's legend."""
     columns = min(count, columns)
     rows = (count + columns - 1) // columns
-    fig, axes = plt.subplots(rows, columns,
-                             figsize=(width * columns + legend_width, height * rows),
-                             squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(
+        rows,
+        columns,
+        figsize=(width * columns + legend_width, height * rows),
+        squeeze=False,
+        layout="constrained",
+    )
     for extra in axes.flat[count:]:
         extra.set_visible(False)
     return fig, list(axes.flat[:count])
@@ -275,8 +312,7 @@ _NARROW, _WIDE = set(" .,;:'|!()[]ijlft-"), set("MWmw")
 
 
 def _em_width(text):
-    return sum(0.35 if c in _NARROW else 1.0 if c in _WIDE else 0.75 if c.isupper()
-               else 0.64 for c in text)
+    return sum(0.35 if c in _NARROW else 1.0 if c in _WIDE else 0.75 if c.isupper() else 0.64 for c in text)
 
 
 def _wrapped(text, width_em):
@@ -294,8 +330,7 @@ def _title(fig, ds, what):
     """The study's title and what the figure shows, each wrapped to the figure's width."""
     size = FontProperties(size=plt.rcParams["figure.titlesize"]).get_size_in_points()
     width_em = 0.97 * fig.get_figwidth() * 72 / size
-    fig.suptitle("\n".join(_wrapped(line, width_em)
-                           for line in (ds.attrs.get("title", ""), what)))
+    fig.suptitle("\n".join(_wrapped(line, width_em) for line in (ds.attrs.get("title", ""), what)))
 
 
 def zero_floor(values):
@@ -327,9 +362,16 @@ def _mark_uncertainty(ax, limits):
     if not finite.size:
         return
     ax.axhline(finite.max(), color="0.35", linewidth=0.8, linestyle="--", zorder=1)
-    ax.annotate(f"{UNCERTAINTY_FACTOR:g} x reference uncertainty: not fitted below",
-                (0.99, finite.max()), xycoords=("axes fraction", "data"), xytext=(0, 3),
-                textcoords="offset points", fontsize=7, color="0.3", ha="right")
+    ax.annotate(
+        f"{UNCERTAINTY_FACTOR:g} x reference uncertainty: not fitted below",
+        (0.99, finite.max()),
+        xycoords=("axes fraction", "data"),
+        xytext=(0, 3),
+        textcoords="offset points",
+        fontsize=7,
+        color="0.3",
+        ha="right",
+    )
 
 
 def _mark_floor(ax, floor):
@@ -337,8 +379,15 @@ def _mark_floor(ax, floor):
     if floor is None:
         return
     ax.axhline(floor, color="0.5", linewidth=0.8, linestyle=":", zorder=1)
-    ax.annotate(ZERO_LABEL, (0.01, floor), xycoords=("axes fraction", "data"),
-                xytext=(0, 3), textcoords="offset points", fontsize=7, color="0.3")
+    ax.annotate(
+        ZERO_LABEL,
+        (0.01, floor),
+        xycoords=("axes fraction", "data"),
+        xytext=(0, 3),
+        textcoords="offset points",
+        fontsize=7,
+        color="0.3",
+    )
     ax.set_ylim(bottom=floor / 2.0, top=max(ax.get_ylim()[1], floor * 10.0))
 
 
@@ -347,14 +396,20 @@ def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
     markers there, or for a dense time series (``markers`` off) as stretches of its line."""
     y = np.asarray(y, dtype=float)
     line_style = style if markers else {**style, "marker": ""}
-    line, = ax.plot(x, np.where(y > 0, y, np.nan), label=label, **line_style)
+    (line,) = ax.plot(x, np.where(y > 0, y, np.nan), label=label, **line_style)
     zero = y == 0.0
     if zero.any() and floor is not None:
         if markers:
-            ax.plot(np.asarray(x)[zero], np.full(zero.sum(), floor), linestyle="none",
-                    marker=style["marker"], markersize=style["markersize"],
-                    color=style["color"], markerfacecolor=style["markerfacecolor"],
-                    zorder=style["zorder"])
+            ax.plot(
+                np.asarray(x)[zero],
+                np.full(zero.sum(), floor),
+                linestyle="none",
+                marker=style["marker"],
+                markersize=style["markersize"],
+                color=style["color"],
+                markerfacecolor=style["markerfacecolor"],
+                zorder=style["zorder"],
+            )
         else:
             ax.plot(x, np.where(zero, floor, np.nan), **line_style)
     return line
@@ -417,12 +472,19 @@ def _reference_slopes(ax, dts, errors, orders):
         row = np.full(x.size, np.nan)
         row[span] = guide
         logs = np.vstack([logs, row])  # the next guide keeps clear of this one
-        shown_dts, shown = 10.0 ** x[span], 10.0 ** guide
+        shown_dts, shown = 10.0 ** x[span], 10.0**guide
         ax.plot(shown_dts, shown, color="0.6", linestyle=":", linewidth=1, zorder=1)
         # named above its middle, inside its clearance: never beyond the axes' edge
-        ax.annotate(f"order {order}", (10.0 ** x[span].mean(), 10.0 ** guide.mean()),
-                    xytext=(0, 2), textcoords="offset points", ha="center", va="bottom",
-                    fontsize=7, color="0.4")
+        ax.annotate(
+            f"order {order}",
+            (10.0 ** x[span].mean(), 10.0 ** guide.mean()),
+            xytext=(0, 2),
+            textcoords="offset points",
+            ha="center",
+            va="bottom",
+            fontsize=7,
+            color="0.4",
+        )
 
 
 def _fit_text(errors, fit, round_off, failed, limits):
@@ -457,8 +519,7 @@ def _fit_label(names, texts, fits):
     if len(set(texts)) == 1:
         text = texts[0]
     elif fitted:
-        text = (f"order {span([f.order for f in fitted])}, "
-                f"finest {span([f.finest_slope for f in fitted])}")
+        text = f"order {span([f.order for f in fitted])}, finest {span([f.finest_slope for f in fitted])}"
         if len(fitted) < len(fits):
             text += f" in {len(fitted)} of {len(fits)} panels"
     else:
@@ -477,8 +538,12 @@ def _coincident(errors):
         if first in placed:
             continue
         shown = np.isfinite(errors[first]).any()
-        group = [first] + [other for other in range(first + 1, len(errors)) if shown
-                           if other not in placed and agree(errors[other], errors[first])]
+        group = [first] + [
+            other
+            for other in range(first + 1, len(errors))
+            if shown
+            if other not in placed and agree(errors[other], errors[first])
+        ]
         placed.update(group)
         groups.append(group)
     return groups
@@ -490,20 +555,36 @@ def _coincident_style(style, rank, count):
     between them; the first hollow on a solid line under the others, the later ones filled
     on dashed lines above it, so that every colour shows."""
     if rank == 0:
-        return {**style, "markersize": 8, "markerfacecolor": "none", "linewidth": 2.0,
-                "zorder": 2, "linestyle": "-", "markevery": (0, count)}
-    return {**style, "markersize": 6, "markerfacecolor": style["color"], "linewidth": 1.2,
-            "zorder": 2 + rank, "markevery": (rank, count),
-            "linestyle": "--" if style["linestyle"] == "-" else style["linestyle"]}
+        return {
+            **style,
+            "markersize": 8,
+            "markerfacecolor": "none",
+            "linewidth": 2.0,
+            "zorder": 2,
+            "linestyle": "-",
+            "markevery": (0, count),
+        }
+    return {
+        **style,
+        "markersize": 6,
+        "markerfacecolor": style["color"],
+        "linewidth": 1.2,
+        "zorder": 2 + rank,
+        "markevery": (rank, count),
+        "linestyle": "--" if style["linestyle"] == "-" else style["linestyle"],
+    }
 
 
 def _figure_legend(fig, entries):
     """One legend for the whole figure, right of its panels: ``entries`` are (handles,
     label), several handles drawn side by side for lines named together."""
     if entries:
-        fig.legend([tuple(handles) for handles, _ in entries], [label for _, label in entries],
-                   handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)},
-                   loc="outside right center")
+        fig.legend(
+            [tuple(handles) for handles, _ in entries],
+            [label for _, label in entries],
+            handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)},
+            loc="outside right center",
+        )
 
 
 def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
@@ -525,46 +606,69 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         name = f"convergence_{key}"
         if measure is None:
             continue  # not stored: not a figure this study could have
-        panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced)
-                  for value in values]
+        panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced) for value in values]
         uncertainty = uncertainty_of(ds, key, measure)
-        limits = [_uncertainty_limit(uncertainty, facet, value, reduced, panel)
-                  for value, panel in zip(values, panels, strict=True)]
-        failures = [_worst((ds["status"] != 0).sel({facet: value}) if facet
-                           else ds["status"] != 0, reduced) for value in values]
+        limits = [
+            _uncertainty_limit(uncertainty, facet, value, reduced, panel)
+            for value, panel in zip(values, panels, strict=True)
+        ]
+        failures = [
+            _worst((ds["status"] != 0).sel({facet: value}) if facet else ds["status"] != 0, reduced)
+            for value in values
+        ]
         # a panel whose every case finished without a reference has nothing to show
-        shown = [k for k, (panel, failed) in enumerate(zip(panels, failures, strict=True))
-                 if np.isfinite(panel.values).any() or failed.values.any()] or list(range(len(values)))
+        shown = [
+            k
+            for k, (panel, failed) in enumerate(zip(panels, failures, strict=True))
+            if np.isfinite(panel.values).any() or failed.values.any()
+        ] or list(range(len(values)))
         unreferenced = [values[k] for k in range(len(values)) if k not in shown]
-        facet_values, panels, failures, limits = ([items[k] for k in shown]
-                                                  for items in (values, panels, failures, limits))
-        fits = [[(line_name, style, data.values, fitted_order(dts, data.values, key, limit.values),
-                  bool(failed.values.any()), limit.values)
-                 for (line_name, style, data), (*_, failed), (*_, limit) in zip(
-                     _lines(panel, line_dim), _lines(failures_of_panel, line_dim),
-                     _lines(panel_limits, line_dim), strict=True)]
-                for panel, failures_of_panel, panel_limits in zip(panels, failures, limits,
-                                                                  strict=True)]
+        facet_values, panels, failures, limits = (
+            [items[k] for k in shown] for items in (values, panels, failures, limits)
+        )
+        fits = [
+            [
+                (
+                    line_name,
+                    style,
+                    data.values,
+                    fitted_order(dts, data.values, key, limit.values),
+                    bool(failed.values.any()),
+                    limit.values,
+                )
+                for (line_name, style, data), (*_, failed), (*_, limit) in zip(
+                    _lines(panel, line_dim),
+                    _lines(failures_of_panel, line_dim),
+                    _lines(panel_limits, line_dim),
+                    strict=True,
+                )
+            ]
+            for panel, failures_of_panel, panel_limits in zip(panels, failures, limits, strict=True)
+        ]
         if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _, _ in panel):
             figures.absent[name] = (
                 f"no case has a reference to measure the {label} against (reference = none)"
-                if _unreferenced(ds).all() else
-                f"no line shows an asymptotic range of the {label} (every line failed, "
-                "stalled or was exact at every dt)")
+                if _unreferenced(ds).all()
+                else f"no line shows an asymptotic range of the {label} (every line failed, "
+                "stalled or was exact at every dt)"
+            )
             continue
         # the lines are the same in every panel: those that coincide over the whole figure
         # are drawn on top of each other in turn and named together
-        groups = _coincident([np.concatenate([lines[j][2] for lines in fits])
-                              for j in range(len(fits[0]))])
-        drawn = {j: (_coincident_style(_style(fits[0][j][1], schemes), rank, len(group))
-                     if len(group) > 1
-                     else _style(fits[0][j][1], schemes))
-                 for group in groups for rank, j in enumerate(group)}
+        groups = _coincident([np.concatenate([lines[j][2] for lines in fits]) for j in range(len(fits[0]))])
+        drawn = {
+            j: (
+                _coincident_style(_style(fits[0][j][1], schemes), rank, len(group))
+                if len(group) > 1
+                else _style(fits[0][j][1], schemes)
+            )
+            for group in groups
+            for rank, j in enumerate(group)
+        }
         with plt.rc_context(_RC):
             fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
             floors, handles = [], {}
-            for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits,
-                                                      strict=True):
+            for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits, strict=True):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
@@ -572,36 +676,67 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 for j, (_, _, errors, fit, _, _) in enumerate(lines):
                     style = drawn[j]
                     handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
-                    ax.plot(dts[fit.used], errors[fit.used], linestyle="none", marker="o",
-                            markersize=11, markerfacecolor="none", markeredgewidth=0.8,
-                            color=style["color"], zorder=1)
-                _reference_slopes(ax, dts, np.array([errors for _, _, errors, *_ in lines]),
-                                  _guide_orders(ds, facet, value))
+                    ax.plot(
+                        dts[fit.used],
+                        errors[fit.used],
+                        linestyle="none",
+                        marker="o",
+                        markersize=11,
+                        markerfacecolor="none",
+                        markeredgewidth=0.8,
+                        color=style["color"],
+                        zorder=1,
+                    )
+                _reference_slopes(
+                    ax, dts, np.array([errors for _, _, errors, *_ in lines]), _guide_orders(ds, facet, value)
+                )
                 _mark_uncertainty(ax, limit.values)
                 _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
                 ax.set_title(_panel_title(facet, value, reduced))
                 ax.grid(True, which="major", alpha=0.3)
-            _figure_legend(fig, [
-                ([handles[j] for j in group],
-                 _fit_label([fits[0][j][0] for j in group],
-                            [_fit_text(errors, fit, round_off, failed, line_limits)
-                             for _, _, errors, fit, failed, line_limits
-                             in (lines[group[0]] for lines in fits)],
-                            [lines[group[0]][3] for lines in fits]))
-                for group in groups])
-            zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
+            _figure_legend(
+                fig,
+                [
+                    (
+                        [handles[j] for j in group],
+                        _fit_label(
+                            [fits[0][j][0] for j in group],
+                            [
+                                _fit_text(errors, fit, round_off, failed, line_limits)
+                                for _, _, errors, fit, failed, line_limits in (
+                                    lines[group[0]] for lines in fits
+                                )
+                            ],
+                            [lines[group[0]][3] for lines in fits],
+                        ),
+                    )
+                    for group in groups
+                ],
+            )
+            zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
+            unjudged_gap = any(
+                not failed and not np.isfinite(errors).all()
+                for panel in fits
+                for _, _, errors, _, failed, _ in panel
+            )
+            gaps = (
+                "failed cases, or cases without a reference"
+                if unjudged_gap and _unreferenced(ds).any()
+                else "failed cases"
+            )
+            left_out = (
+                "; not shown, without a reference: " + ", ".join(_value_text(facet, v) for v in unreferenced)
+                if unreferenced
                 else ""
-            unjudged_gap = any(not failed and not np.isfinite(errors).all()
-                               for panel in fits for _, _, errors, _, failed, _ in panel)
-            gaps = ("failed cases, or cases without a reference"
-                    if unjudged_gap and _unreferenced(ds).any() else "failed cases")
-            left_out = ("; not shown, without a reference: "
-                        + ", ".join(_value_text(facet, v) for v in unreferenced)
-                        if unreferenced else "")
-            _title(fig, ds, f"convergence: {label}; large circles: the fitted asymptotic range; "
-                            f"gaps: {gaps}{zeros}{left_out}")
+            )
+            _title(
+                fig,
+                ds,
+                f"convergence: {label}; large circles: the fitted asymptotic range; "
+                f"gaps: {gaps}{zeros}{left_out}",
+            )
             figures.written.append(_save(fig, folder, ds, name, formats))
     return figures
 
@@ -627,8 +762,9 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             errors = _worst(measure.sel(pick), reduced)
             times = _worst(ds["run_time"].sel(pick), reduced)
             for (name, style_key, error_line), (*_, time_line) in zip(
-                    _lines(errors, line_dim), _lines(times, line_dim), strict=True):
-                line, = ax.loglog(error_line.values, time_line.values, **_style(style_key, schemes))
+                _lines(errors, line_dim), _lines(times, line_dim), strict=True
+            ):
+                (line,) = ax.loglog(error_line.values, time_line.values, **_style(style_key, schemes))
                 handles.setdefault(name, [line])
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("run time per case (core-seconds)")
@@ -636,8 +772,12 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             ax.grid(True, which="major", alpha=0.3)
         if line_dim:
             _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
-        _title(fig, ds, "work-precision: kernel CPU time of each batch divided among its "
-                        "cases, compilation excluded; each point a dt")
+        _title(
+            fig,
+            ds,
+            "work-precision: kernel CPU time of each batch divided among its "
+            "cases, compilation excluded; each point a dt",
+        )
         figures.written.append(_save(fig, folder, ds, "work_precision", formats))
     return figures
 
@@ -660,13 +800,21 @@ def _verdict_kinds(ds):
     """(label, scatter keywords) of accurate, inaccurate, failed and unjudged cases, in the
     order of `verdicts`' masks."""
     bound = ds.attrs.get("accuracy_bound")
-    return (("accurate", dict(s=14, color="tab:green")),
-            ("finished, inaccurate" + (f" (error or drift > {bound:g})" if bound is not None
-                                       else ""), dict(s=22, marker="^", color="tab:orange")),
-            (f"failed ({' or '.join(status.name.replace('_', ' ') for status in STATUSES[OK + 1:])})",
-             dict(s=22, marker="x", color="tab:red")),
-            ("finished, no reference (unjudged)", dict(s=22, marker="s", facecolors="none",
-                                                       edgecolors="tab:gray")))
+    return (
+        ("accurate", dict(s=14, color="tab:green")),
+        (
+            "finished, inaccurate" + (f" (error or drift > {bound:g})" if bound is not None else ""),
+            dict(s=22, marker="^", color="tab:orange"),
+        ),
+        (
+            f"failed ({' or '.join(status.name.replace('_', ' ') for status in STATUSES[OK + 1 :])})",
+            dict(s=22, marker="x", color="tab:red"),
+        ),
+        (
+            "finished, no reference (unjudged)",
+            dict(s=22, marker="s", facecolors="none", edgecolors="tab:gray"),
+        ),
+    )
 
 
 def _is_strip(ds, load):
@@ -676,15 +824,13 @@ def _is_strip(ds, load):
     if len(others) > 1:
         return False
     count = ds.sizes[others[0]] if others else 1
-    return all(np.unique(per_scheme(load, scheme).values).size == count
-               for scheme in schemes_of(ds))
+    return all(np.unique(per_scheme(load, scheme).values).size == count for scheme in schemes_of(ds))
 
 
 def _strip_chart(ds, load, judged, radioss):
     """One row per scheme, its cases at their dt |w0|, marked by verdict."""
     schemes = list(judged)
-    fig, ax = plt.subplots(figsize=(7.5, 1.2 + STRIP_ROW_HEIGHT * len(schemes)),
-                           layout="constrained")
+    fig, ax = plt.subplots(figsize=(7.5, 1.2 + STRIP_ROW_HEIGHT * len(schemes)), layout="constrained")
     for row, (scheme, masks) in enumerate(judged.items()):
         x = per_scheme(load, scheme).values.ravel()
         for cases, (label, kind) in zip(masks, _verdict_kinds(ds), strict=True):
@@ -692,8 +838,13 @@ def _strip_chart(ds, load, judged, radioss):
             if cases.any():
                 ax.scatter(x[cases], np.full(cases.sum(), row), label=label, **kind)
     if radioss:
-        ax.axvline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
-                   label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
+        ax.axvline(
+            RADIOSS_STEP_ANGLE,
+            color="0.35",
+            linestyle=":",
+            linewidth=1,
+            label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}",
+        )
     ax.set_yticks(range(len(schemes)), schemes)
     ax.set_ylim(len(schemes) - 0.5, -0.5)  # the first scheme on top
     ax.set_xscale("log")
@@ -730,15 +881,26 @@ def _map_panels(ds, load, judged, radioss):
                 ax.scatter(x[cases], y[cases], label=label, **kind)
         if parameter:
             xs = np.unique(x)
-            largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan
-                       for v in xs]
+            largest = [y[good & (x == v)].max() if (good & (x == v)).any() else np.nan for v in xs]
             # a bar at each value, so that one accurate value alone still shows; joined
             # only along a numeric axis (names or flags have nothing between them)
-            ax.plot(xs, largest, color="tab:green", linewidth=0 if named else 1, marker="_",
-                    markersize=12, label="largest accurate")
+            ax.plot(
+                xs,
+                largest,
+                color="tab:green",
+                linewidth=0 if named else 1,
+                marker="_",
+                markersize=12,
+                label="largest accurate",
+            )
         if radioss:
-            ax.axhline(RADIOSS_STEP_ANGLE, color="0.35", linestyle=":", linewidth=1,
-                       label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}")
+            ax.axhline(
+                RADIOSS_STEP_ANGLE,
+                color="0.35",
+                linestyle=":",
+                linewidth=1,
+                label=f"OpenRadioss aborts past dt |w| = {RADIOSS_STEP_ANGLE:g}",
+            )
         ax.set_yscale("log")
         ax.set_ylabel("dt |w0| (rad)")
         ax.set_title(scheme)
@@ -758,12 +920,12 @@ def stability_map(ds, folder, formats=FORMATS):
     if all(masks[0].all() for masks in judged.values()):
         figures.absent["stability_map"] = (
             f"every case is accurate (dt |w0| up to {float(load.max()):.3g} rad): no "
-            "stability or accuracy boundary to show")
+            "stability or accuracy boundary to show"
+        )
         return figures
     # the limit is drawn where some case passed it and it lies among the plotted dt |w0|: a
     # case flagged for the spin it reached later must not stretch a map of small dt |w0|
-    radioss = (bool((ds["radioss_dt_limit"] == 1).any())
-               and bool((load >= RADIOSS_STEP_ANGLE).any()))
+    radioss = bool((ds["radioss_dt_limit"] == 1).any()) and bool((load >= RADIOSS_STEP_ANGLE).any())
     strip = _is_strip(ds, load)
     what = "stability and accuracy: every case by its dt |w0|"
     if not strip:  # a panel of nothing but accurate cases shows no boundary: named instead
@@ -777,10 +939,15 @@ def stability_map(ds, folder, formats=FORMATS):
             for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
                 handles[label] = handle
         kinds = [label for label, _ in _verdict_kinds(ds)]
-        handles = dict(sorted(handles.items(), key=lambda item: kinds.index(item[0])
-                              if item[0] in kinds else len(kinds)))
-        fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-                   ncols=min(len(handles), 2 if strip else 4))
+        handles = dict(
+            sorted(handles.items(), key=lambda item: kinds.index(item[0]) if item[0] in kinds else len(kinds))
+        )
+        fig.legend(
+            list(handles.values()),
+            list(handles),
+            loc="outside lower center",
+            ncols=min(len(handles), 2 if strip else 4),
+        )
         _title(fig, ds, what)
         figures.written.append(_save(fig, folder, ds, "stability_map", formats))
     return figures
@@ -823,9 +990,14 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
     """|energy error| and |L - L0| / |L0| against time, one case per scheme; ``styles``: the
     schemes' registered styles (`line_styles`)."""
     figures = Figures()
-    panels = [(name, label) for name, label in (
-        ("energy_error", "|relative energy error|"),
-        ("momentum_error", "relative |L - L0| (vector)")) if name in ds]
+    panels = [
+        (name, label)
+        for name, label in (
+            ("energy_error", "|relative energy error|"),
+            ("momentum_error", "relative |L - L0| (vector)"),
+        )
+        if name in ds
+    ]
     if not panels:
         return figures
     cases = [(scheme, *_drift_case(ds, scheme)) for scheme in schemes_of(ds)]
@@ -842,23 +1014,26 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
         floors, handles = [], {}
         for ax, (name, label) in zip(axes, panels, strict=True):
             ax.set_yscale("log")
-            floor = zero_floor(np.concatenate([np.abs(case[name].values[1:])
-                                               for _, case, _ in cases]))
+            floor = zero_floor(np.concatenate([np.abs(case[name].values[1:]) for _, case, _ in cases]))
             floors.append(floor)
             for scheme, case, dt in cases:
-                line = plot_with_zeros(ax, times, np.abs(case[name].values[1:]), floor, None,
-                                       _style(scheme, schemes), markers=False)
-                handles.setdefault(f"{scheme} (dt = {dt:g} s)" if several_dts else scheme,
-                                   [line])
+                line = plot_with_zeros(
+                    ax,
+                    times,
+                    np.abs(case[name].values[1:]),
+                    floor,
+                    None,
+                    _style(scheme, schemes),
+                    markers=False,
+                )
+                handles.setdefault(f"{scheme} (dt = {dt:g} s)" if several_dts else scheme, [line])
             _mark_floor(ax, floor)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
         _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
-        zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) \
-            else ""
-        _title(fig, ds, f"invariant drift, bounded or secular; case: {_drift_title(ds, steps)}"
-                        f"{zeros}")
+        zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
+        _title(fig, ds, f"invariant drift, bounded or secular; case: {_drift_title(ds, steps)}{zeros}")
         figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))
     return figures
 
@@ -879,8 +1054,14 @@ def benchmark_case(ds):
     return case, ", ".join([str(case["scheme"].values)] + named)
 
 
-_BENCHMARK_NEEDS = ("precession_frequency", "node_offset", "node_displacement", "omega_space",
-                    "omega_body", "quaternion")
+_BENCHMARK_NEEDS = (
+    "precession_frequency",
+    "node_offset",
+    "node_displacement",
+    "omega_space",
+    "omega_body",
+    "quaternion",
+)
 
 
 def benchmark(ds, folder, formats=FORMATS, styles=None):
@@ -895,8 +1076,9 @@ def benchmark(ds, folder, formats=FORMATS, styles=None):
         figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
         return figures
     times = ds["time"].values
-    q_exact, w_exact = symmetric_top(case["inertia"].values, case["quaternion"].values[0],
-                                     case["omega_body"].values[0], times)
+    q_exact, w_exact = symmetric_top(
+        case["inertia"].values, case["quaternion"].values[0], case["omega_body"].values[0], times
+    )
     w_space = np.einsum("tij,tj->ti", quat_to_matrix(q_exact), w_exact)
     with plt.rc_context(_RC):
         fig, axes = _grid(3, width=4.2, height=3.0)
@@ -911,10 +1093,8 @@ def benchmark(ds, folder, formats=FORMATS, styles=None):
         figures.written.append(_save(fig, folder, ds, "benchmark_omega_time", formats))
 
         fig, ax = plt.subplots(figsize=(5.0, 5.2), layout="constrained")
-        ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], color=color,
-                label=what)
-        ax.plot(w_space[:, 0], w_space[:, 1], linestyle="--", color="k", linewidth=1,
-                label="exact")
+        ax.plot(case["omega_space"].values[:, 0], case["omega_space"].values[:, 1], color=color, label=what)
+        ax.plot(w_space[:, 0], w_space[:, 1], linestyle="--", color="k", linewidth=1, label="exact")
         ax.set_aspect("equal")
         ax.set_xlabel("global w_x (rad/s)")
         ax.set_ylabel("global w_y (rad/s)")
@@ -954,38 +1134,38 @@ def _unreferenced(ds):
 # What each figure shows, for the report (keyed by figure name without the measure suffix).
 CAPTIONS = {
     "convergence": "Error against the time step, log-log, one line per scheme (or per value "
-                   "of the swept axis in a one-scheme study); the legend gives the order "
-                   "fitted on the circled points, the asymptotic range (see the table), and "
-                   "the local slope of the finest fitted pair, and names together the lines "
-                   "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
-                   "of the data; a gap is a failed case (or one without a reference); a "
-                   "point on the dotted floor is exactly 0.",
+    "of the swept axis in a one-scheme study); the legend gives the order "
+    "fitted on the circled points, the asymptotic range (see the table), and "
+    "the local slope of the finest fitted pair, and names together the lines "
+    "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
+    "of the data; a gap is a failed case (or one without a reference); a "
+    "point on the dotted floor is exactly 0.",
     "work_precision": "Kernel run time per case against the final orientation error, one "
-                      "point per dt: the cheapest scheme for a given accuracy is the lowest "
-                      "line. Run time is the CPU time of the compiled batch call divided "
-                      "among its cases, compilation excluded.",
+    "point per dt: the cheapest scheme for a given accuracy is the lowest "
+    "line. Run time is the CPU time of the compiled batch call divided "
+    "among its cases, compilation excluded.",
     "stability_map": "Every case by its dt |w0|, a row per scheme (or, with more than one "
-                     "swept axis, a panel per scheme against the swept parameter, where the "
-                     "line joins the largest accurate value): green accurate, orange "
-                     "triangles finished but inaccurate (orientation error at a sample or "
-                     "energy or |L| drift past the study's accuracy bound), red crosses "
-                     "failed, grey squares finished without a reference (unjudged).",
+    "swept axis, a panel per scheme against the swept parameter, where the "
+    "line joins the largest accurate value): green accurate, orange "
+    "triangles finished but inaccurate (orientation error at a sample or "
+    "energy or |L| drift past the study's accuracy bound), red crosses "
+    "failed, grey squares finished without a reference (unjudged).",
     "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
-                       "case per scheme, the case named in the title (the largest stable dt "
-                       "when dt is swept; a failed case ends where it failed): bounded "
-                       "oscillation or secular growth; a point on the dotted floor is "
-                       "exactly 0.",
+    "case per scheme, the case named in the title (the largest stable dt "
+    "when dt is swept; a failed case ends where it failed): bounded "
+    "oscillation or secular growth; a point on the dotted floor is "
+    "exactly 0.",
     "benchmark": "The Abaqus benchmark figures for the case named in the legend (HHT on the "
-                 "flat disk at the largest dt where the study has it), with the closed-form "
-                 "solution dashed.",
+    "flat disk at the largest dt where the study has it), with the closed-form "
+    "solution dashed.",
 }
 
 
 # The drawings of `all_figures`, each a figure function and its keyword arguments: one per
 # convergence measure (a figure each, the most of the work) and one per other kind.
-_DRAWINGS = ([(convergence, {"measures": (key,)}) for key in ERROR_MEASURES]
-             + [(figure, {}) for figure in (work_precision, stability_map, invariant_drift,
-                                            benchmark)])
+_DRAWINGS = [(convergence, {"measures": (key,)}) for key in ERROR_MEASURES] + [
+    (figure, {}) for figure in (work_precision, stability_map, invariant_drift, benchmark)
+]
 # The drawing whose lines are not schemes: it takes no styles.
 _UNSTYLED = (stability_map,)
 # What the drawing processes of `all_figures` inherit (dataset, folder, formats, styles):
@@ -1016,18 +1196,18 @@ def _recorded(manifest, digest, formats):
             return {}
         reused = {}
         for index, entry in enumerate(record["drawings"]):
-            files = [manifest.parent / f"{stem}.{suffix}" for stem in entry["written"]
-                     for suffix in formats]
+            files = [manifest.parent / f"{stem}.{suffix}" for stem in entry["written"] for suffix in formats]
             if set(formats) <= set(entry["formats"]) and all(path.is_file() for path in files):
-                reused[index] = Figures([manifest.parent / f"{stem}.{formats[0]}"
-                                         for stem in entry["written"]], dict(entry["absent"]))
+                reused[index] = Figures(
+                    [manifest.parent / f"{stem}.{formats[0]}" for stem in entry["written"]],
+                    dict(entry["absent"]),
+                )
     except (OSError, ValueError, LookupError, TypeError):  # none yet, or not ours: draw all
         return {}
     return reused
 
 
-def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT,
-                styles=None):
+def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT, styles=None):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why), in the same order however drawn.
 
@@ -1079,10 +1259,20 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
     drawn = len(figures.written) - kept
     progress.end = f"{drawn} figure{'s' * (drawn != 1)} drawn, {kept} reused"
     if digest is not None:
-        record = {"digest": digest, "drawings": [
-            {"written": [path.stem for path in done[index].written],
-             "formats": [suffix for suffix in ALL_FORMATS if all(
-                 path.with_suffix(f".{suffix}").is_file() for path in done[index].written)],
-             "absent": done[index].absent} for index in range(len(_DRAWINGS))]}
+        record = {
+            "digest": digest,
+            "drawings": [
+                {
+                    "written": [path.stem for path in done[index].written],
+                    "formats": [
+                        suffix
+                        for suffix in ALL_FORMATS
+                        if all(path.with_suffix(f".{suffix}").is_file() for path in done[index].written)
+                    ],
+                    "absent": done[index].absent,
+                }
+                for index in range(len(_DRAWINGS))
+            ],
+        }
         write_text_atomic(json.dumps(record, indent=1), manifest)
     return figures

@@ -69,11 +69,13 @@ def _claim(out, study):
     marker = out / MARKER
     owner = marker.read_text().strip() if marker.is_file() else None
     if owner is not None and owner != study:
-        raise InputError(f"holds the report of study {owner!r}, not {study!r}",
-                         "give --out another folder", str(out))
+        raise InputError(
+            f"holds the report of study {owner!r}, not {study!r}", "give --out another folder", str(out)
+        )
     if owner is None and out.is_dir() and any(out.iterdir()):
-        raise InputError("is not empty and holds no rbstudy report",
-                         "give --out a new or empty folder", str(out))
+        raise InputError(
+            "is not empty and holds no rbstudy report", "give --out a new or empty folder", str(out)
+        )
     write_text_atomic(study + "\n", marker)
 
 
@@ -92,13 +94,12 @@ def figures_digest(ds, styles=None):
             digest.update(path.read_bytes())
     for name, variable in sorted({**ds.coords, **ds.data_vars}.items()):
         values = np.asarray(variable.values)
-        digest.update(f"{name} {variable.dims} {values.dtype} {sorted(variable.attrs.items())}"
-                      .encode())
-        digest.update(values.tobytes() if values.dtype.kind != "O"
-                      else "\0".join(map(str, values.ravel())).encode())
+        digest.update(f"{name} {variable.dims} {values.dtype} {sorted(variable.attrs.items())}".encode())
+        digest.update(
+            values.tobytes() if values.dtype.kind != "O" else "\0".join(map(str, values.ravel())).encode()
+        )
     digest.update(repr(sorted(ds.attrs.items())).encode())
-    digest.update(repr(sorted((name, tuple(style)) for name, style in (styles or {}).items()))
-                  .encode())
+    digest.update(repr(sorted((name, tuple(style)) for name, style in (styles or {}).items())).encode())
     return digest.hexdigest()
 
 
@@ -140,8 +141,10 @@ def _convergence_caption(ds, rows, key, first):
     errors = error_measure(ds, key)
     dts = ds["dt"].values
     line = figure_layout(ds)[0]
-    text = (f"The {label}{'' if units == '1' else f' ({units})'} against dt from {dts.min():g} "
-            f"to {dts.max():g} s, {_lines_and_panels(ds, first)}.")
+    text = (
+        f"The {label}{'' if units == '1' else f' ({units})'} against dt from {dts.min():g} "
+        f"to {dts.max():g} s, {_lines_and_panels(ds, first)}."
+    )
     if key == "orientation":  # the table's fits: the words cannot disagree with it
         fitted = [f"{row['scheme']} {order_text(row)}" for row in rows if row["order"]]
         unfitted = [row["scheme"] for row in rows if not row["order"]]
@@ -151,12 +154,15 @@ def _convergence_caption(ds, rows, key, first):
             text += f" No asymptotic range: {_listing(unfitted)}."
     elif line in errors.dims:  # the finest step's error of each line, its worst case
         finest = errors.sel(dt=dts.min())
-        worst = {value: float(finest.sel({line: value}).max(skipna=False))
-                 for value in ds[line].values}
+        worst = {value: float(finest.sel({line: value}).max(skipna=False)) for value in ds[line].values}
         named = "" if line == "scheme" else f"{line} "
-        text += (f" At the smallest dt ({dts.min():g} s) the worst errors: "
-                 + _listing(f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}"
-                            for v, e in worst.items()) + ".")
+        text += (
+            f" At the smallest dt ({dts.min():g} s) the worst errors: "
+            + _listing(
+                f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}" for v, e in worst.items()
+            )
+            + "."
+        )
     pairs = [f"{first} = {second}" for first, second in coinciding_pairs(ds, errors)]
     if pairs:
         text += f" Coinciding to {COINCIDENT_DIGITS} digits: {_listing(pairs)}."
@@ -164,27 +170,37 @@ def _convergence_caption(ds, rows, key, first):
 
 
 def _work_precision_caption(ds, rows, found, first):
-    text = (f"Kernel time per case against the final orientation error, a point per dt "
-            f"({ds.sizes['dt']} values), {_lines_and_panels(ds, first)}.")
+    text = (
+        f"Kernel time per case against the final orientation error, a point per dt "
+        f"({ds.sizes['dt']} values), {_lines_and_panels(ds, first)}."
+    )
     cost = sorted(rows, key=lambda row: row["ns_per_step"])
     if len(cost) > 1:
-        text += (f" Cheapest step: {cost[0]['scheme']} ({cost[0]['ns_per_step']:.0f} ns); "
-                 f"dearest: {cost[-1]['scheme']} ({cost[-1]['ns_per_step']:.0f} ns).")
-    answer = next((f.text for f in found if f.kind in ("recommendation", "no_recommendation")),
-                  None)
+        text += (
+            f" Cheapest step: {cost[0]['scheme']} ({cost[0]['ns_per_step']:.0f} ns); "
+            f"dearest: {cost[-1]['scheme']} ({cost[-1]['ns_per_step']:.0f} ns)."
+        )
+    answer = next((f.text for f in found if f.kind in ("recommendation", "no_recommendation")), None)
     return text + (f" The study's answer: {answer}." if answer else "")
 
 
 def _stability_caption(ds, rows):
     load = step_load(ds).values
-    text = (f"Each of the {load.size} cases by its dt |w0|, from {np.nanmin(load):.3g} to "
-            f"{np.nanmax(load):.3g} rad.")
-    always = [row["scheme"] for row in rows if np.isnan(row["inaccurate_hw"])
-              and np.isnan(row["unstable_hw"])]
-    limited = [f"{row['scheme']} to {row['accurate_hw']:.3g}" for row in rows
-               if row["scheme"] not in always and np.isfinite(row["accurate_hw"])]
-    failing = [f"{row['scheme']} from {row['unstable_hw']:.3g}" for row in rows
-               if np.isfinite(row["unstable_hw"])]
+    text = (
+        f"Each of the {load.size} cases by its dt |w0|, from {np.nanmin(load):.3g} to "
+        f"{np.nanmax(load):.3g} rad."
+    )
+    always = [
+        row["scheme"] for row in rows if np.isnan(row["inaccurate_hw"]) and np.isnan(row["unstable_hw"])
+    ]
+    limited = [
+        f"{row['scheme']} to {row['accurate_hw']:.3g}"
+        for row in rows
+        if row["scheme"] not in always and np.isfinite(row["accurate_hw"])
+    ]
+    failing = [
+        f"{row['scheme']} from {row['unstable_hw']:.3g}" for row in rows if np.isfinite(row["unstable_hw"])
+    ]
     if always:
         text += f" Accurate in every case: {_listing(always)}."
     if limited:
@@ -196,8 +212,11 @@ def _stability_caption(ds, rows):
 
 def _drift_caption(ds, rows):
     end = float(ds["time"].values[-1]) if "time" in ds.coords else None
-    text = "Energy and angular-momentum errors against time" + (
-        f" over {end:g} s" if end else "") + ", one case per scheme."
+    text = (
+        "Energy and angular-momentum errors against time"
+        + (f" over {end:g} s" if end else "")
+        + ", one case per scheme."
+    )
     for invariant in ("energy", "|L|", "L"):
         keeping = [row["scheme"] for row in rows if invariant in row["kept"]]
         if keeping:
@@ -211,8 +230,7 @@ def _drift_caption(ds, rows):
 # The three benchmark figures, each what it plots.
 _BENCHMARK_LEADS = {
     "benchmark_omega_time": "The global angular velocity components against time",
-    "benchmark_omega_xy": "w_x against w_y in global axes, the tip of w circling the momentum "
-                          "axis",
+    "benchmark_omega_xy": "w_x against w_y in global axes, the tip of w circling the momentum axis",
     "benchmark_node_path": f"The path of node {BENCHMARK_NODE} seen down global z",
 }
 
@@ -248,15 +266,17 @@ def _data_uri(png):
 
 def _table_intro(ds):
     floor, ceiling = ERROR_MEASURES["orientation"].floor, ERROR_MEASURES["orientation"].ceiling
-    return ("The table rbstudy sweep --wide prints, its footnotes under it. No order is fitted "
-            f"through an error below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
-            "uncertainty (reference_uncertainty). The asymptotic range: the longest run of at "
-            f"least {MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
-            f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
-            f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more than "
-            f"{MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. Accuracy "
-            f"bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
-            "orientation error at any sample, relative for energy and |L|).")
+    return (
+        "The table rbstudy sweep --wide prints, its footnotes under it. No order is fitted "
+        f"through an error below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
+        "uncertainty (reference_uncertainty). The asymptotic range: the longest run of at "
+        f"least {MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
+        f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
+        f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more than "
+        f"{MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. Accuracy "
+        f"bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "
+        "orientation error at any sample, relative for energy and |L|)."
+    )
 
 
 def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
@@ -269,27 +289,48 @@ def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
     _claim(out, study)
     formats = FORMATS + ("svg",) if svg else FORMATS
-    figures = all_figures(ds, out / "figures", formats, processes,
-                          digest=figures_digest(ds, styles), progress=progress, styles=styles)
+    figures = all_figures(
+        ds,
+        out / "figures",
+        formats,
+        processes,
+        digest=figures_digest(ds, styles),
+        progress=progress,
+        styles=styles,
+    )
     progress.phase(f"{study}: writing {REPORT_NAME}")
     names = [png.stem.removeprefix(f"{study}_") for png in figures.written]
     rows = scheme_rows(ds)
     found = findings(ds, rows)
     texts = captions(ds, names, rows, found)
-    shown = [{"name": name, "anchor": f"figure-{name}", "source": _data_uri(png),
-              "caption": texts[name][0], "reading": texts[name][1],
-              "svg": png.with_suffix(".svg").relative_to(out).as_posix() if svg else None}
-             for name, png in zip(names, figures.written, strict=True)]
+    shown = [
+        {
+            "name": name,
+            "anchor": f"figure-{name}",
+            "source": _data_uri(png),
+            "caption": texts[name][0],
+            "reading": texts[name][1],
+            "svg": png.with_suffix(".svg").relative_to(out).as_posix() if svg else None,
+        }
+        for name, png in zip(names, figures.written, strict=True)
+    ]
     dims = ", ".join(f"{d} ({ds.sizes[d]})" for d in ds["status"].dims) or "one case"
     provenance = [(key, str(ds.attrs[key])) for key in _PROVENANCE if key in ds.attrs]
-    page = render("report.html.j2",
-                  title=ds.attrs.get("title", study), study=study,
-                  cases=int(ds["status"].size), dims=dims, findings=found,
-                  table_intro=_table_intro(ds),
-                  # tabulate escapes the cells, format_table the footnotes
-                  table=markupsafe.Markup(format_table(rows, wide=True, fmt="html")),
-                  figures=shown, absent=figures.absent, provenance=provenance,
-                  config=ds.attrs.get("config", ""))
+    page = render(
+        "report.html.j2",
+        title=ds.attrs.get("title", study),
+        study=study,
+        cases=int(ds["status"].size),
+        dims=dims,
+        findings=found,
+        table_intro=_table_intro(ds),
+        # tabulate escapes the cells, format_table the footnotes
+        table=markupsafe.Markup(format_table(rows, wide=True, fmt="html")),
+        figures=shown,
+        absent=figures.absent,
+        provenance=provenance,
+        config=ds.attrs.get("config", ""),
+    )
     report = out / REPORT_NAME
     write_text_atomic(page, report)
     return report

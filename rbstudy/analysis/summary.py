@@ -29,12 +29,36 @@ from tabulate import tabulate
 from rbstudy.numerics.state import INVARIANTS, OK, STATUSES
 from rbstudy.physics.metrics import asymptotic_order
 
-__all__ = ["ERROR_MEASURES", "ErrorMeasure", "SUMMARY_VARIABLES", "KEPT_TOLERANCE", "TERMINAL_WIDTH",
-           "status_counts", "status_text",
-           "TABLE_FORMATS", "error_measure", "fitted_order", "uncertainty_of",
-           "UNCERTAINTY_FACTOR", "scheme_rows", "format_table", "order_text", "Column",
-           "table_columns", "table_notes", "wrap_clauses", "schemes_of", "per_scheme", "step_load",
-           "span", "agree", "coinciding_pairs", "COINCIDENT_DIGITS", "COINCIDENCE_RTOL"]
+__all__ = [
+    "ERROR_MEASURES",
+    "ErrorMeasure",
+    "SUMMARY_VARIABLES",
+    "KEPT_TOLERANCE",
+    "TERMINAL_WIDTH",
+    "status_counts",
+    "status_text",
+    "TABLE_FORMATS",
+    "error_measure",
+    "fitted_order",
+    "uncertainty_of",
+    "UNCERTAINTY_FACTOR",
+    "scheme_rows",
+    "format_table",
+    "order_text",
+    "Column",
+    "table_columns",
+    "table_notes",
+    "wrap_clauses",
+    "schemes_of",
+    "per_scheme",
+    "step_load",
+    "span",
+    "agree",
+    "coinciding_pairs",
+    "COINCIDENT_DIGITS",
+    "COINCIDENCE_RTOL",
+]
+
 
 class ErrorMeasure(NamedTuple):
     """An error measure of the archive, as the table, the figures and the report show it.
@@ -59,46 +83,87 @@ class ErrorMeasure(NamedTuple):
 # floor set a little low costs nothing. A measure taken against an integrated reference also
 # has a floor of `UNCERTAINTY_FACTOR` times that reference's uncertainty, case by case.
 ERROR_MEASURES = {
-    "orientation": ErrorMeasure(label="final orientation error", units="rad", floor=1e-13,
-                                ceiling=1e-1, variable="final_orientation_error",
-                                uncertainty="reference_uncertainty"),
-    "omega": ErrorMeasure(label="max relative angular velocity error", units="1", floor=1e-13,
-                          ceiling=1e-1, variable="omega_error",
-                          uncertainty="reference_omega_uncertainty"),
-    "nodes": ErrorMeasure(label="max node position error", units="m", floor=1e-13,
-                          ceiling=1e-1, variable="node_error",
-                          uncertainty="reference_node_uncertainty"),
-    "energy": ErrorMeasure(label="max relative energy error", units="1", floor=1e-15,
-                           ceiling=1e-1, variable="max_energy_error"),
-    "momentum_magnitude": ErrorMeasure(label="max relative error of |L| (magnitude)", units="1",
-                                       floor=1e-15, ceiling=1e-1,
-                                       variable="max_momentum_magnitude_error"),
+    "orientation": ErrorMeasure(
+        label="final orientation error",
+        units="rad",
+        floor=1e-13,
+        ceiling=1e-1,
+        variable="final_orientation_error",
+        uncertainty="reference_uncertainty",
+    ),
+    "omega": ErrorMeasure(
+        label="max relative angular velocity error",
+        units="1",
+        floor=1e-13,
+        ceiling=1e-1,
+        variable="omega_error",
+        uncertainty="reference_omega_uncertainty",
+    ),
+    "nodes": ErrorMeasure(
+        label="max node position error",
+        units="m",
+        floor=1e-13,
+        ceiling=1e-1,
+        variable="node_error",
+        uncertainty="reference_node_uncertainty",
+    ),
+    "energy": ErrorMeasure(
+        label="max relative energy error", units="1", floor=1e-15, ceiling=1e-1, variable="max_energy_error"
+    ),
+    "momentum_magnitude": ErrorMeasure(
+        label="max relative error of |L| (magnitude)",
+        units="1",
+        floor=1e-15,
+        ceiling=1e-1,
+        variable="max_momentum_magnitude_error",
+    ),
     # the vector L = R m at the samples carries the rounding of R and m over thousands of
     # steps: 1e-14 to 1e-13 for the schemes that keep it
-    "momentum_vector": ErrorMeasure(label="max relative |L - L0| (vector)", units="1",
-                                    floor=1e-12, ceiling=1e-1, variable="momentum_error"),
-    "precession": ErrorMeasure(label="|precession frequency error|", units="rad/s", floor=1e-13,
-                               ceiling=1e-1, variable="precession_frequency_error"),
+    "momentum_vector": ErrorMeasure(
+        label="max relative |L - L0| (vector)",
+        units="1",
+        floor=1e-12,
+        ceiling=1e-1,
+        variable="momentum_error",
+    ),
+    "precession": ErrorMeasure(
+        label="|precession frequency error|",
+        units="rad/s",
+        floor=1e-13,
+        ceiling=1e-1,
+        variable="precession_frequency_error",
+    ),
     # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
-    "flip": ErrorMeasure(label="|flip interval error|", units="s", floor=1e-5, ceiling=1.0,
-                         variable="flip_interval_error"),
+    "flip": ErrorMeasure(
+        label="|flip interval error|", units="s", floor=1e-5, ceiling=1.0, variable="flip_interval_error"
+    ),
 }
 # An error within this factor of its reference's uncertainty says as much about the reference
 # as about the scheme: no order is fitted through it.
 UNCERTAINTY_FACTOR = 10.0
 # What `scheme_rows` reads: per-case scalars, and momentum_error (the vector L is checked at
 # the samples: a time series per case).
-SUMMARY_VARIABLES = ("status", "accuracy", "run_time", "n_steps", "final_orientation_error",
-                     "max_energy_error", "max_momentum_magnitude_error", "momentum_error",
-                     "initial_spin", "physical_body", "radioss_dt_limit",
-                     "reference_uncertainty")
+SUMMARY_VARIABLES = (
+    "status",
+    "accuracy",
+    "run_time",
+    "n_steps",
+    "final_orientation_error",
+    "max_energy_error",
+    "max_momentum_magnitude_error",
+    "momentum_error",
+    "initial_spin",
+    "physical_body",
+    "radioss_dt_limit",
+    "reference_uncertainty",
+)
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
 # Two errors "agree to 3 digits" when they differ by at most half a unit of the third
 # significant digit, relative to the larger (`agree`).
 COINCIDENT_DIGITS = 3
-COINCIDENCE_RTOL = 0.5 * 10.0 ** -COINCIDENT_DIGITS
+COINCIDENCE_RTOL = 0.5 * 10.0**-COINCIDENT_DIGITS
 _ORDER_MEASURE = "orientation"
 
 
@@ -157,9 +222,15 @@ def status_text(code, cases):
     and what to try, from `STATUSES`: ``unstable: 12 cases (euler 8, leapfrog 4): blew up
     (...); take a smaller dt (...)``."""
     name, message, fix = STATUSES[code]
-    which = cases if isinstance(cases, str) else (
-        f"{sum(cases.values())} case{'s' * (sum(cases.values()) != 1)} ("
-        + ", ".join(f"{scheme} {count}" for scheme, count in cases.items()) + ")")
+    which = (
+        cases
+        if isinstance(cases, str)
+        else (
+            f"{sum(cases.values())} case{'s' * (sum(cases.values()) != 1)} ("
+            + ", ".join(f"{scheme} {count}" for scheme, count in cases.items())
+            + ")"
+        )
+    )
     return f"{name}: {which}: {message}; {fix}"
 
 
@@ -182,8 +253,12 @@ def _orders(errors, uncertainty):
     dts = errors["dt"].values
     fits, used = [], np.zeros(dts.shape, dtype=bool)
     for k in range(stacked.sizes["other"]):
-        fit = fitted_order(dts, stacked.isel(other=k).values, _ORDER_MEASURE,
-                           None if limits is None else limits.isel(other=k).values)
+        fit = fitted_order(
+            dts,
+            stacked.isel(other=k).values,
+            _ORDER_MEASURE,
+            None if limits is None else limits.isel(other=k).values,
+        )
         if np.isfinite(fit.order):
             fits.append(fit)
             used |= fit.used
@@ -199,8 +274,7 @@ def verdicts(ds, scheme):
     if "accuracy" not in ds:
         return ~failed, np.zeros_like(failed), failed, np.zeros_like(failed)
     verdict = per_scheme(ds["accuracy"], scheme).values
-    return ((verdict == 0) & ~failed, (verdict == 1) & ~failed, failed,
-            (verdict == 3) & ~failed)
+    return ((verdict == 0) & ~failed, (verdict == 1) & ~failed, failed, (verdict == 3) & ~failed)
 
 
 def _smallest(values):
@@ -234,8 +308,7 @@ def scheme_rows(ds):
     along it gets a row per value, named ``splitting, composition 4``, fitted over that
     value's cases alone; a scheme the option does not apply to keeps one row.
     """
-    dims = [d for d in ds["nominal_order"].dims if d != "scheme"] if "nominal_order" in ds.coords \
-        else []
+    dims = [d for d in ds["nominal_order"].dims if d != "scheme"] if "nominal_order" in ds.coords else []
     if not dims:
         return _scheme_rows(ds)
     dim = dims[0]
@@ -283,21 +356,33 @@ def _scheme_rows(ds):
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         accurate, inaccurate, failed, unjudged = verdicts(ds, scheme)
-        row = {"scheme": scheme, "nominal": _nominal_order(ds, scheme),
-               "cases": int(status.size), "unstable": int(failed.sum()),
-               "inaccurate": int(inaccurate.sum()) if judged else None,
-               "unjudged": int(unjudged.sum()),
-               "order": None, "finest": None, "fits": 0, "tries": 0, "fit_dt": (),
-               "error": None, "error_small": None,
-               "radioss": int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum())}
-        row["ns_per_step"] = float(per_scheme(ds["run_time"], scheme).sum()
-                                   / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
+        row = {
+            "scheme": scheme,
+            "nominal": _nominal_order(ds, scheme),
+            "cases": int(status.size),
+            "unstable": int(failed.sum()),
+            "inaccurate": int(inaccurate.sum()) if judged else None,
+            "unjudged": int(unjudged.sum()),
+            "order": None,
+            "finest": None,
+            "fits": 0,
+            "tries": 0,
+            "fit_dt": (),
+            "error": None,
+            "error_small": None,
+            "radioss": int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum()),
+        }
+        row["ns_per_step"] = (
+            float(per_scheme(ds["run_time"], scheme).sum() / per_scheme(ds["n_steps"], scheme).sum()) * 1e9
+        )
         # dt |w0| is the step parameter of physical bodies only (for a stress body beyond the
         # triangle inequality the precession rate W outgrows |w0|): those cases alone count
         scheme_load = per_scheme(load, scheme).values
         real = per_scheme(physical, scheme).values
-        first = {name: _smallest(scheme_load[cases & real])
-                 for name, cases in (("inaccurate", inaccurate), ("failed", failed))}
+        first = {
+            name: _smallest(scheme_load[cases & real])
+            for name, cases in (("inaccurate", inaccurate), ("failed", failed))
+        }
         limit = np.fmin(first["inaccurate"], first["failed"])  # NaN when every case is fine
         good = accurate & real & (scheme_load < limit if np.isfinite(limit) else True)
         row["accurate_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
@@ -307,12 +392,12 @@ def _scheme_rows(ds):
             errors = per_scheme(orientation, scheme)
             if "dt" in errors.dims:
                 fits, row["tries"], fitted = _orders(
-                    errors, None if uncertainty is None else per_scheme(uncertainty, scheme))
+                    errors, None if uncertainty is None else per_scheme(uncertainty, scheme)
+                )
                 row["fits"] = len(fits)
                 if fits:
                     row["order"] = (min(f.order for f in fits), max(f.order for f in fits))
-                    row["finest"] = (min(f.finest_slope for f in fits),
-                                     max(f.finest_slope for f in fits))
+                    row["finest"] = (min(f.finest_slope for f in fits), max(f.finest_slope for f in fits))
                     row["fit_dt"] = (float(fitted.min()), float(fitted.max()))
                 for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
                     row[f"error{key}_dt"] = float(pick)
@@ -354,8 +439,12 @@ def coinciding_pairs(ds, errors):
         return []
     values = {scheme: per_scheme(errors, scheme).values for scheme in schemes_of(ds)}
     names = list(values)
-    return [(first, second) for i, first in enumerate(names) for second in names[i + 1:]
-            if agree(values[first], values[second])]
+    return [
+        (first, second)
+        for i, first in enumerate(names)
+        for second in names[i + 1 :]
+        if agree(values[first], values[second])
+    ]
 
 
 def order_text(row):
@@ -405,51 +494,128 @@ def table_columns(rows):
 
     def error_at(dt):
         return "error\n(rad)" if dt is None else f"error at\ndt={dt:g} s\n(rad)"
+
     columns = [
         Column("scheme", "scheme", lambda row: row["scheme"], True, left=True),
-        Column("nominal", "nominal\norder",
-               lambda row: "-" if row["nominal"] is None else str(row["nominal"]), True),
-        Column("order", "observed\norder", order_text, True,
-               ("observed order: fitted over the asymptotic range per value of the other axes",
-                "(k/n): k of the n had one")),
-        Column("finest", "finest\npair",
-               lambda row: "-" if row["finest"] is None else span(row["finest"]), False,
-               ("finest pair: slope of the two finest fitted steps",)),
-        Column("fit_dt", "fit over\ndt (s)", lambda row: "-" if not row["fit_dt"] else
-               f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}", False),
-        Column("error", error_at(large), lambda row: _error(row["error"]), True,
-               ("error: final orientation error, the worst over the other axes",
-                "\"failed\": one blew up", "\"-\": one had no reference")),
+        Column(
+            "nominal",
+            "nominal\norder",
+            lambda row: "-" if row["nominal"] is None else str(row["nominal"]),
+            True,
+        ),
+        Column(
+            "order",
+            "observed\norder",
+            order_text,
+            True,
+            (
+                "observed order: fitted over the asymptotic range per value of the other axes",
+                "(k/n): k of the n had one",
+            ),
+        ),
+        Column(
+            "finest",
+            "finest\npair",
+            lambda row: "-" if row["finest"] is None else span(row["finest"]),
+            False,
+            ("finest pair: slope of the two finest fitted steps",),
+        ),
+        Column(
+            "fit_dt",
+            "fit over\ndt (s)",
+            lambda row: "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}",
+            False,
+        ),
+        Column(
+            "error",
+            error_at(large),
+            lambda row: _error(row["error"]),
+            True,
+            (
+                "error: final orientation error, the worst over the other axes",
+                '"failed": one blew up',
+                '"-": one had no reference',
+            ),
+        ),
     ]
     if small is not None and small != large:
-        columns.append(Column("error_small", error_at(small),
-                              lambda row: _error(row.get("error_small")), False))
+        columns.append(
+            Column("error_small", error_at(small), lambda row: _error(row.get("error_small")), False)
+        )
     columns += [
-        Column("ns_per_step", "ns per\nstep", lambda row: _number(row["ns_per_step"], ".0f"),
-               True, ("ns: kernel CPU time",)),
-        Column("accurate_hw", "accurate\nto dt|w0|\n(rad)",
-               lambda row: _number(row["accurate_hw"], ".3g"), True,
-               ("accurate to: largest accurate dt|w0| below the first inaccurate or failed one",
-                "dt|w0|: physical bodies only")),
-        Column("inaccurate_hw", "first\ninaccurate\ndt|w0| (rad)",
-               lambda row: _number(row["inaccurate_hw"], ".3g"), False),
-        Column("unstable_hw", "first\nfailed\ndt|w0| (rad)",
-               lambda row: _number(row["unstable_hw"], ".3g"), False),
-        Column("inaccurate", "inaccurate\ncases", lambda row: "-" if row["inaccurate"] is None
-               else f"{row['inaccurate']}/{row['cases']}"
-               + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else ""), False,
-               ("inaccurate: past the accuracy bound (unjudged: no reference)",)),
-        Column("failed", "failed\ncases", lambda row: f"{row['unstable']}/{row['cases']}", True,
-               # what each means and what to try: the findings (`status_text`)
-               (f"failed: {' or '.join(status.name for status in STATUSES[OK + 1:])}",)),
+        Column(
+            "ns_per_step",
+            "ns per\nstep",
+            lambda row: _number(row["ns_per_step"], ".0f"),
+            True,
+            ("ns: kernel CPU time",),
+        ),
+        Column(
+            "accurate_hw",
+            "accurate\nto dt|w0|\n(rad)",
+            lambda row: _number(row["accurate_hw"], ".3g"),
+            True,
+            (
+                "accurate to: largest accurate dt|w0| below the first inaccurate or failed one",
+                "dt|w0|: physical bodies only",
+            ),
+        ),
+        Column(
+            "inaccurate_hw",
+            "first\ninaccurate\ndt|w0| (rad)",
+            lambda row: _number(row["inaccurate_hw"], ".3g"),
+            False,
+        ),
+        Column(
+            "unstable_hw",
+            "first\nfailed\ndt|w0| (rad)",
+            lambda row: _number(row["unstable_hw"], ".3g"),
+            False,
+        ),
+        Column(
+            "inaccurate",
+            "inaccurate\ncases",
+            lambda row: (
+                "-"
+                if row["inaccurate"] is None
+                else f"{row['inaccurate']}/{row['cases']}"
+                + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else "")
+            ),
+            False,
+            ("inaccurate: past the accuracy bound (unjudged: no reference)",),
+        ),
+        Column(
+            "failed",
+            "failed\ncases",
+            lambda row: f"{row['unstable']}/{row['cases']}",
+            True,
+            # what each means and what to try: the findings (`status_text`)
+            (f"failed: {' or '.join(status.name for status in STATUSES[OK + 1 :])}",),
+        ),
     ]
     if any(row["radioss"] for row in rows):  # only where the limit was passed
-        columns.append(Column("radioss", "past\nRadioss\nlimit",
-                              lambda row: f"{row['radioss']}/{row['cases']}", False,
-                              ("past Radioss limit: dt|w| > 1, where OpenRadioss aborts",)))
-    columns.append(Column("kept", "kept", lambda row: ", ".join(row["kept"]) or "-", True,
-                          (f"kept: drift < {KEPT_TOLERANCE:g} in every stable case (energy and "
-                           "|L| at every step, L at the samples)",), left=True))
+        columns.append(
+            Column(
+                "radioss",
+                "past\nRadioss\nlimit",
+                lambda row: f"{row['radioss']}/{row['cases']}",
+                False,
+                ("past Radioss limit: dt|w| > 1, where OpenRadioss aborts",),
+            )
+        )
+    columns.append(
+        Column(
+            "kept",
+            "kept",
+            lambda row: ", ".join(row["kept"]) or "-",
+            True,
+            (
+                f"kept: drift < {KEPT_TOLERANCE:g} in every stable case (energy and "
+                "|L| at every step, L at the samples)",
+            ),
+            left=True,
+        )
+    )
     return columns
 
 
@@ -470,8 +636,13 @@ def wrap_clauses(line, width=TERMINAL_WIDTH, indent=""):
             lines[-1] += " " + clause
         else:
             lines.append((indent if lines else "") + clause)
-    return [short for long in lines for short in textwrap.wrap(
-        long, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)]
+    return [
+        short
+        for long in lines
+        for short in textwrap.wrap(
+            long, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False
+        )
+    ]
 
 
 def format_table(rows, wide=False, fmt="text"):
@@ -483,9 +654,12 @@ def format_table(rows, wide=False, fmt="text"):
     cells = [[column.cell(row) for column in columns] for row in rows]
     align = ["left" if column.left else "right" for column in columns]
     if fmt == "text":  # the headers as rows: tabulate pads a header row by two more spaces
-        lines = [line.rstrip() for line in tabulate(
-            [[c.header for c in columns], *cells], tablefmt="plain", colalign=align,
-            disable_numparse=True).splitlines()]
+        lines = [
+            line.rstrip()
+            for line in tabulate(
+                [[c.header for c in columns], *cells], tablefmt="plain", colalign=align, disable_numparse=True
+            ).splitlines()
+        ]
         # the footnotes of a wide table as wide as it
         return "\n".join(lines + table_notes(columns, max(TERMINAL_WIDTH, *map(len, lines))))
     headers = [_one_line(c.header) for c in columns]
@@ -495,9 +669,13 @@ def format_table(rows, wide=False, fmt="text"):
         return text.getvalue()
     notes = table_notes(columns)
     if fmt == "markdown":  # a | inside a cell (|L|, dt|w0|) would end it
-        table = tabulate([[_pipes(text) for text in line] for line in cells],
-                         [_pipes(text) for text in headers], tablefmt="github",
-                         colalign=align, disable_numparse=True)
+        table = tabulate(
+            [[_pipes(text) for text in line] for line in cells],
+            [_pipes(text) for text in headers],
+            tablefmt="github",
+            colalign=align,
+            disable_numparse=True,
+        )
         return "\n\n".join([table, "\n".join(notes)])
     if fmt == "html":
         table = tabulate(cells, headers, tablefmt="html", colalign=align, disable_numparse=True)

@@ -19,5 +19,6 @@ def to_world(q, v):
 def to_body(q, v):
     """``R^T v`` (n, 3): the world vectors ``v`` (n, 3) in the body frame of ``q`` (n, 4)."""
     columns = algebra.rotation_columns(q.T)
-    return np.stack([sum(component * v[:, i] for i, component in enumerate(column))
-                     for column in columns], axis=1)
+    return np.stack(
+        [sum(component * v[:, i] for i, component in enumerate(column)) for column in columns], axis=1
+    )

@@ -147,9 +147,13 @@ class _World:
         while len(self.bodies) < len(y):
             self.bodies.append(self._new(maximal))
         for body, row in zip(self.bodies, p, strict=True):
-            pybullet.changeDynamics(body, -1, mass=float(row[S.MASS]),
-                                    localInertiaDiagonal=row[S.INERTIA:S.INERTIA + 3].tolist(),
-                                    physicsClientId=self.client)
+            pybullet.changeDynamics(
+                body,
+                -1,
+                mass=float(row[S.MASS]),
+                localInertiaDiagonal=row[S.INERTIA : S.INERTIA + 3].tolist(),
+                physicsClientId=self.client,
+            )
         self._write(y)
         self._step(_PRIMING_STEP)
         self._write(y)
@@ -174,12 +178,18 @@ class _World:
     def _new(self, maximal):
         point = np.unravel_index(self.made % _SIDE**3, (_SIDE,) * 3)
         self.made += 1
-        body = pybullet.createMultiBody(baseMass=1.0, baseCollisionShapeIndex=-1,
-                                        basePosition=[_SPACING * float(i) for i in point],
-                                        useMaximalCoordinates=int(maximal),
-                                        physicsClientId=self.client)
-        free = {"linearDamping": 0.0, "angularDamping": 0.0,
-                "activationState": pybullet.ACTIVATION_STATE_DISABLE_SLEEPING}
+        body = pybullet.createMultiBody(
+            baseMass=1.0,
+            baseCollisionShapeIndex=-1,
+            basePosition=[_SPACING * float(i) for i in point],
+            useMaximalCoordinates=int(maximal),
+            physicsClientId=self.client,
+        )
+        free = {
+            "linearDamping": 0.0,
+            "angularDamping": 0.0,
+            "activationState": pybullet.ACTIVATION_STATE_DISABLE_SLEEPING,
+        }
         if not maximal:
             free["maxJointVelocity"] = _UNBOUNDED_SPEED
         pybullet.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=self.client)
@@ -189,18 +199,16 @@ class _World:
     def _write(self, y):
         """The orientations and angular velocities of ``y`` into the bodies, at rest where
         they are parked."""
-        spin = to_world(y[:, S.QUATERNION:S.QUATERNION + 4], y[:, S.OMEGA:S.OMEGA + 3])
+        spin = to_world(y[:, S.QUATERNION : S.QUATERNION + 4], y[:, S.OMEGA : S.OMEGA + 3])
         for k, body in enumerate(self.bodies):
             parked, _ = pybullet.getBasePositionAndOrientation(body, physicsClientId=self.client)
-            pybullet.resetBasePositionAndOrientation(body, parked,
-                                                     y[k, S.QUATERNION:S.QUATERNION + 4],
-                                                     physicsClientId=self.client)
-            pybullet.resetBaseVelocity(body, [0.0, 0.0, 0.0], spin[k],
-                                       physicsClientId=self.client)
+            pybullet.resetBasePositionAndOrientation(
+                body, parked, y[k, S.QUATERNION : S.QUATERNION + 4], physicsClientId=self.client
+            )
+            pybullet.resetBaseVelocity(body, [0.0, 0.0, 0.0], spin[k], physicsClientId=self.client)
 
     def _step_length(self, h):
-        pybullet.setPhysicsEngineParameter(fixedTimeStep=h, numSubSteps=0,
-                                           physicsClientId=self.client)
+        pybullet.setPhysicsEngineParameter(fixedTimeStep=h, numSubSteps=0, physicsClientId=self.client)
 
     def _step(self, h):
         self._step_length(h)
@@ -232,10 +240,9 @@ def step(y, p, opt, t, h, work):
     ids = work[:, _ID].astype(int).tolist()
     world.keep(work[:, _ID])
     force, moment = batch_loads(y, p, t)
-    moment = to_world(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
+    moment = to_world(y[:, S.QUATERNION : S.QUATERNION + 4], moment)
     for k in np.flatnonzero(moment.any(axis=1)).tolist():
-        pybullet.applyExternalTorque(ids[k], -1, moment[k], pybullet.WORLD_FRAME,
-                                     physicsClientId=client)
+        pybullet.applyExternalTorque(ids[k], -1, moment[k], pybullet.WORLD_FRAME, physicsClientId=client)
     pybullet.stepSimulation(physicsClientId=client)
     spin, orientation = np.empty((len(y), 3)), np.empty((len(y), 4))
     for k, body in enumerate(ids):
@@ -243,13 +250,13 @@ def step(y, p, opt, t, h, work):
         spin[k] = pybullet.getBaseVelocity(body, physicsClientId=client)[1]
     # Bullet picks the quaternion's sign afresh from its rotation matrix each step: the one
     # nearer the last keeps the archive's quaternion continuous (the same rotation)
-    flip = np.einsum("ij,ij->i", orientation, y[:, S.QUATERNION:S.QUATERNION + 4]) < 0.0
+    flip = np.einsum("ij,ij->i", orientation, y[:, S.QUATERNION : S.QUATERNION + 4]) < 0.0
     orientation[flip] *= -1.0
-    y[:, S.QUATERNION:S.QUATERNION + 4] = orientation
-    y[:, S.OMEGA:S.OMEGA + 3] = to_body(orientation, spin)
+    y[:, S.QUATERNION : S.QUATERNION + 4] = orientation
+    y[:, S.OMEGA : S.OMEGA + 3] = to_body(orientation, spin)
     # both kinds of body: the velocity first, then the position with the new velocity
-    y[:, S.VELOCITY:S.VELOCITY + 3] += force * (h / p[:, S.MASS, None])
-    y[:, S.POSITION:S.POSITION + 3] += y[:, S.VELOCITY:S.VELOCITY + 3] * h
+    y[:, S.VELOCITY : S.VELOCITY + 3] += force * (h / p[:, S.MASS, None])
+    y[:, S.POSITION : S.POSITION + 3] += y[:, S.VELOCITY : S.VELOCITY + 3] * h
     return OK, 0
 
 
@@ -263,7 +270,7 @@ def _scheme(name, maximal, summary, step_seconds, style):
         keeps=(),
         run_bodies_inplace=make_batch_entry(step, _starter(maximal), n_work=1),
         reference="Coumans & Bai, PyBullet, pybullet.org (2016-2021); Featherstone, Rigid "
-                  "Body Dynamics Algorithms, Springer 2008",
+        "Body Dynamics Algorithms, Springer 2008",
         origin=f"rbstudy's adapter of pybullet {VERSION}",
         code_digest=f"pybullet {VERSION}",  # another Bullet: other parts
         loads_held=True,
@@ -271,12 +278,20 @@ def _scheme(name, maximal, summary, step_seconds, style):
     )
 
 
-MULTIBODY = _scheme("bullet_multibody", False,
-                    "btMultiBody (pybullet's default): gyroscopic term explicit", 5e-06,
-                    # MuJoCo's Euler step: another marker and dash than mujoco_euler's, their
-                    # lines agreeing to 3 digits
-                    style=Style("teal", "d", "--"))
-RIGIDBODY = _scheme("bullet_rigidbody", True,
-                    "btRigidBody (maximal coordinates): gyroscopic term implicit", 7e-06,
-                    # MuJoCo's implicit step: another marker and dash than mujoco_implicit's
-                    style=Style("sienna", "h", ":"))
+MULTIBODY = _scheme(
+    "bullet_multibody",
+    False,
+    "btMultiBody (pybullet's default): gyroscopic term explicit",
+    5e-06,
+    # MuJoCo's Euler step: another marker and dash than mujoco_euler's, their
+    # lines agreeing to 3 digits
+    style=Style("teal", "d", "--"),
+)
+RIGIDBODY = _scheme(
+    "bullet_rigidbody",
+    True,
+    "btRigidBody (maximal coordinates): gyroscopic term implicit",
+    7e-06,
+    # MuJoCo's implicit step: another marker and dash than mujoco_implicit's
+    style=Style("sienna", "h", ":"),
+)

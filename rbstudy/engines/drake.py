@@ -106,8 +106,8 @@ class _Plant:
     def __init__(self, flag, h):
         self.plant = MultibodyPlant(time_step=0.0 if flag else h)
         self.body = self.plant.AddRigidBody(
-            "body", SpatialInertia.MakeFromCentralInertia(1.0, [0.0] * 3,
-                                                         RotationalInertia(1.0, 1.0, 1.0)))
+            "body", SpatialInertia.MakeFromCentralInertia(1.0, [0.0] * 3, RotationalInertia(1.0, 1.0, 1.0))
+        )
         self.plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
         if not flag:
             self.plant.set_discrete_contact_approximation(_DISCRETE_MODEL)
@@ -126,8 +126,9 @@ class _Plant:
         if inertia != self.inertia:
             mass, *principal = inertia
             self.body.SetSpatialInertiaInBodyFrame(
-                self.context, SpatialInertia.MakeFromCentralInertia(
-                    mass, [0.0] * 3, RotationalInertia(*principal)))
+                self.context,
+                SpatialInertia.MakeFromCentralInertia(mass, [0.0] * 3, RotationalInertia(*principal)),
+            )
             self.inertia = inertia
         if load != self.load:
             self._fix_load(load)
@@ -168,15 +169,21 @@ def _stepper(flag):
     def step(y, p, opt, t, h, work):
         plant = _plant(flag, h)
         force, moment = batch_loads(y, p, t)
-        unit = y[:, S.QUATERNION:S.QUATERNION + 4]
+        unit = y[:, S.QUATERNION : S.QUATERNION + 4]
         # Drake's states (n, 13): the quaternion scalar first at Drake's norm, the position;
         # the angular velocity in the world, the velocity
-        x = np.concatenate([unit[:, 3:] * work[:, _NORM, None], unit[:, :3] * work[:, _NORM, None],
-                            y[:, S.POSITION:S.POSITION + 3],
-                            to_world(unit, y[:, S.OMEGA:S.OMEGA + 3]),
-                            y[:, S.VELOCITY:S.VELOCITY + 3]], axis=1)
+        x = np.concatenate(
+            [
+                unit[:, 3:] * work[:, _NORM, None],
+                unit[:, :3] * work[:, _NORM, None],
+                y[:, S.POSITION : S.POSITION + 3],
+                to_world(unit, y[:, S.OMEGA : S.OMEGA + 3]),
+                y[:, S.VELOCITY : S.VELOCITY + 3],
+            ],
+            axis=1,
+        )
         loads = np.concatenate([force, to_world(unit, moment)], axis=1).tolist()
-        inertias = [tuple(row) for row in p[:, S.MASS:S.INERTIA + 3].tolist()]
+        inertias = [tuple(row) for row in p[:, S.MASS : S.INERTIA + 3].tolist()]
         status = np.full(len(y), OK)
         for k in range(len(y)):
             try:
@@ -186,10 +193,10 @@ def _stepper(flag):
         # inf, not an overflow warning, past 1e154
         work[:, _NORM] = [math.hypot(*row) for row in x[:, :4].tolist()]
         unit = np.concatenate([x[:, 1:4], x[:, :1]], axis=1) / work[:, _NORM, None]
-        y[:, S.QUATERNION:S.QUATERNION + 4] = unit
-        y[:, S.POSITION:S.POSITION + 3] = x[:, 4:7]
-        y[:, S.OMEGA:S.OMEGA + 3] = to_body(unit, x[:, 7:10])
-        y[:, S.VELOCITY:S.VELOCITY + 3] = x[:, 10:13]
+        y[:, S.QUATERNION : S.QUATERNION + 4] = unit
+        y[:, S.POSITION : S.POSITION + 3] = x[:, 4:7]
+        y[:, S.OMEGA : S.OMEGA + 3] = to_body(unit, x[:, 7:10])
+        y[:, S.VELOCITY : S.VELOCITY + 3] = x[:, 10:13]
         return status, 0
 
     return step
@@ -197,14 +204,18 @@ def _stepper(flag):
 
 def _scheme(name, flag, order, summary, step_seconds, style):
     return Scheme(
-        name=name, summary=f"Drake {summary}", step_seconds=step_seconds, order=order,
+        name=name,
+        summary=f"Drake {summary}",
+        step_seconds=step_seconds,
+        order=order,
         # Newton iterations Drake's own: pydrake does not expose the implicit integrator's
         # counters, so the archive's `iterations` stays 0
-        implicit=flag == "implicit_euler", keeps=(),
+        implicit=flag == "implicit_euler",
+        keeps=(),
         run_bodies_inplace=make_batch_entry(_stepper(flag), _start, n_work=1),
         reference="Tedrake et al., Drake: model-based design and verification for robotics, "
-                  "drake.mit.edu (2019-2025); Castro et al., An unconstrained convex "
-                  "formulation of compliant contact (SAP), IEEE T-RO 2023",
+        "drake.mit.edu (2019-2025); Castro et al., An unconstrained convex "
+        "formulation of compliant contact (SAP), IEEE T-RO 2023",
         origin=f"rbstudy's adapter of Drake {VERSION}",
         code_digest=f"drake {VERSION}",  # another Drake: other parts
         loads_held=True,
@@ -212,15 +223,35 @@ def _scheme(name, flag, order, summary, step_seconds, style):
     )
 
 
-RK2 = _scheme("drake_rk2", "runge_kutta2", 2,
-              "RungeKutta2Integrator, fixed step, on the continuous plant", 1.5e-05,
-              Style("mediumvioletred", "d", "-"))
-RK3 = _scheme("drake_rk3", "runge_kutta3", 3,
-              "RungeKutta3Integrator, fixed step (error control off)", 1.8e-05,
-              Style("olivedrab", "h", "--"))
-IMPLICIT_EULER = _scheme("drake_implicit_euler", "implicit_euler", 1,
-                         "ImplicitEulerIntegrator, fixed step (error control off)", 7.9e-05,
-                         Style("chocolate", "p", "-."))
-DISCRETE = _scheme("drake_discrete", None, 1,
-                   "discrete MultibodyPlant (time_step = dt, SAP): explicit forces", 1.6e-05,
-                   Style("steelblue", "1", ":"))
+RK2 = _scheme(
+    "drake_rk2",
+    "runge_kutta2",
+    2,
+    "RungeKutta2Integrator, fixed step, on the continuous plant",
+    1.5e-05,
+    Style("mediumvioletred", "d", "-"),
+)
+RK3 = _scheme(
+    "drake_rk3",
+    "runge_kutta3",
+    3,
+    "RungeKutta3Integrator, fixed step (error control off)",
+    1.8e-05,
+    Style("olivedrab", "h", "--"),
+)
+IMPLICIT_EULER = _scheme(
+    "drake_implicit_euler",
+    "implicit_euler",
+    1,
+    "ImplicitEulerIntegrator, fixed step (error control off)",
+    7.9e-05,
+    Style("chocolate", "p", "-."),
+)
+DISCRETE = _scheme(
+    "drake_discrete",
+    None,
+    1,
+    "discrete MultibodyPlant (time_step = dt, SAP): explicit forces",
+    1.6e-05,
+    Style("steelblue", "1", ":"),
+)

@@ -83,8 +83,9 @@ _ID = 0
 
 
 def _parse_spectral_radius(value):
-    expected = ("expected a number in [0, 1): Exudyn's index-3 constraint of the Euler "
-                "parameters needs some damping")
+    expected = (
+        "expected a number in [0, 1): Exudyn's index-3 constraint of the Euler parameters needs some damping"
+    )
     try:
         rho = float(value)
     except (TypeError, ValueError):
@@ -132,8 +133,7 @@ def _settings(solver_type, h, spectral_radius):
 def _quaternion_product(a, b):
     """``a b`` (n, 4) of scalar-first quaternions ``a`` and ``b`` (n, 4)."""
     aw, av, bw, bv = a[:, :1], a[:, 1:], b[:, :1], b[:, 1:]
-    return np.hstack([aw * bw - np.sum(av * bv, axis=1, keepdims=True),
-                      aw * bv + bw * av + np.cross(av, bv)])
+    return np.hstack([aw * bw - np.sum(av * bv, axis=1, keepdims=True), aw * bv + bw * av + np.cross(av, bv)])
 
 
 def _rotation_vector(q):
@@ -167,36 +167,40 @@ class _Kind:
     def node(self, y):
         """The nodes (n) of the states ``y`` (n, N_STATE): its reference coordinates (the
         initial state) and initial velocities."""
-        q = y[:, S.QUATERNION:S.QUATERNION + 4]
-        w = y[:, S.OMEGA:S.OMEGA + 3]
+        q = y[:, S.QUATERNION : S.QUATERNION + 4]
+        w = y[:, S.OMEGA : S.OMEGA + 3]
         if self.euler_parameters:
             e = np.hstack([q[:, 3:], q[:, :3]])
             e_t = 0.5 * _quaternion_product(e, np.hstack([np.zeros((len(y), 1)), w]))
             rotation, spin, node = e, e_t, items.NodeRigidBodyEP
         else:
             rotation, spin, node = _rotation_vector(q), w, items.NodeRigidBodyRotVecLG
-        return [node(referenceCoordinates=[*y[k, S.POSITION:S.POSITION + 3], *rotation[k]],
-                     initialVelocities=[*y[k, S.VELOCITY:S.VELOCITY + 3], *spin[k]])
-                for k in range(len(y))]
+        return [
+            node(
+                referenceCoordinates=[*y[k, S.POSITION : S.POSITION + 3], *rotation[k]],
+                initialVelocities=[*y[k, S.VELOCITY : S.VELOCITY + 3], *spin[k]],
+            )
+            for k in range(len(y))
+        ]
 
     def read(self, y, reference, coordinates, velocities):
         """The state rows ``y`` (n, N_STATE) in place from the nodes' ``reference``,
         ``coordinates`` and ``velocities`` (n, 6 or 7)."""
         current = reference + coordinates
-        y[:, S.POSITION:S.POSITION + 3] = current[:, :3]
-        y[:, S.VELOCITY:S.VELOCITY + 3] = velocities[:, :3]
+        y[:, S.POSITION : S.POSITION + 3] = current[:, :3]
+        y[:, S.VELOCITY : S.VELOCITY + 3] = velocities[:, :3]
         if self.euler_parameters:
             e = current[:, 3:]
             q = np.hstack([e[:, 1:], e[:, :1]])
             conjugate = e * [1.0, -1.0, -1.0, -1.0]
-            y[:, S.OMEGA:S.OMEGA + 3] = 2.0 * _quaternion_product(conjugate, velocities[:, 3:])[:, 1:]
+            y[:, S.OMEGA : S.OMEGA + 3] = 2.0 * _quaternion_product(conjugate, velocities[:, 3:])[:, 1:]
         else:
             q = _quaternion_of(current[:, 3:])
-            y[:, S.OMEGA:S.OMEGA + 3] = velocities[:, 3:]
+            y[:, S.OMEGA : S.OMEGA + 3] = velocities[:, 3:]
         # the sign nearer the last step's keeps the archive's quaternion continuous
-        flip = np.einsum("ij,ij->i", q, y[:, S.QUATERNION:S.QUATERNION + 4]) < 0.0
+        flip = np.einsum("ij,ij->i", q, y[:, S.QUATERNION : S.QUATERNION + 4]) < 0.0
         q[flip] *= -1.0
-        y[:, S.QUATERNION:S.QUATERNION + 4] = q
+        y[:, S.QUATERNION : S.QUATERNION + 4] = q
 
 
 class _Body:
@@ -207,21 +211,26 @@ class _Body:
         self.container = exudyn.SystemContainer()
         mbs = self.mbs = self.container.AddSystem()
         number = mbs.AddNode(node)
-        body = mbs.AddObject(items.ObjectRigidBody(
-            mass=float(p[S.MASS]), inertia=[*p[S.INERTIA:S.INERTIA + 3].tolist(), 0.0, 0.0, 0.0],
-            nodeNumber=number))
+        body = mbs.AddObject(
+            items.ObjectRigidBody(
+                mass=float(p[S.MASS]),
+                inertia=[*p[S.INERTIA : S.INERTIA + 3].tolist(), 0.0, 0.0, 0.0],
+                nodeNumber=number,
+            )
+        )
         centre = mbs.AddMarker(items.MarkerNodeRigid(nodeNumber=number))
         _add_constant_loads(mbs, body, centre, p)
         # the loads tabulated in time, held over each step (`hold`)
-        self.force = mbs.AddLoad(items.LoadForceVector(markerNumber=centre, bodyFixed=False,
-                                                       loadVector=[0.0, 0.0, 0.0]))
-        self.moment = mbs.AddLoad(items.LoadTorqueVector(markerNumber=centre, bodyFixed=False,
-                                                         loadVector=[0.0, 0.0, 0.0]))
+        self.force = mbs.AddLoad(
+            items.LoadForceVector(markerNumber=centre, bodyFixed=False, loadVector=[0.0, 0.0, 0.0])
+        )
+        self.moment = mbs.AddLoad(
+            items.LoadTorqueVector(markerNumber=centre, bodyFixed=False, loadVector=[0.0, 0.0, 0.0])
+        )
         mbs.Assemble()
         self.reference = np.array(node.referenceCoordinates)
         self.settings = _settings(kind.solver_type, h, spectral_radius)
-        self.solver = (exudyn.MainSolverImplicitSecondOrder() if kind.implicit
-                       else exudyn.MainSolverExplicit())
+        self.solver = exudyn.MainSolverImplicitSecondOrder() if kind.implicit else exudyn.MainSolverExplicit()
         self.solver.InitializeSolver(mbs, self.settings)
 
     def hold(self, force, moment):
@@ -254,22 +263,25 @@ def _add_constant_loads(mbs, body, centre, p):
     are rows ``k_b`` of `S.LEVER` whose moment is ``sum_b (R e_b) x k_b``: a force ``k_b`` at
     the body point ``e_b`` each, less their sum at the centre of mass (the node forces' sum
     is in the space force already)."""
-    lever = p[S.LEVER:S.LEVER + 9].reshape(3, 3)
-    space_force = (p[S.FORCE_SPACE:S.FORCE_SPACE + 3] + p[S.MASS] * p[S.GRAVITY:S.GRAVITY + 3]
-                   - lever.sum(axis=0))
-    loads = [(items.LoadForceVector, centre, space_force, False),
-             (items.LoadForceVector, centre, p[S.FORCE_BODY:S.FORCE_BODY + 3], True),
-             (items.LoadTorqueVector, centre, p[S.MOMENT_SPACE:S.MOMENT_SPACE + 3], False),
-             (items.LoadTorqueVector, centre, p[S.MOMENT_BODY:S.MOMENT_BODY + 3], True)]
+    lever = p[S.LEVER : S.LEVER + 9].reshape(3, 3)
+    space_force = (
+        p[S.FORCE_SPACE : S.FORCE_SPACE + 3] + p[S.MASS] * p[S.GRAVITY : S.GRAVITY + 3] - lever.sum(axis=0)
+    )
+    loads = [
+        (items.LoadForceVector, centre, space_force, False),
+        (items.LoadForceVector, centre, p[S.FORCE_BODY : S.FORCE_BODY + 3], True),
+        (items.LoadTorqueVector, centre, p[S.MOMENT_SPACE : S.MOMENT_SPACE + 3], False),
+        (items.LoadTorqueVector, centre, p[S.MOMENT_BODY : S.MOMENT_BODY + 3], True),
+    ]
     for axis, force in enumerate(lever):
         if force.any():
-            point = mbs.AddMarker(items.MarkerBodyPosition(
-                bodyNumber=body, localPosition=np.eye(3)[axis].tolist()))
+            point = mbs.AddMarker(
+                items.MarkerBodyPosition(bodyNumber=body, localPosition=np.eye(3)[axis].tolist())
+            )
             loads.append((items.LoadForceVector, point, force, False))
     for load, marker, vector, body_fixed in loads:
         if vector.any():
-            mbs.AddLoad(load(markerNumber=marker, loadVector=vector.tolist(),
-                             bodyFixed=body_fixed))
+            mbs.AddLoad(load(markerNumber=marker, loadVector=vector.tolist(), bodyFixed=body_fixed))
 
 
 def _bodies():
@@ -282,9 +294,11 @@ def _refuse_foreign_loads(name, p):
     """Refuse parameter rows ``p`` (B, W) that carry a kind of load Exudyn does not take
     (`_NATIVE_LOADS`), in one line naming it."""
     for load in LOAD_KINDS:
-        if load.name not in _NATIVE_LOADS and np.any(p[:, load.offset:load.offset + load.width]):
-            raise SchemeError(f"scheme {name} cannot take scene.loads.{load.name}",
-                              "Exudyn has no such load: leave the scheme out")
+        if load.name not in _NATIVE_LOADS and np.any(p[:, load.offset : load.offset + load.width]):
+            raise SchemeError(
+                f"scheme {name} cannot take scene.loads.{load.name}",
+                "Exudyn has no such load: leave the scheme out",
+            )
 
 
 def _starter(kind, name):
@@ -311,7 +325,7 @@ def _hold_tabulated_loads(bodies, y, p, t):
         tabulated_only = p[timed].copy()
         tabulated_only[:, FIRST_SLOT:END_SLOT] = 0.0  # the constant loads are Exudyn's
         force, moment = batch_loads(y[timed], tabulated_only, t)
-        moment = to_world(y[timed, S.QUATERNION:S.QUATERNION + 4], moment)
+        moment = to_world(y[timed, S.QUATERNION : S.QUATERNION + 4], moment)
         for j, k in enumerate(timed.tolist()):
             bodies[k].hold(force[j], moment[j])
 
@@ -331,9 +345,12 @@ def _stepper(kind):
                 done = False
             if not done:
                 status[k] = NOT_CONVERGED if kind.implicit else UNSTABLE
-        kind.read(y, np.array([body.reference for body in bodies]),
-                  np.array([body.mbs.systemData.GetODE2Coordinates() for body in bodies]),
-                  np.array([body.mbs.systemData.GetODE2Coordinates_t() for body in bodies]))
+        kind.read(
+            y,
+            np.array([body.reference for body in bodies]),
+            np.array([body.mbs.systemData.GetODE2Coordinates() for body in bodies]),
+            np.array([body.mbs.systemData.GetODE2Coordinates_t() for body in bodies]),
+        )
         return status, iterations
 
     return step
@@ -350,24 +367,38 @@ def _scheme(name, kind, order, summary, step_seconds, style, options=()):
         options=options,
         run_bodies_inplace=make_batch_entry(_stepper(kind), _starter(kind, name), n_work=1),
         reference="Gerstmayr, Exudyn, Multibody System Dynamics 2023; Arnold & Bruls, "
-                  "Multibody System Dynamics 2007; Holzinger & Gerstmayr, Multibody System "
-                  "Dynamics 2021",
+        "Multibody System Dynamics 2007; Holzinger & Gerstmayr, Multibody System "
+        "Dynamics 2021",
         origin=f"rbstudy's adapter of Exudyn {VERSION}",
         code_digest=f"exudyn {VERSION}",  # another Exudyn: other parts
         style=style,
     )
 
 
-GENALPHA = _scheme("exudyn_genalpha",
-                   _Kind(exudyn.DynamicSolverType.GeneralizedAlpha, euler_parameters=True), 2,
-                   "generalized alpha (implicit) on Euler parameters", 1.2e-05,
-                   Style("darkgreen", "p", "-."), (SPECTRAL_RADIUS_OPTION,))
-RK44 = _scheme("exudyn_rk44", _Kind(exudyn.DynamicSolverType.RK44, euler_parameters=False), 4,
-               "RK44 (explicit, Lie group) on a rotation vector", 1.2e-05,
-               # rkmk4 to O(h^5), which is not 3 digits at the finest steps: solid, with large
-               # hollow markers, under rkmk4's dashed line
-               Style("crimson", "8", "-"))
-MIDPOINT = _scheme("exudyn_midpoint",
-                   _Kind(exudyn.DynamicSolverType.ExplicitMidpoint, euler_parameters=False), 2,
-                   "explicit midpoint (Lie group) on a rotation vector", 9.3e-06,
-                   Style("slateblue", "H", "--"))
+GENALPHA = _scheme(
+    "exudyn_genalpha",
+    _Kind(exudyn.DynamicSolverType.GeneralizedAlpha, euler_parameters=True),
+    2,
+    "generalized alpha (implicit) on Euler parameters",
+    1.2e-05,
+    Style("darkgreen", "p", "-."),
+    (SPECTRAL_RADIUS_OPTION,),
+)
+RK44 = _scheme(
+    "exudyn_rk44",
+    _Kind(exudyn.DynamicSolverType.RK44, euler_parameters=False),
+    4,
+    "RK44 (explicit, Lie group) on a rotation vector",
+    1.2e-05,
+    # rkmk4 to O(h^5), which is not 3 digits at the finest steps: solid, with large
+    # hollow markers, under rkmk4's dashed line
+    Style("crimson", "8", "-"),
+)
+MIDPOINT = _scheme(
+    "exudyn_midpoint",
+    _Kind(exudyn.DynamicSolverType.ExplicitMidpoint, euler_parameters=False),
+    2,
+    "explicit midpoint (Lie group) on a rotation vector",
+    9.3e-06,
+    Style("slateblue", "H", "--"),
+)

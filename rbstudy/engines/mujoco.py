@@ -74,8 +74,9 @@ try:
     import mujoco
     from mujoco import rollout
 except ImportError:
-    raise SchemeUnavailable("needs the mujoco package",
-                            'pip install "mujoco>=4.0" (rbstudy\'s extra "mujoco")') from None
+    raise SchemeUnavailable(
+        "needs the mujoco package", 'pip install "mujoco>=4.0" (rbstudy\'s extra "mujoco")'
+    ) from None
 
 __all__ = ["EULER", "IMPLICITFAST", "IMPLICIT", "RK4"]
 
@@ -115,8 +116,10 @@ def _template():
 
 
 if mujoco.mj_stateSize(_template()[0], _STATE) != _WIDTH:  # another MuJoCo's layout
-    raise SchemeUnavailable(f"mujoco {mujoco.__version__} lays out a free body's state "
-                            "otherwise than 4.0", 'pip install "mujoco>=4.0"')
+    raise SchemeUnavailable(
+        f"mujoco {mujoco.__version__} lays out a free body's state otherwise than 4.0",
+        'pip install "mujoco>=4.0"',
+    )
 
 
 def _thread():
@@ -153,29 +156,38 @@ def _stepper(integrator):
 
     def step(y, p, opt, t, h, work):
         n = len(y)
-        models = [_model(integrator, h, float(row[S.MASS]), tuple(row[S.INERTIA:S.INERTIA + 3]))
-                  for row in p]
+        models = [
+            _model(integrator, h, float(row[S.MASS]), tuple(row[S.INERTIA : S.INERTIA + 3])) for row in p
+        ]
         force, moment = batch_loads(y, p, t)
         state = np.empty((n, _WIDTH))
         state[:, 0] = 0.0 if t is None else t
-        state[:, 1:4] = y[:, S.POSITION:S.POSITION + 3]
+        state[:, 1:4] = y[:, S.POSITION : S.POSITION + 3]
         state[:, 4] = y[:, S.QUATERNION + 3]  # scalar first
-        state[:, 5:8] = y[:, S.QUATERNION:S.QUATERNION + 3]
-        state[:, 8:11] = y[:, S.VELOCITY:S.VELOCITY + 3]
-        state[:, 11:14] = y[:, S.OMEGA:S.OMEGA + 3]
+        state[:, 5:8] = y[:, S.QUATERNION : S.QUATERNION + 3]
+        state[:, 8:11] = y[:, S.VELOCITY : S.VELOCITY + 3]
+        state[:, 11:14] = y[:, S.OMEGA : S.OMEGA + 3]
         wrench = np.zeros((n, 1, 12))  # the world body's, then the body's: force, torque
         wrench[:, 0, 6:9] = force
-        wrench[:, 0, 9:12] = to_world(y[:, S.QUATERNION:S.QUATERNION + 4], moment)
+        wrench[:, 0, 9:12] = to_world(y[:, S.QUATERNION : S.QUATERNION + 4], moment)
         after = np.empty((n, 1, _WIDTH))
         local = _thread()
-        local["rollout"].rollout(models, [local["template"][1]], state, wrench,
-                                 control_spec=_WRENCH, nstep=1, skip_checks=True, state=after)
+        local["rollout"].rollout(
+            models,
+            [local["template"][1]],
+            state,
+            wrench,
+            control_spec=_WRENCH,
+            nstep=1,
+            skip_checks=True,
+            state=after,
+        )
         after = after[:, 0, :]
-        y[:, S.POSITION:S.POSITION + 3] = after[:, 1:4]
+        y[:, S.POSITION : S.POSITION + 3] = after[:, 1:4]
         y[:, S.QUATERNION + 3] = after[:, 4]
-        y[:, S.QUATERNION:S.QUATERNION + 3] = after[:, 5:8]
-        y[:, S.VELOCITY:S.VELOCITY + 3] = after[:, 8:11]
-        y[:, S.OMEGA:S.OMEGA + 3] = after[:, 11:14]
+        y[:, S.QUATERNION : S.QUATERNION + 3] = after[:, 5:8]
+        y[:, S.VELOCITY : S.VELOCITY + 3] = after[:, 8:11]
+        y[:, S.OMEGA : S.OMEGA + 3] = after[:, 11:14]
         # what MuJoCo would have judged unusable (its own counters are per data, not per body)
         bad = ~np.all(np.abs(after[:, 1:]) < _MAX_VALUE, axis=1)
         return np.where(bad, UNSTABLE, OK), 0
@@ -193,7 +205,7 @@ def _scheme(name, integrator, order, summary, step_seconds, style):
         keeps=(),
         run_bodies_inplace=make_batch_entry(_stepper(integrator)),
         reference="Todorov, Erez & Tassa, MuJoCo, IROS 2012; mujoco.readthedocs.io, "
-                  "Computation: numerical integration",
+        "Computation: numerical integration",
         origin=f"rbstudy's adapter of mujoco {mujoco.__version__}",
         code_digest=f"mujoco {mujoco.__version__}",  # another MuJoCo: other parts
         loads_held=True,
@@ -201,20 +213,39 @@ def _scheme(name, integrator, order, summary, step_seconds, style):
     )
 
 
-EULER = _scheme("mujoco_euler", mujoco.mjtIntegrator.mjINT_EULER, 1,
-                "Euler: semi-implicit, velocities then positions", 2.8e-06,
-                style=Style("navy", "<", "-."))
-IMPLICITFAST = _scheme("mujoco_implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST, 1,
-                       "implicitfast: velocity-implicit; on one free body the same as "
-                       "implicit", 3.0e-06,
-                       # solid under mujoco_implicit's dashed line: the two coincide on one free
-                       # body
-                       style=Style("tab:gray", ">", "-"))
-IMPLICIT = _scheme("mujoco_implicit", mujoco.mjtIntegrator.mjINT_IMPLICIT, 1,
-                   "implicit: the gyroscopic term linearised-implicit", 3.3e-06,
-                   # dashed over mujoco_implicitfast's solid line (and bullet_rigidbody's dotted
-                   # one, which agrees to 3 digits)
-                   style=Style("darkgoldenrod", "x", "--"))
-RK4 = _scheme("mujoco_rk4", mujoco.mjtIntegrator.mjINT_RK4, 4,
-              "RK4 on (qpos, qvel), loads held over the step", 5.7e-06,
-              style=Style("magenta", "*", "-."))
+EULER = _scheme(
+    "mujoco_euler",
+    mujoco.mjtIntegrator.mjINT_EULER,
+    1,
+    "Euler: semi-implicit, velocities then positions",
+    2.8e-06,
+    style=Style("navy", "<", "-."),
+)
+IMPLICITFAST = _scheme(
+    "mujoco_implicitfast",
+    mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    1,
+    "implicitfast: velocity-implicit; on one free body the same as implicit",
+    3.0e-06,
+    # solid under mujoco_implicit's dashed line: the two coincide on one free
+    # body
+    style=Style("tab:gray", ">", "-"),
+)
+IMPLICIT = _scheme(
+    "mujoco_implicit",
+    mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    1,
+    "implicit: the gyroscopic term linearised-implicit",
+    3.3e-06,
+    # dashed over mujoco_implicitfast's solid line (and bullet_rigidbody's dotted
+    # one, which agrees to 3 digits)
+    style=Style("darkgoldenrod", "x", "--"),
+)
+RK4 = _scheme(
+    "mujoco_rk4",
+    mujoco.mjtIntegrator.mjINT_RK4,
+    4,
+    "RK4 on (qpos, qvel), loads held over the step",
+    5.7e-06,
+    style=Style("magenta", "*", "-."),
+)

@@ -15,8 +15,15 @@ three floats: the exact flow compiles them (`free_flow`) and the numba-free flip
 This module imports nothing: importing it compiles nothing.
 """
 
-__all__ = ["hamilton_product", "rotation_columns", "rotational_energy", "momentum_squared",
-           "relative_drift", "momentum_excess", "circulation_axes"]
+__all__ = [
+    "hamilton_product",
+    "rotation_columns",
+    "rotational_energy",
+    "momentum_squared",
+    "relative_drift",
+    "momentum_excess",
+    "circulation_axes",
+]
 
 
 def hamilton_product(a, b):
@@ -56,9 +63,11 @@ def rotation_columns(q):
         The three columns, each as its components.
     """
     x, y, z, w = q
-    return ((1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-            (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-            (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)))
+    return (
+        (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+    )
 
 
 def rotational_energy(w, inertia):
@@ -76,8 +85,7 @@ def rotational_energy(w, inertia):
     float or array of the operands' shape
         J.
     """
-    return 0.5 * (inertia[0] * w[0] * w[0] + inertia[1] * w[1] * w[1]
-                  + inertia[2] * w[2] * w[2])
+    return 0.5 * (inertia[0] * w[0] * w[0] + inertia[1] * w[1] * w[1] + inertia[2] * w[2] * w[2])
 
 
 def momentum_squared(w, inertia):

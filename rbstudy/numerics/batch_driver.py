@@ -36,10 +36,11 @@ from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = ["BatchStepEntry", "make_batch_entry", "batch_loads"]
 
+
 def _invariants(y, p):
     """Rotational energy and |L| (n,) of the state rows ``y`` by `algebra`'s formulas."""
-    w = y[:, S.OMEGA:S.OMEGA + 3].T
-    inertia = p[:, S.INERTIA:S.INERTIA + 3].T
+    w = y[:, S.OMEGA : S.OMEGA + 3].T
+    inertia = p[:, S.INERTIA : S.INERTIA + 3].T
     return algebra.rotational_energy(w, inertia), np.sqrt(algebra.momentum_squared(w, inertia))
 
 
@@ -99,8 +100,22 @@ class BatchStepEntry:
     # a body that blows up overflows on its way to the status check, which records it: a
     # result, as in the compiled driver, not numpy's warning on the user's terminal
     @np.errstate(over="ignore", invalid="ignore")
-    def __call__(self, start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                 samples, results, halt, clock=None):
+    def __call__(
+        self,
+        start,
+        stop,
+        state0,
+        params,
+        options,
+        h,
+        n_steps,
+        every,
+        drift_bound,
+        samples,
+        results,
+        halt,
+        clock=None,
+    ):
         rows = slice(start, stop)
         y = state0[rows].copy()
         p, opt = params[rows], options[rows]
@@ -109,7 +124,7 @@ class BatchStepEntry:
         energy0, momentum0 = _invariants(y, p)
         checked = np.array([is_moment_free(row) for row in p], dtype=bool)
         samples[rows, 0] = y
-        largest_spin = _spin_squared(y[:, S.OMEGA:S.OMEGA + 3])  # before init, as compiled
+        largest_spin = _spin_squared(y[:, S.OMEGA : S.OMEGA + 3])  # before init, as compiled
         status = np.full(n, OK, dtype=np.int64)
         if self.init is not None:
             status[:] = _as_statuses(self.init(y, p, opt, step_time(0, h, clock), h, work), n)
@@ -144,14 +159,15 @@ class BatchStepEntry:
             # written so that NaN drifts fail too
             code[watch & ~((d_energy <= drift_bound) & (d_momentum <= drift_bound))] = UNSTABLE
             accepted = running[code == OK]
-            largest_spin[accepted] = np.maximum(largest_spin[accepted],
-                                                _spin_squared(y[accepted, S.OMEGA:S.OMEGA + 3]))
+            largest_spin[accepted] = np.maximum(
+                largest_spin[accepted], _spin_squared(y[accepted, S.OMEGA : S.OMEGA + 3])
+            )
             if due:
                 samples[start + accepted, next_sample[accepted]] = y[accepted]
                 next_sample[accepted] += 1
             status[running] = code
         for body in range(n):  # NaN after each body's last sample
-            samples[start + body, next_sample[body]:] = np.nan
+            samples[start + body, next_sample[body] :] = np.nan
         failed = status != OK
         step_angle = h * np.sqrt(largest_spin)
         columns = {

@@ -62,11 +62,22 @@ from rbstudy.numerics.rotation import dot, read3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 
 __all__ = [
-    "DRIFT_BOUND", "BatchOutput", "init_nothing", "idle_step", "integrate_rows_inplace",
+    "DRIFT_BOUND",
+    "BatchOutput",
+    "init_nothing",
+    "idle_step",
+    "integrate_rows_inplace",
     "run_rows",
     "make_entry",
-    "run_batch", "n_samples", "Halted", "request_halt", "clear_halt",
-    "HALT_CHECK_STEPS", "HALT_FLAG", "StatusError", "check_statuses",
+    "run_batch",
+    "n_samples",
+    "Halted",
+    "request_halt",
+    "clear_halt",
+    "HALT_CHECK_STEPS",
+    "HALT_FLAG",
+    "StatusError",
+    "check_statuses",
 ]
 
 # Relative drift of the rotational energy or of |L| beyond which a moment-free body counts as
@@ -109,14 +120,16 @@ def check_statuses(codes):
     codes = np.asarray(codes)
     # integers, the usual answer, in two reductions: 1.5 us a step of a vectorised scheme
     # where np.isin takes 12 us (of a step's ~140 us for one body)
-    if codes.dtype.kind in "iu" and (codes.size == 0 or (
-            codes.min() >= 0 and codes.max() < len(S.STATUS_NAMES))):
+    if codes.dtype.kind in "iu" and (
+        codes.size == 0 or (codes.min() >= 0 and codes.max() < len(S.STATUS_NAMES))
+    ):
         return
     known = np.isin(codes, np.arange(len(S.STATUS_NAMES)))
     if not known.all():
         listed = ", ".join(f"{code} ({name})" for code, name in enumerate(S.STATUS_NAMES))
-        raise StatusError(f"returned the status {codes[~known].ravel().tolist()[0]!r}, which "
-                          f"is not a status code: {listed}")
+        raise StatusError(
+            f"returned the status {codes[~known].ravel().tolist()[0]!r}, which is not a status code: {listed}"
+        )
 
 
 def request_halt():
@@ -211,8 +224,7 @@ def _lane_start(b, y, p, samples):
     ``sample`` the next sample's index)."""
     inertia_ = read3(p, S.INERTIA)
     w0 = read3(y, S.OMEGA)
-    fixed = (rotational_energy(w0, inertia_), math.sqrt(momentum_squared(w0, inertia_)),
-             is_moment_free(p))
+    fixed = (rotational_energy(w0, inertia_), math.sqrt(momentum_squared(w0, inertia_)), is_moment_free(p))
     _store_sample(samples, b, 0, y)
     return fixed, (OK, 0, 0, 0.0, 0.0, dot(w0, w0), 1)
 
@@ -306,9 +318,26 @@ def idle_step(y, p, opt, t, h, work):
 
 
 @inline_jit
-def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, state0, params,
-                           options, h, n_steps, every, drift_bound, samples, results, halt,
-                           clock):
+def integrate_rows_inplace(
+    step,
+    init,
+    second_step,
+    second_init,
+    n_work,
+    a,
+    b,
+    state0,
+    params,
+    options,
+    h,
+    n_steps,
+    every,
+    drift_bound,
+    samples,
+    results,
+    halt,
+    clock,
+):
     """Integrate body ``a`` of a batch, and body ``b`` beside it step for step unless ``b`` is
     -1; write their samples and results.
 
@@ -385,14 +414,32 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
         # function are reference counted on every step (see `_lane_after_step`)
         if lane_a[0] == OK:
             status, iters = step(ya, pa, oa, step_time(steps_done, h, clock), h, work_a)
-            lane_a = _lane_after_step(lane_a, fixed_a, status, iters, _state_sum(ya),
-                                      read3(ya, S.OMEGA), read3(pa, S.INERTIA), drift_bound, due)
+            lane_a = _lane_after_step(
+                lane_a,
+                fixed_a,
+                status,
+                iters,
+                _state_sum(ya),
+                read3(ya, S.OMEGA),
+                read3(pa, S.INERTIA),
+                drift_bound,
+                due,
+            )
             if due and lane_a[0] == OK:
                 _store_sample(samples, a, lane_a[_SAMPLE] - 1, ya)
         if lane_b[0] == OK:
             status, iters = second_step(yb, pb, ob, step_time(steps_done, h, clock), h, work_b)
-            lane_b = _lane_after_step(lane_b, fixed_b, status, iters, _state_sum(yb),
-                                      read3(yb, S.OMEGA), read3(pb, S.INERTIA), drift_bound, due)
+            lane_b = _lane_after_step(
+                lane_b,
+                fixed_b,
+                status,
+                iters,
+                _state_sum(yb),
+                read3(yb, S.OMEGA),
+                read3(pb, S.INERTIA),
+                drift_bound,
+                due,
+            )
             if due and lane_b[0] == OK:
                 _store_sample(samples, b, lane_b[_SAMPLE] - 1, yb)
     _lane_end(lane_a, fixed_a, a, h, samples, results)
@@ -401,8 +448,27 @@ def integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, s
 
 
 @inline_jit
-def run_rows(step, init, second_step, second_init, n_work, lanes, start, stop, state0, params,
-             options, h, n_steps, every, drift_bound, samples, results, halt, clock):
+def run_rows(
+    step,
+    init,
+    second_step,
+    second_init,
+    n_work,
+    lanes,
+    start,
+    stop,
+    state0,
+    params,
+    options,
+    h,
+    n_steps,
+    every,
+    drift_bound,
+    samples,
+    results,
+    halt,
+    clock,
+):
     """Integrate the rows [start, stop) of a batch with a scheme's kernels, ``lanes`` rows at a
     time (`integrate_rows_inplace`).
 
@@ -453,9 +519,26 @@ def run_rows(step, init, second_step, second_init, n_work, lanes, start, stop, s
         if halt[0] != 0:
             return
         b = a + 1 if lanes == 2 and a + 1 < stop else -1
-        integrate_rows_inplace(step, init, second_step, second_init, n_work, a, b, state0,
-                               params, options, h, n_steps, every, drift_bound, samples,
-                               results, halt, clock)
+        integrate_rows_inplace(
+            step,
+            init,
+            second_step,
+            second_init,
+            n_work,
+            a,
+            b,
+            state0,
+            params,
+            options,
+            h,
+            n_steps,
+            every,
+            drift_bound,
+            samples,
+            results,
+            halt,
+            clock,
+        )
 
 
 def make_entry(step, init, n_work, wrapper=None, lanes=1):
@@ -528,8 +611,9 @@ def _as_rows(array, width, name, wider=False):
     """``array`` as C-ordered float rows (B, width), or at least ``width`` wide."""
     rows = np.ascontiguousarray(array, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] < width or (rows.shape[1] != width and not wider):
-        raise ValueError(f"`{name}` must have shape (B, {width}{' or more' if wider else ''}), "
-                         f"got {rows.shape}")
+        raise ValueError(
+            f"`{name}` must have shape (B, {width}{' or more' if wider else ''}), got {rows.shape}"
+        )
     return rows
 
 
@@ -537,11 +621,13 @@ def _check_knots(params):
     """Refuse parameter rows too narrow for the knots they announce (`S.KNOTS`)."""
     knots = params[:, S.KNOTS]
     if np.any((knots < 0) | (knots != np.round(knots))):
-        raise ValueError(f"`params` announce knot counts {sorted(set(knots.tolist()))}: "
-                         "each must be a whole number >= 0")
+        raise ValueError(
+            f"`params` announce knot counts {sorted(set(knots.tolist()))}: each must be a whole number >= 0"
+        )
     if np.any(S.row_width(knots) > params.shape[1]):
-        raise ValueError(f"`params` rows of width {params.shape[1]} cannot hold the "
-                         f"{int(knots.max())} knots they announce")
+        raise ValueError(
+            f"`params` rows of width {params.shape[1]} cannot hold the {int(knots.max())} knots they announce"
+        )
 
 
 def _chunks(n_bodies, threads):
@@ -554,9 +640,17 @@ def _chunks(n_bodies, threads):
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
-def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, options: np.ndarray,
-              h: float, n_steps: int, every: int, drift_bound: float = DRIFT_BOUND,
-              threads: int | None = None) -> BatchOutput:
+def run_batch(
+    scheme: BatchKernel,
+    state0: np.ndarray,
+    params: np.ndarray,
+    options: np.ndarray,
+    h: float,
+    n_steps: int,
+    every: int,
+    drift_bound: float = DRIFT_BOUND,
+    threads: int | None = None,
+) -> BatchOutput:
     """Run a batch with a registered scheme and return a `BatchOutput`.
 
     The first call of a scheme in a process compiles (or loads from cache) before the clock
@@ -611,8 +705,19 @@ def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, optio
     # without it (`rbstudy.numerics.clock`)
     clock = 0.0 if np.any(needs_time(params)) else None
     scheme.ensure_compiled(timed=clock is not None)
-    arguments = (state0, params, options, float(h), n_steps, every, float(drift_bound), samples,
-                 results, HALT_FLAG, clock)
+    arguments = (
+        state0,
+        params,
+        options,
+        float(h),
+        n_steps,
+        every,
+        float(drift_bound),
+        samples,
+        results,
+        HALT_FLAG,
+        clock,
+    )
     # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
     whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
     chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads())
@@ -640,5 +745,4 @@ def run_batch(scheme: BatchKernel, state0: np.ndarray, params: np.ndarray, optio
             # not fill a result is a bug, never a number
             raise RuntimeError(f"scheme {scheme.name!r} left the result {name!r} unset")
         named[name] = column.astype(dtype)
-    return BatchOutput(samples=samples, results=named, kernel_seconds=seconds,
-                       kernel_cpu_seconds=cpu)
+    return BatchOutput(samples=samples, results=named, kernel_seconds=seconds, kernel_cpu_seconds=cpu)

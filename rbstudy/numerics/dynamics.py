@@ -27,11 +27,31 @@ from rbstudy.numerics.rotation import (
 )
 
 __all__ = [
-    "inertia", "to_momentum", "to_omega", "lever_moment", "has_lever", "knot_segment",
-    "tabulated3", "tabulated_moment", "tabulated_force", "spin_damping", "has_damping",
-    "damping_resistance", "kick_shortfall", "timed_moment", "timed_force", "timed_damping",
-    "timed_shortfall", "body_moment", "kick_momentum", "space_force",
-    "euler_rates", "momentum_rates", "rotational_energy", "momentum_squared", "is_moment_free",
+    "inertia",
+    "to_momentum",
+    "to_omega",
+    "lever_moment",
+    "has_lever",
+    "knot_segment",
+    "tabulated3",
+    "tabulated_moment",
+    "tabulated_force",
+    "spin_damping",
+    "has_damping",
+    "damping_resistance",
+    "kick_shortfall",
+    "timed_moment",
+    "timed_force",
+    "timed_damping",
+    "timed_shortfall",
+    "body_moment",
+    "kick_momentum",
+    "space_force",
+    "euler_rates",
+    "momentum_rates",
+    "rotational_energy",
+    "momentum_squared",
+    "is_moment_free",
 ]
 
 # Where the damping moment's coefficients sit in a parameter row.
@@ -221,9 +241,15 @@ def tabulated_moment(q, p, t):
     if p[S.KNOTS] == 0.0:
         return (0.0, 0.0, 0.0)
     k, s = knot_segment(p, t)
-    space = add(tabulated3(p, k, s, S.MOMENT_SPACE),
-                lever_moment(q, tabulated3(p, k, s, S.LEVER), tabulated3(p, k, s, S.LEVER + 3),
-                             tabulated3(p, k, s, S.LEVER + 6)))
+    space = add(
+        tabulated3(p, k, s, S.MOMENT_SPACE),
+        lever_moment(
+            q,
+            tabulated3(p, k, s, S.LEVER),
+            tabulated3(p, k, s, S.LEVER + 3),
+            tabulated3(p, k, s, S.LEVER + 6),
+        ),
+    )
     return add(tabulated3(p, k, s, S.MOMENT_BODY), quat_rotate_inverse(q, space))
 
 
@@ -336,8 +362,11 @@ def kick_shortfall(d, p, t):
     if not has_damping(p):
         return (0.0, 0.0, 0.0)
     c, inertia_ = spin_damping(p), inertia(p)
-    return (_shortfall(c[0] / inertia_[0], d), _shortfall(c[1] / inertia_[1], d),
-            _shortfall(c[2] / inertia_[2], d))
+    return (
+        _shortfall(c[0] / inertia_[0], d),
+        _shortfall(c[1] / inertia_[1], d),
+        _shortfall(c[2] / inertia_[2], d),
+    )
 
 
 @jit
@@ -382,10 +411,11 @@ def body_moment(q, w, p, t):
     """
     space = read3(p, S.MOMENT_SPACE)
     if has_lever(p):
-        space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3),
-                                        read3(p, S.LEVER + 6)))
-    return sub(add(add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space)),
-                   timed_moment(q, p, t)), timed_damping(w, p, t))
+        space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3), read3(p, S.LEVER + 6)))
+    return sub(
+        add(add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space)), timed_moment(q, p, t)),
+        timed_damping(w, p, t),
+    )
 
 
 @inline_jit

@@ -27,8 +27,15 @@ import numpy as np
 
 from rbstudy.numerics.jit import jit
 
-__all__ = ["carlson_rf", "carlson_rj", "complete_first", "complete_third", "jacobi",
-           "third_kind", "first_kind"]
+__all__ = [
+    "carlson_rf",
+    "carlson_rj",
+    "complete_first",
+    "complete_third",
+    "jacobi",
+    "third_kind",
+    "first_kind",
+]
 
 # The duplication stops when the spread of the arguments is below this fraction of their
 # mean (Carlson 1995: the relative error of the fifth-order series is then below
@@ -113,7 +120,7 @@ def carlson_rj(x, y, z, p):
         sx, sy, sz, sp = math.sqrt(x), math.sqrt(y), math.sqrt(z), math.sqrt(p)
         lam = sx * sy + sy * sz + sz * sx
         d = (sp + sx) * (sp + sy) * (sp + sz)
-        e = delta * scale ** 3 / (d * d)
+        e = delta * scale**3 / (d * d)
         total += scale * _carlson_rc_one(e) / d
         x, y, z, p = 0.25 * (x + lam), 0.25 * (y + lam), 0.25 * (z + lam), 0.25 * (p + lam)
         mean = 0.25 * (mean + lam)
@@ -123,11 +130,18 @@ def carlson_rj(x, y, z, p):
     dz = (mean0 - z0) * scale / mean
     dp = -0.5 * (dx + dy + dz)
     e2 = dx * dy + dx * dz + dy * dz - 3.0 * dp * dp
-    e3 = dx * dy * dz + 2.0 * e2 * dp + 4.0 * dp ** 3
-    e4 = (2.0 * dx * dy * dz + e2 * dp + 3.0 * dp ** 3) * dp
+    e3 = dx * dy * dz + 2.0 * e2 * dp + 4.0 * dp**3
+    e4 = (2.0 * dx * dy * dz + e2 * dp + 3.0 * dp**3) * dp
     e5 = dx * dy * dz * dp * dp
-    series = (1.0 - 3.0 * e2 / 14.0 + e3 / 6.0 + 9.0 * e2 * e2 / 88.0 - 3.0 * e4 / 22.0
-              - 9.0 * e2 * e3 / 52.0 + 3.0 * e5 / 26.0)
+    series = (
+        1.0
+        - 3.0 * e2 / 14.0
+        + e3 / 6.0
+        + 9.0 * e2 * e2 / 88.0
+        - 3.0 * e4 / 22.0
+        - 9.0 * e2 * e3 / 52.0
+        + 3.0 * e5 / 26.0
+    )
     return scale * series / (mean * math.sqrt(mean)) + 6.0 * total
 
 
@@ -209,7 +223,8 @@ def third_kind(n, sn, cn, dn, u, complete):
     """
     s2 = sn * sn
     reduced = sn * carlson_rf(cn * cn, dn * dn, 1.0) + n / 3.0 * sn * s2 * carlson_rj(
-        cn * cn, dn * dn, 1.0, 1.0 - n * s2)
+        cn * cn, dn * dn, 1.0, 1.0 - n * s2
+    )
     if cn >= 0.0:
         return reduced
     return math.copysign(2.0 * complete, u) - reduced
@@ -230,7 +245,7 @@ def _amplitude(u, m, m1):
         a = a_next
         ratios[steps] = c / a
         steps += 1
-    phi = u * a * 2.0 ** steps
+    phi = u * a * 2.0**steps
     for i in range(steps - 1, -1, -1):
         phi = 0.5 * (phi + math.asin(ratios[i] * math.sin(phi)))
     return phi

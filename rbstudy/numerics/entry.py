@@ -58,16 +58,18 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
 # The kernels of the second lane (`rbstudy.numerics.driver.run_rows`): the scheme's own for
 # two lanes; for one, kernels that are never called and cost nothing to compile, so that the
 # scheme's step is compiled once.
-_SECOND_LANE = {1: "second_step, second_init = idle_step, init_nothing",
-                2: "second_step, second_init = step, init"}
+_SECOND_LANE = {
+    1: "second_step, second_init = idle_step, init_nothing",
+    2: "second_step, second_init = step, init",
+}
 # The step of a scheme whose kernel is wrapped (a composition of its symmetric step): the
 # wrapper takes the kernel as its first argument and is inlined, so the step caches too.
-_WRAPPED_STEP = '''
+_WRAPPED_STEP = """
 
 @jit
 def step(y, p, opt, t, h, work):
     return wrapper(stage, y, p, opt, t, h, work)
-'''
+"""
 
 
 def entries_folder():
@@ -118,21 +120,25 @@ def _defined(kernel):
 
 def _module_text(step, init, n_work, wrapper=None, lanes=1):
     """The generated module's text and a digest naming it."""
-    kernels = {"step": step, "init": init} if wrapper is None else \
-        {"stage": step, "init": init, "wrapper": wrapper}
+    kernels = (
+        {"step": step, "init": init} if wrapper is None else {"stage": step, "init": init, "wrapper": wrapper}
+    )
     defined = {alias: _defined(kernel) for alias, kernel in kernels.items()}
     text = _TEMPLATE.format(
         kernels=", ".join(f"{module}.{name}" for module, name, _ in defined.values()),
-        imports="".join(f"from {module} import {name} as {alias}\n"
-                        for alias, (module, name, _) in defined.items()),
-        n_work=int(n_work), lanes=int(lanes), second=_SECOND_LANE[lanes],
-        wrapped="" if wrapper is None else _WRAPPED_STEP)
+        imports="".join(
+            f"from {module} import {name} as {alias}\n" for alias, (module, name, _) in defined.items()
+        ),
+        n_work=int(n_work),
+        lanes=int(lanes),
+        second=_SECOND_LANE[lanes],
+        wrapped="" if wrapper is None else _WRAPPED_STEP,
+    )
     digest = hashlib.sha256((text + SOURCE_DIGEST).encode())
     for path in sorted({path for *_, path in defined.values()}):
         with open(path, "rb") as source:
             digest.update(source.read())
-    for module in sorted({module for module, *_ in defined.values()
-                          if not module.startswith("rbstudy.")}):
+    for module in sorted({module for module, *_ in defined.values() if not module.startswith("rbstudy.")}):
         try:
             digest.update(package_digest(module).encode())  # a plug-in's helpers too
         except ValueError:  # no source files (a script): its defining file is in already
@@ -210,8 +216,7 @@ class CachedEntry:
         -------
         bool
         """
-        return cache_holds(self.dispatcher,
-                           lambda signature: (signature[-1] == types.none) != timed)
+        return cache_holds(self.dispatcher, lambda signature: (signature[-1] == types.none) != timed)
 
     def __call__(self, *arguments):
         return self.dispatcher(*arguments)

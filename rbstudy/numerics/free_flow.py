@@ -78,10 +78,36 @@ circulation_axes = jit(algebra.circulation_axes)
 # ``steady``: a permanent rotation at ``omega0``, the other fields unused. ``first, mid,
 # third, sign``: the relabelling. ``quarter``, ``whole``: K and Pi(n), inf on the separatrix
 # (``k2c = 0``), where ``period`` and ``advance`` are unused. ``tilt0``: B(0) as a quaternion.
-FreeBody = namedtuple("FreeBody", [
-    "steady", "omega0", "first", "mid", "third", "sign", "i1", "i2", "i3", "a1", "a2", "a3",
-    "rate", "k2", "k2c", "n", "g", "coefficient", "u0", "third_start", "quarter", "whole",
-    "period", "advance", "tilt0"])
+FreeBody = namedtuple(
+    "FreeBody",
+    [
+        "steady",
+        "omega0",
+        "first",
+        "mid",
+        "third",
+        "sign",
+        "i1",
+        "i2",
+        "i3",
+        "a1",
+        "a2",
+        "a3",
+        "rate",
+        "k2",
+        "k2c",
+        "n",
+        "g",
+        "coefficient",
+        "u0",
+        "third_start",
+        "quarter",
+        "whole",
+        "period",
+        "advance",
+        "tilt0",
+    ],
+)
 
 
 @jit
@@ -89,8 +115,7 @@ def _tilt(i1, i2, i3, a1, a2, a3, sn, cn, dn):
     """The quaternion of ``B = Rot(e1, theta) Rot(e3, psi)``, which takes ``m`` to ``G e3``,
     in the relabelled frame."""
     theta = math.atan2(math.hypot(i1 * a1 * cn, i2 * a2 * sn), i3 * a3 * dn)
-    psi = math.atan2(math.copysign(math.sqrt(i1 * abs(i3 - i2)), a1) * cn,
-                     math.sqrt(i2 * abs(i3 - i1)) * sn)
+    psi = math.atan2(math.copysign(math.sqrt(i1 * abs(i3 - i2)), a1) * cn, math.sqrt(i2 * abs(i3 - i1)) * sn)
     tilt = (math.sin(0.5 * theta), 0.0, 0.0, math.cos(0.5 * theta))
     return quat_mul_axis_rotation(tilt, 2, math.sin(0.5 * psi), math.cos(0.5 * psi))
 
@@ -104,8 +129,33 @@ def _separatrix_third(n, u):
 
 @jit
 def _steady(omega):
-    return FreeBody(True, omega, 0, 1, 2, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
-                    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0, 0.0, 1.0))
+    return FreeBody(
+        True,
+        omega,
+        0,
+        1,
+        2,
+        1.0,
+        1.0,
+        1.0,
+        1.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        (0.0, 0.0, 0.0, 1.0),
+    )
 
 
 @jit
@@ -126,8 +176,7 @@ def free_body(inertia, omega):
     m = (inertia[0] * omega[0], inertia[1] * omega[1], inertia[2] * omega[2])
     if cross(m, omega) == (0.0, 0.0, 0.0):
         return _steady(omega)
-    excess = (momentum_excess(inertia, m, 0), momentum_excess(inertia, m, 1),
-              momentum_excess(inertia, m, 2))
+    excess = (momentum_excess(inertia, m, 0), momentum_excess(inertia, m, 1), momentum_excess(inertia, m, 2))
     first, mid, third, sign = circulation_axes(inertia, excess)
     i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
     w1, w2, w3 = sign * omega[first], omega[mid], omega[third]
@@ -156,9 +205,33 @@ def free_body(inertia, omega):
     else:  # on the separatrix: no period
         quarter, whole, period, advance = math.inf, math.inf, math.inf, 0.0
         third_start = _separatrix_third(n, u0)
-    return FreeBody(False, omega, first, mid, third, sign, i1, i2, i3, a1, a2, a3, rate, k2,
-                    k2c, n, g, coefficient, u0, third_start, quarter, whole, period, advance,
-                    _tilt(i1, i2, i3, a1, a2, a3, sn0, cn0, dn0))
+    return FreeBody(
+        False,
+        omega,
+        first,
+        mid,
+        third,
+        sign,
+        i1,
+        i2,
+        i3,
+        a1,
+        a2,
+        a3,
+        rate,
+        k2,
+        k2c,
+        n,
+        g,
+        coefficient,
+        u0,
+        third_start,
+        quarter,
+        whole,
+        period,
+        advance,
+        _tilt(i1, i2, i3, a1, a2, a3, sn0, cn0, dn0),
+    )
 
 
 @jit
@@ -197,20 +270,21 @@ def free_motion(body, q, t):
         u = body.u0 + body.rate * tau
         sn, cn, dn = jacobi(u, 1.0, 0.0, math.inf)
         third_now = _separatrix_third(body.n, u)
-    precession = (periods * body.advance + body.g / body.i3 * tau
-                  + body.coefficient * (third_now - body.third_start))
+    precession = (
+        periods * body.advance + body.g / body.i3 * tau + body.coefficient * (third_now - body.third_start)
+    )
 
     half = 0.5 * precession
     relative = quat_mul(
         quat_mul_axis_rotation(quat_conj(body.tilt0), 2, math.sin(half), math.cos(half)),
-        _tilt(body.i1, body.i2, body.i3, body.a1, body.a2, body.a3, sn, cn, dn))
+        _tilt(body.i1, body.i2, body.i3, body.a1, body.a2, body.a3, sn, cn, dn),
+    )
     # back to the body's own axes: the vector part of the relative rotation, and w
     vector = [0.0, 0.0, 0.0]
     velocity = [0.0, 0.0, 0.0]
     first, mid, third, sign = body.first, body.mid, body.third, body.sign
     vector[first], vector[mid], vector[third] = sign * relative[0], relative[1], relative[2]
-    velocity[first], velocity[mid], velocity[third] = (sign * body.a1 * cn, body.a2 * sn,
-                                                       body.a3 * dn)
+    velocity[first], velocity[mid], velocity[third] = (sign * body.a1 * cn, body.a2 * sn, body.a3 * dn)
     q_t = quat_mul(q, (vector[0], vector[1], vector[2], relative[3]))
     return q_t, (velocity[0], velocity[1], velocity[2])
 

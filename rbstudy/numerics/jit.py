@@ -60,8 +60,7 @@ def _cached(decorator):
     def decorate(function):
         package = function.__module__.split(".")[0]
         # rbstudy's own kernels and generated entry modules (whose names hold every digest)
-        if (package == "rbstudy" or package.startswith("rbstudy_entry_")
-                or not numba.config.CACHE_DIR):
+        if package == "rbstudy" or package.startswith("rbstudy_entry_") or not numba.config.CACHE_DIR:
             return decorator(function)
         digest = _digests.get(package)
         if digest is None:

@@ -12,11 +12,30 @@ from rbstudy.numerics import algebra
 from rbstudy.numerics.jit import jit
 
 __all__ = [
-    "read3", "write3", "read4", "write4",
-    "add", "sub", "scale", "axpy", "axpy4", "dot", "dot4", "cross", "norm",
-    "skew_matmul", "solve3",
-    "quat_mul", "quat_conj", "quat_normalize", "quat_rotate", "quat_rotate_inverse",
-    "quat_exp", "quat_cayley", "quat_mul_axis_rotation", "quat_times_axis",
+    "read3",
+    "write3",
+    "read4",
+    "write4",
+    "add",
+    "sub",
+    "scale",
+    "axpy",
+    "axpy4",
+    "dot",
+    "dot4",
+    "cross",
+    "norm",
+    "skew_matmul",
+    "solve3",
+    "quat_mul",
+    "quat_conj",
+    "quat_normalize",
+    "quat_rotate",
+    "quat_rotate_inverse",
+    "quat_exp",
+    "quat_cayley",
+    "quat_mul_axis_rotation",
+    "quat_times_axis",
 ]
 
 # Below this rotation angle (rad) the exponential map uses its Taylor series: the series
@@ -369,7 +388,7 @@ def quat_exp(v):
     if angle < SMALL_ANGLE:
         # sin(half)/angle = 1/2 - angle^2/48 + ...; cos(half) = 1 - angle^2/8 + angle^4/384
         s = 0.5 - angle * angle / 48.0
-        c = 1.0 - angle * angle / 8.0 + angle ** 4 / 384.0
+        c = 1.0 - angle * angle / 8.0 + angle**4 / 384.0
     else:
         s = math.sin(half) / angle
         c = math.cos(half)

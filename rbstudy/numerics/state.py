@@ -41,11 +41,36 @@ from typing import NamedTuple
 from rbstudy.numerics.loads import END_SLOT, KIND, RECORD_WIDTH
 
 __all__ = [
-    "POSITION", "QUATERNION", "VELOCITY", "OMEGA", "N_STATE", "STATE_FIELDS",
-    "MASS", "INERTIA", "FORCE_SPACE", "FORCE_BODY", "MOMENT_SPACE", "MOMENT_BODY", "GRAVITY",
-    "LEVER", "KNOTS", "N_PARAM", "LOAD_RECORD", "row_width", "N_OPTION", "RESULT_FIELDS",
-    "RADIOSS_STEP_ANGLE", "Result", "N_RESULT",
-    "Status", "STATUSES", "OK", "UNSTABLE", "NOT_CONVERGED", "STATUS_NAMES", "INVARIANTS",
+    "POSITION",
+    "QUATERNION",
+    "VELOCITY",
+    "OMEGA",
+    "N_STATE",
+    "STATE_FIELDS",
+    "MASS",
+    "INERTIA",
+    "FORCE_SPACE",
+    "FORCE_BODY",
+    "MOMENT_SPACE",
+    "MOMENT_BODY",
+    "GRAVITY",
+    "LEVER",
+    "KNOTS",
+    "N_PARAM",
+    "LOAD_RECORD",
+    "row_width",
+    "N_OPTION",
+    "RESULT_FIELDS",
+    "RADIOSS_STEP_ANGLE",
+    "Result",
+    "N_RESULT",
+    "Status",
+    "STATUSES",
+    "OK",
+    "UNSTABLE",
+    "NOT_CONVERGED",
+    "STATUS_NAMES",
+    "INVARIANTS",
 ]
 
 POSITION = 0
@@ -55,10 +80,12 @@ OMEGA = 10
 N_STATE = 13
 # The state row's fields by the names the rest of rbstudy gives them (a scene's initial
 # values, a simulation's samples, a reference), as slices of the row.
-STATE_FIELDS = {"position": slice(POSITION, POSITION + 3),
-                "quaternion": slice(QUATERNION, QUATERNION + 4),
-                "velocity": slice(VELOCITY, VELOCITY + 3),
-                "omega_body": slice(OMEGA, OMEGA + 3)}
+STATE_FIELDS = {
+    "position": slice(POSITION, POSITION + 3),
+    "quaternion": slice(QUATERNION, QUATERNION + 4),
+    "velocity": slice(VELOCITY, VELOCITY + 3),
+    "omega_body": slice(OMEGA, OMEGA + 3),
+}
 
 MASS = 0
 INERTIA = 1
@@ -100,23 +127,22 @@ N_OPTION = 4
 # of the archive's variables; the storage type is numpy's. A kernel writes column
 # ``Result.<name>``; `rbstudy.numerics.driver.BatchOutput` hands them on by name.
 RESULT_FIELDS = (
-    ("status", "i1"),               # OK / UNSTABLE / NOT_CONVERGED
-    ("failure_time", "f8"),         # s; NaN for a body that finished
-    ("n_steps", "i8"),              # steps taken
-    ("iterations", "i8"),           # Newton iterations (an adaptive scheme: rhs evaluations)
-    ("max_energy_error", "f8"),     # largest relative rotational-energy drift over the steps
+    ("status", "i1"),  # OK / UNSTABLE / NOT_CONVERGED
+    ("failure_time", "f8"),  # s; NaN for a body that finished
+    ("n_steps", "i8"),  # steps taken
+    ("iterations", "i8"),  # Newton iterations (an adaptive scheme: rhs evaluations)
+    ("max_energy_error", "f8"),  # largest relative rotational-energy drift over the steps
     ("max_momentum_magnitude_error", "f8"),  # largest relative drift of |L| over the steps
-    ("max_step_angle", "f8"),       # rad; largest dt |w| over the accepted states (t = 0
-                                    # included; an adaptive scheme: each step's own dt and
-                                    # the |w| it ends with)
-    ("radioss_dt_limit", "i1"),     # 1 where (dt |w|)^2 > 1 at some step (OpenRadioss aborts)
+    ("max_step_angle", "f8"),  # rad; largest dt |w| over the accepted states (t = 0
+    # included; an adaptive scheme: each step's own dt and
+    # the |w| it ends with)
+    ("radioss_dt_limit", "i1"),  # 1 where (dt |w|)^2 > 1 at some step (OpenRadioss aborts)
 )
 # OpenRadioss aborts a rigid body as unstable when (dt |w|)^2 > 1: past this step angle (rad)
 # a case is flagged `radioss_dt_limit`, and runs on (the study shows what happens past it).
 RADIOSS_STEP_ANGLE = 1.0
 Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
 N_RESULT = len(RESULT_FIELDS)
-
 
 
 class Status(NamedTuple):
@@ -134,12 +160,18 @@ class Status(NamedTuple):
 # description of `status` (`rbstudy.pipeline.variables`).
 STATUSES = (
     Status("ok", "finished", ""),
-    Status("unstable", "blew up (a non-finite state, or an energy or |L| drift past 50% for a "
-           "moment-free body)", "take a smaller dt (the stability map shows the dt |w0| where "
-           "it starts), or a scheme that keeps the energy (rbstudy schemes)"),
-    Status("not_converged", "the implicit solver failed",
-           "take a smaller dt: the Newton iteration then starts nearer its answer (dop853, "
-           "whose step budget ran out: a shorter duration)"),
+    Status(
+        "unstable",
+        "blew up (a non-finite state, or an energy or |L| drift past 50% for a moment-free body)",
+        "take a smaller dt (the stability map shows the dt |w0| where "
+        "it starts), or a scheme that keeps the energy (rbstudy schemes)",
+    ),
+    Status(
+        "not_converged",
+        "the implicit solver failed",
+        "take a smaller dt: the Newton iteration then starts nearer its answer (dop853, "
+        "whose step budget ran out: a shorter duration)",
+    ),
 )
 STATUS_NAMES = tuple(status.name for status in STATUSES)
 OK, UNSTABLE, NOT_CONVERGED = range(len(STATUSES))

@@ -31,9 +31,20 @@ from rbstudy.numerics.loads import KIND
 from rbstudy.physics.loads import TURNING, constant_acting
 from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
 
-__all__ = ["REFERENCE_KINDS", "INTEGRATED", "SYMMETRY_RTOL", "symmetry_axes", "symmetry_axis", "symmetrised",
-           "reference_kinds", "symmetric_top", "axial_moment", "parabola",
-           "precession_frequency_exact", "flip_interval_exact"]
+__all__ = [
+    "REFERENCE_KINDS",
+    "INTEGRATED",
+    "SYMMETRY_RTOL",
+    "symmetry_axes",
+    "symmetry_axis",
+    "symmetrised",
+    "reference_kinds",
+    "symmetric_top",
+    "axial_moment",
+    "parabola",
+    "precession_frequency_exact",
+    "flip_interval_exact",
+]
 
 # Every reference an archive can name, in the order of their codes in the archive's
 # `reference` flag (append only: archives store the codes). ``dop853`` and
@@ -42,8 +53,14 @@ __all__ = ["REFERENCE_KINDS", "INTEGRATED", "SYMMETRY_RTOL", "symmetry_axes", "s
 # reference are NaN. ``exact_asymmetric`` (appended after 0.3) is the exact free motion of any
 # body, used where the body is not symmetric; ``exact_split_composition`` (appended after
 # 0.3) is the tight reference of a loaded body, which until then was DOP853.
-REFERENCE_KINDS = ("symmetric_top", "axial_moment", "dop853", "none", "exact_asymmetric",
-                   "exact_split_composition")
+REFERENCE_KINDS = (
+    "symmetric_top",
+    "axial_moment",
+    "dop853",
+    "none",
+    "exact_asymmetric",
+    "exact_split_composition",
+)
 # The reference planned for a scene no closed form covers (the integrations may end with
 # ``dop853`` or ``none`` instead).
 INTEGRATED = "exact_split_composition"
@@ -70,8 +87,11 @@ def _symmetry_rule(i1, i2, i3, tolerance, where):
     """The rule of `symmetry_axes`, written once for arrays (``where`` = `np.where`) and for
     three floats (`_pick`, 50 times faster than numpy on three numbers: every `Body` asks
     it)."""
-    return where(abs(i1 - i2) <= tolerance, 2, where(
-        abs(i2 - i3) <= tolerance, 0, where(abs(i1 - i3) <= tolerance, 1, -1)))
+    return where(
+        abs(i1 - i2) <= tolerance,
+        2,
+        where(abs(i2 - i3) <= tolerance, 0, where(abs(i1 - i3) <= tolerance, 1, -1)),
+    )
 
 
 def _pick(condition, chosen, otherwise):
@@ -126,16 +146,21 @@ def symmetric_top(inertia, quaternion0, omega0, times):
         raise ValueError(f"not a symmetric body: {inertia}")
     pick = axis[..., None]
     transverse = np.take_along_axis(inertia, (pick + 1) % 3, axis=-1)[..., 0]
-    rate = (np.take_along_axis(omega0, pick, axis=-1)[..., 0]
-            * (np.take_along_axis(inertia, pick, axis=-1)[..., 0] - transverse) / transverse)
+    rate = (
+        np.take_along_axis(omega0, pick, axis=-1)[..., 0]
+        * (np.take_along_axis(inertia, pick, axis=-1)[..., 0] - transverse)
+        / transverse
+    )
     e_s = np.eye(3)[axis]  # (..., 3)
     momentum = np.einsum("...ij,...j->...i", quat_to_matrix(quaternion0), inertia * omega0)
     t = np.asarray(times, dtype=float)[:, None]  # (T, 1)
     precession = quat_from_rotvec((momentum / transverse[..., None])[..., None, :] * t)
     spin_back = quat_from_rotvec(-(rate[..., None] * e_s)[..., None, :] * t)
     quaternion = quat_mul(quat_mul(precession, quaternion0[..., None, :]), spin_back)
-    omega = (np.einsum("...tji,...j->...ti", quat_to_matrix(quaternion), momentum)
-             / transverse[..., None, None] - (rate[..., None] * e_s)[..., None, :])
+    omega = (
+        np.einsum("...tji,...j->...ti", quat_to_matrix(quaternion), momentum) / transverse[..., None, None]
+        - (rate[..., None] * e_s)[..., None, :]
+    )
     return quaternion, omega
 
 
@@ -150,7 +175,7 @@ def axial_moment(inertia, quaternion0, omega0, moment_body, times):
         raise ValueError("omega0 and the moment must both lie along one principal axis")
     times = np.asarray(times, dtype=float)
     rate = moment_body[k] / inertia[k]
-    angle = omega0[k] * times + 0.5 * rate * times ** 2
+    angle = omega0[k] * times + 0.5 * rate * times**2
     from scipy.spatial.transform import Rotation  # here: the figures import this module (0.2 s)
 
     turn = np.zeros((times.size, 3))
@@ -179,18 +204,17 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     # does) and a body moment along the spin axis; any other kind (a body-fixed force or a
     # space force off the centre, which turn with the body and couple translation and
     # rotation; a space moment; a load the catalogue gained since) needs the integration
-    pushed = (constant_acting(loads, [name for name in KIND if name not in _CLOSED_FORM_LOADS])
-              | np.asarray(timed, dtype=bool))
+    pushed = constant_acting(loads, [name for name in KIND if name not in _CLOSED_FORM_LOADS]) | np.asarray(
+        timed, dtype=bool
+    )
     moment_body = np.asarray(loads["moment_body"])
     moment_free = ~constant_acting(loads, TURNING)
     axial = _axial_indices(omega_body, moment_body) >= 0
     symmetric = symmetry_axes(inertia) >= 0
     # an object array of the few names, each shared by its scenes: as fixed-width text, a
     # million scenes' kinds took 88 MiB
-    names = np.array((INTEGRATED, "symmetric_top", "exact_asymmetric", "axial_moment"),
-                     dtype=object)
-    return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2),
-                                              np.where(axial, 3, 0)))]
+    names = np.array((INTEGRATED, "symmetric_top", "exact_asymmetric", "axial_moment"), dtype=object)
+    return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2), np.where(axial, 3, 0)))]
 
 
 def precession_frequency_exact(scene):
@@ -237,8 +261,8 @@ def parabola(scene, times):
     """Centre-of-mass position and velocity (T, 3) each at ``times`` (T,) under the scene's
     constant space force and gravity (exact whatever the rotation does)."""
     loads = scene.loads
-    acceleration = (np.asarray(loads.force_space) / scene.body.mass + np.asarray(loads.gravity))
+    acceleration = np.asarray(loads.force_space) / scene.body.mass + np.asarray(loads.gravity)
     t = np.asarray(times, dtype=float)[:, None]
-    position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t ** 2
+    position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t**2
     velocity = np.asarray(scene.velocity) + acceleration * t
     return position, velocity

@@ -65,12 +65,14 @@ class Assembly:
 def _point_inertia(mass, offset):
     """``m (|d|^2 1 - d d^T)`` of point masses: mass (...,), offset (..., 3) -> (..., 3, 3)."""
     square = np.einsum("...i,...i->...", offset, offset)
-    return mass[..., None, None] * (square[..., None, None] * np.eye(3)
-                                    - offset[..., :, None] * offset[..., None, :])
+    return mass[..., None, None] * (
+        square[..., None, None] * np.eye(3) - offset[..., :, None] * offset[..., None, :]
+    )
 
 
-def assemble(master_position, master_mass, master_inertia, positions, masses, inertias,
-             centre="all", spherical=False):
+def assemble(
+    master_position, master_mass, master_inertia, positions, masses, inertias, centre="all", spherical=False
+):
     """The `Assembly` of a master node and K secondary nodes.
 
     Parameters
@@ -90,20 +92,31 @@ def assemble(master_position, master_mass, master_inertia, positions, masses, in
     with np.errstate(invalid="ignore", divide="ignore"):  # the options a row does not take
         by_secondaries = weighted / masses.sum(axis=-1)[..., None]
         by_all = (master_mass[..., None] * master_position + weighted) / total[..., None]
-    centre_of_mass = np.where((centre == "master")[..., None], master_position,
-                              np.where((centre == "secondaries")[..., None], by_secondaries,
-                                       by_all))
+    centre_of_mass = np.where(
+        (centre == "master")[..., None],
+        master_position,
+        np.where((centre == "secondaries")[..., None], by_secondaries, by_all),
+    )
     offsets = positions - centre_of_mass[..., None, :]
     master_offset = master_position - centre_of_mass
     # written so that what vanishes vanishes exactly, not to round-off, and gravity alone
     # leaves such a body moment-free (its energy a conserved quantity): the whole first
     # moment about the centre of mass, the secondaries' about their own centre
     first_moment = np.where(
-        (centre == "all")[..., None], 0.0,
-        np.where((centre == "secondaries")[..., None], master_mass[..., None] * master_offset,
-                 np.einsum("...k,...ki->...i", masses, offsets)))
-    tensor = (master_inertia + _point_inertia(master_mass, master_offset)
-              + inertias.sum(axis=-3) + _point_inertia(masses, offsets).sum(axis=-3))
+        (centre == "all")[..., None],
+        0.0,
+        np.where(
+            (centre == "secondaries")[..., None],
+            master_mass[..., None] * master_offset,
+            np.einsum("...k,...ki->...i", masses, offsets),
+        ),
+    )
+    tensor = (
+        master_inertia
+        + _point_inertia(master_mass, master_offset)
+        + inertias.sum(axis=-3)
+        + _point_inertia(masses, offsets).sum(axis=-3)
+    )
     tensor = 0.5 * (tensor + np.swapaxes(tensor, -1, -2))  # exactly symmetric
     principal, axes = np.linalg.eigh(tensor)
     largest = principal[..., 2:]
@@ -112,10 +125,14 @@ def assemble(master_position, master_mass, master_inertia, positions, masses, in
     regularised = ~spherical & (principal < floor).any(axis=-1)
     raised = np.einsum("...ij,...j,...kj->...ik", axes, np.maximum(principal, floor), axes)
     trace = np.trace(tensor, axis1=-2, axis2=-1)
-    tensor = np.where(spherical[..., None, None], (trace / 3.0)[..., None, None] * np.eye(3),
-                      np.where(regularised[..., None, None], raised, tensor))
-    return Assembly(total, centre_of_mass, tensor, offsets, master_offset, first_moment,
-                    principal, regularised, lopsided)
+    tensor = np.where(
+        spherical[..., None, None],
+        (trace / 3.0)[..., None, None] * np.eye(3),
+        np.where(regularised[..., None, None], raised, tensor),
+    )
+    return Assembly(
+        total, centre_of_mass, tensor, offsets, master_offset, first_moment, principal, regularised, lopsided
+    )
 
 
 # --- reading the ``scene.assembly`` block ----------------------------------------------------
@@ -141,8 +158,7 @@ class Secondaries:
 def _tensor_of_six(six):
     """Nodal inertias ``[Ixx, Iyy, Izz, Ixy, Iyz, Izx]`` (..., 6) -> (..., 3, 3)."""
     xx, yy, zz, xy, yz, zx = np.moveaxis(six, -1, 0)
-    return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1),
-                     np.stack([zx, yz, zz], -1)], -2)
+    return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1), np.stack([zx, yz, zz], -1)], -2)
 
 
 def _master_tensor(reader, value, key, size):
@@ -154,8 +170,13 @@ def _master_tensor(reader, value, key, size):
 
 
 def _not_negative(reader, values, key, what):
-    refuse(reader, values < 0.0, key,
-           lambda row: f"{what} must be >= 0, got {float(values[row])!r}", "give a mass >= 0 kg")
+    refuse(
+        reader,
+        values < 0.0,
+        key,
+        lambda row: f"{what} must be >= 0, got {float(values[row])!r}",
+        "give a mass >= 0 kg",
+    )
 
 
 def _inline_nodes(reader, nodes, path, size):
@@ -164,42 +185,48 @@ def _inline_nodes(reader, nodes, path, size):
     if len(set(names)) < len(names):  # 56 and "56" in the YAML
         reader.fail(path, "a node is given twice (as a number and as text)", "give it once")
     if RESERVED in names:
-        reader.fail(f"{path}.{RESERVED}", f"{RESERVED!r} names the master node",
-                    "rename this node")
+        reader.fail(f"{path}.{RESERVED}", f"{RESERVED!r} names the master node", "rename this node")
     positions, masses, inertias = [], [], []
     for name, node in nodes.items():
         key = f"{path}.{name}"
         node = reader.mapping(node, key, _NODE_KEYS)
         for needed in ("position", "mass"):
             if needed not in node:
-                reader.fail(f"{key}.{needed}", "missing", "give every node a position (m) and "
-                                                          "a mass (kg)")
+                reader.fail(f"{key}.{needed}", "missing", "give every node a position (m) and a mass (kg)")
         positions.append(rows(reader.vector(node["position"], f"{key}.position"), size))
         mass = np.broadcast_to(reader.number(node["mass"], f"{key}.mass"), (size,))
         _not_negative(reader, mass, f"{key}.mass", "a node's mass")
         masses.append(mass)
-        inertias.append(_tensor_of_six(rows(reader.vector(node["inertia"], f"{key}.inertia",
-                                                          length=6), size))
-                        if "inertia" in node else np.zeros((size, 3, 3)))
-    return Secondaries(names, np.stack(positions, 1), np.stack(masses, 1),
-                       np.stack(inertias, 1))
+        inertias.append(
+            _tensor_of_six(rows(reader.vector(node["inertia"], f"{key}.inertia", length=6), size))
+            if "inertia" in node
+            else np.zeros((size, 3, 3))
+        )
+    return Secondaries(names, np.stack(positions, 1), np.stack(masses, 1), np.stack(inertias, 1))
 
 
 def _tabled_nodes(reader, files, path, size):
     """`Secondaries` of node table files (`rbstudy.physics.node_table`): one name, or a
     column of n (a sweep), each relative to the config; every table must name the same nodes
     in the same order, so that the scenes share their node axis."""
-    distinct, tables, inverse = read_files(reader, files, path, size, read_node_table,
-                                           "a node table file or a mapping of nodes")
+    distinct, tables, inverse = read_files(
+        reader, files, path, size, read_node_table, "a node table file or a mapping of nodes"
+    )
     for k in range(1, len(tables)):
         if tables[k].names != tables[0].names:
-            reader.fail(path, f"the node tables {distinct[0]} and {distinct[k]} name different "
-                        "nodes", "a sweep over node tables needs the same node ids, in the same "
-                        "order, in every table", row=int(np.argmax(inverse == k)))
-    positions, masses, inertias = (np.stack([getattr(t, field) for t in tables])[inverse]
-                                   for field in ("positions", "masses", "inertias"))
-    return Secondaries(tables[0].names, positions, masses, _tensor_of_six(inertias),
-                       file_bindings(path, distinct, tables))
+            reader.fail(
+                path,
+                f"the node tables {distinct[0]} and {distinct[k]} name different nodes",
+                "a sweep over node tables needs the same node ids, in the same order, in every table",
+                row=int(np.argmax(inverse == k)),
+            )
+    positions, masses, inertias = (
+        np.stack([getattr(t, field) for t in tables])[inverse]
+        for field in ("positions", "masses", "inertias")
+    )
+    return Secondaries(
+        tables[0].names, positions, masses, _tensor_of_six(inertias), file_bindings(path, distinct, tables)
+    )
 
 
 def _read_secondaries(reader, nodes, path, size):
@@ -207,15 +234,22 @@ def _read_secondaries(reader, nodes, path, size):
         return _inline_nodes(reader, nodes, path, size)
     if isinstance(nodes, (str, np.ndarray)):
         return _tabled_nodes(reader, nodes, path, size)
-    reader.fail(path, f"expected a node table file or a mapping of node name -> "
-                      f"{{position, mass}}, got {nodes!r:.80}", "give the secondary nodes")
+    reader.fail(
+        path,
+        f"expected a node table file or a mapping of node name -> {{position, mass}}, got {nodes!r:.80}",
+        "give the secondary nodes",
+    )
 
 
 def _read_centre(reader, value, key):
     """`CENTRES` name, or a column of them (a sweep)."""
     names = np.asarray(value, dtype=object).reshape(-1)
-    refuse(reader, ~np.isin(names, CENTRES), key, lambda row: f"expected one of {', '.join(CENTRES)}, got "
-                                         f"{names[row]!r:.80}")
+    refuse(
+        reader,
+        ~np.isin(names, CENTRES),
+        key,
+        lambda row: f"expected one of {', '.join(CENTRES)}, got {names[row]!r:.80}",
+    )
     return value
 
 
@@ -225,31 +259,50 @@ def read_assembly(reader, spec, path, size):
     spec = reader.mapping(spec, path, _KEYS)
     master = reader.mapping(spec.get("master"), f"{path}.master", _MASTER_KEYS)
     master_key = f"{path}.master"
-    master_position = rows(reader.vector(master.get("position", [0.0, 0.0, 0.0]),
-                                             f"{master_key}.position"), size)
-    master_mass = np.broadcast_to(reader.number(master.get("mass", 0.0), f"{master_key}.mass"),
-                                  (size,))
+    master_position = rows(
+        reader.vector(master.get("position", [0.0, 0.0, 0.0]), f"{master_key}.position"), size
+    )
+    master_mass = np.broadcast_to(reader.number(master.get("mass", 0.0), f"{master_key}.mass"), (size,))
     _not_negative(reader, master_mass, f"{master_key}.mass", "the master's added mass")
-    master_inertia = (_master_tensor(reader, master["inertia"], f"{master_key}.inertia", size)
-                      if "inertia" in master else np.zeros((size, 3, 3)))
+    master_inertia = (
+        _master_tensor(reader, master["inertia"], f"{master_key}.inertia", size)
+        if "inertia" in master
+        else np.zeros((size, 3, 3))
+    )
     nodes = _read_secondaries(reader, spec.get("nodes"), f"{path}.nodes", size)
-    scale = np.broadcast_to(reader.number(spec.get("scale", 1.0), f"{path}.scale",
-                                          positive=True), (size,))
+    scale = np.broadcast_to(reader.number(spec.get("scale", 1.0), f"{path}.scale", positive=True), (size,))
     positions = master_position[:, None, :] + scale[:, None, None] * (
-        nodes.positions - master_position[:, None, :])
+        nodes.positions - master_position[:, None, :]
+    )
     centre = _read_centre(reader, spec.get("centre_of_mass", "all"), f"{path}.centre_of_mass")
     spherical = reader.flag(spec.get("spherical", False), f"{path}.spherical")
     by_secondaries = np.broadcast_to(centre == "secondaries", (size,))
     weighed = nodes.masses.sum(axis=1) + np.where(by_secondaries, 0.0, master_mass)
-    refuse(reader, weighed <= 0.0, f"{path}.nodes",
-           lambda row: "the secondary nodes have no mass" if by_secondaries[row]
-           else "the body has no mass", "give a node (or the master) a mass > 0 kg")
-    body = assemble(master_position, master_mass, master_inertia, positions, nodes.masses,
-                    nodes.inertias, centre, spherical)
-    refuse(reader, ~np.broadcast_to(spherical, (size,))
-           & (body.principal[:, 0] <= DEGENERATE * body.principal[:, 2]),
-           f"{path}.nodes", lambda row: f"principal inertias {body.principal[row].tolist()}: "
-           "the nodes lie on one line (or at one point) and give no inertia about it",
-           "add a node off that line, a nodal inertia, or the master's inertia, or set "
-           "spherical: true")
+    refuse(
+        reader,
+        weighed <= 0.0,
+        f"{path}.nodes",
+        lambda row: "the secondary nodes have no mass" if by_secondaries[row] else "the body has no mass",
+        "give a node (or the master) a mass > 0 kg",
+    )
+    body = assemble(
+        master_position,
+        master_mass,
+        master_inertia,
+        positions,
+        nodes.masses,
+        nodes.inertias,
+        centre,
+        spherical,
+    )
+    refuse(
+        reader,
+        ~np.broadcast_to(spherical, (size,)) & (body.principal[:, 0] <= DEGENERATE * body.principal[:, 2]),
+        f"{path}.nodes",
+        lambda row: (
+            f"principal inertias {body.principal[row].tolist()}: "
+            "the nodes lie on one line (or at one point) and give no inertia about it"
+        ),
+        "add a node off that line, a nodal inertia, or the master's inertia, or set spherical: true",
+    )
     return body, nodes

@@ -15,8 +15,7 @@ __all__ = ["rows", "refuse", "symmetric_tensor", "read_files", "file_bindings"]
 
 def rows(vector, size):
     """A vector as the reader returns it (floats and columns) -> (size, len) floats."""
-    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in vector],
-                    axis=-1)
+    return np.stack([np.broadcast_to(np.asarray(v, dtype=float), (size,)) for v in vector], axis=-1)
 
 
 def refuse(reader, bad, key, message, fix=None):
@@ -29,11 +28,13 @@ def refuse(reader, bad, key, message, fix=None):
 def symmetric_tensor(reader, value, key, size):
     """A 3x3 tensor given as three rows of three numbers -> (size, 3, 3), refused unless
     symmetric (to 1e-12 relative)."""
-    tensor = np.stack([rows(reader.vector(row, f"{key}[{i}]"), size)
-                       for i, row in enumerate(value)], axis=-2)
-    refuse(reader, ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12,
-                                      atol=0.0), axis=(-2, -1)),
-           key, lambda row: "the inertia tensor must be symmetric")
+    tensor = np.stack([rows(reader.vector(row, f"{key}[{i}]"), size) for i, row in enumerate(value)], axis=-2)
+    refuse(
+        reader,
+        ~np.all(np.isclose(tensor, np.swapaxes(tensor, -1, -2), rtol=1e-12, atol=0.0), axis=(-2, -1)),
+        key,
+        lambda row: "the inertia tensor must be symmetric",
+    )
     return tensor
 
 
@@ -47,8 +48,13 @@ def read_files(reader, files, key, size, read, what):
     if not isinstance(files, (str, np.ndarray)):  # one value, the same in every swept case
         reader.fail(key, f"expected {what}, got {files!r:.80}", fix)
     column = np.broadcast_to(np.asarray(files, dtype=object), (size,))
-    refuse(reader, np.array([not isinstance(name, str) for name in column]), key,
-           lambda row: f"expected {what}, got {column[row]!r:.80}", fix)
+    refuse(
+        reader,
+        np.array([not isinstance(name, str) for name in column]),
+        key,
+        lambda row: f"expected {what}, got {column[row]!r:.80}",
+        fix,
+    )
     names, index = np.unique(column.astype(str), return_inverse=True)
     folder = Path(reader.source).parent
     contents = []
@@ -66,5 +72,4 @@ def file_bindings(key, names, contents):
     (``names`` and their ``contents``, each with a ``digest``): what a study's identity holds
     of its table files. Each name is bound to its own content: as a set of digests, two swept
     files whose contents were swapped looked unchanged, and their old results were reused."""
-    return tuple((key, str(name), content.digest)
-                 for name, content in zip(names, contents, strict=True))
+    return tuple((key, str(name), content.digest) for name, content in zip(names, contents, strict=True))

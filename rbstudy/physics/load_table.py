@@ -41,8 +41,7 @@ class LoadTable:
 
     def at(self, times):
         """The load (T, 3) at ``times`` (T,): linear between rows, held outside them."""
-        return np.stack([np.interp(times, self.times, column) for column in self.values.T],
-                        axis=-1)
+        return np.stack([np.interp(times, self.times, column) for column in self.values.T], axis=-1)
 
 
 def _checked(reader, rows, where, whole, digest=None):
@@ -50,23 +49,28 @@ def _checked(reader, rows, where, whole, digest=None):
     an error."""
     table = np.array(rows, dtype=float).reshape(-1, 4)
     if len(table) < 2:
-        reader.fail(whole,
-                    f"a load table needs two rows or more, got {len(table)}",
-                    "a constant load is written [x, y, z]")
+        reader.fail(
+            whole,
+            f"a load table needs two rows or more, got {len(table)}",
+            "a constant load is written [x, y, z]",
+        )
     late = np.flatnonzero(np.diff(table[:, 0]) <= 0.0)
     if late.size:
         k = int(late[0]) + 1
-        reader.fail(where(k), f"time {float(table[k, 0])!r} does not come after "
-                              f"{float(table[k - 1, 0])!r}",
-                    "give the rows in increasing time, each time once")
+        reader.fail(
+            where(k),
+            f"time {float(table[k, 0])!r} does not come after {float(table[k - 1, 0])!r}",
+            "give the rows in increasing time, each time once",
+        )
     return LoadTable(table[:, 0].copy(), table[:, 1:].copy(), digest)
 
 
 def read_load_file(path):
     """The `LoadTable` of the file ``path``; a `SceneError` at the first bad line."""
     reader = Reader(str(path), SceneError)
-    digest, records = table_lines(path, reader, "the load table",
-                                  "give the path of a text file, relative to the config")
+    digest, records = table_lines(
+        path, reader, "the load table", "give the path of a text file, relative to the config"
+    )
     # flat arrays of doubles and of line numbers: a list of lists of floats takes ~200 bytes
     # a row
     rows, lines = array("d"), array("q")
@@ -79,8 +83,11 @@ def read_load_file(path):
         values = [finite(field) for field in fields]
         for column, field, value in zip(COLUMNS, fields, values, strict=True):
             if value is None:
-                reader.fail(where, f"{column} = {field!r:.40} is not a finite number",
-                            f"{_FIX}; a first line may name the columns t x y z or time x y z")
+                reader.fail(
+                    where,
+                    f"{column} = {field!r:.40} is not a finite number",
+                    f"{_FIX}; a first line may name the columns t x y z or time x y z",
+                )
         rows.extend(values)
         lines.append(number)
     return _checked(reader, rows, lambda k: f"line {lines[k]}", "table", digest)
@@ -92,6 +99,9 @@ def inline_load_table(reader, value, key):
         reader.fail(key, f"expected rows [t, x, y, z] or a table file, got {value!r:.80}", _FIX)
     rows = [reader.vector(row, f"{key}[{k}]", length=4) for k, row in enumerate(value)]
     if any(isinstance(entry, np.ndarray) for row in rows for entry in row):
-        reader.fail(key, "a number inside an inline load table cannot be swept",
-                    "write each table to a file and sweep the file name")
+        reader.fail(
+            key,
+            "a number inside an inline load table cannot be swept",
+            "write each table to a file and sweep the file name",
+        )
     return _checked(reader, rows, lambda k: f"{key}[{k}]", key)

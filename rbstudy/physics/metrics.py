@@ -12,9 +12,20 @@ from rbstudy.numerics.algebra import rotational_energy
 from rbstudy.physics.quaternions import quat_mul, quat_to_matrix
 
 __all__ = [
-    "orientation_error", "omega_error", "node_positions", "node_error", "energy_error",
-    "momentum_error", "phase_rate", "sign_change_interval", "asymptotic_order", "OrderFit",
-    "ORDER_SPREAD", "MAX_SLOPE_DRIFT", "MIN_ASYMPTOTIC_POINTS", "MIN_CONVERGENCE_ORDER",
+    "orientation_error",
+    "omega_error",
+    "node_positions",
+    "node_error",
+    "energy_error",
+    "momentum_error",
+    "phase_rate",
+    "sign_change_interval",
+    "asymptotic_order",
+    "OrderFit",
+    "ORDER_SPREAD",
+    "MAX_SLOPE_DRIFT",
+    "MIN_ASYMPTOTIC_POINTS",
+    "MIN_CONVERGENCE_ORDER",
     "ROUND_OFF_MARGIN",
 ]
 
@@ -70,8 +81,7 @@ def energy_error(w, inertia):
     w (..., T, 3); inertia (3,) or broadcastable (..., 1, 3). Returns (..., T). The energy is
     the formula the driver checks every step with (`rbstudy.numerics.algebra`).
     """
-    energy = rotational_energy(np.moveaxis(np.asarray(w), -1, 0),
-                               np.moveaxis(np.asarray(inertia), -1, 0))
+    energy = rotational_energy(np.moveaxis(np.asarray(w), -1, 0), np.moveaxis(np.asarray(inertia), -1, 0))
     return energy / energy[..., :1] - 1.0
 
 
@@ -81,8 +91,7 @@ def momentum_error(q, w, inertia):
     q (..., T, 4), w (..., T, 3), inertia (3,) or broadcastable (..., 1, 3); returns (..., T).
     """
     space = np.einsum("...ij,...j->...i", quat_to_matrix(q), np.asarray(inertia) * w)
-    return np.linalg.norm(space - space[..., :1, :], axis=-1) / np.linalg.norm(
-        space[..., :1, :], axis=-1)
+    return np.linalg.norm(space - space[..., :1, :], axis=-1) / np.linalg.norm(space[..., :1, :], axis=-1)
 
 
 def phase_rate(a, b, time):
@@ -95,8 +104,7 @@ def phase_rate(a, b, time):
     phase = np.unwrap(np.arctan2(b, a), axis=-1)
     t = np.asarray(time, dtype=float)
     centred = t - t.mean()
-    slope = np.sum((phase - phase.mean(axis=-1, keepdims=True)) * centred, axis=-1) / np.sum(
-        centred ** 2)
+    slope = np.sum((phase - phase.mean(axis=-1, keepdims=True)) * centred, axis=-1) / np.sum(centred**2)
     return np.where(np.all(np.isfinite(phase), axis=-1), slope, np.nan)
 
 
@@ -153,7 +161,7 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
     n = dts.size
     for length in range(n, MIN_ASYMPTOTIC_POINTS - 1, -1):
         for start in range(n - length + 1):
-            run = ascending[start:start + length]
+            run = ascending[start : start + length]
             if not usable[run].all():
                 continue
             x, y = np.log(dts[run]), np.log(errors[run])
@@ -162,10 +170,13 @@ def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD
             positions = np.arange(local.size)
             drift = abs(np.polyfit(positions, local, 1)[0]) * (local.size - 1)
             finer = ascending[:start]
-            rises = np.any(errors[finer] > np.maximum(errors[run[0]],
-                                                      ROUND_OFF_MARGIN * floor[finer]))
-            if (order >= MIN_CONVERGENCE_ORDER and not rises and drift <= MAX_SLOPE_DRIFT
-                    and np.all(np.abs(local - order) <= spread)):
+            rises = np.any(errors[finer] > np.maximum(errors[run[0]], ROUND_OFF_MARGIN * floor[finer]))
+            if (
+                order >= MIN_CONVERGENCE_ORDER
+                and not rises
+                and drift <= MAX_SLOPE_DRIFT
+                and np.all(np.abs(local - order) <= spread)
+            ):
                 used = np.zeros(n, dtype=bool)
                 used[run] = True
                 return OrderFit(order, used, float(local[0]))

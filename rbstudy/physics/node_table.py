@@ -45,21 +45,28 @@ class NodeTable:
 def read_node_table(path):
     """The `NodeTable` of the file ``path``; a `SceneError` at the first bad line."""
     reader = Reader(str(path), SceneError)
-    digest, records = table_lines(path, reader, "the node table",
-                                  "give the path of a text file, relative to the config")
+    digest, records = table_lines(
+        path, reader, "the node table", "give the path of a text file, relative to the config"
+    )
     names, lines, values, width = [], [], [], None
     for number, fields in records:
         where = f"line {number}"
         if width is None and fields[0].lower() == COLUMNS[0]:
-            expected = [c.lower() for c in COLUMNS + INERTIA_COLUMNS][:len(fields)]
+            expected = [c.lower() for c in COLUMNS + INERTIA_COLUMNS][: len(fields)]
             if [f.lower() for f in fields] != expected or len(fields) not in (5, 11):
-                reader.fail(where, f"the column names {' '.join(fields)!r:.80} are not {_FORMAT}",
-                            "name the columns in that order, or leave the names out")
+                reader.fail(
+                    where,
+                    f"the column names {' '.join(fields)!r:.80} are not {_FORMAT}",
+                    "name the columns in that order, or leave the names out",
+                )
             width = len(fields)
             continue
         if len(fields) not in (5, 11) or (width is not None and len(fields) != width):
-            reader.fail(where, f"expected {width or '5 or 11'} columns ({_FORMAT}), got "
-                               f"{len(fields)}", "give every node the same columns")
+            reader.fail(
+                where,
+                f"expected {width or '5 or 11'} columns ({_FORMAT}), got {len(fields)}",
+                "give every node the same columns",
+            )
         width = len(fields)
         name = fields[0]
         where = f"line {number} (node {name})"
@@ -70,8 +77,11 @@ def read_node_table(path):
         for column, field in zip(COLUMNS[1:] + INERTIA_COLUMNS, fields[1:], strict=False):
             value = finite(field)
             if value is None:
-                reader.fail(where, f"{column} = {field!r:.40} is not a finite number",
-                            "give finite numbers in m, kg, kg m^2")
+                reader.fail(
+                    where,
+                    f"{column} = {field!r:.40} is not a finite number",
+                    "give finite numbers in m, kg, kg m^2",
+                )
             row.append(value)
         if row[3] < 0.0:
             reader.fail(where, f"mass = {row[3]!r} must be >= 0", "give a mass >= 0 kg")
@@ -83,8 +93,11 @@ def read_node_table(path):
     duplicate = next((name for name, count in Counter(names).items() if count > 1), None)
     if duplicate is not None:
         twice = [line for line, name in zip(lines, names, strict=True) if name == duplicate]
-        reader.fail(f"line {twice[1]} (node {duplicate})", f"node {duplicate} is given again "
-                    f"(first on line {twice[0]})", "give each node one line")
+        reader.fail(
+            f"line {twice[1]} (node {duplicate})",
+            f"node {duplicate} is given again (first on line {twice[0]})",
+            "give each node one line",
+        )
     table = np.array(values)
     inertias = table[:, 4:] if width == 11 else np.zeros((len(names), 6))
     return NodeTable(tuple(names), table[:, :3], table[:, 3], inertias, digest)

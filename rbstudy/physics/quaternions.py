@@ -14,8 +14,9 @@ __all__ = ["quat_mul", "quat_to_matrix", "quat_from_rotvec"]
 
 def quat_mul(a, b):
     """Hamilton products ``a * b`` of (..., 4) arrays (broadcast), by the kernels' formula."""
-    return np.stack(hamilton_product(np.moveaxis(np.asarray(a), -1, 0),
-                                     np.moveaxis(np.asarray(b), -1, 0)), axis=-1)
+    return np.stack(
+        hamilton_product(np.moveaxis(np.asarray(a), -1, 0), np.moveaxis(np.asarray(b), -1, 0)), axis=-1
+    )
 
 
 def quat_to_matrix(q):

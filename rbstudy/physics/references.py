@@ -32,10 +32,22 @@ from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
 from rbstudy.schemes import dop853
 
-__all__ = ["Reference", "reference_solutions", "reference_solution", "COMPUTE",
-           "REFERENCE_MAX_STEPS", "REFERENCE_STEPS_PER_RADIAN", "REFERENCE_SCHEME",
-           "REFERENCE_COMPOSITION", "COMPOSED_STEP_ANGLE", "composed_steps", "moment_bound",
-           "planned_steps", "knot_steps", "dop853_reference"]
+__all__ = [
+    "Reference",
+    "reference_solutions",
+    "reference_solution",
+    "COMPUTE",
+    "REFERENCE_MAX_STEPS",
+    "REFERENCE_STEPS_PER_RADIAN",
+    "REFERENCE_SCHEME",
+    "REFERENCE_COMPOSITION",
+    "COMPOSED_STEP_ANGLE",
+    "composed_steps",
+    "moment_bound",
+    "planned_steps",
+    "knot_steps",
+    "dop853_reference",
+]
 
 # Accepted DOP853 steps one reference may take: about a minute (65 us a step, measured). A free
 # asymmetric body takes ~6.5 steps per radian of |w| T at rtol 1e-13 (measured for I = 1, 2, 3
@@ -81,10 +93,15 @@ class Reference:
 def _symmetric_tops(scenes, times):
     """The free symmetric tops, in one vectorised closed-form call."""
     quaternion, omega = symmetric_top(
-        [scene.body.inertia for scene in scenes], [scene.quaternion for scene in scenes],
-        [scene.omega_body for scene in scenes], times)
-    return [Reference("symmetric_top", quaternion[k], omega[k], *parabola(scene, times))
-            for k, scene in enumerate(scenes)]
+        [scene.body.inertia for scene in scenes],
+        [scene.quaternion for scene in scenes],
+        [scene.omega_body for scene in scenes],
+        times,
+    )
+    return [
+        Reference("symmetric_top", quaternion[k], omega[k], *parabola(scene, times))
+        for k, scene in enumerate(scenes)
+    ]
 
 
 def _free_bodies(scenes, times):
@@ -92,19 +109,26 @@ def _free_bodies(scenes, times):
     the initial state: nothing accumulates along the run)."""
     quaternion = np.empty((len(scenes), times.size, 4))
     omega = np.empty((len(scenes), times.size, 3))
-    free_flow_batch(np.array([scene.body.inertia for scene in scenes], dtype=float),
-                    np.array([scene.quaternion for scene in scenes], dtype=float),
-                    np.array([scene.omega_body for scene in scenes], dtype=float),
-                    times, quaternion, omega)
-    return [Reference("exact_asymmetric", quaternion[k], omega[k], *parabola(scene, times))
-            for k, scene in enumerate(scenes)]
+    free_flow_batch(
+        np.array([scene.body.inertia for scene in scenes], dtype=float),
+        np.array([scene.quaternion for scene in scenes], dtype=float),
+        np.array([scene.omega_body for scene in scenes], dtype=float),
+        times,
+        quaternion,
+        omega,
+    )
+    return [
+        Reference("exact_asymmetric", quaternion[k], omega[k], *parabola(scene, times))
+        for k, scene in enumerate(scenes)
+    ]
 
 
 def _axial_moments(scenes, times):
     references = []
     for scene in scenes:
-        quaternion, omega = axial_moment(scene.body.inertia, scene.quaternion,
-                                         scene.omega_body, scene.loads.moment_body, times)
+        quaternion, omega = axial_moment(
+            scene.body.inertia, scene.quaternion, scene.omega_body, scene.loads.moment_body, times
+        )
         references.append(Reference("axial_moment", quaternion, omega, *parabola(scene, times)))
     return references
 
@@ -112,14 +136,14 @@ def _axial_moments(scenes, times):
 def dop853_reference(scene, times):
     """DOP853 at ``times``, or None past `REFERENCE_MAX_STEPS` steps (or when DOP853 itself
     fails): no reference rather than a hang."""
-    run = dop853.integrate(scene.state_row(), scene.param_row(), times,
-                           max_steps=REFERENCE_MAX_STEPS, halt=HALT_FLAG)
+    run = dop853.integrate(
+        scene.state_row(), scene.param_row(), times, max_steps=REFERENCE_MAX_STEPS, halt=HALT_FLAG
+    )
     if HALT_FLAG[0]:
         raise Halted("the DOP853 references were halted")
     if not run.finished:
         return None
-    return Reference("dop853", **{name: run.samples[:, place]
-                                  for name, place in S.STATE_FIELDS.items()})
+    return Reference("dop853", **{name: run.samples[:, place] for name, place in S.STATE_FIELDS.items()})
 
 
 # The loads that may speed the body's spin up (every kind that turns it, but those that only
@@ -136,8 +160,11 @@ def moment_bound(loads):
     records = np.asarray(loads["tabulated"])  # (..., K, LOAD_RECORD)
     bound = 0.0
     for name in _DRIVING:
-        tabulated = (np.abs(records[..., record_slice(name)]).sum(axis=-1).max(axis=-1, initial=0.0)
-                     if KIND[name].tabulated else 0.0)
+        tabulated = (
+            np.abs(records[..., record_slice(name)]).sum(axis=-1).max(axis=-1, initial=0.0)
+            if KIND[name].tabulated
+            else 0.0
+        )
         bound = bound + np.abs(loads[name]).sum(axis=-1) + tabulated
     return bound
 
@@ -147,8 +174,7 @@ def planned_steps(omega_body, inertia, loads, interval):
     `COMPOSED_STEP_ANGLE` at the rate ``|w0| + sqrt(M / I_min)`` (M: `moment_bound`; the
     second term is the rate a moment of that size swings the body at, as a pendulum's), for
     (n, 3) angular velocities and inertias and their ``loads`` columns."""
-    rate = (np.linalg.norm(omega_body, axis=-1)
-            + np.sqrt(moment_bound(loads) / np.min(inertia, axis=-1)))
+    rate = np.linalg.norm(omega_body, axis=-1) + np.sqrt(moment_bound(loads) / np.min(inertia, axis=-1))
     return np.maximum(1, np.ceil(interval * rate / COMPOSED_STEP_ANGLE)).astype(np.int64)
 
 
@@ -164,9 +190,8 @@ def knot_steps(knots, duration, interval, least):
     counts = np.arange(least, least + _KNOT_SEARCH)
     fits = np.ones(counts.size, dtype=bool)
     for start in range(0, knots.size, _KNOT_CHUNK):
-        steps = knots[start:start + _KNOT_CHUNK, None] * (counts[fits] / interval)  # (knots, counts)
-        fits[fits] = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0),
-                            axis=0)
+        steps = knots[start : start + _KNOT_CHUNK, None] * (counts[fits] / interval)  # (knots, counts)
+        fits[fits] = np.all(np.abs(steps - np.round(steps)) <= STEP_RTOL * np.maximum(steps, 1.0), axis=0)
         if not fits.any():
             return None
     return int(counts[fits.argmax()])
@@ -178,8 +203,9 @@ def composed_steps(scene, interval, least=None):
     None when no such count is found."""
     if least is None:
         columns = {name: np.asarray(value)[None] for name, value in vars(scene.loads).items()}
-        least = int(planned_steps(np.array([scene.omega_body]), np.array([scene.body.inertia]),
-                                  columns, interval)[0])
+        least = int(
+            planned_steps(np.array([scene.omega_body]), np.array([scene.body.inertia]), columns, interval)[0]
+        )
     return knot_steps(scene.loads.knots, scene.duration, interval, least)
 
 
@@ -197,8 +223,14 @@ def _composed(scene, times):
     for _ in range(2):
         if count is None or count * (times.size - 1) > REFERENCE_MAX_STEPS:
             return None
-        run = simulate([scene], REFERENCE_SCHEME, interval / count, interval,
-                       {"composition": REFERENCE_COMPOSITION}, threads=1)
+        run = simulate(
+            [scene],
+            REFERENCE_SCHEME,
+            interval / count,
+            interval,
+            {"composition": REFERENCE_COMPOSITION},
+            threads=1,
+        )
         if run.results["status"][0] != OK:
             return None
         angle = float(run.results["max_step_angle"][0])
@@ -220,13 +252,15 @@ def _differences(scene, reference, check):
     fitted measure is the final orientation error, and DOP853's samples between its steps
     are interpolated, ~1e-12 off), the largest relative angular velocity difference and the
     largest node distance (m, 0 without nodes) over the output times."""
-    positions = [metrics.node_positions(r.quaternion, r.position, np.asarray(scene.nodes))
-                 for r in (check, reference)]
+    positions = [
+        metrics.node_positions(r.quaternion, r.position, np.asarray(scene.nodes)) for r in (check, reference)
+    ]
     with np.errstate(invalid="ignore", divide="ignore"):
-        return {"orientation": float(metrics.orientation_error(check.quaternion[-1],
-                                                               reference.quaternion[-1])),
-                "omega": _largest(metrics.omega_error(check.omega_body, reference.omega_body)),
-                "nodes": _largest(metrics.node_error(*positions)) if len(scene.nodes) else 0.0}
+        return {
+            "orientation": float(metrics.orientation_error(check.quaternion[-1], reference.quaternion[-1])),
+            "omega": _largest(metrics.omega_error(check.omega_body, reference.omega_body)),
+            "nodes": _largest(metrics.node_error(*positions)) if len(scene.nodes) else 0.0,
+        }
 
 
 def _integrated(scenes, times):
@@ -244,15 +278,20 @@ def _integrated(scenes, times):
         if composed is not None and peer is not None:
             composed = replace(composed, uncertainty=_differences(scene, composed, peer))
         best = composed or peer
-        references.append(best or Reference("none", *(np.full((times.size, k), np.nan)
-                                                       for k in (4, 3, 3, 3))))
+        references.append(
+            best or Reference("none", *(np.full((times.size, k), np.nan) for k in (4, 3, 3, 3)))
+        )
     return references
 
 
 # How each reference kind (`rbstudy.physics.analytic.REFERENCE_KINDS`) is computed, for a
 # list of scenes at once (a test checks that every kind has its computation).
-COMPUTE = {"symmetric_top": _symmetric_tops, "axial_moment": _axial_moments,
-           "exact_asymmetric": _free_bodies, INTEGRATED: _integrated}
+COMPUTE = {
+    "symmetric_top": _symmetric_tops,
+    "axial_moment": _axial_moments,
+    "exact_asymmetric": _free_bodies,
+    INTEGRATED: _integrated,
+}
 
 
 def reference_solutions(scenes, times):
@@ -264,9 +303,11 @@ def reference_solutions(scenes, times):
     """
     times = np.asarray(times, dtype=float)
     kinds = reference_kinds(
-        [scene.body.inertia for scene in scenes], [scene.omega_body for scene in scenes],
+        [scene.body.inertia for scene in scenes],
+        [scene.omega_body for scene in scenes],
         {name: [getattr(scene.loads, name) for scene in scenes] for name in KIND},
-        [scene.loads.timed for scene in scenes])
+        [scene.loads.timed for scene in scenes],
+    )
     found = {}
     for kind, compute in COMPUTE.items():
         members = [i for i, k in enumerate(kinds) if k == kind]

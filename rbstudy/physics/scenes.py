@@ -42,8 +42,16 @@ from rbstudy.physics.loads import (
 from rbstudy.physics.node_table import RESERVED
 from rbstudy.reader import Reader
 
-__all__ = ["Body", "Loads", "Scene", "SceneTable", "scene_table", "scene_from_mapping",
-           "param_rows", "TRIANGLE_RTOL"]
+__all__ = [
+    "Body",
+    "Loads",
+    "Scene",
+    "SceneTable",
+    "scene_table",
+    "scene_from_mapping",
+    "param_rows",
+    "TRIANGLE_RTOL",
+]
 
 # Inertias that meet the triangle inequality with equality (the thin flat disk I3 = I1 + I2 of
 # the Abaqus benchmark) are physical; this relative slack absorbs the round-off of a
@@ -127,12 +135,12 @@ class Scene:
         count = len(loads.knots)
         row = np.zeros(S.row_width(count))
         row[S.MASS] = self.body.mass
-        row[S.INERTIA:S.INERTIA + 3] = self.body.inertia
+        row[S.INERTIA : S.INERTIA + 3] = self.body.inertia
         for kind in LOAD_KINDS:
-            row[kind.offset:kind.offset + kind.width] = getattr(loads, kind.name)
+            row[kind.offset : kind.offset + kind.width] = getattr(loads, kind.name)
         row[S.KNOTS] = count
-        row[S.N_PARAM:S.N_PARAM + count] = loads.knots
-        row[S.N_PARAM + count:] = np.reshape(loads.tabulated, -1)
+        row[S.N_PARAM : S.N_PARAM + count] = loads.knots
+        row[S.N_PARAM + count :] = np.reshape(loads.tabulated, -1)
         return row
 
     def with_changes(self, **changes):
@@ -178,16 +186,26 @@ class SceneTable:
     def scene(self, i):
         """The scene of row ``i``."""
         return Scene(
-            body=Body(mass=float(self.mass[i]), inertia=tuple(self.inertia[i].tolist()),
-                      allow_unphysical=self.allow_unphysical,
-                      regularised=self.regularised is not None and bool(self.regularised[i])),
+            body=Body(
+                mass=float(self.mass[i]),
+                inertia=tuple(self.inertia[i].tolist()),
+                allow_unphysical=self.allow_unphysical,
+                regularised=self.regularised is not None and bool(self.regularised[i]),
+            ),
             quaternion=tuple(self.quaternion[i].tolist()),
             omega_body=tuple(self.omega_body[i].tolist()),
-            position=tuple(self.position[i].tolist()), velocity=tuple(self.velocity[i].tolist()),
-            nodes=np.array(self.nodes[i]), node_names=self.node_names,
-            loads=Loads(**{name: column[i] if name in TABLES else tuple(column[i].tolist())
-                           for name, column in self.loads.items()}),
-            duration=self.duration)
+            position=tuple(self.position[i].tolist()),
+            velocity=tuple(self.velocity[i].tolist()),
+            nodes=np.array(self.nodes[i]),
+            node_names=self.node_names,
+            loads=Loads(
+                **{
+                    name: column[i] if name in TABLES else tuple(column[i].tolist())
+                    for name, column in self.loads.items()
+                }
+            ),
+            duration=self.duration,
+        )
 
     @cached_property
     def symmetry_axes(self):
@@ -217,7 +235,7 @@ def param_rows(scenes):
     rows_ = [scene.param_row() for scene in scenes]
     table = np.zeros((len(rows_), max((len(row) for row in rows_), default=S.N_PARAM)))
     for k, row in enumerate(rows_):
-        table[k, :len(row)] = row
+        table[k, : len(row)] = row
     return table
 
 
@@ -242,8 +260,12 @@ def _principal(reader, tensor, key):
     columns, of inertia tensors (n, 3, 3)."""
     inertia, axes = np.linalg.eigh(tensor)
     axes[np.linalg.det(axes) < 0, :, 2] *= -1.0
-    refuse(reader, inertia.min(axis=-1) <= 0.0, key, lambda row: "principal inertias must "
-            f"be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}")
+    refuse(
+        reader,
+        inertia.min(axis=-1) <= 0.0,
+        key,
+        lambda row: f"principal inertias must be > 0, got {[round(v, 12) for v in inertia[row].tolist()]}",
+    )
     return inertia, axes
 
 
@@ -253,8 +275,7 @@ def _read_body(reader, spec, path, size):
     spec = reader.mapping(spec, path, ("mass", "inertia", "allow_unphysical"))
     if "inertia" not in spec:
         reader.fail(f"{path}.inertia", "missing", "give principal inertias [I1, I2, I3] in kg m^2")
-    mass = np.broadcast_to(reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True),
-                           (size,))
+    mass = np.broadcast_to(reader.number(spec.get("mass", 1.0), f"{path}.mass", positive=True), (size,))
     allow = reader.flag(spec.get("allow_unphysical", False), f"{path}.allow_unphysical")
     raw = spec["inertia"]
     key = f"{path}.inertia"
@@ -264,21 +285,33 @@ def _read_body(reader, spec, path, size):
         inertia = rows(reader.vector(raw, key), size)
         axes = None
         for i, moments in enumerate(inertia.T):
-            refuse(reader, moments <= 0.0, f"{key}[{i}]",
-                    lambda row, moments=moments: f"must be > 0 kg m^2, got {float(moments[row])!r}")
+            refuse(
+                reader,
+                moments <= 0.0,
+                f"{key}[{i}]",
+                lambda row, moments=moments: f"must be > 0 kg m^2, got {float(moments[row])!r}",
+            )
     if not allow:
-        refuse(reader, ~_triangle_ok(inertia), key,
-                lambda row: f"{inertia[row].tolist()} violates the triangle inequality I1 + I2 "
-                            ">= I3 (and cyclic): no rigid body has it",
-                "set allow_unphysical: true for a numerical stress body")
+        refuse(
+            reader,
+            ~_triangle_ok(inertia),
+            key,
+            lambda row: (
+                f"{inertia[row].tolist()} violates the triangle inequality I1 + I2 "
+                ">= I3 (and cyclic): no rigid body has it"
+            ),
+            "set allow_unphysical: true for a numerical stress body",
+        )
     return mass, inertia, axes, allow
 
 
 # What an assembled body derives from its nodes, never given twice: key -> why.
-_DERIVED = {"body": "an assembled body's mass and inertia come from its nodes",
-            "nodes": "an assembled body's nodes are its assembly.nodes",
-            "initial.orientation": "an assembled body starts in the principal axes of its nodes",
-            "initial.position": "an assembled body starts at the centre of mass of its nodes"}
+_DERIVED = {
+    "body": "an assembled body's mass and inertia come from its nodes",
+    "nodes": "an assembled body's nodes are its assembly.nodes",
+    "initial.orientation": "an assembled body starts in the principal axes of its nodes",
+    "initial.position": "an assembled body starts at the centre of mass of its nodes",
+}
 
 
 def _read_assembled(reader, spec, path, size):
@@ -293,13 +326,17 @@ def _read_assembled(reader, spec, path, size):
     inertia, axes = _principal(reader, body.tensor, key)
     warnings = []
     if body.regularised.any():
-        warnings.append(f"{key}: a principal inertia below {REGULARISATION:g} of the largest "
-                        f"was raised to it in {int(body.regularised.sum())} of {size} scenes "
-                        "(Radioss regularisation)")
+        warnings.append(
+            f"{key}: a principal inertia below {REGULARISATION:g} of the largest "
+            f"was raised to it in {int(body.regularised.sum())} of {size} scenes "
+            "(Radioss regularisation)"
+        )
     if body.lopsided.any():
-        warnings.append(f"{key}: one principal inertia exceeds the sum of the other two in "
-                        f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
-                        "masses has that: check the nodal inertias)")
+        warnings.append(
+            f"{key}: one principal inertia exceeds the sum of the other two in "
+            f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
+            "masses has that: check the nodal inertias)"
+        )
     return body, nodes, inertia, axes, tuple(warnings)
 
 
@@ -316,18 +353,25 @@ def _read_orientation(reader, spec, path, body_momentum, size):
     form = forms[0]
     key = f"{path}.{form}"
     if form == "euler_zxz_deg":
-        return Rotation.from_euler("ZXZ", rows(reader.vector(spec[form], key), size),
-                                   degrees=True)
+        return Rotation.from_euler("ZXZ", rows(reader.vector(spec[form], key), size), degrees=True)
     if form == "quaternion":
         quaternion = rows(reader.vector(spec[form], key, length=4), size)
-        refuse(reader, np.linalg.norm(quaternion, axis=-1) == 0.0, key,
-                lambda row: "a zero quaternion is no rotation")
+        refuse(
+            reader,
+            np.linalg.norm(quaternion, axis=-1) == 0.0,
+            key,
+            lambda row: "a zero quaternion is no rotation",
+        )
         return Rotation.from_quat(quaternion)
     if form == "rotation_vector":
         return Rotation.from_rotvec(rows(reader.vector(spec[form], key), size))
     axis = rows(reader.vector(spec[form], key), size)
-    refuse(reader, np.linalg.norm(axis, axis=-1) == 0.0, key,
-            lambda row: "the momentum axis must be a non-zero vector")
+    refuse(
+        reader,
+        np.linalg.norm(axis, axis=-1) == 0.0,
+        key,
+        lambda row: "the momentum axis must be a non-zero vector",
+    )
     if body_momentum is None:
         reader.fail(key, "needs the angular velocity in body axes (initial.angular_velocity.body)")
     phi = reader.number(spec.get("phi_deg", 0.0), f"{path}.phi_deg")
@@ -425,15 +469,18 @@ def _read_timed(reader, spec, key, size):
     """The `_Timed` load of ``{table: rows or file, scale: s}`` at ``key``."""
     spec = reader.mapping(spec, key, ("table", "scale"))
     if "table" not in spec:
-        reader.fail(f"{key}.table", "missing",
-                    "give rows [t, x, y, z] or a table file, or a constant [x, y, z] for the load")
+        reader.fail(
+            f"{key}.table",
+            "missing",
+            "give rows [t, x, y, z] or a table file, or a constant [x, y, z] for the load",
+        )
     scale = np.broadcast_to(reader.number(spec.get("scale", 1.0), f"{key}.scale"), (size,))
     table = spec["table"]
     if isinstance(table, list):
-        return _Timed([inline_load_table(reader, table, f"{key}.table")], np.zeros(size, int),
-                      scale)
-    names, tables, index = read_files(reader, table, f"{key}.table", size, read_load_file,
-                                      "rows [t, x, y, z] or a load table file")
+        return _Timed([inline_load_table(reader, table, f"{key}.table")], np.zeros(size, int), scale)
+    names, tables, index = read_files(
+        reader, table, f"{key}.table", size, read_load_file, "rows [t, x, y, z] or a load table file"
+    )
     return _Timed(tables, index, scale, file_bindings(f"{key}.table", names, tables))
 
 
@@ -448,8 +495,11 @@ def _loaded_nodes(reader, spec, path, points):
     for name, node_spec in spec.items():
         key = f"{path}.{name}"
         if str(name) not in points:
-            reader.fail(key, "no such node in this body",
-                        "load a node of the scene's nodes (or master, for an assembled body)")
+            reader.fail(
+                key,
+                "no such node in this body",
+                "load a node of the scene's nodes (or master, for an assembled body)",
+            )
         checked.append((key, str(name), reader.mapping(node_spec, key, _NODAL_LOADS)))
     return checked
 
@@ -457,10 +507,15 @@ def _loaded_nodes(reader, spec, path, points):
 def _timed_loads(reader, spec, path, nodal, size):
     """The loads tabulated in time under ``scene.loads`` (``spec``, at ``path``), at the
     centre and at the ``nodal`` loads (`_loaded_nodes`): key -> `_Timed`."""
-    found = {f"{path}.{name}": spec[name] for name in TABULATED
-             if isinstance(spec.get(name), dict)}
-    found.update({f"{key}.{name}": value for key, _, node_loads in nodal
-                  for name, value in node_loads.items() if isinstance(value, dict)})
+    found = {f"{path}.{name}": spec[name] for name in TABULATED if isinstance(spec.get(name), dict)}
+    found.update(
+        {
+            f"{key}.{name}": value
+            for key, _, node_loads in nodal
+            for name, value in node_loads.items()
+            if isinstance(value, dict)
+        }
+    )
     return {key: _read_timed(reader, value, key, size) for key, value in found.items()}
 
 
@@ -472,12 +527,11 @@ class _LoadSets:
 
     def __init__(self, reader, timed, size):
         self.reader, self.timed, self.size = reader, timed, size
-        self.knots = np.unique(np.concatenate([np.zeros(0)] + [table.times for load in
-                                                               timed.values()
-                                                               for table in load.tables]))
+        self.knots = np.unique(
+            np.concatenate([np.zeros(0)] + [table.times for load in timed.values() for table in load.tables])
+        )
         self.constant = {kind.name: np.zeros((size, kind.width)) for kind in LOAD_KINDS}
-        self.tabulated = {name: np.zeros((1, len(self.knots), KIND[name].width))
-                          for name in TABULATED}
+        self.tabulated = {name: np.zeros((1, len(self.knots), KIND[name].width)) for name in TABULATED}
 
     def read(self, value, key):
         """The load at ``key``, constant (n, 3) or tabulated at the knots (n or 1, K, 3)."""
@@ -494,13 +548,15 @@ class _LoadSets:
         """The `SceneTable.loads` columns: the constant loads, the knots and the records
         (read-only views, of one row when every scene has the same)."""
         shape = (self.size, len(self.knots))
-        record = np.zeros((max(len(value) for value in self.tabulated.values()), shape[1],
-                           S.LOAD_RECORD))
+        record = np.zeros((max(len(value) for value in self.tabulated.values()), shape[1], S.LOAD_RECORD))
         for name, values in self.tabulated.items():
             record[..., record_slice(name)] = values
         record.setflags(write=False)  # each scene's `Loads` holds a view of it
-        return {**self.constant, "knots": np.broadcast_to(self.knots, shape),
-                "tabulated": np.broadcast_to(record, shape + (S.LOAD_RECORD,))}
+        return {
+            **self.constant,
+            "knots": np.broadcast_to(self.knots, shape),
+            "tabulated": np.broadcast_to(record, shape + (S.LOAD_RECORD,)),
+        }
 
 
 def _add_nodal_loads(nodal, loads, points, axes):
@@ -532,8 +588,7 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     ``body.allow_unphysical`` is true), on the first bad row of a column (its ``row``).
     """
     reader = Reader(source, SceneError)
-    spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads",
-                                       "duration"))
+    spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads", "duration"))
     assembled = None
     if "assembly" in spec:
         assembled, secondaries, inertia, axes, warnings = _read_assembled(reader, spec, path, size)
@@ -546,28 +601,37 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     nodes = _in_principal(axes, offsets)
 
     initial_path = f"{path}.initial"
-    initial = reader.mapping(spec.get("initial"), initial_path,
-                             ("angular_velocity", "orientation", "position", "velocity"))
+    initial = reader.mapping(
+        spec.get("initial"), initial_path, ("angular_velocity", "orientation", "position", "velocity")
+    )
     omega_path = f"{initial_path}.angular_velocity"
     omega = reader.mapping(initial.get("angular_velocity"), omega_path, ("body", "space"))
     if len(omega) > 1:
         reader.fail(omega_path, "give the angular velocity in body or in space axes, not both")
-    given = {frame: rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size)
-             for frame in omega}
+    given = {frame: rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size) for frame in omega}
     for frame, vector in given.items():
         with np.errstate(over="ignore"):  # |w|^2 max(I) bounds twice the energy
             energy = np.einsum("ni,ni->n", vector, vector) * inertia.max(axis=-1)
-        refuse(reader, ~np.isfinite(energy), f"{omega_path}.{frame}",
-                lambda row: "so large that the body's energy overflows a float",
-                "give a smaller angular velocity")
+        refuse(
+            reader,
+            ~np.isfinite(energy),
+            f"{omega_path}.{frame}",
+            lambda row: "so large that the body's energy overflows a float",
+            "give a smaller angular velocity",
+        )
     omega_principal = _in_principal(axes, given["body"]) if "body" in given else np.zeros((size, 3))
     # m = I w in the input body frame, for a momentum-aligned orientation
-    momentum_input = (None if "body" not in given else omega_principal * inertia if axes is None
-                      else np.einsum("nij,nj->ni", axes, omega_principal * inertia))
-    input_rotation = _read_orientation(reader, initial.get("orientation"),
-                                       f"{initial_path}.orientation", momentum_input, size)
-    principal_rotation = (input_rotation if axes is None
-                          else input_rotation * Rotation.from_matrix(axes))
+    momentum_input = (
+        None
+        if "body" not in given
+        else omega_principal * inertia
+        if axes is None
+        else np.einsum("nij,nj->ni", axes, omega_principal * inertia)
+    )
+    input_rotation = _read_orientation(
+        reader, initial.get("orientation"), f"{initial_path}.orientation", momentum_input, size
+    )
+    principal_rotation = input_rotation if axes is None else input_rotation * Rotation.from_matrix(axes)
     if "space" in given:
         omega_principal = principal_rotation.inv().apply(given["space"])
 
@@ -576,19 +640,25 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
     if assembled is not None:
         points[RESERVED] = _in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
-    nodal = (_loaded_nodes(reader, loads_spec["nodes"], f"{loads_path}.nodes", points)
-             if "nodes" in loads_spec else [])
+    nodal = (
+        _loaded_nodes(reader, loads_spec["nodes"], f"{loads_path}.nodes", points)
+        if "nodes" in loads_spec
+        else []
+    )
     loads = _LoadSets(reader, _timed_loads(reader, loads_spec, loads_path, nodal, size), size)
     for name in GIVEN:
         if name in loads_spec:
             key = f"{loads_path}.{name}"
             given = loads.read(loads_spec[name], key)
             if KIND[name].dissipates:  # a negative value would feed energy in
-                refuse(reader, np.any(given.reshape(len(given), -1) < 0.0, axis=-1), key,
-                       lambda row, given=given: f"got {given[row].tolist()}, below 0",
-                       f"give values >= 0 ({KIND[name].units}): it only takes energy out")
-            loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES
-                      else given)
+                refuse(
+                    reader,
+                    np.any(given.reshape(len(given), -1) < 0.0, axis=-1),
+                    key,
+                    lambda row, given=given: f"got {given[row].tolist()}, below 0",
+                    f"give values >= 0 ({KIND[name].units}): it only takes energy out",
+                )
+            loads.add(name, _in_principal(_alike(axes), given) if name in _IN_BODY_AXES else given)
     if assembled is not None:
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
@@ -597,20 +667,30 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
             loads.add("lever", _lever(first_moment, gravity))
     _add_nodal_loads(nodal, loads, points, _alike(axes))
     tables = (() if assembled is None else secondaries.tables) + tuple(
-        binding for load in loads.timed.values() for binding in load.files)
+        binding for load in loads.timed.values() for binding in load.files
+    )
     return SceneTable(
-        mass=_shared(mass), inertia=_shared(inertia), allow_unphysical=allow,
+        mass=_shared(mass),
+        inertia=_shared(inertia),
+        allow_unphysical=allow,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
         omega_body=omega_principal,
-        position=_shared(assembled.centre if assembled is not None else rows(
-            reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size)),
-        velocity=_shared(rows(reader.vector(initial.get("velocity", [0, 0, 0]),
-                                            f"{initial_path}.velocity"), size)),
+        position=_shared(
+            assembled.centre
+            if assembled is not None
+            else rows(reader.vector(initial.get("position", [0, 0, 0]), f"{initial_path}.position"), size)
+        ),
+        velocity=_shared(
+            rows(reader.vector(initial.get("velocity", [0, 0, 0]), f"{initial_path}.velocity"), size)
+        ),
         loads={name: _shared(column) for name, column in loads.columns().items()},
-        nodes=_shared(nodes), node_names=names,
+        nodes=_shared(nodes),
+        node_names=names,
         duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),
-        warnings=warnings, regularised=None if assembled is None else assembled.regularised,
-        tables=tables)
+        warnings=warnings,
+        regularised=None if assembled is None else assembled.regularised,
+        tables=tables,
+    )
 
 
 def _shared(column):

@@ -55,9 +55,15 @@ class Simulation:
         return [STATUS_NAMES[code] for code in self.results["status"]]
 
 
-def simulate(scenes: Iterable[Scene], scheme: str, dt: float, output_interval: float | None = None,
-             options: Mapping | Sequence[Mapping] | None = None, drift_bound: float = DRIFT_BOUND,
-             threads: int | None = None) -> Simulation:
+def simulate(
+    scenes: Iterable[Scene],
+    scheme: str,
+    dt: float,
+    output_interval: float | None = None,
+    options: Mapping | Sequence[Mapping] | None = None,
+    drift_bound: float = DRIFT_BOUND,
+    threads: int | None = None,
+) -> Simulation:
     """Integrate ``scenes`` (all of the same duration) with ``scheme`` at step ``dt``.
 
     Parameters
@@ -82,9 +88,20 @@ def simulate(scenes: Iterable[Scene], scheme: str, dt: float, output_interval: f
         rows = np.repeat(chosen.option_row(options)[None, :], len(scenes), axis=0)
     else:
         rows = np.array([chosen.option_row(o) for o in options])
-    output = run_batch(chosen, np.array([s.state_row() for s in scenes]),
-                       param_rows(scenes), rows, dt, n_steps, every,
-                       drift_bound, threads=threads)
-    return Simulation(scheme=scheme, dt=dt,
-                      time=output_times(output_count(duration, output_interval), output_interval),
-                      output=output)
+    output = run_batch(
+        chosen,
+        np.array([s.state_row() for s in scenes]),
+        param_rows(scenes),
+        rows,
+        dt,
+        n_steps,
+        every,
+        drift_bound,
+        threads=threads,
+    )
+    return Simulation(
+        scheme=scheme,
+        dt=dt,
+        time=output_times(output_count(duration, output_interval), output_interval),
+        output=output,
+    )

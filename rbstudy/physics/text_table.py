@@ -27,8 +27,7 @@ def fields(line):
         if len(parts) > 1:
             return [part.strip() for part in (parts[:-1] if not parts[-1].strip() else parts)]
     # csv takes one delimiter: tabs become spaces, runs of spaces one (skipinitialspace)
-    parts = next(csv.reader([line.replace("\t", " ").strip()], delimiter=" ",
-                            skipinitialspace=True))
+    parts = next(csv.reader([line.replace("\t", " ").strip()], delimiter=" ", skipinitialspace=True))
     return [part.strip() for part in parts]
 
 
@@ -57,8 +56,7 @@ def _records(text, reader, fix):
             try:
                 split = fields(line)
             except csv.Error as error:  # a lone carriage return, a field past csv's limit
-                reader.fail(f"line {number}", f"cannot split the line into fields ({error})",
-                            fix)
+                reader.fail(f"line {number}", f"cannot split the line into fields ({error})", fix)
             yield number, split
 
 

@@ -10,8 +10,7 @@ import numpy as np
 
 from rbstudy.errors import InputError
 
-__all__ = ["steps_per", "output_count", "output_times", "step_count", "STEP_RTOL",
-           "MAX_STEPS_PER_INTERVAL"]
+__all__ = ["steps_per", "output_count", "output_times", "step_count", "STEP_RTOL", "MAX_STEPS_PER_INTERVAL"]
 
 # A time step "divides" an interval when the quotient is within this relative distance of an
 # integer: decimal inputs such as 0.01 and 2.0 are not exact binary fractions.
@@ -26,15 +25,18 @@ def steps_per(interval, step, step_name="dt", interval_name="interval"):
     none (the caller knows the file and key)."""
     ratio = interval / step
     if not ratio < MAX_STEPS_PER_INTERVAL:  # inf for a subnormal step, NaN for a NaN
-        raise InputError(f"{step_name} = {step:g} s is too small for the {interval_name} "
-                         f"{interval:g} s (over {MAX_STEPS_PER_INTERVAL:.0e} steps)",
-                         f"choose {step_name} = {interval:g} / n with a reasonable n")
+        raise InputError(
+            f"{step_name} = {step:g} s is too small for the {interval_name} "
+            f"{interval:g} s (over {MAX_STEPS_PER_INTERVAL:.0e} steps)",
+            f"choose {step_name} = {interval:g} / n with a reasonable n",
+        )
     count = round(ratio)
     if count < 1 or abs(ratio - count) > STEP_RTOL * ratio:
         raise InputError(
             f"{step_name} = {step:g} s does not divide the {interval_name} {interval:g} s "
             f"({interval:g} / {step:g} = {ratio:.6g})",
-            f"choose {step_name} = {interval:g} / n")
+            f"choose {step_name} = {interval:g} / n",
+        )
     return int(count)
 
 

@@ -80,50 +80,58 @@ def _layout_problem(path, nc):
     an `InputError`; None when it has it."""
     attributes = nc.ncattrs()
     if is_part(attributes, nc.dimensions):
-        return InputError("is one batch's part file, not a study's archive",
-                          "give the <study>.nc written beside parts/", str(path))
+        return InputError(
+            "is one batch's part file, not a study's archive",
+            "give the <study>.nc written beside parts/",
+            str(path),
+        )
     if "study" not in attributes:
         held = ", ".join(list(nc.variables)[:_SHOWN]) or "no variables"
         return _foreign(path, None, f"no study attribute; it holds {held}")
     study = nc.getncattr("study")
     if not is_folder_name(study):  # it names the figure files: the config's rule
-        return _foreign(path, "study", f"the study attribute {study!r:.80} is not a study name "
-                                       f"({FOLDER_NAME_RULE})")
+        return _foreign(
+            path, "study", f"the study attribute {study!r:.80} is not a study name ({FOLDER_NAME_RULE})"
+        )
     missing = [name for name in (*BOOKKEEPING, *_CASE_COORDINATES) if name not in nc.variables]
     if missing:
         written_by = nc.getncattr("source") if "source" in attributes else "an unknown writer"
-        return InputError(f"{NOT_AN_ARCHIVE}: it lacks {', '.join(missing)} (written by "
-                          f"{written_by})",
-                          "rerun its sweep with this rbstudy (--force) to rebuild it", str(path))
+        return InputError(
+            f"{NOT_AN_ARCHIVE}: it lacks {', '.join(missing)} (written by {written_by})",
+            "rerun its sweep with this rbstudy (--force) to rebuild it",
+            str(path),
+        )
     grid = nc["status"].dimensions
     for name, kind in _CASE_COORDINATES.items():
         variable = nc[name]
         swept = name in grid
         if variable.dimensions != ((name,) if swept else ()):
             wanted = f"({name})" if swept else f"a single value (swept: {', '.join(grid) or 'none'})"
-            return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), "
-                                        f"not {wanted}")
+            return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), not {wanted}")
         if _kind(variable) != kind:
-            return _foreign(path, name, f"{name} holds {_type_name(variable)}, not "
-                                        f"{_KIND_NAMES[kind]}")
+            return _foreign(path, name, f"{name} holds {_type_name(variable)}, not {_KIND_NAMES[kind]}")
     for name, variable in nc.variables.items():
         if name not in VARIABLES:
             continue
         own = VARIABLES[name].dims
         expected = (*grid, *own)
-        leading = variable.dimensions[:len(variable.dimensions) - len(own)]
+        leading = variable.dimensions[: len(variable.dimensions) - len(own)]
         # a variable of the scene alone lies along the dimensions its scene changes along
         # (along all of them in archives of rbstudy 0.3)
-        scene_grid = VARIABLES[name].per_scene and variable.dimensions[len(leading):] == own \
+        scene_grid = (
+            VARIABLES[name].per_scene
+            and variable.dimensions[len(leading) :] == own
             and _in_order(leading, grid)
+        )
         if variable.dimensions != expected and not scene_grid:
-            wanted = ", ".join(expected) + (" or some of the first" if VARIABLES[name].per_scene
-                                            else "")
-            return _foreign(path, name, f"{name} lies along ({', '.join(variable.dimensions)}), "
-                                        f"not ({wanted})")
+            wanted = ", ".join(expected) + (" or some of the first" if VARIABLES[name].per_scene else "")
+            return _foreign(
+                path, name, f"{name} lies along ({', '.join(variable.dimensions)}), not ({wanted})"
+            )
         if _kind(variable) != np.dtype(VARIABLES[name].dtype).kind:
-            return _foreign(path, name, f"{name} holds {_type_name(variable)}, not "
-                                        f"{np.dtype(VARIABLES[name].dtype).name}")
+            return _foreign(
+                path, name, f"{name} holds {_type_name(variable)}, not {np.dtype(VARIABLES[name].dtype).name}"
+            )
     return None
 
 
@@ -143,8 +151,9 @@ def check_layout(path):
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
             problem = _layout_problem(path, nc)
     except (OSError, RuntimeError) as error:
-        raise InputError(f"damaged: it cannot be read as netCDF ({one_line(error)})",
-                         _REBUILD, str(path)) from None
+        raise InputError(
+            f"damaged: it cannot be read as netCDF ({one_line(error)})", _REBUILD, str(path)
+        ) from None
     if problem is not None:
         raise problem
 
@@ -157,8 +166,7 @@ def _verified(path, bypass=None):
     if not check.problems:
         return check
     problems = check.problems
-    shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more"
-                                       if len(problems) > 3 else "")
+    shown = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more" if len(problems) > 3 else "")
     fix = "rerun its sweep with this rbstudy" if not check.provable else _REBUILD
     fix += f", or {bypass}" if bypass else ""
     if not check.provable:
@@ -176,8 +184,7 @@ def open_archive(path, variables=None, verify=True):
     try:
         return open_results(path, variables)
     except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block
-        raise InputError(f"damaged: it cannot be read ({one_line(error)})", _REBUILD,
-                         str(path)) from None
+        raise InputError(f"damaged: it cannot be read ({one_line(error)})", _REBUILD, str(path)) from None
 
 
 def verify_file(path):
@@ -185,10 +192,14 @@ def verify_file(path):
     its digest beside it); an `InputError` naming the first problems when it is not."""
     if sidecar(path).exists() and pathlib.Path(path).is_file():
         if part_digest(path) is None:
-            raise InputError("damaged: its bytes do not match the digest stored beside it",
-                             "rerun its sweep: the part is recomputed", str(path))
+            raise InputError(
+                "damaged: its bytes do not match the digest stored beside it",
+                "rerun its sweep: the part is recomputed",
+                str(path),
+            )
         return "intact (a part; its bytes match its digest)"
     check_layout(path)
     check = _verified(path)
-    return (f"intact ({check.variables} variables match their SHA-256 checksums; built from "
-            f"{check.parts} parts)")
+    return (
+        f"intact ({check.variables} variables match their SHA-256 checksums; built from {check.parts} parts)"
+    )

@@ -16,8 +16,15 @@ import numpy as np
 
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
-__all__ = ["Batch", "plan_batches", "canonical_id", "batches_digest", "ids_digest",
-           "SCHEMA_VERSION", "ID_LENGTH"]
+__all__ = [
+    "Batch",
+    "plan_batches",
+    "canonical_id",
+    "batches_digest",
+    "ids_digest",
+    "SCHEMA_VERSION",
+    "ID_LENGTH",
+]
 
 # Bumped whenever what a part file holds changes, so that old parts are never reused.
 SCHEMA_VERSION = 2
@@ -42,8 +49,9 @@ def _normalised(value):
 def canonical_id(payload):
     """A short stable hash of ``payload``: canonical JSON (sorted keys, numbers as floats) plus
     `SCHEMA_VERSION`."""
-    text = json.dumps({"schema": SCHEMA_VERSION, "payload": _normalised(payload)},
-                      sort_keys=True, separators=(",", ":"))
+    text = json.dumps(
+        {"schema": SCHEMA_VERSION, "payload": _normalised(payload)}, sort_keys=True, separators=(",", ":")
+    )
     return hashlib.sha256(text.encode()).hexdigest()[:ID_LENGTH]
 
 
@@ -74,8 +82,17 @@ def ids_digest(ids):
     return canonical_id(list(ids))
 
 
-def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases,
-                 verdict=None, run_costs=None, code_digests=None):
+def plan_batches(
+    cases,
+    scene,
+    dimensions,
+    output_interval,
+    variables,
+    max_cases,
+    verdict=None,
+    run_costs=None,
+    code_digests=None,
+):
     """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt) and, where the runs
     differ in it, by their cost per step (``run_costs``, one number per run of ``cases.runs``:
     a composition of order 8 takes 17 steps a step), in case order, into batches of at most
@@ -95,31 +112,51 @@ def plan_batches(cases, scene, dimensions, output_interval, variables, max_cases
     extending an axis therefore gives new ids, never a part in the wrong cells. Planning is
     linear in the cases.
     """
-    study_digest = canonical_id({
-        "scene": scene,  # hashed with sorted keys: the node order goes in on its own
-        "nodes": list(cases.scenes.node_names), "tables": list(cases.scenes.tables),
-        "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
-        "output_interval": output_interval, "variables": list(variables), "verdict": verdict,
-        "source": SOURCE_DIGEST})
+    study_digest = canonical_id(
+        {
+            "scene": scene,  # hashed with sorted keys: the node order goes in on its own
+            "nodes": list(cases.scenes.node_names),
+            "tables": list(cases.scenes.tables),
+            "grid": [[d.name, [[a.target, list(a.values)] for a in d.axes]] for d in dimensions],
+            "output_interval": output_interval,
+            "variables": list(variables),
+            "verdict": verdict,
+            "source": SOURCE_DIGEST,
+        }
+    )
     costs = run_costs if run_costs is not None else [None] * len(cases.runs)
     keys = {}  # (scheme, dt, cost) -> group, in order of first use
-    group_of_run = np.array([keys.setdefault((run.scheme, run.dt, cost), len(keys))
-                             for run, cost in zip(cases.runs, costs, strict=True)])
+    group_of_run = np.array(
+        [
+            keys.setdefault((run.scheme, run.dt, cost), len(keys))
+            for run, cost in zip(cases.runs, costs, strict=True)
+        ]
+    )
     groups = group_of_run[cases.run_rows]
     order = np.argsort(groups, kind="stable")  # each group's cases in case order
     starts = np.searchsorted(groups[order], np.arange(len(keys) + 1))
     batches = []
     for (scheme, dt, cost), group in keys.items():
-        members = order[starts[group]:starts[group + 1]]
+        members = order[starts[group] : starts[group + 1]]
         for start in range(0, len(members), max_cases):
-            chunk = members[start:start + max_cases]
+            chunk = members[start : start + max_cases]
             runs = [cases.runs[row] for row in np.unique(cases.run_rows[chunk])]
-            identity = {"positions": chunk.tolist(), "study": study_digest,
-                        "runs": [[run.scheme, run.dt, run.options] for run in runs]}
+            identity = {
+                "positions": chunk.tolist(),
+                "study": study_digest,
+                "runs": [[run.scheme, run.dt, run.options] for run in runs],
+            }
             code = (code_digests or {}).get(scheme)
             if code is not None:  # only then: the ids of rbstudy's own schemes stay as they were
                 identity["code"] = code
             digest = canonical_id(identity)
-            batches.append(Batch(id=f"{scheme}_dt{dt:g}_{digest}", scheme=scheme, dt=dt,
-                                 cases=tuple(chunk.tolist()), step_seconds=cost))
+            batches.append(
+                Batch(
+                    id=f"{scheme}_dt{dt:g}_{digest}",
+                    scheme=scheme,
+                    dt=dt,
+                    cases=tuple(chunk.tolist()),
+                    step_seconds=cost,
+                )
+            )
     return tuple(batches)

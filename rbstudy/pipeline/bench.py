@@ -43,20 +43,26 @@ _RATE = 12
 
 def abaqus_top_scene():
     """The Abaqus force-free top of docs/theory.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi)."""
-    return scene_from_mapping({
-        "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
-        "initial": {"angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
-                    "orientation": {"momentum_axis": [0.0, 0.0, 1.0]}},
-        "duration": 2.0,
-    }, source="bench")
+    return scene_from_mapping(
+        {
+            "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
+            "initial": {
+                "angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},
+                "orientation": {"momentum_axis": [0.0, 0.0, 1.0]},
+            },
+            "duration": 2.0,
+        },
+        source="bench",
+    )
 
 
 def _rate(scheme, scene, n_bodies, n_steps, threads):
     state0 = np.repeat(scene.state_row()[None, :], n_bodies, axis=0)
     params = np.repeat(scene.param_row()[None, :], n_bodies, axis=0)
     options = np.repeat(scheme.option_row()[None, :], n_bodies, axis=0)
-    out = run_batch(scheme, state0, params, options, BENCH_DT, n_steps,
-                    min(SAMPLE_EVERY, n_steps), threads=threads)
+    out = run_batch(
+        scheme, state0, params, options, BENCH_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=threads
+    )
     taken = n_steps * n_bodies if scheme.adaptive else out.results["n_steps"].sum()
     return taken / out.kernel_seconds, out
 
@@ -71,16 +77,23 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
     rows = []
     with Progress("bench", f"{len(chosen)} schemes", quiet=not progress) as shown:
         # two lines, each within 100 columns for any --body-steps and number of cores
-        shown.echo(f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} "
-                   "body-steps per figure,")
-        shown.echo(f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {cores} "
-                   "cores; rates in body-steps/s of B bodies")
+        shown.echo(
+            f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per figure,"
+        )
+        shown.echo(
+            f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {cores} "
+            "cores; rates in body-steps/s of B bodies"
+        )
         width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's may be long
         # two header lines, so that six rates keep to 100 columns
-        shown.echo(f"{'':{width}s} {'compile':>9s}" + "".join(f" {f'B={size}':>{_RATE}s}" * 2
-                                                              for size in batch_sizes))
-        shown.echo(f"{'scheme':{width}s} {'s':>9s}"
-                   + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}" * len(batch_sizes))
+        shown.echo(
+            f"{'':{width}s} {'compile':>9s}"
+            + "".join(f" {f'B={size}':>{_RATE}s}" * 2 for size in batch_sizes)
+        )
+        shown.echo(
+            f"{'scheme':{width}s} {'s':>9s}"
+            + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}" * len(batch_sizes)
+        )
         for scheme in chosen:
             rows.append(_measure(scheme, scene, batch_sizes, body_steps, cores, width, shown))
     return rows
@@ -105,8 +118,7 @@ def _measure(scheme, scene, batch_sizes, body_steps, cores, width, progress):
                 continue
             steps = REFERENCE_STEPS
         for threads in (1, cores):
-            progress.update(f"bench: {name}, B={size} on {threads} thread"
-                            + "s" * (threads > 1))
+            progress.update(f"bench: {name}, B={size} on {threads} thread" + "s" * (threads > 1))
             rate, _ = _rate(scheme, scene, size, steps, threads)
             row[f"B{size}_threads{threads}"] = rate
             line += f" {rate:{_RATE}.3e}"

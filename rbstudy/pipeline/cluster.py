@@ -36,8 +36,18 @@ from rbstudy.pipeline.integrity import sealed
 from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 
-__all__ = ["ClusterFile", "Where", "LOCAL", "read_cluster_file", "connect", "run_on_cluster",
-           "dashboard_line", "WRITERS", "WORKER_WAIT", "CONNECT_TIMEOUT"]
+__all__ = [
+    "ClusterFile",
+    "Where",
+    "LOCAL",
+    "read_cluster_file",
+    "connect",
+    "run_on_cluster",
+    "dashboard_line",
+    "WRITERS",
+    "WORKER_WAIT",
+    "CONNECT_TIMEOUT",
+]
 
 WRITERS = ("auto", "workers", "client")
 # Seconds to wait for a first worker (batch jobs queue) or for workers to come back.
@@ -65,8 +75,9 @@ _JOBS_NAMED = 3
 JOBS_LOOK_SECONDS = 5.0
 # The SLURM states of a job that has ended for good (a preempted or requeued job may run
 # again; a completing one may still be requeued).
-_SLURM_ENDED = frozenset({"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED",
-                          "NODE_FAIL", "OUT_OF_MEMORY", "TIMEOUT"})
+_SLURM_ENDED = frozenset(
+    {"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED", "NODE_FAIL", "OUT_OF_MEMORY", "TIMEOUT"}
+)
 # How to get dask's dashboard, which bokeh draws (distributed's optional dependency).
 DASHBOARD_FIX = "pip install 'rbstudy[dashboard]'"
 # The module of a study's tasks, which the forkserver of local workers imports.
@@ -112,8 +123,13 @@ class Where:
     @property
     def starting(self):
         """What a run does while it reaches its cluster."""
-        return (f"connecting to {self.scheduler}" if self.scheduler else
-                f"starting {self.workers} workers" if self.workers else "starting the cluster")
+        return (
+            f"connecting to {self.scheduler}"
+            if self.scheduler
+            else f"starting {self.workers} workers"
+            if self.workers
+            else "starting the cluster"
+        )
 
 
 # The tasks on this process's threads: no cluster.
@@ -131,8 +147,9 @@ def read_cluster_file(path):
     if kind not in kinds:
         reader.fail("kind", f"expected one of {', '.join(kinds)}, got {kind!r}")
     if ("jobs" in data) == ("adaptive" in data):
-        reader.fail("jobs", "give either jobs (a fixed number) or adaptive (minimum and "
-                            "maximum), not both or neither")
+        reader.fail(
+            "jobs", "give either jobs (a fixed number) or adaptive (minimum and maximum), not both or neither"
+        )
     jobs = reader.count(data["jobs"], "jobs") if "jobs" in data else None
     adaptive = None
     if "adaptive" in data:
@@ -210,30 +227,39 @@ def _start(spec, logs=None):
     configuration names a ``log_directory``."""
     if spec.kind == "local":
         make, name = _forked_local_cluster, "LocalCluster"
-        options = {"n_workers": spec.jobs or 0, "threads_per_worker": 1, "processes": True,
-                   # on a free port, where bokeh can draw it
-                   "dashboard_address": ":0" if _bokeh() else None,
-                   "silence_logs": logging.CRITICAL,
-                   "preload": [__name__], **spec.options}  # its dask_setup, in each worker
+        options = {
+            "n_workers": spec.jobs or 0,
+            "threads_per_worker": 1,
+            "processes": True,
+            # on a free port, where bokeh can draw it
+            "dashboard_address": ":0" if _bokeh() else None,
+            "silence_logs": logging.CRITICAL,
+            "preload": [__name__],
+            **spec.options,
+        }  # its dask_setup, in each worker
     else:
         try:
             import dask_jobqueue
         except ImportError:
-            raise ConfigError(f"a {spec.kind} cluster needs dask-jobqueue",
-                              "pip install 'rbstudy[cluster]'", spec.path, "kind") from None
+            raise ConfigError(
+                f"a {spec.kind} cluster needs dask-jobqueue",
+                "pip install 'rbstudy[cluster]'",
+                spec.path,
+                "kind",
+            ) from None
         import dask
 
         name = JOB_CLUSTERS[spec.kind]
         make = getattr(dask_jobqueue, name)
         options = spec.options
         # else SLURM and PBS write each job's output where the sweep was started
-        if logs is not None and dask.config.get(f"jobqueue.{spec.kind}.log-directory",
-                                                None) is None:
+        if logs is not None and dask.config.get(f"jobqueue.{spec.kind}.log-directory", None) is None:
             options = {"log_directory": str(logs), **options}
         # the dashboard on a free port unless the file names one: dask-jobqueue's 8787, taken
         # (by another sweep, a notebook), made distributed print a warning
-        scheduler = options.get("scheduler_options", dask.config.get(
-            f"jobqueue.{spec.kind}.scheduler-options", None) or {})
+        scheduler = options.get(
+            "scheduler_options", dask.config.get(f"jobqueue.{spec.kind}.scheduler-options", None) or {}
+        )
         if isinstance(scheduler, dict):
             options = {**options, "scheduler_options": {"dashboard_address": ":0", **scheduler}}
     try:
@@ -241,8 +267,9 @@ def _start(spec, logs=None):
     except (TypeError, ValueError, RuntimeError) as error:
         # a worker that fails to start on a bad option says why in the cause
         cause = error.__cause__
-        refused = one_line(error) + (f" ({type(cause).__name__}: {one_line(cause)})"
-                                     if cause is not None else "")
+        refused = one_line(error) + (
+            f" ({type(cause).__name__}: {one_line(cause)})" if cause is not None else ""
+        )
     else:
         refused = None
     if refused is not None:
@@ -268,9 +295,13 @@ def connect(scheduler=None, workers=None, cluster=None, logs=None):
     distributed's own log lines are held back meanwhile: a failure ends the run with one
     line of ours (`run_on_cluster`), not pages of reconnection tracebacks."""
     from distributed import Client
+
     # distributed's configuration gives some of its loggers levels of their own
-    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
-               if name.partition(".")[0] == "distributed"]
+    loggers = [
+        logging.getLogger(name)
+        for name in list(logging.root.manager.loggerDict)
+        if name.partition(".")[0] == "distributed"
+    ]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.setLevel(logging.CRITICAL)
@@ -280,9 +311,11 @@ def connect(scheduler=None, workers=None, cluster=None, logs=None):
                 try:
                     client = Client(scheduler, timeout=CONNECT_TIMEOUT)
                 except (OSError, TimeoutError) as error:
-                    raise RbstudyError(f"--scheduler {scheduler}: cannot connect "
-                                       f"({one_line(error)}); "
-                                       "start the cluster first or drop --scheduler") from None
+                    raise RbstudyError(
+                        f"--scheduler {scheduler}: cannot connect "
+                        f"({one_line(error)}); "
+                        "start the cluster first or drop --scheduler"
+                    ) from None
             else:
                 spec = cluster or ClusterFile("--workers", "local", workers, None, {})
                 started = stack.enter_context(contextlib.closing(_start(spec, logs)))
@@ -319,8 +352,10 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
 
     def kept():  # counted on disk: a worker may have written a part whose news was lost
         paths = [target.path for target in targets.values()]
-        return (f"{sum(map(sealed, paths))} of {len(paths)} batches are kept in "
-                f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume")
+        return (
+            f"{sum(map(sealed, paths))} of {len(paths)} batches are kept in "
+            f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume"
+        )
 
     try:
         while pending:
@@ -332,8 +367,9 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                 elif waiting_since is None:
                     waiting_since = now
                     if not seen_workers:
-                        progress.say(f"{progress.label}: waiting up to {worker_wait:g} s for "
-                                     f"a worker to join {where}")
+                        progress.say(
+                            f"{progress.label}: waiting up to {worker_wait:g} s for a worker to join {where}"
+                        )
                 else:
                     word = None
                     if fixed_jobs and now - asked >= JOBS_LOOK_SECONDS:
@@ -343,8 +379,10 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                         # a part this run wrote proves a worker, even one that came and went
                         # between two looks
                         seen_workers = seen_workers or any(
-                            sealed(target.path) for target in targets.values()
-                            if target.path not in sealed_before)
+                            sealed(target.path)
+                            for target in targets.values()
+                            if target.path not in sealed_before
+                        )
                         what = "every worker left" if seen_workers else "no worker joined"
                         when = f"for {worker_wait:g} s" if waited else "and every job ended"
                         said, fix, _ = word or _jobs_said(client) or _UNASKED
@@ -364,7 +402,8 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
                         f"batch {targets[future.key].batch.id}: its workers died while running "
                         f"it, more often than {where} allows (KilledWorker, allowed-failures "
                         f"= {allowed}: killed at their walltime or memory limit?); {kept()}, "
-                        "with a longer walltime or more memory per worker") from None
+                        "with a longer walltime or more memory per worker"
+                    ) from None
                 seen_workers = True  # a batch that came back had a worker (see above)
                 target = targets[future.key]
                 if values is not None:
@@ -377,8 +416,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
         if client.status == "running" and not isinstance(error, CancelledError):
             raise  # this machine's own trouble (a full disk writing a part)
-        raise RbstudyError(f"the scheduler {where} went away (or cancelled this run); "
-                           f"{kept()}") from None
+        raise RbstudyError(f"the scheduler {where} went away (or cancelled this run); {kept()}") from None
     finally:
         with contextlib.suppress(Exception):  # nothing to tell a scheduler that has gone
             client.cancel(list(pending))  # a shared cluster stops working for this run
@@ -396,8 +434,9 @@ class JobsWord(NamedTuple):
 
 # What the worker-wait line says when the batch system was not asked (a --scheduler or a local
 # cluster, PBS) or did not answer.
-_UNASKED = JobsWord("are the workers' jobs queued or ended? squeue, qstat",
-                    ", or wait longer with --worker-wait", False)
+_UNASKED = JobsWord(
+    "are the workers' jobs queued or ended? squeue, qstat", ", or wait longer with --worker-wait", False
+)
 
 
 def _slurm_jobs(ids):
@@ -407,9 +446,13 @@ def _slurm_jobs(ids):
 
     Jobs alike are named together: ``SLURM: job 7 PENDING (PartitionDown)``, ``SLURM: job 8
     TIMEOUT (walltime 1:00)``, ``SLURM: job 9 CANCELLED``."""
-    answer = subprocess.run(["squeue", "--noheader", "--states=all", f"--jobs={','.join(ids)}",
-                             "--format=%i %T %r %l"], capture_output=True, text=True,
-                            timeout=JOB_QUERY_SECONDS, check=False)
+    answer = subprocess.run(
+        ["squeue", "--noheader", "--states=all", f"--jobs={','.join(ids)}", "--format=%i %T %r %l"],
+        capture_output=True,
+        text=True,
+        timeout=JOB_QUERY_SECONDS,
+        check=False,
+    )
     rows = [line.split() for line in answer.stdout.splitlines()]
     if answer.returncode or not rows or any(len(row) != 4 for row in rows):
         return None
@@ -426,11 +469,14 @@ def _slurm_jobs(ids):
     for (state, why), jobs in alike.items():
         named = ", ".join(jobs[:_JOBS_NAMED]) + (", ..." if len(jobs) > _JOBS_NAMED else "")
         said.append(f"job{'s' * (len(jobs) > 1)} {named} {state}" + (f" ({why})" if why else ""))
-    fix = (", with a longer walltime in the cluster file" if timed_out else
-           ", or wait longer with --worker-wait" if any(state == "PENDING" for state, _ in alike)
-           else "")
-    return JobsWord("SLURM: " + ", ".join(said), fix,
-                    all(state in _SLURM_ENDED for state, _ in alike))
+    fix = (
+        ", with a longer walltime in the cluster file"
+        if timed_out
+        else ", or wait longer with --worker-wait"
+        if any(state == "PENDING" for state, _ in alike)
+        else ""
+    )
+    return JobsWord("SLURM: " + ", ".join(said), fix, all(state in _SLURM_ENDED for state, _ in alike))
 
 
 # How to ask each batch system about its jobs, by dask-jobqueue class.
@@ -442,8 +488,7 @@ def _jobs_said(client):
     when rbstudy did not start that cluster, cannot ask its batch system, or got no answer."""
     cluster = getattr(client, "cluster", None)
     ask = _ASK_JOBS.get(type(cluster).__name__)
-    ids = [job.job_id for job in getattr(cluster, "workers", {}).values()
-           if getattr(job, "job_id", None)]
+    ids = [job.job_id for job in getattr(cluster, "workers", {}).values() if getattr(job, "job_id", None)]
     if ask is None or not ids:
         return None
     try:

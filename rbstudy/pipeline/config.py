@@ -45,8 +45,7 @@ from rbstudy.pipeline.yaml_file import read_yaml_file
 from rbstudy.reader import Reader
 from rbstudy.schemes import composition_reach, get_scheme
 
-__all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES",
-           "MAX_CASES"]
+__all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -54,7 +53,7 @@ _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 # bodies to amortise a task's overhead, few enough that several batches run at once and a kill
 # loses little work.
 BATCH_MAX_CASES = 512
-BATCH_MAX_BYTES = 256 * 2 ** 20
+BATCH_MAX_BYTES = 256 * 2**20
 
 
 @dataclass(frozen=True)
@@ -117,15 +116,16 @@ class StudyConfig:
     def bytes_per_case(self):
         """Bytes one case occupies in the archive."""
         sizes = {"time": self.n_times, "axis": 3, "component": 4, "node": len(self.node_names)}
-        return sum(np.dtype(VARIABLES[name].dtype).itemsize
-                   * math.prod(sizes[d] for d in VARIABLES[name].dims) for name in self.variables)
+        return sum(
+            np.dtype(VARIABLES[name].dtype).itemsize * math.prod(sizes[d] for d in VARIABLES[name].dims)
+            for name in self.variables
+        )
 
     def working_bytes_per_case(self):
         """Bytes a case holds while its batch runs: sampled states, outputs, and its
         parameter row (long with long load tables)."""
         knots = self.cases.scenes.loads["knots"].shape[-1]
-        return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times
-                                                                  + row_width(knots))
+        return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times + row_width(knots))
 
     @property
     def warnings(self):
@@ -147,23 +147,26 @@ def _knot_warnings(cases, duration):
         order = scheme.nominal_order(run.options)
         if order <= 2 or scheme.adaptive:
             continue
-        composed = any(option.sets_order and option.name in run.options
-                       for option in scheme.options)
+        composed = any(option.sets_order and option.name in run.options for option in scheme.options)
         earliest, latest = composition_reach(order) if composed else (0.0, 1.0)
         if tabulated.size and (earliest < 0.0 or latest > 1.0):
-            return (f"scene.loads: {run.scheme} with composition {order} takes the loads up to "
-                    f"{max(-earliest, latest - 1.0):.2f} dt outside each step, across the "
-                    "knots and ends of the load tables: it converges at order 2 only under "
-                    "loads tabulated in time; use composition 6 or 8, whose stages stay "
-                    "inside the step",)
+            return (
+                f"scene.loads: {run.scheme} with composition {order} takes the loads up to "
+                f"{max(-earliest, latest - 1.0):.2f} dt outside each step, across the "
+                "knots and ends of the load tables: it converges at order 2 only under "
+                "loads tabulated in time; use composition 6 or 8, whose stages stay "
+                "inside the step",
+            )
         steps = knots / run.dt
         inside = knots[np.abs(steps - np.round(steps)) > 1e-9 * np.maximum(steps, 1.0)]
         if inside.size:
             more = f" (and {inside.size - 1} more)" if inside.size > 1 else ""
-            return (f"scene.loads: the load tables' knot at t = {inside[0]:g} s{more} "
-                    f"falls inside a step of dt = {run.dt:g} s: "
-                    f"{run.scheme} (order {order}) converges at order 2 only across it; "
-                    "put the knots on multiples of dt",)
+            return (
+                f"scene.loads: the load tables' knot at t = {inside[0]:g} s{more} "
+                f"falls inside a step of dt = {run.dt:g} s: "
+                f"{run.scheme} (order {order}) converges at order 2 only across it; "
+                "put the knots on multiples of dt",
+            )
     return ()
 
 
@@ -179,13 +182,16 @@ def _variables(reader, requested, scenes):
         reader.fail("output.variables", f"expected a non-empty list of names, got {requested!r}")
     for i, name in enumerate(requested):
         if not isinstance(name, str) or name not in VARIABLES:
-            reader.fail(f"output.variables[{i}]", f"unknown variable {name!r}",
-                        f"valid: {', '.join(VARIABLES)}")
+            reader.fail(
+                f"output.variables[{i}]", f"unknown variable {name!r}", f"valid: {', '.join(VARIABLES)}"
+            )
         if name not in available:
             needs = ", ".join(sorted(VARIABLES[name].needs))
-            reader.fail(f"output.variables[{i}]",
-                        f"{name} needs {needs}, which not every case of this study has",
-                        "remove it")
+            reader.fail(
+                f"output.variables[{i}]",
+                f"{name} needs {needs}, which not every case of this study has",
+                "remove it",
+            )
     wanted = set(requested) | {DEPRECATED[name] for name in requested if name in DEPRECATED}
     kept = set(wanted) | set(BOOKKEEPING) | set(UNCERTAINTIES)
     return tuple(name for name in available if name in kept)
@@ -203,8 +209,7 @@ class OrderDimension(NamedTuple):
 def order_dimension(dimensions, schemes):
     """The `OrderDimension` of a swept option that sets the nominal order of one of
     ``schemes`` (the study's), or None."""
-    setting = {option.name for name in schemes for option in get_scheme(name).options
-               if option.sets_order}
+    setting = {option.name for name in schemes for option in get_scheme(name).options if option.sets_order}
     for dim in dimensions:
         for axis in dim.axes:
             option = axis.target.removeprefix("run.options.")
@@ -224,11 +229,15 @@ def _scheme_claims(cases, dimensions):
     for name in names:
         scheme = get_scheme(name)
         options = next(run.options for run in cases.runs if run.scheme == name)
-        claims[name] = {coordinate: getattr(scheme, attribute)
-                        for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()}
+        claims[name] = {
+            coordinate: getattr(scheme, attribute)
+            for coordinate, (attribute, _, _) in SCHEME_COORDINATES.items()
+        }
         claims[name]["nominal_order"] = (
-            scheme.nominal_order(options) if swept is None else
-            tuple(scheme.nominal_order({**options, swept.option: value}) for value in swept.values))
+            scheme.nominal_order(options)
+            if swept is None
+            else tuple(scheme.nominal_order({**options, swept.option: value}) for value in swept.values)
+        )
     return claims
 
 
@@ -238,8 +247,7 @@ def _output_interval(reader, output, dt, swept):
         return reader.number(output["interval"], "output.interval", positive=True)
     if "dt" not in swept and dt is not None:
         return dt
-    reader.fail("output.interval", "missing",
-                "with dt swept, give the output interval (s)")
+    reader.fail("output.interval", "missing", "with dt swept, give the output interval (s)")
 
 
 def load_study(path: str | os.PathLike, overrides: Sequence[str] = ()) -> StudyConfig:
@@ -268,8 +276,13 @@ def _validated(path, text, overridden):
     dimensions = parse_sweep(reader, data.get("sweep"))
     count = math.prod(d.size for d in dimensions)
     if count > MAX_CASES:
-        reader.fail("sweep", f"{count:,} cases (" + " x ".join(str(d.size) for d in dimensions)
-                    + f"); at most {MAX_CASES:,} per study", "split it into several studies")
+        reader.fail(
+            "sweep",
+            f"{count:,} cases ("
+            + " x ".join(str(d.size) for d in dimensions)
+            + f"); at most {MAX_CASES:,} per study",
+            "split it into several studies",
+        )
     swept = {axis.target for d in dimensions for axis in d.axes}
     for key in ("scheme", "dt"):
         if key not in run and key not in swept:
@@ -283,11 +296,11 @@ def _validated(path, text, overridden):
             raise reader.locate(error, "run.scheme") from None
     if not isinstance(run.get("options") or {}, dict):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
-    output = reader.mapping(data.get("output"), "output",
-                            ("interval", "variables", "accuracy_bound"))
+    output = reader.mapping(data.get("output"), "output", ("interval", "variables", "accuracy_bound"))
     interval = _output_interval(reader, output, dt, swept)
-    accuracy_bound = reader.number(output.get("accuracy_bound", ACCURACY_BOUND),
-                                   "output.accuracy_bound", positive=True)
+    accuracy_bound = reader.number(
+        output.get("accuracy_bound", ACCURACY_BOUND), "output.accuracy_bound", positive=True
+    )
     if not isinstance(data["scene"], dict):
         reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
     base = {"scene": data["scene"], "run": dict(run)}
@@ -299,19 +312,33 @@ def _validated(path, text, overridden):
         raise reader.locate(error, "output.interval") from None
     variables = _variables(reader, output.get("variables"), cases.scenes)
     dimensions = label_options(dimensions, sorted({run.scheme for run in cases.runs}))
-    study = StudyConfig(path=path, text=text, overrides=overridden.assignments,
-                        archived_text=overridden.text(text), name=name, title=title,
-                        base=base, output_interval=interval, accuracy_bound=accuracy_bound,
-                        duration=duration,
-                        dimensions=dimensions, cases=cases, variables=variables, batches=(),
-                        schemes=_scheme_claims(cases, dimensions))
+    study = StudyConfig(
+        path=path,
+        text=text,
+        overrides=overridden.assignments,
+        archived_text=overridden.text(text),
+        name=name,
+        title=title,
+        base=base,
+        output_interval=interval,
+        accuracy_bound=accuracy_bound,
+        duration=duration,
+        dimensions=dimensions,
+        cases=cases,
+        variables=variables,
+        batches=(),
+        schemes=_scheme_claims(cases, dimensions),
+    )
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
-    batches = plan_batches(cases, base["scene"], dimensions, interval, variables, max_cases,
-                           verdict={"accuracy_bound": accuracy_bound},
-                           run_costs=[get_scheme(run.scheme).seconds_per_step(run.options)
-                                      for run in cases.runs],
-                           code_digests={name: get_scheme(name).code_digest
-                                         for name in study.schemes})
+    batches = plan_batches(
+        cases,
+        base["scene"],
+        dimensions,
+        interval,
+        variables,
+        max_cases,
+        verdict={"accuracy_bound": accuracy_bound},
+        run_costs=[get_scheme(run.scheme).seconds_per_step(run.options) for run in cases.runs],
+        code_digests={name: get_scheme(name).code_digest for name in study.schemes},
+    )
     return dataclasses.replace(study, batches=batches)
-
-

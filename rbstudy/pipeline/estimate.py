@@ -34,9 +34,19 @@ from rbstudy.physics.references import (
 from rbstudy.physics.time_grid import output_count, step_count
 from rbstudy.schemes import get_scheme
 
-__all__ = ["Estimate", "estimate", "describe", "check_limits", "check_disk", "disk_needed",
-           "forecast_disk", "MAX_BODY_STEPS", "MEMORY_FRACTION", "PROCESS_BYTES",
-           "physical_memory"]
+__all__ = [
+    "Estimate",
+    "estimate",
+    "describe",
+    "check_limits",
+    "check_disk",
+    "disk_needed",
+    "forecast_disk",
+    "MAX_BODY_STEPS",
+    "MEMORY_FRACTION",
+    "PROCESS_BYTES",
+    "physical_memory",
+]
 
 # Default of --max-body-steps: about three hours of one core for the fastest schemes; a study
 # past it is far more likely a slip of dt or duration than an intent.
@@ -45,14 +55,14 @@ MAX_BODY_STEPS = 1e11
 MEMORY_FRACTION = 0.5
 # Resident memory of a sweep process before any batch: Python, numpy, scipy, numba, dask and
 # xarray loaded and the schemes compiled (330-420 MiB measured, docs/performance.md).
-PROCESS_BYTES = 400 * 2 ** 20
+PROCESS_BYTES = 400 * 2**20
 # A batch in flight holds its sampled states, its references (about as large) and the derived
 # variables being built from both: about this many times its sampled states and outputs.
 IN_FLIGHT_FACTOR = 3
 # What a netCDF file holds besides its data (HDF5 structure, coordinates, attributes), and a
 # part's digest beside it: 32-34 KiB measured for a part, rounded up.
-_FILE_OVERHEAD = 40 * 2 ** 10
-_MIB = 2 ** 20
+_FILE_OVERHEAD = 40 * 2**10
+_MIB = 2**20
 # Each load evaluation of a scene with tables in time bisects the study's K knots
 # (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
 # log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike:
@@ -167,8 +177,7 @@ def estimate(study, cores=None):
     neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
     over_budget = int(np.sum(neither[cases.scene_rows]))
     peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
-    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step(
-        {"composition": REFERENCE_COMPOSITION})
+    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step({"composition": REFERENCE_COMPOSITION})
     per_peer = get_scheme("dop853").step_seconds
     each = peer * per_peer + composed * per_composed
     seconds += float(each.sum())
@@ -177,18 +186,24 @@ def estimate(study, cores=None):
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
-    return Estimate(body_steps=body_steps, references=len(rows), reference_steps=reference_steps,
-                    over_budget=over_budget, core_seconds=seconds, longest_seconds=longest,
-                    cores=cores, peak_bytes=PROCESS_BYTES + in_flight,
-                    archive_bytes=study.bytes_per_case() * len(study.cases))
+    return Estimate(
+        body_steps=body_steps,
+        references=len(rows),
+        reference_steps=reference_steps,
+        over_budget=over_budget,
+        core_seconds=seconds,
+        longest_seconds=longest,
+        cores=cores,
+        peak_bytes=PROCESS_BYTES + in_flight,
+        archive_bytes=study.bytes_per_case() * len(study.cases),
+    )
 
 
 def disk_needed(study, pending):
     """Bytes on disk for the parts of the batches ``pending`` and the archive, which coexist
     until the parts are removed (both uncompressed, with each file's overhead)."""
     cases = sum(len(batch.cases) for batch in pending)
-    return ((cases + len(study.cases)) * study.bytes_per_case()
-            + (len(pending) + 1) * _FILE_OVERHEAD)
+    return (cases + len(study.cases)) * study.bytes_per_case() + (len(pending) + 1) * _FILE_OVERHEAD
 
 
 def _duration(seconds):
@@ -209,17 +224,25 @@ def _count(number, noun, plural=None):
 def describe(study, cost):
     """One line: cases, batches, output times and the `Estimate`."""
     axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
-    text = (f"{study.name}: {_count(len(study.cases), 'case')} ({axes}) in "
-            f"{_count(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
-            f"{cost.body_steps:.2g} body-steps")
+    text = (
+        f"{study.name}: {_count(len(study.cases), 'case')} ({axes}) in "
+        f"{_count(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
+        f"{cost.body_steps:.2g} body-steps"
+    )
     if cost.references:
-        text += (f" and {cost.reference_steps:.2g} reference steps "
-                 f"({_count(cost.references, 'scene')}, each integrated twice)")
-    text += (f", kernels {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
-             f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB")
+        text += (
+            f" and {cost.reference_steps:.2g} reference steps "
+            f"({_count(cost.references, 'scene')}, each integrated twice)"
+        )
+    text += (
+        f", kernels {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
+        f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB"
+    )
     if cost.over_budget:
-        text += (f"; no reference within {REFERENCE_MAX_STEPS:.0e} steps for "
-                 f"{_count(cost.over_budget, 'case')} (too many turns): reference = none there")
+        text += (
+            f"; no reference within {REFERENCE_MAX_STEPS:.0e} steps for "
+            f"{_count(cost.over_budget, 'case')} (too many turns): reference = none there"
+        )
     return text
 
 
@@ -241,7 +264,9 @@ def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
             f"needs {cost.body_steps:.2g} body-steps, kernels {_duration(cost.wall_seconds)} on "
             f"{_count(cost.cores, 'core')} (limit {max_body_steps:.2g}, --max-body-steps)",
             "use a larger dt, a shorter duration or fewer cases, or raise --max-body-steps",
-            source=study.path, key="sweep" if study.dimensions else "run.dt")
+            source=study.path,
+            key="sweep" if study.dimensions else "run.dt",
+        )
     limit = max_memory if max_memory is not None else MEMORY_FRACTION * physical_memory()
     if cost.peak_bytes > limit:
         which = "--max-memory" if max_memory is not None else "half of this machine's"
@@ -249,7 +274,9 @@ def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
             f"needs about {cost.peak_bytes / _MIB:,.0f} MiB of memory at once (limit "
             f"{limit / _MIB:,.0f} MiB, {which})",
             "sweep fewer values, a shorter duration or a longer output.interval",
-            source=study.path, key="sweep" if study.dimensions else "output.interval")
+            source=study.path,
+            key="sweep" if study.dimensions else "output.interval",
+        )
 
 
 def check_disk(study, needed, folder):
@@ -262,13 +289,13 @@ def check_disk(study, needed, folder):
             f"{_mib(free)} MiB are free under {folder}",
             "free space, give --out another disk, or store fewer variables "
             "(output.variables) or samples (output.interval)",
-            source=study.path, key="output")
+            source=study.path,
+            key="output",
+        )
 
 
 def forecast_disk(study, out):
     """`disk_needed` for a sweep into the results root ``out``: the batches whose part is
     not there yet, and the archive."""
     parts = pathlib.Path(out) / study.name / "parts"
-    return disk_needed(study, [batch for batch in study.batches
-                               if not (parts / f"{batch.id}.nc").exists()])
-
+    return disk_needed(study, [batch for batch in study.batches if not (parts / f"{batch.id}.nc").exists()])

@@ -108,27 +108,26 @@ class StudyRun:
     @property
     def said(self):
         """What the run did, in the words of its progress's end line."""
-        return ("up to date" if self.up_to_date else
-                f"{self.computed} batches run, {self.reused} reused")
+        return "up to date" if self.up_to_date else f"{self.computed} batches run, {self.reused} reused"
 
 
 def study_progress(study, quiet=False):
     """The `rbstudy.pipeline.progress.Progress` of a sweep of ``study`` (its start line
     counts the cases and batches), to enter and hand to `run_study`."""
-    return Progress(study.name, f"{len(study.cases)} cases in {len(study.batches)} batches",
-                    quiet=quiet)
+    return Progress(study.name, f"{len(study.cases)} cases in {len(study.batches)} batches", quiet=quiet)
 
 
-def compute_references(table: SceneTable, rows: np.ndarray, n_times: int,
-                       output_interval: float) -> list[Reference]:
+def compute_references(
+    table: SceneTable, rows: np.ndarray, n_times: int, output_interval: float
+) -> list[Reference]:
     """The references of the scenes ``rows`` of ``table`` on the output grid of ``n_times``
     samples (a dask task)."""
-    return reference_solutions([table.scene(row) for row in rows],
-                               output_times(n_times, output_interval))
+    return reference_solutions([table.scene(row) for row in rows], output_times(n_times, output_interval))
 
 
-def compute_batch(job: BatchJob, table: SceneTable, reference_chunks: list[list[Reference]],
-                  threads: int) -> dict[str, np.ndarray]:
+def compute_batch(
+    job: BatchJob, table: SceneTable, reference_chunks: list[list[Reference]], threads: int
+) -> dict[str, np.ndarray]:
     """Run one batch and return its outputs, name -> array with the case axis first.
 
     ``reference_chunks`` are the results of the reference tasks the batch needs; each case
@@ -138,11 +137,11 @@ def compute_batch(job: BatchJob, table: SceneTable, reference_chunks: list[list[
     """
     references = [reference_chunks[chunk][position] for chunk, position in job.references]
     scenes = [table.scene(row) for row in job.scene_rows]
-    run = simulate(scenes, job.scheme, job.dt, job.output_interval, list(job.options),
-                   threads=threads)
+    run = simulate(scenes, job.scheme, job.dt, job.output_interval, list(job.options), threads=threads)
     per_case = run.output.kernel_cpu_seconds / len(scenes)
-    return evaluate(job.variables, BatchData(scenes, run, references, [per_case] * len(scenes),
-                                             job.accuracy_bound))
+    return evaluate(
+        job.variables, BatchData(scenes, run, references, [per_case] * len(scenes), job.accuracy_bound)
+    )
 
 
 def deliver_part(values, layout, batch, path, writer, probe):
@@ -156,9 +155,11 @@ def deliver_part(values, layout, batch, path, writer, probe):
     if writer == "client" or (writer == "auto" and not sees_folder(probe)):
         return None, values
     if not sees_folder(probe):
-        raise RbstudyError(f"{pathlib.Path(path).parent}: a worker on {os.uname().nodename} "
-                           "does not see this results folder; use --writer auto or client "
-                           "(the workers send the values back)")
+        raise RbstudyError(
+            f"{pathlib.Path(path).parent}: a worker on {os.uname().nodename} "
+            "does not see this results folder; use --writer auto or client "
+            "(the workers send the values back)"
+        )
     return write_part(layout, batch, values, path), None
 
 
@@ -180,13 +181,17 @@ def _show_compiling(progress, name, compiling):
     total, done, running = compiling.total, compiling.done, compiling.running
     if not done and not running:
         plural = "s" * (total > 1)
-        progress.say(f"{name}: compiling {total} scheme{plural} first, {compiling.processes} "
-                     "at a time, once per machine\n  and rbstudy version, into numba's cache "
-                     f"{compiling.cache}")
+        progress.say(
+            f"{name}: compiling {total} scheme{plural} first, {compiling.processes} "
+            "at a time, once per machine\n  and rbstudy version, into numba's cache "
+            f"{compiling.cache}"
+        )
         progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes")
     else:
-        progress.update(f"{name}: compiling {', '.join(running)}" if running
-                        else f"{name}: loading the compiled schemes", done)
+        progress.update(
+            f"{name}: compiling {', '.join(running)}" if running else f"{name}: loading the compiled schemes",
+            done,
+        )
 
 
 def study_lock(folder):
@@ -204,9 +209,11 @@ def study_lock(folder):
     try:
         held = lock.acquire()
     except Timeout:
-        raise RbstudyError(f"{folder}: another rbstudy sweep is writing this study (pid "
-                           f"{_holder(folder)}); wait for it to finish or use another "
-                           "--out") from None
+        raise RbstudyError(
+            f"{folder}: another rbstudy sweep is writing this study (pid "
+            f"{_holder(folder)}); wait for it to finish or use another "
+            "--out"
+        ) from None
     except OSError as error:
         raise unwritable(folder, error) from None
     try:
@@ -257,8 +264,7 @@ def _reference_chunks(study, pending):
     rank = np.empty(len(distinct), dtype=np.int64)
     rank[by_first_use] = np.arange(len(distinct))
     ranks = rank[np.searchsorted(distinct, rows)]
-    chunks = [distinct[by_first_use[start:start + size]]
-              for start in range(0, len(distinct), size)]
+    chunks = [distinct[by_first_use[start : start + size]] for start in range(0, len(distinct), size)]
     return chunks, np.stack([ranks // size, ranks % size], axis=1)
 
 
@@ -276,31 +282,53 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
     table = dask.delayed(study.cases.scenes, traverse=False)
     chunks, where = _reference_chunks(study, pending)
     reference_tasks = [
-        dask.delayed(compute_references)(table, dask.delayed(rows, traverse=False),
-                                         study.n_times, study.output_interval,
-                                         dask_key_name=f"references-{token}-{k}")
-        for k, rows in enumerate(chunks)]
+        dask.delayed(compute_references)(
+            table,
+            dask.delayed(rows, traverse=False),
+            study.n_times,
+            study.output_interval,
+            dask_key_name=f"references-{token}-{k}",
+        )
+        for k, rows in enumerate(chunks)
+    ]
     runs = study.cases.runs
     tasks, targets = [], {}
     start = 0
     for batch in pending:
-        places = where[start:start + len(batch.cases)]
+        places = where[start : start + len(batch.cases)]
         start += len(batch.cases)
         needed = np.unique(places[:, 0])
         positions = np.stack([np.searchsorted(needed, places[:, 0]), places[:, 1]], axis=1)
         numbers = np.asarray(batch.cases)
-        job = BatchJob(scheme=batch.scheme, dt=batch.dt, output_interval=study.output_interval,
-                       scene_rows=study.cases.scene_rows[numbers],
-                       options=tuple(runs[row].options for row in study.cases.run_rows[numbers]),
-                       variables=study.variables, accuracy_bound=study.accuracy_bound,
-                       references=positions)
-        values = dask.delayed(compute_batch)(dask.delayed(job, traverse=False), table,
-                                             [reference_tasks[k] for k in needed], threads,
-                                             dask_key_name=f"batch-{token}-{batch.id}")
+        job = BatchJob(
+            scheme=batch.scheme,
+            dt=batch.dt,
+            output_interval=study.output_interval,
+            scene_rows=study.cases.scene_rows[numbers],
+            options=tuple(runs[row].options for row in study.cases.run_rows[numbers]),
+            variables=study.variables,
+            accuracy_bound=study.accuracy_bound,
+            references=positions,
+        )
+        values = dask.delayed(compute_batch)(
+            dask.delayed(job, traverse=False),
+            table,
+            [reference_tasks[k] for k in needed],
+            threads,
+            dask_key_name=f"batch-{token}-{batch.id}",
+        )
         key, path = f"store-{token}-{batch.id}", str(parts_dir / f"{batch.id}.nc")
-        tasks.append(dask.delayed(deliver_part)(
-            values, dask.delayed(layout, traverse=False), dask.delayed(batch, traverse=False),
-            path, writer, probe, dask_key_name=key))
+        tasks.append(
+            dask.delayed(deliver_part)(
+                values,
+                dask.delayed(layout, traverse=False),
+                dask.delayed(batch, traverse=False),
+                path,
+                writer,
+                probe,
+                dask_key_name=key,
+            )
+        )
         targets[key] = PartTarget(layout=layout, batch=batch, path=path)
     return tasks, targets
 
@@ -323,8 +351,7 @@ def _run_local(tasks, targets, progress, workers):
         with _Advance():
             # the threaded scheduler itself: by its name, dask would first import
             # distributed (0.3 s) to look for a client
-            written = dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers,
-                                   pool=pool)
+            written = dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers, pool=pool)
         return {key: digest for key, (digest, _) in zip(targets, written, strict=True)}
     except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
         request_halt()
@@ -334,9 +361,16 @@ def _run_local(tasks, targets, progress, workers):
         clear_halt()  # nothing of this run works any more: later runs must not stop
 
 
-def run_study(study: StudyConfig, root: str | os.PathLike, *, where: Where = LOCAL,
-              force: bool = False, quiet: bool = False, keep_parts: bool = False,
-              progress: Progress | None = None) -> StudyRun:
+def run_study(
+    study: StudyConfig,
+    root: str | os.PathLike,
+    *,
+    where: Where = LOCAL,
+    force: bool = False,
+    quiet: bool = False,
+    keep_parts: bool = False,
+    progress: Progress | None = None,
+) -> StudyRun:
     """Run every batch of ``study`` not already stored, then write ``<root>/<study>/<study>.nc``.
 
     Parameters
@@ -355,8 +389,7 @@ def run_study(study: StudyConfig, root: str | os.PathLike, *, where: Where = LOC
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    made = [path for path in (pathlib.Path(root), pathlib.Path(root) / study.name)
-            if not path.exists()]
+    made = [path for path in (pathlib.Path(root), pathlib.Path(root) / study.name) if not path.exists()]
     folder = _prepare(root, study)
     try:
         try:
@@ -364,14 +397,16 @@ def run_study(study: StudyConfig, root: str | os.PathLike, *, where: Where = LOC
                 own = progress is None
                 if own:
                     progress = stack.enter_context(study_progress(study, quiet))
-                run = _run_in(folder, study, where, force, progress, keep_parts, started,
-                              started_clock)
+                run = _run_in(folder, study, where, force, progress, keep_parts, started, started_clock)
                 if own:
                     progress.end = run.said
             return run
         except OSError as error:  # the folder refused a write (an immutable one under --force)
-            if (error.errno not in WRITE_REFUSALS or error.filename is None
-                    or not pathlib.Path(error.filename).is_relative_to(folder)):
+            if (
+                error.errno not in WRITE_REFUSALS
+                or error.filename is None
+                or not pathlib.Path(error.filename).is_relative_to(folder)
+            ):
                 raise  # not a refusal of the study folder: a bug
             raise unwritable(folder, error) from None
     except RbstudyError:
@@ -390,8 +425,11 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         # A read-only folder can still answer a rerun of its study: every file in it is
         # replaced whole by a rename, so reading needs no lock. Only when there is nothing
         # to write: the archive current and intact, and described by this very text.
-        if (force or archive_state(target, study)[0] != "current"
-                or _described_by(target) != study.archived_text):
+        if (
+            force
+            or archive_state(target, study)[0] != "current"
+            or _described_by(target) != study.archived_text
+        ):
             raise
         return _up_to_date(target, study, started_clock)
     with lock:
@@ -399,8 +437,7 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         # checks every study before it runs any, but another sweep may claim the folder since
         folder_claim(folder.parent, study, force)
         claim_folder(folder, study)
-        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp"),
-                      *parts_dir.glob(".probe-*")]:
+        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp"), *parts_dir.glob(".probe-*")]:
             stale.unlink()  # left by a killed sweep; the lock is ours
         state, archive_problems = archive_state(target, study)
         if not force and state == "current":
@@ -413,8 +450,7 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         digests = {}
         if not force:
-            progress.phase(f"{study.name}: checking stored parts", len(study.batches),
-                           "parts")
+            progress.phase(f"{study.name}: checking stored parts", len(study.batches), "parts")
             for batch in study.batches:
                 digests[batch.id] = part_complete(parts[batch.id], batch)
                 progress.advance()
@@ -426,8 +462,15 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         threads = 1 if where.distributed else max(1, cores // max(1, len(pending)))
         token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
         probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
-        tasks, targets = _graph(study, pending, parts_dir, threads, token, where.writer,
-                                (str(probe), token) if where.distributed else None)
+        tasks, targets = _graph(
+            study,
+            pending,
+            parts_dir,
+            threads,
+            token,
+            where.writer,
+            (str(probe), token) if where.distributed else None,
+        )
         # the kernels take the time where the scenes have load tables, or loads only those
         # kernels carry (numerics/clock.py)
         timed = needs_time(study.cases.scenes.loads)
@@ -435,21 +478,30 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
         # stretches, and a batch beside it would stall; a cluster's workers then load from
         # the cache what this process put there (a worker whose processor differs compiles
         # at its first batch), and a first run is announced here, not in a worker's log.
-        get_ready({(batch.scheme, timed) for batch in pending}, cores,
-                  watch=functools.partial(_show_compiling, progress, study.name))
+        get_ready(
+            {(batch.scheme, timed) for batch in pending},
+            cores,
+            watch=functools.partial(_show_compiling, progress, study.name),
+        )
         cases = sum(target.cases for target in targets.values())
         written, returned = {}, 0  # the digest of each part, by its store task's key
         if tasks and where.distributed:
             probe.write_text(token)
             try:
                 progress.phase(f"{study.name}: {where.starting}")
-                with connect(where.scheduler, where.workers, where.cluster,
-                             logs=parts_dir / _JOB_LOGS) as client:
+                with connect(
+                    where.scheduler, where.workers, where.cluster, logs=parts_dir / _JOB_LOGS
+                ) as client:
                     progress.say(f"{study.name}: {dashboard_line(client)}")
                     progress.phase(f"{study.name}: running batches", cases, "cases")
                     written, returned = run_on_cluster(
-                        client, tasks, targets, progress, where.worker_wait,
-                        fixed_jobs=where.cluster is not None and where.cluster.jobs is not None)
+                        client,
+                        tasks,
+                        targets,
+                        progress,
+                        where.worker_wait,
+                        fixed_jobs=where.cluster is not None and where.cluster.jobs is not None,
+                    )
             finally:
                 probe.unlink()
         elif tasks:
@@ -457,8 +509,9 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
             written = _run_local(tasks, targets, progress, cores)
         digests.update({target.batch.id: written[key] for key, target in targets.items()})
         progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
-        consolidate(study, parts, digests, target, global_attrs(study, started=started),
-                    advance=progress.advance)
+        consolidate(
+            study, parts, digests, target, global_attrs(study, started=started), advance=progress.advance
+        )
         write_text_atomic(resolved_config(study), folder / "study.yaml")
         if keep_parts:
             current = {path.name for path in parts.values()}
@@ -467,10 +520,16 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
                     old.unlink()  # from an earlier version of the config
         else:
             shutil.rmtree(parts_dir)
-    return StudyRun(path=target, computed=len(pending),
-                    reused=len(study.batches) - len(pending), cases=len(study.cases),
-                    wall_seconds=time.perf_counter() - started_clock, damaged_parts=damaged,
-                    archive_problems=tuple(archive_problems), returned=returned)
+    return StudyRun(
+        path=target,
+        computed=len(pending),
+        reused=len(study.batches) - len(pending),
+        cases=len(study.cases),
+        wall_seconds=time.perf_counter() - started_clock,
+        damaged_parts=damaged,
+        archive_problems=tuple(archive_problems),
+        returned=returned,
+    )
 
 
 def _described_by(target):
@@ -480,5 +539,11 @@ def _described_by(target):
 
 def _up_to_date(target, study, started_clock):
     """The `StudyRun` of a sweep that found its archive current: nothing run."""
-    return StudyRun(path=target, computed=0, reused=len(study.batches), cases=len(study.cases),
-                    up_to_date=True, wall_seconds=time.perf_counter() - started_clock)
+    return StudyRun(
+        path=target,
+        computed=0,
+        reused=len(study.batches),
+        cases=len(study.cases),
+        up_to_date=True,
+        wall_seconds=time.perf_counter() - started_clock,
+    )

@@ -130,8 +130,7 @@ _HLW_OMEGA = (math.cos(1.1) / _HLW[0], 0.0, math.sin(1.1) / _HLW[2])
 # no mass (the run's total mass is Radioss's floor, 1e-20 kg), so the secondary adds no
 # inertia and J = 1 is the whole body's. Its master turns at w_z = 2 rad/s (an imposed
 # velocity, which a free spherical body keeps by itself) for 10 s at dt = 1e-3 s.
-_ROTA_URL = ("https://github.com/OpenRadioss/OpenRadioss/tree/main/qa-tests/miniqa/"
-             "KIN_CONSTRAINTS/RBODY/ROTA")
+_ROTA_URL = "https://github.com/OpenRadioss/OpenRadioss/tree/main/qa-tests/miniqa/KIN_CONSTRAINTS/RBODY/ROTA"
 _ROTA_SPIN, _ROTA_DURATION, _ROTA_DT = 2.0, 10.0, 1e-3
 # A spherical body turns at a constant rate: most schemes are exact on it to round-off at
 # these steps (w dt = 0.002), which shows no order to judge; so the case sweeps the source's
@@ -148,8 +147,10 @@ _ROTA_ENERGY_TOLERANCE = 5e-5
 # the difference of two rotation matrices, and twice a quaternion component's, is at most
 # the angle between them: the card asks the orientation error (rad) to stay within tol(t) and
 # |w - w_exact| (rad/s) within 2 tol(t), no looser than Drake's test.
-_DRAKE_URL = ("https://github.com/RobotLocomotion/drake/blob/master/multibody/benchmarks/"
-              "free_body/test/multibody_plant_free_body_test.cc")
+_DRAKE_URL = (
+    "https://github.com/RobotLocomotion/drake/blob/master/multibody/benchmarks/"
+    "free_body/test/multibody_plant_free_body_test.cc"
+)
 _DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION = (0.04, 0.04, 0.02), (2.0, 4.0, 6.0), 10.0
 _DRAKE_TOLERANCE, _DRAKE_GROWTH = 1e-3, 4 * 256 * 1e-3 / _DRAKE_DURATION
 # The card's largest step: within Drake's largest (a sixteenth of a period, 0.073 s), which
@@ -166,8 +167,9 @@ _DRAKE_DT = 1.0 / 32.0
 # within 1e-5 and each component of w_WB and p_WBcm within the test's own allowance; v_WBcm
 # is not archived, and the test's quaternion-norm assertion (|q| within 5e-9 of 1) is of
 # Drake's unnormalised state, which the archive's unit quaternion does not keep.
-_FLOATING_URL = ("https://github.com/RobotLocomotion/drake/blob/master/multibody/tree/test/"
-                 "floating_body_test.cc")
+_FLOATING_URL = (
+    "https://github.com/RobotLocomotion/drake/blob/master/multibody/tree/test/floating_body_test.cc"
+)
 _FLOATING_OMEGA, _FLOATING_VELOCITY, _FLOATING_GRAVITY = (1.0, 1.0, 1.0), (1.0, 0.0, 0.0), 9.81
 _FLOATING_DURATION, _FLOATING_TOLERANCE = 10.0, 1e-5
 # The card's largest step: an eighth of Drake's largest (0.1 s), which its error control
@@ -180,23 +182,31 @@ _FLOATING_DT = 0.1 / 8
 def _drake_compared(measure, expected):
     """A `Check` of ``measure`` at 10 s as Drake's CompareMatrices(..., 1e-5, relative) asks
     each element: within 1e-5 max(1, |expected|)."""
-    return Check(measure, expected, _FLOATING_TOLERANCE * max(1.0, abs(expected)),
-                 at=_FLOATING_DURATION)
+    return Check(measure, expected, _FLOATING_TOLERANCE * max(1.0, abs(expected)), at=_FLOATING_DURATION)
 
 
 def _floating_checks():
     """The checks of Drake's floating-body test: the orientation, then w_WB and p_WBcm
     component by component, against the closed forms at 10 s."""
-    quaternion, omega = symmetric_top(_DRAKE_INERTIA, (0.0, 0.0, 0.0, 1.0), _FLOATING_OMEGA,
-                                      [_FLOATING_DURATION])
+    quaternion, omega = symmetric_top(
+        _DRAKE_INERTIA, (0.0, 0.0, 0.0, 1.0), _FLOATING_OMEGA, [_FLOATING_DURATION]
+    )
     omega_space = quat_to_matrix(quaternion[0]) @ omega[0]
-    position = (np.asarray(_FLOATING_VELOCITY) * _FLOATING_DURATION
-                - 0.5 * np.array([0.0, 0.0, _FLOATING_GRAVITY]) * _FLOATING_DURATION ** 2)
-    return (Check("orientation_error", 0.0, _FLOATING_TOLERANCE, at=_FLOATING_DURATION),
-            *(_drake_compared(f"omega_space_{axis}", float(value))
-              for axis, value in zip("xyz", omega_space, strict=True)),
-            *(_drake_compared(f"position_{axis}", float(value))
-              for axis, value in zip("xyz", position, strict=True)))
+    position = (
+        np.asarray(_FLOATING_VELOCITY) * _FLOATING_DURATION
+        - 0.5 * np.array([0.0, 0.0, _FLOATING_GRAVITY]) * _FLOATING_DURATION**2
+    )
+    return (
+        Check("orientation_error", 0.0, _FLOATING_TOLERANCE, at=_FLOATING_DURATION),
+        *(
+            _drake_compared(f"omega_space_{axis}", float(value))
+            for axis, value in zip("xyz", omega_space, strict=True)
+        ),
+        *(
+            _drake_compared(f"position_{axis}", float(value))
+            for axis, value in zip("xyz", position, strict=True)
+        ),
+    )
 
 
 # Exudyn's TestModels/explicitLieGroupIntegratorTest.py: a body of mass 15 with a heavy top's
@@ -204,99 +214,186 @@ def _floating_checks():
 # 150, -4.61538) rad/s; its comment gives the y component of the angular velocity in space
 # at t = 2 s from its RK44 at h = 1e-3 s, printed to 17 figures: reproduced to 1e-10 rad/s
 # (a relative 1e-12, room for another build's round-off; exudyn_rk44 gives it to 3e-14).
-_EXUDYN_URL = ("https://github.com/jgerstmayr/EXUDYN/blob/HEAD/main/pythonDev/TestModels/"
-               "explicitLieGroupIntegratorTest.py")
+_EXUDYN_URL = (
+    "https://github.com/jgerstmayr/EXUDYN/blob/HEAD/main/pythonDev/TestModels/"
+    "explicitLieGroupIntegratorTest.py"
+)
 _EXUDYN_MASS, _EXUDYN_DURATION, _EXUDYN_DT = 15.0, 2.0, 1e-3
 _EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE = -106.16651966442174, 1e-10
 
 GOLDEN = (
-    GoldenCase("abaqus_top", "Abaqus force-free symmetric top (I = 1, 1, 2)",
-               _body((1.0, 1.0, 2.0), (0.25, 0.0, 2.0 * math.pi), 2.0,
-                     momentum_axis=(0.0, 0.0, 1.0)),
-               dt=0.01, interval=0.01),
-    GoldenCase("hlw_asymmetric", "Hairer-Lubich-Wanner free body (I = 2, 1, 2/3; unphysical)",
-               _body(_HLW, _HLW_OMEGA, 10.0, unphysical=True), dt=0.1, interval=0.1),
-    GoldenCase("asymmetric", "Asymmetric free body (I = 1, 2, 3)",
-               _body((1.0, 2.0, 3.0), (1.0, 0.5, 2.0), 10.0), dt=0.05, interval=0.05),
-    GoldenCase("t_handle", "T-handle about its intermediate axis (I = 1, 2, 3), flipping",
-               _body((1.0, 2.0, 3.0), (0.01, 2.0, 0.01), 40.0), dt=0.05, interval=0.05,
-               rules=("order", "invariants", "energy", "failure", "flip")),
-    GoldenCase("near_separatrix", "Near the separatrix (I = 1, 2, 3)",
-               _body((1.0, 2.0, 3.0), (1.0, 2.0, 1.0), 10.0), dt=0.025, interval=0.05),
-    GoldenCase("high_spin", "Flat disk at 60 rad/s (dt |w| from 0.4, halved)",
-               _body((1.0, 1.0, 2.0), (0.5, 0.0, 60.0), 1.0), dt=0.00625, interval=0.0125),
-    GoldenCase("thin_fast", "Thin rod spinning about its long axis (MuJoCo issue 3553)",
-               _body((1.7231e-4, 6.58e-6, 1.7243e-4), (0.5, 60.0, 0.5), 2.0), dt=0.002,
-               interval=0.01),
-    GoldenCase("radioss_assembly", "Radioss rigid body: a master node and five secondaries",
-               {"assembly": {"master": {"position": [0.0, 0.0, 0.0], "mass": 0.5},
-                             "nodes": {"a": {"position": [0.3, 0.0, 0.0], "mass": 0.2},
-                                       "b": {"position": [-0.1, 0.2, 0.0], "mass": 0.3},
-                                       "c": {"position": [0.0, -0.1, 0.15], "mass": 0.25},
-                                       "d": {"position": [0.2, 0.1, -0.05], "mass": 0.1},
-                                       "e": {"position": [0.0, 0.0, 0.2], "mass": 0.15}}},
-                "initial": {"angular_velocity": {"body": [2.0, 5.0, 3.0]}},
-                "duration": 2.0},
-               dt=0.01, interval=0.01),
-    GoldenCase("radioss_rota", "OpenRadioss QA ROTA: spherical J = 1 at w_z = 2 rad/s, 10 s",
-               {"assembly": {"master": {"position": [0.0, 0.0, 0.0], "mass": 1e-20,
-                                        "inertia": 1.0},
-                             "nodes": {"secondary": {"position": [1.0, 0.0, 0.0], "mass": 0.0}}},
-                "initial": {"angular_velocity": {"body": [0.0, 0.0, _ROTA_SPIN]}},
-                "duration": _ROTA_DURATION},
-               dt=_ROTA_DT, interval=0.1, rules=_NO_ORDER, steps=1,
-               figure=Figure("10,001 cycles; rotational kinetic energy 2.0000 (ref.extract)",
-                             _ROTA_URL,
-                             (Check("cycles", round(_ROTA_DURATION / _ROTA_DT) + 1, 0.0),
-                              Check("rotational_energy", 0.5 * _ROTA_SPIN ** 2,
-                                    _ROTA_ENERGY_TOLERANCE, at=_ROTA_DURATION)))),
-    GoldenCase("drake_free_body", "Drake's free-body benchmark: cylinder I = 0.04, 0.04, 0.02",
-               _body(_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION), dt=_DRAKE_DT,
-               interval=_DRAKE_DT,
-               figure=Figure("quaternion within tol(t), w_B within 2 tol(t), tol(t) = (1 + "
-                             "102.4 t / s) 1e-3 (the test's own)", _DRAKE_URL,
-                             (Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
-                              Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE,
-                                    2 * _DRAKE_GROWTH)))),
-    GoldenCase("drake_floating_body", "Drake's floating body: the cylinder falling, w = (1, 1, 1)",
-               {"body": {"mass": 1.0, "inertia": list(_DRAKE_INERTIA)},
-                "initial": {"angular_velocity": {"body": list(_FLOATING_OMEGA)},
-                            "velocity": list(_FLOATING_VELOCITY)},
-                "loads": {"gravity": [0.0, 0.0, -_FLOATING_GRAVITY]},
-                "duration": _FLOATING_DURATION},
-               dt=_FLOATING_DT, interval=0.05,
-               figure=Figure("at 10 s: R_WB, w_WB and p_WBcm within 1e-5 max(1, |element|) of "
-                             "the closed forms (the test's own)", _FLOATING_URL,
-                             _floating_checks())),
-    GoldenCase("exudyn_heavy_top", "Exudyn's Lie-group test: a heavy top at 150 rad/s, free",
-               {"body": {"mass": _EXUDYN_MASS,
-                         "inertia": [0.234375 + _EXUDYN_MASS, 0.46875, 0.234375 + _EXUDYN_MASS]},
-                "nodes": {"top": [0.0, 1.0, 0.0]},
-                "initial": {"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
-                "loads": {"nodes": {"top": {"force_space": [0.0, 0.0, -_EXUDYN_MASS * 9.81]}}},
-                "duration": _EXUDYN_DURATION},
-               dt=_EXUDYN_DT, interval=0.01, rules=("order", "failure"),
-               figure=Figure("w_y in space at t = 2 s: -106.16651966442174 rad/s (its RK44, "
-                             "h = 1e-3 s)", _EXUDYN_URL,
-                             (Check("omega_space_y", _EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE,
-                                    at=_EXUDYN_DURATION),), scheme="exudyn_rk44")),
+    GoldenCase(
+        "abaqus_top",
+        "Abaqus force-free symmetric top (I = 1, 1, 2)",
+        _body((1.0, 1.0, 2.0), (0.25, 0.0, 2.0 * math.pi), 2.0, momentum_axis=(0.0, 0.0, 1.0)),
+        dt=0.01,
+        interval=0.01,
+    ),
+    GoldenCase(
+        "hlw_asymmetric",
+        "Hairer-Lubich-Wanner free body (I = 2, 1, 2/3; unphysical)",
+        _body(_HLW, _HLW_OMEGA, 10.0, unphysical=True),
+        dt=0.1,
+        interval=0.1,
+    ),
+    GoldenCase(
+        "asymmetric",
+        "Asymmetric free body (I = 1, 2, 3)",
+        _body((1.0, 2.0, 3.0), (1.0, 0.5, 2.0), 10.0),
+        dt=0.05,
+        interval=0.05,
+    ),
+    GoldenCase(
+        "t_handle",
+        "T-handle about its intermediate axis (I = 1, 2, 3), flipping",
+        _body((1.0, 2.0, 3.0), (0.01, 2.0, 0.01), 40.0),
+        dt=0.05,
+        interval=0.05,
+        rules=("order", "invariants", "energy", "failure", "flip"),
+    ),
+    GoldenCase(
+        "near_separatrix",
+        "Near the separatrix (I = 1, 2, 3)",
+        _body((1.0, 2.0, 3.0), (1.0, 2.0, 1.0), 10.0),
+        dt=0.025,
+        interval=0.05,
+    ),
+    GoldenCase(
+        "high_spin",
+        "Flat disk at 60 rad/s (dt |w| from 0.4, halved)",
+        _body((1.0, 1.0, 2.0), (0.5, 0.0, 60.0), 1.0),
+        dt=0.00625,
+        interval=0.0125,
+    ),
+    GoldenCase(
+        "thin_fast",
+        "Thin rod spinning about its long axis (MuJoCo issue 3553)",
+        _body((1.7231e-4, 6.58e-6, 1.7243e-4), (0.5, 60.0, 0.5), 2.0),
+        dt=0.002,
+        interval=0.01,
+    ),
+    GoldenCase(
+        "radioss_assembly",
+        "Radioss rigid body: a master node and five secondaries",
+        {
+            "assembly": {
+                "master": {"position": [0.0, 0.0, 0.0], "mass": 0.5},
+                "nodes": {
+                    "a": {"position": [0.3, 0.0, 0.0], "mass": 0.2},
+                    "b": {"position": [-0.1, 0.2, 0.0], "mass": 0.3},
+                    "c": {"position": [0.0, -0.1, 0.15], "mass": 0.25},
+                    "d": {"position": [0.2, 0.1, -0.05], "mass": 0.1},
+                    "e": {"position": [0.0, 0.0, 0.2], "mass": 0.15},
+                },
+            },
+            "initial": {"angular_velocity": {"body": [2.0, 5.0, 3.0]}},
+            "duration": 2.0,
+        },
+        dt=0.01,
+        interval=0.01,
+    ),
+    GoldenCase(
+        "radioss_rota",
+        "OpenRadioss QA ROTA: spherical J = 1 at w_z = 2 rad/s, 10 s",
+        {
+            "assembly": {
+                "master": {"position": [0.0, 0.0, 0.0], "mass": 1e-20, "inertia": 1.0},
+                "nodes": {"secondary": {"position": [1.0, 0.0, 0.0], "mass": 0.0}},
+            },
+            "initial": {"angular_velocity": {"body": [0.0, 0.0, _ROTA_SPIN]}},
+            "duration": _ROTA_DURATION,
+        },
+        dt=_ROTA_DT,
+        interval=0.1,
+        rules=_NO_ORDER,
+        steps=1,
+        figure=Figure(
+            "10,001 cycles; rotational kinetic energy 2.0000 (ref.extract)",
+            _ROTA_URL,
+            (
+                Check("cycles", round(_ROTA_DURATION / _ROTA_DT) + 1, 0.0),
+                Check("rotational_energy", 0.5 * _ROTA_SPIN**2, _ROTA_ENERGY_TOLERANCE, at=_ROTA_DURATION),
+            ),
+        ),
+    ),
+    GoldenCase(
+        "drake_free_body",
+        "Drake's free-body benchmark: cylinder I = 0.04, 0.04, 0.02",
+        _body(_DRAKE_INERTIA, _DRAKE_OMEGA, _DRAKE_DURATION),
+        dt=_DRAKE_DT,
+        interval=_DRAKE_DT,
+        figure=Figure(
+            "quaternion within tol(t), w_B within 2 tol(t), tol(t) = (1 + 102.4 t / s) 1e-3 (the test's own)",
+            _DRAKE_URL,
+            (
+                Check("orientation_error", 0.0, _DRAKE_TOLERANCE, _DRAKE_GROWTH),
+                Check("omega_error_magnitude", 0.0, 2 * _DRAKE_TOLERANCE, 2 * _DRAKE_GROWTH),
+            ),
+        ),
+    ),
+    GoldenCase(
+        "drake_floating_body",
+        "Drake's floating body: the cylinder falling, w = (1, 1, 1)",
+        {
+            "body": {"mass": 1.0, "inertia": list(_DRAKE_INERTIA)},
+            "initial": {
+                "angular_velocity": {"body": list(_FLOATING_OMEGA)},
+                "velocity": list(_FLOATING_VELOCITY),
+            },
+            "loads": {"gravity": [0.0, 0.0, -_FLOATING_GRAVITY]},
+            "duration": _FLOATING_DURATION,
+        },
+        dt=_FLOATING_DT,
+        interval=0.05,
+        figure=Figure(
+            "at 10 s: R_WB, w_WB and p_WBcm within 1e-5 max(1, |element|) of "
+            "the closed forms (the test's own)",
+            _FLOATING_URL,
+            _floating_checks(),
+        ),
+    ),
+    GoldenCase(
+        "exudyn_heavy_top",
+        "Exudyn's Lie-group test: a heavy top at 150 rad/s, free",
+        {
+            "body": {
+                "mass": _EXUDYN_MASS,
+                "inertia": [0.234375 + _EXUDYN_MASS, 0.46875, 0.234375 + _EXUDYN_MASS],
+            },
+            "nodes": {"top": [0.0, 1.0, 0.0]},
+            "initial": {"angular_velocity": {"body": [0.0, 150.0, -4.61538]}},
+            "loads": {"nodes": {"top": {"force_space": [0.0, 0.0, -_EXUDYN_MASS * 9.81]}}},
+            "duration": _EXUDYN_DURATION,
+        },
+        dt=_EXUDYN_DT,
+        interval=0.01,
+        rules=("order", "failure"),
+        figure=Figure(
+            "w_y in space at t = 2 s: -106.16651966442174 rad/s (its RK44, h = 1e-3 s)",
+            _EXUDYN_URL,
+            (Check("omega_space_y", _EXUDYN_OMEGA_Y, _EXUDYN_TOLERANCE, at=_EXUDYN_DURATION),),
+            scheme="exudyn_rk44",
+        ),
+    ),
 )
 
 
 def _study(case, schemes, count):
-    return {"name": f"conformance_{case.name}", "title": f"conformance: {case.title}",
-            "scene": case.scene, "output": {"interval": case.interval},
-            "run": {"scheme": schemes[0], "dt": case.dt},
-            "sweep": {"scheme": list(schemes),
-                      "dt": {"halving": case.dt, "count": case.steps or count}}}
+    return {
+        "name": f"conformance_{case.name}",
+        "title": f"conformance: {case.title}",
+        "scene": case.scene,
+        "output": {"interval": case.interval},
+        "run": {"scheme": schemes[0], "dt": case.dt},
+        "sweep": {"scheme": list(schemes), "dt": {"halving": case.dt, "count": case.steps or count}},
+    }
 
 
 def baseline(schemes):
     """The schemes that the failure rule compares ``schemes`` (names) with: rbstudy's own
     fixed-step schemes of their nominal orders, in the registry's order."""
     orders = {get_scheme(name).order for name in schemes}
-    return [name for name, scheme in BUILTIN.items()
-            if not scheme.adaptive and scheme.order in orders]
+    return [name for name, scheme in BUILTIN.items() if not scheme.adaptive and scheme.order in orders]
 
 
 def write_golden(folder, schemes, cases=GOLDEN, steps=4):
@@ -314,8 +411,10 @@ def write_golden(folder, schemes, cases=GOLDEN, steps=4):
                 write_text_atomic(text, path)
             paths.append(path)
     except OSError as error:
-        raise RbstudyError(f"{folder}: cannot write the golden studies there "
-                           f"({error.strerror}); choose another folder with --out") from None
+        raise RbstudyError(
+            f"{folder}: cannot write the golden studies there "
+            f"({error.strerror}); choose another folder with --out"
+        ) from None
     return paths
 
 

@@ -43,9 +43,24 @@ from rbstudy.physics.time_grid import steps_per
 from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.schemes import BUILTIN, get_scheme
 
-__all__ = ["Axis", "Dimension", "Case", "Cases", "Run", "SHORT_NAMES", "RESERVED_NAMES", "ALL_SCHEMES",
-           "MAX_CASES", "MAX_AXIS_VALUES", "MAX_HALVINGS", "parse_sweep", "expand", "touches_scene",
-           "label_options", "read_dt"]
+__all__ = [
+    "Axis",
+    "Dimension",
+    "Case",
+    "Cases",
+    "Run",
+    "SHORT_NAMES",
+    "RESERVED_NAMES",
+    "ALL_SCHEMES",
+    "MAX_CASES",
+    "MAX_AXIS_VALUES",
+    "MAX_HALVINGS",
+    "parse_sweep",
+    "expand",
+    "touches_scene",
+    "label_options",
+    "read_dt",
+]
 
 # `scheme: all` sweeps the fixed-step schemes; dop853 is the reference, its dt is meaningless.
 ALL_SCHEMES = "all"
@@ -75,8 +90,9 @@ def _list_fix(key):
 
 
 # Names the dataset already uses: a zipped dimension may not take them.
-RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | \
-    frozenset(VARIABLES)
+RESERVED_NAMES = frozenset(("time", "node", "axis", "component", "case", "scheme", "dt")) | frozenset(
+    VARIABLES
+)
 # A study has at most this many cases, and an axis at most this many values, checked before
 # any list is built, so that a count of 1e12 is an error, not an allocation.
 MAX_CASES = 1_000_000
@@ -114,18 +130,22 @@ class Dimension:
 
 # --- the sweep block -> dimensions ---------------------------------------------------------
 
+
 def _scalar_values(reader, key, values):
     """``values`` if each is a number, a name or a flag and none repeats."""
     for i, value in enumerate(values):
         if not isinstance(value, (int, float, str)):  # a bool is an int
-            reader.fail(f"{key}[{i}]", f"sweep values must be numbers, names or true/false, "
-                                       f"got {value!r:.80}",
-                        _list_fix(key))
+            reader.fail(
+                f"{key}[{i}]",
+                f"sweep values must be numbers, names or true/false, got {value!r:.80}",
+                _list_fix(key),
+            )
         if not isinstance(value, (str, bool)):
             reader.number(value, f"{key}[{i}]")  # finite
     # a flag is kept apart from the number it equals (true == 1)
-    counts = collections.Counter((type(v) is bool, v if isinstance(v, (str, bool)) else float(v))
-                                 for v in values)
+    counts = collections.Counter(
+        (type(v) is bool, v if isinstance(v, (str, bool)) else float(v)) for v in values
+    )
     repeated = sorted(str(v) for (_, v), n in counts.items() if n > 1)
     if repeated:
         reader.fail(key, f"{', '.join(repeated)} given twice", "each value once")
@@ -153,16 +173,22 @@ def _values(reader, key, spec):
     if isinstance(spec, dict) and set(spec) == {"halving", "count"}:
         start = reader.number(spec["halving"], f"{key}.halving")
         count = reader.count(spec["count"], f"{key}.count", MAX_HALVINGS)
-        return tuple(start * 0.5 ** i for i in range(count))
+        return tuple(start * 0.5**i for i in range(count))
     if spec == ALL_SCHEMES and key.endswith("scheme"):  # rbstudy's own: a config means the
         # same study whatever plug-ins are installed; those are named one by one
         return tuple(name for name, scheme in BUILTIN.items() if not scheme.adaptive)
     forms = ("linspace", "logspace", "halving", "count")
-    slip = "".join(did_you_mean(name, forms) for name in spec if name not in forms) \
-        if isinstance(spec, dict) else ""  # {halving: 0.01, cout: 3}: 'count' was meant
-    reader.fail(key, f"expected a list of values, {{linspace: [start, stop, count]}}, "
-                     f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
-                     f"got {spec!r}{slip}")
+    slip = (
+        "".join(did_you_mean(name, forms) for name in spec if name not in forms)
+        if isinstance(spec, dict)
+        else ""
+    )  # {halving: 0.01, cout: 3}: 'count' was meant
+    reader.fail(
+        key,
+        f"expected a list of values, {{linspace: [start, stop, count]}}, "
+        f"{{logspace: [start, stop, count]}} or {{halving: start, count: n}}, "
+        f"got {spec!r}{slip}",
+    )
 
 
 def _coordinate(target):
@@ -181,22 +207,33 @@ def _axis(reader, key, target, spec):
         target = target[4:]
     if target not in SHORT_NAMES:
         head = target.split(".")[0]
-        if head not in ("scene", "run") or target.count(".") < 1 or (
-                head == "run" and not target.startswith("run.options.")):
-            reader.fail(key, f"unknown sweep axis {target!r}",
-                        f"use a short name ({', '.join(SHORT_NAMES)}) or a dotted path such as "
-                        "scene.body.mass or run.options.alpha")
+        if (
+            head not in ("scene", "run")
+            or target.count(".") < 1
+            or (head == "run" and not target.startswith("run.options."))
+        ):
+            reader.fail(
+                key,
+                f"unknown sweep axis {target!r}",
+                f"use a short name ({', '.join(SHORT_NAMES)}) or a dotted path such as "
+                "scene.body.mass or run.options.alpha",
+            )
         if target in _NOT_SWEEPABLE:
             reader.fail(key, f"{target} cannot be swept: {_NOT_SWEEPABLE[target]}")
     values = _values(reader, key, spec)
-    if target == "dt" and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                              for v in values):  # else refused, by its key, with its run
+    if target == "dt" and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+    ):  # else refused, by its key, with its run
         # ascending, whatever order the config gives: xarray's ds.sel(dt=slice(0.001, 0.01))
         # finds nothing along a descending index
         values = tuple(sorted(values))
-    return Axis(target=target, values=values, coordinate=_coordinate(target),
-                units=coordinate_units(target),
-                long_name=COORDINATES[target][1] if target in COORDINATES else target)
+    return Axis(
+        target=target,
+        values=values,
+        coordinate=_coordinate(target),
+        units=coordinate_units(target),
+        long_name=COORDINATES[target][1] if target in COORDINATES else target,
+    )
 
 
 def label_options(dimensions, schemes):
@@ -213,8 +250,7 @@ def label_options(dimensions, schemes):
         option = options.get(axis.target.removeprefix("run.options."))
         if not axis.target.startswith("run.options.") or option is None:
             return axis
-        return dataclasses.replace(axis, units=option.units,
-                                   long_name=option.long_name or axis.long_name)
+        return dataclasses.replace(axis, units=option.units, long_name=option.long_name or axis.long_name)
 
     return tuple(Dimension(d.name, tuple(map(labelled, d.axes))) for d in dimensions)
 
@@ -228,12 +264,12 @@ def _zipped(reader, name, group):
         reader.fail(key, f"{name!r} is a name the dataset already uses", "choose another")
     if not isinstance(group, dict) or not group:
         reader.fail(key, f"expected a mapping of axis -> values, got {group!r}")
-    axes = tuple(_axis(reader, f"{key}.{target}", target, values)
-                 for target, values in group.items())
+    axes = tuple(_axis(reader, f"{key}.{target}", target, values) for target, values in group.items())
     for axis in axes:
         if axis.target in _NOT_ZIPPABLE:
-            reader.fail(f"{key}.{axis.target}", f"{axis.target} cannot be zipped",
-                        "sweep it as an axis of its own")
+            reader.fail(
+                f"{key}.{axis.target}", f"{axis.target} cannot be zipped", "sweep it as an axis of its own"
+            )
     sizes = {axis.target: len(axis.values) for axis in axes}
     if len(set(sizes.values())) != 1:
         reader.fail(key, f"zipped axes need equal lengths, got {sizes}")
@@ -255,8 +291,9 @@ def parse_sweep(reader, spec):
         if not isinstance(value, dict) or not value:
             reader.fail("sweep.zip", "expected a mapping of dimension name -> {axis: values}")
         dimensions += [_zipped(reader, dim, group) for dim, group in value.items()]
-    names = [d.name for d in dimensions] + [a.coordinate for d in dimensions for a in d.axes
-                                             if a.coordinate != d.name]
+    names = [d.name for d in dimensions] + [
+        a.coordinate for d in dimensions for a in d.axes if a.coordinate != d.name
+    ]
     targets = [a.target for d in dimensions for a in d.axes]
     for seen in (names, targets):
         repeated = sorted({n for n in seen if seen.count(n) > 1})
@@ -267,6 +304,7 @@ def parse_sweep(reader, spec):
 
 # --- the distinct scenes: scene axes as columns of one mapping -----------------------------
 
+
 def _set_path(spec, dotted, value):
     """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
     *parents, leaf = dotted.split(".")
@@ -276,25 +314,35 @@ def _set_path(spec, dotted, value):
             node = node[_list_index(dotted, node, part)]
         elif isinstance(node, dict):
             if part not in node:  # a made-up mapping would only fail later, less clearly
-                raise InputError(f"{'.'.join(parents[:depth + 1])} is not in the study",
-                                 "give it there, then sweep its entries", key=dotted)
+                raise InputError(
+                    f"{'.'.join(parents[: depth + 1])} is not in the study",
+                    "give it there, then sweep its entries",
+                    key=dotted,
+                )
             node = node[part]
         else:
-            raise InputError(f"{'.'.join(parents[:depth])} holds {node!r}, not a mapping or list",
-                             "sweep a path that exists in the study", key=dotted)
+            raise InputError(
+                f"{'.'.join(parents[:depth])} holds {node!r}, not a mapping or list",
+                "sweep a path that exists in the study",
+                key=dotted,
+            )
     if isinstance(node, list):
         node[_list_index(dotted, node, leaf)] = value
     elif isinstance(node, dict):
         node[leaf] = value
     else:
-        raise InputError(f"{'.'.join(parents)} holds {node!r}, not a mapping or list",
-                         "sweep a path that exists in the study", key=dotted)
+        raise InputError(
+            f"{'.'.join(parents)} holds {node!r}, not a mapping or list",
+            "sweep a path that exists in the study",
+            key=dotted,
+        )
 
 
 def _list_index(dotted, node, part):
     if not part.isdigit() or int(part) >= len(node):
-        raise InputError(f"{part!r} is not an entry of a list of {len(node)}",
-                         f"use 0..{len(node) - 1}", key=dotted)
+        raise InputError(
+            f"{part!r} is not an entry of a list of {len(node)}", f"use 0..{len(node) - 1}", key=dotted
+        )
     return int(part)
 
 
@@ -347,8 +395,13 @@ def _vector_rows(values, size, key):
         raise InputError(f"expected a list of 3 finite numbers, got {values!r:.80}", key=key)
     with np.errstate(over="ignore"):
         rows = np.stack([_as_floats(value, size) for value in values], axis=-1)
-    _fail_at(~np.isfinite(rows).all(axis=-1), lambda row: "expected a list of 3 finite "
-             f"numbers, got {[_entry(value, row) for value in values]!r:.80}", key=key)
+    _fail_at(
+        ~np.isfinite(rows).all(axis=-1),
+        lambda row: (
+            f"expected a list of 3 finite numbers, got {[_entry(value, row) for value in values]!r:.80}"
+        ),
+        key=key,
+    )
     return rows
 
 
@@ -359,12 +412,18 @@ def _body_omega(scene, name, size):
     """The initial angular velocity mapping, its frame and its vectors (size, 3)."""
     omega = _inside(scene, "initial", "angular_velocity")
     if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
-        raise InputError(f"{name} needs the initial angular velocity", "give its .body (or "
-                         ".space) components", key=_OMEGA_KEY)
+        raise InputError(
+            f"{name} needs the initial angular velocity",
+            "give its .body (or .space) components",
+            key=_OMEGA_KEY,
+        )
     frame = "body" if "body" in omega else "space"
     if name == "tilt" and frame != "body":
-        raise InputError("tilt is measured from body axis 3", "give the angular velocity in "
-                         "body axes (.body)", key=_OMEGA_KEY)
+        raise InputError(
+            "tilt is measured from body axis 3",
+            "give the angular velocity in body axes (.body)",
+            key=_OMEGA_KEY,
+        )
     return omega, frame, _vector_rows(omega[frame], size, f"{_OMEGA_KEY}.{frame}")
 
 
@@ -378,12 +437,17 @@ def _inside(mapping, *keys):
 def _short_numbers(name, column):
     """A short name's column (n,) as floats: every value a finite number (spin > 0)."""
     if column.dtype.kind in "bO":
-        _fail_at(np.array([isinstance(v, (str, bool, np.bool_)) for v in column]),
-                 lambda row: f"{name} takes a number, got {_entry(column, row)!r}")
+        _fail_at(
+            np.array([isinstance(v, (str, bool, np.bool_)) for v in column]),
+            lambda row: f"{name} takes a number, got {_entry(column, row)!r}",
+        )
     numbers = column.astype(float)
     if name == "spin":
-        _fail_at(numbers <= 0.0, lambda row: f"spin must be > 0 rad/s, got {_entry(column, row)!r}",
-                 "a body at rest has no rotation to study: sweep a positive spin")
+        _fail_at(
+            numbers <= 0.0,
+            lambda row: f"spin must be > 0 rad/s, got {_entry(column, row)!r}",
+            "a body at rest has no rotation to study: sweep a positive spin",
+        )
     return numbers
 
 
@@ -393,33 +457,46 @@ def _apply_short(scene, name, column):
     size = len(values)
     if name == "inertia_ratio":
         if "assembly" in scene:
-            raise InputError("inertia_ratio has no meaning for a body assembled from nodes",
-                             "sweep its nodes' masses or positions, or assembly.scale",
-                             key="scene.assembly")
+            raise InputError(
+                "inertia_ratio has no meaning for a body assembled from nodes",
+                "sweep its nodes' masses or positions, or assembly.scale",
+                key="scene.assembly",
+            )
         inertia = _inside(scene, "body", "inertia")
         key, fix = "scene.body.inertia", "give inertia: [I1, I1, I3]"
         if not isinstance(inertia, list) or len(inertia) != 3:
-            raise InputError(f"inertia_ratio needs a body symmetric about axis 3, got "
-                             f"{inertia!r:.80}", fix, key=key)
+            raise InputError(
+                f"inertia_ratio needs a body symmetric about axis 3, got {inertia!r:.80}", fix, key=key
+            )
         moments = _vector_rows(inertia, size, key)
-        _fail_at(symmetry_axes(moments) != 2, lambda row: "inertia_ratio needs a body symmetric "
-                 f"about axis 3, got {moments[row].tolist()}", fix, key=key)
+        _fail_at(
+            symmetry_axes(moments) != 2,
+            lambda row: f"inertia_ratio needs a body symmetric about axis 3, got {moments[row].tolist()}",
+            fix,
+            key=key,
+        )
         scene["body"]["inertia"] = [inertia[0], inertia[0], values * inertia[0]]
         return
     omega, frame, vector = _body_omega(scene, name, size)
     # scaled: no underflow to 0 for a tiny w, as the norm had
     length = np.hypot(np.hypot(vector[:, 0], vector[:, 1]), vector[:, 2])
     if name == "spin":
-        _fail_at(length == 0.0, lambda row: "spin keeps the direction of the initial w, which "
-                                            "is zero", "give a non-zero initial angular velocity",
-                 key=_OMEGA_KEY)
+        _fail_at(
+            length == 0.0,
+            lambda row: "spin keeps the direction of the initial w, which is zero",
+            "give a non-zero initial angular velocity",
+            key=_OMEGA_KEY,
+        )
         with np.errstate(over="ignore", invalid="ignore"):  # the scene refuses it, by key
             omega[frame] = list((vector * (values / length)[:, None]).T)
         return
     azimuth = np.arctan2(vector[:, 1], vector[:, 0])
     tilt = np.radians(values)
-    omega[frame] = [length * np.sin(tilt) * np.cos(azimuth),
-                    length * np.sin(tilt) * np.sin(azimuth), length * np.cos(tilt)]
+    omega[frame] = [
+        length * np.sin(tilt) * np.cos(azimuth),
+        length * np.sin(tilt) * np.sin(azimuth),
+        length * np.cos(tilt),
+    ]
 
 
 def touches_scene(axis):
@@ -437,9 +514,12 @@ def _scene_table(reader, base, dimensions):
     size = math.prod(shape)
     rows = np.unravel_index(np.arange(size), shape) if shape else ()
     scene = {"scene": copy.deepcopy(base["scene"])}
-    chosen = {axis.target: _column(axis.values)[rows[k]]
-              for k, dimension in enumerate(dimensions) for axis in dimension.axes
-              if touches_scene(axis)}
+    chosen = {
+        axis.target: _column(axis.values)[rows[k]]
+        for k, dimension in enumerate(dimensions)
+        for axis in dimension.axes
+        if touches_scene(axis)
+    }
     for target, column in chosen.items():
         if target not in SHORT_NAMES:
             _set_path(scene, target, column)
@@ -450,6 +530,7 @@ def _scene_table(reader, base, dimensions):
 
 
 # --- the distinct runs: scheme, options and dt -----------------------------------------------
+
 
 @dataclass(frozen=True)
 class Run:
@@ -501,6 +582,7 @@ def _run(reader, base, dimensions, index, output_interval):
 
 # --- every case ------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Case:
     """One grid point of a study.
@@ -539,9 +621,13 @@ class Cases(collections.abc.Sequence):
             raise TypeError("cases are numbered: index them with an integer")
         number = range(len(self))[number]  # negative numbers, and IndexError past the end
         run = self.runs[self.run_rows[number]]
-        return Case(index=tuple(int(i) for i in np.unravel_index(number, self.shape)),
-                    scene=self.scenes.scene(int(self.scene_rows[number])), scheme=run.scheme,
-                    options=run.options, dt=run.dt)
+        return Case(
+            index=tuple(int(i) for i in np.unravel_index(number, self.shape)),
+            scene=self.scenes.scene(int(self.scene_rows[number])),
+            scheme=run.scheme,
+            options=run.options,
+            dt=run.dt,
+        )
 
     def __iter__(self):
         return (self[number] for number in range(len(self)))
@@ -549,9 +635,15 @@ class Cases(collections.abc.Sequence):
 
 def _where(dimensions, index):
     """``sweep (dt[2] = 0.0025, scheme[0] = 'euler')``: names a case in an error."""
-    return "sweep (" + ", ".join(f"{axis.coordinate}[{i}] = {axis.values[i]!r}"
-                                 for dim, i in zip(dimensions, index, strict=True)
-                                 for axis in dim.axes) + ")"
+    return (
+        "sweep ("
+        + ", ".join(
+            f"{axis.coordinate}[{i}] = {axis.values[i]!r}"
+            for dim, i in zip(dimensions, index, strict=True)
+            for axis in dim.axes
+        )
+        + ")"
+    )
 
 
 def _rows_of(dimensions, chosen, shape):
@@ -593,15 +685,26 @@ def expand(reader, base, dimensions, output_interval):
         except InputError as error:
             raise reader.locate(error, _where(run_dimensions, index) if index else None) from None
     given = set(base["run"].get("options") or {}) | {
-        axis.target.removeprefix("run.options.") for d in dimensions for axis in d.axes
-        if axis.target.startswith("run.options.")}
+        axis.target.removeprefix("run.options.")
+        for d in dimensions
+        for axis in d.axes
+        if axis.target.startswith("run.options.")
+    }
     unknown = sorted(given - {name for run in runs for name in run.options})
     if unknown:
         schemes = sorted({run.scheme for run in runs})
         options = {option.name for name in schemes for option in get_scheme(name).options}
-        reader.fail("run.options", f"{', '.join(unknown)} is an option of none of the study's "
-                                   f"schemes ({', '.join(schemes)})"
-                                   f"{did_you_mean(unknown[0], options)}", "see `rbstudy schemes`")
-    return Cases(shape=shape, scenes=scenes, runs=tuple(runs),
-                 scene_rows=_rows_of(dimensions, of_scenes, shape),
-                 run_rows=_rows_of(dimensions, of_runs, shape))
+        reader.fail(
+            "run.options",
+            f"{', '.join(unknown)} is an option of none of the study's "
+            f"schemes ({', '.join(schemes)})"
+            f"{did_you_mean(unknown[0], options)}",
+            "see `rbstudy schemes`",
+        )
+    return Cases(
+        shape=shape,
+        scenes=scenes,
+        runs=tuple(runs),
+        scene_rows=_rows_of(dimensions, of_scenes, shape),
+        run_rows=_rows_of(dimensions, of_runs, shape),
+    )

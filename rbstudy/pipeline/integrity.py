@@ -33,9 +33,23 @@ import numpy as np
 from rbstudy.errors import one_line
 from rbstudy.pipeline.batches import ids_digest
 
-__all__ = ["file_digest", "is_part", "sidecar", "sidecar_text", "sealed", "part_digest",
-           "archive_checksums", "seal_archive", "ArchiveCheck", "verify_archive",
-           "SIDECAR_SUFFIX", "ALGORITHM", "netcdf_writer", "GROUP", "SEALS"]
+__all__ = [
+    "file_digest",
+    "is_part",
+    "sidecar",
+    "sidecar_text",
+    "sealed",
+    "part_digest",
+    "archive_checksums",
+    "seal_archive",
+    "ArchiveCheck",
+    "verify_archive",
+    "SIDECAR_SUFFIX",
+    "ALGORITHM",
+    "netcdf_writer",
+    "GROUP",
+    "SEALS",
+]
 
 ALGORITHM = "sha256"
 SIDECAR_SUFFIX = ".sha256"
@@ -119,7 +133,7 @@ def _update_values(digest, variable):
     row_bytes = max(1, int(np.prod(shape[1:], dtype=np.int64)) * variable.dtype.itemsize)
     step = max(1, _SLAB_BYTES // row_bytes)
     for start in range(0, shape[0], step):
-        digest.update(np.ascontiguousarray(variable[start:start + step]).data)
+        digest.update(np.ascontiguousarray(variable[start : start + step]).data)
 
 
 def archive_checksums(nc):
@@ -128,16 +142,21 @@ def archive_checksums(nc):
     attributes that say what the values mean (the study, its batches, the accuracy bound that
     defines the stored verdict)."""
     nc.set_auto_maskandscale(False)
-    meaning = {key: np.asarray(nc.getncattr(key)).tolist() for key in MEANING_ATTRIBUTES
-               if key in nc.ncattrs()}
-    found = {MEANING: f"{ALGORITHM}:" + hashlib.sha256(
-        json.dumps(meaning, sort_keys=True).encode()).hexdigest()}
+    meaning = {
+        key: np.asarray(nc.getncattr(key)).tolist() for key in MEANING_ATTRIBUTES if key in nc.ncattrs()
+    }
+    found = {
+        MEANING: f"{ALGORITHM}:" + hashlib.sha256(json.dumps(meaning, sort_keys=True).encode()).hexdigest()
+    }
     for name, variable in nc.variables.items():
         digest = hashlib.sha256()
-        attributes = {key: np.asarray(variable.getncattr(key)).tolist()
-                      for key in variable.ncattrs()}
-        header = {"dimensions": variable.dimensions, "shape": variable.shape,
-                  "dtype": str(variable.dtype), "attributes": attributes}
+        attributes = {key: np.asarray(variable.getncattr(key)).tolist() for key in variable.ncattrs()}
+        header = {
+            "dimensions": variable.dimensions,
+            "shape": variable.shape,
+            "dtype": str(variable.dtype),
+            "attributes": attributes,
+        }
         digest.update(json.dumps(header, sort_keys=True, default=str).encode())
         _update_values(digest, variable)
         found[name] = f"{ALGORITHM}:{digest.hexdigest()}"
@@ -173,13 +192,13 @@ def seal_archive(path, part_digests):
     the study's batch order)."""
     with netcdf_writer(path, "a") as nc:
         checksums = archive_checksums(nc)
-        nc.createGroup(GROUP).setncatts(dict(zip(SEALS, (
-            json.dumps(checksums, sort_keys=True), json.dumps(part_digests)), strict=True)))
+        nc.createGroup(GROUP).setncatts(
+            dict(zip(SEALS, (json.dumps(checksums, sort_keys=True), json.dumps(part_digests)), strict=True))
+        )
 
 
 def _named(name):
-    return (f"the global attributes {', '.join(MEANING_ATTRIBUTES)}" if name == MEANING
-            else f"variable {name}")
+    return f"the global attributes {', '.join(MEANING_ATTRIBUTES)}" if name == MEANING else f"variable {name}"
 
 
 @dataclass(frozen=True)
@@ -201,27 +220,32 @@ def verify_archive(path):
         with netCDF4.Dataset(path) as nc:
             attributes = set(nc.ncattrs())
             if is_part(attributes, nc.dimensions):
-                return ArchiveCheck(("it is a part file without its digest beside it (its "
-                                     "sweep stopped before sealing it)",), provable=False)
+                return ArchiveCheck(
+                    ("it is a part file without its digest beside it (its sweep stopped before sealing it)",),
+                    provable=False,
+                )
             # rbstudy 0.3 sealed its archives in the global attributes
             sealed_in = nc.groups[GROUP] if GROUP in nc.groups else nc
             if not set(SEALS) <= set(sealed_in.ncattrs()) or "batches" not in attributes:
-                return ArchiveCheck(("it carries no checksums (written by an rbstudy before "
-                                     "0.3, or not by rbstudy)",), provable=False)
+                return ArchiveCheck(
+                    ("it carries no checksums (written by an rbstudy before 0.3, or not by rbstudy)",),
+                    provable=False,
+                )
             stored, parts = (json.loads(sealed_in.getncattr(name)) for name in SEALS)
             batches = nc.getncattr("batches")
             found = archive_checksums(nc)
     except (OSError, RuntimeError, AttributeError, KeyError, ValueError) as error:
         return ArchiveCheck((f"it cannot be read as netCDF ({one_line(error)})",))
     try:
-        problems = [f"{_named(name)} differs from its checksum"
-                    for name in sorted(set(stored) & set(found)) if stored[name] != found[name]]
+        problems = [
+            f"{_named(name)} differs from its checksum"
+            for name in sorted(set(stored) & set(found))
+            if stored[name] != found[name]
+        ]
         problems += [f"{_named(name)} is missing" for name in sorted(set(stored) - set(found))]
         problems += [f"{_named(name)} was added" for name in sorted(set(found) - set(stored))]
         if ids_digest([batch_id for batch_id, _ in parts]) != batches:
-            problems.append("its part_checksums do not name the batches of its `batches` "
-                            "attribute")
+            problems.append("its part_checksums do not name the batches of its `batches` attribute")
     except (TypeError, ValueError, AttributeError):
         return ArchiveCheck(("its checksums attributes are not what rbstudy writes (edited?)",))
-    return ArchiveCheck(tuple(problems), variables=len(stored) - (MEANING in stored),
-                        parts=len(parts))
+    return ArchiveCheck(tuple(problems), variables=len(stored) - (MEANING in stored), parts=len(parts))

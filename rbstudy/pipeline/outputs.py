@@ -16,8 +16,16 @@ from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
 
-__all__ = ["BatchData", "driver_result", "ACCURACY_BOUND", "VERDICTS", "ACCURATE",
-           "INACCURATE", "FAILED", "UNJUDGED"]
+__all__ = [
+    "BatchData",
+    "driver_result",
+    "ACCURACY_BOUND",
+    "VERDICTS",
+    "ACCURATE",
+    "INACCURATE",
+    "FAILED",
+    "UNJUDGED",
+]
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 # Codes of the accuracy verdict (`accuracy`): a failed case has none, and a finished case
@@ -91,8 +99,7 @@ class BatchData:
             k = 4 for the quaternion, 3 for the others.
         """
         if name not in self._stacked:
-            self._stacked[name] = np.array([getattr(reference, name)
-                                            for reference in self.references])
+            self._stacked[name] = np.array([getattr(reference, name) for reference in self.references])
         return self._stacked[name]
 
     @cached_property
@@ -117,8 +124,9 @@ class BatchData:
         """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
         middle = [int(np.argsort(scene.body.inertia)[1]) for scene in self.scenes]
         omega, time = self.run.omega_body, self.run.time
-        return np.array([metrics.sign_change_interval(omega[b, :, axis], time)
-                         for b, axis in enumerate(middle)])
+        return np.array(
+            [metrics.sign_change_interval(omega[b, :, axis], time) for b, axis in enumerate(middle)]
+        )
 
     @cached_property
     def exact_flip(self):
@@ -331,8 +339,9 @@ def node_error(batch):
     ndarray, shape (B, T, N)
         m; NaN after a failure.
     """
-    exact = metrics.node_positions(batch.reference("quaternion"), batch.reference("position"),
-                                   batch.node_offsets)
+    exact = metrics.node_positions(
+        batch.reference("quaternion"), batch.reference("position"), batch.node_offsets
+    )
     return metrics.node_error(batch.node_positions, exact)
 
 
@@ -486,13 +495,11 @@ def accuracy(batch):
     """
     results, bound = batch.run.results, batch.accuracy_bound
     # NaN drifts (under moments: no conserved quantity) compare False: no drift past the bound
-    drifted = ((results["max_energy_error"] > bound)
-               | (results["max_momentum_magnitude_error"] > bound))
+    drifted = (results["max_energy_error"] > bound) | (results["max_momentum_magnitude_error"] > bound)
     with np.errstate(invalid="ignore"):
         accurate = (np.max(batch.orientation_error, axis=1) <= bound) & ~drifted
     unreferenced = np.array([ref.name == "none" for ref in batch.references])
-    verdict = np.where(accurate, ACCURATE,
-                       np.where(unreferenced & ~drifted, UNJUDGED, INACCURATE))
+    verdict = np.where(accurate, ACCURATE, np.where(unreferenced & ~drifted, UNJUDGED, INACCURATE))
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
 
@@ -509,8 +516,7 @@ def reference(batch):
     ndarray, shape (B,)
         int8
     """
-    return np.array([analytic.REFERENCE_KINDS.index(ref.name) for ref in batch.references],
-                    dtype=np.int8)
+    return np.array([analytic.REFERENCE_KINDS.index(ref.name) for ref in batch.references], dtype=np.int8)
 
 
 def _uncertainty(batch, measure):

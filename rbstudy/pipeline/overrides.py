@@ -71,23 +71,19 @@ class Overridden:
         given = error.key.split(": ") if error.key else []  # `sweep (dt[1] = 0.003): run.dt`
         segments = [f"--set {segment}" if self._wrote(segment) else segment for segment in given]
         if segments != given:
-            return type(error)(error.message, error.fix, error.source, ": ".join(segments),
-                               error.row)
+            return type(error)(error.message, error.fix, error.source, ": ".join(segments), error.row)
         if error.source != self.source:  # a table file the config names: its own error
             return error
         with_ = " ".join(self._given())
-        return type(error)(error.message, error.fix, f"{error.source} (with {with_})", error.key,
-                           error.row)
+        return type(error)(error.message, error.fix, f"{error.source} (with {with_})", error.key, error.row)
 
     def _wrote(self, key):
         """Whether the key path ``key`` is at or below what an override wrote."""
-        return any(key == path or key.startswith((f"{path}.", f"{path}["))
-                   for path in self.written)
+        return any(key == path or key.startswith((f"{path}.", f"{path}[")) for path in self.written)
 
     def _given(self):
         """``--set a=1`` per override, each on one line (a newline shown as ``\\n``)."""
-        return [f"--set {text}".replace("\r", "\\r").replace("\n", "\\n")
-                for text in self.assignments]
+        return [f"--set {text}".replace("\r", "\\r").replace("\n", "\\n") for text in self.assignments]
 
     def text(self, file_text):
         """The config text an archive stores: ``file_text`` itself without overrides, else the
@@ -95,11 +91,14 @@ class Overridden:
         are not kept)."""
         if not self.overrides:
             return file_text
-        header = ["# rbstudy: the config file's values with these applied (the file's comments "
-                  "are not kept):"] + [f"#   {given}" for given in self._given()]
-        return "\n".join(header) + "\n" + yaml.safe_dump(self.data, sort_keys=False,
-                                                         default_flow_style=None,
-                                                         allow_unicode=True)
+        header = [
+            "# rbstudy: the config file's values with these applied (the file's comments are not kept):"
+        ] + [f"#   {given}" for given in self._given()]
+        return (
+            "\n".join(header)
+            + "\n"
+            + yaml.safe_dump(self.data, sort_keys=False, default_flow_style=None, allow_unicode=True)
+        )
 
 
 def _parse(assignment, source):
@@ -110,8 +109,9 @@ def _parse(assignment, source):
         raise ConfigError(f"no '=' in {assignment!r}", _FORM, source, f"--set {key}")
     parts = tuple(key.split("."))
     if not all(part.strip() for part in parts):
-        raise ConfigError(f"{key!r} is no dotted path of keys", _FORM, source,
-                          f"--set {key}" if key else "--set")
+        raise ConfigError(
+            f"{key!r} is no dotted path of keys", _FORM, source, f"--set {key}" if key else "--set"
+        )
     try:
         parsed = parse_yaml(value, source)
     except ConfigError as error:
@@ -139,6 +139,7 @@ def _write(root, override, source):
     """Write ``override`` into the mapping ``root`` in place, each mapping and list on its path
     copied first (an alias of the file shares them with another key, which must keep its
     value); returns the path it wrote in the reader's spelling, up to the first new key."""
+
     def fail(message, fix):
         raise ConfigError(message, fix, source, f"--set {override.key}")
 
@@ -147,8 +148,10 @@ def _write(root, override, source):
         if isinstance(node, list):
             part = rest[0]
             if not part.isdigit() or int(part) >= len(node):
-                fail(f"{part!r} is not an entry of the list of {len(node)} at {spelled}",
-                     f"use an index 0..{len(node) - 1}")
+                fail(
+                    f"{part!r} is not an entry of the list of {len(node)} at {spelled}",
+                    f"use an index 0..{len(node) - 1}",
+                )
             key, taken, spelled = int(part), 1, f"{spelled}[{part}]"
         elif isinstance(node, dict):
             key, taken = _child_key(node, rest, above)
@@ -156,8 +159,10 @@ def _write(root, override, source):
             if node.get(key) is None:  # absent, or empty (`output:` reads as None)
                 written = written or spelled
         else:
-            fail(f"{spelled} holds {node!r:.60}, not a mapping or list",
-                 f"set {spelled} itself, or a key under a mapping")
+            fail(
+                f"{spelled} holds {node!r:.60}, not a mapping or list",
+                f"set {spelled} itself, or a key under a mapping",
+            )
         above.append(str(key))
         rest = rest[taken:]
         if not rest:

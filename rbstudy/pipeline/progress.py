@@ -80,8 +80,9 @@ def _release_after_fork():
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(before=_hold_for_fork, after_in_parent=_release_after_fork,
-                        after_in_child=_release_after_fork)
+    os.register_at_fork(
+        before=_hold_for_fork, after_in_parent=_release_after_fork, after_in_child=_release_after_fork
+    )
 
 
 class Progress:
@@ -91,8 +92,7 @@ class Progress:
     ``label: <end> in <s> s`` on a clean exit after it (`end`, "done" unless set); nothing
     when ``quiet``. ``clock`` (seconds) is rich's and the end line's clock."""
 
-    def __init__(self, label, start, quiet=False, stream=None, clock=time.monotonic,
-                 opening=None):
+    def __init__(self, label, start, quiet=False, stream=None, clock=time.monotonic, opening=None):
         self.label, self.start, self.quiet, self.opening = label, start, quiet, opening
         self.stream = stream or sys.stderr
         self.clock = clock
@@ -109,18 +109,26 @@ class Progress:
         self._began = self.clock()
         if live_wanted(self.quiet, self.stream):
             width = min(WIDTH, shutil.get_terminal_size((WIDTH, 24)).columns)
-            console = Console(file=self.stream, width=width, force_terminal=True,
-                              force_interactive=True, highlight=False)
+            console = Console(
+                file=self.stream, width=width, force_terminal=True, force_interactive=True, highlight=False
+            )
             self._display = LiveDisplay(
                 SpinnerColumn(),
-                TextColumn("{task.description}", markup=False,
-                           table_column=Column(no_wrap=True, overflow="ellipsis",
-                                               max_width=_WORDS)),
+                TextColumn(
+                    "{task.description}",
+                    markup=False,
+                    table_column=Column(no_wrap=True, overflow="ellipsis", max_width=_WORDS),
+                ),
                 BarColumn(bar_width=None, table_column=Column(ratio=1)),
                 _Counts(table_column=Column(no_wrap=True)),
-                console=console, refresh_per_second=_REDRAWS, transient=True,
-                redirect_stdout=False, redirect_stderr=False, get_time=self.clock,
-                expand=True)
+                console=console,
+                refresh_per_second=_REDRAWS,
+                transient=True,
+                redirect_stdout=False,
+                redirect_stderr=False,
+                get_time=self.clock,
+                expand=True,
+            )
             words = self.label if self.opening is None else f"{self.label}: {self.opening}"
             self._task = self._display.add_task(words, total=None, unit="")
             with _LIVE_LOCK:

@@ -59,15 +59,46 @@ from rbstudy.pipeline.variables import (
     variable_attrs,
 )
 
-__all__ = ["HDF5_LOCK", "Layout", "read_part", "write_text_atomic", "UnwritableFolder",
-           "unwritable", "check_output_folder", "WRITE_REFUSALS",
-           "consolidate", "global_attrs", "resolved_config", "grid_coordinates", "utc_now",
-           "open_results", "part_complete", "archive_state", "write_part", "refresh_description",
-           "decimal_grid", "COMPRESSION", "OWNER", "folder_claim", "claim_folder", "inside",
-           "source_text", "archive_dims"]
+__all__ = [
+    "HDF5_LOCK",
+    "Layout",
+    "read_part",
+    "write_text_atomic",
+    "UnwritableFolder",
+    "unwritable",
+    "check_output_folder",
+    "WRITE_REFUSALS",
+    "consolidate",
+    "global_attrs",
+    "resolved_config",
+    "grid_coordinates",
+    "utc_now",
+    "open_results",
+    "part_complete",
+    "archive_state",
+    "write_part",
+    "refresh_description",
+    "decimal_grid",
+    "COMPRESSION",
+    "OWNER",
+    "folder_claim",
+    "claim_folder",
+    "inside",
+    "source_text",
+    "archive_dims",
+]
 
-_DEPENDENCIES = ("numpy", "scipy", "numba", "xarray", "netCDF4", "dask", "distributed",
-                 "matplotlib", "PyYAML")
+_DEPENDENCIES = (
+    "numpy",
+    "scipy",
+    "numba",
+    "xarray",
+    "netCDF4",
+    "dask",
+    "distributed",
+    "matplotlib",
+    "PyYAML",
+)
 # mkstemp creates files readable by their owner only; results are meant to be shared.
 _FILE_MODE = 0o644
 # The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
@@ -80,13 +111,13 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 # floats; level 4 gives nearly all of level 9's size at a fraction of its time.
 COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
 # Target size of an archive chunk (uncompressed): `case_chunks`.
-CHUNK_BYTES = 2 ** 18
+CHUNK_BYTES = 2**18
 # The chunk cache of each archive variable while it is written: this many chunks (at least
 # 1 MiB) in a hash table of this many slots (a prime, as HDF5 advises).
 CHUNK_CACHE_CHUNKS = 8
 CHUNK_CACHE_SLOTS = 521
 # Free bytes below which a failed write is put down to a full disk.
-_FULL_BYTES = 2 ** 20
+_FULL_BYTES = 2**20
 # The file of a study folder that names the config (its file's resolved path and its text's
 # SHA-256) whose study the folder holds: another config of the same name would replace its
 # archive and parts.
@@ -118,11 +149,19 @@ def source_text(version):
     if not (checkout / ".git").exists():  # a .git file in a worktree: exists() too
         return f"rbstudy {version}"
     try:
-        commit, changes = (subprocess.run(["git", "-C", str(checkout), *arguments],
-                                          capture_output=True, text=True, check=True,
-                                          timeout=_GIT_SECONDS).stdout.strip()
-                           for arguments in (["rev-parse", "--short", "HEAD"],
-                                             ["status", "--porcelain", "--untracked-files=no"]))
+        commit, changes = (
+            subprocess.run(
+                ["git", "-C", str(checkout), *arguments],
+                capture_output=True,
+                text=True,
+                check=True,
+                timeout=_GIT_SECONDS,
+            ).stdout.strip()
+            for arguments in (
+                ["rev-parse", "--short", "HEAD"],
+                ["status", "--porcelain", "--untracked-files=no"],
+            )
+        )
     except (OSError, subprocess.SubprocessError):
         return f"rbstudy {version}"
     return f"rbstudy {version} (commit {commit}{', modified' if changes else ''})"
@@ -145,7 +184,7 @@ def global_attrs(study, command=None, started=None):
         "source": source_text(versions["rbstudy"]),
         "history": history,
         "comment": "Rigid-body integrator study; errors are measured against the reference "
-                   "named per case by the variable `reference`.",
+        "named per case by the variable `reference`.",
         "study": study.name,
         "batches": batches_digest(study.batches),
         "accuracy_bound": study.accuracy_bound,
@@ -164,10 +203,12 @@ def resolved_config(study):
         "name": study.name,
         "title": study.title,
         **study.base,
-        "output": {"interval": study.output_interval, "variables": list(study.variables),
-                   "accuracy_bound": study.accuracy_bound},
-        "sweep": {d.name: {axis.target: list(axis.values) for axis in d.axes}
-                  for d in study.dimensions},
+        "output": {
+            "interval": study.output_interval,
+            "variables": list(study.variables),
+            "accuracy_bound": study.accuracy_bound,
+        },
+        "sweep": {d.name: {axis.target: list(axis.values) for axis in d.axes} for d in study.dimensions},
         "cases": len(study.cases),
         "batches": [batch.id for batch in study.batches],
     }
@@ -186,8 +227,13 @@ class Layout:
 
     @classmethod
     def of(cls, study):
-        return cls(study=study.name, variables=study.variables, n_times=study.n_times,
-                   output_interval=study.output_interval, node_names=study.node_names)
+        return cls(
+            study=study.name,
+            variables=study.variables,
+            n_times=study.n_times,
+            output_interval=study.output_interval,
+            node_names=study.node_names,
+        )
 
 
 class PartTarget(NamedTuple):
@@ -214,7 +260,7 @@ def decimal_grid(n_times, interval):
     than 15 decimals is left as the plain products."""
     times = output_times(n_times, interval)
     places = -decimal.Decimal(repr(float(interval))).as_tuple().exponent
-    if places > _MAX_DECIMALS or times[-1] * 10.0 ** places >= 2.0 ** 52:
+    if places > _MAX_DECIMALS or times[-1] * 10.0**places >= 2.0**52:
         return times
     return np.round(times, places)  # exact: k * interval * 10^places is a whole number
 
@@ -253,14 +299,19 @@ def grid_coordinates(study):
     for name in ("scheme", "dt"):
         if name not in swept:  # then every run has the first run's
             value = getattr(study.cases.runs[0], name)
-            coords[name] = ((), np.array(value, dtype=object if name == "scheme" else float),
-                            cf_attrs(*COORDINATES[name]))
+            coords[name] = (
+                (),
+                np.array(value, dtype=object if name == "scheme" else float),
+                cf_attrs(*COORDINATES[name]),
+            )
     coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
-            coords[dim.name] = ((dim.name,), np.arange(dim.size),
-                                {"long_name": "index along the zipped axes "
-                                              + ", ".join(a.coordinate for a in dim.axes)})
+            coords[dim.name] = (
+                (dim.name,),
+                np.arange(dim.size),
+                {"long_name": "index along the zipped axes " + ", ".join(a.coordinate for a in dim.axes)},
+            )
         for axis in dim.axes:
             attrs = cf_attrs(axis.units, axis.long_name)
             attrs["sweep_path"] = axis.target
@@ -271,8 +322,11 @@ def grid_coordinates(study):
 def _scheme_claims(study, dims):
     """`SCHEME_COORDINATES` of the study's schemes, along ``dims`` (the scheme dimension, or
     none for a one-scheme study); invariants as space-separated names, "none" for none."""
-    schemes = (list(next(a.values for d in study.dimensions for a in d.axes
-                         if a.target == "scheme")) if dims else [study.cases.runs[0].scheme])
+    schemes = (
+        list(next(a.values for d in study.dimensions for a in d.axes if a.target == "scheme"))
+        if dims
+        else [study.cases.runs[0].scheme]
+    )
     swept_order = study.order_dimension
     coords = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
@@ -301,11 +355,21 @@ def _write_part_file(nc, layout, batch, values):
     _create(nc, "case", ("case",), cases, {"long_name": "case number in the study"})
     for name, (coordinate, attrs) in _fixed_coords(layout).items():
         nc.createDimension(name, len(coordinate))
-        _create(nc, name, (name,), coordinate.astype(object) if coordinate.dtype.kind == "U"
-                else coordinate, attrs)
+        _create(
+            nc,
+            name,
+            (name,),
+            coordinate.astype(object) if coordinate.dtype.kind == "U" else coordinate,
+            attrs,
+        )
     for name in layout.variables:
-        _create(nc, name, ("case",) + VARIABLES[name].dims,
-                np.asarray(values[name], dtype=VARIABLES[name].dtype), variable_attrs(name))
+        _create(
+            nc,
+            name,
+            ("case",) + VARIABLES[name].dims,
+            np.asarray(values[name], dtype=VARIABLES[name].dtype),
+            variable_attrs(name),
+        )
 
 
 def read_part(path, variables):
@@ -321,8 +385,7 @@ def _temporary_beside(path):
     path = pathlib.Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
-                                             suffix=".tmp")
+        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         os.close(handle)
     except OSError as error:
         raise unwritable(path.parent, error) from None
@@ -357,10 +420,14 @@ def unwritable(folder, error, label=""):
     if error.errno != errno.EROFS:  # read-only media (an ISO image) report no free space
         _raise_if_full(folder)
     # a system file system (/proc) answers a new name with "No such file or directory"
-    reason = ("its file system takes no new files" if error.errno == errno.ENOENT
-              else error.strerror or one_line(error))
-    return UnwritableFolder(f"{label}{folder}: cannot write results there ({reason}); "
-                            "choose another folder with --out")
+    reason = (
+        "its file system takes no new files"
+        if error.errno == errno.ENOENT
+        else error.strerror or one_line(error)
+    )
+    return UnwritableFolder(
+        f"{label}{folder}: cannot write results there ({reason}); choose another folder with --out"
+    )
 
 
 def check_output_folder(folder, label="--out "):
@@ -375,8 +442,7 @@ def check_output_folder(folder, label="--out "):
         place = place.parent
     if not place.is_dir():
         what = "is a file" if not missing else f"lies under the file {place}"
-        raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder "
-                               "with --out")
+        raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder with --out")
     made = []
     try:
         for path in reversed(missing):
@@ -404,9 +470,10 @@ def _raise_if_full(folder):
         return
     while not os.path.ismount(mount):
         mount = mount.parent
-    raise RbstudyError(f"{folder}: no space left on the file system at {mount}; free space and "
-                       "rerun the same command (a sweep keeps its finished parts and resumes)"
-                       ) from None
+    raise RbstudyError(
+        f"{folder}: no space left on the file system at {mount}; free space and "
+        "rerun the same command (a sweep keeps its finished parts and resumes)"
+    ) from None
 
 
 def _sync(path):
@@ -439,8 +506,11 @@ def inside(folder, name):
     folder = pathlib.Path(folder)
     path = folder / name
     if not path.resolve().is_relative_to(folder.resolve()):
-        raise InputError(f"{name!r} would be written outside it, at {path.resolve()}",
-                         "a study name holds letters, digits, '-' and '_' only", str(folder))
+        raise InputError(
+            f"{name!r} would be written outside it, at {path.resolve()}",
+            "a study name holds letters, digits, '-' and '_' only",
+            str(folder),
+        )
     return path
 
 
@@ -476,8 +546,7 @@ def archive_state(path, study):
 def _owner_lines(study):
     """What `OWNER` holds for ``study``: its config file (resolved path) and the SHA-256 of
     the config's text."""
-    return [str(pathlib.Path(study.path).resolve()),
-            hashlib.sha256(study.text.encode()).hexdigest()]
+    return [str(pathlib.Path(study.path).resolve()), hashlib.sha256(study.text.encode()).hexdigest()]
 
 
 def folder_claim(root, study, force=False):
@@ -495,19 +564,26 @@ def folder_claim(root, study, force=False):
     try:
         owner = record.read_text().split("\n") if record.is_file() else None
     except (OSError, UnicodeDecodeError) as error:
-        raise RbstudyError(f"{record}: cannot read the study folder's owner record "
-                           f"({getattr(error, 'strerror', None) or error}); remove it, or give "
-                           "another --out") from None
+        raise RbstudyError(
+            f"{record}: cannot read the study folder's owner record "
+            f"({getattr(error, 'strerror', None) or error}); remove it, or give "
+            "another --out"
+        ) from None
     if owner is None or set(owner[:2]) & set(_owner_lines(study)):
         return None
     if not force:
-        raise ConfigError(f"{folder} holds the study of another config of this name, "
-                          f"{owner[0]}", "give this study another name or another --out "
-                          "(--force replaces that study)", source=study.path, key="name")
+        raise ConfigError(
+            f"{folder} holds the study of another config of this name, {owner[0]}",
+            "give this study another name or another --out (--force replaces that study)",
+            source=study.path,
+            key="name",
+        )
     kept = len(list((folder / "parts").glob("*.nc")))
     archive = "its archive and " if (folder / f"{study.name}.nc").exists() else ""
-    return (f"{study.name}: --force replaces the study of {owner[0]} in {folder} ({archive}"
-            f"{kept} kept part{'' if kept == 1 else 's'})")
+    return (
+        f"{study.name}: --force replaces the study of {owner[0]} in {folder} ({archive}"
+        f"{kept} kept part{'' if kept == 1 else 's'})"
+    )
 
 
 def claim_folder(folder, study):
@@ -532,8 +608,9 @@ def part_complete(path, batch):
         return None
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            same = (nc.getncattr("batch") == batch.id
-                    and np.array_equal(nc["case"][:], np.asarray(batch.cases)))
+            same = nc.getncattr("batch") == batch.id and np.array_equal(
+                nc["case"][:], np.asarray(batch.cases)
+            )
     except (OSError, KeyError, AttributeError, IndexError, RuntimeError):
         return None
     return digest if same else None
@@ -594,19 +671,23 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
     compression = COMPRESSION if values is None and dims else {}
     if compression:
         shape = tuple(len(nc.dimensions[d]) for d in dims)
-        compression = {**compression, "chunksizes": case_chunks(
-            shape[:grid_rank], shape[grid_rank:], np.dtype(dtype).itemsize)}
+        compression = {
+            **compression,
+            "chunksizes": case_chunks(shape[:grid_rank], shape[grid_rank:], np.dtype(dtype).itemsize),
+        }
     variable = nc.createVariable(name, dtype, dims, fill_value=fill, **compression)
     if compression:
         # a part fills its own chunks and one shared with each neighbour, written next: a
         # few chunks of cache suffice. netCDF's default, 64 MiB a variable, held 460 MiB of
         # a 1e5-case archive's chunks at once
         chunk_bytes = math.prod(compression["chunksizes"]) * np.dtype(dtype).itemsize
-        variable.set_var_chunk_cache(size=max(CHUNK_CACHE_CHUNKS * chunk_bytes, 2 ** 20),
-                                     nelems=CHUNK_CACHE_SLOTS, preemption=0.75)
+        variable.set_var_chunk_cache(
+            size=max(CHUNK_CACHE_CHUNKS * chunk_bytes, 2**20), nelems=CHUNK_CACHE_SLOTS, preemption=0.75
+        )
     if attrs:
-        variable.setncatts({k: (np.array(v, dtype=np.int8) if k == "flag_values" else v)
-                            for k, v in attrs.items()})
+        variable.setncatts(
+            {k: (np.array(v, dtype=np.int8) if k == "flag_values" else v) for k, v in attrs.items()}
+        )
     if values is not None:
         variable[...] = values
     return variable
@@ -629,22 +710,31 @@ def consolidate(study, parts, digests, target, attrs, advance=lambda: None):
             for name, (dims, values, coord_attrs) in grid.items():
                 _create(nc, name, dims, values, coord_attrs)
             for name, (values, coord_attrs) in fixed.items():
-                _create(nc, name, (name,), values.astype(object) if values.dtype.kind == "U"
-                        else values, coord_attrs)
+                _create(
+                    nc,
+                    name,
+                    (name,),
+                    values.astype(object) if values.dtype.kind == "U" else values,
+                    coord_attrs,
+                )
             targets = {}
             for name in study.variables:
                 along = archive_dims(study, name)
                 attrs_ = variable_attrs(name)
                 # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
                 # claims) that CF readers attach to it: those along its dimensions
-                auxiliary = [coordinate for coordinate, (dims, _, _) in grid.items()
-                             if dims != (coordinate,) and set(dims) <= set(along)]
+                auxiliary = [
+                    coordinate
+                    for coordinate, (dims, _, _) in grid.items()
+                    if dims != (coordinate,) and set(dims) <= set(along)
+                ]
                 if auxiliary:
                     attrs_["coordinates"] = " ".join(auxiliary)
                 grid_rank = len(along) - len(VARIABLES[name].dims)
-                targets[name] = (_create(nc, name, along, attrs=attrs_,
-                                         dtype=VARIABLES[name].dtype, grid_rank=grid_rank),
-                                 tuple(d.name in along[:grid_rank] for d in study.dimensions))
+                targets[name] = (
+                    _create(nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank),
+                    tuple(d.name in along[:grid_rank] for d in study.dimensions),
+                )
             for batch in study.batches:
                 _copy_part(targets, read_part(parts[batch.id], study.variables), shape)
                 advance()
@@ -662,15 +752,15 @@ def _block(cases, shape):
     grid = np.ravel_multi_index(np.meshgrid(*axes, indexing="ij"), shape).ravel()
     if not np.array_equal(grid, cases):
         return None
-    return tuple(slice(a[0], a[-1] + 1) if len(a) == a[-1] - a[0] + 1 else a.tolist()
-                 for a in axes), tuple(len(a) for a in axes)
+    return tuple(slice(a[0], a[-1] + 1) if len(a) == a[-1] - a[0] + 1 else a.tolist() for a in axes), tuple(
+        len(a) for a in axes
+    )
 
 
 def archive_dims(study, name):
     """The dimensions of variable ``name`` in ``study``'s archive: the swept ones (a
     variable of the scene alone: those along which the scene changes), then its own."""
-    grid = study.scene_dims if VARIABLES[name].per_scene else tuple(
-        d.name for d in study.dimensions)
+    grid = study.scene_dims if VARIABLES[name].per_scene else tuple(d.name for d in study.dimensions)
     return grid + VARIABLES[name].dims
 
 
@@ -688,15 +778,20 @@ def _copy_part(targets, part, shape):
     # else slabs of consecutive cases: a batch cut from a long grid (one scheme and dt, 510 of
     # 100 x 1,000 spins and tilts) starts and ends inside a row; written case by case, such
     # a part took 0.5 s (1e5 cases: 100 s of 178)
-    slabs = [block] if block is not None else [
-        (index, tuple(piece.stop - piece.start for piece in index))
-        for run in np.split(cases, np.flatnonzero(np.diff(cases) != 1) + 1)
-        for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)]
+    slabs = (
+        [block]
+        if block is not None
+        else [
+            (index, tuple(piece.stop - piece.start for piece in index))
+            for run in np.split(cases, np.flatnonzero(np.diff(cases) != 1) + 1)
+            for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)
+        ]
+    )
     for name, (variable, along) in targets.items():
         values, start = part[name], 0
         for index, sizes in slabs:
             count = math.prod(sizes)
-            block = values[start:start + count].reshape(sizes + values.shape[1:])
+            block = values[start : start + count].reshape(sizes + values.shape[1:])
             kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
             variable[kept or ...] = block[tuple(slice(None) if keep else 0 for keep in along)]
             start += count
@@ -713,8 +808,7 @@ def _slabs(first, stop, shape):
     (row, offset), (last_row, last_offset) = divmod(first, inner), divmod(stop, inner)
     whole_rows = tuple(slice(0, size) for size in shape[1:])
     if row == last_row:
-        return [(slice(row, row + 1), *index)
-                for index in _slabs(offset, last_offset, shape[1:])]
+        return [(slice(row, row + 1), *index) for index in _slabs(offset, last_offset, shape[1:])]
     slabs = []
     if offset:  # the end of a first row
         slabs += [(slice(row, row + 1), *index) for index in _slabs(offset, inner, shape[1:])]
@@ -722,6 +816,5 @@ def _slabs(first, stop, shape):
     if last_row > row:
         slabs.append((slice(row, last_row), *whole_rows))
     if last_offset:  # the start of a last row
-        slabs += [(slice(last_row, last_row + 1), *index)
-                  for index in _slabs(0, last_offset, shape[1:])]
+        slabs += [(slice(last_row, last_row + 1), *index) for index in _slabs(0, last_offset, shape[1:])]
     return slabs

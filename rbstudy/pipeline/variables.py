@@ -20,33 +20,60 @@ from rbstudy.numerics.state import OK, RESULT_FIELDS, STATUS_NAMES, STATUSES
 from rbstudy.physics.analytic import INTEGRATED, REFERENCE_KINDS
 from rbstudy.pipeline import outputs
 
-__all__ = ["Variable", "VARIABLES", "DEPRECATED", "ALIAS_REMOVED_IN", "LONG_NAME_MAX", "FEATURES",
-           "COORDINATES", "SCHEME_COORDINATES", "TIME_UNITS", "coordinate_units", "cf_attrs",
-           "variable_attrs", "scene_features", "selected", "evaluate", "BOOKKEEPING",
-           "UNCERTAINTIES", "PER_SCENE"]
+__all__ = [
+    "Variable",
+    "VARIABLES",
+    "DEPRECATED",
+    "ALIAS_REMOVED_IN",
+    "LONG_NAME_MAX",
+    "FEATURES",
+    "COORDINATES",
+    "SCHEME_COORDINATES",
+    "TIME_UNITS",
+    "coordinate_units",
+    "cf_attrs",
+    "variable_attrs",
+    "scene_features",
+    "selected",
+    "evaluate",
+    "BOOKKEEPING",
+    "UNCERTAINTIES",
+    "PER_SCENE",
+]
 
 # The scene features a variable may need: name -> (predicate on a
 # `rbstudy.physics.scenes.SceneTable`, true or false per scene, meaning).
 FEATURES = {
-    "nodes": (lambda scenes: np.full(len(scenes), len(scenes.node_names) > 0),
-              "the scene has nodes fixed to the body"),
+    "nodes": (
+        lambda scenes: np.full(len(scenes), len(scenes.node_names) > 0),
+        "the scene has nodes fixed to the body",
+    ),
     "translation": (lambda scenes: scenes.translates, "the centre of mass moves"),
-    "reference": (lambda scenes: np.full(len(scenes), True),
-                  "a reference solution (closed form, or integrated where none exists)"),
+    "reference": (
+        lambda scenes: np.full(len(scenes), True),
+        "a reference solution (closed form, or integrated where none exists)",
+    ),
     # any scene of the study: the closed-form cases of a mixed study hold NaN
-    "integrated": (lambda scenes: np.full(len(scenes), bool(np.any(
-        scenes.reference_kinds == INTEGRATED))),
-                   "some scene has no closed-form reference: it is integrated twice, and the "
-                   "two are compared"),
-    "moment_free": (lambda scenes: scenes.moment_free,
-                    "no moment acts: energy and angular momentum are conserved, so their "
-                    "drift is an error"),
-    "symmetric": (lambda scenes: scenes.moment_free & (scenes.symmetry_axes >= 0),
-                  "a moment-free symmetric body (precession frequency)"),
-    "asymmetric": (lambda scenes: scenes.moment_free & (scenes.symmetry_axes < 0),
-                   "a moment-free body with three different inertias (flip interval)"),
-    "assembled": (lambda scenes: np.full(len(scenes), scenes.regularised is not None),
-                  "a body assembled from a master node and secondary nodes"),
+    "integrated": (
+        lambda scenes: np.full(len(scenes), bool(np.any(scenes.reference_kinds == INTEGRATED))),
+        "some scene has no closed-form reference: it is integrated twice, and the two are compared",
+    ),
+    "moment_free": (
+        lambda scenes: scenes.moment_free,
+        "no moment acts: energy and angular momentum are conserved, so their drift is an error",
+    ),
+    "symmetric": (
+        lambda scenes: scenes.moment_free & (scenes.symmetry_axes >= 0),
+        "a moment-free symmetric body (precession frequency)",
+    ),
+    "asymmetric": (
+        lambda scenes: scenes.moment_free & (scenes.symmetry_axes < 0),
+        "a moment-free body with three different inertias (flip interval)",
+    ),
+    "assembled": (
+        lambda scenes: np.full(len(scenes), scenes.regularised is not None),
+        "a body assembled from a master node and secondary nodes",
+    ),
 }
 
 
@@ -75,141 +102,360 @@ class Variable:
 LONG_NAME_MAX = 60
 
 
-def _v(name, dims, units, long_name, description, *needs, flags=(), dtype="f8",
-       per_scene=False):
+def _v(name, dims, units, long_name, description, *needs, flags=(), dtype="f8", per_scene=False):
     """A variable computed by `rbstudy.pipeline.outputs` function of the same name."""
-    return Variable(name, dims, units, long_name, description, getattr(outputs, name),
-                    frozenset(needs), dtype, flags, per_scene)
+    return Variable(
+        name,
+        dims,
+        units,
+        long_name,
+        description,
+        getattr(outputs, name),
+        frozenset(needs),
+        dtype,
+        flags,
+        per_scene,
+    )
 
 
 def _scene(name, dims, units, long_name, description, *needs, flags=(), dtype="f8"):
     """A variable of the scene alone, the same for every scheme, dt and option."""
-    return _v(name, dims, units, long_name, description, *needs, flags=flags, dtype=dtype,
-              per_scene=True)
+    return _v(name, dims, units, long_name, description, *needs, flags=flags, dtype=dtype, per_scene=True)
 
 
 def _result(name, units, long_name, description, *needs, flags=()):
     """A per-case result of the driver, stored as the driver's storage type."""
-    return Variable(name, (), units, long_name, description, outputs.driver_result(name),
-                    frozenset(needs), dict(RESULT_FIELDS)[name], flags)
+    return Variable(
+        name,
+        (),
+        units,
+        long_name,
+        description,
+        outputs.driver_result(name),
+        frozenset(needs),
+        dict(RESULT_FIELDS)[name],
+        flags,
+    )
 
 
 _AS_UNCERTAINTY = "; NaN where reference_uncertainty is"
 
-VARIABLES = {v.name: v for v in (
-    _v("omega_body", ("time", "axis"), "rad s-1", "angular velocity in principal body axes",
-       "angular velocity w in the principal axes of the body"),
-    _v("omega_space", ("time", "axis"), "rad s-1", "angular velocity in space axes",
-       "angular velocity R w in the space (global) axes"),
-    _v("quaternion", ("time", "component"), "1", "orientation quaternion (x, y, z, w)",
-       "orientation as a unit quaternion, scalar last, that turns the principal body axes "
-       "into the space axes"),
-    _v("position", ("time", "axis"), "m", "centre-of-mass position",
-       "position of the centre of mass in space axes", "translation"),
-    _v("node_displacement", ("time", "node", "axis"), "m", "node displacement",
-       "displacement of each node fixed to the body from its position at t = 0, in space "
-       "axes", "nodes"),
-    _v("node_velocity", ("time", "node", "axis"), "m s-1", "node velocity",
-       "velocity of each node fixed to the body, v + R (w x s) with s its offset in body "
-       "axes, in space axes", "nodes"),
-    _v("energy_error", ("time",), "1", "relative kinetic energy error",
-       "(T - T0) / T0 of the rotational kinetic energy T (no moment acts, so T is conserved)",
-       "moment_free"),
-    _v("momentum_error", ("time",), "1", "relative angular momentum error",
-       "|L - L0| / |L0| of the angular momentum vector L in space axes (no moment acts, so L "
-       "is conserved)", "moment_free"),
-    _v("orientation_error", ("time",), "rad", "orientation error",
-       "geodesic angle between the orientation and the reference's (variable reference)",
-       "reference"),
-    _v("omega_error", ("time",), "1", "relative angular velocity error",
-       "|w - w_ref| / |w_ref| of the angular velocity in body axes against the reference",
-       "reference"),
-    _v("node_error", ("time", "node"), "m", "node position error",
-       "distance of each node to its position in the reference motion", "reference", "nodes"),
-    _v("precession_frequency", (), "rad s-1", "body-frame precession frequency",
-       "slope of the unwrapped phase of the angular velocity across the symmetry axis "
-       "(w1 + i w2 for axis 3) over the run", "symmetric"),
-    _scene("precession_frequency_exact", (), "rad s-1", "exact precession frequency",
-           "exact body-frame precession frequency W = w3 (I3 - I1) / I1 (axis 3 the symmetry "
-           "axis)", "symmetric"),
-    _v("precession_frequency_error", (), "rad s-1", "precession frequency error",
-       "precession_frequency minus precession_frequency_exact", "symmetric"),
-    _v("flip_interval", (), "s", "flip interval",
-       "mean time between sign changes of the angular velocity about the intermediate axis",
-       "asymmetric"),
-    _scene("flip_interval_exact", (), "s", "exact flip interval",
-           "exact time between sign changes of the intermediate-axis rate, 2 K(k^2) / |lambda|",
-           "asymmetric"),
-    _v("flip_interval_error", (), "s", "flip interval error",
-       "flip_interval minus flip_interval_exact", "asymmetric"),
-    _result("status", "1", "case outcome",
-            "; ".join([STATUS_NAMES[OK], *(f"{name}: {message}" for name, message, _ in
-                                          STATUSES[OK + 1:])]), flags=STATUS_NAMES),
-    _result("failure_time", "s", "time of failure",
-            "time of blow-up or solver failure; NaN if none"),
-    _result("n_steps", "1", "time steps taken", "time steps the scheme took"),
-    _result("iterations", "1", "Newton iterations",
-            "Newton iterations summed over the steps (0 for an explicit scheme)"),
-    _v("run_time", (), "s", "kernel CPU time per case",
-       "CPU time of the compiled batch call, summed over its threads, divided by the batch's "
-       "cases; compilation excluded"),
-    _result("max_energy_error", "1", "largest relative energy error",
-            "largest |(T - T0) / T0| over every step, not only the samples", "moment_free"),
-    _result("max_momentum_magnitude_error", "1", "largest relative drift of |L|",
+VARIABLES = {
+    v.name: v
+    for v in (
+        _v(
+            "omega_body",
+            ("time", "axis"),
+            "rad s-1",
+            "angular velocity in principal body axes",
+            "angular velocity w in the principal axes of the body",
+        ),
+        _v(
+            "omega_space",
+            ("time", "axis"),
+            "rad s-1",
+            "angular velocity in space axes",
+            "angular velocity R w in the space (global) axes",
+        ),
+        _v(
+            "quaternion",
+            ("time", "component"),
+            "1",
+            "orientation quaternion (x, y, z, w)",
+            "orientation as a unit quaternion, scalar last, that turns the principal body axes "
+            "into the space axes",
+        ),
+        _v(
+            "position",
+            ("time", "axis"),
+            "m",
+            "centre-of-mass position",
+            "position of the centre of mass in space axes",
+            "translation",
+        ),
+        _v(
+            "node_displacement",
+            ("time", "node", "axis"),
+            "m",
+            "node displacement",
+            "displacement of each node fixed to the body from its position at t = 0, in space axes",
+            "nodes",
+        ),
+        _v(
+            "node_velocity",
+            ("time", "node", "axis"),
+            "m s-1",
+            "node velocity",
+            "velocity of each node fixed to the body, v + R (w x s) with s its offset in body "
+            "axes, in space axes",
+            "nodes",
+        ),
+        _v(
+            "energy_error",
+            ("time",),
+            "1",
+            "relative kinetic energy error",
+            "(T - T0) / T0 of the rotational kinetic energy T (no moment acts, so T is conserved)",
+            "moment_free",
+        ),
+        _v(
+            "momentum_error",
+            ("time",),
+            "1",
+            "relative angular momentum error",
+            "|L - L0| / |L0| of the angular momentum vector L in space axes (no moment acts, so L "
+            "is conserved)",
+            "moment_free",
+        ),
+        _v(
+            "orientation_error",
+            ("time",),
+            "rad",
+            "orientation error",
+            "geodesic angle between the orientation and the reference's (variable reference)",
+            "reference",
+        ),
+        _v(
+            "omega_error",
+            ("time",),
+            "1",
+            "relative angular velocity error",
+            "|w - w_ref| / |w_ref| of the angular velocity in body axes against the reference",
+            "reference",
+        ),
+        _v(
+            "node_error",
+            ("time", "node"),
+            "m",
+            "node position error",
+            "distance of each node to its position in the reference motion",
+            "reference",
+            "nodes",
+        ),
+        _v(
+            "precession_frequency",
+            (),
+            "rad s-1",
+            "body-frame precession frequency",
+            "slope of the unwrapped phase of the angular velocity across the symmetry axis "
+            "(w1 + i w2 for axis 3) over the run",
+            "symmetric",
+        ),
+        _scene(
+            "precession_frequency_exact",
+            (),
+            "rad s-1",
+            "exact precession frequency",
+            "exact body-frame precession frequency W = w3 (I3 - I1) / I1 (axis 3 the symmetry axis)",
+            "symmetric",
+        ),
+        _v(
+            "precession_frequency_error",
+            (),
+            "rad s-1",
+            "precession frequency error",
+            "precession_frequency minus precession_frequency_exact",
+            "symmetric",
+        ),
+        _v(
+            "flip_interval",
+            (),
+            "s",
+            "flip interval",
+            "mean time between sign changes of the angular velocity about the intermediate axis",
+            "asymmetric",
+        ),
+        _scene(
+            "flip_interval_exact",
+            (),
+            "s",
+            "exact flip interval",
+            "exact time between sign changes of the intermediate-axis rate, 2 K(k^2) / |lambda|",
+            "asymmetric",
+        ),
+        _v(
+            "flip_interval_error",
+            (),
+            "s",
+            "flip interval error",
+            "flip_interval minus flip_interval_exact",
+            "asymmetric",
+        ),
+        _result(
+            "status",
+            "1",
+            "case outcome",
+            "; ".join([STATUS_NAMES[OK], *(f"{name}: {message}" for name, message, _ in STATUSES[OK + 1 :])]),
+            flags=STATUS_NAMES,
+        ),
+        _result("failure_time", "s", "time of failure", "time of blow-up or solver failure; NaN if none"),
+        _result("n_steps", "1", "time steps taken", "time steps the scheme took"),
+        _result(
+            "iterations",
+            "1",
+            "Newton iterations",
+            "Newton iterations summed over the steps (0 for an explicit scheme)",
+        ),
+        _v(
+            "run_time",
+            (),
+            "s",
+            "kernel CPU time per case",
+            "CPU time of the compiled batch call, summed over its threads, divided by the batch's "
+            "cases; compilation excluded",
+        ),
+        _result(
+            "max_energy_error",
+            "1",
+            "largest relative energy error",
+            "largest |(T - T0) / T0| over every step, not only the samples",
+            "moment_free",
+        ),
+        _result(
+            "max_momentum_magnitude_error",
+            "1",
+            "largest relative drift of |L|",
             "largest relative drift of the magnitude |L| over every step (the vector's drift, "
-            "sampled, is momentum_error)", "moment_free"),
-    _result("max_step_angle", "rad", "largest step angle dt |w|",
+            "sampled, is momentum_error)",
+            "moment_free",
+        ),
+        _result(
+            "max_step_angle",
+            "rad",
+            "largest step angle dt |w|",
             "largest dt |w| over the accepted states, t = 0 included (an adaptive scheme: "
-            "each step's own dt and the |w| it ends with)"),
-    _result("radioss_dt_limit", "1", "OpenRadioss step limit",
+            "each step's own dt and the |w| it ends with)",
+        ),
+        _result(
+            "radioss_dt_limit",
+            "1",
+            "OpenRadioss step limit",
             "whether (dt |w|)^2 > 1 at some step, where OpenRadioss aborts a rigid body as "
-            "unstable (the run goes on)", flags=("within", "exceeded")),
-    _v("final_orientation_error", (), "rad", "final orientation error",
-       "orientation_error at the last output time", "reference"),
-    _v("accuracy", (), "1", "accuracy verdict",
-       "a finished case is inaccurate when its orientation error at any sample (rad) or its "
-       "relative energy or |L| drift passes the global attribute accuracy_bound; a failed "
-       "case has no verdict; a finished case without a reference (reference = none) and no "
-       "drift past the bound is unjudged", "reference", flags=outputs.VERDICTS, dtype="i1"),
-    _scene("reference", (), "1", "reference solution",
-           "the solution the errors are measured against", "reference",
-           flags=REFERENCE_KINDS, dtype="i1"),
-    _scene("reference_uncertainty", (), "rad", "reference orientation uncertainty",
-           "orientation angle at the last output time between the two independent "
-           "integrations of the reference (exact_split composed to order 8, and DOP853); NaN "
-           "where the reference is a closed form or was not cross-checked", "integrated"),
-    _scene("reference_omega_uncertainty", (), "1", "reference angular velocity uncertainty",
-           "largest relative difference of the angular velocity between the two integrations "
-           "of the reference over the output times" + _AS_UNCERTAINTY, "integrated"),
-    _scene("reference_node_uncertainty", (), "m", "reference node position uncertainty",
-           "largest node distance between the two integrations of the reference over the "
-           "output times" + _AS_UNCERTAINTY, "integrated", "nodes"),
-    _scene("inertia", ("axis",), "kg m2", "principal moments of inertia",
-           "moments of inertia about the body's principal axes"),
-    _scene("initial_spin", (), "rad s-1", "initial angular speed |w(0)|",
-           "magnitude of the angular velocity at t = 0"),
-    _scene("node_offset", ("node", "axis"), "m", "node offset from the centre of mass",
-           "offset of each node fixed to the body from the centre of mass, in principal body "
-           "axes", "nodes"),
-    _scene("regularised_inertia", (), "1", "inertia regularised",
-           "whether a principal inertia below 1e-3 of the largest was raised to that (Radioss "
-           "regularisation of an assembled body)", "assembled",
-           flags=("as_assembled", "regularised"), dtype="i1"),
-    _scene("physical_body", (), "1", "physical rigid body",
-           "whether the principal inertias meet the triangle inequality (a real rigid body, "
-           "not an allow_unphysical stress body)",
-           flags=("unphysical_stress_body", "physical"), dtype="i1"),
-)}
+            "unstable (the run goes on)",
+            flags=("within", "exceeded"),
+        ),
+        _v(
+            "final_orientation_error",
+            (),
+            "rad",
+            "final orientation error",
+            "orientation_error at the last output time",
+            "reference",
+        ),
+        _v(
+            "accuracy",
+            (),
+            "1",
+            "accuracy verdict",
+            "a finished case is inaccurate when its orientation error at any sample (rad) or its "
+            "relative energy or |L| drift passes the global attribute accuracy_bound; a failed "
+            "case has no verdict; a finished case without a reference (reference = none) and no "
+            "drift past the bound is unjudged",
+            "reference",
+            flags=outputs.VERDICTS,
+            dtype="i1",
+        ),
+        _scene(
+            "reference",
+            (),
+            "1",
+            "reference solution",
+            "the solution the errors are measured against",
+            "reference",
+            flags=REFERENCE_KINDS,
+            dtype="i1",
+        ),
+        _scene(
+            "reference_uncertainty",
+            (),
+            "rad",
+            "reference orientation uncertainty",
+            "orientation angle at the last output time between the two independent "
+            "integrations of the reference (exact_split composed to order 8, and DOP853); NaN "
+            "where the reference is a closed form or was not cross-checked",
+            "integrated",
+        ),
+        _scene(
+            "reference_omega_uncertainty",
+            (),
+            "1",
+            "reference angular velocity uncertainty",
+            "largest relative difference of the angular velocity between the two integrations "
+            "of the reference over the output times" + _AS_UNCERTAINTY,
+            "integrated",
+        ),
+        _scene(
+            "reference_node_uncertainty",
+            (),
+            "m",
+            "reference node position uncertainty",
+            "largest node distance between the two integrations of the reference over the "
+            "output times" + _AS_UNCERTAINTY,
+            "integrated",
+            "nodes",
+        ),
+        _scene(
+            "inertia",
+            ("axis",),
+            "kg m2",
+            "principal moments of inertia",
+            "moments of inertia about the body's principal axes",
+        ),
+        _scene(
+            "initial_spin",
+            (),
+            "rad s-1",
+            "initial angular speed |w(0)|",
+            "magnitude of the angular velocity at t = 0",
+        ),
+        _scene(
+            "node_offset",
+            ("node", "axis"),
+            "m",
+            "node offset from the centre of mass",
+            "offset of each node fixed to the body from the centre of mass, in principal body axes",
+            "nodes",
+        ),
+        _scene(
+            "regularised_inertia",
+            (),
+            "1",
+            "inertia regularised",
+            "whether a principal inertia below 1e-3 of the largest was raised to that (Radioss "
+            "regularisation of an assembled body)",
+            "assembled",
+            flags=("as_assembled", "regularised"),
+            dtype="i1",
+        ),
+        _scene(
+            "physical_body",
+            (),
+            "1",
+            "physical rigid body",
+            "whether the principal inertias meet the triangle inequality (a real rigid body, "
+            "not an allow_unphysical stress body)",
+            flags=("unphysical_stress_body", "physical"),
+            dtype="i1",
+        ),
+    )
+}
 
 # Names replaced by clearer ones in rbstudy 0.2, kept as aliases until `ALIAS_REMOVED_IN`:
 # stored beside the new name (same values) and accepted in output.variables. Old name -> new
 # name. docs/config.md names the same release.
 DEPRECATED = {"max_momentum_error": "max_momentum_magnitude_error"}
 ALIAS_REMOVED_IN = "0.5"
-VARIABLES.update({old: dataclasses.replace(
-    VARIABLES[new], name=old, long_name=f"deprecated alias of {new}",
-    description=f"removed in rbstudy {ALIAS_REMOVED_IN}: {VARIABLES[new].description}")
-    for old, new in DEPRECATED.items()})
+VARIABLES.update(
+    {
+        old: dataclasses.replace(
+            VARIABLES[new],
+            name=old,
+            long_name=f"deprecated alias of {new}",
+            description=f"removed in rbstudy {ALIAS_REMOVED_IN}: {VARIABLES[new].description}",
+        )
+        for old, new in DEPRECATED.items()
+    }
+)
 
 # The variables stored along the scene's dimensions only.
 PER_SCENE = frozenset(name for name, variable in VARIABLES.items() if variable.per_scene)
@@ -238,20 +484,30 @@ COORDINATES = {
 # (Scheme attribute, units, long_name).
 SCHEME_COORDINATES = {
     "nominal_order": ("order", "1", "nominal global order of accuracy of the scheme"),
-    "claimed_invariants": ("keeps", None,
-                           "invariants kept to round-off by a moment-free body"),
-    "scheme_origin": ("origin", None,
-                      "provider of the scheme: rbstudy, or a package and version"),
+    "claimed_invariants": ("keeps", None, "invariants kept to round-off by a moment-free body"),
+    "scheme_origin": ("origin", None, "provider of the scheme: rbstudy, or a package and version"),
 }
 
 # Units of a value swept by dotted path, found from the last key of the path that is listed
 # here (``scene.initial.angular_velocity.body.2`` -> ``body`` under ``angular_velocity``). A
 # scheme option's come from the option (`rbstudy.schemes.Option.units`).
 _KEY_UNITS = {
-    "mass": "kg", "inertia": "kg m2", "angular_velocity": "rad s-1", "position": "m",
-    "velocity": "m s-1", "euler_zxz_deg": "degree", "phi_deg": "degree", "quaternion": "1",
-    "rotation_vector": "rad", "momentum_axis": "1", "nodes": "m", "force_space": "N",
-    "force_body": "N", "moment_space": "N m", "moment_body": "N m", "gravity": "m s-2",
+    "mass": "kg",
+    "inertia": "kg m2",
+    "angular_velocity": "rad s-1",
+    "position": "m",
+    "velocity": "m s-1",
+    "euler_zxz_deg": "degree",
+    "phi_deg": "degree",
+    "quaternion": "1",
+    "rotation_vector": "rad",
+    "momentum_axis": "1",
+    "nodes": "m",
+    "force_space": "N",
+    "force_body": "N",
+    "moment_space": "N m",
+    "moment_body": "N m",
+    "gravity": "m s-2",
 }
 
 
@@ -275,8 +531,10 @@ def variable_attrs(name):
     variable = VARIABLES[name]
     described = {"long_name": variable.long_name, "description": variable.description}
     if variable.flags:
-        return described | {"flag_values": list(range(len(variable.flags))),
-                            "flag_meanings": " ".join(variable.flags)}
+        return described | {
+            "flag_values": list(range(len(variable.flags))),
+            "flag_meanings": " ".join(variable.flags),
+        }
     return {"units": variable.units} | described
 
 
@@ -287,12 +545,22 @@ def scene_features(scenes):
 
 # Per-case bookkeeping stored whatever `output.variables` says: the summary, the figures and
 # the report read them (a few numbers per case).
-BOOKKEEPING = ("status", "accuracy", "failure_time", "n_steps", "iterations", "run_time",
-               "reference", "physical_body", "inertia", "initial_spin", "radioss_dt_limit")
+BOOKKEEPING = (
+    "status",
+    "accuracy",
+    "failure_time",
+    "n_steps",
+    "iterations",
+    "run_time",
+    "reference",
+    "physical_body",
+    "inertia",
+    "initial_spin",
+    "radioss_dt_limit",
+)
 # The reference's uncertainties (the variables of integrated references), kept whatever
 # `output.variables` says wherever a study defines them: the order fits read them.
-UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items()
-                      if "integrated" in variable.needs)
+UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items() if "integrated" in variable.needs)
 
 
 def selected(features):

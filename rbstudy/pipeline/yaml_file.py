@@ -38,8 +38,11 @@ class _Loader(yaml.SafeLoader):
                 continue  # an unhashable key fails in PyYAML's own construction
             if key in seen:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key {key!r}: give each key once (the later one "
-                                "would silently win)", key_node.start_mark)
+                    None,
+                    None,
+                    f"duplicate key {key!r}: give each key once (the later one would silently win)",
+                    key_node.start_mark,
+                )
             seen.add(key)
         return super().construct_mapping(node, deep)
 
@@ -48,11 +51,13 @@ class _Loader(yaml.SafeLoader):
 # without a dot. Study configs are full of such numbers; read them as floats.
 _Loader.yaml_implicit_resolvers = {
     first: [(tag, pattern) for tag, pattern in resolvers if tag != "tag:yaml.org,2002:timestamp"]
-    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
 _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)$"),
-    list("-+0123456789"))
+    list("-+0123456789"),
+)
 
 
 def _extent(root):
@@ -67,9 +72,13 @@ def _extent(root):
         node, children_done = stack.pop()
         if id(node) in measured:
             continue
-        children = ([item for pair in node.value for item in pair]
-                    if isinstance(node, yaml.MappingNode)
-                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        children = (
+            [item for pair in node.value for item in pair]
+            if isinstance(node, yaml.MappingNode)
+            else node.value
+            if isinstance(node, yaml.SequenceNode)
+            else []
+        )
         if not children_done:
             if id(node) in open_:
                 raise _SelfReference()
@@ -97,14 +106,21 @@ def _check_extent(path, root):
         try:
             depth, size = _extent(value)
         except _SelfReference:
-            raise ConfigError("an alias refers to itself", "write the values out", path,
-                              key) from None
+            raise ConfigError("an alias refers to itself", "write the values out", path, key) from None
         if depth > MAX_DEPTH:
-            raise ConfigError(f"nested {depth} levels deep (at most {MAX_DEPTH})",
-                              "write it flat, as docs/config.md shows", path, key)
+            raise ConfigError(
+                f"nested {depth} levels deep (at most {MAX_DEPTH})",
+                "write it flat, as docs/config.md shows",
+                path,
+                key,
+            )
         if size > MAX_VALUES:
-            raise ConfigError(f"its aliases expand to {size:,} values (at most {MAX_VALUES:,})",
-                              "write the values out instead of nesting aliases", path, key)
+            raise ConfigError(
+                f"its aliases expand to {size:,} values (at most {MAX_VALUES:,})",
+                "write the values out instead of nesting aliases",
+                path,
+                key,
+            )
 
 
 def read_yaml_file(path):
@@ -116,8 +132,11 @@ def read_yaml_file(path):
     except InputError as error:
         raise error.located(kind=ConfigError) from None
     except UnicodeDecodeError as error:
-        raise ConfigError(f"is not UTF-8 text (byte {error.object[error.start]:#04x} at "
-                          f"offset {error.start})", "save the file as UTF-8", path) from None
+        raise ConfigError(
+            f"is not UTF-8 text (byte {error.object[error.start]:#04x} at offset {error.start})",
+            "save the file as UTF-8",
+            path,
+        ) from None
     return text, parse_yaml(text, path)
 
 
@@ -133,14 +152,21 @@ def parse_yaml(text, path):
         _check_extent(path, root)
         return loader.construct_document(root)
     except RecursionError:
-        raise ConfigError("nested too deeply to read", "write it flat, as docs/config.md "
-                          "shows", path) from None
+        raise ConfigError(
+            "nested too deeply to read", "write it flat, as docs/config.md shows", path
+        ) from None
     except (ValueError, OverflowError) as error:  # a number too long for Python to convert
-        raise ConfigError(f"holds a value that cannot be read ({one_line(error)})",
-                          "write numbers with at most 17 significant digits", path) from None
+        raise ConfigError(
+            f"holds a value that cannot be read ({one_line(error)})",
+            "write numbers with at most 17 significant digits",
+            path,
+        ) from None
     except yaml.YAMLError as error:
         where = getattr(error, "problem_mark", None)
-        raise ConfigError(f"malformed YAML: {getattr(error, 'problem', error)}", source=path,
-                          key=f"line {where.line + 1}" if where else None) from None
+        raise ConfigError(
+            f"malformed YAML: {getattr(error, 'problem', error)}",
+            source=path,
+            key=f"line {where.line + 1}" if where else None,
+        ) from None
     finally:
         loader.dispose()

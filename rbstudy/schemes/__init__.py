@@ -30,9 +30,24 @@ from rbstudy.schemes._plugins import (
 from rbstudy.schemes._ready import get_ready
 from rbstudy.schemes._registry import INVARIANTS, Option, Scheme, Style
 
-__all__ = ["SCHEMES", "BUILTIN", "INVARIANTS", "COMPOSITION_ORDERS", "Option", "Scheme",
-           "SchemeUnavailable", "Unavailable", "composition_reach", "get_scheme", "get_ready",
-           "unavailable_schemes", "scheme_groups", "expand_groups", "scheme_styles", "Style"]
+__all__ = [
+    "SCHEMES",
+    "BUILTIN",
+    "INVARIANTS",
+    "COMPOSITION_ORDERS",
+    "Option",
+    "Scheme",
+    "SchemeUnavailable",
+    "Unavailable",
+    "composition_reach",
+    "get_scheme",
+    "get_ready",
+    "unavailable_schemes",
+    "scheme_groups",
+    "expand_groups",
+    "scheme_styles",
+    "Style",
+]
 
 
 def _discover():
@@ -88,8 +103,9 @@ class _Registry(Mapping):
         return found.get(name) or unavailable.get(name)
 
     def unavailable(self):
-        return {name: why for load in (load_engines, load_plugins)
-                for name, why in self._group(load)[1].items()}
+        return {
+            name: why for load in (load_engines, load_plugins) for name, why in self._group(load)[1].items()
+        }
 
     def __getitem__(self, name):
         scheme = self.find(name) if isinstance(name, str) else None
@@ -98,8 +114,7 @@ class _Registry(Mapping):
         return scheme
 
     def __iter__(self):
-        return iter({**self._builtin, **self._group(load_engines)[0],
-                     **self._group(load_plugins)[0]})
+        return iter({**self._builtin, **self._group(load_engines)[0], **self._group(load_plugins)[0]})
 
     def __len__(self):
         return sum(1 for _ in self)
@@ -121,19 +136,22 @@ def get_scheme(name: str) -> Scheme:
     if isinstance(found, Scheme):
         return found
     if isinstance(found, Unavailable):
-        raise SchemeError(f"scheme {name!r} ({found.origin}) is not available here: "
-                          f"{found.reason}", found.fix)
+        raise SchemeError(
+            f"scheme {name!r} ({found.origin}) is not available here: {found.reason}", found.fix
+        )
     valid = ", ".join(SCHEMES)  # every group loaded: the list is whole
-    raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}",
-                      f"valid schemes: {valid}")
+    raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}", f"valid schemes: {valid}")
 
 
 def scheme_styles(names):
     """name -> `Style` of each of the schemes ``names`` that is registered here with a style
     (the figures give the others, and the schemes not installed here, one of their own)."""
     found = {name: SCHEMES.find(name) for name in names}
-    return {name: scheme.style for name, scheme in found.items()
-            if isinstance(scheme, Scheme) and scheme.style is not None}
+    return {
+        name: scheme.style
+        for name, scheme in found.items()
+        if isinstance(scheme, Scheme) and scheme.style is not None
+    }
 
 
 # The group of rbstudy's own fixed-step schemes, and that of every available engine scheme;
@@ -150,8 +168,10 @@ def scheme_groups():
     """group name -> the registered scheme names it stands for (available or not): one group
     per engine of `ENGINES`, ``engines`` for them all, ``builtin`` for rbstudy's own
     fixed-step schemes."""
-    groups = {BUILTIN_GROUP: [name for name, scheme in BUILTIN.items() if not scheme.adaptive],
-              ENGINES_GROUP: list(ENGINES)}
+    groups = {
+        BUILTIN_GROUP: [name for name, scheme in BUILTIN.items() if not scheme.adaptive],
+        ENGINES_GROUP: list(ENGINES),
+    }
     for name in ENGINES:
         groups.setdefault(_engine_of(name), []).append(name)
     return groups
@@ -171,7 +191,8 @@ def expand_groups(names, option="--schemes"):
         members = [member for member in groups[name] if isinstance(SCHEMES.find(member), Scheme)]
         if not members and name != ENGINES_GROUP:
             why = SCHEMES.find(groups[name][0])
-            raise SchemeError(f"the group {name!r} has no scheme available here: {why.reason}",
-                              why.fix, key=option)
+            raise SchemeError(
+                f"the group {name!r} has no scheme available here: {why.reason}", why.fix, key=option
+            )
         expanded.extend(members)
     return list(dict.fromkeys(expanded))

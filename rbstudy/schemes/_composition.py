@@ -31,22 +31,31 @@ from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Option
 
-__all__ = ["COMPOSITION", "ORDERS", "stage_weights", "stage_reach", "composed_step",
-           "composed_entry"]
+__all__ = ["COMPOSITION", "ORDERS", "stage_weights", "stage_reach", "composed_step", "composed_entry"]
 
 _TRIPLE_JUMP = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 # the weights from the outermost stage to the centre; the others mirror them
 _OUTER_TO_CENTRE = {
     2: (1.0,),
     4: (_TRIPLE_JUMP, 1.0 - 2.0 * _TRIPLE_JUMP),
-    6: (0.39216144400731413927925056, 0.33259913678935943859974864,
-        -0.70624617255763935980996482, 0.08221359629355080023149045,
-        0.79854399093482996339895035),
-    8: (0.13020248308889008087881763, 0.56116298177510838456196441,
-        -0.38947496264484728640807860, 0.15884190655515560089621075,
-        -0.39590389413323757733623154, 0.18453964097831570709183254,
-        0.25837438768632204729397911, 0.29501172360931029887096624,
-        -0.60550853383003451169892108),
+    6: (
+        0.39216144400731413927925056,
+        0.33259913678935943859974864,
+        -0.70624617255763935980996482,
+        0.08221359629355080023149045,
+        0.79854399093482996339895035,
+    ),
+    8: (
+        0.13020248308889008087881763,
+        0.56116298177510838456196441,
+        -0.38947496264484728640807860,
+        0.15884190655515560089621075,
+        -0.39590389413323757733623154,
+        0.18453964097831570709183254,
+        0.25837438768632204729397911,
+        0.29501172360931029887096624,
+        -0.60550853383003451169892108,
+    ),
 }
 ORDERS = tuple(_OUTER_TO_CENTRE)
 
@@ -73,7 +82,7 @@ def _stage_table():
     for order in ORDERS:
         weights = stage_weights(order)
         counts[order] = len(weights)
-        table[order, :len(weights)] = weights
+        table[order, : len(weights)] = weights
     return table, counts
 
 
@@ -84,8 +93,10 @@ _SLOT = 3
 
 def _parse_composition(value):
     if isinstance(value, bool) or value not in ORDERS:
-        raise ValueError(f"expected one of {', '.join(map(str, ORDERS))} "
-                         "(the order of the composition; 2 is the step itself)")
+        raise ValueError(
+            f"expected one of {', '.join(map(str, ORDERS))} "
+            "(the order of the composition; 2 is the step itself)"
+        )
     return (float(value),)
 
 

@@ -51,8 +51,16 @@ from rbstudy.numerics.sources import package_digest
 from rbstudy.numerics.state import Result
 from rbstudy.schemes._registry import Scheme
 
-__all__ = ["GROUP", "ENGINES", "IMPORT_SECONDS", "SchemeUnavailable", "Unavailable", "Guarded",
-           "load_engines", "load_plugins"]
+__all__ = [
+    "GROUP",
+    "ENGINES",
+    "IMPORT_SECONDS",
+    "SchemeUnavailable",
+    "Unavailable",
+    "Guarded",
+    "load_engines",
+    "load_plugins",
+]
 
 GROUP = "rbstudy.schemes"
 # The distribution whose entries of `GROUP` are rbstudy's own (`ENGINES`), not plug-ins.
@@ -70,6 +78,7 @@ def _own_entries():
     entry points of that moment: the project file is what the code beside it declares now."""
     try:
         import tomllib  # Python 3.11 on; on 3.10 a source tree reads the metadata as well
+
         project = tomllib.loads(_PYPROJECT.read_text())["project"]
         if project["name"] == DISTRIBUTION:
             return dict(sorted(project["entry-points"][GROUP].items()))
@@ -133,23 +142,51 @@ class Guarded:
             raise AttributeError(attribute)
         return getattr(self._entry, attribute)
 
-    def __call__(self, start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                 samples, results, halt, clock=None):
+    def __call__(
+        self,
+        start,
+        stop,
+        state0,
+        params,
+        options,
+        h,
+        n_steps,
+        every,
+        drift_bound,
+        samples,
+        results,
+        halt,
+        clock=None,
+    ):
         try:
-            self._entry(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                        samples, results, halt, clock)
+            self._entry(
+                start,
+                stop,
+                state0,
+                params,
+                options,
+                h,
+                n_steps,
+                every,
+                drift_bound,
+                samples,
+                results,
+                halt,
+                clock,
+            )
             codes = results[start:stop, Result.status]
             check_statuses(codes[~np.isnan(codes)])  # NaN: a body a halt left unfinished
         except StatusError as error:
             raise self._failure(f"its step {error}") from error
         except Exception as error:  # noqa: BLE001 (whatever a plug-in raises is its own)
-            raise self._failure(f"its step raised {type(error).__name__}: "
-                                f"{one_line(error)}") from error
+            raise self._failure(f"its step raised {type(error).__name__}: {one_line(error)}") from error
 
     def _failure(self, what):
-        return RbstudyError(f"scheme {self._name!r} (plug-in: {self._origin}) failed: {what}; "
-                            f"fix or report it in {_package(self._origin)}, or leave the "
-                            "scheme out")
+        return RbstudyError(
+            f"scheme {self._name!r} (plug-in: {self._origin}) failed: {what}; "
+            f"fix or report it in {_package(self._origin)}, or leave the "
+            "scheme out"
+        )
 
 
 def _own(entry_point):
@@ -175,8 +212,12 @@ def _load(entry_point, taken, refusal=None):
     origin = _origin(entry_point)
     package = _package(origin)
     if entry_point.name in taken:
-        return Unavailable(entry_point.name, f"the name is taken by {taken[entry_point.name]}",
-                           f"rename the scheme in {package}", origin)
+        return Unavailable(
+            entry_point.name,
+            f"the name is taken by {taken[entry_point.name]}",
+            f"rename the scheme in {package}",
+            origin,
+        )
     if refusal:
         return Unavailable(entry_point.name, refusal, f"reinstall or fix {package}", origin)
     try:
@@ -185,24 +226,38 @@ def _load(entry_point, taken, refusal=None):
     except SchemeUnavailable as error:
         return Unavailable(entry_point.name, error.reason, error.fix, origin)
     except SystemExit as error:  # a module that ends the program must not end rbstudy
-        return Unavailable(entry_point.name, f"its import called sys.exit({error.code!r})",
-                           f"reinstall or fix {package}", origin)
+        return Unavailable(
+            entry_point.name,
+            f"its import called sys.exit({error.code!r})",
+            f"reinstall or fix {package}",
+            origin,
+        )
     except Exception as error:  # a plug-in's bug must not stop the other schemes
-        return Unavailable(entry_point.name, f"cannot be loaded ({one_line(error)})",
-                           f"reinstall or fix {package}", origin)
+        return Unavailable(
+            entry_point.name, f"cannot be loaded ({one_line(error)})", f"reinstall or fix {package}", origin
+        )
     if not isinstance(scheme, Scheme):
-        return Unavailable(entry_point.name,
-                           f"{entry_point.value} is a {type(scheme).__name__}, not a Scheme",
-                           f"point the entry point at a rbstudy.schemes.Scheme in {package}",
-                           origin)
+        return Unavailable(
+            entry_point.name,
+            f"{entry_point.value} is a {type(scheme).__name__}, not a Scheme",
+            f"point the entry point at a rbstudy.schemes.Scheme in {package}",
+            origin,
+        )
     if scheme.name != entry_point.name:
-        return Unavailable(entry_point.name,
-                           f"{entry_point.value} is the scheme {scheme.name!r}",
-                           "name the entry point as its scheme", origin)
+        return Unavailable(
+            entry_point.name,
+            f"{entry_point.value} is the scheme {scheme.name!r}",
+            "name the entry point as its scheme",
+            origin,
+        )
     if _own(entry_point):  # rbstudy's source digest covers the adapter; it names the engine
         return scheme
-    return replace(scheme, origin=origin, code_digest=digest,
-                   run_bodies_inplace=Guarded(scheme.run_bodies_inplace, scheme.name, origin))
+    return replace(
+        scheme,
+        origin=origin,
+        code_digest=digest,
+        run_bodies_inplace=Guarded(scheme.run_bodies_inplace, scheme.name, origin),
+    )
 
 
 def _load_all(entry_points, taken, refused):
@@ -224,22 +279,32 @@ def load_engines(builtin):
     """rbstudy's adapters of other engines (`ENGINES`): (name -> `Scheme`, name ->
     `Unavailable`), imported here (rbstudy's own code, whose engine may be absent).
     ``builtin``: rbstudy's own schemes."""
-    return _load_all([importlib.metadata.EntryPoint(name, value, GROUP)
-                      for name, value in ENGINES.items()],
-                     {name: "rbstudy's own scheme" for name in builtin}, {})
+    return _load_all(
+        [importlib.metadata.EntryPoint(name, value, GROUP) for name, value in ENGINES.items()],
+        {name: "rbstudy's own scheme" for name in builtin},
+        {},
+    )
 
 
 def load_plugins(builtin):
     """The plug-ins' schemes of this environment: (name -> `Scheme`, name -> `Unavailable`).
     ``builtin`` are rbstudy's own schemes, whose names, and those of `ENGINES`, a plug-in may
     not take. Each module is imported in a child process first (`_probe`)."""
-    taken = {**{name: "rbstudy's own scheme" for name in builtin},
-             **{name: "rbstudy's adapter of an engine" for name in ENGINES}}
-    entry_points = sorted((point for point in importlib.metadata.entry_points(group=GROUP)
-                           if getattr(point.dist, "name", None) != DISTRIBUTION),
-                          key=lambda point: point.name)
-    return _load_all(entry_points, taken,
-                     _probe([point for point in entry_points if point.name not in taken]))
+    taken = {
+        **{name: "rbstudy's own scheme" for name in builtin},
+        **{name: "rbstudy's adapter of an engine" for name in ENGINES},
+    }
+    entry_points = sorted(
+        (
+            point
+            for point in importlib.metadata.entry_points(group=GROUP)
+            if getattr(point.dist, "name", None) != DISTRIBUTION
+        ),
+        key=lambda point: point.name,
+    )
+    return _load_all(
+        entry_points, taken, _probe([point for point in entry_points if point.name not in taken])
+    )
 
 
 def _probe(entry_points):
@@ -259,8 +324,12 @@ def _probe(entry_points):
             for module in modules:
                 answer = _answer(read_end, NOTICE_SECONDS)
                 if answer is None:  # a slow import: say which, then wait for the rest
-                    print(f"rbstudy: loading plug-in {first[module].name} from "
-                          f"{_package(_origin(first[module]))}...", file=sys.stderr, flush=True)
+                    print(
+                        f"rbstudy: loading plug-in {first[module].name} from "
+                        f"{_package(_origin(first[module]))}...",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                     answer = _answer(read_end, IMPORT_SECONDS - NOTICE_SECONDS)
                 if answer != b".":
                     break
@@ -270,12 +339,14 @@ def _probe(entry_points):
             code = _end(pid, kill=answer != b"")
         if done < len(modules):
             refused[modules[done]] = (
-                f"its import did not finish within {IMPORT_SECONDS:g} s" if answer is None
-                else f"its import ended the process (exit code {code})" if code >= 0
-                else f"its import ended the process (signal {-code})")
-        modules = modules[done + 1:]
-    return {point.name: refused[point.module] for point in entry_points
-            if point.module in refused}
+                f"its import did not finish within {IMPORT_SECONDS:g} s"
+                if answer is None
+                else f"its import ended the process (exit code {code})"
+                if code >= 0
+                else f"its import ended the process (signal {-code})"
+            )
+        modules = modules[done + 1 :]
+    return {point.name: refused[point.module] for point in entry_points if point.module in refused}
 
 
 def _import_each(modules, out):
@@ -308,13 +379,21 @@ def _start(modules):
                     os._exit(0)  # never this process's code after the fork, nor its teardown
             return read_end, pid
         out = write_end + 1  # the child's copy of the write end (a number of its own)
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(path for path in sys.path if path),
-               "PYTHONWARNINGS": "ignore"}
-        pid = os.posix_spawn(sys.executable, [sys.executable, "-c", _CHILD, str(out), *modules],
-                             env, file_actions=[
-                                 (os.POSIX_SPAWN_DUP2, write_end, out),
-                                 (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
-                                 (os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0)])
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(path for path in sys.path if path),
+            "PYTHONWARNINGS": "ignore",
+        }
+        pid = os.posix_spawn(
+            sys.executable,
+            [sys.executable, "-c", _CHILD, str(out), *modules],
+            env,
+            file_actions=[
+                (os.POSIX_SPAWN_DUP2, write_end, out),
+                (os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0),
+                (os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0),
+            ],
+        )
         return read_end, pid
     finally:
         os.close(write_end)

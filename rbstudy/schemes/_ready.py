@@ -88,24 +88,35 @@ def get_ready(variants, processes=1, watch=None):
         tell(Compiling(len(cold), 0, (), processes, cache))
     compiled = 0
     if processes > 1:
-        items = [f"{name}:{','.join('timed' if timed else 'plain' for timed in timings)}"
-                 for name, timings in cold.items()]
+        items = [
+            f"{name}:{','.join('timed' if timed else 'plain' for timed in timings)}"
+            for name, timings in cold.items()
+        ]
         with tempfile.TemporaryDirectory(prefix="rbstudy-compile-") as claims:
-            children = [subprocess.Popen([sys.executable, "-c", _CHILD, claims, *items],
-                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                         env={**os.environ, "PYTHONWARNINGS": "ignore"})
-                        for _ in range(processes)]
+            children = [
+                subprocess.Popen(
+                    [sys.executable, "-c", _CHILD, claims, *items],
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env={**os.environ, "PYTHONWARNINGS": "ignore"},
+                )
+                for _ in range(processes)
+            ]
             try:
                 _follow(children, claims, len(cold), tell, cache)
             except BaseException:  # Ctrl-C: no child goes on compiling behind the user
                 for child in children:
                     child.kill()
                 raise
-        compiled = sum(get_scheme(name).is_cached(timed)
-                       for name, timings in cold.items() for timed in timings)
+        compiled = sum(
+            get_scheme(name).is_cached(timed) for name, timings in cold.items() for timed in timings
+        )
     # what no child compiled, here
-    here = [name for name, timings in cold.items() if processes == 1
-            or not all(get_scheme(name).is_cached(timed) for timed in timings)]
+    here = [
+        name
+        for name, timings in cold.items()
+        if processes == 1 or not all(get_scheme(name).is_cached(timed) for timed in timings)
+    ]
     for count, name in enumerate(here):
         tell(Compiling(len(cold), len(cold) - len(here) + count, (name,), 1, cache))
         for timed in cold[name]:
@@ -124,8 +135,7 @@ def _follow(children, claims, total, tell, cache):
     while any(child.poll() is None for child in children):
         names = set(os.listdir(claims))
         done = {name for name in names if name.endswith(DONE)}
-        now = (len(done), tuple(sorted(name for name in names - done
-                                       if name + DONE not in done)))
+        now = (len(done), tuple(sorted(name for name in names - done if name + DONE not in done)))
         if now != said:
             said = now
             tell(Compiling(total, *now, len(children), cache))

@@ -114,9 +114,11 @@ class Scheme:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
         # NaN, infinity or a negative number would reach the forecast ("kernels ~nan s")
         if not (isinstance(self.step_seconds, numbers.Real) and 0 < self.step_seconds < math.inf):
-            raise ValueError(f"scheme {self.name!r}: step_seconds is {self.step_seconds!r}; "
-                             "give the core-seconds per body-step `rbstudy bench` measures, "
-                             "a number above 0")
+            raise ValueError(
+                f"scheme {self.name!r}: step_seconds is {self.step_seconds!r}; "
+                "give the core-seconds per body-step `rbstudy bench` measures, "
+                "a number above 0"
+            )
         _check_option_slots(self.name, self.options)
 
     def nominal_order(self, values: Mapping | None = None) -> int:
@@ -142,17 +144,17 @@ class Scheme:
         for name in values:
             if name not in known:
                 valid = ", ".join(sorted(known)) or "none"
-                raise SchemeError(f"scheme {self.name!r} has no option {name!r}",
-                                  f"its options: {valid}")
+                raise SchemeError(f"scheme {self.name!r} has no option {name!r}", f"its options: {valid}")
         row = np.zeros(S.N_OPTION)
         for option in self.options:
             value = values.get(option.name, option.default)
             try:
                 packed = option.parse(value)
             except (TypeError, ValueError, OverflowError) as exc:
-                raise SchemeError(f"scheme {self.name!r} option {option.name!r}: got {value!r}",
-                                  one_line(exc)) from None
-            row[option.slot:option.slot + len(packed)] = packed
+                raise SchemeError(
+                    f"scheme {self.name!r} option {option.name!r}: got {value!r}", one_line(exc)
+                ) from None
+            row[option.slot : option.slot + len(packed)] = packed
         return row
 
     def is_cached(self, timed: bool = False) -> bool:
@@ -171,17 +173,31 @@ class Scheme:
         right-hand side; that costs a millisecond per call.
         """
         kernel = self.run_bodies_inplace
-        if any((signature[-1] == types.none) != timed
-               for signature in getattr(kernel, "signatures", None) or ()):
+        if any(
+            (signature[-1] == types.none) != timed for signature in getattr(kernel, "signatures", None) or ()
+        ):
             return
         state0 = np.zeros((1, S.N_STATE))
         state0[0, S.QUATERNION + 3] = 1.0
         params = np.zeros((1, S.N_PARAM))
         params[0, S.MASS] = 1.0
-        params[0, S.INERTIA:S.INERTIA + 3] = 1.0
+        params[0, S.INERTIA : S.INERTIA + 3] = 1.0
         options = self.option_row()[None, :]
-        kernel(0, 1, state0, params, options, 0.1, 1, 1, 1.0, np.empty((1, 2, S.N_STATE)),
-               np.empty((1, S.N_RESULT)), np.zeros(1, dtype=np.int64), 0.0 if timed else None)
+        kernel(
+            0,
+            1,
+            state0,
+            params,
+            options,
+            0.1,
+            1,
+            1,
+            1.0,
+            np.empty((1, 2, S.N_STATE)),
+            np.empty((1, S.N_RESULT)),
+            np.zeros(1, dtype=np.int64),
+            0.0 if timed else None,
+        )
 
 
 def _check_option_slots(scheme, options):
@@ -191,17 +207,23 @@ def _check_option_slots(scheme, options):
     holders = {}
     for option in options:
         if option.slot < 0 or option.slot + option.width > S.N_OPTION:
-            raise ValueError(f"scheme {scheme!r}: option {option.name!r} takes slots "
-                             f"{option.slot}-{option.slot + option.width - 1} of a row of "
-                             f"{S.N_OPTION}; give it a slot from 0 to "
-                             f"{S.N_OPTION - option.width}")
+            raise ValueError(
+                f"scheme {scheme!r}: option {option.name!r} takes slots "
+                f"{option.slot}-{option.slot + option.width - 1} of a row of "
+                f"{S.N_OPTION}; give it a slot from 0 to "
+                f"{S.N_OPTION - option.width}"
+            )
         packed = len(option.parse(option.default))
         if packed != option.width:
-            raise ValueError(f"scheme {scheme!r}: option {option.name!r} packs {packed} "
-                             f"values into a width of {option.width}; declare width={packed}")
+            raise ValueError(
+                f"scheme {scheme!r}: option {option.name!r} packs {packed} "
+                f"values into a width of {option.width}; declare width={packed}"
+            )
         for slot in option.slots:
             if slot in holders:
-                raise ValueError(f"scheme {scheme!r}: options {holders[slot]!r} and "
-                                 f"{option.name!r} both claim slot {slot} of the option row; "
-                                 "move one to a free slot")
+                raise ValueError(
+                    f"scheme {scheme!r}: options {holders[slot]!r} and "
+                    f"{option.name!r} both claim slot {slot} of the option row; "
+                    "move one to a free slot"
+                )
             holders[slot] = option.name

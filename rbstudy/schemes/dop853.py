@@ -45,8 +45,7 @@ MAX_STEPS = 10_000_000
 @jit
 def derivative(t, y, p):
     """Right-hand side for scipy's DOP853: ``dy/dt`` of a state row ``y`` (N_STATE,)."""
-    dx, dq, dv, dw = rates(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p,
-                           t)
+    dx, dq, dv, dw = rates(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p, t)
     out = np.empty(S.N_STATE)
     write3(out, S.POSITION, dx)
     write4(out, S.QUATERNION, dq)
@@ -59,13 +58,12 @@ def _drifts(samples, p):
     """Relative drifts (T,) of the rotational energy and of |L| at each sample (T, N_STATE)
     of the parameter row ``p`` (at least N_PARAM wide), by the formulas the compiled driver
     uses."""
-    inertia_ = p[S.INERTIA:S.INERTIA + 3]
-    w = samples[:, S.OMEGA:S.OMEGA + 3].T  # components first, as `algebra` takes them
+    inertia_ = p[S.INERTIA : S.INERTIA + 3]
+    w = samples[:, S.OMEGA : S.OMEGA + 3].T  # components first, as `algebra` takes them
     energy = algebra.rotational_energy(w, inertia_)
     momentum = np.sqrt(algebra.momentum_squared(w, inertia_))
     with np.errstate(invalid="ignore"):
-        return (algebra.relative_drift(energy, energy[0]),
-                algebra.relative_drift(momentum, momentum[0]))
+        return (algebra.relative_drift(energy, energy[0]), algebra.relative_drift(momentum, momentum[0]))
 
 
 @dataclass(frozen=True)
@@ -88,7 +86,7 @@ def _segment_ends(p, end):
     (0, ``end``) (the loads have a kink there, which an 8th-order step must not straddle),
     then ``end``."""
     count = int(p[S.KNOTS])
-    knots = np.asarray(p[S.N_PARAM:S.N_PARAM + count])
+    knots = np.asarray(p[S.N_PARAM : S.N_PARAM + count])
     return [*knots[(knots > 0.0) & (knots < end)].tolist(), float(end)]
 
 
@@ -124,8 +122,9 @@ def integrate(y0, p, times, max_steps=None, halt=None):
                 if solver.status == "failed":  # the step was rejected for good: not an accepted one
                     break
                 steps += 1
-                max_step_angle = max(max_step_angle, solver.step_size
-                                     * float(np.linalg.norm(solver.y[S.OMEGA:S.OMEGA + 3])))
+                max_step_angle = max(
+                    max_step_angle, solver.step_size * float(np.linalg.norm(solver.y[S.OMEGA : S.OMEGA + 3]))
+                )
                 covered = np.searchsorted(times, solver.t, side="right")
                 if covered > filled:
                     samples[filled:covered] = solver.dense_output()(times[filled:covered]).T
@@ -137,12 +136,12 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     quaternions = samples[:filled, S.STATE_FIELDS["quaternion"]]
     quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
     finished = filled == len(times) and np.all(np.isfinite(samples))
-    return Trajectory(samples, float(solver.t), steps, evaluations, bool(finished),
-                      max_step_angle)
+    return Trajectory(samples, float(solver.t), steps, evaluations, bool(finished), max_step_angle)
 
 
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, results, halt, clock=None):
+def run_bodies_inplace(
+    start, stop, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, clock=None
+):
     """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
     a time (``clock`` unused: the right-hand side always takes the time); a sample whose
     energy or |L| drift passes ``drift_bound`` (a moment-free body) counts as the failure.
@@ -155,8 +154,7 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
         p = params[b]
         run = integrate(state0[b], p, times, max_steps=MAX_STEPS, halt=halt)
         out = run.samples
-        status = (OK if run.finished else NOT_CONVERGED if run.steps >= MAX_STEPS
-                  else UNSTABLE)
+        status = OK if run.finished else NOT_CONVERGED if run.steps >= MAX_STEPS else UNSTABLE
         failure = np.nan if status == OK else run.reached
         max_energy = max_momentum = np.nan
         if is_moment_free(p):
@@ -169,13 +167,18 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
             bad = np.flatnonzero(~kept)
             if bad.size:
                 status, failure = UNSTABLE, float(times[bad[0]])
-                out[bad[0]:] = np.nan
+                out[bad[0] :] = np.nan
         samples[b] = out
-        row = {"status": status, "failure_time": failure, "n_steps": run.steps,
-               "iterations": run.evaluations, "max_energy_error": max_energy,
-               "max_momentum_magnitude_error": max_momentum,
-               "max_step_angle": run.max_step_angle,
-               "radioss_dt_limit": run.max_step_angle > S.RADIOSS_STEP_ANGLE}
+        row = {
+            "status": status,
+            "failure_time": failure,
+            "n_steps": run.steps,
+            "iterations": run.evaluations,
+            "max_energy_error": max_energy,
+            "max_momentum_magnitude_error": max_momentum,
+            "max_step_angle": run.max_step_angle,
+            "radioss_dt_limit": run.max_step_angle > S.RADIOSS_STEP_ANGLE,
+        }
         for name, value in row.items():
             results[b, Result[name]] = value
 

@@ -11,7 +11,6 @@ Order 1, explicit. Keeps no invariant: for the free body ``|m|^2`` grows by
 Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. VII.
 """
 
-
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import (

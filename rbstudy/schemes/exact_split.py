@@ -45,6 +45,7 @@ def symmetric_step(y, p, opt, t, h, work):
     kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, 0
 
+
 SCHEME = Scheme(
     name="exact_split",
     summary="exact free flow (elliptic functions) between half kicks; exact for a free body",

@@ -116,8 +116,12 @@ def step_inplace(y, p, opt, t, h, work):
     a_old = read3(work, _ANGULAR)
     moment_old = body_moment(q, w, p, t)
     r_old = residual(a_old, w, inertia_, moment_old)
-    scale_ = norm(to_momentum(w, inertia_)) * norm(w) + norm(to_momentum(a_old, inertia_)) \
-        + norm(moment_old) + 1e-300
+    scale_ = (
+        norm(to_momentum(w, inertia_)) * norm(w)
+        + norm(to_momentum(a_old, inertia_))
+        + norm(moment_old)
+        + 1e-300
+    )
     a_new = a_old
     converged = False
     iterations = 0
@@ -126,8 +130,7 @@ def step_inplace(y, p, opt, t, h, work):
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
         q_new = quat_mul(q, quat_exp(theta))
         moment_new = body_moment(q_new, w_new, p, later(t, h))
-        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
-                scale(alpha, r_old))
+        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)), scale(alpha, r_old))
         size = norm(g)
         if not math.isfinite(size):
             break
@@ -142,12 +145,9 @@ def step_inplace(y, p, opt, t, h, work):
         cw = spin_damping(p)  # -dT/dW of a damping moment (zero without)
         c, d = 1.0 + alpha, h * gamma
         jacobian = (
-            (c * (inertia_[0] + d * (k[0][0] + cw[0])), c * d * (k[0][1] + jw[2]),
-             c * d * (k[0][2] - jw[1])),
-            (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * (k[1][1] + cw[1])),
-             c * d * (k[1][2] + jw[0])),
-            (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]),
-             c * (inertia_[2] + d * (k[2][2] + cw[2]))),
+            (c * (inertia_[0] + d * (k[0][0] + cw[0])), c * d * (k[0][1] + jw[2]), c * d * (k[0][2] - jw[1])),
+            (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * (k[1][1] + cw[1])), c * d * (k[1][2] + jw[0])),
+            (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]), c * (inertia_[2] + d * (k[2][2] + cw[2]))),
         )
         a_new = sub(a_new, solve3(jacobian, g))
         iterations += 1
@@ -158,10 +158,10 @@ def step_inplace(y, p, opt, t, h, work):
     v, x = read3(y, S.VELOCITY), read3(y, S.POSITION)
     lin_old = read3(work, _LINEAR)
     f_old = scale(1.0 / p[S.MASS], space_force(q, p, t))
-    lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old),
-                   scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h))))
-    write3(y, S.POSITION, axpy(h * h * beta, lin_new,
-                               axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
+    lin_new = axpy(
+        alpha / (1.0 + alpha), sub(lin_old, f_old), scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h)))
+    )
+    write3(y, S.POSITION, axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
     write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))
     write4(y, S.QUATERNION, quat_normalize(q_new))
     write3(y, S.OMEGA, w_new)

@@ -17,7 +17,6 @@ time step for the gyroscopic term; OpenRadioss itself flags ``(h |w|)^2 > 1``.
 Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (time integration).
 """
 
-
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force

@@ -83,8 +83,7 @@ def symmetric_step(y, p, opt, t, h, work):
     if not converged:
         return NOT_CONVERGED, iterations
     q = read4(y, S.QUATERNION)
-    write4(y, S.QUATERNION,
-           quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_))))))
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_))))))
     write3(y, S.OMEGA, to_omega(sub(scale(2.0, mbar), m), inertia_))
     drift_inplace(y, h)
     kick_inplace(y, p, later(t, h), 0.5 * h)

@@ -56,9 +56,11 @@ def conjugate_momentum(q, m):
 @jit
 def body_momentum(q, momentum):
     """``m_k = 1/2 P . (q * e_k)``."""
-    return (0.5 * dot4(momentum, quat_times_axis(q, 0)),
-            0.5 * dot4(momentum, quat_times_axis(q, 1)),
-            0.5 * dot4(momentum, quat_times_axis(q, 2)))
+    return (
+        0.5 * dot4(momentum, quat_times_axis(q, 0)),
+        0.5 * dot4(momentum, quat_times_axis(q, 1)),
+        0.5 * dot4(momentum, quat_times_axis(q, 2)),
+    )
 
 
 @jit
@@ -67,8 +69,9 @@ def axis_flow(q, momentum, inertia_, k, d):
     zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
     c, s = math.cos(zeta * d), math.sin(zeta * d)
     q_next = axpy4(s, quat_times_axis(q, k), (c * q[0], c * q[1], c * q[2], c * q[3]))
-    p_next = axpy4(s, quat_times_axis(momentum, k),
-                   (c * momentum[0], c * momentum[1], c * momentum[2], c * momentum[3]))
+    p_next = axpy4(
+        s, quat_times_axis(momentum, k), (c * momentum[0], c * momentum[1], c * momentum[2], c * momentum[3])
+    )
     return q_next, p_next
 
 

@@ -10,7 +10,6 @@ Reference: Fukushima, AJ 135 (2008) 2298, "Simple, regular, and efficient numeri
 integration of rotational motion".
 """
 
-
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
@@ -49,10 +48,12 @@ def step_inplace(y, p, opt, t, h, work):
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v, w = read3(y, S.VELOCITY), read3(y, S.OMEGA)
     k1 = rates(q, v, w, p, t)
-    k2 = rates(axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p,
-               later(t, 0.5 * h))
-    k3 = rates(axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p,
-               later(t, 0.5 * h))
+    k2 = rates(
+        axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p, later(t, 0.5 * h)
+    )
+    k3 = rates(
+        axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p, later(t, 0.5 * h)
+    )
     k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p, later(t, h))
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write4(y, S.QUATERNION, quat_normalize(rk4_sum4(h, q, k1[1], k2[1], k3[1], k4[1])))

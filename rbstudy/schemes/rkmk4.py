@@ -14,7 +14,6 @@ Reference: Munthe-Kaas, BIT 38 (1998) 92; Iserles, Munthe-Kaas, Norsett & Zanna,
 Numerica 9 (2000) 215.
 """
 
-
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
@@ -67,10 +66,12 @@ def step_inplace(y, p, opt, t, h, work):
     m = to_momentum(read3(y, S.OMEGA), inertia_)
     u = (0.0, 0.0, 0.0)
     k1 = rates(q, v, u, m, p, t)
-    k2 = rates(q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p,
-               later(t, 0.5 * h))
-    k3 = rates(q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p,
-               later(t, 0.5 * h))
+    k2 = rates(
+        q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p, later(t, 0.5 * h)
+    )
+    k3 = rates(
+        q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p, later(t, 0.5 * h)
+    )
     k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, later(t, h))
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[1], k2[1], k3[1], k4[1]))
