@@ -9,6 +9,8 @@ from conftest import final_orientation_errors
 from engine_cases import compared_scenes, difference, make_scene, run, swept_errors
 from scipy.spatial.transform import Rotation
 
+from rbstudy.physics.simulate import simulate
+
 pytest.importorskip("pydrake")
 
 from rbstudy.engines import drake  # noqa: E402 (Drake's bindings are there: checked above)
@@ -130,3 +132,25 @@ def test_drake_schemes_sweep_into_the_archive(tmp_path):
     for scheme, order in (("drake_rk3", 3), ("drake_discrete", 1)):
         e = errors.sel(scheme=scheme).values  # dt ascending: the finest first
         assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
+
+
+@pytest.mark.parametrize("scheme", ("drake_rk2", "drake_rk3"))
+def test_a_stress_body_beyond_the_triangle_inequality_is_integrated_not_failed(scheme):
+    """Hairer, Lubich and Wanner's I = (2, 1, 2/3) (`allow_unphysical`): Drake's spatial inertia
+    refuses it unless its validity check is skipped, which the adapter does, so that every body
+    finishes (it was stopped at its first step and reported as an implicit solver's failure)
+    and follows rbstudy's rk4 to the scheme's order: halving dt divides the difference by
+    2^order."""
+    scene = make_scene(
+        body={"inertia": [2.0, 1.0, 2.0 / 3.0], "allow_unphysical": True},
+        duration=1.0,
+        initial={"angular_velocity": {"body": [0.2268, 0.0, 1.3370]}},
+    )
+    gaps = []
+    for dt in (0.02, 0.01):
+        out = simulate([scene], scheme, dt, 0.1).output
+        assert out.results["status"].tolist() == [0]
+        exact = simulate([scene], "rk4", dt / 8, 0.1).output.samples
+        gaps.append(np.max(np.abs(out.samples - exact)))
+    order = {"drake_rk2": 2, "drake_rk3": 3}[scheme]
+    assert np.log2(gaps[0] / gaps[1]) == pytest.approx(order, abs=0.3)

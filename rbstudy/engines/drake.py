@@ -78,7 +78,7 @@ try:
         ExternallyAppliedSpatialForce,
         MultibodyPlant,
     )
-    from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+    from pydrake.multibody.tree import RotationalInertia, SpatialInertia, UnitInertia
     from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 except ImportError:
     raise SchemeUnavailable("needs the pydrake package", _INSTALL) from None
@@ -125,9 +125,12 @@ class _Plant:
         moment in the world): the state (13,) after it."""
         if inertia != self.inertia:
             mass, *principal = inertia
+            # Drake refuses an inertia that breaks the triangle inequality (a numerical stress
+            # body, `allow_unphysical`) unless told to skip the check; its equations of motion
+            # hold for any positive principal inertias, as rbstudy's own and MuJoCo's do.
+            unit = UnitInertia(*(moment / mass for moment in principal))
             self.body.SetSpatialInertiaInBodyFrame(
-                self.context,
-                SpatialInertia.MakeFromCentralInertia(mass, [0.0] * 3, RotationalInertia(*principal)),
+                self.context, SpatialInertia(mass, [0.0] * 3, unit, skip_validity_check=True)
             )
             self.inertia = inertia
         if load != self.load:
