@@ -58,13 +58,15 @@ SCIPY_SCHEME = "schemes/dop853.py"
 # its modules belong to: above the schemes, whose registry loads them, below the physics.
 ENTRY_POINT_GROUP = "rbstudy.schemes"
 PLUGIN_LAYER = "engines"
-# Modules the archive readers rely on: every module of the analysis layer and these below it.
+# Modules the archive readers rely on: every module of the analysis layer and these below it;
+# and every module of the inputs layer, so that reading the input compiles nothing.
 # None of them may load numba (or the schemes), so that figures, tables and reports start in
 # a moment and need no compiler.
 NUMBA_FREE = (
     *(
-        f"rbstudy.analysis.{path.stem}"
-        for path in sorted((PACKAGE / "analysis").glob("*.py"))
+        f"rbstudy.{layer}.{path.stem}"
+        for layer in ("analysis", "inputs")
+        for path in sorted((PACKAGE / layer).glob("*.py"))
         if path.stem != "__init__"
     ),
     "rbstudy.pipeline.archive",
@@ -73,8 +75,6 @@ NUMBA_FREE = (
     "rbstudy.pipeline.outputs",
     "rbstudy.pipeline.batches",
     "rbstudy.physics.analytic",
-    "rbstudy.inputs.reader",
-    "rbstudy.inputs.yaml_file",
 )
 # The calls that import the module their first argument names.
 IMPORT_CALLS = ("import_module", "__import__")
