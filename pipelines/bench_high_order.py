@@ -22,11 +22,11 @@ import time
 
 import numpy as np
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.driver import HALT_FLAG
 from rbstudy.numerics.state import STATE_FIELDS
 from rbstudy.physics.metrics import orientation_error
 from rbstudy.physics.references import reference_solutions
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import dop853
 

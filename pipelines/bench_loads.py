@@ -15,8 +15,8 @@ import argparse
 
 import numpy as np
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.driver import run_batch
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.schemes import get_scheme
 
 SCHEMES = ("leapfrog", "rk4", "midpoint", "hht")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.metrics import orientation_error
 from rbstudy.physics.references import REFERENCE_SCHEME, dop853_reference, reference_solution
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import BUILTIN
 

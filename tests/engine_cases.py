@@ -9,9 +9,10 @@ import sys
 import numpy as np
 from conftest import LOADED, abaqus_mapping, write_study
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import run_batch
-from rbstudy.physics.scenes import param_rows, scene_from_mapping
+from rbstudy.physics.scenes import param_rows
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import get_scheme
 

@@ -13,8 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.cli import main
 from rbstudy.errors import ConfigError, SceneError
+from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.assembly import REGULARISATION
-from rbstudy.physics.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import BUILTIN

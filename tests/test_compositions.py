@@ -9,9 +9,9 @@ from free_body_mp import angle_between, exact_state
 
 from rbstudy.analysis.summary import scheme_rows
 from rbstudy.errors import SchemeError
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.metrics import asymptotic_order, momentum_error, omega_error, orientation_error
 from rbstudy.physics.references import dop853_reference, reference_solution
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study

@@ -7,12 +7,12 @@ import pytest
 from conftest import ROUND_OFF_FLOOR, write_study
 
 from rbstudy.errors import InputError, SchemeError
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import KIND
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.metrics import asymptotic_order, orientation_error
 from rbstudy.physics.references import dop853_reference
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import BUILTIN, SCHEMES

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rbstudy.reader import MAX_INPUT_BYTES
+from rbstudy.inputs.reader import MAX_INPUT_BYTES
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 # Far above the seconds these commands take, far below "never": a hang fails the test, and

@@ -1,11 +1,12 @@
 """The import contract of docs/architecture.md, per folder: imports point downwards only, each
 layer uses only the outside packages its job needs, and the analysis layer never loads numba.
 
-    cli.py -> analysis/ -> pipeline/ -> physics/ -> engines/ -> schemes/ -> numerics/
+    cli.py -> analysis/ -> pipeline/ -> inputs/ -> physics/ -> engines/ -> schemes/ -> numerics/
 
-`errors.py` and `reader.py` at the top of the package hold the user-facing errors and the one
-input reader; every layer from the schemes up may use them, and they import nothing of
-rbstudy but each other, and of the outside numpy only (a swept column is an array).
+`inputs/` is the one layer that reads YAML or files (the reader, the YAML loader, the table
+files, the scene readers): it returns physics objects, and physics never imports it.
+`errors.py` at the top of the package holds the user-facing errors; every layer from the
+schemes up may use it, and it imports nothing of rbstudy, and of the outside nothing.
 
 Every import counts, the ones named in strings too: ``importlib.import_module("...")`` and
 ``__import__("...")`` in a module, and the entry points of pyproject.toml that the scheme
@@ -23,8 +24,8 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 PYPROJECT = PACKAGE.parent / "pyproject.toml"
 
 # Layers from the bottom up: a module may import its own layer and the layers below it.
-LAYERS = ("numerics", "schemes", "engines", "physics", "pipeline", "analysis", "cli")
-SHARED = ("errors", "reader")  # rbstudy/<name>.py, below every layer but numerics
+LAYERS = ("numerics", "schemes", "engines", "physics", "inputs", "pipeline", "analysis", "cli")
+SHARED = ("errors",)  # rbstudy/<name>.py, below every layer but numerics
 RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 
 # The outside packages (beyond the standard library) each layer may import.
@@ -33,6 +34,7 @@ OUTSIDE = {
     "schemes": {"numpy", "numba"},
     "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
+    "inputs": {"numpy", "scipy", "yaml"},
     "pipeline": {
         "numpy",
         "scipy",
@@ -47,7 +49,7 @@ OUTSIDE = {
     },
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
-    "shared": {"numpy"},  # the reader checks a swept column of values at once
+    "shared": set(),
 }
 # The one scheme that wraps scipy's integrator.
 SCIPY_SCHEME = "schemes/dop853.py"
@@ -56,13 +58,15 @@ SCIPY_SCHEME = "schemes/dop853.py"
 # its modules belong to: above the schemes, whose registry loads them, below the physics.
 ENTRY_POINT_GROUP = "rbstudy.schemes"
 PLUGIN_LAYER = "engines"
-# Modules the archive readers rely on: every module of the analysis layer and these below it.
+# Modules the archive readers rely on: every module of the analysis layer and these below it;
+# and every module of the inputs layer, so that reading the input compiles nothing.
 # None of them may load numba (or the schemes), so that figures, tables and reports start in
 # a moment and need no compiler.
 NUMBA_FREE = (
     *(
-        f"rbstudy.analysis.{path.stem}"
-        for path in sorted((PACKAGE / "analysis").glob("*.py"))
+        f"rbstudy.{layer}.{path.stem}"
+        for layer in ("analysis", "inputs")
+        for path in sorted((PACKAGE / layer).glob("*.py"))
         if path.stem != "__init__"
     ),
     "rbstudy.pipeline.archive",
@@ -71,7 +75,6 @@ NUMBA_FREE = (
     "rbstudy.pipeline.outputs",
     "rbstudy.pipeline.batches",
     "rbstudy.physics.analytic",
-    "rbstudy.reader",
 )
 # The calls that import the module their first argument names.
 IMPORT_CALLS = ("import_module", "__import__")
@@ -197,6 +200,20 @@ def test_an_upward_import_is_caught(tmp_path):
     found = violations_of(bad, ("physics", "bad"))
     assert len(found) == 3 and "physics -> pipeline" in found[0] and "matplotlib" in found[1]
     assert "relative import" in found[2]
+
+
+def test_physics_reading_input_is_caught(tmp_path):
+    """Physics holds the data model and never reads input: a physics module importing the
+    inputs layer (the scene reader, the YAML loader) is reported, the inputs layer importing
+    physics is not."""
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "from rbstudy.inputs.scenes import scene_table\nimport yaml\n"
+        "from rbstudy.physics.scenes import SceneTable\n"
+    )
+    found = violations_of(bad, ("physics", "bad"))
+    assert len(found) == 2 and "physics -> inputs" in found[0] and "yaml" in found[1], found
+    assert violations_of(bad, ("inputs", "bad")) == []
 
 
 def test_an_upward_import_by_a_string_is_caught(tmp_path):

@@ -4,10 +4,10 @@ import pathlib
 
 import numpy as np
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import FIRST_SLOT, LOAD_KINDS, needs_time
 from rbstudy.physics.loads import Loads, turning
-from rbstudy.physics.scenes import scene_from_mapping
 
 CONFIG_MD = pathlib.Path(__file__).parents[1] / "docs" / "config.md"
 

@@ -10,7 +10,8 @@ import pytest
 
 SCRIPT = r"""
 import json, math
-from rbstudy.physics.scenes import Body, Scene, scene_from_mapping
+from rbstudy.inputs.scenes import scene_from_mapping
+from rbstudy.physics.scenes import Body, Scene
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import BUILTIN, SCHEMES
 scene = Scene(body=Body(mass=2.0, inertia=(1.0, 2.0, 3.0)), quaternion=(0.1, 0.2, 0.3, 0.927),

@@ -18,9 +18,10 @@ from conftest import CONFIGS, LOADED, abaqus_mapping, listed_schemes, write_stud
 
 from rbstudy.errors import InputError, SchemeError
 from rbstudy.extending import make_batch_entry
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.sources import package_digest
-from rbstudy.physics.scenes import param_rows, scene_from_mapping
+from rbstudy.physics.scenes import param_rows
 from rbstudy.pipeline.batches import plan_batches
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme, unavailable_schemes

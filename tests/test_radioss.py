@@ -12,11 +12,11 @@ from scipy.spatial.transform import Rotation
 from rbstudy.analysis.plots import stability_map
 from rbstudy.analysis.summary import format_table, scheme_rows
 from rbstudy.errors import InputError, SceneError
+from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import body_moment
 from rbstudy.physics.metrics import asymptotic_order, orientation_error
 from rbstudy.physics.references import reference_solution
-from rbstudy.physics.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study

@@ -9,9 +9,9 @@ from conftest import write_study
 from extended_oracle import loaded_rotation
 
 from rbstudy.analysis.summary import UNCERTAINTY_FACTOR, fitted_order, scheme_rows
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.metrics import orientation_error
 from rbstudy.physics.references import dop853_reference, reference_solution
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results

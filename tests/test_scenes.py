@@ -8,7 +8,7 @@ from conftest import abaqus_mapping
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
-from rbstudy.physics.scenes import scene_from_mapping
+from rbstudy.inputs.scenes import scene_from_mapping
 
 
 def fails(mapping, message):
@@ -116,8 +116,8 @@ def test_a_symmetric_body_given_as_a_rotated_tensor_is_symmetric(tmp_path):
     still the symmetric top, with its closed-form reference and precession variables."""
     from conftest import write_study
 
+    from rbstudy.inputs.scenes import scene_table
     from rbstudy.physics.analytic import precession_frequency_exact
-    from rbstudy.physics.scenes import scene_table
     from rbstudy.pipeline.config import load_study
 
     turn = Rotation.from_rotvec([0.4, -0.7, 0.2]).as_matrix()
@@ -136,3 +136,48 @@ def test_a_symmetric_body_given_as_a_rotated_tensor_is_symmetric(tmp_path):
     study = load_study(write_study(tmp_path, scene=scene_spec))
     assert {"precession_frequency", "precession_frequency_error"} <= set(study.variables)
     assert "flip_interval" not in study.variables
+
+
+def test_the_table_s_rows_are_the_scenes_rows_bit_for_bit():
+    """The pipeline takes state and parameter rows straight from a sweep's columns; they are
+    the rows each `Scene` packs, bit for bit: a swept near-symmetric tensor (whose two
+    transverse moments each `Body` makes equal), nodal forces, a load table scaled per scene
+    and a damping, rows taken out of order and twice."""
+    from rbstudy.inputs.scenes import scene_table
+    from rbstudy.numerics import state as S
+    from rbstudy.physics.scenes import param_rows
+
+    size = 5
+    turn = Rotation.from_rotvec([0.4, -0.7, 0.2]).as_matrix()
+    tensor = turn @ np.diag([1.0, 1.0, 2.0]) @ turn.T  # diagonalises to 1.0, 1.0000000000000004
+    table = scene_table(
+        {
+            "body": {"inertia": [[np.linspace(1.0, 2.0, size), 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 3.0]]},
+            "nodes": {"tip": [0.1, 0.2, np.linspace(0.3, 0.7, size)]},
+            "initial": {
+                "angular_velocity": {"body": [np.linspace(0.1, 0.5, size), 2.0, 30.0]},
+                "orientation": {"euler_zxz_deg": [10.0, 20.0, 30.0]},
+                "velocity": [1.0, 0.0, 0.0],
+            },
+            "loads": {
+                "moment_space": {
+                    "table": [[0.0, 0.0, 0.0, 0.0], [1.0, 1.0, 2.0, 3.0]],
+                    "scale": np.arange(size),
+                },
+                "damping_moment": [0.1, 0.0, 0.2],
+                "nodes": {"tip": {"force_space": [0.0, np.linspace(-1.0, 1.0, size), 4.0]}},
+            },
+            "duration": 2.0,
+        },
+        size=size,
+    )
+    rotated = scene_table({"body": {"inertia": tensor.tolist()}})
+    assert rotated.inertia[0, 0] != rotated.inertia[0, 1]  # as read, before the Body's symmetry
+    for scenes, rows in ((table, np.array([3, 0, 4, 4, 1])), (rotated, np.array([0]))):
+        views = [scenes.scene(row) for row in rows]
+        taken = scenes.batch_rows(rows)
+        assert taken.states.tobytes() == np.array([scene.state_row() for scene in views]).tobytes()
+        assert taken.params.tobytes() == param_rows(views).tobytes()
+        assert taken.duration == views[0].duration
+    assert table.batch_rows(np.arange(size)).params[:, S.KNOTS].tolist() == [2.0] * size  # two knots
+    assert table.timed.tolist() == [False, True, True, True, True]  # the scale of row 0 is 0

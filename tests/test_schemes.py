@@ -15,9 +15,9 @@ from conftest import (
 )
 
 from rbstudy.errors import SchemeError
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.metrics import asymptotic_order, omega_error, orientation_error
 from rbstudy.physics.references import reference_solution
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
 

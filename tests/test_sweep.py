@@ -9,7 +9,7 @@ from conftest import write_study
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import ConfigError
-from rbstudy.physics.scenes import scene_from_mapping
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.pipeline import estimate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import BUILTIN

@@ -8,11 +8,12 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import InputError, SceneError
+from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.numerics import state as S
 from rbstudy.numerics.dynamics import body_moment, space_force
 from rbstudy.physics.metrics import asymptotic_order, orientation_error
 from rbstudy.physics.references import reference_solution
-from rbstudy.physics.scenes import param_rows, scene_from_mapping, scene_table
+from rbstudy.physics.scenes import param_rows
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.schemes import SCHEMES, dop853

@@ -43,6 +43,7 @@ from rbstudy.analysis.summary import (
     step_load,
 )
 from rbstudy.errors import InputError
+from rbstudy.inputs.reader import Reader
 from rbstudy.numerics.sources import SOURCE_DIGEST
 from rbstudy.physics.metrics import (
     MAX_SLOPE_DRIFT,
@@ -52,7 +53,6 @@ from rbstudy.physics.metrics import (
 )
 from rbstudy.pipeline.progress import SILENT
 from rbstudy.pipeline.store import write_text_atomic
-from rbstudy.reader import Reader
 
 __all__ = ["write_report", "figures_digest", "captions", "MARKER", "REPORT_NAME"]
 

@@ -1,8 +1,9 @@
 """Run scenes through a scheme: scenes -> batch arrays -> driver -> named results.
 
 This is the physics layer's bridge to the numerics: it checks that the time step divides the
-output interval and the duration, packs one state row and one parameter row per scene, and
-names the slices of the sampled states. The run's steps and sample times are those of
+output interval and the duration, takes one state row and one parameter row per body (packed
+from `Scene`s, or as a sweep's batch takes them from its scene table's columns), and names the
+slices of the sampled states. The run's steps and sample times are those of
 `rbstudy.physics.time_grid`.
 """
 
@@ -11,11 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.errors import RbstudyError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import DRIFT_BOUND, BatchOutput, run_batch
 from rbstudy.numerics.state import STATUS_NAMES
-from rbstudy.physics.scenes import Scene, param_rows
+from rbstudy.physics.scenes import BatchRows, Scene, batch_rows
 from rbstudy.physics.time_grid import output_count, output_times, step_count, steps_per
 from rbstudy.schemes import get_scheme
 
@@ -56,7 +56,7 @@ class Simulation:
 
 
 def simulate(
-    scenes: Iterable[Scene],
+    scenes: Iterable[Scene] | BatchRows,
     scheme: str,
     dt: float,
     output_interval: float | None = None,
@@ -68,40 +68,30 @@ def simulate(
 
     Parameters
     ----------
-    scenes : sequence of `rbstudy.physics.scenes.Scene`, one per body of the batch.
+    scenes : sequence of `rbstudy.physics.scenes.Scene`, one per body of the batch, or their
+        rows as a sweep's batch takes them from its scene table
+        (`rbstudy.physics.scenes.SceneTable.batch_rows`).
     scheme : registered scheme name.
     dt : time step (s); output_interval : sampling interval (s), default ``dt``.
     options : scheme options, one mapping for all scenes or a sequence of one per scene.
     drift_bound : relative energy/|L| drift flagged as a blow-up.
     threads : threads to spread the bodies over (default: all cores).
     """
-    scenes = list(scenes)
-    durations = {scene.duration for scene in scenes}
-    if len(durations) != 1:
-        raise RbstudyError(f"a batch needs one duration, got {sorted(durations)}")
-    duration = durations.pop()
+    batch = scenes if isinstance(scenes, BatchRows) else batch_rows(list(scenes))
     output_interval = dt if output_interval is None else output_interval
-    n_steps = step_count(duration, output_interval, dt)
+    n_steps = step_count(batch.duration, output_interval, dt)
     every = steps_per(output_interval, dt, "dt", "output interval")
     chosen = get_scheme(scheme)
     if options is None or isinstance(options, dict):
-        rows = np.repeat(chosen.option_row(options)[None, :], len(scenes), axis=0)
+        rows = np.repeat(chosen.option_row(options)[None, :], len(batch.states), axis=0)
     else:
         rows = np.array([chosen.option_row(o) for o in options])
     output = run_batch(
-        chosen,
-        np.array([s.state_row() for s in scenes]),
-        param_rows(scenes),
-        rows,
-        dt,
-        n_steps,
-        every,
-        drift_bound,
-        threads=threads,
+        chosen, batch.states, batch.params, rows, dt, n_steps, every, drift_bound, threads=threads
     )
     return Simulation(
         scheme=scheme,
         dt=dt,
-        time=output_times(output_count(duration, output_interval), output_interval),
+        time=output_times(output_count(batch.duration, output_interval), output_interval),
         output=output,
     )

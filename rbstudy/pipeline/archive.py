@@ -17,10 +17,10 @@ import netCDF4
 import numpy as np
 
 from rbstudy.errors import InputError, one_line
+from rbstudy.inputs.reader import FOLDER_NAME_RULE, is_folder_name
 from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
 from rbstudy.pipeline.store import HDF5_LOCK, open_results
 from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
-from rbstudy.reader import FOLDER_NAME_RULE, is_folder_name
 
 __all__ = ["open_archive", "check_layout", "verify_file", "NOT_AN_ARCHIVE", "GIVE_AN_ARCHIVE"]
 

@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import SCHEMES, get_scheme
 

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from rbstudy.errors import ConfigError, RbstudyError, one_line
+from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.pipeline.integrity import sealed
-from rbstudy.pipeline.yaml_file import read_yaml_file
-from rbstudy.reader import Reader
 
 __all__ = [
     "ClusterFile",

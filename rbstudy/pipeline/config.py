@@ -1,9 +1,9 @@
 """Study configs: YAML -> a validated, frozen `StudyConfig`, or a one-line `ConfigError`.
 
-A study holds a name, a title, a scene (`rbstudy.physics.scenes`), the output spec, the run
+A study holds a name, a title, a scene (`rbstudy.inputs.scenes`), the output spec, the run
 (scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.grid`). Loading expands the sweep,
 builds every case's scene and plans the batches (`rbstudy.pipeline.batches`), so every error
-surfaces before any work starts, through one `rbstudy.reader.Reader` naming the file, the key
+surfaces before any work starts, through one `rbstudy.inputs.reader.Reader` naming the file, the key
 path, the value and the fix. docs/config.md documents every key.
 """
 
@@ -17,6 +17,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rbstudy.errors import ConfigError, InputError
+from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.time_grid import output_count
 from rbstudy.pipeline.batches import Batch, plan_batches
@@ -41,8 +43,6 @@ from rbstudy.pipeline.variables import (
     scene_features,
     selected,
 )
-from rbstudy.pipeline.yaml_file import read_yaml_file
-from rbstudy.reader import Reader
 from rbstudy.schemes import composition_reach, get_scheme
 
 __all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]

@@ -81,7 +81,7 @@ class BatchJob:
     scheme: str
     dt: float
     output_interval: float
-    scene_rows: np.ndarray  # (n,) rows of the study's scene table: the task builds the scenes
+    scene_rows: np.ndarray  # (n,) rows of the study's scene table, read by the task
     options: tuple[dict, ...]  # (n,) each case's scheme options
     variables: tuple[str, ...]
     accuracy_bound: float  # rad for the orientation, relative for energy and |L|
@@ -136,8 +136,9 @@ def compute_batch(
     core-seconds per case, comparable whatever the scheduler and however busy the process.
     """
     references = [reference_chunks[chunk][position] for chunk, position in job.references]
-    scenes = [table.scene(row) for row in job.scene_rows]
-    run = simulate(scenes, job.scheme, job.dt, job.output_interval, list(job.options), threads=threads)
+    rows = table.batch_rows(job.scene_rows)
+    run = simulate(rows, job.scheme, job.dt, job.output_interval, list(job.options), threads=threads)
+    scenes = [table.scene(row) for row in job.scene_rows]  # the outputs read the scenes
     per_case = run.output.kernel_cpu_seconds / len(scenes)
     return evaluate(
         job.variables, BatchData(scenes, run, references, [per_case] * len(scenes), job.accuracy_bound)

@@ -48,9 +48,9 @@ import numpy as np
 import yaml
 
 from rbstudy.errors import RbstudyError
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.analytic import symmetric_top
 from rbstudy.physics.quaternions import quat_to_matrix
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic

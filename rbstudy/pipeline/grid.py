@@ -20,10 +20,10 @@ count]}`` (the end points themselves, not exponents) or ``{halving: start, count
 A case is the study's scene and run with one value of every axis written in. The scene axes
 (short names that change the body or its spin, ``scene.`` paths) are written in as columns,
 one entry per distinct scene, and all scenes are read and checked at once
-(`rbstudy.physics.scenes.scene_table`); the run axes (scheme, dt, ``run.options.``) give the
+(`rbstudy.inputs.scenes.scene_table`); the run axes (scheme, dt, ``run.options.``) give the
 few distinct runs. A case is a pair of rows, built into a `Case` only when asked for, so
 that validating a study costs microseconds per case. A bad value fails with the axis and
-value named; every failure goes through the study's `rbstudy.reader.Reader`.
+value named; every failure goes through the study's `rbstudy.inputs.reader.Reader`.
 """
 
 import collections
@@ -37,8 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import InputError, did_you_mean
+from rbstudy.inputs.scenes import scene_table
 from rbstudy.physics.analytic import symmetry_axes
-from rbstudy.physics.scenes import Scene, SceneTable, scene_table
+from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.time_grid import steps_per
 from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.schemes import BUILTIN, get_scheme

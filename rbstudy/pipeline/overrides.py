@@ -3,7 +3,7 @@ the values written in, before it is validated (docs/config.md, "Overrides: --set
 
 KEY is a dotted path into the mapping (``sweep.dt.count``, ``run.options.alpha``; a list entry
 by its index, ``scene.body.inertia.2``), VALUE is YAML, read as the file is read
-(`rbstudy.pipeline.yaml_file`), so ``3``, ``-0.1``, ``1e-3``, ``[1, 2]``, ``true`` and
+(`rbstudy.inputs.yaml_file`), so ``3``, ``-0.1``, ``1e-3``, ``[1, 2]``, ``true`` and
 ``hht`` are what they would be in the file. A key the file does not give is created, with the
 mappings above it: whether the study knows it is for validation to say, as it says of the
 file's own keys (an unknown one with the key that was meant). A validation error in what an
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import yaml
 
 from rbstudy.errors import ConfigError
-from rbstudy.pipeline.yaml_file import parse_yaml
+from rbstudy.inputs.yaml_file import parse_yaml
 
 __all__ = ["Override", "Overridden", "apply_overrides"]
 

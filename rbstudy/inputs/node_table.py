@@ -2,7 +2,7 @@
 
 A body of thousands of nodes is given as a table rather than inline (docs/config.md): one node
 per line, columns ``id x y z mass`` and optionally the nodal inertia
-``Ixx Iyy Izz Ixy Iyz Izx``, as `rbstudy.physics.text_table` splits them (CSV or white
+``Ixx Iyy Izz Ixy Iyz Izx``, as `rbstudy.inputs.text_table` splits them (CSV or white
 space, ``#`` comments); a first line starting with ``id`` names the columns and must name
 these, in this order (any case). Units are those of the inline form: m, kg, kg m^2.
 
@@ -16,14 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import SceneError
-from rbstudy.physics.text_table import finite, table_lines
-from rbstudy.reader import Reader
+from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.text_table import finite, table_lines
 
 __all__ = ["NodeTable", "read_node_table", "COLUMNS", "INERTIA_COLUMNS", "RESERVED"]
 
 COLUMNS = ("id", "x", "y", "z", "mass")
 INERTIA_COLUMNS = ("Ixx", "Iyy", "Izz", "Ixy", "Iyz", "Izx")
-# The master node's name where loads are placed by node (`rbstudy.physics.scenes`).
+# The master node's name where loads are placed by node (`rbstudy.inputs.loads`).
 RESERVED = "master"
 _FORMAT = "id x y z mass [Ixx Iyy Izz Ixy Iyz Izx]"
 

@@ -15,7 +15,7 @@ import re
 import yaml
 
 from rbstudy.errors import ConfigError, InputError, one_line
-from rbstudy.reader import read_input_file
+from rbstudy.inputs.reader import read_input_file
 
 __all__ = ["read_yaml_file", "parse_yaml", "MAX_DEPTH", "MAX_VALUES"]
 
@@ -126,7 +126,7 @@ def _check_extent(path, root):
 def read_yaml_file(path):
     """The text of the YAML file at ``path`` and its values; a `ConfigError` names what is
     wrong with the file (unreadable, no regular file, larger than
-    `rbstudy.reader.MAX_INPUT_BYTES`, not UTF-8, malformed YAML, too deep or too large)."""
+    `rbstudy.inputs.reader.MAX_INPUT_BYTES`, not UTF-8, malformed YAML, too deep or too large)."""
     try:
         text = read_input_file(path, "the file", "give the path of a YAML file").decode("utf-8")
     except InputError as error:

@@ -1,10 +1,10 @@
 """Load tables: a force, moment or gravity given at times, linear in between.
 
 A load that varies in time is written ``{table: ..., scale: s}`` where a constant one is
-``[x, y, z]`` (docs/config.md; the optional ``scale``, read by `rbstudy.physics.scenes`,
+``[x, y, z]`` (docs/config.md; the optional ``scale``, read by `rbstudy.inputs.loads`,
 multiplies the values and may be swept). The table is rows ``t x y z`` (s, then the load's
 unit): inline, a list of rows; or a file named relative to the config, split as
-`rbstudy.physics.text_table` splits a node table, whose first line may name the columns
+`rbstudy.inputs.text_table` splits a node table, whose first line may name the columns
 ``t x y z`` or ``time x y z`` (any case). Times increase strictly; there are two rows or
 more. Between two rows the load is linear; before
 the first row and after the last it is held at that row's value, as an amplitude table of
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import SceneError
-from rbstudy.physics.text_table import finite, table_lines
-from rbstudy.reader import Reader
+from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.text_table import finite, table_lines
 
 __all__ = ["LoadTable", "read_load_file", "inline_load_table", "COLUMNS"]
 

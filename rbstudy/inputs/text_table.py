@@ -5,7 +5,7 @@ per line, fields separated by commas (CSV) or by white space, split by the stand
 module. Lines starting with ``#`` and blank lines are skipped, a field may be quoted with
 double quotes (``"node 7, left"``: its comma or space is part of it), a CSV line may end with
 a comma, and a UTF-8 byte-order mark is skipped. What the fields mean is the reader's of each
-table (`rbstudy.physics.node_table`, `rbstudy.physics.load_table`).
+table (`rbstudy.inputs.node_table`, `rbstudy.inputs.load_table`).
 """
 
 import csv
@@ -13,7 +13,7 @@ import hashlib
 import math
 
 from rbstudy.errors import InputError
-from rbstudy.reader import read_input_file
+from rbstudy.inputs.reader import read_input_file
 
 __all__ = ["fields", "table_lines", "finite"]
 
@@ -35,7 +35,7 @@ def table_lines(path, reader, what, fix):
     """The sha256 digest of the file ``path`` (batch ids change when a table does) and its
     records, ``(line number, fields)``, one at a time; a file that cannot be read fails through ``reader``
     at the key "table", as ``what`` ("the node table"), with ``fix`` (a FIFO, a device or a
-    file past `rbstudy.reader.MAX_INPUT_BYTES` too), and a line that cannot be split at its
+    file past `rbstudy.inputs.reader.MAX_INPUT_BYTES` too), and a line that cannot be split at its
     line."""
     try:
         data = read_input_file(path, what, fix)

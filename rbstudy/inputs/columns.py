@@ -1,16 +1,16 @@
 """Reading swept columns: the shared steps of every reader of scene values held per scene.
 
 A sweep's scene mapping holds columns (numpy arrays, one entry per scene) where it sweeps;
-`rbstudy.reader.Reader` checks each value; these turn what it returns into arrays with the
-scenes first and refuse a row by a condition, naming the row
-(`rbstudy.physics.scenes`, `rbstudy.physics.assembly`).
+`rbstudy.inputs.reader.Reader` checks each value; these turn what it returns into arrays with
+the scenes first, turn body vectors into the principal frame, and refuse a row by a condition,
+naming the row (`rbstudy.inputs.scenes`, `rbstudy.inputs.assembly`, `rbstudy.inputs.loads`).
 """
 
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["rows", "refuse", "symmetric_tensor", "read_files", "file_bindings"]
+__all__ = ["rows", "refuse", "symmetric_tensor", "in_principal", "read_files", "file_bindings"]
 
 
 def rows(vector, size):
@@ -36,6 +36,15 @@ def symmetric_tensor(reader, value, key, size):
         lambda row: "the inertia tensor must be symmetric",
     )
     return tensor
+
+
+def in_principal(axes, vectors):
+    """Input-frame vectors (n, ..., 3) in the principal frame (``axes`` (n, 3, 3) as columns,
+    None for the identity); either may have one row for all n."""
+    if axes is None:
+        return vectors
+    turn = axes.reshape(axes.shape[:1] + (1,) * (vectors.ndim - 2) + (3, 3))
+    return (vectors[..., None, :] @ turn)[..., 0, :]
 
 
 def read_files(reader, files, key, size, read, what):
