@@ -216,6 +216,12 @@ def test_each_verdict_states_the_archives_failures_and_energy(archives, name):
                 if first.size
                 else np.isnan(found.numbers["first_failed_dt_w0"])
             )
+        measured = [
+            np.isfinite(ds[name].sel(pick).values[status == 0]).any()
+            for name in ("max_energy_error", "max_momentum_magnitude_error")
+            if name in ds
+        ]
+        assert ("; keeps " in found.text) == any(measured)  # none stored under a moment
         kept = (
             np.nanmax(ds["max_energy_error"].sel(pick).values[status == 0], initial=0) < 1e-10
             if "max_energy_error" in ds

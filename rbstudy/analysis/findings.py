@@ -396,7 +396,8 @@ def _verdict(ds, row, rates):
     if np.isfinite(row["accurate_hw"]):
         numbers["accurate_up_to_dt_w0"] = row["accurate_hw"]
         parts.append(f"accurate to dt|w0| {_g(row['accurate_hw'])}")
-    parts.append("keeps " + (", ".join(row["kept"]) or "none"))
+    if row["invariants_measured"]:  # under a moment nothing is conserved, nor measured
+        parts.append("keeps " + (", ".join(row["kept"]) or "none"))
     scheme = _row_scheme(row)
     if rates is not None and INVARIANTS["energy"] not in row["kept"]:
         status = per_scheme(ds["status"], scheme).values

@@ -221,7 +221,7 @@ def _drift_caption(ds, rows):
         keeping = [row["scheme"] for row in rows if invariant in row["kept"]]
         if keeping:
             text += f" Keep {invariant} to round-off: {_listing(keeping)}."
-    drifting = [row["scheme"] for row in rows if not row["kept"]]
+    drifting = [row["scheme"] for row in rows if row["invariants_measured"] and not row["kept"]]
     if drifting:
         text += f" Keep none: {_listing(drifting)}."
     return text

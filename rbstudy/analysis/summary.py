@@ -290,14 +290,16 @@ def _nominal_order(ds, scheme):
 def _kept(drifts, scheme, stable):
     """The labels of the invariants (`INVARIANTS`) whose ``drifts`` (label -> every case's
     largest drift, or None) every ``stable`` case of ``scheme`` keeps: the energy and |L|
-    over every step (the driver's drifts), the space vector L at the samples."""
-    kept = []
+    over every step (the driver's drifts), the space vector L at the samples; and whether any
+    was measured at all (an archive of bodies under a moment stores none: nothing to keep)."""
+    kept, measured = [], False
     for label, drift in drifts.items():
         if drift is not None:
             drift = per_scheme(drift, scheme).values[stable]
+            measured = measured or bool(np.isfinite(drift).any())
             if drift.size and np.all(drift < KEPT_TOLERANCE):
                 kept.append(label)
-    return tuple(kept)
+    return tuple(kept), measured
 
 
 def scheme_rows(ds):
@@ -387,7 +389,7 @@ def _scheme_rows(ds):
         good = accurate & real & (scheme_load < limit if np.isfinite(limit) else True)
         row["accurate_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
         row["inaccurate_hw"], row["unstable_hw"] = first["inaccurate"], first["failed"]
-        row["kept"] = _kept(drifts, scheme, ~failed)
+        row["kept"], row["invariants_measured"] = _kept(drifts, scheme, ~failed)
         if orientation is not None:
             errors = per_scheme(orientation, scheme)
             if "dt" in errors.dims:
