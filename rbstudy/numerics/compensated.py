@@ -1,4 +1,4 @@
-"""Compensated summation of a body's state updates (docs/theory.md s7).
+"""Compensated summation of a body's state updates (docs/theory.md s8).
 
 A fixed-step scheme adds an increment to its state, ``y_n+1 = y_n + delta_n``. Rounded, each
 sum loses up to half an ulp of ``y``, however small ``delta`` is: over n steps these errors

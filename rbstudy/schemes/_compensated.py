@@ -1,7 +1,7 @@
 """Option ``compensated``: compensated summation of a fixed-step scheme's state updates.
 
 Each scheme that offers it writes its step a second time in increment form and adds the
-increments with `rbstudy.numerics.compensated` (docs/theory.md s7); the plain step is left as
+increments with `rbstudy.numerics.compensated` (docs/theory.md s8); the plain step is left as
 it was, so that a run without the option gives the same bits as before it existed. The carry
 sits in the scheme's work array from the offset the scheme passes (`CARRY_WIDTH` floats).
 """
