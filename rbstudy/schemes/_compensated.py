@@ -2,15 +2,17 @@
 
 Each scheme that offers it writes its step a second time in increment form and adds the
 increments with `rbstudy.numerics.compensated` (docs/theory.md s8); the plain step is left as
-it was, so that a run without the option gives the same bits as before it existed. The carry
-sits in the scheme's work array from the offset the scheme passes (`CARRY_WIDTH` floats).
+it was, so that a run without the option gives the same bits as before it existed. The entry
+point runs the rows with the option set with the compensated kernels (`switch`, passed to
+`rbstudy.numerics.driver.make_entry`): the choice is made per body, not per step, so the
+plain step keeps its speed. The carry sits in the scheme's work array from the offset the
+scheme passes (`CARRY_WIDTH` floats).
 """
 
 from rbstudy.numerics.compensated import CARRY_WIDTH
-from rbstudy.numerics.jit import jit
 from rbstudy.schemes._registry import Option
 
-__all__ = ["COMPENSATED", "CARRY_WIDTH", "is_compensated"]
+__all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 
 # The slot after `composition` (3) and `axis_order` (0-2): free in every scheme that offers it.
 _SLOT = 4
@@ -36,7 +38,7 @@ COMPENSATED = Option(
 )
 
 
-@jit
-def is_compensated(opt):
-    """Whether the option row ``opt`` (N_OPTION,) asks for compensated sums."""
-    return opt[_SLOT] != 0.0
+def switch(step, init):
+    """The ``switch`` of `rbstudy.numerics.driver.make_entry` that runs the bodies whose
+    option ``compensated`` is set with the compensated kernels ``step`` and ``init``."""
+    return (_SLOT, step, init)

@@ -40,7 +40,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 
 # work: the carry of the compensated sums
@@ -63,8 +63,6 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    if is_compensated(opt):
-        return compensated_step_inplace(y, p, opt, t, h, work)
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
     v = read3(y, S.VELOCITY)
@@ -86,7 +84,9 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
     options=(COMPENSATED,),
     # solid under leapfrog's dashed line: their curves coincide on a symmetric top

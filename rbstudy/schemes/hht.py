@@ -45,7 +45,7 @@ from rbstudy.numerics.dynamics import (
     spin_damping,
     to_momentum,
 )
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     add,
     axpy,
@@ -65,7 +65,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
 from rbstudy.schemes._registry import Option, Scheme, Style
 
@@ -112,8 +112,10 @@ def init_inplace(y, p, opt, t, h, work):
     return OK
 
 
-@jit
-def step_inplace(y, p, opt, t, h, work):
+@inline_jit
+def advance(y, p, opt, t, h, work, compensated):
+    """One step (module docstring), its updates added as increments with compensation when
+    ``compensated`` (a constant where it is inlined, so each kernel keeps one of the two)."""
     alpha = opt[0]
     gamma = 0.5 - alpha
     beta = 0.25 * (1.0 - alpha) ** 2
@@ -167,7 +169,7 @@ def step_inplace(y, p, opt, t, h, work):
     lin_new = axpy(
         alpha / (1.0 + alpha), sub(lin_old, f_old), scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h)))
     )
-    if is_compensated(opt):  # the same updates as increments, added with compensation
+    if compensated:
         dx = axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, scale(h, v)))
         add3_inplace(y, S.POSITION, dx, work, _CARRY)
         add3_inplace(y, S.VELOCITY, axpy(h * gamma, lin_new, scale(h * (1.0 - gamma), lin_old)), work, _CARRY)
@@ -183,6 +185,16 @@ def step_inplace(y, p, opt, t, h, work):
     return OK, iterations
 
 
+@jit
+def step_inplace(y, p, opt, t, h, work):
+    return advance(y, p, opt, t, h, work, False)
+
+
+@jit
+def compensated_step_inplace(y, p, opt, t, h, work):
+    return advance(y, p, opt, t, h, work, True)
+
+
 SCHEME = Scheme(
     name="hht",
     summary="Newmark/HHT-alpha on SO(3), material form (Abaqus implicit dynamics)",
@@ -190,7 +202,9 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_inplace, N_WORK, switch=switch(compensated_step_inplace, init_inplace)
+    ),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
     options=(ALPHA, COMPENSATED),
     style=Style("tab:brown", "D", "-"),

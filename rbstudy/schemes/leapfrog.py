@@ -38,7 +38,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 
 # work: the carry of the compensated sums
@@ -59,8 +59,6 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    if is_compensated(opt):
-        return compensated_step_inplace(y, p, opt, t, h, work)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     w_half = axpy(h, euler_rates(w, inertia(p), body_moment(q, w, p, t)), w)
     v_half = axpy(h / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY))
@@ -78,7 +76,9 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK, lanes=2),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, lanes=2, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
     options=(COMPENSATED,),
     # dashed over euler's solid line: their curves coincide on a symmetric top

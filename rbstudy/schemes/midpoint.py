@@ -45,7 +45,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import (
     compensated_drift_inplace,
@@ -117,8 +117,6 @@ def compensated_step(y, p, opt, t, h, work):
 @inline_jit
 def symmetric_step(y, p, opt, t, h, work):
     """One second-order symmetric step (module docstring)."""
-    if is_compensated(opt):
-        return compensated_step(y, p, opt, t, h, work)
     kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
@@ -140,7 +138,9 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=("energy", "momentum_vector"),
-    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(
+        symmetric_step, init_nothing, N_WORK, switch=switch(compensated_step, init_nothing)
+    ),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
     options=(COMPOSITION, COMPENSATED),
     style=Style("tab:purple", "^", "-."),

@@ -43,7 +43,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import compensated_drift_inplace, drift_inplace
 from rbstudy.schemes._registry import Scheme, Style
@@ -143,8 +143,6 @@ def init_inplace(y, p, opt, t, h, work):
 @inline_jit
 def symmetric_step(y, p, opt, t, h, work):
     """One second-order symmetric step (module docstring)."""
-    if is_compensated(opt):
-        return compensated_step(y, p, opt, t, h, work)
     inertia_ = inertia(p)
     momentum = kick_inplace(y, p, read4(work, 0), t, 0.5 * h)
     q = read4(y, S.QUATERNION)
@@ -165,7 +163,9 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum_vector",),
-    run_bodies_inplace=composed_entry(symmetric_step, init_inplace, N_WORK),
+    run_bodies_inplace=composed_entry(
+        symmetric_step, init_inplace, N_WORK, switch=switch(compensated_step, init_inplace)
+    ),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=(AXIS_ORDER, COMPOSITION, COMPENSATED),
     # dashed over splitting's solid line: their curves coincide on a symmetric top

@@ -30,7 +30,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
 
@@ -80,8 +80,6 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    if is_compensated(opt):
-        return compensated_step_inplace(y, p, opt, t, h, work)
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v, w = read3(y, S.VELOCITY), read3(y, S.OMEGA)
     k1, k2, k3, k4 = stages(q, v, w, p, t, h)
@@ -99,7 +97,9 @@ SCHEME = Scheme(
     order=4,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
     options=(COMPENSATED,),
     # solid under rkmk4's dashed line: their curves coincide on a symmetric top

@@ -44,7 +44,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._rk import rk4_sum3
 
@@ -99,8 +99,6 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    if is_compensated(opt):
-        return compensated_step_inplace(y, p, opt, t, h, work)
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v = read3(y, S.VELOCITY)
     inertia_ = inertia(p)
@@ -122,7 +120,9 @@ SCHEME = Scheme(
     order=4,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
     options=(COMPENSATED,),
     # dashed over the solid lines of rk4 and exudyn_rk44, whose curves coincide with its own

@@ -38,7 +38,7 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
-from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, is_compensated
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import (
     compensated_drift_inplace,
@@ -108,8 +108,6 @@ def compensated_step(y, p, opt, t, h, work):
 @inline_jit
 def symmetric_step(y, p, opt, t, h, work):
     """One second-order symmetric step (module docstring)."""
-    if is_compensated(opt):
-        return compensated_step(y, p, opt, t, h, work)
     kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
     q = read4(y, S.QUATERNION)
@@ -130,7 +128,9 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum_vector",),
-    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(
+        symmetric_step, init_nothing, N_WORK, switch=switch(compensated_step, init_nothing)
+    ),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
     options=(AXIS_ORDER, COMPOSITION, COMPENSATED),
     # solid under no_squish's dashed line: their curves coincide on a symmetric top
