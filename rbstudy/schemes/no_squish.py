@@ -72,7 +72,7 @@ def body_momentum(q, momentum):
     )
 
 
-@jit
+@inline_jit
 def plane_rotation(x, k, c, s):
     """``c x + s P_k x``: the flow's rotation of ``x`` in its ``(x, P_k x)`` plane; with
     ``cos - 1`` for ``c``, its increment."""
@@ -97,7 +97,7 @@ def kick_inplace(y, p, momentum, t, d):
     return axpy4(1.0, momentum_kick(y, p, momentum, t, d), momentum)
 
 
-@jit
+@inline_jit
 def momentum_kick(y, p, momentum, t, d):
     """The change ``2 q * (dm, 0)`` of ``P`` in a kick of the loads at time ``t`` for ``d``."""
     q = read4(y, S.QUATERNION)

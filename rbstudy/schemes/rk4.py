@@ -17,7 +17,7 @@ from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, add4_inplace, normalize_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     axpy,
     axpy4,
@@ -49,7 +49,7 @@ def rates(q, v, w, p, t):
     return v, dq, dv, dw
 
 
-@jit
+@inline_jit
 def stages(q, v, w, p, t, h):
     """The four stages' rates ``k1 .. k4``, each ``(dx, dq, dv, dw)``, of a step of ``h``
     from ``(q, v, w)`` at time ``t``."""

@@ -28,7 +28,7 @@ from rbstudy.numerics.dynamics import (
     to_momentum,
     to_omega,
 )
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     add,
     axpy,
@@ -65,7 +65,7 @@ def rates(q_start, v, u, m, p, t):
     return v, dv, du, dm
 
 
-@jit
+@inline_jit
 def stages(q, v, m, p, t, h):
     """The four stages' rates ``k1 .. k4``, each ``(dx, dv, du, dm)``, of a step of ``h``
     from ``(q, v, m)`` at time ``t``."""
