@@ -541,7 +541,7 @@ def run_rows(
         )
 
 
-def make_entry(step, init, n_work, wrapper=None, lanes=1):
+def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
     """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params, options,
     h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows [start,
     stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type of
@@ -561,6 +561,10 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1):
     lanes : int
         Bodies side by side (`integrate_rows_inplace`): 2 pays for cheap explicit steps, whose
         time is latency; a costlier step loses 5-12% to it, and compiles its step twice.
+    switch : tuple ``(slot, step, init)``, optional
+        Other kernels for the rows whose option at ``slot`` is nonzero (a variant of the
+        scheme chosen per body, such as its compensated step): the entry runs each run of
+        such rows with them, so that the plain step stays as fast as without the variant.
 
     Returns
     -------
@@ -568,7 +572,7 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1):
     """
     if lanes not in (1, 2):
         raise ValueError(f"a scheme runs 1 or 2 lanes, not {lanes!r}")
-    return CachedEntry(step, init, n_work, wrapper, lanes)
+    return CachedEntry(step, init, n_work, wrapper, lanes, switch)
 
 
 @dataclass(frozen=True)

@@ -49,12 +49,41 @@ LANES = {lanes}
 {wrapped}
 {second}
 
+{body}'''
+_RUN_ROWS = """
 @jit
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, results, halt, clock):
     run_rows(step, init, second_step, second_init, N_WORK, LANES, start, stop, state0, params,
              options, h, n_steps, every, drift_bound, samples, results, halt, clock)
-'''
+"""
+# With a switch (`make_entry`): each run of consecutive rows whose option at SLOT is set, or
+# not, is integrated by its kernels, so that neither step carries the other's code. A branch
+# on the option inside one step kept LLVM from inlining the step into the loop over steps:
+# the plain euler and leapfrog ran at half their speed.
+_SWITCHED_ROWS = """
+SLOT = {slot}
+{switched_wrapped}
+{switched_second}
+
+@jit
+def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                       samples, results, halt, clock):
+    a = start
+    while a < stop:
+        on = options[a, SLOT] != 0.0
+        b = a + 1
+        while b < stop and (options[b, SLOT] != 0.0) == on:
+            b += 1
+        if on:
+            run_rows(switched_step, switched_init, switched_second_step, switched_second_init, N_WORK,
+                     LANES, a, b, state0, params, options, h, n_steps, every, drift_bound, samples,
+                     results, halt, clock)
+        else:
+            run_rows(step, init, second_step, second_init, N_WORK, LANES, a, b, state0, params,
+                     options, h, n_steps, every, drift_bound, samples, results, halt, clock)
+        a = b
+"""
 # The kernels of the second lane (`rbstudy.numerics.driver.run_rows`): the scheme's own for
 # two lanes; for one, kernels that are never called and cost nothing to compile, so that the
 # scheme's step is compiled once.
@@ -67,8 +96,8 @@ _SECOND_LANE = {
 _WRAPPED_STEP = """
 
 @jit
-def step(y, p, opt, t, h, work):
-    return wrapper(stage, y, p, opt, t, h, work)
+def {step}(y, p, opt, t, h, work):
+    return wrapper({stage}, y, p, opt, t, h, work)
 """
 
 
@@ -118,12 +147,26 @@ def _defined(kernel):
     return function.__module__, function.__name__, inspect.getsourcefile(function)
 
 
-def _module_text(step, init, n_work, wrapper=None, lanes=1):
+def _module_text(step, init, n_work, wrapper=None, lanes=1, switch=None):
     """The generated module's text and a digest naming it."""
     kernels = (
         {"step": step, "init": init} if wrapper is None else {"stage": step, "init": init, "wrapper": wrapper}
     )
+    if switch is not None:
+        kernels[f"switched_{'step' if wrapper is None else 'stage'}"] = switch[1]
+        kernels["switched_init"] = switch[2]
     defined = {alias: _defined(kernel) for alias, kernel in kernels.items()}
+    body = _RUN_ROWS
+    if switch is not None:
+        body = _SWITCHED_ROWS.format(
+            slot=int(switch[0]),
+            switched_second=_SECOND_LANE[lanes]
+            .replace("second_", "switched_second_")
+            .replace("= step, init", "= switched_step, switched_init"),
+            switched_wrapped=""
+            if wrapper is None
+            else _WRAPPED_STEP.format(step="switched_step", stage="switched_stage"),
+        )
     text = _TEMPLATE.format(
         kernels=", ".join(f"{module}.{name}" for module, name, _ in defined.values()),
         imports="".join(
@@ -132,7 +175,8 @@ def _module_text(step, init, n_work, wrapper=None, lanes=1):
         n_work=int(n_work),
         lanes=int(lanes),
         second=_SECOND_LANE[lanes],
-        wrapped="" if wrapper is None else _WRAPPED_STEP,
+        wrapped="" if wrapper is None else _WRAPPED_STEP.format(step="step", stage="stage"),
+        body=body,
     )
     digest = hashlib.sha256((text + SOURCE_DIGEST).encode())
     for path in sorted({path for *_, path in defined.values()}):
@@ -180,10 +224,12 @@ class CachedEntry:
     [start, stop) of a batch (`rbstudy.numerics.driver.run_rows`), from the generated module
     of its kernels, imported on first use. Calls and ``signatures`` are those of the numba
     dispatcher. With a ``wrapper`` (an inlined kernel ``wrapper(step, y, p, opt, t, h,
-    work)``, a composition), the scheme's step is ``step`` wrapped in it."""
+    work)``, a composition), the scheme's step is ``step`` wrapped in it. With a ``switch``
+    ``(slot, step, init)``, the rows whose option at ``slot`` is nonzero run those kernels
+    instead (wrapped alike)."""
 
-    def __init__(self, step, init, n_work, wrapper=None, lanes=1):
-        self._kernels = (step, init, n_work, wrapper, lanes)
+    def __init__(self, step, init, n_work, wrapper=None, lanes=1, switch=None):
+        self._kernels = (step, init, n_work, wrapper, lanes, switch)
         self._dispatcher = None
         self._lock = threading.Lock()
 

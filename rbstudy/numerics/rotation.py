@@ -33,7 +33,10 @@ __all__ = [
     "quat_rotate",
     "quat_rotate_inverse",
     "quat_exp",
+    "quat_exp_minus_one",
     "quat_cayley",
+    "quat_cayley_minus_one",
+    "cos_minus_one",
     "quat_mul_axis_rotation",
     "quat_times_axis",
 ]
@@ -393,6 +396,73 @@ def quat_exp(v):
         s = math.sin(half) / angle
         c = math.cos(half)
     return (s * v[0], s * v[1], s * v[2], c)
+
+
+@jit
+def cos_minus_one(s, c):
+    """``cos(x) - 1`` from ``s = sin(x)`` and ``c = cos(x)``, without the cancellation of
+    ``c - 1`` at small ``x``: ``-s^2 / (1 + c)`` while ``c > 0``.
+
+    Parameters
+    ----------
+    s, c : float
+        The sine and cosine of one angle.
+
+    Returns
+    -------
+    float
+    """
+    if c > 0.0:
+        return -s * s / (1.0 + c)
+    return c - 1.0
+
+
+@jit
+def quat_exp_minus_one(v):
+    """``exp([v]x) - 1`` as a quaternion (`quat_exp` less the identity), every component to
+    its own relative accuracy: the increment ``q exp([v]x) - q = q * quat_exp_minus_one(v)``
+    of a compensated rotation (`rbstudy.numerics.compensated`).
+
+    Parameters
+    ----------
+    v : tuple of 3 floats
+        Rotation vector (rad).
+
+    Returns
+    -------
+    tuple of 4 floats
+        Scalar last: ``(sin(a/2) v / a, cos(a/2) - 1)``, ``a = |v|``.
+    """
+    angle = norm(v)
+    if angle < SMALL_ANGLE:
+        s = 0.5 - angle * angle / 48.0
+        c = -angle * angle / 8.0 + angle**4 / 384.0
+    else:
+        half = 0.5 * angle
+        s = math.sin(half) / angle
+        c = cos_minus_one(math.sin(half), math.cos(half))
+    return (s * v[0], s * v[1], s * v[2], c)
+
+
+@jit
+def quat_cayley_minus_one(v):
+    """``cay([v]x) - 1`` as a quaternion (`quat_cayley` less the identity), without
+    cancellation: the scalar part ``1 / r - 1 = -a / (r (1 + r))``, ``r = sqrt(1 + a)``,
+    ``a = |v|^2 / 4``.
+
+    Parameters
+    ----------
+    v : tuple of 3 floats
+
+    Returns
+    -------
+    tuple of 4 floats
+        Scalar last.
+    """
+    a = 0.25 * dot(v, v)
+    r = math.sqrt(1.0 + a)
+    s = 0.5 / r
+    return (s * v[0], s * v[1], s * v[2], -a / (r * (1.0 + r)))
 
 
 @jit

@@ -121,7 +121,7 @@ def row_width(knots):
 
 # Scheme options (e.g. HHT alpha, splitting axis order) travel per body in a row of this width,
 # so that a batch may mix option values and a sweep over an option needs no recompilation.
-N_OPTION = 4
+N_OPTION = 5
 
 # What the driver reports per body, declared once: (name, storage type). The names are those
 # of the archive's variables; the storage type is numpy's. A kernel writes column

@@ -143,7 +143,8 @@ def composed_step(step, y, p, opt, t, h, work):
     return OK, iterations
 
 
-def composed_entry(symmetric_step, init, n_work):
+def composed_entry(symmetric_step, init, n_work, switch=None):
     """The entry point (`rbstudy.numerics.driver.make_entry`) of a scheme whose step is its
-    ``symmetric_step`` composed as option ``composition`` asks (`composed_step`)."""
-    return make_entry(symmetric_step, init, n_work, wrapper=composed_step)
+    ``symmetric_step`` composed as option ``composition`` asks (`composed_step`); a
+    ``switch``'s step is composed alike."""
+    return make_entry(symmetric_step, init, n_work, wrapper=composed_step, switch=switch)

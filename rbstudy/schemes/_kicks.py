@@ -6,12 +6,15 @@ frame and the centre of mass. The composition kick(h/2) free(h) kick(h/2) is sym
 second-order free step stays second order under loads. Loads tabulated in time are taken at
 the time of each kick, the start and the end of the step (time is a coordinate that the
 free flow advances and the kicks hold), which keeps the composition symmetric.
+The ``compensated_`` twins add the same increments with compensated summation
+(`rbstudy.numerics.compensated`), the spin's as ``I^-1 dm``.
 """
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.compensated import add3_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import jit
-from rbstudy.numerics.rotation import add, axpy, read3, read4, write3
+from rbstudy.numerics.rotation import add, axpy, read3, read4, scale, write3
 
 
 @jit
@@ -29,3 +32,18 @@ def kick_inplace(y, p, t, d):
 def drift_inplace(y, d):
     """Move the centre of mass for a time ``d`` at its current velocity."""
     write3(y, S.POSITION, axpy(d, read3(y, S.VELOCITY), read3(y, S.POSITION)))
+
+
+@jit
+def compensated_kick_inplace(y, p, t, d, work, carry):
+    """`kick_inplace` with its increments added with compensation, the carry at ``carry`` in
+    the body's ``work``."""
+    q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
+    add3_inplace(y, S.OMEGA, to_omega(kick_momentum(q, w, p, t, d), inertia(p)), work, carry)
+    add3_inplace(y, S.VELOCITY, scale(d / p[S.MASS], space_force(q, p, t)), work, carry)
+
+
+@jit
+def compensated_drift_inplace(y, d, work, carry):
+    """`drift_inplace` with compensation."""
+    add3_inplace(y, S.POSITION, scale(d, read3(y, S.VELOCITY)), work, carry)

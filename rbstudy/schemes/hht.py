@@ -24,7 +24,9 @@ force-free benchmark, with no numerical damping. Order 2 at ``alpha = 0``, impli
 equation gives ``r_n = 0`` at every step, so the scheme is Newmark with
 ``gamma = 1/2 - alpha > 1/2``, which is first order. HHT keeps order 2 in structural
 dynamics by weighting internal (stiffness) forces, and a rigid body has none: its gyroscopic
-term is an inertia force. The tests check this first order.
+term is an inertia force. The tests check this first order. Option ``compensated`` adds the
+updates as increments (the frame's as ``q_n (exp(Theta) - 1)``) with compensated summation
+(`rbstudy.schemes._compensated`).
 Reference: Simo & Vu-Quoc, Comput. Methods Appl. Mech. Eng. 66 (1988) 125; Hilber, Hughes &
 Taylor, Earthq. Eng. Struct. Dyn. 5 (1977) 283.
 """
@@ -33,6 +35,7 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
+from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.dynamics import (
     body_moment,
@@ -42,13 +45,14 @@ from rbstudy.numerics.dynamics import (
     spin_damping,
     to_momentum,
 )
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     add,
     axpy,
     cross,
     norm,
     quat_exp,
+    quat_exp_minus_one,
     quat_mul,
     quat_normalize,
     read3,
@@ -61,12 +65,14 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
 from rbstudy.schemes._registry import Option, Scheme, Style
 
-# work: body angular acceleration A_n (3), translational acceleration a_n (3)
-N_WORK = 6
-_ANGULAR, _LINEAR = 0, 3
+# work: body angular acceleration A_n (3), translational acceleration a_n (3), then the carry
+# of the compensated sums
+_ANGULAR, _LINEAR, _CARRY = 0, 3, 6
+N_WORK = _CARRY + CARRY_WIDTH
 
 # HHT-alpha is unconditionally stable and second order for alpha in [-1/3, 0] (Hilber et al.).
 ALPHA_MIN, ALPHA_MAX = -1.0 / 3.0, 0.0
@@ -106,8 +112,10 @@ def init_inplace(y, p, opt, t, h, work):
     return OK
 
 
-@jit
-def step_inplace(y, p, opt, t, h, work):
+@inline_jit
+def advance(y, p, opt, t, h, work, compensated):
+    """One step (module docstring), its updates added as increments with compensation when
+    ``compensated`` (a constant where it is inlined, so each kernel keeps one of the two)."""
     alpha = opt[0]
     gamma = 0.5 - alpha
     beta = 0.25 * (1.0 - alpha) ** 2
@@ -161,13 +169,30 @@ def step_inplace(y, p, opt, t, h, work):
     lin_new = axpy(
         alpha / (1.0 + alpha), sub(lin_old, f_old), scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h)))
     )
-    write3(y, S.POSITION, axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
-    write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))
-    write4(y, S.QUATERNION, quat_normalize(q_new))
-    write3(y, S.OMEGA, w_new)
+    if compensated:
+        dx = axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, scale(h, v)))
+        add3_inplace(y, S.POSITION, dx, work, _CARRY)
+        add3_inplace(y, S.VELOCITY, axpy(h * gamma, lin_new, scale(h * (1.0 - gamma), lin_old)), work, _CARRY)
+        turn_inplace(y, quat_exp_minus_one(theta), work, _CARRY)
+        add3_inplace(y, S.OMEGA, axpy(h * gamma, a_new, scale(h * (1.0 - gamma), a_old)), work, _CARRY)
+    else:
+        write3(y, S.POSITION, axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
+        write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))
+        write4(y, S.QUATERNION, quat_normalize(q_new))
+        write3(y, S.OMEGA, w_new)
     write3(work, _ANGULAR, a_new)
     write3(work, _LINEAR, lin_new)
     return OK, iterations
+
+
+@jit
+def step_inplace(y, p, opt, t, h, work):
+    return advance(y, p, opt, t, h, work, False)
+
+
+@jit
+def compensated_step_inplace(y, p, opt, t, h, work):
+    return advance(y, p, opt, t, h, work, True)
 
 
 SCHEME = Scheme(
@@ -177,8 +202,10 @@ SCHEME = Scheme(
     order=2,
     implicit=True,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_inplace, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_inplace, N_WORK, switch=switch(compensated_step_inplace, init_inplace)
+    ),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
-    options=(ALPHA,),
+    options=(ALPHA, COMPENSATED),
     style=Style("tab:brown", "D", "-"),
 )

@@ -11,6 +11,9 @@ With ``I`` principal inertias and ``M_b``, ``F`` the loads at ``R_n`` and ``t_n`
     x(n+1)    = x(n) + h v(n+1/2)
     R(n+1)    = R(n) Rot(w(n+1/2), h |w(n+1/2)|)    exact rotation (Rodrigues), as a quaternion
 
+Option ``compensated`` adds the same increments with compensated summation
+(`rbstudy.schemes._compensated`).
+
 Order 1, explicit: the ``w`` update is forward Euler on Euler's equations. Keeps nothing: for
 an asymmetric free body ``|m|^2`` grows by ``h^2 |m x w|^2`` each step, so there is no stable
 time step for the gyroscopic term; OpenRadioss itself flags ``(h |w|)^2 > 1``.
@@ -18,12 +21,14 @@ Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (time integration).
 """
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import (
     axpy,
     quat_exp,
+    quat_exp_minus_one,
     quat_mul,
     quat_normalize,
     read3,
@@ -33,9 +38,23 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 
-N_WORK = 0
+# work: the carry of the compensated sums
+_CARRY = 0
+N_WORK = _CARRY + CARRY_WIDTH
+
+
+@jit
+def compensated_step_inplace(y, p, opt, t, h, work):
+    """`step_inplace` in increment form, the increments added with compensation."""
+    q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
+    add3_inplace(y, S.OMEGA, scale(h, euler_rates(w, inertia(p), body_moment(q, w, p, t))), work, _CARRY)
+    add3_inplace(y, S.VELOCITY, scale(h / p[S.MASS], space_force(q, p, t)), work, _CARRY)
+    add3_inplace(y, S.POSITION, scale(h, read3(y, S.VELOCITY)), work, _CARRY)
+    turn_inplace(y, quat_exp_minus_one(scale(h, read3(y, S.OMEGA))), work, _CARRY)
+    return OK, 0
 
 
 @jit
@@ -57,8 +76,11 @@ SCHEME = Scheme(
     order=1,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK, lanes=2),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, lanes=2, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
+    options=(COMPENSATED,),
     # dashed over euler's solid line: their curves coincide on a symmetric top
     style=Style("tab:orange", "s", "--"),
 )

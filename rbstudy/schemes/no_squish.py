@@ -16,6 +16,8 @@ up to round-off (a test checks it).
 
 Order 2, explicit, symplectic; order 4, 6 or 8 composed (option ``composition``,
 `rbstudy.schemes._composition`). Keeps ``|m|`` and ``L`` to round-off, energy error bounded.
+Option ``compensated`` adds the increments of ``q`` and ``P`` with compensated summation
+(`rbstudy.schemes._compensated`), ``P``'s with a carry of its own.
 Reference: Miller, Eleftheriou, Pattnaik, Ndirango, Newns & Martyna, J. Chem. Phys. 116 (2002)
 8649.
 """
@@ -24,27 +26,34 @@ import math
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
+from rbstudy.numerics.compensated import add3_inplace, add4_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     axpy,
     axpy4,
+    cos_minus_one,
     dot4,
     quat_mul,
     quat_times_axis,
     read3,
     read4,
+    scale,
     write3,
     write4,
 )
 from rbstudy.numerics.state import OK
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
-from rbstudy.schemes._kicks import drift_inplace
+from rbstudy.schemes._kicks import compensated_drift_inplace, drift_inplace
 from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
-# work: conjugate momentum P (4)
-N_WORK = 4
+# work: conjugate momentum P (4), then the carries of the compensated sums: the state's
+# (its OMEGA entries unused: the spin is computed from P) and P's
+_MOMENTUM, _CARRY = 0, 4
+_MOMENTUM_CARRY = _CARRY + CARRY_WIDTH
+N_WORK = _MOMENTUM_CARRY + 4
 
 
 @jit
@@ -63,16 +72,19 @@ def body_momentum(q, momentum):
     )
 
 
+@inline_jit
+def plane_rotation(x, k, c, s):
+    """``c x + s P_k x``: the flow's rotation of ``x`` in its ``(x, P_k x)`` plane; with
+    ``cos - 1`` for ``c``, its increment."""
+    return axpy4(s, quat_times_axis(x, k), (c * x[0], c * x[1], c * x[2], c * x[3]))
+
+
 @jit
 def axis_flow(q, momentum, inertia_, k, d):
     """Exact flow of ``T_k`` for time ``d`` on ``(q, P)``."""
     zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
     c, s = math.cos(zeta * d), math.sin(zeta * d)
-    q_next = axpy4(s, quat_times_axis(q, k), (c * q[0], c * q[1], c * q[2], c * q[3]))
-    p_next = axpy4(
-        s, quat_times_axis(momentum, k), (c * momentum[0], c * momentum[1], c * momentum[2], c * momentum[3])
-    )
-    return q_next, p_next
+    return plane_rotation(q, k, c, s), plane_rotation(momentum, k, c, s)
 
 
 @jit
@@ -82,14 +94,49 @@ def kick_inplace(y, p, momentum, t, d):
     ``v += d F / mass``; returns P."""
     q = read4(y, S.QUATERNION)
     write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
+    return axpy4(1.0, momentum_kick(y, p, momentum, t, d), momentum)
+
+
+@inline_jit
+def momentum_kick(y, p, momentum, t, d):
+    """The change ``2 q * (dm, 0)`` of ``P`` in a kick of the loads at time ``t`` for ``d``."""
+    q = read4(y, S.QUATERNION)
     w = to_omega(body_momentum(q, momentum), inertia(p))  # the spin now: y's is the step's start
-    return axpy4(1.0, conjugate_momentum(q, kick_momentum(q, w, p, t, d)), momentum)
+    return conjugate_momentum(q, kick_momentum(q, w, p, t, d))
+
+
+@jit
+def compensated_kick_inplace(y, p, t, d, work):
+    """`kick_inplace` on ``P`` in ``work``, the increments added with compensation."""
+    q = read4(y, S.QUATERNION)
+    add3_inplace(y, S.VELOCITY, scale(d / p[S.MASS], space_force(q, p, t)), work, _CARRY)
+    add4_inplace(work, _MOMENTUM, momentum_kick(y, p, read4(work, _MOMENTUM), t, d), work, _MOMENTUM_CARRY)
+
+
+@jit
+def compensated_step(y, p, opt, t, h, work):
+    """`symmetric_step` with every increment added with compensation, that of ``P`` with a
+    carry of its own in ``work``."""
+    inertia_ = inertia(p)
+    compensated_kick_inplace(y, p, t, 0.5 * h, work)
+    for k, fraction in flow_sequence(opt):
+        q, momentum = read4(y, S.QUATERNION), read4(work, _MOMENTUM)
+        zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
+        d = fraction * h
+        c, s = math.cos(zeta * d), math.sin(zeta * d)
+        add4_inplace(y, S.QUATERNION, plane_rotation(q, k, cos_minus_one(s, c), s), work, _CARRY)
+        dp = plane_rotation(momentum, k, cos_minus_one(s, c), s)
+        add4_inplace(work, _MOMENTUM, dp, work, _MOMENTUM_CARRY)
+    compensated_drift_inplace(y, h, work, _CARRY)
+    compensated_kick_inplace(y, p, later(t, h), 0.5 * h, work)
+    write3(y, S.OMEGA, to_omega(body_momentum(read4(y, S.QUATERNION), read4(work, _MOMENTUM)), inertia_))
+    return OK, 0
 
 
 @jit
 def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
-    write4(work, 0, conjugate_momentum(q, to_momentum(read3(y, S.OMEGA), inertia(p))))
+    write4(work, _MOMENTUM, conjugate_momentum(q, to_momentum(read3(y, S.OMEGA), inertia(p))))
     return OK
 
 
@@ -116,9 +163,11 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("momentum_vector",),
-    run_bodies_inplace=composed_entry(symmetric_step, init_inplace, N_WORK),
+    run_bodies_inplace=composed_entry(
+        symmetric_step, init_inplace, N_WORK, switch=switch(compensated_step, init_inplace)
+    ),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
-    options=(AXIS_ORDER, COMPOSITION),
+    options=(AXIS_ORDER, COMPOSITION, COMPENSATED),
     # dashed over splitting's solid line: their curves coincide on a symmetric top
     style=Style("tab:olive", "P", "--"),
 )

@@ -9,13 +9,16 @@ to ``(x, v, u, m)`` with ``u(0) = 0`` and
 
 then ``R_n+1 = R_n exp([u_n+1]x)``. The frame stays exactly on SO(3) (the quaternion is a
 product of unit quaternions). Order 4, explicit; keeps no invariant exactly. A sign error in
-the commutator term silently drops the order to 2; the order test catches that.
+the commutator term silently drops the order to 2; the order test catches that. Option
+``compensated`` adds the increments (the frame's as ``q_n (exp(u_n+1) - 1)``) with
+compensated summation (`rbstudy.schemes._compensated`).
 Reference: Munthe-Kaas, BIT 38 (1998) 92; Iserles, Munthe-Kaas, Norsett & Zanna, Acta
 Numerica 9 (2000) 215.
 """
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
+from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import (
     body_moment,
@@ -25,12 +28,13 @@ from rbstudy.numerics.dynamics import (
     to_momentum,
     to_omega,
 )
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     add,
     axpy,
     cross,
     quat_exp,
+    quat_exp_minus_one,
     quat_mul,
     quat_normalize,
     read3,
@@ -40,10 +44,13 @@ from rbstudy.numerics.rotation import (
     write4,
 )
 from rbstudy.numerics.state import OK
+from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style
 from rbstudy.schemes._rk import rk4_sum3
 
-N_WORK = 0
+# work: the carry of the compensated sums
+_CARRY = 0
+N_WORK = _CARRY + CARRY_WIDTH
 
 
 @jit
@@ -58,12 +65,10 @@ def rates(q_start, v, u, m, p, t):
     return v, dv, du, dm
 
 
-@jit
-def step_inplace(y, p, opt, t, h, work):
-    x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
-    v = read3(y, S.VELOCITY)
-    inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
+@inline_jit
+def stages(q, v, m, p, t, h):
+    """The four stages' rates ``k1 .. k4``, each ``(dx, dv, du, dm)``, of a step of ``h``
+    from ``(q, v, m)`` at time ``t``."""
     u = (0.0, 0.0, 0.0)
     k1 = rates(q, v, u, m, p, t)
     k2 = rates(
@@ -73,6 +78,33 @@ def step_inplace(y, p, opt, t, h, work):
         q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p, later(t, 0.5 * h)
     )
     k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, later(t, h))
+    return k1, k2, k3, k4
+
+
+@jit
+def compensated_step_inplace(y, p, opt, t, h, work):
+    """`step_inplace` with its increments (``u_n+1`` for the frame, ``I^-1 dm`` for the spin)
+    added with compensation (`rbstudy.numerics.compensated`)."""
+    inertia_ = inertia(p)
+    m = to_momentum(read3(y, S.OMEGA), inertia_)
+    k1, k2, k3, k4 = stages(read4(y, S.QUATERNION), read3(y, S.VELOCITY), m, p, t, h)
+    zero = (0.0, 0.0, 0.0)
+    add3_inplace(y, S.POSITION, rk4_sum3(h, zero, k1[0], k2[0], k3[0], k4[0]), work, _CARRY)
+    add3_inplace(y, S.VELOCITY, rk4_sum3(h, zero, k1[1], k2[1], k3[1], k4[1]), work, _CARRY)
+    turn_inplace(y, quat_exp_minus_one(rk4_sum3(h, zero, k1[2], k2[2], k3[2], k4[2])), work, _CARRY)
+    dm = rk4_sum3(h, zero, k1[3], k2[3], k3[3], k4[3])
+    add3_inplace(y, S.OMEGA, to_omega(dm, inertia_), work, _CARRY)
+    return OK, 0
+
+
+@jit
+def step_inplace(y, p, opt, t, h, work):
+    x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
+    v = read3(y, S.VELOCITY)
+    inertia_ = inertia(p)
+    m = to_momentum(read3(y, S.OMEGA), inertia_)
+    u = (0.0, 0.0, 0.0)
+    k1, k2, k3, k4 = stages(q, v, m, p, t, h)
     write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
     write3(y, S.VELOCITY, rk4_sum3(h, v, k1[1], k2[1], k3[1], k4[1]))
     u_next = rk4_sum3(h, u, k1[2], k2[2], k3[2], k4[2])
@@ -88,8 +120,11 @@ SCHEME = Scheme(
     order=4,
     implicit=False,
     keeps=(),
-    run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
+    run_bodies_inplace=make_entry(
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+    ),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
+    options=(COMPENSATED,),
     # dashed over the solid lines of rk4 and exudyn_rk44, whose curves coincide with its own
     style=Style("tab:pink", "X", "--"),
 )

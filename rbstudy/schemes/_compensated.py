@@ -1,0 +1,44 @@
+"""Option ``compensated``: compensated summation of a fixed-step scheme's state updates.
+
+Each scheme that offers it writes its step a second time in increment form and adds the
+increments with `rbstudy.numerics.compensated` (docs/theory.md s8); the plain step is left as
+it was, so that a run without the option gives the same bits as before it existed. The entry
+point runs the rows with the option set with the compensated kernels (`switch`, passed to
+`rbstudy.numerics.driver.make_entry`): the choice is made per body, not per step, so the
+plain step keeps its speed. The carry sits in the scheme's work array from the offset the
+scheme passes (`CARRY_WIDTH` floats).
+"""
+
+from rbstudy.numerics.compensated import CARRY_WIDTH
+from rbstudy.schemes._registry import Option
+
+__all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
+
+# The slot after `composition` (3) and `axis_order` (0-2): free in every scheme that offers it.
+_SLOT = 4
+
+
+def _parse_compensated(value):
+    if value not in (0, 1):  # True and False compare equal to 1 and 0
+        raise ValueError("expected 0 or 1 (false or true): whether to compensate the sums")
+    return (float(value),)
+
+
+COMPENSATED = Option(
+    name="compensated",
+    default=0,
+    description=(
+        "1: add each step's increments with compensated summation (Kahan), so that a long run "
+        "rounds like its increments, dt times finer; 0: plain sums"
+    ),
+    slot=_SLOT,
+    parse=_parse_compensated,
+    long_name="compensated summation of the state updates",
+    units="1",
+)
+
+
+def switch(step, init):
+    """The ``switch`` of `rbstudy.numerics.driver.make_entry` that runs the bodies whose
+    option ``compensated`` is set with the compensated kernels ``step`` and ``init``."""
+    return (_SLOT, step, init)
