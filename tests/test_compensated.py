@@ -12,10 +12,10 @@ import pytest
 from conftest import ROUND_OFF_FLOOR, final_orientation_errors
 
 from rbstudy.errors import SchemeError
+from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.free_flow import free_flow_batch
 from rbstudy.numerics.rotation import cos_minus_one, quat_cayley_minus_one, quat_exp_minus_one
 from rbstudy.physics.metrics import asymptotic_order, orientation_error
-from rbstudy.physics.scenes import scene_from_mapping
 from rbstudy.physics.simulate import simulate
 from rbstudy.schemes import BUILTIN, get_scheme
 
