@@ -87,6 +87,7 @@ _KNOT_CHUNK = 1000
 # The error measures an integrated reference's ``uncertainty`` is given in (`_differences`).
 UNCERTAIN_MEASURES = ("orientation", "omega", "nodes")
 _FIELDS = tuple(S.STATE_FIELDS)  # quaternion, omega_body, position, velocity
+_NONE = REFERENCE_KINDS.index("none")  # the code of a case without a reference
 
 
 @dataclass(frozen=True)
@@ -128,7 +129,7 @@ class References:
     def empty(cls, count, n_times):
         """``count`` references on ``n_times`` times, all "none" (NaN) until filled in."""
         return cls(
-            code=np.full(count, REFERENCE_KINDS.index("none"), dtype=np.int8),
+            code=np.full(count, _NONE, dtype=np.int8),
             **{
                 name: np.full(
                     (count, n_times, S.STATE_FIELDS[name].stop - S.STATE_FIELDS[name].start), np.nan
@@ -410,7 +411,9 @@ def _integrated(group, members, times, found):
         if composed is not None and peer is not None:
             composed = replace(composed, uncertainty=_differences(scene, composed, peer))
         best = composed or peer
-        if best is not None:
+        if best is None:
+            found.code[k] = _NONE  # its NaNs stay
+        else:
             found.put(k, best)
 
 
