@@ -315,29 +315,35 @@ def _recommendation_findings(ds):
         )
     answers = set(zip(picks.scheme[picks.met].tolist(), picks.dt[picks.met].tolist(), strict=True))
     if uniform is None or len(answers) > 1 or not picks.met.all():
-        # one case at a time only here: a million cases that agree build nothing per case
-        found = recommendations(ds)
-        groups = {}
-        for labels, pick in zip((labels for labels, _ in _cases(ds)), found, strict=True):
-            groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append((labels, pick))
-        for answer, members in groups.items():
-            where = _where([labels for labels, _ in members])
+        # grouped by answer as arrays; a dict per case only for the finding's own cases (a
+        # million cases' Recommendation objects and labels took ~600 MiB)
+        labels = [labels for labels, _ in _cases(ds)]
+        dts = np.atleast_1d(ds["dt"].values)
+        key = np.where(picks.met, picks.scheme * len(dts) + picks.dt, -1)
+        for first in np.sort(np.unique(key, return_index=True)[1]):
+            members = np.flatnonzero(key == key[first])
+            where = _where([labels[k] for k in members])
+            answer = (
+                None
+                if key[first] < 0
+                else (str(schemes_of(ds)[picks.scheme[first]]), float(dts[picks.dt[first]]))
+            )
             if answer is None:
                 result.append(
                     Finding(
                         kind="no_recommendation",
                         numbers={"accuracy_bound": bound},
-                        cases=tuple(labels for labels, _ in members),
+                        cases=tuple(labels[k] for k in members),
                         text=f"no scheme and step meet the bound {_g(bound)} at {where}",
                     )
                 )
                 continue
-            seconds = [pick.seconds_per_case for _, pick in members]
-            errors = [pick.error for _, pick in members]
+            seconds = picks.seconds[members].tolist()
+            errors = picks.error[members].tolist()
             result.append(
                 Finding(
                     kind="recommendation",
-                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels} for labels, _ in members),
+                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels[k]} for k in members),
                     numbers={
                         "dt_s": answer[1],
                         "seconds_per_case": max(seconds),
