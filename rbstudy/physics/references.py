@@ -35,6 +35,7 @@ from rbstudy.physics.analytic import (
     symmetrised,
 )
 from rbstudy.physics.loads import TURNING, record_slice
+from rbstudy.physics.metrics import UNCERTAIN_MEASURES
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
@@ -43,7 +44,6 @@ from rbstudy.schemes import dop853
 __all__ = [
     "Reference",
     "References",
-    "UNCERTAIN_MEASURES",
     "table_references",
     "reference_solutions",
     "reference_solution",
@@ -84,8 +84,6 @@ _KNOT_SEARCH = 1000
 _KNOT_CHUNK = 1000
 
 
-# The error measures an integrated reference's ``uncertainty`` is given in (`_differences`).
-UNCERTAIN_MEASURES = ("orientation", "omega", "nodes")
 _FIELDS = tuple(S.STATE_FIELDS)  # quaternion, omega_body, position, velocity
 _NONE = REFERENCE_KINDS.index("none")  # the code of a case without a reference
 

@@ -16,7 +16,6 @@ import numpy as np
 from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
-from rbstudy.physics.references import UNCERTAIN_MEASURES
 from rbstudy.physics.scenes import triangle_ok
 
 __all__ = [
@@ -544,7 +543,7 @@ def reference(batch):
 
 def _uncertainty(batch, measure):
     """(B,) the reference's uncertainty in ``measure``: NaN where nothing checked it."""
-    return batch.references.uncertainty[:, UNCERTAIN_MEASURES.index(measure)]
+    return batch.references.uncertainty[:, metrics.UNCERTAIN_MEASURES.index(measure)]
 
 
 def reference_uncertainty(batch):
