@@ -9,9 +9,14 @@ from conftest import write_study
 from extended_oracle import loaded_rotation
 
 from rbstudy.analysis.summary import UNCERTAINTY_FACTOR, fitted_order, scheme_rows
-from rbstudy.inputs.scenes import scene_from_mapping
+from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.metrics import orientation_error
-from rbstudy.physics.references import dop853_reference, reference_solution
+from rbstudy.physics.references import (
+    dop853_reference,
+    reference_solution,
+    reference_solutions,
+    table_references,
+)
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
@@ -150,3 +155,44 @@ def test_the_summary_fits_no_order_through_an_uncertain_reference(mixed_archive)
     assert row["fit_dt"][0] == pytest.approx(0.1 / 4) and abs(row["order"][0] - 4.0) < 0.3
     swamped = ds.assign(reference_uncertainty=ds["reference_uncertainty"] * 0 + errors.max())
     assert scheme_rows(swamped)[0]["order"] is None
+
+
+def test_a_table_s_references_are_those_of_its_scenes_bit_for_bit():
+    """`table_references` reads a sweep's columns, `reference_solutions` the `Scene`s built
+    from them: every kind (a symmetric top and an asymmetric body on parabolas, an axial
+    moment, an integrated body) gives the same bits either way, in any order of rows."""
+    # the first body symmetric within round-off: each Body symmetrises it, and so must the table
+    inertia = np.array(
+        [[1.0, 1.0 + 4e-13, 2.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [2.0, 1.0, 1.0]]
+    )
+    omega = np.array([[0.3, 0, 5], [0.3, 1, 0.2], [0, 0, 2], [0.3, 1, 0.2], [1, 0.1, 0.2]])
+    moment = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0.5], [0.2, 0, 0], [0, 0, 0]])
+    force = np.array([[0, 0, 1], [1, 0, 0], [0, 0, 0], [0, 0, 0], [0, 2, 0]])
+    spec = {
+        "body": {"inertia": list(inertia.T), "mass": 2.0},
+        "duration": 0.5,
+        "initial": {"angular_velocity": {"body": list(omega.T)}},
+        "loads": {"moment_body": list(moment.T), "force_space": list(force.T)},
+    }
+    table = scene_table(spec, size=5)
+    times = np.linspace(0.0, 0.5, 6)
+    rows = np.array([3, 0, 4, 1, 2, 0])
+    columns = table_references(table, rows, times)
+    views = reference_solutions([table.scene(row) for row in rows], times)
+    assert (
+        [columns[k].name for k in range(len(rows))]
+        == [view.name for view in views]
+        == [
+            "exact_split_composition",
+            "symmetric_top",
+            "symmetric_top",
+            "exact_asymmetric",
+            "axial_moment",
+            "symmetric_top",
+        ]
+    )
+    for k, view in enumerate(views):
+        for name in ("quaternion", "omega_body", "position", "velocity"):
+            assert np.array_equal(getattr(columns[k], name), getattr(view, name)), (k, name)
+        assert columns[k].uncertainty == view.uncertainty
+    assert 0.0 < columns[0].uncertainty["orientation"] < 1e-11  # checked by DOP853

@@ -23,6 +23,7 @@ or measures anything the table does not, so the words and the table cannot disag
 import dataclasses
 import math
 import textwrap
+import typing
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from rbstudy.analysis.summary import (
     schemes_of,
     status_counts,
     status_text,
+    verdicts,
 )
 from rbstudy.numerics.state import INVARIANTS, STATUS_NAMES
 
@@ -122,13 +124,19 @@ def _other_dims(ds):
     return [d for d in ds["status"].dims if d not in _SWEPT_BY_SUMMARY]
 
 
-def _labels(ds, dim, index):
-    """The coordinates of position ``index`` along ``dim``: every coordinate that runs along
-    ``dim`` alone (a zipped axis has several), else the position."""
+def _label_values(ds, dim):
+    """The labels of every position along ``dim``, name -> list of plain values: every
+    coordinate that runs along ``dim`` alone (a zipped axis has several), else the
+    position. Read once per axis: reading them per case took seconds a thousand cases."""
     names = [name for name, coord in ds.coords.items() if coord.dims == (dim,)]
     if not names:
-        return {dim: index}
-    return {name: _plain(ds[name].values[index]) for name in names}
+        return {dim: list(range(ds.sizes[dim]))}
+    return {name: [_plain(value) for value in ds[name].values] for name in names}
+
+
+def _labels(ds, dim, index):
+    """The coordinates of position ``index`` along ``dim`` (`_label_values`)."""
+    return {name: values[index] for name, values in _label_values(ds, dim).items()}
 
 
 def _label_text(labels):
@@ -154,13 +162,14 @@ def _where(labels):
 
 
 def _cases(ds):
-    """The cases of every value of the other swept axes: (labels, isel indexer) pairs."""
+    """The cases of every value of the other swept axes, in C order: (labels, isel indexer)
+    pairs."""
     dims = _other_dims(ds)
-    shape = [ds.sizes[d] for d in dims]
-    for index in np.ndindex(*shape):
+    labels_of = [_label_values(ds, dim) for dim in dims]
+    for index in np.ndindex(*[ds.sizes[d] for d in dims]):
         labels = {}
-        for dim, k in zip(dims, index, strict=True):
-            labels.update(_labels(ds, dim, k))
+        for values, k in zip(labels_of, index, strict=True):
+            labels.update({name: column[k] for name, column in values.items()})
         yield labels, dict(zip(dims, index, strict=True))
 
 
@@ -178,39 +187,68 @@ def case_seconds(ds):
     return steps * (run_time.sum("dt") / steps.sum("dt"))
 
 
+class _Picks(typing.NamedTuple):
+    """The cheapest accurate (scheme, dt) of each of the n values of the other swept axes
+    (C order), as columns: ``met`` (n,) whether any case there meets the bound; ``scheme``
+    and ``dt`` (n,) the positions of the cheapest along those axes (0 where not swept, or
+    nothing meets the bound); ``error`` (n,) its final orientation error (rad);
+    ``seconds`` (n,) its kernel time (inf where nothing meets the bound)."""
+
+    met: np.ndarray
+    scheme: np.ndarray
+    dt: np.ndarray
+    error: np.ndarray
+    seconds: np.ndarray
+
+
+def _picks(ds):
+    """The `_Picks` of ``ds``, every value of the other axes at once. Cheapest: the least
+    `case_seconds`; ties go to the earlier scheme, then the earlier dt (archive order: the
+    smaller, as dt is stored ascending since rbstudy 0.4)."""
+    order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
+    dims = [*_other_dims(ds), *order]
+
+    def flat(value):  # (n, cases of one value of the other axes), in ``order``'s C order
+        values = value.broadcast_like(ds["status"]).transpose(*dims).values
+        return values.reshape(-1, math.prod(ds.sizes[d] for d in order))
+
+    good = flat((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
+    seconds = np.where(good, flat(case_seconds(ds)), np.inf)
+    cheapest = np.argmin(seconds, axis=1)
+    shape = [ds.sizes[d] for d in order]
+    position = dict(zip(order, np.unravel_index(cheapest, shape), strict=True)) if order else {}
+    error = error_measure(ds, "orientation")
+    everywhere = np.arange(len(cheapest))
+    zeros = np.zeros_like(cheapest)
+    return _Picks(
+        met=good.any(axis=1),
+        scheme=position.get("scheme", zeros),
+        dt=position.get("dt", zeros),
+        error=flat(error)[everywhere, cheapest] if error is not None else np.full(len(cheapest), math.nan),
+        seconds=seconds[everywhere, cheapest],
+    )
+
+
 def recommendations(ds):
     """The cheapest accurate (scheme, dt) for every value of the other swept axes: a list of
-    `Recommendation`, with None where no case of that value meets the bound. Cheapest: the
-    least `case_seconds`; ties go to the earlier scheme, then the earlier dt (archive order:
-    the smaller, as dt is stored ascending since rbstudy 0.4)."""
+    `Recommendation`, with None where no case of that value meets the bound (`_picks`)."""
     if "accuracy" not in ds:
         return []
-    order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
-    meets = (ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)
-    cost = case_seconds(ds)
-    error = error_measure(ds, "orientation")
-    schemes = np.array(schemes_of(ds))
+    picks = _picks(ds)
+    schemes = schemes_of(ds)
     dts = np.atleast_1d(ds["dt"].values)
-    found = []
-    for labels, where in _cases(ds):
-        good = meets.isel(where).transpose(*order).values
-        seconds = np.where(good, cost.isel(where).transpose(*order).values, np.inf)
-        if not good.any():
-            found.append(None)
-            continue
-        flat = int(np.argmin(seconds))
-        position = np.unravel_index(flat, seconds.shape) if seconds.ndim else ()
-        pick = dict(zip(order, position, strict=True))
-        found.append(
-            Recommendation(
-                scheme=str(schemes[pick.get("scheme", 0)]),
-                dt=float(dts[pick.get("dt", 0)]),
-                error=float(error.isel(where).isel(pick)) if error is not None else math.nan,
-                seconds_per_case=float(seconds.flat[flat]),
-                axes=labels,
-            )
+    return [
+        Recommendation(
+            scheme=str(schemes[scheme]),
+            dt=float(dts[dt]),
+            error=float(error),
+            seconds_per_case=float(seconds),
+            axes=labels,
         )
-    return found
+        if met
+        else None
+        for (labels, _), met, scheme, dt, error, seconds in zip(_cases(ds), *picks, strict=True)
+    ]
 
 
 def _uniform(ds):
@@ -246,8 +284,8 @@ def _recommendation_findings(ds):
                 text="no recommendation: the archive has no accuracy verdict",
             )
         ]
-    found = recommendations(ds)
-    if not any(found):
+    picks = _picks(ds)
+    if not picks.met.any():
         return [
             Finding(
                 kind="no_recommendation",
@@ -275,29 +313,37 @@ def _recommendation_findings(ds):
                 f"{_g(worst)} rad (bound {_g(bound)}{everywhere})",
             )
         )
-    answers = {(r.scheme, r.dt) for r in found if r is not None}
-    if uniform is None or len(answers) > 1 or None in found:
-        groups = {}
-        for labels, pick in zip((labels for labels, _ in _cases(ds)), found, strict=True):
-            groups.setdefault(None if pick is None else (pick.scheme, pick.dt), []).append((labels, pick))
-        for answer, members in groups.items():
-            where = _where([labels for labels, _ in members])
+    answers = set(zip(picks.scheme[picks.met].tolist(), picks.dt[picks.met].tolist(), strict=True))
+    if uniform is None or len(answers) > 1 or not picks.met.all():
+        # grouped by answer as arrays; a dict per case only for the finding's own cases (a
+        # million cases' Recommendation objects and labels took ~600 MiB)
+        labels = [labels for labels, _ in _cases(ds)]
+        dts = np.atleast_1d(ds["dt"].values)
+        key = np.where(picks.met, picks.scheme * len(dts) + picks.dt, -1)
+        for first in np.sort(np.unique(key, return_index=True)[1]):
+            members = np.flatnonzero(key == key[first])
+            where = _where([labels[k] for k in members])
+            answer = (
+                None
+                if key[first] < 0
+                else (str(schemes_of(ds)[picks.scheme[first]]), float(dts[picks.dt[first]]))
+            )
             if answer is None:
                 result.append(
                     Finding(
                         kind="no_recommendation",
                         numbers={"accuracy_bound": bound},
-                        cases=tuple(labels for labels, _ in members),
+                        cases=tuple(labels[k] for k in members),
                         text=f"no scheme and step meet the bound {_g(bound)} at {where}",
                     )
                 )
                 continue
-            seconds = [pick.seconds_per_case for _, pick in members]
-            errors = [pick.error for _, pick in members]
+            seconds = picks.seconds[members].tolist()
+            errors = picks.error[members].tolist()
             result.append(
                 Finding(
                     kind="recommendation",
-                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels} for labels, _ in members),
+                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels[k]} for k in members),
                     numbers={
                         "dt_s": answer[1],
                         "seconds_per_case": max(seconds),
@@ -424,6 +470,37 @@ def _series(values):
     return ", ".join(shown) + (", ..." if len(values) > _SHOWN_VALUES else "")
 
 
+def _rows_along(ds, dim):
+    """``scheme -> [row of scheme_rows(ds.isel({dim: k})) for each k]``: the first row of
+    each scheme at each value along ``dim``. Where ``dt`` is not swept and no swept option
+    sets the order, only the case counts are read (cases, unstable, inaccurate, unjudged),
+    and they are counted along ``dim`` at once: a table per value took seconds for a
+    thousand values."""
+    composition = "nominal_order" in ds.coords and any(d != "scheme" for d in ds["nominal_order"].dims)
+    if "dt" in ds["status"].dims or composition:
+        per_value = [scheme_rows(ds.isel({dim: k})) for k in range(ds.sizes[dim])]
+        return lambda scheme: [next(r for r in rows if _row_scheme(r) == scheme) for rows in per_value]
+    judged = "accuracy" in ds
+
+    def counts(scheme):
+        status = per_scheme(ds["status"], scheme)
+        others = tuple(axis for axis, name in enumerate(status.dims) if name != dim)
+        _, inaccurate, failed, unjudged = (
+            np.broadcast_to(mask.sum(axis=others), (ds.sizes[dim],)) for mask in verdicts(ds, scheme)
+        )
+        return [
+            {
+                "cases": status.size // ds.sizes[dim],
+                "unstable": int(failed[k]),
+                "inaccurate": int(inaccurate[k]) if judged else None,
+                "unjudged": int(unjudged[k]),
+            }
+            for k in range(ds.sizes[dim])
+        ]
+
+    return counts
+
+
 def _questions(ds, rates):
     """Per swept axis other than scheme and dt, per scheme: how the order and the energy
     change (dt swept) or the accuracy verdicts change (dt fixed) along it; a scheme along
@@ -431,15 +508,16 @@ def _questions(ds, rates):
     result = []
     for dim in _other_dims(ds):
         size = ds.sizes[dim]
+        labels = _label_values(ds, dim)
+        per_label = [{name: column[k] for name, column in labels.items()} for k in range(size)]
         values = [
-            "/".join(_g(v) if isinstance(v, float) else str(v) for v in _labels(ds, dim, k).values())
-            for k in range(size)
+            "/".join(_g(v) if isinstance(v, float) else str(v) for v in one.values()) for one in per_label
         ]
-        axis = "/".join(_labels(ds, dim, 0))
-        per_value = [scheme_rows(ds.isel({dim: k})) for k in range(size)]
+        axis = "/".join(labels)
+        rows_of = _rows_along(ds, dim)
         for scheme in schemes_of(ds):
-            rows = [next(r for r in rows if _row_scheme(r) == scheme) for rows in per_value]
-            numbers = {"values": [_labels(ds, dim, k) for k in range(size)]}
+            rows = rows_of(scheme)
+            numbers = {"values": per_label}
             if "dt" in ds["status"].dims:
                 numbers["order"] = [None if r["order"] is None else r["order"][0] for r in rows]
                 orders = [order_text(r) for r in rows]

@@ -42,7 +42,9 @@ __all__ = [
     "symmetric_top",
     "axial_moment",
     "parabola",
+    "precession_frequencies",
     "precession_frequency_exact",
+    "flip_interval",
     "flip_interval_exact",
 ]
 
@@ -217,18 +219,49 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2), np.where(axial, 3, 0)))]
 
 
+def precession_frequencies(inertia, omega_body):
+    """Body-frame precession frequencies ``W = w_s (I_s - I_t) / I_t`` (rad/s) of free
+    symmetric bodies about their symmetry axes ``s`` (``I_t`` the transverse inertia).
+
+    Parameters
+    ----------
+    inertia : ndarray, shape (n, 3)
+        Principal inertias, symmetrised (`symmetrised`), kg m^2.
+    omega_body : ndarray, shape (n, 3)
+        Initial body angular velocities, rad/s.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        rad/s; NaN for an asymmetric body.
+    """
+    inertia = np.asarray(inertia, dtype=float)
+    axis = symmetry_axes(inertia)[:, None]
+    pick = np.maximum(axis, 0)
+    transverse = np.take_along_axis(inertia, (pick + 1) % 3, axis=1)[:, 0]
+    axial = np.take_along_axis(inertia, pick, axis=1)[:, 0]
+    spin = np.take_along_axis(np.asarray(omega_body, dtype=float), pick, axis=1)[:, 0]
+    return np.where(axis[:, 0] >= 0, spin * (axial - transverse) / transverse, np.nan)
+
+
 def precession_frequency_exact(scene):
-    """Body-frame precession frequency ``W = w_s (I_s - I_t) / I_t`` (rad/s) of a free symmetric
-    body about its symmetry axis ``s`` (``I_t`` the transverse inertia), or None."""
-    axis = scene.body.symmetry_axis
-    if axis is None or not scene.loads.moment_free:
+    """`precession_frequencies` of one ``scene``: a float, or None unless the body is free
+    and symmetric."""
+    if scene.body.symmetry_axis is None or not scene.loads.moment_free:
         return None
-    transverse = scene.body.inertia[(axis + 1) % 3]
-    return scene.omega_body[axis] * (scene.body.inertia[axis] - transverse) / transverse
+    return float(precession_frequencies([scene.body.inertia], [scene.omega_body])[0])
 
 
 def flip_interval_exact(scene):
-    """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s.
+    """`flip_interval` of one ``scene``: None for symmetric or loaded bodies."""
+    if not scene.loads.moment_free or scene.body.symmetry_axis is not None:
+        return None
+    return flip_interval(scene.body.inertia, scene.omega_body)
+
+
+def flip_interval(inertia, omega_body):
+    """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s,
+    of principal ``inertia`` (3,) and initial ``omega_body`` (3,).
 
     ``w_mid = a2 sn(lambda t + u0 | k^2)`` (docs/theory.md s3) changes sign every
     ``2 K(k^2) / |lambda|``: the Dzhanibekov flip interval near the intermediate axis, the
@@ -236,13 +269,11 @@ def flip_interval_exact(scene):
     circulation axis third, `algebra.circulation_axes`), with ``d_j = G^2 - 2E I_j`` summed
     term by term (`algebra.momentum_excess`): ``lambda^2 = (I3 - I2) d1 / (I1 I2 I3)`` and
     ``k'^2 = 1 - k^2 = (I3 - I1) d2 / ((I3 - I2) d1)``, from which ``K`` is taken
-    (``ellipkm1``: accurate as ``k' -> 0``). None for symmetric or loaded bodies, NaN when the
-    body turns about a principal axis (no sign change), inf on the separatrix.
+    (``ellipkm1``: accurate as ``k' -> 0``). NaN when the body turns about a principal axis
+    (no sign change), inf on the separatrix.
     """
-    if not scene.loads.moment_free or scene.body.symmetry_axis is not None:
-        return None
-    inertia = tuple(float(v) for v in scene.body.inertia)
-    m = tuple(i * float(w) for i, w in zip(inertia, scene.omega_body, strict=True))
+    inertia = tuple(float(v) for v in inertia)
+    m = tuple(i * float(w) for i, w in zip(inertia, omega_body, strict=True))
     excess = tuple(algebra.momentum_excess(inertia, m, j) for j in range(3))
     first, mid, third, _ = algebra.circulation_axes(inertia, excess)
     if excess[first] == 0.0 or excess[third] == 0.0:
@@ -257,12 +288,24 @@ def flip_interval_exact(scene):
     return 2.0 * float(ellipkm1(complement)) / math.sqrt(rate2)
 
 
-def parabola(scene, times):
-    """Centre-of-mass position and velocity (T, 3) each at ``times`` (T,) under the scene's
-    constant space force and gravity (exact whatever the rotation does)."""
-    loads = scene.loads
-    acceleration = np.asarray(loads.force_space) / scene.body.mass + np.asarray(loads.gravity)
+def parabola(position, velocity, acceleration, times):
+    """Centre-of-mass positions and velocities on the parabola ``x0 + v0 t + a t^2 / 2``
+    (exact under constant space forces and gravity, whatever the rotation does).
+
+    Parameters
+    ----------
+    position, velocity, acceleration : ndarray, shape (..., 3)
+        m, m/s, m/s^2 at t = 0 (the acceleration: the space force over the mass, plus
+        gravity).
+    times : ndarray, shape (T,)
+        s.
+
+    Returns
+    -------
+    position, velocity : ndarray, shape (..., T, 3)
+    """
     t = np.asarray(times, dtype=float)[:, None]
-    position = np.asarray(scene.position) + np.asarray(scene.velocity) * t + 0.5 * acceleration * t**2
-    velocity = np.asarray(scene.velocity) + acceleration * t
-    return position, velocity
+    position, velocity, acceleration = (
+        np.asarray(v, dtype=float)[..., None, :] for v in (position, velocity, acceleration)
+    )
+    return position + velocity * t + 0.5 * acceleration * t**2, velocity + acceleration * t

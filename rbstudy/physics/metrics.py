@@ -27,7 +27,13 @@ __all__ = [
     "MIN_ASYMPTOTIC_POINTS",
     "MIN_CONVERGENCE_ORDER",
     "ROUND_OFF_MARGIN",
+    "UNCERTAIN_MEASURES",
 ]
+
+# The error measures in which an integrated reference's uncertainty is given (its distance
+# from its cross-check: `rbstudy.physics.references`), in the order of their columns; here,
+# numba-free, for the archive's outputs to read.
+UNCERTAIN_MEASURES = ("orientation", "omega", "nodes")
 
 # Local slopes (between neighbouring dt) within this distance of the fitted order mark the
 # asymptotic range, where the error behaves like C dt^p; half an order separates p = 1, 2, 4.

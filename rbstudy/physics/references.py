@@ -1,5 +1,9 @@
 """References: the best available solution of each scene on an output grid, and its name.
 
+A sweep takes them as columns (`References`, from the rows of its scene table:
+`table_references`), with no object per case; `Reference` is one case's view, which tests
+and analysis take (`reference_solutions` of `Scene`s).
+
 An exact solution where one applies (`rbstudy.physics.analytic.reference_kinds`). A loaded
 body no closed form covers is integrated twice, independently, each within a step budget:
 by `exact_split` composed to order 8 at a fine step (the reference) and by scipy's DOP853 at
@@ -11,6 +15,7 @@ numba-free, and the exact free asymmetric body is the compiled `rbstudy.numerics
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,18 +27,24 @@ from rbstudy.numerics.state import OK
 from rbstudy.physics import metrics
 from rbstudy.physics.analytic import (
     INTEGRATED,
+    REFERENCE_KINDS,
     axial_moment,
     parabola,
     reference_kinds,
     symmetric_top,
+    symmetrised,
 )
 from rbstudy.physics.loads import TURNING, record_slice
+from rbstudy.physics.metrics import UNCERTAIN_MEASURES
+from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
 from rbstudy.schemes import dop853
 
 __all__ = [
     "Reference",
+    "References",
+    "table_references",
     "reference_solutions",
     "reference_solution",
     "COMPUTE",
@@ -73,6 +84,10 @@ _KNOT_SEARCH = 1000
 _KNOT_CHUNK = 1000
 
 
+_FIELDS = tuple(S.STATE_FIELDS)  # quaternion, omega_body, position, velocity
+_NONE = REFERENCE_KINDS.index("none")  # the code of a case without a reference
+
+
 @dataclass(frozen=True)
 class Reference:
     """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
@@ -90,47 +105,163 @@ class Reference:
     uncertainty: dict = field(default_factory=dict)
 
 
-def _symmetric_tops(scenes, times):
-    """The free symmetric tops, in one vectorised closed-form call."""
-    quaternion, omega = symmetric_top(
-        [scene.body.inertia for scene in scenes],
-        [scene.quaternion for scene in scenes],
-        [scene.omega_body for scene in scenes],
+@dataclass(frozen=True)
+class References:
+    """The references of m scenes on T output times, as columns.
+
+    code : (m,) int8, each one's kind as its index in
+    `rbstudy.physics.analytic.REFERENCE_KINDS`. quaternion : (m, T, 4); omega_body,
+    position, velocity : (m, T, 3), as in `Reference`. uncertainty : (m, 3) per
+    `UNCERTAIN_MEASURES`, NaN where nothing checked the reference. ``references[k]`` is the
+    k-th as a `Reference`.
+    """
+
+    code: np.ndarray
+    quaternion: np.ndarray
+    omega_body: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    uncertainty: np.ndarray
+
+    @classmethod
+    def empty(cls, count, n_times):
+        """``count`` references on ``n_times`` times, all "none" (NaN) until filled in."""
+        return cls(
+            code=np.full(count, _NONE, dtype=np.int8),
+            **{
+                name: np.full(
+                    (count, n_times, S.STATE_FIELDS[name].stop - S.STATE_FIELDS[name].start), np.nan
+                )
+                for name in _FIELDS
+            },
+            uncertainty=np.full((count, len(UNCERTAIN_MEASURES)), np.nan),
+        )
+
+    def __len__(self):
+        return len(self.code)
+
+    def __getitem__(self, k):
+        uncertainty = self.uncertainty[k]
+        checked = not np.all(np.isnan(uncertainty))
+        return Reference(
+            name=REFERENCE_KINDS[self.code[k]],
+            **{name: getattr(self, name)[k] for name in _FIELDS},
+            uncertainty=dict(zip(UNCERTAIN_MEASURES, uncertainty.tolist(), strict=True)) if checked else {},
+        )
+
+    def put(self, k, reference):
+        """Store ``reference`` (a `Reference`) as the k-th, in place."""
+        self.code[k] = REFERENCE_KINDS.index(reference.name)
+        for name in _FIELDS:
+            getattr(self, name)[k] = getattr(reference, name)
+        self.uncertainty[k] = [reference.uncertainty.get(m, np.nan) for m in UNCERTAIN_MEASURES]
+
+    @property
+    def names(self):
+        """(m,) object array: each one's kind by name."""
+        return np.array(REFERENCE_KINDS, dtype=object)[self.code]
+
+    @classmethod
+    def gather(cls, chunks, places):
+        """The references at ``places`` (n, 2) (chunk, position) of ``chunks``, in order."""
+        starts = np.cumsum([0] + [len(chunk) for chunk in chunks])
+        flat = starts[places[:, 0]] + places[:, 1]
+        return cls(
+            **{
+                name: np.concatenate([getattr(chunk, name) for chunk in chunks])[flat]
+                for name in ("code", *_FIELDS, "uncertainty")
+            }
+        )
+
+
+class _Group(NamedTuple):
+    """m scenes as the closed forms take them: principal ``inertia`` (m, 3), symmetrised as
+    each `Body` does, ``quaternion`` (m, 4), ``omega_body``, ``position``, ``velocity`` (m,
+    3), ``mass`` (m,), ``loads``: each kind of `rbstudy.numerics.loads` -> (m, width); and
+    ``scene(k)``, the k-th as a `Scene` (for the integrations, one case at a time)."""
+
+    inertia: np.ndarray
+    quaternion: np.ndarray
+    omega_body: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    mass: np.ndarray
+    loads: dict
+    scene: object
+
+
+def _table_group(table, rows):
+    """The `_Group` of rows ``rows`` (m,) of ``table``, taken from its columns."""
+    return _Group(
+        inertia=symmetrised(table.inertia[rows]),
+        quaternion=table.quaternion[rows],
+        omega_body=table.omega_body[rows],
+        position=table.position[rows],
+        velocity=table.velocity[rows],
+        mass=table.mass[rows],
+        loads={name: table.loads[name][rows] for name in KIND},
+        scene=lambda k: table.scene(rows[k]),
+    )
+
+
+def _scene_group(scenes):
+    """The `_Group` of a list of `Scene`s."""
+    return _Group(
+        inertia=np.array([scene.body.inertia for scene in scenes], dtype=float).reshape(-1, 3),
+        **{
+            name: np.array([getattr(scene, name) for scene in scenes], dtype=float).reshape(-1, width)
+            for name, width in (("quaternion", 4), ("omega_body", 3), ("position", 3), ("velocity", 3))
+        },
+        mass=np.array([scene.body.mass for scene in scenes], dtype=float),
+        loads={
+            name: np.array([getattr(scene.loads, name) for scene in scenes], dtype=float) for name in KIND
+        },
+        scene=lambda k: scenes[k],
+    )
+
+
+def _centres(group, members, times, found):
+    """The centres of mass of ``members`` on their parabolas, into ``found``."""
+    loads = group.loads
+    found.position[members], found.velocity[members] = parabola(
+        group.position[members],
+        group.velocity[members],
+        loads["force_space"][members] / group.mass[members, None] + loads["gravity"][members],
         times,
     )
-    return [
-        Reference("symmetric_top", quaternion[k], omega[k], *parabola(scene, times))
-        for k, scene in enumerate(scenes)
-    ]
 
 
-def _free_bodies(scenes, times):
+def _symmetric_tops(group, members, times, found):
+    """The free symmetric tops, in one vectorised closed-form call."""
+    found.quaternion[members], found.omega_body[members] = symmetric_top(
+        group.inertia[members], group.quaternion[members], group.omega_body[members], times
+    )
+    _centres(group, members, times, found)
+
+
+def _free_bodies(group, members, times, found):
     """The free asymmetric bodies, every body and time in one compiled call (each time from
     the initial state: nothing accumulates along the run)."""
-    quaternion = np.empty((len(scenes), times.size, 4))
-    omega = np.empty((len(scenes), times.size, 3))
+    quaternion = np.empty((members.size, times.size, 4))
+    omega = np.empty((members.size, times.size, 3))
     free_flow_batch(
-        np.array([scene.body.inertia for scene in scenes], dtype=float),
-        np.array([scene.quaternion for scene in scenes], dtype=float),
-        np.array([scene.omega_body for scene in scenes], dtype=float),
+        np.ascontiguousarray(group.inertia[members]),
+        np.ascontiguousarray(group.quaternion[members]),
+        np.ascontiguousarray(group.omega_body[members]),
         times,
         quaternion,
         omega,
     )
-    return [
-        Reference("exact_asymmetric", quaternion[k], omega[k], *parabola(scene, times))
-        for k, scene in enumerate(scenes)
-    ]
+    found.quaternion[members], found.omega_body[members] = quaternion, omega
+    _centres(group, members, times, found)
 
 
-def _axial_moments(scenes, times):
-    references = []
-    for scene in scenes:
-        quaternion, omega = axial_moment(
-            scene.body.inertia, scene.quaternion, scene.omega_body, scene.loads.moment_body, times
+def _axial_moments(group, members, times, found):
+    for k in members:
+        found.quaternion[k], found.omega_body[k] = axial_moment(
+            group.inertia[k], group.quaternion[k], group.omega_body[k], group.loads["moment_body"][k], times
         )
-        references.append(Reference("axial_moment", quaternion, omega, *parabola(scene, times)))
-    return references
+    _centres(group, members, times, found)
 
 
 def dop853_reference(scene, times):
@@ -263,25 +394,25 @@ def _differences(scene, reference, check):
         }
 
 
-def _integrated(scenes, times):
+def _integrated(group, members, times, found):
     """Two independent integrations of each loaded scene: the exact-flow splitting composed to
     order 8 at a fine step (`_composed`), which is the reference, and DOP853, its
     cross-check; their difference is the reference's ``uncertainty``. Where knots of the load
     tables cannot be put on the composition's steps, DOP853 is the reference and nothing
     checks it; where one of the two is not had (a step budget passed, a failure) the other
     is the reference, unchecked; where neither is, the case has no reference ("none"), never
-    a hang."""
-    references = []
-    for scene in scenes:
+    a hang. One scene at a time: each integration costs far more than its `Scene`."""
+    for k in members:
+        scene = group.scene(k)
         composed = _composed(scene, times)
         peer = dop853_reference(scene, times)
         if composed is not None and peer is not None:
             composed = replace(composed, uncertainty=_differences(scene, composed, peer))
         best = composed or peer
-        references.append(
-            best or Reference("none", *(np.full((times.size, k), np.nan) for k in (4, 3, 3, 3)))
-        )
-    return references
+        if best is None:
+            found.code[k] = _NONE  # its NaNs stay
+        else:
+            found.put(k, best)
 
 
 # How each reference kind (`rbstudy.physics.analytic.REFERENCE_KINDS`) is computed, for a
@@ -294,27 +425,38 @@ COMPUTE = {
 }
 
 
-def reference_solutions(scenes, times):
-    """The best available reference of each of ``scenes`` at ``times`` (T,), increasing from
-    0 (the run's output times), `Reference`s.
-
-    Scenes are grouped by kind and each kind computed in one call (the symmetric tops of a
-    batch vectorised).
-    """
+def _references(group, kinds, times):
+    """The `References` of a `_Group` whose scenes have the reference ``kinds`` (m,)."""
     times = np.asarray(times, dtype=float)
-    kinds = reference_kinds(
-        [scene.body.inertia for scene in scenes],
-        [scene.omega_body for scene in scenes],
-        {name: [getattr(scene.loads, name) for scene in scenes] for name in KIND},
-        [scene.loads.timed for scene in scenes],
-    )
-    found = {}
+    found = References.empty(len(kinds), times.size)
     for kind, compute in COMPUTE.items():
-        members = [i for i, k in enumerate(kinds) if k == kind]
-        if members:
-            computed = compute([scenes[i] for i in members], times)
-            found.update(zip(members, computed, strict=True))
-    return [found[i] for i in range(len(scenes))]
+        members = np.flatnonzero(kinds == kind)
+        if members.size:
+            found.code[members] = REFERENCE_KINDS.index(kind)
+            compute(group, members, times, found)
+    return found
+
+
+def table_references(table: SceneTable, rows: np.ndarray, times: np.ndarray) -> References:
+    """The best available reference of the scenes ``rows`` (m,) of ``table`` at ``times``
+    (T,), increasing from 0 (the run's output times), as columns.
+
+    Scenes are grouped by kind and each kind computed in one call (the closed forms
+    vectorised over their scenes), from the table's columns: no `Scene` is built but for
+    the scenes whose reference is integrated.
+    """
+    return _references(_table_group(table, rows), table.reference_kinds[rows], times)
+
+
+def reference_solutions(scenes, times):
+    """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s
+    (the same numbers as `table_references` gives a table of them)."""
+    group = _scene_group(scenes)
+    kinds = reference_kinds(
+        group.inertia, group.omega_body, group.loads, [scene.loads.timed for scene in scenes]
+    )
+    found = _references(group, kinds, times)
+    return [found[k] for k in range(len(scenes))]
 
 
 def reference_solution(scene, times):

@@ -60,7 +60,7 @@ def simulate(
     scheme: str,
     dt: float,
     output_interval: float | None = None,
-    options: Mapping | Sequence[Mapping] | None = None,
+    options: Mapping | Sequence[Mapping] | np.ndarray | None = None,
     drift_bound: float = DRIFT_BOUND,
     threads: int | None = None,
 ) -> Simulation:
@@ -73,7 +73,8 @@ def simulate(
         (`rbstudy.physics.scenes.SceneTable.batch_rows`).
     scheme : registered scheme name.
     dt : time step (s); output_interval : sampling interval (s), default ``dt``.
-    options : scheme options, one mapping for all scenes or a sequence of one per scene.
+    options : scheme options, one mapping for all scenes or a sequence of one per scene, or
+        their rows (m, N_OPTION) as `rbstudy.schemes.Scheme.option_row` packs them.
     drift_bound : relative energy/|L| drift flagged as a blow-up.
     threads : threads to spread the bodies over (default: all cores).
     """
@@ -82,7 +83,9 @@ def simulate(
     n_steps = step_count(batch.duration, output_interval, dt)
     every = steps_per(output_interval, dt, "dt", "output interval")
     chosen = get_scheme(scheme)
-    if options is None or isinstance(options, dict):
+    if isinstance(options, np.ndarray):
+        rows = options
+    elif options is None or isinstance(options, dict):
         rows = np.repeat(chosen.option_row(options)[None, :], len(batch.states), axis=0)
     else:
         rows = np.array([chosen.option_row(o) for o in options])

@@ -32,7 +32,7 @@ from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.loads import needs_time
-from rbstudy.physics.references import Reference, reference_solutions
+from rbstudy.physics.references import References, table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
@@ -62,7 +62,7 @@ from rbstudy.pipeline.store import (
     write_text_atomic,
 )
 from rbstudy.pipeline.variables import evaluate
-from rbstudy.schemes import get_ready
+from rbstudy.schemes import get_ready, get_scheme
 
 __all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
@@ -82,7 +82,7 @@ class BatchJob:
     dt: float
     output_interval: float
     scene_rows: np.ndarray  # (n,) rows of the study's scene table, read by the task
-    options: tuple[dict, ...]  # (n,) each case's scheme options
+    options: np.ndarray  # (n, N_OPTION) each case's scheme options, packed (Scheme.option_row)
     variables: tuple[str, ...]
     accuracy_bound: float  # rad for the orientation, relative for energy and |L|
     references: np.ndarray  # (n, 2) per case: (chunk, position) in the chunks it is given
@@ -119,14 +119,14 @@ def study_progress(study, quiet=False):
 
 def compute_references(
     table: SceneTable, rows: np.ndarray, n_times: int, output_interval: float
-) -> list[Reference]:
+) -> References:
     """The references of the scenes ``rows`` of ``table`` on the output grid of ``n_times``
     samples (a dask task)."""
-    return reference_solutions([table.scene(row) for row in rows], output_times(n_times, output_interval))
+    return table_references(table, rows, output_times(n_times, output_interval))
 
 
 def compute_batch(
-    job: BatchJob, table: SceneTable, reference_chunks: list[list[Reference]], threads: int
+    job: BatchJob, table: SceneTable, reference_chunks: list[References], threads: int
 ) -> dict[str, np.ndarray]:
     """Run one batch and return its outputs, name -> array with the case axis first.
 
@@ -134,14 +134,14 @@ def compute_batch(
     finds its own at ``job.references`` (chunk, position). ``run_time`` per case is the CPU
     time of the compiled batch call (summed over its threads) divided among the cases:
     core-seconds per case, comparable whatever the scheduler and however busy the process.
+    Everything is taken as columns: no object is built per case.
     """
-    references = [reference_chunks[chunk][position] for chunk, position in job.references]
+    references = References.gather(reference_chunks, job.references)
     rows = table.batch_rows(job.scene_rows)
-    run = simulate(rows, job.scheme, job.dt, job.output_interval, list(job.options), threads=threads)
-    scenes = [table.scene(row) for row in job.scene_rows]  # the outputs read the scenes
-    per_case = run.output.kernel_cpu_seconds / len(scenes)
+    run = simulate(rows, job.scheme, job.dt, job.output_interval, job.options, threads=threads)
+    per_case = run.output.kernel_cpu_seconds / len(job.scene_rows)
     return evaluate(
-        job.variables, BatchData(scenes, run, references, [per_case] * len(scenes), job.accuracy_bound)
+        job.variables, BatchData(table, job.scene_rows, run, references, per_case, job.accuracy_bound)
     )
 
 
@@ -292,7 +292,8 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
         )
         for k, rows in enumerate(chunks)
     ]
-    runs = study.cases.runs
+    # each distinct run's options packed once: a million cases' dicts took seconds to pack
+    option_rows = np.array([get_scheme(run.scheme).option_row(run.options) for run in study.cases.runs])
     tasks, targets = [], {}
     start = 0
     for batch in pending:
@@ -306,7 +307,7 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
             dt=batch.dt,
             output_interval=study.output_interval,
             scene_rows=study.cases.scene_rows[numbers],
-            options=tuple(runs[row].options for row in study.cases.run_rows[numbers]),
+            options=option_rows[study.cases.run_rows[numbers]],
             variables=study.variables,
             accuracy_bound=study.accuracy_bound,
             references=positions,

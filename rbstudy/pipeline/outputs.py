@@ -1,6 +1,7 @@
 """The functions that compute the output variables of a batch, one per variable.
 
-Each takes a `BatchData` (the batch's scenes, its `Simulation`, its references and run time)
+Each takes a `BatchData` (the batch's rows of the scene table, its `Simulation`, its
+references as columns and run time)
 and returns the variable's values with the case axis first: (B, T, 3) for vectors over time,
 (B, T, N, 3) for nodes, (B,) per case. `rbstudy.pipeline.variables` binds each to its name,
 units and needs. Quantities several variables share (finite samples, node positions, the
@@ -15,6 +16,7 @@ import numpy as np
 from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.quaternions import quat_to_matrix
+from rbstudy.physics.scenes import triangle_ok
 
 __all__ = [
     "BatchData",
@@ -39,19 +41,30 @@ ACCURACY_BOUND = 1e-2
 
 
 class BatchData:
-    """What the variables of a batch of B cases are computed from.
+    """What the variables of a batch of B cases are computed from, as columns (no object
+    per case).
 
-    scenes : (B,) `rbstudy.physics.scenes.Scene`; run : their `Simulation` (T samples);
-    references : (B,) `rbstudy.physics.references.Reference` on the same T times;
-    run_time : (B,) s, kernel time per case; accuracy_bound : the study's bound on the
-    orientation error (rad) and the relative energy and |L| drift of a case judged accurate.
+    table : the study's `rbstudy.physics.scenes.SceneTable`; rows : (B,) each case's row
+    of it; run : their `Simulation` (T samples); references :
+    `rbstudy.physics.references.References` (B cases on the same T times); run_time : (B,) s,
+    kernel time per case; accuracy_bound : the study's bound on the orientation error (rad)
+    and the relative energy and |L| drift of a case judged accurate.
     """
 
-    def __init__(self, scenes, run, references, run_time, accuracy_bound=ACCURACY_BOUND):
-        self.scenes, self.run, self.references = scenes, run, references
-        self.run_time = np.asarray(run_time, dtype=float)
+    def __init__(self, table, rows, run, references, run_time, accuracy_bound=ACCURACY_BOUND):
+        self.table, self.rows, self.run, self.references = table, np.asarray(rows), run, references
+        self.run_time = np.broadcast_to(np.asarray(run_time, dtype=float), self.rows.shape)
         self.accuracy_bound = accuracy_bound
-        self._stacked = {}  # reference field -> (B, T, k), stacked once
+
+    @cached_property
+    def principal_inertia(self):
+        """(B, 3) principal inertias, symmetrised as each `Body` does."""
+        return analytic.symmetrised(self.table.inertia[self.rows])
+
+    @cached_property
+    def free(self):
+        """(B,) True where no moment acts."""
+        return self.table.moment_free[self.rows]
 
     @cached_property
     def finite(self):
@@ -71,12 +84,12 @@ class BatchData:
     @cached_property
     def inertia(self):
         """(B, 1, 3) principal inertias, broadcastable against (B, T, 3)."""
-        return np.array([scene.body.inertia for scene in self.scenes])[:, None, :]
+        return self.principal_inertia[:, None, :]
 
     @cached_property
     def node_offsets(self):
         """(B, N, 3) node offsets from the centre of mass, principal axes."""
-        return np.array([scene.nodes for scene in self.scenes])
+        return np.asarray(self.table.nodes[self.rows], dtype=float)
 
     @cached_property
     def node_positions(self):
@@ -86,7 +99,7 @@ class BatchData:
         return nodes
 
     def reference(self, name):
-        """One field of every case's reference, stacked once.
+        """One field of every case's reference.
 
         Parameters
         ----------
@@ -98,9 +111,7 @@ class BatchData:
         ndarray, shape (B, T, k)
             k = 4 for the quaternion, 3 for the others.
         """
-        if name not in self._stacked:
-            self._stacked[name] = np.array([getattr(reference, name) for reference in self.references])
-        return self._stacked[name]
+        return getattr(self.references, name)
 
     @cached_property
     def orientation_error(self):
@@ -109,7 +120,7 @@ class BatchData:
     @cached_property
     def measured_precession(self):
         """(B,) rad/s: the phase rate of the transverse body rates of symmetric bodies."""
-        axes = np.array([scene.body.symmetry_axis for scene in self.scenes])[:, None, None]
+        axes = self.table.symmetry_axes[self.rows][:, None, None]
         omega = self.run.omega_body
         first = np.take_along_axis(omega, (axes + 1) % 3, axis=2)[..., 0]
         second = np.take_along_axis(omega, (axes + 2) % 3, axis=2)[..., 0]
@@ -117,12 +128,14 @@ class BatchData:
 
     @cached_property
     def exact_precession(self):
-        return np.array([analytic.precession_frequency_exact(scene) for scene in self.scenes])
+        """(B,) rad/s: NaN where the body is not free and symmetric."""
+        exact = analytic.precession_frequencies(self.principal_inertia, self.table.omega_body[self.rows])
+        return np.where(self.free, exact, np.nan)
 
     @cached_property
     def measured_flip(self):
         """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
-        middle = [int(np.argsort(scene.body.inertia)[1]) for scene in self.scenes]
+        middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
         omega, time = self.run.omega_body, self.run.time
         return np.array(
             [metrics.sign_change_interval(omega[b, :, axis], time) for b, axis in enumerate(middle)]
@@ -130,7 +143,16 @@ class BatchData:
 
     @cached_property
     def exact_flip(self):
-        return np.array([analytic.flip_interval_exact(scene) for scene in self.scenes])
+        """(B,) s: NaN where the body is not free and asymmetric (one case at a time: only
+        studies of free asymmetric bodies store it)."""
+        free = self.free & (self.table.symmetry_axes[self.rows] < 0)
+        omega = self.table.omega_body[self.rows]
+        return np.array(
+            [
+                analytic.flip_interval(inertia, spin) if chosen else np.nan
+                for inertia, spin, chosen in zip(self.principal_inertia, omega, free, strict=True)
+            ]
+        )
 
 
 def driver_result(name):
@@ -498,7 +520,7 @@ def accuracy(batch):
     drifted = (results["max_energy_error"] > bound) | (results["max_momentum_magnitude_error"] > bound)
     with np.errstate(invalid="ignore"):
         accurate = (np.max(batch.orientation_error, axis=1) <= bound) & ~drifted
-    unreferenced = np.array([ref.name == "none" for ref in batch.references])
+    unreferenced = batch.references.code == analytic.REFERENCE_KINDS.index("none")
     verdict = np.where(accurate, ACCURATE, np.where(unreferenced & ~drifted, UNJUDGED, INACCURATE))
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
@@ -516,12 +538,12 @@ def reference(batch):
     ndarray, shape (B,)
         int8
     """
-    return np.array([analytic.REFERENCE_KINDS.index(ref.name) for ref in batch.references], dtype=np.int8)
+    return batch.references.code.astype(np.int8)
 
 
 def _uncertainty(batch, measure):
     """(B,) the reference's uncertainty in ``measure``: NaN where nothing checked it."""
-    return np.array([ref.uncertainty.get(measure, np.nan) for ref in batch.references])
+    return batch.references.uncertainty[:, metrics.UNCERTAIN_MEASURES.index(measure)]
 
 
 def reference_uncertainty(batch):
@@ -633,7 +655,10 @@ def regularised_inertia(batch):
     ndarray, shape (B,)
         int8: 0 as assembled, 1 regularised.
     """
-    return np.array([scene.body.regularised for scene in batch.scenes], dtype=np.int8)
+    regularised = batch.table.regularised
+    if regularised is None:
+        return np.zeros(len(batch.rows), dtype=np.int8)
+    return np.asarray(regularised[batch.rows], dtype=np.int8)
 
 
 def physical_body(batch):
@@ -649,4 +674,4 @@ def physical_body(batch):
     ndarray, shape (B,)
         int8
     """
-    return np.array([scene.body.physical for scene in batch.scenes], dtype=np.int8)
+    return triangle_ok(batch.principal_inertia).astype(np.int8)
