@@ -722,6 +722,10 @@ def run_batch(
         HALT_FLAG,
         clock,
     )
+    # kernels chosen by an option (`make_entry`'s switch) compile before the clock too
+    prepare = getattr(scheme.run_bodies_inplace, "prepare", None)
+    if prepare is not None:
+        prepare(arguments)
     # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
     whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
     chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads())

@@ -30,6 +30,7 @@ import tempfile
 import threading
 
 import numba
+import numpy as np
 from numba.core import types
 
 from rbstudy.numerics import jit  # noqa: F401 (points numba.config.CACHE_DIR at our cache)
@@ -56,33 +57,6 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
                        samples, results, halt, clock):
     run_rows(step, init, second_step, second_init, N_WORK, LANES, start, stop, state0, params,
              options, h, n_steps, every, drift_bound, samples, results, halt, clock)
-"""
-# With a switch (`make_entry`): each run of consecutive rows whose option at SLOT is set, or
-# not, is integrated by its kernels, so that neither step carries the other's code. A branch
-# on the option inside one step kept LLVM from inlining the step into the loop over steps:
-# the plain euler and leapfrog ran at half their speed.
-_SWITCHED_ROWS = """
-SLOT = {slot}
-{switched_wrapped}
-{switched_second}
-
-@jit
-def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
-                       samples, results, halt, clock):
-    a = start
-    while a < stop:
-        on = options[a, SLOT] != 0.0
-        b = a + 1
-        while b < stop and (options[b, SLOT] != 0.0) == on:
-            b += 1
-        if on:
-            run_rows(switched_step, switched_init, switched_second_step, switched_second_init, N_WORK,
-                     LANES, a, b, state0, params, options, h, n_steps, every, drift_bound, samples,
-                     results, halt, clock)
-        else:
-            run_rows(step, init, second_step, second_init, N_WORK, LANES, a, b, state0, params,
-                     options, h, n_steps, every, drift_bound, samples, results, halt, clock)
-        a = b
 """
 # The kernels of the second lane (`rbstudy.numerics.driver.run_rows`): the scheme's own for
 # two lanes; for one, kernels that are never called and cost nothing to compile, so that the
@@ -147,26 +121,12 @@ def _defined(kernel):
     return function.__module__, function.__name__, inspect.getsourcefile(function)
 
 
-def _module_text(step, init, n_work, wrapper=None, lanes=1, switch=None):
+def _module_text(step, init, n_work, wrapper=None, lanes=1):
     """The generated module's text and a digest naming it."""
     kernels = (
         {"step": step, "init": init} if wrapper is None else {"stage": step, "init": init, "wrapper": wrapper}
     )
-    if switch is not None:
-        kernels[f"switched_{'step' if wrapper is None else 'stage'}"] = switch[1]
-        kernels["switched_init"] = switch[2]
     defined = {alias: _defined(kernel) for alias, kernel in kernels.items()}
-    body = _RUN_ROWS
-    if switch is not None:
-        body = _SWITCHED_ROWS.format(
-            slot=int(switch[0]),
-            switched_second=_SECOND_LANE[lanes]
-            .replace("second_", "switched_second_")
-            .replace("= step, init", "= switched_step, switched_init"),
-            switched_wrapped=""
-            if wrapper is None
-            else _WRAPPED_STEP.format(step="switched_step", stage="switched_stage"),
-        )
     text = _TEMPLATE.format(
         kernels=", ".join(f"{module}.{name}" for module, name, _ in defined.values()),
         imports="".join(
@@ -176,7 +136,7 @@ def _module_text(step, init, n_work, wrapper=None, lanes=1, switch=None):
         lanes=int(lanes),
         second=_SECOND_LANE[lanes],
         wrapped="" if wrapper is None else _WRAPPED_STEP.format(step="step", stage="stage"),
-        body=body,
+        body=_RUN_ROWS,
     )
     digest = hashlib.sha256((text + SOURCE_DIGEST).encode())
     for path in sorted({path for *_, path in defined.values()}):
@@ -224,14 +184,22 @@ class CachedEntry:
     [start, stop) of a batch (`rbstudy.numerics.driver.run_rows`), from the generated module
     of its kernels, imported on first use. Calls and ``signatures`` are those of the numba
     dispatcher. With a ``wrapper`` (an inlined kernel ``wrapper(step, y, p, opt, t, h,
-    work)``, a composition), the scheme's step is ``step`` wrapped in it. With a ``switch``
-    ``(slot, step, init)``, the rows whose option at ``slot`` is nonzero run those kernels
-    instead (wrapped alike)."""
+    work)``, a composition), the scheme's step is ``step`` wrapped in it.
+
+    With a ``switch`` ``(slot, step, init)``, the rows whose option at ``slot`` is nonzero run
+    those kernels instead (wrapped alike), from an entry point of their own: each run of
+    consecutive rows goes to its kernels, so that neither step carries the other's code (a
+    branch on the option inside one step kept LLVM from inlining the step into the loop over
+    steps: plain euler and leapfrog ran at half their speed), and the switched kernels compile
+    only for a batch that sets the option (`prepare`), not on every scheme's first run (5-7 s
+    of the default study's, docs/performance.md)."""
 
     def __init__(self, step, init, n_work, wrapper=None, lanes=1, switch=None):
-        self._kernels = (step, init, n_work, wrapper, lanes, switch)
+        self._kernels = (step, init, n_work, wrapper, lanes)
         self._dispatcher = None
         self._lock = threading.Lock()
+        self._slot = None if switch is None else int(switch[0])
+        self._switched = None if switch is None else CachedEntry(switch[1], switch[2], n_work, wrapper, lanes)
 
     @property
     def dispatcher(self):
@@ -264,5 +232,28 @@ class CachedEntry:
         """
         return cache_holds(self.dispatcher, lambda signature: (signature[-1] == types.none) != timed)
 
-    def __call__(self, *arguments):
-        return self.dispatcher(*arguments)
+    def prepare(self, arguments):
+        """Compile (or load) the switched entry point for these batch ``arguments`` (all but
+        ``start, stop``) when some row sets the switch's option: before the batch's clock
+        starts, as `rbstudy.schemes.Scheme.ensure_compiled` does for the plain one.
+
+        Parameters
+        ----------
+        arguments : tuple
+            ``(state0, params, options, h, n_steps, every, drift_bound, samples, results,
+            halt, clock)`` of a batch; ``options`` (B, N_OPTION).
+        """
+        if self._switched is not None and np.any(arguments[2][:, self._slot] != 0.0):
+            compile_ = getattr(self._switched.dispatcher, "compile", None)  # None: numba's JIT off
+            if compile_ is not None:
+                compile_(tuple(numba.typeof(value) for value in (0, 0, *arguments)))
+
+    def __call__(self, start, stop, *arguments):
+        if self._switched is None:
+            return self.dispatcher(start, stop, *arguments)
+        switched = arguments[2][start:stop, self._slot] != 0.0
+        edges = [start, *(start + np.flatnonzero(switched[1:] != switched[:-1]) + 1).tolist(), stop]
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            entry = self._switched if switched[a - start] else self
+            entry.dispatcher(a, b, *arguments)
+        return None
