@@ -10,7 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["rows", "refuse", "symmetric_tensor", "in_principal", "read_files", "file_bindings"]
+__all__ = [
+    "rows",
+    "refuse",
+    "symmetric_tensor",
+    "in_principal",
+    "one_row_if_alike",
+    "read_files",
+    "file_bindings",
+]
 
 
 def rows(vector, size):
@@ -45,6 +53,14 @@ def in_principal(axes, vectors):
         return vectors
     turn = axes.reshape(axes.shape[:1] + (1,) * (vectors.ndim - 2) + (3, 3))
     return (vectors[..., None, :] @ turn)[..., 0, :]
+
+
+def one_row_if_alike(array):
+    """``array`` (n, ...) as one row when every row equals the first (the scenes share it),
+    else as it is (None too): what every scene shares is then computed once, not n times."""
+    if array is None or len(array) <= 1 or not (array == array[:1]).all():
+        return array
+    return array[:1]
 
 
 def read_files(reader, files, key, size, read, what):

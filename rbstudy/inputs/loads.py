@@ -14,7 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.inputs.columns import file_bindings, in_principal, read_files, refuse, rows
+from rbstudy.inputs.columns import (
+    file_bindings,
+    in_principal,
+    one_row_if_alike,
+    read_files,
+    refuse,
+    rows,
+)
 from rbstudy.inputs.load_table import inline_load_table, read_load_file
 from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import KIND, LOAD_KINDS
@@ -35,14 +42,6 @@ def _lever(offsets, forces):
     return product.reshape(product.shape[:-2] + (9,))
 
 
-def _alike(array):
-    """``array`` (n, ...) as one row when every row equals the first (the scenes share it),
-    else as it is: loads tabulated at K knots are then computed once, not n times."""
-    if array is None or len(array) <= 1 or not (array == array[:1]).all():
-        return array
-    return array[:1]
-
-
 def _along(offsets, vectors):
     """``offsets`` (n, 3) shaped to broadcast against ``vectors`` (n, ..., 3)."""
     return offsets.reshape(offsets.shape[:1] + (1,) * (vectors.ndim - 2) + (3,))
@@ -61,8 +60,8 @@ class _Timed:
 
     def at(self, knots):
         """The load (n, K, 3) at ``knots`` (K,); (1, K, 3) when the scenes share it."""
-        values = np.stack([table.at(knots) for table in self.tables])[_alike(self.index)]
-        return values * _alike(self.scale)[:, None, None]
+        values = np.stack([table.at(knots) for table in self.tables])[one_row_if_alike(self.index)]
+        return values * one_row_if_alike(self.scale)[:, None, None]
 
 
 def _read_timed(reader, spec, key, size):
@@ -167,7 +166,7 @@ def _add_nodal_loads(nodal, loads, points, axes):
     lever, evaluated every step by the kernels). Constant and tabulated loads aggregate
     alike (each is linear in the nodal loads)."""
     for key, name, node_spec in nodal:
-        offset = _alike(points[name])
+        offset = one_row_if_alike(points[name])
         for load, value in node_spec.items():
             given = loads.read(value, f"{key}.{load}")
             if load in _IN_BODY_AXES:
@@ -204,12 +203,12 @@ def read_loads(reader, spec, path, points, axes, first_moment, size):
                     lambda row, given=given: f"got {given[row].tolist()}, below 0",
                     f"give values >= 0 ({KIND[name].units}): it only takes energy out",
                 )
-            loads.add(name, in_principal(_alike(axes), given) if name in _IN_BODY_AXES else given)
+            loads.add(name, in_principal(one_row_if_alike(axes), given) if name in _IN_BODY_AXES else given)
     if first_moment is not None:
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
-        first_moment = _alike(first_moment)
+        first_moment = one_row_if_alike(first_moment)
         for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
             loads.add("lever", _lever(first_moment, gravity))
-    _add_nodal_loads(nodal, loads, points, _alike(axes))
+    _add_nodal_loads(nodal, loads, points, one_row_if_alike(axes))
     return loads.columns(), tuple(binding for load in loads.timed.values() for binding in load.files)

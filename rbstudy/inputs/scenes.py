@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
 from rbstudy.inputs.assembly import read_assembly
-from rbstudy.inputs.columns import in_principal, refuse, rows, symmetric_tensor
+from rbstudy.inputs.columns import in_principal, one_row_if_alike, refuse, rows, symmetric_tensor
 from rbstudy.inputs.loads import read_loads
 from rbstudy.inputs.node_table import RESERVED
 from rbstudy.inputs.reader import Reader
@@ -298,10 +298,9 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
 def _shared(column):
     """``column`` (n, ...), or its first row seen n times (a read-only view) when every row is
     that row: the loads, nodes and initial motion a sweep leaves alone took 330 MiB of a
-    million scenes."""
-    if len(column) > 1 and column.strides[0] and (column == column[:1]).all():
-        return np.broadcast_to(column[:1].copy(), column.shape)  # not a view of the whole
-    return column
+    million scenes. A column already seen so (stride 0) is left as it is."""
+    row = one_row_if_alike(column) if column.strides[0] else column
+    return column if row is column else np.broadcast_to(row.copy(), column.shape)  # not a view
 
 
 def scene_from_mapping(spec, source="<scene>", path="scene"):

@@ -164,7 +164,7 @@ STATUSES = (
         "unstable",
         "blew up (a non-finite state, or an energy or |L| drift past 50% for a moment-free body)",
         "take a smaller dt (the stability map shows the dt |w0| where "
-        "it starts), or a scheme that keeps the energy (rbstudy schemes)",
+        "it starts), or a scheme that keeps the energy (`rbstudy schemes` says which)",
     ),
     Status(
         "not_converged",
