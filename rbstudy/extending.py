@@ -3,7 +3,8 @@
     from rbstudy.extending import Scheme, jit, make_entry, state as S, rotation, dynamics
 
 - `Scheme`, `Option`, `Style`: a scheme as the registry sees it, and how the figures draw
-  its lines; register it under the entry-point group ``rbstudy.schemes``.
+  its lines; register it under the entry-point group ``rbstudy.schemes``. `option_slots`:
+  where the registry lays out your options in the option row, for your kernels to read.
   `SchemeUnavailable`: raise it from your module when the scheme cannot run here (a missing
   engine), with the fix.
 - A compiled scheme: single-body kernels ``init(y, p, opt, t, h, work) -> status`` and
@@ -28,12 +29,13 @@ from rbstudy.numerics.clock import later
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
-from rbstudy.schemes import Option, Scheme, SchemeUnavailable, Style
+from rbstudy.schemes import Option, Scheme, SchemeUnavailable, Style, option_slots
 
 __all__ = [
     "Scheme",
     "Option",
     "Style",
+    "option_slots",
     "SchemeUnavailable",
     "jit",
     "make_entry",

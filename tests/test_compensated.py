@@ -149,7 +149,8 @@ def test_increments_of_rotations_are_accurate_to_their_own_size():
 
 @pytest.mark.parametrize("value", [0, 1, True, False, 1.0])
 def test_the_option_takes_a_flag(value):
-    assert get_scheme("rk4").option_row({"compensated": value})[4] == float(value)
+    rk4 = get_scheme("rk4")
+    assert rk4.option_row({"compensated": value})[rk4.slots["compensated"]] == float(value)
 
 
 @pytest.mark.parametrize("value", [2, 0.5, "yes", None])

@@ -72,8 +72,10 @@ def test_changed_code_gets_another_entry_module(tmp_path):
 
         text, name = _module_text(my_kernels.step, my_kernels.step, 0)
         assert "from my_kernels import step as step" in text
-        wrapped, other = _module_text(my_kernels.step, my_kernels.step, 0, my_kernels.step)
-        assert "return wrapper(stage, y, p, opt, t, h, work)" in wrapped and other != name
+        wrapped, other = _module_text(my_kernels.step, my_kernels.step, 0, (my_kernels.step, 3))
+        assert "return wrapper(stage, 3, y, p, opt, t, h, work)" in wrapped and other != name
+        # the wrapper's option at another slot of the row: another module
+        assert _module_text(my_kernels.step, my_kernels.step, 0, (my_kernels.step, 0))[1] != other
         assert _module_text(my_kernels.step, my_kernels.step, 3)[1] != name  # other work size
         kernels.write_text(source + "# an edit\n")
         assert _module_text(my_kernels.step, my_kernels.step, 0)[1] != name  # edited kernels

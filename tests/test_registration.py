@@ -7,11 +7,11 @@ import importlib.metadata
 import pytest
 
 from rbstudy.numerics.state import N_OPTION
-from rbstudy.schemes import BUILTIN, Option
+from rbstudy.schemes import BUILTIN, Option, option_slots
 from rbstudy.schemes import _plugins as plugins
 
 
-def _option(name, slot, width=1):
+def _option(name, slot=None, width=1):
     return Option(
         name=name,
         default=0.5,
@@ -26,13 +26,28 @@ def _register(*options):
     return dataclasses.replace(BUILTIN["hht"], name="twin", options=options)
 
 
+def test_the_registry_lays_out_each_scheme_s_options_in_the_order_it_declares_them():
+    """Each option at the first free run of its width; composition and compensated, shared
+    by several schemes, sit where each scheme's layout puts them, and its row holds each
+    value where its kernels read it (a composition at another slot would run as order 2)."""
+    assert dict(option_slots([_option("a", width=3), _option("b"), _option("c")])) == {"a": 0, "b": 3, "c": 4}
+    assert dict(BUILTIN["splitting"].slots) == {"axis_order": 0, "composition": 3, "compensated": 4}
+    assert dict(BUILTIN["midpoint"].slots) == {"composition": 0, "compensated": 1}
+    assert dict(BUILTIN["hht"].slots) == {"alpha": 0, "compensated": 1}
+    row = BUILTIN["no_squish"].option_row({"axis_order": "312", "composition": 6, "compensated": 1})
+    assert row.tolist() == [2.0, 0.0, 1.0, 6.0, 1.0]
+    # a pinned slot (a plug-in written before the registry allocated them) is kept, and the
+    # others fill around it
+    assert dict(option_slots([_option("a"), _option("b", slot=0)])) == {"b": 0, "a": 1}
+
+
 def test_two_options_on_one_slot_are_refused_at_registration():
-    """hht reads alpha at slot 0: an option sharing it would read alpha's value as its own."""
+    """An option pinned where another sits would read the other's value as its own."""
     with pytest.raises(ValueError) as caught:
         _register(_option("alpha", 0), _option("axis_order", 0, width=3))
     assert str(caught.value) == (
-        "scheme 'twin': options 'alpha' and 'axis_order' both claim "
-        "slot 0 of the option row; move one to a free slot"
+        "scheme 'twin': options 'alpha' and 'axis_order' both claim slot 0 of the option row; "
+        "leave out the slot and the registry lays out the row"
     )
     with pytest.raises(ValueError, match="'axis_order' and 'composition' both claim slot 2"):
         _register(_option("axis_order", 0, width=3), _option("composition", 2))
@@ -43,13 +58,14 @@ def test_an_option_outside_the_row_or_wider_than_declared_is_refused():
     with pytest.raises(ValueError) as caught:
         _register(_option("composition", N_OPTION))
     assert str(caught.value) == (
-        f"scheme 'twin': option 'composition' takes slots {N_OPTION}-"
-        f"{N_OPTION} of a row of {N_OPTION}; give it a slot from 0 to "
-        f"{N_OPTION - 1}"
+        f"scheme 'twin': option 'composition' takes slots {N_OPTION}-{N_OPTION} of a row of "
+        f"{N_OPTION}; leave out the slot and the registry lays out the row"
     )
-    packs_two = dataclasses.replace(_option("axis_order", 0), parse=lambda value: (1.0, 2.0))
+    packs_two = dataclasses.replace(_option("axis_order"), parse=lambda value: (1.0, 2.0))
     with pytest.raises(ValueError, match="packs 2 values into a width of 1; declare width=2"):
         _register(packs_two)
+    with pytest.raises(ValueError, match="no 3 free slots left for option 'c' in a row of 5"):
+        _register(_option("a", width=2), _option("b"), _option("c", width=3))
 
 
 def test_rbstudy_s_engine_schemes_are_its_own_entry_points():

@@ -60,7 +60,7 @@ from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.loads import END_SLOT, FIRST_SLOT, LOAD_KINDS
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes._plugins import SchemeUnavailable
-from rbstudy.schemes._registry import Option, Scheme, Style
+from rbstudy.schemes._registry import Option, Scheme, Style, option_slots
 
 __all__ = ["GENALPHA", "RK44", "MIDPOINT"]
 
@@ -99,11 +99,15 @@ SPECTRAL_RADIUS_OPTION = Option(
     name="spectral_radius",
     default=SPECTRAL_RADIUS,
     description="Exudyn's spectralRadius of generalized alpha, in [0, 1); lower damps more",
-    slot=0,
     parse=_parse_spectral_radius,
     long_name="generalized-alpha spectral radius at infinity",
     units="1",
 )
+
+
+# where the generalized-alpha schemes read the option (the registry's layout, `option_slots`);
+# the others, which have no options, read the 0 of an empty row there and never use it
+_SPECTRAL_RADIUS = option_slots((SPECTRAL_RADIUS_OPTION,))["spectral_radius"]
 
 
 def _settings(solver_type, h, spectral_radius):
@@ -310,7 +314,7 @@ def _starter(kind, name):
         bodies = _bodies()
         bodies.clear()
         for k, node in enumerate(kind.node(y)):
-            bodies.append(_Body(kind, node, p[k], h, float(opt[k, 0])))
+            bodies.append(_Body(kind, node, p[k], h, float(opt[k, _SPECTRAL_RADIUS])))
         work[:, _ID] = np.arange(len(y))
         return OK
 

@@ -555,9 +555,10 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
         Its start.
     n_work : int
         Floats of work per body.
-    wrapper : compiled kernel, optional
-        An inlined kernel that takes the step first (a composition): the scheme steps with
-        ``wrapper(step, ...)``.
+    wrapper : tuple ``(kernel, slot)``, optional
+        An inlined kernel that takes the step and the slot of its option in the option row
+        first (a composition): the scheme steps with ``kernel(step, slot, y, p, opt, t, h,
+        work)``.
     lanes : int
         Bodies side by side (`integrate_rows_inplace`): 2 pays for cheap explicit steps, whose
         time is latency; a costlier step loses 5-12% to it, and compiles its step twice.

@@ -66,12 +66,14 @@ _SECOND_LANE = {
     2: "second_step, second_init = step, init",
 }
 # The step of a scheme whose kernel is wrapped (a composition of its symmetric step): the
-# wrapper takes the kernel as its first argument and is inlined, so the step caches too.
+# wrapper takes the kernel and the slot of its option as its first arguments and is inlined,
+# so the step caches too, and the slot is a constant of the step (a layout of the option row
+# of its own makes a module of its own).
 _WRAPPED_STEP = """
 
 @jit
 def {step}(y, p, opt, t, h, work):
-    return wrapper({stage}, y, p, opt, t, h, work)
+    return wrapper({stage}, {slot}, y, p, opt, t, h, work)
 """
 
 
@@ -124,7 +126,9 @@ def _defined(kernel):
 def _module_text(step, init, n_work, wrapper=None, lanes=1):
     """The generated module's text and a digest naming it."""
     kernels = (
-        {"step": step, "init": init} if wrapper is None else {"stage": step, "init": init, "wrapper": wrapper}
+        {"step": step, "init": init}
+        if wrapper is None
+        else {"stage": step, "init": init, "wrapper": wrapper[0]}
     )
     defined = {alias: _defined(kernel) for alias, kernel in kernels.items()}
     text = _TEMPLATE.format(
@@ -135,7 +139,9 @@ def _module_text(step, init, n_work, wrapper=None, lanes=1):
         n_work=int(n_work),
         lanes=int(lanes),
         second=_SECOND_LANE[lanes],
-        wrapped="" if wrapper is None else _WRAPPED_STEP.format(step="step", stage="stage"),
+        wrapped=""
+        if wrapper is None
+        else _WRAPPED_STEP.format(step="step", stage="stage", slot=int(wrapper[1])),
         body=_RUN_ROWS,
     )
     digest = hashlib.sha256((text + SOURCE_DIGEST).encode())
@@ -183,8 +189,9 @@ class CachedEntry:
     options, h, n_steps, every, drift_bound, samples, results, halt, clock)`` over the rows
     [start, stop) of a batch (`rbstudy.numerics.driver.run_rows`), from the generated module
     of its kernels, imported on first use. Calls and ``signatures`` are those of the numba
-    dispatcher. With a ``wrapper`` (an inlined kernel ``wrapper(step, y, p, opt, t, h,
-    work)``, a composition), the scheme's step is ``step`` wrapped in it.
+    dispatcher. With a ``wrapper`` ``(kernel, slot)`` (an inlined kernel ``kernel(step, slot,
+    y, p, opt, t, h, work)`` that reads its option at ``slot`` of ``opt``, a composition), the
+    scheme's step is ``step`` wrapped in it.
 
     With a ``switch`` ``(slot, step, init)``, the rows whose option at ``slot`` is nonzero run
     those kernels instead (wrapped alike), from an entry point of their own: each run of

@@ -28,7 +28,7 @@ from rbstudy.schemes._plugins import (
     load_plugins,
 )
 from rbstudy.schemes._ready import get_ready
-from rbstudy.schemes._registry import INVARIANTS, Option, Scheme, Style
+from rbstudy.schemes._registry import INVARIANTS, Option, Scheme, Style, option_slots
 
 __all__ = [
     "SCHEMES",
@@ -47,6 +47,7 @@ __all__ = [
     "expand_groups",
     "scheme_styles",
     "Style",
+    "option_slots",
 ]
 
 

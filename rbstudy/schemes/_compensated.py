@@ -14,9 +14,6 @@ from rbstudy.schemes._registry import Option
 
 __all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 
-# The slot after `composition` (3) and `axis_order` (0-2): free in every scheme that offers it.
-_SLOT = 4
-
 
 def _parse_compensated(value):
     if value not in (0, 1):  # True and False compare equal to 1 and 0
@@ -31,14 +28,14 @@ COMPENSATED = Option(
         "1: add each step's increments with compensated summation (Kahan), so that a long run "
         "rounds like its increments, dt times finer; 0: plain sums"
     ),
-    slot=_SLOT,
     parse=_parse_compensated,
     long_name="compensated summation of the state updates",
     units="1",
 )
 
 
-def switch(step, init):
+def switch(step, init, slots):
     """The ``switch`` of `rbstudy.numerics.driver.make_entry` that runs the bodies whose
-    option ``compensated`` is set with the compensated kernels ``step`` and ``init``."""
-    return (_SLOT, step, init)
+    option ``compensated`` is set with the compensated kernels ``step`` and ``init``; ``slots``
+    is the scheme's layout of its option row (`rbstudy.schemes.option_slots`)."""
+    return (slots[COMPENSATED.name], step, init)

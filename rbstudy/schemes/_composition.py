@@ -88,8 +88,6 @@ def _stage_table():
 
 _STAGES, _STAGE_COUNT = _stage_table()
 
-_SLOT = 3
-
 
 def _parse_composition(value):
     if isinstance(value, bool) or value not in ORDERS:
@@ -107,7 +105,6 @@ COMPOSITION = Option(
         "order of a symmetric composition of the step: 4 (triple jump, 3 stages), 6 (Kahan-Li, "
         "9 stages) or 8 (Kahan-Li, 17 stages); 2 is the step itself"
     ),
-    slot=_SLOT,
     parse=_parse_composition,
     sets_order=True,
     cost=lambda order: len(stage_weights(order)),
@@ -122,13 +119,13 @@ COMPOSITION = Option(
 # call, which cost the plain step 8-12% of its speed (rbstudy bench: splitting 5.7e6 ->
 # 5.2e6 body-steps/s, midpoint 6.9e6 -> 6.0e6).
 @inline_jit
-def composed_step(step, y, p, opt, t, h, work):
+def composed_step(step, slot, y, p, opt, t, h, work):
     """Advance state row ``y`` (N_STATE,) by ``h`` with the composition of ``step`` (a compiled
-    symmetric step ``step(y, p, opt, t, h, work)``) that option ``composition`` in
-    ``opt`` (N_OPTION,) asks for (the default 0, and 2: the step itself). Returns ``(status,
-    Newton iterations summed over the stages)``; a stage that fails ends the step with its
-    status."""
-    order = int(opt[_SLOT])
+    symmetric step ``step(y, p, opt, t, h, work)``) that option ``composition``, at ``slot``
+    of ``opt`` (N_OPTION,), asks for (the default 0, and 2: the step itself). Returns
+    ``(status, Newton iterations summed over the stages)``; a stage that fails ends the step
+    with its status."""
+    order = int(opt[slot])
     if order <= 2:
         return step(y, p, opt, t, h, work)
     iterations = 0
@@ -143,8 +140,9 @@ def composed_step(step, y, p, opt, t, h, work):
     return OK, iterations
 
 
-def composed_entry(symmetric_step, init, n_work, switch=None):
+def composed_entry(symmetric_step, init, n_work, slot, switch=None):
     """The entry point (`rbstudy.numerics.driver.make_entry`) of a scheme whose step is its
-    ``symmetric_step`` composed as option ``composition`` asks (`composed_step`); a
-    ``switch``'s step is composed alike."""
-    return make_entry(symmetric_step, init, n_work, wrapper=composed_step, switch=switch)
+    ``symmetric_step`` composed as option ``composition``, at ``slot`` of the scheme's option
+    row (`rbstudy.schemes.option_slots`), asks (`composed_step`); a ``switch``'s step is
+    composed alike."""
+    return make_entry(symmetric_step, init, n_work, wrapper=(composed_step, slot), switch=switch)

@@ -5,6 +5,7 @@ import math
 import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -13,7 +14,7 @@ from numba import types
 from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
 
-__all__ = ["Option", "Scheme", "Style", "INVARIANTS"]
+__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "option_slots"]
 
 INVARIANTS = S.INVARIANTS
 
@@ -23,11 +24,11 @@ class Option:
     """A scheme option: its default, what it means, and how it is packed for the kernel.
 
     ``parse(value) -> tuple of floats`` validates a user value and returns the ``width`` floats
-    stored at ``slot`` onward in the body's option row; it raises ``ValueError`` with the
-    expectation. The slot is the option's own, not the scheme's: a kernel reads it as a
-    constant, and an option shared by several schemes (``composition``) is read by one
-    compiled function at one slot in all of them. The registry checks the layout when a
-    scheme is registered (`Scheme`): every option inside the row, no two on one slot.
+    stored in the body's option row; it raises ``ValueError`` with the expectation. Where they
+    are stored is the registry's choice, not the option's: `option_slots` lays out a scheme's
+    row from its options, and the scheme's kernels read the slots it gives as constants.
+    ``slot`` pins an option to a slot instead (a plug-in written before the registry
+    allocated them); the registry checks it like its own layout.
     ``sets_order``: the option's value is the scheme's nominal order (a composition).
     ``cost(value)``: how many plain steps one step takes with that value (the stages of a
     composition); None for an option that does not change the cost. ``long_name`` (at most
@@ -39,18 +40,17 @@ class Option:
     name: str
     default: Any
     description: str
-    slot: int
-    parse: Callable[[Any], tuple]
+    slot: int | None = None
+    parse: Callable[[Any], tuple] | None = None
     sets_order: bool = False
     cost: Callable[[Any], int] | None = None
     long_name: str = ""
     units: str | None = None
     width: int = 1
 
-    @property
-    def slots(self):
-        """The slots of the option row the option fills."""
-        return range(self.slot, self.slot + self.width)
+    def __post_init__(self):
+        if self.parse is None:
+            raise TypeError(f"option {self.name!r}: give parse(value) -> tuple of floats")
 
 
 class Style(NamedTuple):
@@ -91,6 +91,8 @@ class Scheme:
     loads_held : takes the loads at each step's start and holds them over the step, as a
         caller hands loads to an engine (docs/engines.md): under a moment it is then of
         order 1 at most, whatever its integrator's order.
+    slots : where its kernels read each option: name -> first slot of the (N_OPTION,) row,
+        as `option_slots` lays it out from ``options`` (set on registering).
     """
 
     name: str
@@ -107,6 +109,7 @@ class Scheme:
     origin: str = "rbstudy"
     code_digest: str | None = None
     loads_held: bool = False
+    slots: Mapping = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         unknown = set(self.keeps) - set(INVARIANTS)
@@ -119,7 +122,8 @@ class Scheme:
                 "give the core-seconds per body-step `rbstudy bench` measures, "
                 "a number above 0"
             )
-        _check_option_slots(self.name, self.options)
+        # frozen: set once, here, from the options (the same layout the scheme's file computes)
+        object.__setattr__(self, "slots", option_slots(self.options, self.name))
 
     def nominal_order(self, values: Mapping | None = None) -> int:
         """The nominal order with options ``values``: that of an option that sets it (a
@@ -154,7 +158,8 @@ class Scheme:
                 raise SchemeError(
                     f"scheme {self.name!r} option {option.name!r}: got {value!r}", one_line(exc)
                 ) from None
-            row[option.slot : option.slot + len(packed)] = packed
+            start = self.slots[option.name]
+            row[start : start + len(packed)] = packed
         return row
 
     def is_cached(self, timed: bool = False) -> bool:
@@ -200,30 +205,76 @@ class Scheme:
         )
 
 
-def _check_option_slots(scheme, options):
-    """Refuse, in one line, an option layout a kernel would misread: an option outside the
-    row of `N_OPTION` slots, one whose default packs more or fewer floats than its width, or
-    two options on one slot (each would read the other's value)."""
-    holders = {}
+def option_slots(options, scheme="this scheme"):
+    """Lay out a scheme's option row: the first slot of each of its ``options``.
+
+    An option that pins its ``slot`` keeps it; the others, in the order given, take the first
+    run of ``width`` free slots. The layout depends on nothing but the options and their
+    order, so a scheme file computes it once (``SLOTS = option_slots(OPTIONS)``) and its
+    kernels read the slots as compile-time constants, and numba's cache, keyed on the sources,
+    never holds a kernel that reads another layout. An option shared by several schemes
+    (``composition``, ``compensated``) may sit at another slot in each; its compiled readers
+    take the slot from the scheme (`rbstudy.schemes._composition.composed_entry`).
+
+    Parameters
+    ----------
+    options : sequence of Option
+        The scheme's options, in the order it declares them.
+    scheme : str
+        The scheme's name, for the errors.
+
+    Returns
+    -------
+    mapping of str to int
+        Option name -> its first slot of the (N_OPTION,) row; it fills ``width`` slots.
+
+    Raises
+    ------
+    ValueError
+        In one line: a row of `N_OPTION` slots too short for the options, a pinned slot
+        outside it or claimed twice (each option would read the other's value), or a default
+        that packs more or fewer floats than the option's width.
+    """
+    holders = [None] * S.N_OPTION
+    slots = {}
+
+    def claim(option, start):
+        for k in range(start, start + option.width):
+            if holders[k] is not None:
+                raise ValueError(
+                    f"scheme {scheme!r}: options {holders[k]!r} and {option.name!r} both claim "
+                    f"slot {k} of the option row; leave out the slot and the registry lays out the row"
+                )
+            holders[k] = option.name
+        slots[option.name] = start
+
     for option in options:
-        if option.slot < 0 or option.slot + option.width > S.N_OPTION:
-            raise ValueError(
-                f"scheme {scheme!r}: option {option.name!r} takes slots "
-                f"{option.slot}-{option.slot + option.width - 1} of a row of "
-                f"{S.N_OPTION}; give it a slot from 0 to "
-                f"{S.N_OPTION - option.width}"
-            )
         packed = len(option.parse(option.default))
         if packed != option.width:
             raise ValueError(
                 f"scheme {scheme!r}: option {option.name!r} packs {packed} "
                 f"values into a width of {option.width}; declare width={packed}"
             )
-        for slot in option.slots:
-            if slot in holders:
-                raise ValueError(
-                    f"scheme {scheme!r}: options {holders[slot]!r} and "
-                    f"{option.name!r} both claim slot {slot} of the option row; "
-                    "move one to a free slot"
-                )
-            holders[slot] = option.name
+    for option in (option for option in options if option.slot is not None):
+        if not 0 <= option.slot <= S.N_OPTION - option.width:
+            raise ValueError(
+                f"scheme {scheme!r}: option {option.name!r} takes slots "
+                f"{option.slot}-{option.slot + option.width - 1} of a row of {S.N_OPTION}; "
+                "leave out the slot and the registry lays out the row"
+            )
+        claim(option, option.slot)
+    for option in (option for option in options if option.slot is None):
+        free = (
+            start
+            for start in range(S.N_OPTION - option.width + 1)
+            if all(holder is None for holder in holders[start : start + option.width])
+        )
+        start = next(free, None)
+        if start is None:
+            raise ValueError(
+                f"scheme {scheme!r}: no {option.width} free slots left for option "
+                f"{option.name!r} in a row of {S.N_OPTION}; the options fill "
+                f"{sum(o.width for o in options)} slots"
+            )
+        claim(option, start)
+    return MappingProxyType(slots)

@@ -26,7 +26,6 @@ AXIS_ORDER = Option(
         "order of the free sub-flows 'abc' in T_a(h/2) T_b(h/2) T_c(h) T_b(h/2) T_a(h/2); "
         "it changes the error constant a lot (Fasso 2003)"
     ),
-    slot=0,
     width=3,
     parse=_parse_axis_order,
     long_name="order of the axes' free sub-flows",  # a label such as "213": no units
@@ -34,8 +33,8 @@ AXIS_ORDER = Option(
 
 
 @jit
-def flow_sequence(opt):
-    """The step's sub-flows as ``(axis k, fraction of h)`` pairs, for the axis order packed in
-    the option row ``opt`` (N_OPTION,) by `AXIS_ORDER`."""
-    a, b, c = int(opt[0]), int(opt[1]), int(opt[2])
+def flow_sequence(opt, slot):
+    """The step's sub-flows as ``(axis k, fraction of h)`` pairs, for the axis order packed
+    from ``slot`` on in the option row ``opt`` (N_OPTION,) by `AXIS_ORDER`."""
+    a, b, c = int(opt[slot]), int(opt[slot + 1]), int(opt[slot + 2])
     return ((a, 0.5), (b, 0.5), (c, 1.0), (b, 0.5), (a, 0.5))

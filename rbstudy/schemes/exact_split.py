@@ -28,9 +28,13 @@ from rbstudy.numerics.rotation import quat_normalize, read3, read4, write3, writ
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import drift_inplace, kick_inplace
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 
 N_WORK = 0
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (COMPOSITION,)
+_SLOTS = option_slots(_OPTIONS)
 
 
 @inline_jit
@@ -53,8 +57,8 @@ SCHEME = Scheme(
     order=2,
     implicit=False,
     keeps=("energy", "momentum_vector"),
-    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK),
+    run_bodies_inplace=composed_entry(symmetric_step, init_nothing, N_WORK, _SLOTS["composition"]),
     reference="Celledoni, Fasso, Safstrom & Zanna, SIAM J. Sci. Comput. 30 (2008) 2084",
-    options=(COMPOSITION,),
+    options=_OPTIONS,
     style=Style("tab:cyan", "v", "-"),
 )

@@ -67,7 +67,7 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
-from rbstudy.schemes._registry import Option, Scheme, Style
+from rbstudy.schemes._registry import Option, Scheme, Style, option_slots
 
 # work: body angular acceleration A_n (3), translational acceleration a_n (3), then the carry
 # of the compensated sums
@@ -89,11 +89,15 @@ ALPHA = Option(
     name="alpha",
     default=0.0,
     description="HHT numerical dissipation, in [-1/3, 0]; 0 is trapezoidal Newmark (no damping)",
-    slot=0,
     parse=_parse_alpha,
     long_name="HHT numerical dissipation alpha",
     units="1",
 )
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (ALPHA, COMPENSATED)
+_SLOTS = option_slots(_OPTIONS)
+_ALPHA = _SLOTS["alpha"]
 
 
 @jit
@@ -116,7 +120,7 @@ def init_inplace(y, p, opt, t, h, work):
 def advance(y, p, opt, t, h, work, compensated):
     """One step (module docstring), its updates added as increments with compensation when
     ``compensated`` (a constant where it is inlined, so each kernel keeps one of the two)."""
-    alpha = opt[0]
+    alpha = opt[_ALPHA]
     gamma = 0.5 - alpha
     beta = 0.25 * (1.0 - alpha) ** 2
     inertia_ = inertia(p)
@@ -203,9 +207,9 @@ SCHEME = Scheme(
     implicit=True,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_inplace, N_WORK, switch=switch(compensated_step_inplace, init_inplace)
+        step_inplace, init_inplace, N_WORK, switch=switch(compensated_step_inplace, init_inplace, _SLOTS)
     ),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
-    options=(ALPHA, COMPENSATED),
+    options=_OPTIONS,
     style=Style("tab:brown", "D", "-"),
 )

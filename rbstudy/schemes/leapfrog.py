@@ -39,11 +39,15 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 
 # work: the carry of the compensated sums
 _CARRY = 0
 N_WORK = _CARRY + CARRY_WIDTH
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (COMPENSATED,)
+_SLOTS = option_slots(_OPTIONS)
 
 
 @jit
@@ -77,10 +81,14 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_nothing, N_WORK, lanes=2, switch=switch(compensated_step_inplace, init_nothing)
+        step_inplace,
+        init_nothing,
+        N_WORK,
+        lanes=2,
+        switch=switch(compensated_step_inplace, init_nothing, _SLOTS),
     ),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
-    options=(COMPENSATED,),
+    options=_OPTIONS,
     # dashed over euler's solid line: their curves coincide on a symmetric top
     style=Style("tab:orange", "s", "--"),
 )

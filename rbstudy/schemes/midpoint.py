@@ -54,11 +54,15 @@ from rbstudy.schemes._kicks import (
     kick_inplace,
 )
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 
 # work: the carry of the compensated sums
 _CARRY = 0
 N_WORK = _CARRY + CARRY_WIDTH
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (COMPOSITION, COMPENSATED)
+_SLOTS = option_slots(_OPTIONS)
 
 
 @jit
@@ -139,9 +143,13 @@ SCHEME = Scheme(
     implicit=True,
     keeps=("energy", "momentum_vector"),
     run_bodies_inplace=composed_entry(
-        symmetric_step, init_nothing, N_WORK, switch=switch(compensated_step, init_nothing)
+        symmetric_step,
+        init_nothing,
+        N_WORK,
+        _SLOTS["composition"],
+        switch=switch(compensated_step, init_nothing, _SLOTS),
     ),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
-    options=(COMPOSITION, COMPENSATED),
+    options=_OPTIONS,
     style=Style("tab:purple", "^", "-."),
 )

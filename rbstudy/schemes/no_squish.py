@@ -46,7 +46,7 @@ from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_entry
 from rbstudy.schemes._kicks import compensated_drift_inplace, drift_inplace
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
 # work: conjugate momentum P (4), then the carries of the compensated sums: the state's
@@ -54,6 +54,11 @@ from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 _MOMENTUM, _CARRY = 0, 4
 _MOMENTUM_CARRY = _CARRY + CARRY_WIDTH
 N_WORK = _MOMENTUM_CARRY + 4
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (AXIS_ORDER, COMPOSITION, COMPENSATED)
+_SLOTS = option_slots(_OPTIONS)
+_AXES = _SLOTS["axis_order"]
 
 
 @jit
@@ -119,7 +124,7 @@ def compensated_step(y, p, opt, t, h, work):
     carry of its own in ``work``."""
     inertia_ = inertia(p)
     compensated_kick_inplace(y, p, t, 0.5 * h, work)
-    for k, fraction in flow_sequence(opt):
+    for k, fraction in flow_sequence(opt, _AXES):
         q, momentum = read4(y, S.QUATERNION), read4(work, _MOMENTUM)
         zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
         d = fraction * h
@@ -146,7 +151,7 @@ def symmetric_step(y, p, opt, t, h, work):
     inertia_ = inertia(p)
     momentum = kick_inplace(y, p, read4(work, 0), t, 0.5 * h)
     q = read4(y, S.QUATERNION)
-    for k, fraction in flow_sequence(opt):
+    for k, fraction in flow_sequence(opt, _AXES):
         q, momentum = axis_flow(q, momentum, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, q)
     drift_inplace(y, h)
@@ -164,10 +169,14 @@ SCHEME = Scheme(
     implicit=False,
     keeps=("momentum_vector",),
     run_bodies_inplace=composed_entry(
-        symmetric_step, init_inplace, N_WORK, switch=switch(compensated_step, init_inplace)
+        symmetric_step,
+        init_inplace,
+        N_WORK,
+        _SLOTS["composition"],
+        switch=switch(compensated_step, init_inplace, _SLOTS),
     ),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
-    options=(AXIS_ORDER, COMPOSITION, COMPENSATED),
+    options=_OPTIONS,
     # dashed over splitting's solid line: their curves coincide on a symmetric top
     style=Style("tab:olive", "P", "--"),
 )

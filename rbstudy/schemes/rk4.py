@@ -31,12 +31,16 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
 
 # work: the carry of the compensated sums
 _CARRY = 0
 N_WORK = _CARRY + CARRY_WIDTH
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (COMPENSATED,)
+_SLOTS = option_slots(_OPTIONS)
 
 
 @jit
@@ -98,10 +102,10 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing, _SLOTS)
     ),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
-    options=(COMPENSATED,),
+    options=_OPTIONS,
     # solid under rkmk4's dashed line: their curves coincide on a symmetric top
     style=Style("tab:red", "o", "-"),
 )

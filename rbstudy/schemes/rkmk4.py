@@ -45,12 +45,16 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 from rbstudy.schemes._rk import rk4_sum3
 
 # work: the carry of the compensated sums
 _CARRY = 0
 N_WORK = _CARRY + CARRY_WIDTH
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (COMPENSATED,)
+_SLOTS = option_slots(_OPTIONS)
 
 
 @jit
@@ -121,10 +125,10 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing)
+        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing, _SLOTS)
     ),
     reference="Munthe-Kaas, BIT 38 (1998) 92; Iserles et al., Acta Numerica 9 (2000) 215",
-    options=(COMPENSATED,),
+    options=_OPTIONS,
     # dashed over the solid lines of rk4 and exudyn_rk44, whose curves coincide with its own
     style=Style("tab:pink", "X", "--"),
 )

@@ -46,12 +46,17 @@ from rbstudy.schemes._kicks import (
     drift_inplace,
     kick_inplace,
 )
-from rbstudy.schemes._registry import Scheme, Style
+from rbstudy.schemes._registry import Scheme, Style, option_slots
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
 
 # work: the carry of the compensated sums
 _CARRY = 0
 N_WORK = _CARRY + CARRY_WIDTH
+
+# the option row as the registry lays it out (`option_slots`): where the kernels read each option
+_OPTIONS = (AXIS_ORDER, COMPOSITION, COMPENSATED)
+_SLOTS = option_slots(_OPTIONS)
+_AXES = _SLOTS["axis_order"]
 
 
 @jit
@@ -97,7 +102,7 @@ def compensated_step(y, p, opt, t, h, work):
     """`symmetric_step` with every increment added with compensation."""
     compensated_kick_inplace(y, p, t, 0.5 * h, work, _CARRY)
     inertia_ = inertia(p)
-    for k, fraction in flow_sequence(opt):
+    for k, fraction in flow_sequence(opt, _AXES):
         compensated_axis_flow_inplace(y, inertia_, k, fraction * h, work)
     normalize_inplace(y, work, _CARRY)
     compensated_drift_inplace(y, h, work, _CARRY)
@@ -112,7 +117,7 @@ def symmetric_step(y, p, opt, t, h, work):
     inertia_ = inertia(p)
     q = read4(y, S.QUATERNION)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
-    for k, fraction in flow_sequence(opt):
+    for k, fraction in flow_sequence(opt, _AXES):
         q, m = axis_flow(q, m, inertia_, k, fraction * h)
     write4(y, S.QUATERNION, quat_normalize(q))
     write3(y, S.OMEGA, to_omega(m, inertia_))
@@ -129,10 +134,14 @@ SCHEME = Scheme(
     implicit=False,
     keeps=("momentum_vector",),
     run_bodies_inplace=composed_entry(
-        symmetric_step, init_nothing, N_WORK, switch=switch(compensated_step, init_nothing)
+        symmetric_step,
+        init_nothing,
+        N_WORK,
+        _SLOTS["composition"],
+        switch=switch(compensated_step, init_nothing, _SLOTS),
     ),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
-    options=(AXIS_ORDER, COMPOSITION, COMPENSATED),
+    options=_OPTIONS,
     # solid under no_squish's dashed line: their curves coincide on a symmetric top
     style=Style("tab:green", "o", "-"),
 )
