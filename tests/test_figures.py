@@ -2,12 +2,15 @@
 shrunk: two schemes, at most three values per axis, a short run), the report shows the
 summary's table, and the shipped convergence study shows the nominal orders."""
 
+import itertools
+import math
 import pathlib
 import re
 
 import pytest
 import yaml
 from conftest import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, copy_node_tables
+from matplotlib.colors import to_rgb
 
 from rbstudy.analysis.plots import all_figures, convergence
 from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows, table_columns
@@ -232,6 +235,12 @@ def test_every_scheme_registers_a_style_of_its_own():
         # curves that coincide: another marker and another dash, so that both show
         assert styles[a][1:] != styles[b][1:]
         assert styles[a].dash != styles[b].dash
+    # two lines of one dash are told apart by their colours: exudyn_rk44's crimson and rk4's
+    # red, both solid, were 0.10 apart and read as one scheme
+    for (a, style_a), (b, style_b) in itertools.combinations(styles.items(), 2):
+        if style_a.dash == style_b.dash:
+            distance = math.dist(to_rgb(style_a.color), to_rgb(style_b.color))
+            assert distance >= 0.2, (a, b, distance)
 
 
 def test_a_scheme_without_a_style_gets_one_no_other_line_of_the_study_wears():
@@ -511,3 +520,26 @@ def test_lines_coincide_when_every_point_agrees_to_three_digits():
         ]
     )
     assert _coincident(errors) == [[0, 1], [2], [3], [4]]
+
+
+@pytest.mark.parametrize("span", [(0.0116, 0.046), (0.0056, 0.028), (1.02, 1.4), (1e-15, 1e-1)])
+def test_every_log_tick_reads_as_its_value(span):
+    """Under a decade matplotlib fell back to linear ticks at 0.015, 0.025, ..., which the
+    labels rounded to "2x10^-2" twice: a tick must read as its own value (to 3 digits)."""
+    import matplotlib.pyplot as plt
+
+    from rbstudy.analysis.plots import _log_labels
+
+    fig, ax = plt.subplots()
+    ax.set_xscale("log")
+    ax.set_xlim(*span)
+    _log_labels(fig)
+    fig.canvas.draw()
+    shown = [(tick.get_loc(), tick.label1.get_text()) for tick in ax.xaxis.get_major_ticks()]
+    shown = [(at, text) for at, text in shown if span[0] <= at <= span[1]]
+    plt.close(fig)
+    assert len(shown) >= 2
+    for at, text in shown:
+        match = re.fullmatch(r"\$(?:([\d.]+)\\times)?10\^\{(-?\d+)\}\$", text)
+        value = float(match[1] or 1) * 10.0 ** int(match[2])
+        assert value == pytest.approx(at, rel=5e-3), (at, text)

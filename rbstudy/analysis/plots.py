@@ -105,8 +105,14 @@ REFERENCE_ORDERS = (1, 2, 4)
 GUIDE_STEPS = 3
 GUIDE_CLEARANCE = 0.5
 GUIDE_GRID = 0.125
-# Inches beside the panels for a figure's legend of scheme names and fitted orders.
+# Inches beside the panels for a figure's legend of scheme names and fitted orders, as
+# `_grid` reserves them; `_figure_legend` then sets the legend's own width, at most
+# LEGEND_MAX_WIDTH inches (longer labels wrap). LEGEND_FRAME_EM: the handles, the gap to the
+# text and the frame, in em of the legend's font; LEGEND_LINE_EM: the height of a line of it.
 LEGEND_WIDTH = 3.4
+LEGEND_MAX_WIDTH = 4.6
+LEGEND_FRAME_EM = 7.0
+LEGEND_LINE_EM = 1.75
 # Inches per scheme row of the stability strip chart.
 STRIP_ROW_HEIGHT = 0.32
 # A swept parameter spanning more than this ratio gets a log axis in the stability map.
@@ -251,10 +257,14 @@ def _worst(da, reduced):
 
 
 def _power_of_ten(value, _position=None):
-    """``10^{-2}`` or ``2x10^{-3}`` in mathtext: the tick label of a log axis."""
+    """``10^{-2}``, ``2x10^{-3}`` or ``1.5x10^{-2}`` in mathtext: the tick label of a log
+    axis, its mantissa to three digits, so that no tick reads as a value it is not (a tick
+    at 0.015 once read "2x10^{-2}")."""
     exponent = int(np.floor(np.log10(value) + 1e-9))
-    mantissa = round(value / 10.0**exponent)
-    return f"$10^{{{exponent}}}$" if mantissa == 1 else f"${mantissa}\\times10^{{{exponent}}}$"
+    mantissa = float(f"{value / 10.0**exponent:.3g}")
+    if mantissa == 1:
+        return f"$10^{{{exponent}}}$"
+    return f"${mantissa:g}\\times10^{{{exponent}}}$"
 
 
 def _log_labels(fig):
@@ -265,11 +275,14 @@ def _log_labels(fig):
         for axis, scale in ((ax.xaxis, ax.get_xscale()), (ax.yaxis, ax.get_yscale())):
             if scale == "log":
                 low, high = axis.get_view_interval()
-                # under two decades shown: ticks at 1, 2 and 5 of each decade, or a single
-                # tick (or none) would be labelled; no unlabelled minor ticks between them
-                # (a sixth of each figure's drawing time)
-                short = 0 < low and high / low < 100
-                axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)) if short else LogLocator(numticks=8))
+                # under two decades shown: ticks at 1, 2 and 5 of each decade (under one,
+                # also at 3), or a single tick (or none) would be labelled; no
+                # unlabelled minor ticks between them (a sixth of each figure's drawing
+                # time). Where even those leave one tick, matplotlib places linear ones.
+                ratio = high / low if low > 0 else np.inf
+                short = ratio < 100
+                subs = (1.0, 2.0, 5.0) if ratio >= 10 else (1.0, 2.0, 3.0, 5.0)
+                axis.set_major_locator(LogLocator(subs=subs) if short else LogLocator(numticks=8))
                 axis.set_major_formatter(FuncFormatter(_power_of_ten))
                 if short:
                     axis.set_minor_locator(NullLocator())
@@ -575,16 +588,29 @@ def _coincident_style(style, rank, count):
     }
 
 
-def _figure_legend(fig, entries):
+def _figure_legend(fig, entries, reserved):
     """One legend for the whole figure, right of its panels: ``entries`` are (handles,
-    label), several handles drawn side by side for lines named together."""
-    if entries:
-        fig.legend(
-            [tuple(handles) for handles, _ in entries],
-            [label for _, label in entries],
-            handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)},
-            loc="outside right center",
-        )
+    label), several handles drawn side by side for lines named together. The figure was made
+    ``reserved`` inches wider than its panels for it; it takes the legend's own width
+    instead (estimated from its labels, `_em_width`), so that twenty schemes' names never
+    squeeze the panels. A label wider than `LEGEND_MAX_WIDTH` wraps, and the figure grows
+    taller where the legend's lines need it."""
+    if not entries:
+        return
+    points = FontProperties(size=plt.rcParams["legend.fontsize"]).get_size_in_points()
+    longest = max(_em_width(label) for _, label in entries)
+    text_em = min(longest, (LEGEND_MAX_WIDTH - LEGEND_FRAME_EM * points / 72) * 72 / points)
+    labels = [_wrapped(label, text_em) for _, label in entries]
+    width = (min(longest, text_em) + LEGEND_FRAME_EM) * points / 72
+    fig.set_figwidth(fig.get_figwidth() - reserved + width)
+    lines = sum(label.count("\n") + 1 for label in labels)
+    fig.set_figheight(max(fig.get_figheight(), (lines * LEGEND_LINE_EM + 2) * points / 72 + 1.2))
+    fig.legend(
+        [tuple(handles) for handles, _ in entries],
+        labels,
+        handler_map={tuple: HandlerTuple(ndivide=None, pad=0.6)},
+        loc="outside right center",
+    )
 
 
 def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
@@ -667,6 +693,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         }
         with plt.rc_context(_RC):
             fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
+            reserved = LEGEND_WIDTH
             floors, handles = [], {}
             for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits, strict=True):
                 ax.set_xscale("log")
@@ -714,6 +741,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                     )
                     for group in groups
                 ],
+                reserved,
             )
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
             unjudged_gap = any(
@@ -755,7 +783,8 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
     line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
     with plt.rc_context(_RC):
-        fig, axes = _grid(len(values), width=5.0, legend_width=LEGEND_WIDTH / 2 if line_dim else 0)
+        reserved = LEGEND_WIDTH / 2 if line_dim else 0
+        fig, axes = _grid(len(values), width=5.0, legend_width=reserved)
         handles = {}
         for ax, value in zip(axes, values, strict=True):
             pick = {facet: value} if facet else {}
@@ -771,7 +800,7 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             ax.set_title(_panel_title(facet, value, reduced))
             ax.grid(True, which="major", alpha=0.3)
         if line_dim:
-            _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
+            _figure_legend(fig, [(lines, name) for name, lines in handles.items()], reserved)
         _title(
             fig,
             ds,
@@ -1011,6 +1040,7 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
     times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
     with plt.rc_context(_RC):
         fig, axes = _grid(len(panels), width=5.4, legend_width=LEGEND_WIDTH / 2)
+        reserved = LEGEND_WIDTH / 2
         floors, handles = [], {}
         for ax, (name, label) in zip(axes, panels, strict=True):
             ax.set_yscale("log")
@@ -1031,7 +1061,7 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
-        _figure_legend(fig, [(lines, name) for name, lines in handles.items()])
+        _figure_legend(fig, [(lines, name) for name, lines in handles.items()], reserved)
         zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
         _title(fig, ds, f"invariant drift, bounded or secular; case: {_drift_title(ds, steps)}{zeros}")
         figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))

@@ -395,8 +395,8 @@ RK44 = _scheme(
     "RK44 (explicit, Lie group) on a rotation vector",
     1.2e-05,
     # rkmk4 to O(h^5), which is not 3 digits at the finest steps: solid, with large
-    # hollow markers, under rkmk4's dashed line
-    Style("crimson", "8", "-"),
+    # hollow markers, under rkmk4's dashed line; slate, where crimson read as rk4's red
+    Style("darkslategray", "8", "-"),
 )
 MIDPOINT = _scheme(
     "exudyn_midpoint",
