@@ -42,6 +42,28 @@ def test_all_means_every_fixed_step_scheme(tmp_path):
     assert "dop853" not in study.dimensions[0].axes[0].values
 
 
+def test_a_list_of_schemes_takes_groups(tmp_path):
+    """`all` and the groups of `bench --schemes` (builtin, engines, one per engine) stand for
+    every scheme they name, installed or not (a config means the same study everywhere),
+    each scheme once; without a group, a name given twice is still refused."""
+    from rbstudy.schemes import unavailable_schemes
+    from rbstudy.schemes._plugins import ENGINES
+
+    own = tuple(name for name, s in BUILTIN.items() if not s.adaptive)
+    cases = [(["rk4", "all"], ("rk4", *(name for name in own if name != "rk4")))]
+    if not set(ENGINES) & set(unavailable_schemes()):  # CI installs the engines
+        mujoco = tuple(name for name in ENGINES if name.startswith("mujoco_"))
+        cases += [
+            (["builtin", "engines"], (*own, *ENGINES)),
+            (["mujoco", "mujoco_rk4", "euler"], (*mujoco, "euler")),
+        ]
+    for given, expected in cases:
+        study = load_study(write_study(tmp_path, sweep={"scheme": given}))
+        assert study.dimensions[0].axes[0].values == expected, given
+    with pytest.raises(ConfigError, match="rk4 given twice"):
+        load_study(write_study(tmp_path, sweep={"scheme": ["rk4", "rk4"]}))
+
+
 def test_zipped_axes_share_one_dimension(tmp_path):
     study = load_study(
         write_study(

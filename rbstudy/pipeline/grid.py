@@ -42,7 +42,7 @@ from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.time_grid import steps_per
 from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
-from rbstudy.schemes import BUILTIN, get_scheme
+from rbstudy.schemes import get_scheme, scheme_groups
 
 __all__ = [
     "Axis",
@@ -153,8 +153,22 @@ def _scalar_values(reader, key, values):
     return tuple(values)
 
 
+def _scheme_names(spec):
+    """A list of scheme names with each group (`rbstudy.schemes.scheme_groups`; ``all`` is
+    ``builtin``) replaced by every scheme it stands for, installed here or not, each name once:
+    a config means the same study wherever it runs, and a scheme not installed is refused
+    with its fix as if named."""
+    groups = {**scheme_groups(), ALL_SCHEMES: scheme_groups()["builtin"]}
+    if not any(isinstance(name, str) and name in groups for name in spec):
+        return spec  # names only: a name given twice is refused as in any sweep
+    names = [member for name in spec for member in groups.get(name, [name])]
+    return list(dict.fromkeys(names))
+
+
 def _values(reader, key, spec):
     """The tuple of values of one axis from its YAML spec."""
+    if key.endswith("scheme") and (spec == ALL_SCHEMES or isinstance(spec, list)):
+        spec = _scheme_names([spec] if spec == ALL_SCHEMES else spec)
     if isinstance(spec, list):
         if not spec:
             reader.fail(key, "empty sweep", "give at least one value")
@@ -175,9 +189,6 @@ def _values(reader, key, spec):
         start = reader.number(spec["halving"], f"{key}.halving")
         count = reader.count(spec["count"], f"{key}.count", MAX_HALVINGS)
         return tuple(start * 0.5**i for i in range(count))
-    if spec == ALL_SCHEMES and key.endswith("scheme"):  # rbstudy's own: a config means the
-        # same study whatever plug-ins are installed; those are named one by one
-        return tuple(name for name, scheme in BUILTIN.items() if not scheme.adaptive)
     forms = ("linspace", "logspace", "halving", "count")
     slip = (
         "".join(did_you_mean(name, forms) for name in spec if name not in forms)
