@@ -163,6 +163,10 @@ def test_the_forecast_and_the_order_follow_the_composition():
     assert scheme.nominal_order({}) == 2 and scheme.nominal_order({"composition": 6}) == 6
     assert scheme.seconds_per_step({"composition": 8}) == 17 * scheme.step_seconds
     assert get_scheme("rk4").seconds_per_step({}) == get_scheme("rk4").step_seconds
+    # compensated sums cost 1.15-1.75 plain steps (docs/performance.md): the forecast takes
+    # 1.5 of them, for each stage of a composition
+    with_carry = scheme.seconds_per_step({"composition": 4, "compensated": 1})
+    assert with_carry == pytest.approx(3 * 1.5 * scheme.step_seconds, rel=1e-15)
 
 
 def test_a_swept_composition_is_archived_and_summarised_per_order(tmp_path):

@@ -15,6 +15,11 @@ from rbstudy.schemes._registry import Option
 __all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 
 
+# What a compensated step costs, in plain steps: measured 1.15 (rkmk4) to 1.75 (splitting)
+# (docs/performance.md); `rbstudy validate` forecasts with this, within 30% of each.
+COST = 1.5
+
+
 def _parse_compensated(value):
     if value not in (0, 1):  # True and False compare equal to 1 and 0
         raise ValueError("expected 0 or 1 (false or true): whether to compensate the sums")
@@ -29,6 +34,7 @@ COMPENSATED = Option(
         "rounds like its increments, dt times finer; 0: plain sums"
     ),
     parse=_parse_compensated,
+    cost=lambda value: COST if value else 1.0,
     long_name="compensated summation of the state updates",
     units="1",
 )

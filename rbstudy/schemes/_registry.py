@@ -30,8 +30,9 @@ class Option:
     ``slot`` pins an option to a slot instead (a plug-in written before the registry
     allocated them); the registry checks it like its own layout.
     ``sets_order``: the option's value is the scheme's nominal order (a composition).
-    ``cost(value)``: how many plain steps one step takes with that value (the stages of a
-    composition); None for an option that does not change the cost. ``long_name`` (at most
+    ``cost(value)``: how many plain steps' time one step takes with that value (the stages
+    of a composition, the extra sums of a compensated step); None for an option that does not
+    change the cost. ``long_name`` (at most
     60 characters: a plot's axis label) and ``units`` (CF, "1" for a number without; None for
     a label such as an axis order) label the option's coordinate in an archive that sweeps
     it; without a long_name the coordinate is labelled with the option's name.
@@ -43,7 +44,7 @@ class Option:
     slot: int | None = None
     parse: Callable[[Any], tuple] | None = None
     sets_order: bool = False
-    cost: Callable[[Any], int] | None = None
+    cost: Callable[[Any], float] | None = None
     long_name: str = ""
     units: str | None = None
     width: int = 1
