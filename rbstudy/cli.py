@@ -102,6 +102,7 @@ def _bench(args):
         schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
         body_steps=args.body_steps or BODY_STEPS,
         progress=not args.quiet,
+        options=dict(args.option or ()),
     )
     return 0
 
@@ -821,6 +822,14 @@ def build_parser():
         metavar="N",
         help="body-steps per figure (default 1e7, at most 1e9; fewer for a quick look)",
     )
+    bench.add_argument(
+        "--option",
+        action="append",
+        type=_option_setting,
+        metavar="NAME=VALUE",
+        help="a scheme option for the schemes that offer it, such as compensated=1 "
+        "(repeatable); their rows name it",
+    )
     bench.add_argument("-q", "--quiet", action="store_true", help="no progress")
     bench.set_defaults(run=_bench)
     conformance = commands.add_parser(
@@ -862,6 +871,22 @@ def _whole_number(text):
     if not math.isfinite(number) or number != round(number):
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     return int(number)
+
+
+def _option_setting(text):
+    """``NAME=VALUE`` of ``bench --option``: the value read as YAML reads it in a config
+    (``1``, ``true``, ``-0.1``; ``'123'`` quoted for an axis order)."""
+    import yaml
+
+    name, equals, value = text.partition("=")
+    if not equals or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE such as compensated=1, got {text!r}")
+    try:
+        return name.strip(), yaml.safe_load(value)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: the value is not a number, a name or true/false"
+        ) from None
 
 
 def _list_argument(parser, option, metavar, help, choices=None):

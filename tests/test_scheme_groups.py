@@ -6,7 +6,7 @@ import pytest
 
 from rbstudy.cli import main
 from rbstudy.errors import SchemeError
-from rbstudy.schemes import BUILTIN, SCHEMES, Unavailable, expand_groups, scheme_groups
+from rbstudy.schemes import BUILTIN, SCHEMES, Unavailable, expand_groups, get_scheme, scheme_groups
 from rbstudy.schemes._plugins import ENGINES
 
 
@@ -78,4 +78,35 @@ def test_bench_refuses_an_absent_engine_in_one_line(monkeypatch, capsys):
     assert capsys.readouterr().err == (
         "rbstudy: error: --schemes: the group 'drake' has no scheme available here: needs the "
         "pydrake package; pip install drake\n"
+    )
+
+
+def test_bench_passes_an_option_to_the_schemes_that_offer_it(monkeypatch, capsys):
+    """`bench --option compensated=1` runs euler's compensated kernels (its batches' option
+    rows set the flag at euler's slot) and exact_split's plain ones, and says which."""
+    import rbstudy.pipeline.bench as bench
+
+    seen = {}
+    real = bench.run_batch
+
+    def spy(scheme, state0, params, options, *rest, **keywords):
+        seen.setdefault(scheme.name, set()).update(map(tuple, options.tolist()))
+        return real(scheme, state0, params, options, *rest, **keywords)
+
+    monkeypatch.setattr(bench, "run_batch", spy)
+    given = ["bench", "euler", "exact_split", "--option", "compensated=1", "--body-steps", "200"]
+    assert main([*given, "--quiet"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in out[4:6]] == ["euler*", "exact_split"]
+    assert out[6] == "* with compensated=1; the others have no such option"
+    euler, exact_split = get_scheme("euler"), get_scheme("exact_split")
+    assert seen == {
+        "euler": {tuple(euler.option_row({"compensated": 1}))},
+        "exact_split": {tuple(exact_split.option_row())},
+    }
+    assert euler.option_row({"compensated": 1})[euler.slots["compensated"]] == 1.0
+    assert main(["bench", "exact_split", "--option", "compensated=1", "--quiet"]) == 1
+    assert capsys.readouterr().err == (
+        "rbstudy: error: --option: no scheme measured has an option 'compensated'; "
+        "their options: composition\n"
     )

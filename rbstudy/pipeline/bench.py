@@ -19,13 +19,14 @@ import time
 
 import numpy as np
 
+from rbstudy.errors import SchemeError
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
 from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import SCHEMES, get_scheme
 
-__all__ = ["run_bench", "abaqus_top_scene", "BODY_STEPS", "MAX_BODY_STEPS"]
+__all__ = ["run_bench", "scheme_options", "abaqus_top_scene", "BODY_STEPS", "MAX_BODY_STEPS"]
 
 BATCH_SIZES = (1, 100, 10_000)
 BODY_STEPS = 10_000_000
@@ -56,10 +57,10 @@ def abaqus_top_scene():
     )
 
 
-def _rate(scheme, scene, n_bodies, n_steps, threads):
+def _rate(scheme, scene, n_bodies, n_steps, threads, options):
     state0 = np.repeat(scene.state_row()[None, :], n_bodies, axis=0)
     params = np.repeat(scene.param_row()[None, :], n_bodies, axis=0)
-    options = np.repeat(scheme.option_row()[None, :], n_bodies, axis=0)
+    options = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
     out = run_batch(
         scheme, state0, params, options, BENCH_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=threads
     )
@@ -67,11 +68,38 @@ def _rate(scheme, scene, n_bodies, n_steps, threads):
     return taken / out.kernel_seconds, out
 
 
-def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, progress=True):
+def scheme_options(chosen, options):
+    """Each scheme of ``chosen`` with the ``options`` (name -> value) it offers, validated
+    (`rbstudy.schemes.Scheme.option_row`), as (scheme, its options) pairs; an option that no
+    chosen scheme offers raises `SchemeError` naming the options they have."""
+    offered = {option.name for scheme in chosen for option in scheme.options}
+    for name in options:
+        if name not in offered:
+            raise SchemeError(
+                f"no scheme measured has an option {name!r}",
+                f"their options: {', '.join(sorted(offered)) or 'none'}",
+                key="--option",
+            )
+    pairs = []
+    for scheme in chosen:
+        own = {name: value for name, value in options.items() if name in {o.name for o in scheme.options}}
+        scheme.option_row(own)  # a bad value fails before anything runs
+        pairs.append((scheme, own))
+    return pairs
+
+
+def _label(scheme, options):
+    """A row's name: the scheme's, marked ``*`` when it runs with options (a footnote under
+    the table names them: the rows keep to 100 columns)."""
+    return f"{scheme.name}*" if options else scheme.name
+
+
+def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, progress=True, options=None):
     """Measure the figures and print them as a table on stdout, each scheme's compilation
     and measurements shown meanwhile (`rbstudy.pipeline.progress.Progress`) unless
-    ``progress`` is False; returns them as a list of dicts."""
-    chosen = [get_scheme(name) for name in schemes or SCHEMES]  # unknown names fail first
+    ``progress`` is False; returns them as a list of dicts. ``options`` (name -> value) go to
+    each scheme that offers them (`scheme_options`), whose rows a footnote marks."""
+    chosen = scheme_options([get_scheme(name) for name in schemes or SCHEMES], options or {})
     scene = abaqus_top_scene()
     cores = default_threads()
     rows = []
@@ -84,7 +112,7 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
             f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {cores} "
             "cores; rates in body-steps/s of B bodies"
         )
-        width = max(10, *(len(scheme.name) for scheme in chosen))  # a plug-in's may be long
+        width = max(10, *(len(_label(*pair)) for pair in chosen))  # a plug-in's may be long
         # two header lines, so that six rates keep to 100 columns
         shown.echo(
             f"{'':{width}s} {'compile':>9s}"
@@ -94,20 +122,26 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
             f"{'scheme':{width}s} {'s':>9s}"
             + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}" * len(batch_sizes)
         )
-        for scheme in chosen:
-            rows.append(_measure(scheme, scene, batch_sizes, body_steps, cores, width, shown))
+        for scheme, own in chosen:
+            rows.append(_measure(scheme, own, scene, batch_sizes, body_steps, cores, width, shown))
+        if options:
+            settings = ", ".join(f"{name}={value}" for name, value in options.items())
+            shown.echo(f"* with {settings}; the others have no such option")
     return rows
 
 
-def _measure(scheme, scene, batch_sizes, body_steps, cores, width, progress):
-    """One scheme's row of figures, printed as a line of the table by ``progress``."""
-    name = scheme.name
+def _measure(scheme, options, scene, batch_sizes, body_steps, cores, width, progress):
+    """One scheme's row of figures with its ``options``, printed as a line of the table by
+    ``progress``. The compile column counts the scheme's plain kernels; options that pick
+    kernels of their own (``compensated``) compile them before the first figure's clock
+    starts (`rbstudy.numerics.entry.CachedEntry.prepare`), so no rate counts a compilation."""
+    name = _label(scheme, options)
     progress.phase(f"bench: compiling {name}")
     start = time.perf_counter()
     scheme.ensure_compiled()
     compile_seconds = time.perf_counter() - start
     line = f"{name:{width}s} {compile_seconds:9.2f}"
-    row = {"scheme": name, "compile_seconds": compile_seconds}
+    row = {"scheme": scheme.name, "options": options, "compile_seconds": compile_seconds}
     sizes = batch_sizes[:1] if scheme.adaptive else batch_sizes
     progress.phase(f"bench: measuring {name}", 2 * len(sizes), "figures")
     for size in batch_sizes:
@@ -119,7 +153,7 @@ def _measure(scheme, scene, batch_sizes, body_steps, cores, width, progress):
             steps = REFERENCE_STEPS
         for threads in (1, cores):
             progress.update(f"bench: {name}, B={size} on {threads} thread" + "s" * (threads > 1))
-            rate, _ = _rate(scheme, scene, size, steps, threads)
+            rate, _ = _rate(scheme, scene, size, steps, threads, options)
             row[f"B{size}_threads{threads}"] = rate
             line += f" {rate:{_RATE}.3e}"
             progress.advance()
