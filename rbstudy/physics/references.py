@@ -9,9 +9,9 @@ body no closed form covers is integrated twice, independently, each within a ste
 by `exact_split` composed to order 8 with compensated sums at a fine step (the reference)
 and by scipy's DOP853 at rtol = atol = 1e-13 (its cross-check); how far apart they end up
 is the reference's ``uncertainty``, which the archive keeps per case and the order fits
-respect. This module
-sits above the schemes because it integrates; the closed forms of `analytic` stay
-numba-free, and the exact free asymmetric body is the compiled `rbstudy.numerics.free_flow`.
+respect. This module sits above the schemes because it integrates; the closed forms of
+`analytic` stay numba-free, and the exact free asymmetric body is the compiled
+`rbstudy.numerics.free_flow`.
 """
 
 import math
@@ -70,9 +70,9 @@ REFERENCE_MAX_STEPS = 1_000_000
 REFERENCE_STEPS_PER_RADIAN = 6.5
 # The composed reference: a momentum-exact, symmetric order-8 scheme whose free part is exact,
 # so that only the loads are approximated, its increments added with compensated summation
-# (`rbstudy.numerics.free_increment`): plain sums gathered an ulp of the state a stage, 2.5e-12
-# to 1.3e-11 rad over 100 s under a space moment on I = (1, 2, 3), compensated ones 3e-14 to
-# 1.5e-13 (against an extended-precision solution, docs/theory.md s6). Its step turns the
+# (`rbstudy.numerics.free_increment`): plain sums gathered an ulp of the state a stage, 6.0e-12
+# rad over 100 s under a space moment of 0.15 N m on I = (1, 2, 3), compensated ones 1.2e-13
+# (against an extended-precision solution, docs/theory.md s6). Its step turns the
 # body by about this angle (rad), and by at most twice it at the fastest spin of the run: a
 # step of 0.17 rad leaves 1e-13 rad of truncation over 10 s and one of 0.34 rad 1.4e-12.
 REFERENCE_SCHEME = "exact_split"
