@@ -30,10 +30,13 @@ for name, scheme in BUILTIN.items():
             run = simulate([body], name, 0.02, 0.1)
             out[name + label] = run.quaternion[0, -1].tolist() + run.omega_body[0, -1].tolist()
 # the exact free body, in each circulation and next to the separatrix
-from rbstudy.numerics.free_flow import free_flow
+from rbstudy.numerics.free_flow import free_body, free_flow
+from rbstudy.numerics.free_increment import free_increment
 for omega in ((0.6, 1.5, 0.9), (2.0, 0.3, 0.1), (0.8, 0.3, 0.4618802153517006)):
     q, w = free_flow((1.0, 2.0, 3.0), (0.1, 0.2, 0.3, 0.927), omega, 7.5)
     out["free_flow %s" % (omega,)] = list(q) + list(w)
+    dq, dw = free_increment(free_body((1.0, 2.0, 3.0), omega), (0.1, 0.2, 0.3, 0.927), 0.3)
+    out["free_increment %s" % (omega,)] = list(dq) + list(dw)
 print(json.dumps(out))
 """
 

@@ -6,11 +6,12 @@ and analysis take (`reference_solutions` of `Scene`s).
 
 An exact solution where one applies (`rbstudy.physics.analytic.reference_kinds`). A loaded
 body no closed form covers is integrated twice, independently, each within a step budget:
-by `exact_split` composed to order 8 at a fine step (the reference) and by scipy's DOP853 at
-rtol = atol = 1e-13 (its cross-check); how far apart they end up is the reference's
-``uncertainty``, which the archive keeps per case and the order fits respect. This module
-sits above the schemes because it integrates; the closed forms of `analytic` stay
-numba-free, and the exact free asymmetric body is the compiled `rbstudy.numerics.free_flow`.
+by `exact_split` composed to order 8 with compensated sums at a fine step (the reference)
+and by scipy's DOP853 at rtol = atol = 1e-13 (its cross-check); how far apart they end up
+is the reference's ``uncertainty``, which the archive keeps per case and the order fits
+respect. This module sits above the schemes because it integrates; the closed forms of
+`analytic` stay numba-free, and the exact free asymmetric body is the compiled
+`rbstudy.numerics.free_flow`.
 """
 
 import math
@@ -51,7 +52,7 @@ __all__ = [
     "REFERENCE_MAX_STEPS",
     "REFERENCE_STEPS_PER_RADIAN",
     "REFERENCE_SCHEME",
-    "REFERENCE_COMPOSITION",
+    "REFERENCE_OPTIONS",
     "COMPOSED_STEP_ANGLE",
     "composed_steps",
     "moment_bound",
@@ -68,14 +69,14 @@ REFERENCE_MAX_STEPS = 1_000_000
 # DOP853 steps per radian of |w| T, for that forecast.
 REFERENCE_STEPS_PER_RADIAN = 6.5
 # The composed reference: a momentum-exact, symmetric order-8 scheme whose free part is exact,
-# so that only the loads are approximated. Its step turns the body by about this angle (rad),
-# and by at most twice it at the fastest spin of the run. The angle balances truncation
-# against the rounding of every stage (each rebuilds the free body's elliptic constants from
-# the kicked spin): measured on I = (1, 2, 3) against an extended-precision solution, a
-# step of 0.17 rad leaves 1e-13 rad of truncation over 10 s and one of 0.34 rad 1.4e-12,
-# while steps four times finer than 0.15 rad gather 1e-11 of rounding (docs/theory.md s6).
+# so that only the loads are approximated, its increments added with compensated summation
+# (`rbstudy.numerics.free_increment`): plain sums gathered an ulp of the state a stage, 6.0e-12
+# rad over 100 s under a space moment of 0.15 N m on I = (1, 2, 3), compensated ones 1.2e-13
+# (against an extended-precision solution, docs/theory.md s6). Its step turns the
+# body by about this angle (rad), and by at most twice it at the fastest spin of the run: a
+# step of 0.17 rad leaves 1e-13 rad of truncation over 10 s and one of 0.34 rad 1.4e-12.
 REFERENCE_SCHEME = "exact_split"
-REFERENCE_COMPOSITION = 8
+REFERENCE_OPTIONS = {"composition": 8, "compensated": 1}
 COMPOSED_STEP_ANGLE = 0.15
 # How many step counts from the angle's `composed_steps` tries for one that puts the knots of
 # load tables on step boundaries (a knot given to three decimals finds one within 1000).
@@ -341,7 +342,7 @@ def composed_steps(scene, interval, least=None):
 
 
 def _composed(scene, times):
-    """`REFERENCE_SCHEME` composed to order `REFERENCE_COMPOSITION` at `composed_steps` per
+    """`REFERENCE_SCHEME` with `REFERENCE_OPTIONS` (composed to order 8) at `composed_steps` per
     output interval of ``times`` (evenly spaced from 0), or None when it cannot be had: the
     knots of the loads do not fit its steps, it fails, or it needs more than
     `REFERENCE_MAX_STEPS` steps. A body that speeds up past the step's angle (a load pumps
@@ -359,7 +360,7 @@ def _composed(scene, times):
             REFERENCE_SCHEME,
             interval / count,
             interval,
-            {"composition": REFERENCE_COMPOSITION},
+            REFERENCE_OPTIONS,
             threads=1,
         )
         if run.results["status"][0] != OK:

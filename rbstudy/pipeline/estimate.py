@@ -24,8 +24,8 @@ from rbstudy.errors import ConfigError
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.references import (
-    REFERENCE_COMPOSITION,
     REFERENCE_MAX_STEPS,
+    REFERENCE_OPTIONS,
     REFERENCE_SCHEME,
     REFERENCE_STEPS_PER_RADIAN,
     knot_steps,
@@ -177,7 +177,7 @@ def estimate(study, cores=None):
     neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
     over_budget = int(np.sum(neither[cases.scene_rows]))
     peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
-    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step({"composition": REFERENCE_COMPOSITION})
+    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step(REFERENCE_OPTIONS)
     per_peer = get_scheme("dop853").step_seconds
     each = peer * per_peer + composed * per_composed
     seconds += float(each.sum())
