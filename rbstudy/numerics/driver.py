@@ -541,7 +541,7 @@ def run_rows(
         )
 
 
-def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
+def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None, block=None):
     """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params, options,
     h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows [start,
     stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type of
@@ -565,6 +565,10 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
         Other kernels for the rows whose option at ``slot`` is nonzero (a variant of the
         scheme chosen per body, such as its compensated step): the entry runs each run of
         such rows with them, so that the plain step stays as fast as without the variant.
+    block : compiled kernel ``(y, p, h, temp)``, optional
+        The scheme's block step (`rbstudy.numerics.block`): the entry then steps blocks of
+        bodies with it where the kernels do not take the time, and ``step`` elsewhere; each
+        body gets the same bits either way.
 
     Returns
     -------
@@ -572,7 +576,7 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
     """
     if lanes not in (1, 2):
         raise ValueError(f"a scheme runs 1 or 2 lanes, not {lanes!r}")
-    return CachedEntry(step, init, n_work, wrapper, lanes, switch)
+    return CachedEntry(step, init, n_work, wrapper, lanes, switch, block)
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,23 @@ def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, 
 # The kernels of the second lane (`rbstudy.numerics.driver.run_rows`): the scheme's own for
 # two lanes; for one, kernels that are never called and cost nothing to compile, so that the
 # scheme's step is compiled once.
+# The entry point of a scheme with a block step (`rbstudy.numerics.block`): blocks of bodies
+# where the kernels do not take the time, the single-body kernels where they do.
+_RUN_BLOCKS = """
+from rbstudy.numerics.block import run_rows_in_blocks
+
+
+@jit
+def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
+                       samples, results, halt, clock):
+    if clock is None:
+        run_rows_in_blocks(block_step, step, init, second_step, second_init, N_WORK, LANES, start,
+                           stop, state0, params, options, h, n_steps, every, drift_bound, samples,
+                           results, halt)
+    else:
+        run_rows(step, init, second_step, second_init, N_WORK, LANES, start, stop, state0,
+                 params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)
+"""
 _SECOND_LANE = {
     1: "second_step, second_init = idle_step, init_nothing",
     2: "second_step, second_init = step, init",
@@ -121,11 +138,13 @@ def _defined(kernel):
     return function.__module__, function.__name__, inspect.getsourcefile(function)
 
 
-def _module_text(step, init, n_work, wrapper=None, lanes=1):
+def _module_text(step, init, n_work, wrapper=None, lanes=1, block=None):
     """The generated module's text and a digest naming it."""
     kernels = (
         {"step": step, "init": init} if wrapper is None else {"stage": step, "init": init, "wrapper": wrapper}
     )
+    if block is not None:
+        kernels["block_step"] = block
     defined = {alias: _defined(kernel) for alias, kernel in kernels.items()}
     text = _TEMPLATE.format(
         kernels=", ".join(f"{module}.{name}" for module, name, _ in defined.values()),
@@ -136,7 +155,7 @@ def _module_text(step, init, n_work, wrapper=None, lanes=1):
         lanes=int(lanes),
         second=_SECOND_LANE[lanes],
         wrapped="" if wrapper is None else _WRAPPED_STEP.format(step="step", stage="stage"),
-        body=_RUN_ROWS,
+        body=_RUN_ROWS if block is None else _RUN_BLOCKS,
     )
     digest = hashlib.sha256((text + SOURCE_DIGEST).encode())
     for path in sorted({path for *_, path in defined.values()}):
@@ -194,8 +213,8 @@ class CachedEntry:
     only for a batch that sets the option (`prepare`), not on every scheme's first run (5-7 s
     of the default study's, docs/performance.md)."""
 
-    def __init__(self, step, init, n_work, wrapper=None, lanes=1, switch=None):
-        self._kernels = (step, init, n_work, wrapper, lanes)
+    def __init__(self, step, init, n_work, wrapper=None, lanes=1, switch=None, block=None):
+        self._kernels = (step, init, n_work, wrapper, lanes, block)
         self._dispatcher = None
         self._lock = threading.Lock()
         self._slot = None if switch is None else int(switch[0])

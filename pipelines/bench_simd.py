@@ -1,0 +1,164 @@
+"""How fast leapfrog can go on this machine: a plain struct-of-arrays loop over bodies.
+
+The reference of issue 33 for the driver's kernels (docs/performance.md, "SIMD across
+bodies"): leapfrog's step (`rbstudy.schemes.leapfrog`) on B bodies held as arrays of one
+component each, (3, B) and (4, B), the loop over bodies innermost so that LLVM runs it 8
+bodies to an AVX-512 instruction; no status checks, no drift checks, no sampling. The loads are
+those of the scheme's kernel without a lever or a body-fixed force: a body moment, a space
+moment turned into the body, a space force and the weight. The sine and cosine are
+`rbstudy.numerics.lanes_math.sin_cos_reduced` (``--libm``: libm's, which keeps LLVM from
+vectorising the loop).
+
+It prints body-steps per second at B = 100, 4096 and 1e4 on one thread, whether LLVM
+vectorised the loop (packed AVX-512 or AVX2 arithmetic in its assembly), and the machine's
+peak for this step: ``FLOPS_PER_STEP`` at ``PEAK_FLOPS``.
+
+Usage: NUMBA_NUM_THREADS=1 python pipelines/bench_simd.py [--body-steps N] [--libm]
+"""
+
+import argparse
+import math
+import re
+import time
+
+import numba
+import numpy as np
+
+from rbstudy.numerics.jit import jit
+from rbstudy.numerics.lanes_math import sin_cos_reduced
+from rbstudy.pipeline.bench import BENCH_DT, abaqus_top_scene
+
+BATCH_SIZES = (100, 4096, 10_000)
+BODY_STEPS = 30_000_000
+# Floating-point operations of one body-step of `step_soa` (+, -, x, / each one; a square
+# root one), counted in its source: the moment turned into the body 31 (quaternion rotation),
+# Euler's rates 15, the updates of w, v, x 18, the rotation vector and its angle 9 + sqrt,
+# the sine and cosine 48 (reduction 17, kernels 31), the quaternion exp 5, product 28 and
+# renormalisation 11 + sqrt. The driver's checks between steps (~44, docs/performance.md)
+# are not in it.
+FLOPS_PER_STEP = 167
+# One core of this machine (Intel Xeon, AVX-512, 2.6 GHz nominal): two 8-wide fused
+# multiply-adds a cycle, 32 flops a cycle (docs/performance.md); without FMA contraction
+# (rbstudy's kernels never contract, so that batch and solo agree), half of that is reachable.
+CLOCK_HZ = 2.6e9
+PEAK_FLOPS = 32 * CLOCK_HZ
+
+
+@jit
+def _rotate_inverse(q0, q1, q2, q3, a0, a1, a2):
+    """``R^T a`` for the unit quaternion (q0, q1, q2, q3), scalar last: ``a + 2 u x (u x a -
+    s a)``... written as `rbstudy.numerics.rotation.quat_rotate` of the conjugate."""
+    # t = 2 (u x a), u = -(q0, q1, q2) for the conjugate
+    t0 = 2.0 * (-q1 * a2 + q2 * a1)
+    t1 = 2.0 * (-q2 * a0 + q0 * a2)
+    t2 = 2.0 * (-q0 * a1 + q1 * a0)
+    return (
+        a0 + q3 * t0 + (-q1 * t2 + q2 * t1),
+        a1 + q3 * t1 + (-q2 * t0 + q0 * t2),
+        a2 + q3 * t2 + (-q0 * t1 + q1 * t0),
+    )
+
+
+def _make_loop(sine_cosine):
+    """The reference loop with ``sine_cosine(x) -> (sin x, cos x)``."""
+
+    @numba.njit(error_model="numpy")
+    def step_soa(x, q, v, w, inertia, mass, moment_body, moment_space, force, h, n_steps):
+        """Leapfrog steps of B bodies: x, v (3, B), q (4, B), w (3, B) updated in place;
+        inertia, moment_body, moment_space, force (3, B), mass (B,) read."""
+        n_bodies = x.shape[1]
+        for _ in range(n_steps):
+            for b in range(n_bodies):
+                q0, q1, q2, q3 = q[0, b], q[1, b], q[2, b], q[3, b]
+                w0, w1, w2 = w[0, b], w[1, b], w[2, b]
+                i0, i1, i2 = inertia[0, b], inertia[1, b], inertia[2, b]
+                s0, s1, s2 = _rotate_inverse(
+                    q0, q1, q2, q3, moment_space[0, b], moment_space[1, b], moment_space[2, b]
+                )
+                m0 = moment_body[0, b] + s0
+                m1 = moment_body[1, b] + s1
+                m2 = moment_body[2, b] + s2
+                w0 = w0 + h * ((m0 - (i2 - i1) * w1 * w2) / i0)
+                w1 = w1 + h * ((m1 - (i0 - i2) * w2 * w0) / i1)
+                w2 = w2 + h * ((m2 - (i1 - i0) * w0 * w1) / i2)
+                w[0, b], w[1, b], w[2, b] = w0, w1, w2
+                for k in range(3):
+                    v[k, b] = v[k, b] + (h / mass[b]) * force[k, b]
+                    x[k, b] = x[k, b] + h * v[k, b]
+                r0, r1, r2 = h * w0, h * w1, h * w2
+                angle = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+                sine, cosine = sine_cosine(0.5 * angle)
+                s = sine / angle
+                e0, e1, e2, e3 = s * r0, s * r1, s * r2, cosine
+                n0 = q3 * e0 + q0 * e3 + q1 * e2 - q2 * e1
+                n1 = q3 * e1 + q1 * e3 + q2 * e0 - q0 * e2
+                n2 = q3 * e2 + q2 * e3 + q0 * e1 - q1 * e0
+                n3 = q3 * e3 - q0 * e0 - q1 * e1 - q2 * e2
+                norm = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
+                q[0, b], q[1, b], q[2, b], q[3, b] = n0 * norm, n1 * norm, n2 * norm, n3 * norm
+
+    return step_soa
+
+
+@jit
+def _libm_sin_cos(x):
+    return math.sin(x), math.cos(x)
+
+
+def _bodies(n_bodies):
+    """The Abaqus top of `rbstudy bench`, B copies, as the loop's arrays."""
+    from rbstudy.numerics import state as S
+
+    scene = abaqus_top_scene()
+    y, p = scene.state_row(), scene.param_row()
+
+    def column(row, at, width):
+        return np.ascontiguousarray(np.repeat(row[at : at + width, None], n_bodies, axis=1))
+
+    return (
+        column(y, S.POSITION, 3),
+        column(y, S.QUATERNION, 4),
+        column(y, S.VELOCITY, 3),
+        column(y, S.OMEGA, 3),
+        column(p, S.INERTIA, 3),
+        np.full(n_bodies, p[S.MASS]),
+        column(p, S.MOMENT_BODY, 3),
+        column(p, S.MOMENT_SPACE, 3),
+        column(p, S.FORCE_SPACE, 3) + p[S.MASS] * column(p, S.GRAVITY, 3),
+    )
+
+
+def packed_ops(loop):
+    """The packed double-precision arithmetic in the loop's assembly: {"zmm": n, "ymm": n}."""
+    assembly = "\n".join(loop.inspect_asm().values())
+    packed = re.findall(r"\bv(?:mul|add|sub|div|sqrt|fmadd\w*)pd\s[^\n]*?%(zmm|ymm)", assembly)
+    return {register: packed.count(register) for register in ("zmm", "ymm")}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--body-steps", type=float, default=BODY_STEPS)
+    parser.add_argument("--libm", action="store_true", help="libm's sine and cosine")
+    args = parser.parse_args(argv)
+    loop = _make_loop(_libm_sin_cos if args.libm else sin_cos_reduced)
+    loop(*_bodies(8), BENCH_DT, 1)  # compile
+    print(f"SoA leapfrog, {'libm' if args.libm else 'own'} sine; packed ops {packed_ops(loop)}")
+    print(
+        f"peak: {FLOPS_PER_STEP} flops a body-step at {PEAK_FLOPS / 1e9:.0f} GFlop/s "
+        f"= {PEAK_FLOPS / FLOPS_PER_STEP:.2e} body-steps/s (without FMA: half)"
+    )
+    for size in BATCH_SIZES:
+        arrays = _bodies(size)
+        steps = max(1, int(args.body_steps) // size)
+        start = time.perf_counter()
+        loop(*arrays, BENCH_DT, steps)
+        seconds = time.perf_counter() - start
+        rate = steps * size / seconds
+        print(
+            f"B = {size:6d}: {rate:.3e} body-steps/s, {rate * FLOPS_PER_STEP / 1e9:5.1f} GFlop/s, "
+            f"{rate / (PEAK_FLOPS / FLOPS_PER_STEP):.0%} of peak"
+        )
+
+
+if __name__ == "__main__":
+    main()
