@@ -59,32 +59,44 @@ def _rotate_inverse(q0, q1, q2, q3, a0, a1, a2):
     )
 
 
-def _make_loop(sine_cosine):
-    """The reference loop with ``sine_cosine(x) -> (sin x, cos x)``."""
+def _make_loop(sine_cosine, n_bodies):
+    """The reference loop with ``sine_cosine(x) -> (sin x, cos x)`` over ``n_bodies`` bodies, a
+    number known when compiling: with the rows' width known, LLVM sees that no two rows of the
+    one flat array overlap (with a width known only at run time it would need a check of each
+    pair of rows, and does not vectorise)."""
+    width = n_bodies
 
     @numba.njit(error_model="numpy")
-    def step_soa(x, q, v, w, inertia, mass, moment_body, moment_space, force, h, n_steps):
-        """Leapfrog steps of B bodies: x, v (3, B), q (4, B), w (3, B) updated in place;
-        inertia, moment_body, moment_space, force (3, B), mass (B,) read."""
-        n_bodies = x.shape[1]
+    def step_soa(rows, h, n_steps):
+        """Leapfrog steps of the bodies whose components are the rows of ``rows`` (_N_ROWS *
+        width,), in the order of `_ROWS`; the state rows updated in place."""
         for _ in range(n_steps):
-            for b in range(n_bodies):
-                q0, q1, q2, q3 = q[0, b], q[1, b], q[2, b], q[3, b]
-                w0, w1, w2 = w[0, b], w[1, b], w[2, b]
-                i0, i1, i2 = inertia[0, b], inertia[1, b], inertia[2, b]
+            for b in range(width):
+                x0, x1, x2 = rows[_X * width + b], rows[(_X + 1) * width + b], rows[(_X + 2) * width + b]
+                v0, v1, v2 = rows[_V * width + b], rows[(_V + 1) * width + b], rows[(_V + 2) * width + b]
+                w0, w1, w2 = rows[_W * width + b], rows[(_W + 1) * width + b], rows[(_W + 2) * width + b]
+                q0, q1 = rows[_Q * width + b], rows[(_Q + 1) * width + b]
+                q2, q3 = rows[(_Q + 2) * width + b], rows[(_Q + 3) * width + b]
+                i0, i1, i2 = rows[_I * width + b], rows[(_I + 1) * width + b], rows[(_I + 2) * width + b]
                 s0, s1, s2 = _rotate_inverse(
-                    q0, q1, q2, q3, moment_space[0, b], moment_space[1, b], moment_space[2, b]
+                    q0,
+                    q1,
+                    q2,
+                    q3,
+                    rows[_MS * width + b],
+                    rows[(_MS + 1) * width + b],
+                    rows[(_MS + 2) * width + b],
                 )
-                m0 = moment_body[0, b] + s0
-                m1 = moment_body[1, b] + s1
-                m2 = moment_body[2, b] + s2
+                m0 = rows[_MB * width + b] + s0
+                m1 = rows[(_MB + 1) * width + b] + s1
+                m2 = rows[(_MB + 2) * width + b] + s2
                 w0 = w0 + h * ((m0 - (i2 - i1) * w1 * w2) / i0)
                 w1 = w1 + h * ((m1 - (i0 - i2) * w2 * w0) / i1)
                 w2 = w2 + h * ((m2 - (i1 - i0) * w0 * w1) / i2)
-                w[0, b], w[1, b], w[2, b] = w0, w1, w2
-                for k in range(3):
-                    v[k, b] = v[k, b] + (h / mass[b]) * force[k, b]
-                    x[k, b] = x[k, b] + h * v[k, b]
+                a = h / rows[_MASS * width + b]
+                v0 = v0 + a * rows[_F * width + b]
+                v1 = v1 + a * rows[(_F + 1) * width + b]
+                v2 = v2 + a * rows[(_F + 2) * width + b]
                 r0, r1, r2 = h * w0, h * w1, h * w2
                 angle = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
                 sine, cosine = sine_cosine(0.5 * angle)
@@ -95,7 +107,13 @@ def _make_loop(sine_cosine):
                 n2 = q3 * e2 + q2 * e3 + q0 * e1 - q1 * e0
                 n3 = q3 * e3 - q0 * e0 - q1 * e1 - q2 * e2
                 norm = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
-                q[0, b], q[1, b], q[2, b], q[3, b] = n0 * norm, n1 * norm, n2 * norm, n3 * norm
+                rows[_X * width + b] = x0 + h * v0
+                rows[(_X + 1) * width + b] = x1 + h * v1
+                rows[(_X + 2) * width + b] = x2 + h * v2
+                rows[_V * width + b], rows[(_V + 1) * width + b], rows[(_V + 2) * width + b] = v0, v1, v2
+                rows[_W * width + b], rows[(_W + 1) * width + b], rows[(_W + 2) * width + b] = w0, w1, w2
+                rows[_Q * width + b], rows[(_Q + 1) * width + b] = n0 * norm, n1 * norm
+                rows[(_Q + 2) * width + b], rows[(_Q + 3) * width + b] = n2 * norm, n3 * norm
 
     return step_soa
 
@@ -105,27 +123,34 @@ def _libm_sin_cos(x):
     return math.sin(x), math.cos(x)
 
 
+# The rows of the reference loop's one array: position, velocity, spin, orientation, then
+# inertia, body and space moments, the force in space (weight included) and the mass.
+_X, _V, _W, _Q, _I, _MB, _MS, _F, _MASS = 0, 3, 6, 9, 13, 16, 19, 22, 25
+_N_ROWS = 26
+
+
 def _bodies(n_bodies):
-    """The Abaqus top of `rbstudy bench`, B copies, as the loop's arrays."""
+    """The Abaqus top of `rbstudy bench`, B copies, as the loop's rows (_N_ROWS * B,)."""
     from rbstudy.numerics import state as S
 
     scene = abaqus_top_scene()
     y, p = scene.state_row(), scene.param_row()
-
-    def column(row, at, width):
-        return np.ascontiguousarray(np.repeat(row[at : at + width, None], n_bodies, axis=1))
-
-    return (
-        column(y, S.POSITION, 3),
-        column(y, S.QUATERNION, 4),
-        column(y, S.VELOCITY, 3),
-        column(y, S.OMEGA, 3),
-        column(p, S.INERTIA, 3),
-        np.full(n_bodies, p[S.MASS]),
-        column(p, S.MOMENT_BODY, 3),
-        column(p, S.MOMENT_SPACE, 3),
-        column(p, S.FORCE_SPACE, 3) + p[S.MASS] * column(p, S.GRAVITY, 3),
-    )
+    weight = p[S.MASS] * p[S.GRAVITY : S.GRAVITY + 3]
+    columns = [
+        (_X, y[S.POSITION : S.POSITION + 3]),
+        (_V, y[S.VELOCITY : S.VELOCITY + 3]),
+        (_W, y[S.OMEGA : S.OMEGA + 3]),
+        (_Q, y[S.QUATERNION : S.QUATERNION + 4]),
+        (_I, p[S.INERTIA : S.INERTIA + 3]),
+        (_MB, p[S.MOMENT_BODY : S.MOMENT_BODY + 3]),
+        (_MS, p[S.MOMENT_SPACE : S.MOMENT_SPACE + 3]),
+        (_F, p[S.FORCE_SPACE : S.FORCE_SPACE + 3] + weight),
+        (_MASS, p[S.MASS : S.MASS + 1]),
+    ]
+    rows = np.empty((_N_ROWS, n_bodies))
+    for first, values in columns:
+        rows[first : first + len(values)] = values[:, None]
+    return rows.ravel()
 
 
 def packed_ops(loop):
@@ -140,23 +165,23 @@ def main(argv=None):
     parser.add_argument("--body-steps", type=float, default=BODY_STEPS)
     parser.add_argument("--libm", action="store_true", help="libm's sine and cosine")
     args = parser.parse_args(argv)
-    loop = _make_loop(_libm_sin_cos if args.libm else sin_cos_reduced)
-    loop(*_bodies(8), BENCH_DT, 1)  # compile
-    print(f"SoA leapfrog, {'libm' if args.libm else 'own'} sine; packed ops {packed_ops(loop)}")
+    sine_cosine = _libm_sin_cos if args.libm else sin_cos_reduced
+    print(f"SoA leapfrog, {'libm' if args.libm else 'own'} sine, one thread")
     print(
         f"peak: {FLOPS_PER_STEP} flops a body-step at {PEAK_FLOPS / 1e9:.0f} GFlop/s "
         f"= {PEAK_FLOPS / FLOPS_PER_STEP:.2e} body-steps/s (without FMA: half)"
     )
     for size in BATCH_SIZES:
-        arrays = _bodies(size)
+        loop = _make_loop(sine_cosine, size)
+        rows = _bodies(size)
+        loop(rows, BENCH_DT, 1)  # compile
         steps = max(1, int(args.body_steps) // size)
-        start = time.perf_counter()
-        loop(*arrays, BENCH_DT, steps)
-        seconds = time.perf_counter() - start
-        rate = steps * size / seconds
+        start = time.thread_time()
+        loop(rows, BENCH_DT, steps)
+        rate = steps * size / (time.thread_time() - start)
         print(
             f"B = {size:6d}: {rate:.3e} body-steps/s, {rate * FLOPS_PER_STEP / 1e9:5.1f} GFlop/s, "
-            f"{rate / (PEAK_FLOPS / FLOPS_PER_STEP):.0%} of peak"
+            f"{rate / (PEAK_FLOPS / FLOPS_PER_STEP):.0%} of peak; packed ops {packed_ops(loop)}"
         )
 
 

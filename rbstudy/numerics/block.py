@@ -71,8 +71,8 @@ __all__ = [
 # 4.0e7 body-steps/s, of 16 at 8.3e7, the same as 1e4 (one core, measured); 64 leaves the
 # loop set-up nothing and still fits L1 (13 + N_PARAM + N_TEMP rows of 512 bytes).
 BLOCK = 64
-# Scratch rows of a block step.
-N_TEMP = 8
+# Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
+N_TEMP = 2 * S.N_STATE
 # Where the rows of the states, the parameters and the scratch start.
 STATE = 0
 PARAM = STATE + S.N_STATE
