@@ -233,6 +233,11 @@ class CachedEntry:
             return self._dispatcher
 
     @property
+    def has_block(self):
+        """Whether the scheme steps blocks of bodies (`rbstudy.numerics.block`)."""
+        return self._kernels[5] is not None
+
+    @property
     def signatures(self):
         return self.dispatcher.signatures
 
