@@ -98,8 +98,9 @@ def test_bodies_run_side_by_side_equal_their_solo_runs_in_every_result():
             assert np.array_equal(values[i], alone.results[name][0], equal_nan=True), (i, name)
 
 
-# Batch sizes that fill no block, part of one, exactly one AVX-512 register's worth, a block and
-# a part, and many blocks (`rbstudy.numerics.block.BLOCK` = 64).
+# Batch sizes of the single-body loop (fewer bodies than `rbstudy.numerics.block.FEWEST`, 16,
+# the last one AVX-512 register's worth), of a block partly filled, and of many blocks and a
+# part (`BLOCK` = 64).
 BATCH_SIZES = (1, 3, 8, 17, 1000)
 
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
-from rbstudy.numerics.driver import _HALT_MASK, _lane_end, _lane_start, run_rows
+from rbstudy.numerics.driver import _HALT_MASK, _lane_end, _lane_start
 from rbstudy.numerics.dynamics import force_from, has_lever, moment_from, momentum_squared, rotational_energy
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import REDUCED, sin_cos_reduced
@@ -71,6 +71,10 @@ __all__ = [
 # 4.0e7 body-steps/s, of 16 at 8.3e7, the same as 1e4 (one core, measured); 64 leaves the
 # loop set-up nothing and still fits L1 (13 + N_PARAM + N_TEMP rows of 512 bytes).
 BLOCK = 64
+# The fewest bodies worth a block: a block steps all its lanes, filled or not, in about the time
+# the single-body loop takes for 16 bodies (leapfrog: 64 lanes at 9e7 lane-steps/s against
+# 2.5e7 body-steps/s), so fewer run there (a batch of one body ran 40 times slower in a block).
+FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
 # Where the rows of the states, the parameters and the scratch start.
@@ -344,12 +348,7 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
 @inline_jit
 def run_rows_in_blocks(
     block_step,
-    step,
-    init,
-    second_step,
-    second_init,
-    n_work,
-    lanes,
+    single,
     start,
     stop,
     state0,
@@ -364,37 +363,20 @@ def run_rows_in_blocks(
     halt,
 ):
     """Integrate the rows [start, stop) of a batch without loads tabulated in time, `BLOCK` at a
-    time: with ``block_step`` (`run_blocks`) where every body of the block has `plain_loads`,
-    with the single-body kernels (`rbstudy.numerics.driver.run_rows`, whose arguments the
-    others are) where one has not.
+    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies and
+    every one has `plain_loads`, with ``single`` elsewhere: the scheme's entry point of the
+    single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start, stop, state0,
+    params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)``.
     """
     for a in range(start, stop, BLOCK):
         if halt[0] != 0:
             return
         end = min(a + BLOCK, stop)
-        if _plain_block(params, a, end):
+        if end - a >= FEWEST and _plain_block(params, a, end):
             run_blocks(
                 block_step, a, end, state0, params, h, n_steps, every, drift_bound, samples, results, halt
             )
         else:
-            run_rows(
-                step,
-                init,
-                second_step,
-                second_init,
-                n_work,
-                lanes,
-                a,
-                end,
-                state0,
-                params,
-                options,
-                h,
-                n_steps,
-                every,
-                drift_bound,
-                samples,
-                results,
-                halt,
-                None,
+            single(
+                a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None
             )

@@ -34,6 +34,8 @@ ULPS = 1
 REDUCED = 2.0**19 * math.pi / 2.0
 
 _TWO_OVER_PI = 6.36619772367581382433e-01
+# Below this, x 2/pi < 0.4966 rounds to n = 0 whatever the rounding of the product: no reduction.
+_UNREDUCED = 0.78
 # Adding and subtracting 1.5 * 2^52 rounds a double of magnitude < 2^51 to an integer (ties to
 # even), without a call: a libm ``rint`` would stop the vectorisation.
 _ROUNDER = 6755399441055744.0
@@ -57,6 +59,21 @@ _C3 = 2.48015872894767294178e-05
 _C4 = -2.75573143513906633035e-07
 _C5 = 2.08757232129817482790e-09
 _C6 = -1.13596475577881948265e-11
+
+
+@jit
+def _kernels(r, tail):
+    """musl's ``__sin(r, tail, 1)`` and ``__cos(r, tail)`` of ``r + tail``, ``|r| <= pi/4``."""
+    z = r * r
+    zz = z * z
+    v = z * r
+    ps = _S2 + z * (_S3 + z * _S4) + z * zz * (_S5 + z * _S6)
+    sine = r - ((z * (0.5 * tail - v * ps) - tail) - v * _S1)
+    pc = z * (_C1 + z * (_C2 + z * _C3)) + zz * zz * (_C4 + z * (_C5 + z * _C6))
+    hz = 0.5 * z
+    one_less = 1.0 - hz
+    cosine = one_less + (((1.0 - one_less) - hz) + (z * pc - r * tail))
+    return sine, cosine
 
 
 @jit
@@ -88,16 +105,7 @@ def sin_cos_reduced(x):
     head = r
     r = head - w
     tail = (head - r) - w
-    # musl's __sin(r, tail, 1) and __cos(r, tail)
-    z = r * r
-    zz = z * z
-    v = z * r
-    ps = _S2 + z * (_S3 + z * _S4) + z * zz * (_S5 + z * _S6)
-    sine = r - ((z * (0.5 * tail - v * ps) - tail) - v * _S1)
-    pc = z * (_C1 + z * (_C2 + z * _C3)) + zz * zz * (_C4 + z * (_C5 + z * _C6))
-    hz = 0.5 * z
-    one_less = 1.0 - hz
-    cosine = one_less + (((1.0 - one_less) - hz) + (z * pc - r * tail))
+    sine, cosine = _kernels(r, tail)
     quadrant = int(n) & 3
     s = cosine if quadrant & 1 else sine
     c = sine if quadrant & 1 else cosine
@@ -120,6 +128,10 @@ def sin_cos(x):
     -------
     tuple of 2 floats
     """
+    if abs(x) < _UNREDUCED:
+        # the bits of sin_cos_reduced, whose reduction gives n = 0, r = x, tail = 0 here, at
+        # a third of its cost on one body (a step's half angle is nearly always this small)
+        return _kernels(x, 0.0)
     if abs(x) <= REDUCED:
         return sin_cos_reduced(x)
     return math.sin(x), math.cos(x)
