@@ -638,13 +638,14 @@ def _check_knots(params):
         )
 
 
-def _chunks(n_bodies, threads):
+def _chunks(n_bodies, threads, align=2):
     """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core;
-    each of an even length but the last, so that a scheme of two lanes leaves no body of a
-    range without its mate (`integrate_rows_inplace`)."""
-    pieces = min(n_bodies, threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
+    each a multiple of ``align`` long but the last: 2, so that a scheme of two lanes leaves no
+    body of a range without its mate (`integrate_rows_inplace`); a block's width for a scheme
+    that steps blocks, so that its ranges fill them (`rbstudy.numerics.block`)."""
+    pieces = min(-(-n_bodies // align), threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
     edges = np.linspace(0, n_bodies, pieces + 1).astype(int)
-    edges[1:-1] -= edges[1:-1] % 2
+    edges[1:-1] -= edges[1:-1] % align
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
@@ -732,7 +733,11 @@ def run_batch(
         prepare(arguments)
     # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
     whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
-    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads())
+    # imported here: the block path is built on this module's lanes
+    from rbstudy.numerics.block import BLOCK
+
+    align = BLOCK if getattr(scheme.run_bodies_inplace, "has_block", False) else 2
+    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads(), align)
 
     def run_chunk(rows):
         # CPU time of this thread: compute only, whatever the wait for the GIL around the call.
