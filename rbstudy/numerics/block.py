@@ -95,19 +95,61 @@ _N_TALLY = 6
 
 @jit
 def at(a, i, lane):
-    """Row ``i`` of lane ``lane`` of a block's rows ``a`` (N_ROWS * BLOCK,)."""
+    """Row ``i`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    float
+    """
     return a[i * BLOCK + lane]
 
 
 @jit
 def column3(a, i, lane):
-    """Rows ``i..i+2`` of lane ``lane`` of a block's rows (N_ROWS * BLOCK,), as a tuple."""
+    """Rows ``i..i+2`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
     return (a[i * BLOCK + lane], a[(i + 1) * BLOCK + lane], a[(i + 2) * BLOCK + lane])
 
 
 @jit
 def column4(a, i, lane):
-    """Rows ``i..i+3`` of lane ``lane`` of a block's rows (N_ROWS * BLOCK,), as a tuple."""
+    """Rows ``i..i+3`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
     return (
         a[i * BLOCK + lane],
         a[(i + 1) * BLOCK + lane],
@@ -118,7 +160,18 @@ def column4(a, i, lane):
 
 @jit
 def set_column3(a, i, lane, v):
-    """Store the 3-tuple ``v`` into rows ``i..i+2`` of lane ``lane`` (mutates ``a``)."""
+    """Store the 3-tuple ``v`` into rows ``i..i+2`` of lane ``lane`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+    v : tuple of 3 floats
+    """
     a[i * BLOCK + lane] = v[0]
     a[(i + 1) * BLOCK + lane] = v[1]
     a[(i + 2) * BLOCK + lane] = v[2]
@@ -126,7 +179,18 @@ def set_column3(a, i, lane, v):
 
 @jit
 def set_column4(a, i, lane, v):
-    """Store the 4-tuple ``v`` into rows ``i..i+3`` of lane ``lane`` (mutates ``a``)."""
+    """Store the 4-tuple ``v`` into rows ``i..i+3`` of lane ``lane`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+    v : tuple of 4 floats
+    """
     a[i * BLOCK + lane] = v[0]
     a[(i + 1) * BLOCK + lane] = v[1]
     a[(i + 2) * BLOCK + lane] = v[2]
@@ -141,7 +205,15 @@ def quat_exp_columns(block, vector, quaternion):
     """`rbstudy.numerics.lanes_math.quat_exp_poly` of every lane's rotation vector, rows
     ``vector..vector+2`` of ``block`` (N_ROWS * BLOCK,), into rows ``quaternion..quaternion+3``:
     a loop over lanes that vectorises, then libm's sine for the lanes whose half angle is past
-    `rbstudy.numerics.lanes_math.REDUCED` (or NaN), as `sin_cos` takes it."""
+    `rbstudy.numerics.lanes_math.REDUCED` (or NaN), as `sin_cos` takes it.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    vector, quaternion : int
+        The first rows of the rotation vectors (3 rows) and of their quaternions (4 rows).
+    """
     for lane in range(BLOCK):
         v = column3(block, vector, lane)
         angle = norm(v)
@@ -159,7 +231,15 @@ def quat_exp_columns(block, vector, quaternion):
 def turn_columns(block, vector):
     """Turn every lane's orientation by the rotation vector in rows ``vector..vector+2`` of
     ``block`` (N_ROWS * BLOCK,): ``q <- normalise(q exp(vector))``, the exponential into the
-    four rows after the vector (`quat_exp_columns`)."""
+    four rows after the vector (`quat_exp_columns`).
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    vector : int
+        The first of the rotation vectors' rows (rad), 3 rows, then 4 rows of scratch.
+    """
     quat_exp_columns(block, vector, vector + 3)
     for lane in range(BLOCK):
         q = column4(block, STATE + S.QUATERNION, lane)
@@ -171,7 +251,28 @@ def turn_columns(block, vector):
 def loads_at(block, q, w, lane):
     """The loads on lane ``lane`` of a block at orientation ``q``, spin ``w``: ``(moment, mass,
     force)``, the body-frame moment (N m) and the space force (N) as
-    `rbstudy.numerics.dynamics.body_moment` and `space_force` give them for `plain_loads`."""
+    `rbstudy.numerics.dynamics.body_moment` and `space_force` give them for `plain_loads`.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    w : tuple of 3 floats
+        Angular velocity, rad/s, body axes.
+    lane : int
+        The lane.
+
+    Returns
+    -------
+    moment : tuple of 3 floats
+        N m, body axes.
+    mass : float
+        kg.
+    force : tuple of 3 floats
+        N, space axes.
+    """
     body, space = column3(block, PARAM + S.MOMENT_BODY, lane), column3(block, PARAM + S.MOMENT_SPACE, lane)
     mass = at(block, PARAM + S.MASS, lane)
     weight, force = column3(block, PARAM + S.GRAVITY, lane), column3(block, PARAM + S.FORCE_SPACE, lane)
@@ -180,8 +281,18 @@ def loads_at(block, q, w, lane):
 
 @jit
 def plain_loads(p):
-    """Whether the block path covers a body of parameter row ``p`` (W,): no lever and no
-    body-fixed force (the module docstring)."""
+    """Whether the block path covers a body: no lever and no body-fixed force (the module
+    docstring).
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM.
+
+    Returns
+    -------
+    bool
+    """
     no_body_force = p[S.FORCE_BODY] == 0.0 and p[S.FORCE_BODY + 1] == 0.0 and p[S.FORCE_BODY + 2] == 0.0
     return no_body_force and not has_lever(p)
 
@@ -367,6 +478,35 @@ def run_rows_in_blocks(
     every one has `plain_loads`, with ``single`` elsewhere: the scheme's entry point of the
     single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start, stop, state0,
     params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)``.
+
+    Parameters
+    ----------
+    block_step : compiled kernel ``(block, h)``
+        The scheme's (module docstring).
+    single : compiled function
+        The single-body loop over a range of rows, as above.
+    start, stop : int
+        The rows to integrate; only these rows of ``samples`` and ``results`` are written.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states (read only).
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM.
+    options : ndarray, shape (B, N_OPTION)
+        Scheme options (read only; the block step has none).
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps of every body.
+    every : int
+        Steps between two samples.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    samples : ndarray, shape (B, T, N_STATE)
+        Output; NaN after a body's failure.
+    results : ndarray, shape (B, N_RESULT)
+        Output, by name (`rbstudy.numerics.state.Result`).
+    halt : ndarray of int64, shape (1,)
+        The halt flag.
     """
     for a in range(start, stop, BLOCK):
         if halt[0] != 0:
