@@ -53,8 +53,9 @@ def test_sine_and_cosine_are_within_their_ulps_of_numpy(scale):
 def test_beyond_the_reduced_range_they_are_libm_and_nan_stays_nan():
     x = np.array([np.nextafter(REDUCED, np.inf), 1e7, -3e12, 1e300, np.inf, -np.inf, np.nan])
     sine, cosine = _sin_cos_all(x)
-    assert np.array_equal(sine, np.sin(x), equal_nan=True)
-    assert np.array_equal(cosine, np.cos(x), equal_nan=True)
+    with np.errstate(invalid="ignore"):  # numpy warns of the infinities, as it should
+        assert np.array_equal(sine, np.sin(x), equal_nan=True)
+        assert np.array_equal(cosine, np.cos(x), equal_nan=True)
     assert np.isnan(sine[-3:]).all() and np.isnan(cosine[-3:]).all()
 
 
