@@ -1,13 +1,14 @@
 """How fast leapfrog can go on this machine: a plain struct-of-arrays loop over bodies.
 
 The reference of issue 33 for the driver's kernels (docs/performance.md, "SIMD across
-bodies"): leapfrog's step (`rbstudy.schemes.leapfrog`) on B bodies held as arrays of one
-component each, (3, B) and (4, B), the loop over bodies innermost so that LLVM runs it 8
-bodies to an AVX-512 instruction; no status checks, no drift checks, no sampling. The loads are
-those of the scheme's kernel without a lever or a body-fixed force: a body moment, a space
-moment turned into the body, a space force and the weight. The sine and cosine are
-`rbstudy.numerics.lanes_math.sin_cos_reduced` (``--libm``: libm's, which keeps LLVM from
-vectorising the loop).
+bodies"): leapfrog's step (`rbstudy.schemes.leapfrog`) on B bodies held as rows of one
+component each (one flat array of `_N_ROWS` rows of B), one loop over the bodies, innermost,
+so that LLVM runs it several bodies to an instruction (4 to an AVX2 register: LLVM's choice
+on this Xeon); no status checks, no drift checks, no sampling. The loads are those of the
+scheme's kernel without a lever or a body-fixed force: a body moment, a space moment turned
+into the body, a space force and the weight. The sine and cosine are
+`rbstudy.numerics.lanes_math.sin_cos_reduced` (``--libm``: libm's, whose calls LLVM cannot
+vectorise).
 
 It prints body-steps per second at B = 100, 4096 and 1e4 on one thread, whether LLVM
 vectorised the loop (packed AVX-512 or AVX2 arithmetic in its assembly), and the machine's
@@ -30,24 +31,24 @@ from rbstudy.pipeline.bench import BENCH_DT, abaqus_top_scene
 
 BATCH_SIZES = (100, 4096, 10_000)
 BODY_STEPS = 30_000_000
-# Floating-point operations of one body-step of `step_soa` (+, -, x, / each one; a square
-# root one), counted in its source: the moment turned into the body 31 (quaternion rotation),
-# Euler's rates 15, the updates of w, v, x 18, the rotation vector and its angle 9 + sqrt,
-# the sine and cosine 48 (reduction 17, kernels 31), the quaternion exp 5, product 28 and
-# renormalisation 11 + sqrt. The driver's checks between steps (~44, docs/performance.md)
-# are not in it.
+# Floating-point operations of one body-step of the loop (+, -, x, / each one; a square root
+# one), counted in its source: the space moment turned into the body 27 and added 3, Euler's
+# rates and the update of w 21, of v 7, of x 6, the rotation vector 3 and its angle 7, the
+# sine and cosine 48 (reduction 17, kernels 31), the quaternion exp 4, the product 28 and the
+# renormalisation 13. The driver's checks between steps (~44, docs/performance.md) are not in it.
 FLOPS_PER_STEP = 167
 # One core of this machine (Intel Xeon, AVX-512, 2.6 GHz nominal): two 8-wide fused
 # multiply-adds a cycle, 32 flops a cycle (docs/performance.md); without FMA contraction
-# (rbstudy's kernels never contract, so that batch and solo agree), half of that is reachable.
+# (rbstudy's kernels never contract, so that batch and solo agree) half of that, and a quarter
+# with the 4-wide registers LLVM chooses here.
 CLOCK_HZ = 2.6e9
 PEAK_FLOPS = 32 * CLOCK_HZ
 
 
 @jit
 def _rotate_inverse(q0, q1, q2, q3, a0, a1, a2):
-    """``R^T a`` for the unit quaternion (q0, q1, q2, q3), scalar last: ``a + 2 u x (u x a -
-    s a)``... written as `rbstudy.numerics.rotation.quat_rotate` of the conjugate."""
+    """``R^T a`` for the unit quaternion (q0, q1, q2, q3), scalar last, as
+    `rbstudy.numerics.rotation.quat_rotate` of the conjugate writes it."""
     # t = 2 (u x a), u = -(q0, q1, q2) for the conjugate
     t0 = 2.0 * (-q1 * a2 + q2 * a1)
     t1 = 2.0 * (-q2 * a0 + q0 * a2)
