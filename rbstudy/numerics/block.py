@@ -15,24 +15,26 @@ each short enough for LLVM to vectorise (one loop for a whole step was not: meas
 docs/performance.md), reading and writing a lane's entries with `at`, `column3`, `column4`,
 `set_column3`, `set_column4`. One flat array of rows of a width known when compiling lets
 LLVM see that no two rows overlap: with 2-D arrays of a width known only at run time it
-needed a check of every pair of rows before the loop, and gave up. It must give each body the bits of the
-scheme's ``step_inplace`` exactly: the same formulas in the same order, the sine and cosine of
-`rbstudy.numerics.lanes_math` on both paths, no fast-math (`rbstudy.numerics.jit`).
+needed a check of every pair of rows before the loop, and gave up. It must give each body
+the bits of the scheme's ``step_inplace`` exactly: the same formulas in the same order, the
+sine and cosine of `rbstudy.numerics.lanes_math` on both paths, no fast-math
+(`rbstudy.numerics.jit`).
 
 What the block path covers, and what it hands back
 --------------------------------------------------
 `run_blocks` steps the bodies of a batch without loads tabulated in time (the kernels without
 the time, `rbstudy.numerics.clock`) whose loads are constant and act at the centre of mass or
 as moments: no lever (`rbstudy.numerics.dynamics.has_lever`) and no body-fixed force, whose
-branches would keep the loop over lanes from vectorising. A block with any other body runs
-through the single-body loop (`driver.run_rows`), which gives the same bits.
+branches would keep the loop over lanes from vectorising, in blocks of at least `FEWEST`
+bodies. Other blocks run through the single-body loop (`driver.run_rows`), which gives the
+same bits.
 
 Every lane is stepped every step; a body that has failed stops being booked (its status
 is no longer OK), so its state may go on to NaN without effect: nothing passes between lanes,
 and no lane's arithmetic traps. The lanes past the last body of the batch are copies of the
 block's first body that are never booked. The bookkeeping follows
-`driver._lane_after_step` step for step (the same tests in the same order, the invariants
-computed for every lane in a loop that vectorises, the tests one lane at a time).
+`driver._lane_after_step` step for step (`_book`: the same tests in the same order, written
+with selects in a loop over lanes that vectorises); only the samples are stored lane by lane.
 """
 
 import math

@@ -388,6 +388,8 @@ def quat_exp(v):
         Scalar last.
     """
     angle = norm(v)
+    if angle < SMALL_ANGLE:  # the series: no sine to take (quat_exp_of does not read it)
+        return quat_exp_of(v, angle, 0.0, 1.0)
     half = 0.5 * angle
     return quat_exp_of(v, angle, math.sin(half), math.cos(half))
 
