@@ -541,7 +541,7 @@ def run_rows(
         )
 
 
-def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
+def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None, block=None):
     """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params, options,
     h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows [start,
     stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type of
@@ -566,6 +566,10 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
         Other kernels for the rows whose option at ``slot`` is nonzero (a variant of the
         scheme chosen per body, such as its compensated step): the entry runs each run of
         such rows with them, so that the plain step stays as fast as without the variant.
+    block : compiled kernel ``(y, p, h, temp)``, optional
+        The scheme's block step (`rbstudy.numerics.block`): the entry then steps blocks of
+        bodies with it where the kernels do not take the time, and ``step`` elsewhere; each
+        body gets the same bits either way.
 
     Returns
     -------
@@ -573,7 +577,7 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None):
     """
     if lanes not in (1, 2):
         raise ValueError(f"a scheme runs 1 or 2 lanes, not {lanes!r}")
-    return CachedEntry(step, init, n_work, wrapper, lanes, switch)
+    return CachedEntry(step, init, n_work, wrapper, lanes, switch, block)
 
 
 @dataclass(frozen=True)
@@ -635,13 +639,14 @@ def _check_knots(params):
         )
 
 
-def _chunks(n_bodies, threads):
+def _chunks(n_bodies, threads, align=2):
     """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core;
-    each of an even length but the last, so that a scheme of two lanes leaves no body of a
-    range without its mate (`integrate_rows_inplace`)."""
-    pieces = min(n_bodies, threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
+    each a multiple of ``align`` long but the last: 2, so that a scheme of two lanes leaves no
+    body of a range without its mate (`integrate_rows_inplace`); a block's width for a scheme
+    that steps blocks, so that its ranges fill them (`rbstudy.numerics.block`)."""
+    pieces = min(-(-n_bodies // align), threads * _CHUNKS_PER_THREAD) if threads > 1 else 1
     edges = np.linspace(0, n_bodies, pieces + 1).astype(int)
-    edges[1:-1] -= edges[1:-1] % 2
+    edges[1:-1] -= edges[1:-1] % align
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
@@ -729,7 +734,11 @@ def run_batch(
         prepare(arguments)
     # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
     whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
-    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads())
+    # imported here: the block path is built on this module's lanes
+    from rbstudy.numerics.block import BLOCK
+
+    align = BLOCK if getattr(scheme.run_bodies_inplace, "has_block", False) else 2
+    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads(), align)
 
     def run_chunk(rows):
         # CPU time of this thread: compute only, whatever the wait for the GIL around the call.

@@ -45,6 +45,8 @@ __all__ = [
     "timed_damping",
     "timed_shortfall",
     "body_moment",
+    "moment_from",
+    "force_from",
     "kick_momentum",
     "space_force",
     "euler_rates",
@@ -412,10 +414,35 @@ def body_moment(q, w, p, t):
     space = read3(p, S.MOMENT_SPACE)
     if has_lever(p):
         space = add(space, lever_moment(q, read3(p, S.LEVER), read3(p, S.LEVER + 3), read3(p, S.LEVER + 6)))
-    return sub(
-        add(add(read3(p, S.MOMENT_BODY), quat_rotate_inverse(q, space)), timed_moment(q, p, t)),
-        timed_damping(w, p, t),
-    )
+    return moment_from(q, w, p, t, read3(p, S.MOMENT_BODY), space)
+
+
+@inline_jit
+def moment_from(q, w, p, t, body, space):
+    """`body_moment` from its constant parts: the body-fixed moment ``body`` and the space
+    moment ``space`` (N m, with that of a lever), to which the loads of the time are added.
+    The block step of a scheme (`rbstudy.numerics.block`) calls it with ``t`` None, where
+    ``p`` is never read.
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    w : tuple of 3 floats
+        Angular velocity, rad/s, body axes.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM; anything where ``t`` is None.
+    t : float or None
+        Time (s).
+    body, space : tuple of 3 floats
+        N m, body and space axes.
+
+    Returns
+    -------
+    tuple of 3 floats
+        N m, body axes.
+    """
+    return sub(add(add(body, quat_rotate_inverse(q, space)), timed_moment(q, p, t)), timed_damping(w, p, t))
 
 
 @inline_jit
@@ -483,7 +510,34 @@ def space_force(q, p, t):
         f = add(read3(p, S.FORCE_SPACE), quat_rotate(q, read3(p, S.FORCE_BODY)))
     else:
         f = read3(p, S.FORCE_SPACE)
-    return add(axpy(p[S.MASS], read3(p, S.GRAVITY), f), timed_force(q, p, t))
+    return force_from(q, p, t, p[S.MASS], read3(p, S.GRAVITY), f)
+
+
+@inline_jit
+def force_from(q, p, t, mass, gravity, space):
+    """`space_force` from its constant parts: the weight ``mass gravity`` and the force in
+    space ``space`` (N, the body-fixed force turned in), to which the loads of the time are
+    added; ``p`` is never read where ``t`` is None (as in `moment_from`).
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM; anything where ``t`` is None.
+    t : float or None
+        Time (s).
+    mass : float
+        kg.
+    gravity, space : tuple of 3 floats
+        m/s^2 and N, space axes.
+
+    Returns
+    -------
+    tuple of 3 floats
+        N, space axes.
+    """
+    return add(axpy(mass, gravity, space), timed_force(q, p, t))
 
 
 @jit

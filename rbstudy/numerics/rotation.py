@@ -33,6 +33,7 @@ __all__ = [
     "quat_rotate",
     "quat_rotate_inverse",
     "quat_exp",
+    "quat_exp_of",
     "quat_exp_minus_one",
     "quat_cayley",
     "quat_cayley_minus_one",
@@ -387,14 +388,37 @@ def quat_exp(v):
         Scalar last.
     """
     angle = norm(v)
+    if angle < SMALL_ANGLE:  # the series: no sine to take (quat_exp_of does not read it)
+        return quat_exp_of(v, angle, 0.0, 1.0)
     half = 0.5 * angle
-    if angle < SMALL_ANGLE:
-        # sin(half)/angle = 1/2 - angle^2/48 + ...; cos(half) = 1 - angle^2/8 + angle^4/384
-        s = 0.5 - angle * angle / 48.0
-        c = 1.0 - angle * angle / 8.0 + angle**4 / 384.0
-    else:
-        s = math.sin(half) / angle
-        c = math.cos(half)
+    return quat_exp_of(v, angle, math.sin(half), math.cos(half))
+
+
+@jit
+def quat_exp_of(v, angle, sine, cosine):
+    """`quat_exp` of the rotation vector ``v`` from its angle ``|v|`` and the sine and cosine
+    of half of it (libm's for `quat_exp`, `rbstudy.numerics.lanes_math`'s for the schemes that
+    step blocks of bodies): the Taylor series below `SMALL_ANGLE`, chosen by a select, so that
+    a loop over bodies that calls it still vectorises.
+
+    Parameters
+    ----------
+    v : tuple of 3 floats
+        Rotation vector (rad).
+    angle : float
+        ``|v|``.
+    sine, cosine : float
+        ``sin(angle / 2)``, ``cos(angle / 2)``.
+
+    Returns
+    -------
+    tuple of 4 floats
+        Scalar last.
+    """
+    small = angle < SMALL_ANGLE
+    # sin(half)/angle = 1/2 - angle^2/48 + ...; cos(half) = 1 - angle^2/8 + angle^4/384
+    s = 0.5 - angle * angle / 48.0 if small else sine / angle
+    c = 1.0 - angle * angle / 8.0 + angle**4 / 384.0 if small else cosine
     return (s * v[0], s * v[1], s * v[2], c)
 
 

@@ -15,6 +15,17 @@ Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. 
 """
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.block import (
+    BLOCK,
+    PARAM,
+    STATE,
+    TEMP,
+    column3,
+    column4,
+    loads_at,
+    set_column3,
+    turn_columns,
+)
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import (
@@ -27,9 +38,9 @@ from rbstudy.numerics.dynamics import (
     to_omega,
 )
 from rbstudy.numerics.jit import jit
+from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
     axpy,
-    quat_exp,
     quat_exp_minus_one,
     quat_mul,
     quat_normalize,
@@ -76,9 +87,33 @@ def step_inplace(y, p, opt, t, h, work):
     acceleration = scale(1.0 / p[S.MASS], space_force(q, p, t))
     write3(y, S.POSITION, axpy(h, v, read3(y, S.POSITION)))
     write3(y, S.VELOCITY, axpy(h, acceleration, v))
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp(scale(h, w)))))
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(scale(h, w)))))
     write3(y, S.OMEGA, to_omega(m_next, inertia_))
     return OK, 0
+
+
+# block scratch: the rotation vector h w, then its quaternion (`turn_columns`)
+_TURN = TEMP
+
+
+@jit
+def block_step(block, h):
+    """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out. Each body's bits
+    are those of `step_inplace`."""
+    for lane in range(BLOCK):
+        q, w = column4(block, STATE + S.QUATERNION, lane), column3(block, STATE + S.OMEGA, lane)
+        v, x = column3(block, STATE + S.VELOCITY, lane), column3(block, STATE + S.POSITION, lane)
+        inertia_ = column3(block, PARAM + S.INERTIA, lane)
+        moment, mass, force = loads_at(block, q, w, lane)
+        m = to_momentum(w, inertia_)
+        m_next = axpy(h, momentum_rates(m, w, moment), m)
+        acceleration = scale(1.0 / mass, force)
+        set_column3(block, STATE + S.POSITION, lane, axpy(h, v, x))
+        set_column3(block, STATE + S.VELOCITY, lane, axpy(h, acceleration, v))
+        set_column3(block, _TURN, lane, scale(h, w))
+        set_column3(block, STATE + S.OMEGA, lane, to_omega(m_next, inertia_))
+    turn_columns(block, _TURN)
 
 
 SCHEME = Scheme(
@@ -89,7 +124,11 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing, _SLOTS)
+        step_inplace,
+        init_nothing,
+        N_WORK,
+        switch=switch(compensated_step_inplace, init_nothing, _SLOTS),
+        block=block_step,
     ),
     reference="Hairer, Lubich & Wanner, Geometric Numerical Integration, 2nd ed. (2006), VII",
     options=_OPTIONS,

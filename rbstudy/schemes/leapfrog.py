@@ -21,13 +21,24 @@ Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (time integration).
 """
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.block import (
+    BLOCK,
+    PARAM,
+    STATE,
+    TEMP,
+    column3,
+    column4,
+    loads_at,
+    set_column3,
+    turn_columns,
+)
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.numerics.jit import jit
+from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
     axpy,
-    quat_exp,
     quat_exp_minus_one,
     quat_mul,
     quat_normalize,
@@ -69,8 +80,30 @@ def step_inplace(y, p, opt, t, h, work):
     write3(y, S.OMEGA, w_half)
     write3(y, S.VELOCITY, v_half)
     write3(y, S.POSITION, axpy(h, v_half, read3(y, S.POSITION)))
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp(scale(h, w_half)))))
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(scale(h, w_half)))))
     return OK, 0
+
+
+# block scratch: the rotation vector h w(n+1/2), then its quaternion (`turn_columns`)
+_TURN = TEMP
+
+
+@jit
+def block_step(block, h):
+    """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out. Each body's bits
+    are those of `step_inplace`."""
+    for lane in range(BLOCK):
+        q, w = column4(block, STATE + S.QUATERNION, lane), column3(block, STATE + S.OMEGA, lane)
+        moment, mass, force = loads_at(block, q, w, lane)
+        w_half = axpy(h, euler_rates(w, column3(block, PARAM + S.INERTIA, lane), moment), w)
+        v_half = axpy(h / mass, force, column3(block, STATE + S.VELOCITY, lane))
+        set_column3(block, STATE + S.OMEGA, lane, w_half)
+        set_column3(block, STATE + S.VELOCITY, lane, v_half)
+        x = column3(block, STATE + S.POSITION, lane)
+        set_column3(block, STATE + S.POSITION, lane, axpy(h, v_half, x))
+        set_column3(block, _TURN, lane, scale(h, w_half))
+    turn_columns(block, _TURN)
 
 
 SCHEME = Scheme(
@@ -86,6 +119,7 @@ SCHEME = Scheme(
         N_WORK,
         lanes=2,
         switch=switch(compensated_step_inplace, init_nothing, _SLOTS),
+        block=block_step,
     ),
     reference="Altair OpenRadioss Theory Manual, Rigid Body (time integration, eqs. 13-18)",
     options=_OPTIONS,

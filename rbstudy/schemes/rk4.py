@@ -13,6 +13,17 @@ integration of rotational motion".
 """
 
 from rbstudy.numerics import state as S
+from rbstudy.numerics.block import (
+    BLOCK,
+    PARAM,
+    STATE,
+    TEMP,
+    column3,
+    column4,
+    loads_at,
+    set_column3,
+    set_column4,
+)
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, add4_inplace, normalize_inplace
 from rbstudy.numerics.driver import init_nothing, make_entry
@@ -47,9 +58,16 @@ _SLOTS = option_slots(_OPTIONS)
 def rates(q, v, w, p, t):
     """Time derivatives ``(dx, dq, dv, dw)`` at orientation ``q``, velocity ``v``, spin ``w``
     and time ``t``."""
+    return rates_under(q, v, w, inertia(p), p[S.MASS], body_moment(q, w, p, t), space_force(q, p, t))
+
+
+@jit
+def rates_under(q, v, w, inertia_, mass, moment, force):
+    """`rates` under the body-frame ``moment`` and the space ``force``, for a body of
+    principal inertias ``inertia_`` and ``mass``."""
     dq = quat_mul(q, (0.5 * w[0], 0.5 * w[1], 0.5 * w[2], 0.0))
-    dv = scale(1.0 / p[S.MASS], space_force(q, p, t))
-    dw = euler_rates(w, inertia(p), body_moment(q, w, p, t))
+    dv = scale(1.0 / mass, force)
+    dw = euler_rates(w, inertia_, moment)
     return v, dq, dv, dw
 
 
@@ -94,6 +112,94 @@ def step_inplace(y, p, opt, t, h, work):
     return OK, 0
 
 
+# block scratch: the last stage's rates (dx, dq, dv, dw) laid out as a state, then their
+# weighted sum so far
+_RATES = TEMP
+_SUM = TEMP + S.N_STATE
+
+
+@jit
+def _columns(block, row, lane):
+    """``(x, q, v, w)`` of lane ``lane``, from the rows from ``row`` on laid out as a state."""
+    return (
+        column3(block, row + S.POSITION, lane),
+        column4(block, row + S.QUATERNION, lane),
+        column3(block, row + S.VELOCITY, lane),
+        column3(block, row + S.OMEGA, lane),
+    )
+
+
+@jit
+def _set_columns(block, row, lane, x, q, v, w):
+    """Store ``(x, q, v, w)`` of lane ``lane`` into the rows from ``row`` on."""
+    set_column3(block, row + S.POSITION, lane, x)
+    set_column4(block, row + S.QUATERNION, lane, q)
+    set_column3(block, row + S.VELOCITY, lane, v)
+    set_column3(block, row + S.OMEGA, lane, w)
+
+
+@jit
+def _block_stage(block, first, a, weight):
+    """One stage of `stages` for every lane of a block: the rates at ``(q, v, w) + a k``,
+    ``k`` the last stage's rates (at ``(q, v, w)`` for the ``first``), stored over those, and
+    added with ``weight`` to the weighted sum (which they start for the ``first``): the sums
+    of `rbstudy.schemes._rk.rk4_sum3` in their order. A function of its own per loop: inlined
+    into one step, the helpers of the later stages were called instead of inlined by LLVM, and
+    numba's inlining reference-counts the block on every call: either keeps the loop from
+    vectorising."""
+    for lane in range(BLOCK):
+        _, q, v, w = _columns(block, STATE, lane)
+        if not first:
+            _, kq, kv, kw = _columns(block, _RATES, lane)
+            q, v, w = axpy4(a, kq, q), axpy(a, kv, v), axpy(a, kw, w)
+        moment, mass, force = loads_at(block, q, w, lane)
+        k = rates_under(q, v, w, column3(block, PARAM + S.INERTIA, lane), mass, moment, force)
+        _set_columns(block, _RATES, lane, k[0], k[1], k[2], k[3])
+        if first:
+            _set_columns(block, _SUM, lane, k[0], k[1], k[2], k[3])
+        else:
+            sx, sq, sv, sw = _columns(block, _SUM, lane)
+            sums = (
+                axpy(weight, k[0], sx),
+                axpy4(weight, k[1], sq),
+                axpy(weight, k[2], sv),
+                axpy(weight, k[3], sw),
+            )
+            _set_columns(block, _SUM, lane, sums[0], sums[1], sums[2], sums[3])
+
+
+@jit
+def _block_update(block, h):
+    """``y + h/6 (k1 + 2 k2 + 2 k3 + k4)`` of `step_inplace`, quaternion renormalised, for
+    every lane, from the weighted sum of the stages."""
+    c = h / 6.0
+    for lane in range(BLOCK):
+        x, q, v, w = _columns(block, STATE, lane)
+        sx, sq, sv, sw = _columns(block, _SUM, lane)
+        _set_columns(
+            block,
+            STATE,
+            lane,
+            axpy(c, sx, x),
+            quat_normalize(axpy4(c, sq, q)),
+            axpy(c, sv, v),
+            axpy(c, sw, w),
+        )
+
+
+@jit
+def block_step(block, h):
+    """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out, a loop over the
+    lanes per stage (one loop for the whole step did not vectorise). Each body's bits are
+    those of `step_inplace`."""
+    _block_stage(block, True, 0.0, 1.0)
+    _block_stage(block, False, 0.5 * h, 2.0)
+    _block_stage(block, False, 0.5 * h, 2.0)
+    _block_stage(block, False, h, 1.0)
+    _block_update(block, h)
+
+
 SCHEME = Scheme(
     name="rk4",
     summary="classical Runge-Kutta 4 on (q, w), quaternion renormalised each step",
@@ -102,7 +208,11 @@ SCHEME = Scheme(
     implicit=False,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_nothing, N_WORK, switch=switch(compensated_step_inplace, init_nothing, _SLOTS)
+        step_inplace,
+        init_nothing,
+        N_WORK,
+        switch=switch(compensated_step_inplace, init_nothing, _SLOTS),
+        block=block_step,
     ),
     reference="Fukushima, Astron. J. 135 (2008) 2298",
     options=_OPTIONS,

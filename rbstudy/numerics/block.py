@@ -1,0 +1,524 @@
+"""The block path of the driver: `BLOCK` bodies stepped together, one component per array row,
+so that LLVM runs each of a step's loops over bodies several bodies to an instruction.
+
+How a scheme plugs in
+---------------------
+A scheme of fixed steps that carries nothing between them may give, beside its single-body
+kernels (`rbstudy.numerics.driver`), a block step
+
+    block_step(block, h)
+
+with ``block`` the block's rows, one flat array (N_ROWS * BLOCK,): row ``STATE + k`` holds
+component k of every lane's state (updated in place), row ``PARAM + k`` parameter k, rows
+``TEMP..`` scratch (N_TEMP of them); ``h`` the step. It is a few loops over the block's lanes,
+each short enough for LLVM to vectorise (one loop for a whole step was not: measured, see
+docs/performance.md), reading and writing a lane's entries with `at`, `column3`, `column4`,
+`set_column3`, `set_column4`. One flat array of rows of a width known when compiling lets
+LLVM see that no two rows overlap: with 2-D arrays of a width known only at run time it
+needed a check of every pair of rows before the loop, and gave up. It must give each body
+the bits of the scheme's ``step_inplace`` exactly: the same formulas in the same order, the
+sine and cosine of `rbstudy.numerics.lanes_math` on both paths, no fast-math
+(`rbstudy.numerics.jit`).
+
+What the block path covers, and what it hands back
+--------------------------------------------------
+`run_blocks` steps the bodies of a batch without loads tabulated in time (the kernels without
+the time, `rbstudy.numerics.clock`) whose loads are constant and act at the centre of mass or
+as moments: no lever (`rbstudy.numerics.dynamics.has_lever`) and no body-fixed force, whose
+branches would keep the loop over lanes from vectorising, in blocks of at least `FEWEST`
+bodies. Other blocks run through the single-body loop (`driver.run_rows`), which gives the
+same bits.
+
+Every lane is stepped every step; a body that has failed stops being booked (its status
+is no longer OK), so its state may go on to NaN without effect: nothing passes between lanes,
+and no lane's arithmetic traps. The lanes past the last body of the batch are copies of the
+block's first body that are never booked. The bookkeeping follows
+`driver._lane_after_step` step for step (`_book`: the same tests in the same order, written
+with selects in a loop over lanes that vectorises); only the samples are stored lane by lane.
+"""
+
+import math
+
+import numpy as np
+
+from rbstudy.numerics import algebra
+from rbstudy.numerics import state as S
+from rbstudy.numerics.driver import _HALT_MASK, _lane_end, _lane_start
+from rbstudy.numerics.dynamics import force_from, has_lever, moment_from, momentum_squared, rotational_energy
+from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes_math import REDUCED, sin_cos_reduced
+from rbstudy.numerics.rotation import dot, norm, quat_exp_of, quat_mul, quat_normalize
+from rbstudy.numerics.state import OK, UNSTABLE
+
+__all__ = [
+    "BLOCK",
+    "STATE",
+    "PARAM",
+    "TEMP",
+    "N_TEMP",
+    "N_ROWS",
+    "at",
+    "column3",
+    "column4",
+    "set_column3",
+    "set_column4",
+    "run_blocks",
+    "run_rows_in_blocks",
+    "plain_loads",
+    "quat_exp_columns",
+]
+
+# Bodies stepped together. 8 fill one AVX-512 register of doubles, but LLVM here picks 4-wide
+# (AVX2) registers and each loop over lanes has its set-up: a block of 8 ran leapfrog at
+# 4.0e7 body-steps/s, of 16 at 8.3e7, the same as 1e4 (one core, measured); 64 leaves the
+# loop set-up nothing and still fits L1 (13 + N_PARAM + N_TEMP rows of 512 bytes).
+BLOCK = 64
+# The fewest bodies worth a block: a block steps all its lanes, filled or not, in about the time
+# the single-body loop takes for 16 bodies (leapfrog: 64 lanes at 9e7 lane-steps/s against
+# 2.5e7 body-steps/s), so fewer run there (a batch of one body ran 40 times slower in a block).
+FEWEST = BLOCK // 4
+# Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
+N_TEMP = 2 * S.N_STATE
+# Where the rows of the states, the parameters and the scratch start.
+STATE = 0
+PARAM = STATE + S.N_STATE
+TEMP = PARAM + S.N_PARAM
+N_ROWS = TEMP + N_TEMP
+
+_relative_drift = jit(algebra.relative_drift)
+# The status of a lane past the batch's last body: never OK, never stored.
+_IDLE = -1
+# Rows of a block's tallies, the fields of the driver's lane tuple (`_book`): status, steps
+# taken, largest energy and |L| drifts, largest |w|^2, next sample (floats, so that one loop
+# over lanes handles them all).
+_STATUS, _STEPS, _MAX_ENERGY, _MAX_MOMENTUM, _SPIN, _SAMPLE = range(6)
+_N_TALLY = 6
+
+
+@jit
+def at(a, i, lane):
+    """Row ``i`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    float
+    """
+    return a[i * BLOCK + lane]
+
+
+@jit
+def column3(a, i, lane):
+    """Rows ``i..i+2`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    tuple of 3 floats
+    """
+    return (a[i * BLOCK + lane], a[(i + 1) * BLOCK + lane], a[(i + 2) * BLOCK + lane])
+
+
+@jit
+def column4(a, i, lane):
+    """Rows ``i..i+3`` of lane ``lane`` of a block's rows ``a``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
+    return (
+        a[i * BLOCK + lane],
+        a[(i + 1) * BLOCK + lane],
+        a[(i + 2) * BLOCK + lane],
+        a[(i + 3) * BLOCK + lane],
+    )
+
+
+@jit
+def set_column3(a, i, lane, v):
+    """Store the 3-tuple ``v`` into rows ``i..i+2`` of lane ``lane`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+    v : tuple of 3 floats
+    """
+    a[i * BLOCK + lane] = v[0]
+    a[(i + 1) * BLOCK + lane] = v[1]
+    a[(i + 2) * BLOCK + lane] = v[2]
+
+
+@jit
+def set_column4(a, i, lane, v):
+    """Store the 4-tuple ``v`` into rows ``i..i+3`` of lane ``lane`` (mutates ``a``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    i : int
+        The first row.
+    lane : int
+        The lane, 0 <= lane < BLOCK.
+    v : tuple of 4 floats
+    """
+    a[i * BLOCK + lane] = v[0]
+    a[(i + 1) * BLOCK + lane] = v[1]
+    a[(i + 2) * BLOCK + lane] = v[2]
+    a[(i + 3) * BLOCK + lane] = v[3]
+
+
+# The helpers that take row numbers are inlined by numba: left to LLVM, a helper that it did not
+# inline saw its rows as numbers known only at run time, could not tell them apart, and ran
+# its loops one lane at a time (leapfrog 9.0e7 -> 4.4e7 body-steps/s, measured).
+@inline_jit
+def quat_exp_columns(block, vector, quaternion):
+    """`rbstudy.numerics.lanes_math.quat_exp_poly` of every lane's rotation vector, rows
+    ``vector..vector+2`` of ``block`` (N_ROWS * BLOCK,), into rows ``quaternion..quaternion+3``:
+    a loop over lanes that vectorises, then libm's sine for the lanes whose half angle is past
+    `rbstudy.numerics.lanes_math.REDUCED` (or NaN), as `sin_cos` takes it.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    vector, quaternion : int
+        The first rows of the rotation vectors (3 rows) and of their quaternions (4 rows).
+    """
+    for lane in range(BLOCK):
+        v = column3(block, vector, lane)
+        angle = norm(v)
+        sine, cosine = sin_cos_reduced(0.5 * angle)
+        set_column4(block, quaternion, lane, quat_exp_of(v, angle, sine, cosine))
+    for lane in range(BLOCK):
+        v = column3(block, vector, lane)
+        angle = norm(v)
+        half = 0.5 * angle
+        if not abs(half) <= REDUCED:
+            set_column4(block, quaternion, lane, quat_exp_of(v, angle, math.sin(half), math.cos(half)))
+
+
+@inline_jit
+def turn_columns(block, vector):
+    """Turn every lane's orientation by the rotation vector in rows ``vector..vector+2`` of
+    ``block`` (N_ROWS * BLOCK,): ``q <- normalise(q exp(vector))``, the exponential into the
+    four rows after the vector (`quat_exp_columns`).
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    vector : int
+        The first of the rotation vectors' rows (rad), 3 rows, then 4 rows of scratch.
+    """
+    quat_exp_columns(block, vector, vector + 3)
+    for lane in range(BLOCK):
+        q = column4(block, STATE + S.QUATERNION, lane)
+        turn = column4(block, vector + 3, lane)
+        set_column4(block, STATE + S.QUATERNION, lane, quat_normalize(quat_mul(q, turn)))
+
+
+@jit
+def loads_at(block, q, w, lane):
+    """The loads on lane ``lane`` of a block at orientation ``q``, spin ``w``: ``(moment, mass,
+    force)``, the body-frame moment (N m) and the space force (N) as
+    `rbstudy.numerics.dynamics.body_moment` and `space_force` give them for `plain_loads`.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    q : tuple of 4 floats
+        Orientation, scalar last, body to space.
+    w : tuple of 3 floats
+        Angular velocity, rad/s, body axes.
+    lane : int
+        The lane.
+
+    Returns
+    -------
+    moment : tuple of 3 floats
+        N m, body axes.
+    mass : float
+        kg.
+    force : tuple of 3 floats
+        N, space axes.
+    """
+    body, space = column3(block, PARAM + S.MOMENT_BODY, lane), column3(block, PARAM + S.MOMENT_SPACE, lane)
+    mass = at(block, PARAM + S.MASS, lane)
+    weight, force = column3(block, PARAM + S.GRAVITY, lane), column3(block, PARAM + S.FORCE_SPACE, lane)
+    return moment_from(q, w, block, None, body, space), mass, force_from(q, block, None, mass, weight, force)
+
+
+@jit
+def plain_loads(p):
+    """Whether the block path covers a body: no lever and no body-fixed force (the module
+    docstring).
+
+    Parameters
+    ----------
+    p : ndarray, shape (W,)
+        Parameter row, W >= N_PARAM.
+
+    Returns
+    -------
+    bool
+    """
+    no_body_force = p[S.FORCE_BODY] == 0.0 and p[S.FORCE_BODY + 1] == 0.0 and p[S.FORCE_BODY + 2] == 0.0
+    return no_body_force and not has_lever(p)
+
+
+@jit
+def _plain_block(params, a, stop):
+    """Whether every body of rows [a, stop) has `plain_loads`."""
+    for row in range(a, stop):
+        if not plain_loads(params[row]):
+            return False
+    return True
+
+
+@jit
+def _load_block(a, stop, state0, params, block):
+    """Copy the rows [a, stop) of the batch into the block's lanes; the lanes past ``stop``
+    copy row ``a``."""
+    for lane in range(BLOCK):
+        row = a + lane if a + lane < stop else a
+        for k in range(S.N_STATE):
+            block[(STATE + k) * BLOCK + lane] = state0[row, k]
+        for k in range(S.N_PARAM):
+            block[(PARAM + k) * BLOCK + lane] = params[row, k]
+
+
+@jit
+def _book(block, lanes, fixed, drift_bound):
+    """Book the step every lane has just taken, as `rbstudy.numerics.driver._lane_after_step`
+    books one body's: the same tests in the same order, written with selects so that the loop
+    over lanes vectorises. Returns how many bodies failed on this step.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        The block's rows after the step.
+    lanes : ndarray of float, shape (_N_TALLY * BLOCK,)
+        Each lane's tallies, row by row (`_STATUS`...), updated for the lanes still OK.
+    fixed : ndarray of float, shape (3 * BLOCK,)
+        Each body's energy and |L| at t = 0 and 1.0 where they must hold.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    """
+    failed = 0
+    for lane in range(BLOCK):
+        total = 0.0
+        for k in range(S.N_STATE):
+            total += block[(STATE + k) * BLOCK + lane]
+        w = column3(block, STATE + S.OMEGA, lane)
+        inertia_ = column3(block, PARAM + S.INERTIA, lane)
+        d_energy = _relative_drift(rotational_energy(w, inertia_), fixed[0 * BLOCK + lane])
+        d_momentum = _relative_drift(math.sqrt(momentum_squared(w, inertia_)), fixed[1 * BLOCK + lane])
+        spin = dot(w, w)
+        running = lanes[_STATUS * BLOCK + lane] == OK
+        finite = running & math.isfinite(total)
+        checked = finite & (fixed[2 * BLOCK + lane] != 0.0)
+        # written so that NaN drifts also fail the test
+        within = (d_energy <= drift_bound) & (d_momentum <= drift_bound)
+        ok = finite & (within | (fixed[2 * BLOCK + lane] == 0.0))
+        lanes[_STEPS * BLOCK + lane] += 1.0 if running else 0.0
+        lanes[_MAX_ENERGY * BLOCK + lane] = (
+            max(lanes[_MAX_ENERGY * BLOCK + lane], d_energy) if checked else lanes[_MAX_ENERGY * BLOCK + lane]
+        )
+        lanes[_MAX_MOMENTUM * BLOCK + lane] = (
+            max(lanes[_MAX_MOMENTUM * BLOCK + lane], d_momentum)
+            if checked
+            else lanes[_MAX_MOMENTUM * BLOCK + lane]
+        )
+        lanes[_SPIN * BLOCK + lane] = (
+            spin if ok & (spin > lanes[_SPIN * BLOCK + lane]) else lanes[_SPIN * BLOCK + lane]
+        )
+        lanes[_STATUS * BLOCK + lane] = OK if ok else (UNSTABLE if running else lanes[_STATUS * BLOCK + lane])
+        failed += 1 if running & (not ok) else 0
+    return failed
+
+
+@jit
+def _store_column(samples, b, sample, block, lane):
+    """Write lane ``lane``'s state as sample ``sample`` of body ``b``."""
+    for k in range(S.N_STATE):
+        samples[b, sample, k] = block[(STATE + k) * BLOCK + lane]
+
+
+@inline_jit
+def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bound, samples, results, halt):
+    """Integrate rows [a, stop) of a batch, at most `BLOCK` of them, with a scheme's block
+    step; write their samples and results as `rbstudy.numerics.driver.run_rows` does.
+
+    Parameters
+    ----------
+    block_step : compiled kernel ``(block, h)``
+        The scheme's (module docstring).
+    a, stop : int
+        The rows, ``stop - a <= BLOCK``, each of `plain_loads`.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states (read only).
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM.
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps of every body.
+    every : int
+        Steps between two samples.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    samples : ndarray, shape (B, T, N_STATE)
+        Output; NaN after a body's failure.
+    results : ndarray, shape (B, N_RESULT)
+        Output, by name (`rbstudy.numerics.state.Result`).
+    halt : ndarray of int64, shape (1,)
+        The halt flag.
+    """
+    block = np.empty(N_ROWS * BLOCK)
+    lanes = np.zeros(_N_TALLY * BLOCK)
+    lanes[_STATUS * BLOCK : (_STATUS + 1) * BLOCK] = _IDLE
+    fixed = np.zeros(3 * BLOCK)
+    _load_block(a, stop, state0, params, block)
+    for lane in range(stop - a):
+        start, lane_tuple = _lane_start(a + lane, state0[a + lane], params[a + lane], samples)
+        fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
+            start[0],
+            start[1],
+            1.0 if start[2] else 0.0,
+        )
+        lanes[_STATUS * BLOCK + lane] = OK
+        lanes[_SPIN * BLOCK + lane] = lane_tuple[5]
+        lanes[_SAMPLE * BLOCK + lane] = 1.0
+    countdown = every
+    running = stop - a
+    for step in range(n_steps):
+        if running == 0:
+            break
+        if (step & _HALT_MASK) == 0 and halt[0] != 0:
+            break
+        countdown -= 1
+        block_step(block, h)
+        running -= _book(block, lanes, fixed, drift_bound)
+        if countdown == 0:
+            countdown = every
+            for lane in range(stop - a):
+                if lanes[_STATUS * BLOCK + lane] == OK:
+                    _store_column(samples, a + lane, int(lanes[_SAMPLE * BLOCK + lane]), block, lane)
+                    lanes[_SAMPLE * BLOCK + lane] += 1.0
+    for lane in range(stop - a):
+        tallies = (
+            int(lanes[_STATUS * BLOCK + lane]),
+            int(lanes[_STEPS * BLOCK + lane]),
+            0,
+            lanes[_MAX_ENERGY * BLOCK + lane],
+            lanes[_MAX_MOMENTUM * BLOCK + lane],
+            lanes[_SPIN * BLOCK + lane],
+            int(lanes[_SAMPLE * BLOCK + lane]),
+        )
+        _lane_end(
+            tallies,
+            (fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] != 0.0),
+            a + lane,
+            h,
+            samples,
+            results,
+        )
+
+
+@inline_jit
+def run_rows_in_blocks(
+    block_step,
+    single,
+    start,
+    stop,
+    state0,
+    params,
+    options,
+    h,
+    n_steps,
+    every,
+    drift_bound,
+    samples,
+    results,
+    halt,
+):
+    """Integrate the rows [start, stop) of a batch without loads tabulated in time, `BLOCK` at a
+    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies and
+    every one has `plain_loads`, with ``single`` elsewhere: the scheme's entry point of the
+    single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start, stop, state0,
+    params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)``.
+
+    Parameters
+    ----------
+    block_step : compiled kernel ``(block, h)``
+        The scheme's (module docstring).
+    single : compiled function
+        The single-body loop over a range of rows, as above.
+    start, stop : int
+        The rows to integrate; only these rows of ``samples`` and ``results`` are written.
+    state0 : ndarray, shape (B, N_STATE)
+        Initial states (read only).
+    params : ndarray, shape (B, W)
+        Parameter rows, W >= N_PARAM.
+    options : ndarray, shape (B, N_OPTION)
+        Scheme options (read only; the block step has none).
+    h : float
+        Time step (s).
+    n_steps : int
+        Steps of every body.
+    every : int
+        Steps between two samples.
+    drift_bound : float
+        Relative energy or |L| drift that flags a moment-free body unstable.
+    samples : ndarray, shape (B, T, N_STATE)
+        Output; NaN after a body's failure.
+    results : ndarray, shape (B, N_RESULT)
+        Output, by name (`rbstudy.numerics.state.Result`).
+    halt : ndarray of int64, shape (1,)
+        The halt flag.
+    """
+    for a in range(start, stop, BLOCK):
+        if halt[0] != 0:
+            return
+        end = min(a + BLOCK, stop)
+        if end - a >= FEWEST and _plain_block(params, a, end):
+            run_blocks(
+                block_step, a, end, state0, params, h, n_steps, every, drift_bound, samples, results, halt
+            )
+        else:
+            single(
+                a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None
+            )
