@@ -92,7 +92,7 @@ def _schemes(args):
 
 
 def _bench(args):
-    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, run_bench
+    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, option_settings, run_bench
     from rbstudy.schemes import expand_groups
 
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
@@ -102,7 +102,7 @@ def _bench(args):
         schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
         body_steps=args.body_steps or BODY_STEPS,
         progress=not args.quiet,
-        options=dict(args.option or ()),
+        options=option_settings(args.option or ()),
     )
     return 0
 
@@ -825,7 +825,6 @@ def build_parser():
     bench.add_argument(
         "--option",
         action="append",
-        type=_option_setting,
         metavar="NAME=VALUE",
         help="a scheme option for the schemes that offer it, such as compensated=1 "
         "(repeatable); their rows name it",
@@ -871,22 +870,6 @@ def _whole_number(text):
     if not math.isfinite(number) or number != round(number):
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     return int(number)
-
-
-def _option_setting(text):
-    """``NAME=VALUE`` of ``bench --option``: the value read as YAML reads it in a config
-    (``1``, ``true``, ``-0.1``; ``'123'`` quoted for an axis order)."""
-    import yaml
-
-    name, equals, value = text.partition("=")
-    if not equals or not name.strip():
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE such as compensated=1, got {text!r}")
-    try:
-        return name.strip(), yaml.safe_load(value)
-    except yaml.YAMLError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: the value is not a number, a name or true/false"
-        ) from None
 
 
 def _list_argument(parser, option, metavar, help, choices=None):

@@ -19,14 +19,22 @@ import time
 
 import numpy as np
 
-from rbstudy.errors import SchemeError
+from rbstudy.errors import RbstudyError, SchemeError
 from rbstudy.inputs.scenes import scene_from_mapping
+from rbstudy.inputs.yaml_file import parse_yaml
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.machine import default_threads
 from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import SCHEMES, get_scheme
 
-__all__ = ["run_bench", "scheme_options", "abaqus_top_scene", "BODY_STEPS", "MAX_BODY_STEPS"]
+__all__ = [
+    "run_bench",
+    "option_settings",
+    "scheme_options",
+    "abaqus_top_scene",
+    "BODY_STEPS",
+    "MAX_BODY_STEPS",
+]
 
 BATCH_SIZES = (1, 100, 10_000)
 BODY_STEPS = 10_000_000
@@ -66,6 +74,19 @@ def _rate(scheme, scene, n_bodies, n_steps, threads, options):
     )
     taken = n_steps * n_bodies if scheme.adaptive else out.results["n_steps"].sum()
     return taken / out.kernel_seconds, out
+
+
+def option_settings(texts):
+    """The options of ``bench --option NAME=VALUE`` (each value read as YAML reads it in a
+    config: ``1``, ``true``, ``-0.1``, ``'123'``) as a dict; a text without ``=`` raises
+    `RbstudyError` in one line."""
+    options = {}
+    for text in texts:
+        name, equals, value = text.partition("=")
+        if not equals or not name.strip():
+            raise RbstudyError(f"--option: expected NAME=VALUE such as compensated=1, got {text!r}")
+        options[name.strip()] = parse_yaml(value, f"--option {name.strip()}")
+    return options
 
 
 def scheme_options(chosen, options):
