@@ -362,7 +362,10 @@ def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_aban
     reader = threading.Thread(target=lambda: taken.extend(arrivals))
     reader.start()
     arrivals.arrived("c", "sha256:c")  # before b: kept until b has arrived
-    time.sleep(0.05)
+    deadline = time.monotonic() + 10
+    while not taken and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.05)  # time enough to take c, were it handed out of order
     assert taken == [("a.nc", "sha256:a")]
     arrivals.arrived("b", "sha256:b")
     reader.join(timeout=5)
