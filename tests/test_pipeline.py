@@ -354,6 +354,27 @@ def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
     assert main(["verify", str(run.path)]) == 0
 
 
+def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_first(
+    tmp_path, monkeypatch
+):
+    """One thread runs the batches in the study's order (dask breaks ties by the keys'
+    order: by the batch ids alone, the first batch ran last and the archive waited for it)."""
+    from rbstudy.pipeline import config as config_module
+
+    monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 1)
+    monkeypatch.setattr(execute, "default_threads", lambda: 1)
+    study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
+    delivered, deliver = [], execute.deliver_part
+
+    def delivering(values, layout, batch, *args):
+        delivered.append(batch.id)
+        return deliver(values, layout, batch, *args)
+
+    monkeypatch.setattr(execute, "deliver_part", delivering)
+    run_study(study, tmp_path / "out", quiet=True)
+    assert delivered == [batch.id for batch in study.batches]
+
+
 def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_abandoned():
     batches = [types.SimpleNamespace(id=name) for name in ("a", "b", "c")]
     parts = {"a": "a.nc", "b": "b.nc", "c": "c.nc"}

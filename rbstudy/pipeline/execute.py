@@ -336,7 +336,7 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
             dask.delayed(rows, traverse=False),
             study.n_times,
             study.output_interval,
-            dask_key_name=f"references-{token}-{k}",
+            dask_key_name=f"references-{token}-{k:06d}",
         )
         for k, rows in enumerate(chunks)
     ]
@@ -344,7 +344,10 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
     option_rows = np.array([get_scheme(run.scheme).option_row(run.options) for run in study.cases.runs])
     tasks, targets = [], {}
     start = 0
-    for batch in pending:
+    # keys numbered down: dask's order breaks its ties by key, the highest first (2026.8), so
+    # the batches run in the study's order, the one in which the archive written beside them
+    # takes their parts (by the ids alone, the first batch could run last)
+    for number, batch in zip(range(len(pending) - 1, -1, -1), pending, strict=True):
         places = where[start : start + len(batch.cases)]
         start += len(batch.cases)
         needed = np.unique(places[:, 0])
@@ -365,9 +368,9 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
             table,
             [reference_tasks[k] for k in needed],
             threads,
-            dask_key_name=f"batch-{token}-{batch.id}",
+            dask_key_name=f"batch-{token}-{number:06d}-{batch.id}",
         )
-        key, path = f"store-{token}-{batch.id}", str(parts_dir / f"{batch.id}.nc")
+        key, path = f"store-{token}-{number:06d}-{batch.id}", str(parts_dir / f"{batch.id}.nc")
         tasks.append(
             dask.delayed(deliver_part)(
                 values,
