@@ -12,6 +12,8 @@ import xarray as xr
 from conftest import write_study
 
 from rbstudy.cli import main
+from rbstudy.pipeline import config as config_module
+from rbstudy.pipeline import integrity
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.integrity import GROUP, SIDECAR_SUFFIX
@@ -222,3 +224,43 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     monkeypatch.undo()
     again = run_study(load_study(config), tmp_path / "out", quiet=True)
     assert (again.computed, again.reused) == (2, 2)
+
+
+def test_the_seal_hashes_values_as_written_and_reads_back_only_the_rest(tmp_path, monkeypatch):
+    """Parts copied in the grid's order (one scheme and dt, batches cutting its rows) are
+    hashed as they are written: sealing reads back only the coordinates, and `rbstudy
+    verify`, which reads everything, finds the same checksums."""
+    monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 4)
+    config = write_study(
+        tmp_path,
+        name="rows",
+        sweep={"spin": [1.0, 2.0, 3.0], "tilt": [5.0, 10.0, 15.0]},
+        run={"scheme": "euler", "dt": 0.01},
+    )
+    study = load_study(config)
+    assert len(study.batches) == 3  # 4 + 4 + 1 cases: two start inside a row
+    read_back, read = [], integrity._update_values
+
+    def reading(digest, variable):
+        read_back.append(variable.name)
+        read(digest, variable)
+
+    monkeypatch.setattr(integrity, "_update_values", reading)
+    run = run_study(study, tmp_path / "out", quiet=True)
+    assert {"spin", "tilt"} <= set(read_back)  # the coordinates, written whole at the start
+    assert not set(read_back) & set(study.variables)
+    assert integrity.verify_archive(run.path).problems == ()
+
+
+@pytest.mark.parametrize(
+    ("index", "run"),
+    [
+        ((slice(1, 2), slice(3, 10)), (13, 7)),  # within a row
+        ((slice(1, 3), slice(0, 10)), (10, 20)),  # whole rows
+        ((slice(0, 1), slice(0, 10), slice(0, 4)), None),  # of another rank
+        ((slice(1, 3), slice(3, 10)), None),  # the ends of two rows: a gap between
+        ((slice(1, 2), [3, 4, 5]), None),  # a list: taken for scattered
+    ],
+)
+def test_a_slab_is_one_run_of_positions_only_when_consecutive(index, run):
+    assert integrity._run_of(index, (4, 10)) == run

@@ -10,7 +10,9 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
+import types
 
 import numpy as np
 import pytest
@@ -322,6 +324,77 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
         holder.stdout.close()
     with study_lock(folder):
         assert (folder / execute.PID_FILE).read_text() == str(os.getpid())
+
+
+def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
+    """The first part is copied into the archive before the last batch ends: the last batch
+    waits for it (before the archive was written after every batch, and it waited in vain)."""
+    from rbstudy.pipeline import config as config_module
+    from rbstudy.pipeline import store
+
+    monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 2)
+    monkeypatch.setattr(execute, "default_threads", lambda: 2)
+    study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
+    copied, copy, compute = threading.Event(), store._copy_part, execute.compute_batch
+    waited = []
+
+    def copying(*args):
+        copy(*args)
+        copied.set()
+
+    def computing(job, *args):
+        if job.scene_rows.max() == len(study.cases) - 1:  # the last batch
+            waited.append(copied.wait(timeout=20))
+        return compute(job, *args)
+
+    monkeypatch.setattr(store, "_copy_part", copying)
+    monkeypatch.setattr(execute, "compute_batch", computing)
+    run = run_study(study, tmp_path / "out", quiet=True)
+    assert waited == [True]
+    assert main(["verify", str(run.path)]) == 0
+
+
+def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_first(
+    tmp_path, monkeypatch
+):
+    """One thread runs the batches in the study's order (dask breaks ties by the keys'
+    order: by the batch ids alone, the first batch ran last and the archive waited for it)."""
+    from rbstudy.pipeline import config as config_module
+
+    monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 1)
+    monkeypatch.setattr(execute, "default_threads", lambda: 1)
+    study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
+    delivered, deliver = [], execute.deliver_part
+
+    def delivering(values, layout, batch, *args):
+        delivered.append(batch.id)
+        return deliver(values, layout, batch, *args)
+
+    monkeypatch.setattr(execute, "deliver_part", delivering)
+    run_study(study, tmp_path / "out", quiet=True)
+    assert delivered == [batch.id for batch in study.batches]
+
+
+def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_abandoned():
+    batches = [types.SimpleNamespace(id=name) for name in ("a", "b", "c")]
+    parts = {"a": "a.nc", "b": "b.nc", "c": "c.nc"}
+    arrivals = execute._Arrivals(batches, parts, {"a": "sha256:a", "b": None})
+    taken = []
+    reader = threading.Thread(target=lambda: taken.extend(arrivals))
+    reader.start()
+    arrivals.arrived("c", "sha256:c")  # before b: kept until b has arrived
+    deadline = time.monotonic() + 10
+    while not taken and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.05)  # time enough to take c, were it handed out of order
+    assert taken == [("a.nc", "sha256:a")]
+    arrivals.arrived("b", "sha256:b")
+    reader.join(timeout=5)
+    assert taken == [("a.nc", "sha256:a"), ("b.nc", "sha256:b"), ("c.nc", "sha256:c")]
+    waiting = execute._Arrivals(batches, {}, {})
+    threading.Timer(0.05, waiting.abandon).start()
+    with pytest.raises(execute._Abandoned):
+        list(waiting)
 
 
 @pytest.mark.slow

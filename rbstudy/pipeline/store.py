@@ -29,7 +29,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
@@ -43,6 +42,8 @@ from rbstudy.errors import ConfigError, InputError, RbstudyError, one_line
 from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.batches import Batch, batches_digest
 from rbstudy.pipeline.integrity import (
+    HDF5_LOCK,
+    StreamedChecksum,
     file_digest,
     netcdf_writer,
     part_digest,
@@ -101,10 +102,6 @@ _DEPENDENCIES = (
 )
 # mkstemp creates files readable by their owner only; results are meant to be shared.
 _FILE_MODE = 0o644
-# The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
-# the process. Every netCDF access of this process goes through this lock (parts are written
-# by the tasks of the threaded scheduler).
-HDF5_LOCK = threading.RLock()
 _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 # Compression of the consolidated archive's data variables: zlib (readable by every netCDF-4
 # reader) after byte shuffling, which groups the slowly varying high bytes of neighbouring
@@ -693,52 +690,68 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
     return variable
 
 
-def consolidate(study, parts, digests, target, attrs, advance=lambda: None):
-    """Write ``<study>.nc`` from the part files ``parts`` (batch id -> path), part by part
-    (``advance()`` after each), and seal it with its checksums and the ``digests`` of its
-    parts (batch id -> digest)."""
+def consolidate(study, arriving, target, attrs, advance=lambda: None):
+    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest)
+    of the part of each batch of ``study.batches``, in their order, and may wait for a
+    part still being computed (the archive is written while later batches run, without
+    `HDF5_LOCK` while it waits). ``advance()`` after each part; then the archive is sealed
+    with its checksums, hashed as the values are written, and the parts' digests."""
     shape = study.shape
-    grid = grid_coordinates(study)
-    with _temporary_beside(target) as temporary, HDF5_LOCK:
+    with _temporary_beside(target) as temporary:
         with netcdf_writer(temporary) as nc:
-            nc.setncatts(attrs)
-            for dim in study.dimensions:
-                nc.createDimension(dim.name, dim.size)
-            fixed = _fixed_coords(Layout.of(study))
-            for name, (values, _) in fixed.items():
-                nc.createDimension(name, len(values))
-            for name, (dims, values, coord_attrs) in grid.items():
-                _create(nc, name, dims, values, coord_attrs)
-            for name, (values, coord_attrs) in fixed.items():
-                _create(
-                    nc,
-                    name,
-                    (name,),
-                    values.astype(object) if values.dtype.kind == "U" else values,
-                    coord_attrs,
-                )
-            targets = {}
-            for name in study.variables:
-                along = archive_dims(study, name)
-                attrs_ = variable_attrs(name)
-                # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
-                # claims) that CF readers attach to it: those along its dimensions
-                auxiliary = [
-                    coordinate
-                    for coordinate, (dims, _, _) in grid.items()
-                    if dims != (coordinate,) and set(dims) <= set(along)
-                ]
-                if auxiliary:
-                    attrs_["coordinates"] = " ".join(auxiliary)
-                grid_rank = len(along) - len(VARIABLES[name].dims)
-                targets[name] = (
-                    _create(nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank),
-                    tuple(d.name in along[:grid_rank] for d in study.dimensions),
-                )
-            for batch in study.batches:
-                _copy_part(targets, read_part(parts[batch.id], study.variables), shape)
+            with HDF5_LOCK:
+                targets = _define_archive(nc, study, attrs)
+            part_digests = []
+            for batch, (path, digest) in zip(study.batches, arriving, strict=True):
+                with HDF5_LOCK:
+                    _copy_part(targets, read_part(path, study.variables), shape)
+                part_digests.append([batch.id, digest])
                 advance()
-        seal_archive(temporary, [[batch.id, digests[batch.id]] for batch in study.batches])
+        seal_archive(temporary, part_digests, {name: stream for name, (_, _, stream) in targets.items()})
+
+
+def _define_archive(nc, study, attrs):
+    """Create the archive's dimensions, coordinates and (empty) variables in the open ``nc``;
+    name -> (netCDF variable, whether it lies along each grid dimension, its
+    `StreamedChecksum`) of the output variables."""
+    grid = grid_coordinates(study)
+    nc.setncatts(attrs)
+    for dim in study.dimensions:
+        nc.createDimension(dim.name, dim.size)
+    fixed = _fixed_coords(Layout.of(study))
+    for name, (values, _) in fixed.items():
+        nc.createDimension(name, len(values))
+    for name, (dims, values, coord_attrs) in grid.items():
+        _create(nc, name, dims, values, coord_attrs)
+    for name, (values, coord_attrs) in fixed.items():
+        _create(
+            nc,
+            name,
+            (name,),
+            values.astype(object) if values.dtype.kind == "U" else values,
+            coord_attrs,
+        )
+    targets = {}
+    for name in study.variables:
+        along = archive_dims(study, name)
+        attrs_ = variable_attrs(name)
+        # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
+        # claims) that CF readers attach to it: those along its dimensions
+        auxiliary = [
+            coordinate
+            for coordinate, (dims, _, _) in grid.items()
+            if dims != (coordinate,) and set(dims) <= set(along)
+        ]
+        if auxiliary:
+            attrs_["coordinates"] = " ".join(auxiliary)
+        grid_rank = len(along) - len(VARIABLES[name].dims)
+        variable = _create(nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank)
+        targets[name] = (
+            variable,
+            tuple(d.name in along[:grid_rank] for d in study.dimensions),
+            StreamedChecksum(variable, grid_rank),
+        )
+    return targets
 
 
 def _block(cases, shape):
@@ -766,12 +779,13 @@ def archive_dims(study, name):
 
 def _copy_part(targets, part, shape):
     """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
-    -> (netCDF variable, whether it lies along each grid dimension). A part holds a value per
+    -> (netCDF variable, whether it lies along each grid dimension, its `StreamedChecksum`,
+    fed what is written). A part holds a value per
     case; a variable of the scene alone takes its cases' values at the first position of the
     dimensions it does not lie along (the same at every other)."""
     cases = part["case"]
     if not shape:  # a one-case study
-        for name, (variable, _) in targets.items():
+        for name, (variable, _, _) in targets.items():
             variable[...] = part[name][0]
         return
     block = _block(cases, shape)
@@ -787,13 +801,15 @@ def _copy_part(targets, part, shape):
             for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)
         ]
     )
-    for name, (variable, along) in targets.items():
+    for name, (variable, along, stream) in targets.items():
         values, start = part[name], 0
         for index, sizes in slabs:
             count = math.prod(sizes)
             block = values[start : start + count].reshape(sizes + values.shape[1:])
             kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
-            variable[kept or ...] = block[tuple(slice(None) if keep else 0 for keep in along)]
+            written = block[tuple(slice(None) if keep else 0 for keep in along)]
+            variable[kept or ...] = written
+            stream.wrote(kept, written)
             start += count
 
 
