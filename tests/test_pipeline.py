@@ -354,9 +354,7 @@ def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
     assert main(["verify", str(run.path)]) == 0
 
 
-def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_first(
-    tmp_path, monkeypatch
-):
+def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_first(tmp_path, monkeypatch):
     """One thread runs the batches in the study's order (dask breaks ties by the keys'
     order: by the batch ids alone, the first batch ran last and the archive waited for it)."""
     from rbstudy.pipeline import config as config_module
