@@ -177,3 +177,35 @@ def test_a_block_gives_every_body_the_bits_of_the_single_body_loop(name):
     assert np.array_equal(runs[0][0], runs[1][0], equal_nan=True)
     assert np.array_equal(runs[0][1], runs[1][1], equal_nan=True)
     assert 0 < np.count_nonzero(runs[0][1][:, 0] == OK) < 1000
+
+
+# Options that a block step reads (a composition's stages, splitting's axis order), each set on
+# every body of a batch, and then on every other body, so that no block holds one option row.
+BLOCK_OPTIONS = [
+    ("splitting", {"axis_order": "213", "composition": 4}),
+    ("splitting", {"axis_order": "312", "composition": 6}),
+]
+
+
+@pytest.mark.parametrize("name, values", BLOCK_OPTIONS)
+def test_bodies_of_a_block_with_options_equal_their_solo_runs(name, values):
+    """A block step given options (its bodies share them) and a batch whose option rows
+    alternate (the single-body loop) give every body the bits of its solo run."""
+    from rbstudy.numerics.driver import run_batch
+
+    scheme, h, n_steps, every = get_scheme(name), 0.02, 30, 3
+    state0, params, options = _mixed_batch(scheme, 80, h)
+    options[:] = scheme.option_row(values)
+    alternating = options.copy()
+    alternating[::2] = scheme.option_row()
+    statuses = set()
+    for rows in (options, alternating):
+        batch = run_batch(scheme, state0, params, rows, h, n_steps, every, threads=1)
+        statuses.update(batch.results["status"].tolist())
+        for b in range(80):
+            one = slice(b, b + 1)
+            alone = run_batch(scheme, state0[one], params[one], rows[one], h, n_steps, every)
+            assert np.array_equal(batch.samples[b], alone.samples[0], equal_nan=True), (b, values)
+            for field, result in batch.results.items():
+                assert np.array_equal(result[b], alone.results[field][0], equal_nan=True), (b, field)
+    assert OK in statuses

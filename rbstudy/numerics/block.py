@@ -6,19 +6,23 @@ How a scheme plugs in
 A scheme of fixed steps that carries nothing between them may give, beside its single-body
 kernels (`rbstudy.numerics.driver`), a block step
 
-    block_step(block, h)
+    block_step(block, opt, h)
 
 with ``block`` the block's rows, one flat array (N_ROWS * BLOCK,): row ``STATE + k`` holds
 component k of every lane's state (updated in place), row ``PARAM + k`` parameter k, rows
-``TEMP..`` scratch (N_TEMP of them); ``h`` the step. It is a few loops over the block's lanes,
-each short enough for LLVM to vectorise (one loop for a whole step was not: measured, see
-docs/performance.md), reading and writing a lane's entries with `at`, `column3`, `column4`,
-`set_column3`, `set_column4`. One flat array of rows of a width known when compiling lets
-LLVM see that no two rows overlap: with 2-D arrays of a width known only at run time it
-needed a check of every pair of rows before the loop, and gave up. It must give each body
-the bits of the scheme's ``step_inplace`` exactly: the same formulas in the same order, the
-sine and cosine of `rbstudy.numerics.lanes_math` on both paths, no fast-math
-(`rbstudy.numerics.jit`).
+``TEMP..`` scratch (N_TEMP of them); ``opt`` (N_OPTION,) the option row that every body of the
+block shares (a block holds only bodies of one option row); ``h`` the step. A step that can
+fail on a body (Newton that does not converge) writes each lane's status and Newton iterations
+of the step into rows `VERDICT` and `ITERATIONS` (which hold OK and 0 when a step starts), and
+may leave alone the lanes whose row `LIVE` is 0 (bodies that have failed, lanes past the
+batch). It is a few loops over the block's lanes, each short enough for LLVM to vectorise (one
+loop for a whole step was not: measured, see docs/performance.md), reading and writing a
+lane's entries with `at`, `column3`, `column4`, `set_column3`, `set_column4`. One flat array
+of rows of a width known when compiling lets LLVM see that no two rows overlap: with 2-D
+arrays of a width known only at run time it needed a check of every pair of rows before the
+loop, and gave up. It must give each body the bits of the scheme's ``step_inplace`` exactly:
+the same formulas in the same order, the sine and cosine of `rbstudy.numerics.lanes_math` on
+both paths, no fast-math (`rbstudy.numerics.jit`).
 
 What the block path covers, and what it hands back
 --------------------------------------------------
@@ -56,6 +60,9 @@ __all__ = [
     "PARAM",
     "TEMP",
     "N_TEMP",
+    "VERDICT",
+    "ITERATIONS",
+    "LIVE",
     "N_ROWS",
     "at",
     "column3",
@@ -79,20 +86,24 @@ BLOCK = 64
 FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
-# Where the rows of the states, the parameters and the scratch start.
+# Where the rows of the states, the parameters and the scratch start; then each lane's status
+# and Newton iterations of the step just taken, and 1.0 for the lanes still booked.
 STATE = 0
 PARAM = STATE + S.N_STATE
 TEMP = PARAM + S.N_PARAM
-N_ROWS = TEMP + N_TEMP
+VERDICT = TEMP + N_TEMP
+ITERATIONS = VERDICT + 1
+LIVE = ITERATIONS + 1
+N_ROWS = LIVE + 1
 
 _relative_drift = jit(algebra.relative_drift)
 # The status of a lane past the batch's last body: never OK, never stored.
 _IDLE = -1
 # Rows of a block's tallies, the fields of the driver's lane tuple (`_book`): status, steps
-# taken, largest energy and |L| drifts, largest |w|^2, next sample (floats, so that one loop
-# over lanes handles them all).
-_STATUS, _STEPS, _MAX_ENERGY, _MAX_MOMENTUM, _SPIN, _SAMPLE = range(6)
-_N_TALLY = 6
+# taken, Newton iterations, largest energy and |L| drifts, largest |w|^2, next sample (floats,
+# so that one loop over lanes handles them all).
+_STATUS, _STEPS, _ITERATIONS, _MAX_ENERGY, _MAX_MOMENTUM, _SPIN, _SAMPLE = range(7)
+_N_TALLY = 7
 
 
 @jit
@@ -300,11 +311,14 @@ def plain_loads(p):
 
 
 @jit
-def _plain_block(params, a, stop):
-    """Whether every body of rows [a, stop) has `plain_loads`."""
+def _plain_block(params, options, a, stop):
+    """Whether every body of rows [a, stop) has `plain_loads` and the option row of row ``a``."""
     for row in range(a, stop):
         if not plain_loads(params[row]):
             return False
+        for k in range(options.shape[1]):
+            if options[row, k] != options[a, k]:
+                return False
     return True
 
 
@@ -318,18 +332,23 @@ def _load_block(a, stop, state0, params, block):
             block[(STATE + k) * BLOCK + lane] = state0[row, k]
         for k in range(S.N_PARAM):
             block[(PARAM + k) * BLOCK + lane] = params[row, k]
+        block[VERDICT * BLOCK + lane] = OK
+        block[ITERATIONS * BLOCK + lane] = 0.0
+        block[LIVE * BLOCK + lane] = 1.0 if a + lane < stop else 0.0
 
 
 @jit
 def _book(block, lanes, fixed, drift_bound):
     """Book the step every lane has just taken, as `rbstudy.numerics.driver._lane_after_step`
     books one body's: the same tests in the same order, written with selects so that the loop
-    over lanes vectorises. Returns how many bodies failed on this step.
+    over lanes vectorises; row `LIVE` then says which lanes are still booked, and rows
+    `VERDICT` and `ITERATIONS` are OK and 0 again for the next step. Returns how many bodies
+    failed on this step.
 
     Parameters
     ----------
     block : ndarray, shape (N_ROWS * BLOCK,)
-        The block's rows after the step.
+        The block's rows after the step, with the step's `VERDICT` and `ITERATIONS`.
     lanes : ndarray of float, shape (_N_TALLY * BLOCK,)
         Each lane's tallies, row by row (`_STATUS`...), updated for the lanes still OK.
     fixed : ndarray of float, shape (3 * BLOCK,)
@@ -348,12 +367,14 @@ def _book(block, lanes, fixed, drift_bound):
         d_momentum = _relative_drift(math.sqrt(momentum_squared(w, inertia_)), fixed[1 * BLOCK + lane])
         spin = dot(w, w)
         running = lanes[_STATUS * BLOCK + lane] == OK
-        finite = running & math.isfinite(total)
+        verdict = block[VERDICT * BLOCK + lane]
+        finite = running & (verdict == OK) & math.isfinite(total)
         checked = finite & (fixed[2 * BLOCK + lane] != 0.0)
         # written so that NaN drifts also fail the test
         within = (d_energy <= drift_bound) & (d_momentum <= drift_bound)
         ok = finite & (within | (fixed[2 * BLOCK + lane] == 0.0))
         lanes[_STEPS * BLOCK + lane] += 1.0 if running else 0.0
+        lanes[_ITERATIONS * BLOCK + lane] += block[ITERATIONS * BLOCK + lane] if running else 0.0
         lanes[_MAX_ENERGY * BLOCK + lane] = (
             max(lanes[_MAX_ENERGY * BLOCK + lane], d_energy) if checked else lanes[_MAX_ENERGY * BLOCK + lane]
         )
@@ -365,7 +386,11 @@ def _book(block, lanes, fixed, drift_bound):
         lanes[_SPIN * BLOCK + lane] = (
             spin if ok & (spin > lanes[_SPIN * BLOCK + lane]) else lanes[_SPIN * BLOCK + lane]
         )
-        lanes[_STATUS * BLOCK + lane] = OK if ok else (UNSTABLE if running else lanes[_STATUS * BLOCK + lane])
+        failure = verdict if verdict != OK else UNSTABLE
+        lanes[_STATUS * BLOCK + lane] = OK if ok else (failure if running else lanes[_STATUS * BLOCK + lane])
+        block[LIVE * BLOCK + lane] = 1.0 if ok else 0.0
+        block[VERDICT * BLOCK + lane] = OK
+        block[ITERATIONS * BLOCK + lane] = 0.0
         failed += 1 if running & (not ok) else 0
     return failed
 
@@ -378,7 +403,9 @@ def _store_column(samples, b, sample, block, lane):
 
 
 @inline_jit
-def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bound, samples, results, halt):
+def run_blocks(
+    block_step, a, stop, state0, params, opt, h, n_steps, every, drift_bound, samples, results, halt
+):
     """Integrate rows [a, stop) of a batch, at most `BLOCK` of them, with a scheme's block
     step; write their samples and results as `rbstudy.numerics.driver.run_rows` does.
 
@@ -392,6 +419,8 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
         Initial states (read only).
     params : ndarray, shape (B, W)
         Parameter rows, W >= N_PARAM.
+    opt : ndarray, shape (N_OPTION,)
+        The option row of every body of the rows.
     h : float
         Time step (s).
     n_steps : int
@@ -430,7 +459,7 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
         if (step & _HALT_MASK) == 0 and halt[0] != 0:
             break
         countdown -= 1
-        block_step(block, h)
+        block_step(block, opt, h)
         running -= _book(block, lanes, fixed, drift_bound)
         if countdown == 0:
             countdown = every
@@ -442,7 +471,7 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
         tallies = (
             int(lanes[_STATUS * BLOCK + lane]),
             int(lanes[_STEPS * BLOCK + lane]),
-            0,
+            int(lanes[_ITERATIONS * BLOCK + lane]),
             lanes[_MAX_ENERGY * BLOCK + lane],
             lanes[_MAX_MOMENTUM * BLOCK + lane],
             lanes[_SPIN * BLOCK + lane],
@@ -476,10 +505,11 @@ def run_rows_in_blocks(
     halt,
 ):
     """Integrate the rows [start, stop) of a batch without loads tabulated in time, `BLOCK` at a
-    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies and
-    every one has `plain_loads`, with ``single`` elsewhere: the scheme's entry point of the
-    single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start, stop, state0,
-    params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)``.
+    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies, every
+    one has `plain_loads` and all share one option row, with ``single`` elsewhere: the scheme's
+    entry point of the single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start,
+    stop, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt,
+    clock)``.
 
     Parameters
     ----------
@@ -494,7 +524,7 @@ def run_rows_in_blocks(
     params : ndarray, shape (B, W)
         Parameter rows, W >= N_PARAM.
     options : ndarray, shape (B, N_OPTION)
-        Scheme options (read only; the block step has none).
+        Scheme options (read only).
     h : float
         Time step (s).
     n_steps : int
@@ -514,10 +544,10 @@ def run_rows_in_blocks(
         if halt[0] != 0:
             return
         end = min(a + BLOCK, stop)
-        if end - a >= FEWEST and _plain_block(params, a, end):
-            run_blocks(
-                block_step, a, end, state0, params, h, n_steps, every, drift_bound, samples, results, halt
-            )
+        if end - a >= FEWEST and _plain_block(params, options, a, end):
+            shared, bound = options[a], drift_bound  # the option row of every body of the block
+            run_blocks(block_step, a, end, state0, params, shared, h, n_steps, every, bound, samples, results,
+                       halt)
         else:
             single(
                 a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None

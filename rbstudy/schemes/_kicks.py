@@ -7,7 +7,8 @@ second-order free step stays second order under loads. Loads tabulated in time a
 the time of each kick, the start and the end of the step (time is a coordinate that the
 free flow advances and the kicks hold), which keeps the composition symmetric.
 The ``compensated_`` twins add the same increments with compensated summation
-(`rbstudy.numerics.compensated`), the spin's as ``I^-1 dm``.
+(`rbstudy.numerics.compensated`), the spin's as ``I^-1 dm``; `kicked` is the kick of one
+lane of a block of bodies (`rbstudy.numerics.block`).
 """
 
 from rbstudy.numerics import state as S
@@ -26,6 +27,16 @@ def kick_inplace(y, p, t, d):
     m = add(to_momentum(w, inertia_), kick_momentum(q, w, p, t, d))
     write3(y, S.OMEGA, to_omega(m, inertia_))
     write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
+
+
+@jit
+def kicked(w, v, inertia_, moment, mass, force, d):
+    """`kick_inplace` of a body of spin ``w``, velocity ``v``, principal inertias ``inertia_``
+    and ``mass`` under loads that do not depend on the time, the body-frame ``moment`` and the
+    space ``force``: ``(w, v)`` kicked, in the bits of `kick_inplace` (whose kick without the
+    time is ``d M``). Scalars only, for the block steps (`rbstudy.numerics.block`)."""
+    m = add(to_momentum(w, inertia_), scale(d, moment))
+    return to_omega(m, inertia_), axpy(d / mass, force, v)
 
 
 @jit
