@@ -35,7 +35,6 @@ from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import REDUCED, sin_cos, sin_cos_reduced
 from rbstudy.numerics.rotation import (
-    axpy,
     cos_minus_one,
     quat_mul_axis_rotation,
     quat_normalize,
@@ -50,9 +49,10 @@ from rbstudy.schemes._composition import COMPOSITION, composed_block_step, compo
 from rbstudy.schemes._kicks import (
     compensated_drift_inplace,
     compensated_kick_inplace,
+    drift_block,
     drift_inplace,
+    kick_block,
     kick_inplace,
-    kicked,
 )
 from rbstudy.schemes._registry import Scheme, Style, option_slots
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
@@ -151,12 +151,9 @@ _HALF, _SINE, _COSINE = B.TEMP + 3, B.TEMP + 4, B.TEMP + 5
 @jit
 def _block_start(block, d):
     """The first kick, for a time ``d``, of every lane, and its momentum for the sub-flows."""
+    kick_block(block, d)
     for lane in range(B.BLOCK):
-        q, w = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.OMEGA, lane)
-        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
-        moment, mass, force = B.loads_at(block, q, w, lane)
-        w, v = kicked(w, B.column3(block, B.STATE + S.VELOCITY, lane), inertia_, moment, mass, force, d)
-        B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
+        w, inertia_ = B.column3(block, B.STATE + S.OMEGA, lane), B.column3(block, B.PARAM + S.INERTIA, lane)
         B.set_column3(block, _MOMENTUM, lane, to_momentum(w, inertia_))
 
 
@@ -207,16 +204,12 @@ def _block_end(block, h):
     """The end of `symmetric_step` for every lane: the frame renormalised, the spin from the
     momentum, the drift and the last kick, for a step ``h``."""
     for lane in range(B.BLOCK):
-        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
         q = quat_normalize(B.column4(block, B.STATE + S.QUATERNION, lane))
-        w = to_omega(B.column3(block, _MOMENTUM, lane), inertia_)
-        v, x = B.column3(block, B.STATE + S.VELOCITY, lane), B.column3(block, B.STATE + S.POSITION, lane)
+        w = to_omega(B.column3(block, _MOMENTUM, lane), B.column3(block, B.PARAM + S.INERTIA, lane))
         B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
-        B.set_column3(block, B.STATE + S.POSITION, lane, axpy(h, v, x))
-        moment, mass, force = B.loads_at(block, q, w, lane)
-        w, v = kicked(w, v, inertia_, moment, mass, force, 0.5 * h)
         B.set_column3(block, B.STATE + S.OMEGA, lane, w)
-        B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
+    drift_block(block, h)
+    kick_block(block, 0.5 * h)
 
 
 @jit
