@@ -217,3 +217,31 @@ def test_bodies_of_a_block_with_options_equal_their_solo_runs(name, values):
             for field, result in batch.results.items():
                 assert np.array_equal(result[b], alone.results[field][0], equal_nan=True), (b, field)
     assert OK in statuses
+
+
+def test_the_blocks_compile_only_for_a_batch_that_can_fill_one():
+    """A scheme's block step is compiled (`prepare`) for a batch of `FEWEST` bodies without
+    the time, and never for a smaller batch or one whose kernels take the time."""
+    from rbstudy.numerics import state as S
+    from rbstudy.numerics.block import FEWEST
+    from rbstudy.numerics.driver import HALT_FLAG, init_nothing, make_entry, n_samples
+    from rbstudy.schemes import euler
+
+    def arguments(n_bodies, clock):
+        state0 = np.zeros((n_bodies, S.N_STATE))
+        state0[:, S.QUATERNION + 3] = 1.0
+        params = np.zeros((n_bodies, S.N_PARAM))
+        params[:, S.MASS] = 1.0
+        params[:, S.INERTIA : S.INERTIA + 3] = 1.0
+        options = np.zeros((n_bodies, S.N_OPTION))
+        samples = np.empty((n_bodies, n_samples(2, 1), S.N_STATE))
+        results = np.full((n_bodies, S.N_RESULT), np.nan)
+        return (state0, params, options, 0.1, 2, 1, 0.5, samples, results, HALT_FLAG, clock)
+
+    entry = make_entry(euler.step_inplace, init_nothing, euler.N_WORK, block=euler.block_step)
+    for n_bodies, clock in ((FEWEST - 1, None), (FEWEST, 0.0)):
+        entry.prepare(arguments(n_bodies, clock))
+        entry(0, n_bodies, *arguments(n_bodies, clock))
+    assert entry._blocks._dispatcher is None
+    entry.prepare(arguments(FEWEST, None))
+    assert entry._blocks.signatures
