@@ -60,6 +60,8 @@ __all__ = [
     "PARAM",
     "TEMP",
     "N_TEMP",
+    "CARRIED",
+    "WORK",
     "VERDICT",
     "ITERATIONS",
     "LIVE",
@@ -73,6 +75,7 @@ __all__ = [
     "run_rows_in_blocks",
     "plain_loads",
     "quat_exp_columns",
+    "sin_cos_columns",
 ]
 
 # Bodies stepped together. 8 fill one AVX-512 register of doubles, but LLVM here picks 4-wide
@@ -86,12 +89,16 @@ BLOCK = 64
 FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
+# The floats of a body's work that a block step carries from one step to the next (rows
+# `WORK..`), as the scheme's ``init`` leaves them: no_squish's conjugate momentum, 4.
+CARRIED = 4
 # Where the rows of the states, the parameters and the scratch start; then each lane's status
 # and Newton iterations of the step just taken, and 1.0 for the lanes still booked.
 STATE = 0
 PARAM = STATE + S.N_STATE
 TEMP = PARAM + S.N_PARAM
-VERDICT = TEMP + N_TEMP
+WORK = TEMP + N_TEMP
+VERDICT = WORK + CARRIED
 ITERATIONS = VERDICT + 1
 LIVE = ITERATIONS + 1
 N_ROWS = LIVE + 1
@@ -241,6 +248,31 @@ def quat_exp_columns(block, vector, quaternion):
 
 
 @inline_jit
+def sin_cos_columns(block, angle):
+    """`rbstudy.numerics.lanes_math.sin_cos` of every lane's angle, row ``angle`` of ``block``
+    (N_ROWS * BLOCK,), into rows ``angle + 1`` (sine) and ``angle + 2`` (cosine): a loop over
+    lanes that vectorises, then libm's for the angles past `REDUCED` (or NaN), as `sin_cos`
+    takes them.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    angle : int
+        The row of the angles (rad), then 2 rows of scratch.
+    """
+    for lane in range(BLOCK):
+        sine, cosine = sin_cos_reduced(at(block, angle, lane))
+        block[(angle + 1) * BLOCK + lane] = sine
+        block[(angle + 2) * BLOCK + lane] = cosine
+    for lane in range(BLOCK):
+        x = at(block, angle, lane)
+        if not abs(x) <= REDUCED:
+            block[(angle + 1) * BLOCK + lane] = math.sin(x)
+            block[(angle + 2) * BLOCK + lane] = math.cos(x)
+
+
+@inline_jit
 def turn_columns(block, vector):
     """Turn every lane's orientation by the rotation vector in rows ``vector..vector+2`` of
     ``block`` (N_ROWS * BLOCK,): ``q <- normalise(q exp(vector))``, the exponential into the
@@ -338,6 +370,16 @@ def _load_block(a, stop, state0, params, block):
 
 
 @jit
+def _load_lane(block, lane, y, work):
+    """Store a body's state row ``y`` (N_STATE,) and the first `CARRIED` floats of its
+    ``work`` (n_work,) in lane ``lane`` of a block."""
+    for k in range(S.N_STATE):
+        block[(STATE + k) * BLOCK + lane] = y[k]
+    for k in range(min(CARRIED, work.shape[0])):
+        block[(WORK + k) * BLOCK + lane] = work[k]
+
+
+@jit
 def _book(block, lanes, fixed, drift_bound):
     """Book the step every lane has just taken, as `rbstudy.numerics.driver._lane_after_step`
     books one body's: the same tests in the same order, written with selects so that the loop
@@ -404,15 +446,20 @@ def _store_column(samples, b, sample, block, lane):
 
 @inline_jit
 def run_blocks(
-    block_step, a, stop, state0, params, opt, h, n_steps, every, drift_bound, samples, results, halt
+    block_step, init, n_work, a, stop, state0, params, opt, h, n_steps, every, drift_bound,
+    samples, results, halt
 ):
     """Integrate rows [a, stop) of a batch, at most `BLOCK` of them, with a scheme's block
     step; write their samples and results as `rbstudy.numerics.driver.run_rows` does.
 
     Parameters
     ----------
-    block_step : compiled kernel ``(block, h)``
+    block_step : compiled kernel ``(block, opt, h)``
         The scheme's (module docstring).
+    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
+        The scheme's start of a body (`rbstudy.numerics.driver.make_entry`), run on each lane.
+    n_work : int
+        Floats of work per body.
     a, stop : int
         The rows, ``stop - a <= BLOCK``, each of `plain_loads`.
     state0 : ndarray, shape (B, N_STATE)
@@ -441,18 +488,29 @@ def run_blocks(
     lanes[_STATUS * BLOCK : (_STATUS + 1) * BLOCK] = _IDLE
     fixed = np.zeros(3 * BLOCK)
     _load_block(a, stop, state0, params, block)
-    for lane in range(stop - a):
-        start, lane_tuple = _lane_start(a + lane, state0[a + lane], params[a + lane], samples)
-        fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
-            start[0],
-            start[1],
-            1.0 if start[2] else 0.0,
-        )
-        lanes[_STATUS * BLOCK + lane] = OK
-        lanes[_SPIN * BLOCK + lane] = lane_tuple[5]
-        lanes[_SAMPLE * BLOCK + lane] = 1.0
+    running = 0
+    y, work = np.empty(S.N_STATE), np.empty(n_work)
+    for lane in range(BLOCK):
+        row = a + lane if a + lane < stop else a
+        if lane < stop - a:
+            start, lane_tuple = _lane_start(row, state0[row], params[row], samples)
+            fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
+                start[0],
+                start[1],
+                1.0 if start[2] else 0.0,
+            )
+            lanes[_SPIN * BLOCK + lane] = lane_tuple[5]
+            lanes[_SAMPLE * BLOCK + lane] = 1.0
+        # the scheme's start, on the lane's rows as the single-body loop gives it a body's
+        y[:] = state0[row]
+        work[:] = 0.0
+        status = init(y, params[row], opt, None, h, work)
+        _load_lane(block, lane, y, work)
+        if lane < stop - a:
+            lanes[_STATUS * BLOCK + lane] = status
+            block[LIVE * BLOCK + lane] = 1.0 if status == OK else 0.0
+            running += 1 if status == OK else 0
     countdown = every
-    running = stop - a
     for step in range(n_steps):
         if running == 0:
             break
@@ -490,6 +548,8 @@ def run_blocks(
 @inline_jit
 def run_rows_in_blocks(
     block_step,
+    init,
+    n_work,
     single,
     start,
     stop,
@@ -513,8 +573,12 @@ def run_rows_in_blocks(
 
     Parameters
     ----------
-    block_step : compiled kernel ``(block, h)``
+    block_step : compiled kernel ``(block, opt, h)``
         The scheme's (module docstring).
+    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
+        The scheme's start of a body.
+    n_work : int
+        Floats of work per body.
     single : compiled function
         The single-body loop over a range of rows, as above.
     start, stop : int
@@ -546,8 +610,8 @@ def run_rows_in_blocks(
         end = min(a + BLOCK, stop)
         if end - a >= FEWEST and _plain_block(params, options, a, end):
             shared, bound = options[a], drift_bound  # the option row of every body of the block
-            run_blocks(block_step, a, end, state0, params, shared, h, n_steps, every, bound, samples, results,
-                       halt)
+            run_blocks(block_step, init, n_work, a, end, state0, params, shared, h, n_steps, every, bound,
+                       samples, results, halt)
         else:
             single(
                 a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None

@@ -80,8 +80,8 @@ def run_single(start, stop, state0, params, options, h, n_steps, every, drift_bo
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, results, halt, clock):
     if clock is None:
-        run_rows_in_blocks(block_step, run_single, start, stop, state0, params, options, h,
-                           n_steps, every, drift_bound, samples, results, halt)
+        run_rows_in_blocks(block_step, init, N_WORK, run_single, start, stop, state0, params,
+                           options, h, n_steps, every, drift_bound, samples, results, halt)
     else:
         run_single(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                    samples, results, halt, clock)

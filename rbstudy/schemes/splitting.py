@@ -33,7 +33,7 @@ from rbstudy.numerics.compensated import add3_inplace, add4_inplace, normalize_i
 from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
-from rbstudy.numerics.lanes_math import REDUCED, sin_cos, sin_cos_reduced
+from rbstudy.numerics.lanes_math import sin_cos
 from rbstudy.numerics.rotation import (
     cos_minus_one,
     quat_mul_axis_rotation,
@@ -55,7 +55,7 @@ from rbstudy.schemes._kicks import (
     kick_inplace,
 )
 from rbstudy.schemes._registry import Scheme, Style, option_slots
-from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
+from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -159,20 +159,12 @@ def _block_start(block, d):
 
 @inline_jit
 def _axis_flow_loops(block, k, d):
-    """`axis_flow` of every lane about axis ``k`` for a time ``d``: the sines in a loop that
-    vectorises, libm's for the half angles past `REDUCED` (as `sin_cos` takes them), then the
-    turn."""
+    """`axis_flow` of every lane about axis ``k`` for a time ``d``: the half angles, their
+    sines (`rbstudy.numerics.block.sin_cos_columns`), then the turn."""
     for lane in range(B.BLOCK):
         half = 0.5 * d * B.at(block, _MOMENTUM + k, lane) / B.at(block, B.PARAM + S.INERTIA + k, lane)
-        sine, cosine = sin_cos_reduced(half)
         block[_HALF * B.BLOCK + lane] = half
-        block[_SINE * B.BLOCK + lane] = sine
-        block[_COSINE * B.BLOCK + lane] = cosine
-    for lane in range(B.BLOCK):
-        half = B.at(block, _HALF, lane)
-        if not abs(half) <= REDUCED:
-            block[_SINE * B.BLOCK + lane] = math.sin(half)
-            block[_COSINE * B.BLOCK + lane] = math.cos(half)
+    B.sin_cos_columns(block, _HALF)
     for lane in range(B.BLOCK):
         q, m = turned(
             B.column4(block, B.STATE + S.QUATERNION, lane),
@@ -187,16 +179,10 @@ def _axis_flow_loops(block, k, d):
 
 @jit
 def _block_axis_flow(block, k, d):
-    """`_axis_flow_loops` with the axis a constant of each copy, so that the loops hold no
-    branch on it. A function of its own per sub-flow: inlined five times into one step, LLVM
-    called the later ones instead of inlining them (as `rbstudy.schemes.rk4._block_stage`
-    says)."""
-    if k == 0:
-        _axis_flow_loops(block, 0, d)
-    elif k == 1:
-        _axis_flow_loops(block, 1, d)
-    else:
-        _axis_flow_loops(block, 2, d)
+    """`_axis_flow_loops` about axis ``k`` (`on_axis`). A function of its own per sub-flow:
+    inlined five times into one step, LLVM called the later ones instead of inlining them (as
+    `rbstudy.schemes.rk4._block_stage` says)."""
+    on_axis(_axis_flow_loops, block, k, d)
 
 
 @jit
