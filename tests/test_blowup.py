@@ -193,6 +193,7 @@ BLOCK_OPTIONS = [
     ("splitting", {"axis_order": "312", "composition": 6}),
     ("midpoint", {"composition": 4}),
     ("no_squish", {"axis_order": "231", "composition": 4}),
+    ("hht", {"alpha": -0.1}),
 ]
 
 

@@ -52,7 +52,7 @@ from rbstudy.numerics.dynamics import force_from, has_lever, moment_from, moment
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import REDUCED, sin_cos_reduced
 from rbstudy.numerics.rotation import dot, norm, quat_exp_of, quat_mul, quat_normalize
-from rbstudy.numerics.state import OK, UNSTABLE
+from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 
 __all__ = [
     "BLOCK",
@@ -76,6 +76,8 @@ __all__ = [
     "plain_loads",
     "quat_exp_columns",
     "sin_cos_columns",
+    "start_newton",
+    "end_newton",
 ]
 
 # Bodies stepped together. 8 fill one AVX-512 register of doubles, but LLVM here picks 4-wide
@@ -90,8 +92,9 @@ FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
 # The floats of a body's work that a block step carries from one step to the next (rows
-# `WORK..`), as the scheme's ``init`` leaves them: no_squish's conjugate momentum, 4.
-CARRIED = 4
+# `WORK..`), as the scheme's ``init`` leaves them: no_squish's conjugate momentum (4), hht's
+# accelerations (6).
+CARRIED = 6
 # Where the rows of the states, the parameters and the scratch start; then each lane's status
 # and Newton iterations of the step just taken, and 1.0 for the lanes still booked.
 STATE = 0
@@ -270,6 +273,46 @@ def sin_cos_columns(block, angle):
         if not abs(x) <= REDUCED:
             block[(angle + 1) * BLOCK + lane] = math.sin(x)
             block[(angle + 2) * BLOCK + lane] = math.cos(x)
+
+
+@inline_jit
+def start_newton(block, rows):
+    """Before an implicit block step's Newton iterations: row ``rows`` (whether a lane
+    iterates) 1.0 for the lanes booked that have not failed in this step (an earlier stage of a
+    composition), rows ``rows + 1`` (whether it converged) and ``rows + 2`` (its iterations)
+    0.0.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    rows : int
+        The first of the three rows.
+    """
+    for lane in range(BLOCK):
+        live = (at(block, LIVE, lane) != 0.0) & (at(block, VERDICT, lane) == OK)
+        block[rows * BLOCK + lane] = 1.0 if live else 0.0
+        block[(rows + 1) * BLOCK + lane] = 0.0
+        block[(rows + 2) * BLOCK + lane] = 0.0
+
+
+@inline_jit
+def end_newton(block, rows):
+    """After an implicit block step's Newton iterations: `VERDICT` NOT_CONVERGED for the
+    lanes that were still OK and did not converge, and their iterations added to
+    `ITERATIONS`.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        The rows of the block whose step ends.
+    rows : int
+        The first of the rows of `start_newton`, as the iterations left them.
+    """
+    for lane in range(BLOCK):
+        failed = (at(block, VERDICT, lane) == OK) & (at(block, rows + 1, lane) == 0.0)
+        block[VERDICT * BLOCK + lane] = NOT_CONVERGED if failed else at(block, VERDICT, lane)
+        block[ITERATIONS * BLOCK + lane] += at(block, rows + 2, lane)
 
 
 @inline_jit

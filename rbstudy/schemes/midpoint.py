@@ -173,10 +173,7 @@ def _block_start(block, h):
         m = to_momentum(B.column3(block, B.STATE + S.OMEGA, lane), inertia_)
         B.set_column3(block, _MOMENTUM, lane, m)
         B.set_column3(block, _ITERATE, lane, predicted(m, inertia_, h))
-        live = (B.at(block, B.LIVE, lane) != 0.0) & (B.at(block, B.VERDICT, lane) == OK)
-        block[_ACTIVE * B.BLOCK + lane] = 1.0 if live else 0.0
-        block[_CONVERGED * B.BLOCK + lane] = 0.0
-        block[_STAGE_ITERATIONS * B.BLOCK + lane] = 0.0
+    B.start_newton(block, _ACTIVE)
 
 
 @jit
@@ -217,11 +214,9 @@ def _block_end(block, h):
         q = quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_)))))
         B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
         B.set_column3(block, B.STATE + S.OMEGA, lane, to_omega(sub(scale(2.0, mbar), m), inertia_))
-        failed = (B.at(block, B.VERDICT, lane) == OK) & (B.at(block, _CONVERGED, lane) == 0.0)
-        block[B.VERDICT * B.BLOCK + lane] = NOT_CONVERGED if failed else B.at(block, B.VERDICT, lane)
-        block[B.ITERATIONS * B.BLOCK + lane] += B.at(block, _STAGE_ITERATIONS, lane)
     drift_block(block, h)
     kick_block(block, 0.5 * h)
+    B.end_newton(block, _ACTIVE)
 
 
 @jit
