@@ -6,19 +6,23 @@ How a scheme plugs in
 A scheme of fixed steps that carries nothing between them may give, beside its single-body
 kernels (`rbstudy.numerics.driver`), a block step
 
-    block_step(block, h)
+    block_step(block, opt, h)
 
 with ``block`` the block's rows, one flat array (N_ROWS * BLOCK,): row ``STATE + k`` holds
 component k of every lane's state (updated in place), row ``PARAM + k`` parameter k, rows
-``TEMP..`` scratch (N_TEMP of them); ``h`` the step. It is a few loops over the block's lanes,
-each short enough for LLVM to vectorise (one loop for a whole step was not: measured, see
-docs/performance.md), reading and writing a lane's entries with `at`, `column3`, `column4`,
-`set_column3`, `set_column4`. One flat array of rows of a width known when compiling lets
-LLVM see that no two rows overlap: with 2-D arrays of a width known only at run time it
-needed a check of every pair of rows before the loop, and gave up. It must give each body
-the bits of the scheme's ``step_inplace`` exactly: the same formulas in the same order, the
-sine and cosine of `rbstudy.numerics.lanes_math` on both paths, no fast-math
-(`rbstudy.numerics.jit`).
+``TEMP..`` scratch (N_TEMP of them); ``opt`` (N_OPTION,) the option row that every body of the
+block shares (a block holds only bodies of one option row); ``h`` the step. A step that can
+fail on a body (Newton that does not converge) writes each lane's status and Newton iterations
+of the step into rows `VERDICT` and `ITERATIONS` (which hold OK and 0 when a step starts), and
+may leave alone the lanes whose row `LIVE` is 0 (bodies that have failed, lanes past the
+batch). It is a few loops over the block's lanes, each short enough for LLVM to vectorise (one
+loop for a whole step was not: measured, see docs/performance.md), reading and writing a
+lane's entries with `at`, `column3`, `column4`, `set_column3`, `set_column4`. One flat array
+of rows of a width known when compiling lets LLVM see that no two rows overlap: with 2-D
+arrays of a width known only at run time it needed a check of every pair of rows before the
+loop, and gave up. It must give each body the bits of the scheme's ``step_inplace`` exactly:
+the same formulas in the same order, the sine and cosine of `rbstudy.numerics.lanes_math` on
+both paths, no fast-math (`rbstudy.numerics.jit`).
 
 What the block path covers, and what it hands back
 --------------------------------------------------
@@ -48,7 +52,7 @@ from rbstudy.numerics.dynamics import force_from, has_lever, moment_from, moment
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import REDUCED, sin_cos_reduced
 from rbstudy.numerics.rotation import dot, norm, quat_exp_of, quat_mul, quat_normalize
-from rbstudy.numerics.state import OK, UNSTABLE
+from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 
 __all__ = [
     "BLOCK",
@@ -56,6 +60,11 @@ __all__ = [
     "PARAM",
     "TEMP",
     "N_TEMP",
+    "CARRIED",
+    "WORK",
+    "VERDICT",
+    "ITERATIONS",
+    "LIVE",
     "N_ROWS",
     "at",
     "column3",
@@ -66,6 +75,9 @@ __all__ = [
     "run_rows_in_blocks",
     "plain_loads",
     "quat_exp_columns",
+    "sin_cos_columns",
+    "start_newton",
+    "end_newton",
 ]
 
 # Bodies stepped together. 8 fill one AVX-512 register of doubles, but LLVM here picks 4-wide
@@ -79,20 +91,29 @@ BLOCK = 64
 FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
-# Where the rows of the states, the parameters and the scratch start.
+# The floats of a body's work that a block step carries from one step to the next (rows
+# `WORK..`), as the scheme's ``init`` leaves them: no_squish's conjugate momentum (4), hht's
+# accelerations (6).
+CARRIED = 6
+# Where the rows of the states, the parameters and the scratch start; then each lane's status
+# and Newton iterations of the step just taken, and 1.0 for the lanes still booked.
 STATE = 0
 PARAM = STATE + S.N_STATE
 TEMP = PARAM + S.N_PARAM
-N_ROWS = TEMP + N_TEMP
+WORK = TEMP + N_TEMP
+VERDICT = WORK + CARRIED
+ITERATIONS = VERDICT + 1
+LIVE = ITERATIONS + 1
+N_ROWS = LIVE + 1
 
 _relative_drift = jit(algebra.relative_drift)
 # The status of a lane past the batch's last body: never OK, never stored.
 _IDLE = -1
 # Rows of a block's tallies, the fields of the driver's lane tuple (`_book`): status, steps
-# taken, largest energy and |L| drifts, largest |w|^2, next sample (floats, so that one loop
-# over lanes handles them all).
-_STATUS, _STEPS, _MAX_ENERGY, _MAX_MOMENTUM, _SPIN, _SAMPLE = range(6)
-_N_TALLY = 6
+# taken, Newton iterations, largest energy and |L| drifts, largest |w|^2, next sample (floats,
+# so that one loop over lanes handles them all).
+_STATUS, _STEPS, _ITERATIONS, _MAX_ENERGY, _MAX_MOMENTUM, _SPIN, _SAMPLE = range(7)
+_N_TALLY = 7
 
 
 @jit
@@ -230,6 +251,71 @@ def quat_exp_columns(block, vector, quaternion):
 
 
 @inline_jit
+def sin_cos_columns(block, angle):
+    """`rbstudy.numerics.lanes_math.sin_cos` of every lane's angle, row ``angle`` of ``block``
+    (N_ROWS * BLOCK,), into rows ``angle + 1`` (sine) and ``angle + 2`` (cosine): a loop over
+    lanes that vectorises, then libm's for the angles past `REDUCED` (or NaN), as `sin_cos`
+    takes them.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    angle : int
+        The row of the angles (rad), then 2 rows of scratch.
+    """
+    for lane in range(BLOCK):
+        sine, cosine = sin_cos_reduced(at(block, angle, lane))
+        block[(angle + 1) * BLOCK + lane] = sine
+        block[(angle + 2) * BLOCK + lane] = cosine
+    for lane in range(BLOCK):
+        x = at(block, angle, lane)
+        if not abs(x) <= REDUCED:
+            block[(angle + 1) * BLOCK + lane] = math.sin(x)
+            block[(angle + 2) * BLOCK + lane] = math.cos(x)
+
+
+@inline_jit
+def start_newton(block, rows):
+    """Before an implicit block step's Newton iterations: row ``rows`` (whether a lane
+    iterates) 1.0 for the lanes booked that have not failed in this step (an earlier stage of a
+    composition), rows ``rows + 1`` (whether it converged) and ``rows + 2`` (its iterations)
+    0.0.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        A block's rows.
+    rows : int
+        The first of the three rows.
+    """
+    for lane in range(BLOCK):
+        live = (at(block, LIVE, lane) != 0.0) & (at(block, VERDICT, lane) == OK)
+        block[rows * BLOCK + lane] = 1.0 if live else 0.0
+        block[(rows + 1) * BLOCK + lane] = 0.0
+        block[(rows + 2) * BLOCK + lane] = 0.0
+
+
+@inline_jit
+def end_newton(block, rows):
+    """After an implicit block step's Newton iterations: `VERDICT` NOT_CONVERGED for the
+    lanes that were still OK and did not converge, and their iterations added to
+    `ITERATIONS`.
+
+    Parameters
+    ----------
+    block : ndarray, shape (N_ROWS * BLOCK,)
+        The rows of the block whose step ends.
+    rows : int
+        The first of the rows of `start_newton`, as the iterations left them.
+    """
+    for lane in range(BLOCK):
+        failed = (at(block, VERDICT, lane) == OK) & (at(block, rows + 1, lane) == 0.0)
+        block[VERDICT * BLOCK + lane] = NOT_CONVERGED if failed else at(block, VERDICT, lane)
+        block[ITERATIONS * BLOCK + lane] += at(block, rows + 2, lane)
+
+
+@inline_jit
 def turn_columns(block, vector):
     """Turn every lane's orientation by the rotation vector in rows ``vector..vector+2`` of
     ``block`` (N_ROWS * BLOCK,): ``q <- normalise(q exp(vector))``, the exponential into the
@@ -300,11 +386,14 @@ def plain_loads(p):
 
 
 @jit
-def _plain_block(params, a, stop):
-    """Whether every body of rows [a, stop) has `plain_loads`."""
+def _plain_block(params, options, a, stop):
+    """Whether every body of rows [a, stop) has `plain_loads` and the option row of row ``a``."""
     for row in range(a, stop):
         if not plain_loads(params[row]):
             return False
+        for k in range(options.shape[1]):
+            if options[row, k] != options[a, k]:
+                return False
     return True
 
 
@@ -318,18 +407,33 @@ def _load_block(a, stop, state0, params, block):
             block[(STATE + k) * BLOCK + lane] = state0[row, k]
         for k in range(S.N_PARAM):
             block[(PARAM + k) * BLOCK + lane] = params[row, k]
+        block[VERDICT * BLOCK + lane] = OK
+        block[ITERATIONS * BLOCK + lane] = 0.0
+        block[LIVE * BLOCK + lane] = 1.0 if a + lane < stop else 0.0
+
+
+@jit
+def _load_lane(block, lane, y, work):
+    """Store a body's state row ``y`` (N_STATE,) and the first `CARRIED` floats of its
+    ``work`` (n_work,) in lane ``lane`` of a block."""
+    for k in range(S.N_STATE):
+        block[(STATE + k) * BLOCK + lane] = y[k]
+    for k in range(min(CARRIED, work.shape[0])):
+        block[(WORK + k) * BLOCK + lane] = work[k]
 
 
 @jit
 def _book(block, lanes, fixed, drift_bound):
     """Book the step every lane has just taken, as `rbstudy.numerics.driver._lane_after_step`
     books one body's: the same tests in the same order, written with selects so that the loop
-    over lanes vectorises. Returns how many bodies failed on this step.
+    over lanes vectorises; row `LIVE` then says which lanes are still booked, and rows
+    `VERDICT` and `ITERATIONS` are OK and 0 again for the next step. Returns how many bodies
+    failed on this step.
 
     Parameters
     ----------
     block : ndarray, shape (N_ROWS * BLOCK,)
-        The block's rows after the step.
+        The block's rows after the step, with the step's `VERDICT` and `ITERATIONS`.
     lanes : ndarray of float, shape (_N_TALLY * BLOCK,)
         Each lane's tallies, row by row (`_STATUS`...), updated for the lanes still OK.
     fixed : ndarray of float, shape (3 * BLOCK,)
@@ -348,12 +452,14 @@ def _book(block, lanes, fixed, drift_bound):
         d_momentum = _relative_drift(math.sqrt(momentum_squared(w, inertia_)), fixed[1 * BLOCK + lane])
         spin = dot(w, w)
         running = lanes[_STATUS * BLOCK + lane] == OK
-        finite = running & math.isfinite(total)
+        verdict = block[VERDICT * BLOCK + lane]
+        finite = running & (verdict == OK) & math.isfinite(total)
         checked = finite & (fixed[2 * BLOCK + lane] != 0.0)
         # written so that NaN drifts also fail the test
         within = (d_energy <= drift_bound) & (d_momentum <= drift_bound)
         ok = finite & (within | (fixed[2 * BLOCK + lane] == 0.0))
         lanes[_STEPS * BLOCK + lane] += 1.0 if running else 0.0
+        lanes[_ITERATIONS * BLOCK + lane] += block[ITERATIONS * BLOCK + lane] if running else 0.0
         lanes[_MAX_ENERGY * BLOCK + lane] = (
             max(lanes[_MAX_ENERGY * BLOCK + lane], d_energy) if checked else lanes[_MAX_ENERGY * BLOCK + lane]
         )
@@ -365,7 +471,11 @@ def _book(block, lanes, fixed, drift_bound):
         lanes[_SPIN * BLOCK + lane] = (
             spin if ok & (spin > lanes[_SPIN * BLOCK + lane]) else lanes[_SPIN * BLOCK + lane]
         )
-        lanes[_STATUS * BLOCK + lane] = OK if ok else (UNSTABLE if running else lanes[_STATUS * BLOCK + lane])
+        failure = verdict if verdict != OK else UNSTABLE
+        lanes[_STATUS * BLOCK + lane] = OK if ok else (failure if running else lanes[_STATUS * BLOCK + lane])
+        block[LIVE * BLOCK + lane] = 1.0 if ok else 0.0
+        block[VERDICT * BLOCK + lane] = OK
+        block[ITERATIONS * BLOCK + lane] = 0.0
         failed += 1 if running & (not ok) else 0
     return failed
 
@@ -378,20 +488,29 @@ def _store_column(samples, b, sample, block, lane):
 
 
 @inline_jit
-def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bound, samples, results, halt):
+def run_blocks(
+    block_step, init, n_work, a, stop, state0, params, opt, h, n_steps, every, drift_bound,
+    samples, results, halt
+):
     """Integrate rows [a, stop) of a batch, at most `BLOCK` of them, with a scheme's block
     step; write their samples and results as `rbstudy.numerics.driver.run_rows` does.
 
     Parameters
     ----------
-    block_step : compiled kernel ``(block, h)``
+    block_step : compiled kernel ``(block, opt, h)``
         The scheme's (module docstring).
+    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
+        The scheme's start of a body (`rbstudy.numerics.driver.make_entry`), run on each lane.
+    n_work : int
+        Floats of work per body.
     a, stop : int
         The rows, ``stop - a <= BLOCK``, each of `plain_loads`.
     state0 : ndarray, shape (B, N_STATE)
         Initial states (read only).
     params : ndarray, shape (B, W)
         Parameter rows, W >= N_PARAM.
+    opt : ndarray, shape (N_OPTION,)
+        The option row of every body of the rows.
     h : float
         Time step (s).
     n_steps : int
@@ -412,25 +531,36 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
     lanes[_STATUS * BLOCK : (_STATUS + 1) * BLOCK] = _IDLE
     fixed = np.zeros(3 * BLOCK)
     _load_block(a, stop, state0, params, block)
-    for lane in range(stop - a):
-        start, lane_tuple = _lane_start(a + lane, state0[a + lane], params[a + lane], samples)
-        fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
-            start[0],
-            start[1],
-            1.0 if start[2] else 0.0,
-        )
-        lanes[_STATUS * BLOCK + lane] = OK
-        lanes[_SPIN * BLOCK + lane] = lane_tuple[5]
-        lanes[_SAMPLE * BLOCK + lane] = 1.0
+    running = 0
+    y, work = np.empty(S.N_STATE), np.empty(n_work)
+    for lane in range(BLOCK):
+        row = a + lane if a + lane < stop else a
+        if lane < stop - a:
+            start, lane_tuple = _lane_start(row, state0[row], params[row], samples)
+            fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
+                start[0],
+                start[1],
+                1.0 if start[2] else 0.0,
+            )
+            lanes[_SPIN * BLOCK + lane] = lane_tuple[5]
+            lanes[_SAMPLE * BLOCK + lane] = 1.0
+        # the scheme's start, on the lane's rows as the single-body loop gives it a body's
+        y[:] = state0[row]
+        work[:] = 0.0
+        status = init(y, params[row], opt, None, h, work)
+        _load_lane(block, lane, y, work)
+        if lane < stop - a:
+            lanes[_STATUS * BLOCK + lane] = status
+            block[LIVE * BLOCK + lane] = 1.0 if status == OK else 0.0
+            running += 1 if status == OK else 0
     countdown = every
-    running = stop - a
     for step in range(n_steps):
         if running == 0:
             break
         if (step & _HALT_MASK) == 0 and halt[0] != 0:
             break
         countdown -= 1
-        block_step(block, h)
+        block_step(block, opt, h)
         running -= _book(block, lanes, fixed, drift_bound)
         if countdown == 0:
             countdown = every
@@ -442,7 +572,7 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
         tallies = (
             int(lanes[_STATUS * BLOCK + lane]),
             int(lanes[_STEPS * BLOCK + lane]),
-            0,
+            int(lanes[_ITERATIONS * BLOCK + lane]),
             lanes[_MAX_ENERGY * BLOCK + lane],
             lanes[_MAX_MOMENTUM * BLOCK + lane],
             lanes[_SPIN * BLOCK + lane],
@@ -461,6 +591,8 @@ def run_blocks(block_step, a, stop, state0, params, h, n_steps, every, drift_bou
 @inline_jit
 def run_rows_in_blocks(
     block_step,
+    init,
+    n_work,
     single,
     start,
     stop,
@@ -476,15 +608,20 @@ def run_rows_in_blocks(
     halt,
 ):
     """Integrate the rows [start, stop) of a batch without loads tabulated in time, `BLOCK` at a
-    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies and
-    every one has `plain_loads`, with ``single`` elsewhere: the scheme's entry point of the
-    single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start, stop, state0,
-    params, options, h, n_steps, every, drift_bound, samples, results, halt, clock)``.
+    time: with ``block_step`` (`run_blocks`) where the block has at least `FEWEST` bodies, every
+    one has `plain_loads` and all share one option row, with ``single`` elsewhere: the scheme's
+    entry point of the single-body loop (`rbstudy.numerics.driver.run_rows`), ``single(start,
+    stop, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt,
+    clock)``.
 
     Parameters
     ----------
-    block_step : compiled kernel ``(block, h)``
+    block_step : compiled kernel ``(block, opt, h)``
         The scheme's (module docstring).
+    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
+        The scheme's start of a body.
+    n_work : int
+        Floats of work per body.
     single : compiled function
         The single-body loop over a range of rows, as above.
     start, stop : int
@@ -494,7 +631,7 @@ def run_rows_in_blocks(
     params : ndarray, shape (B, W)
         Parameter rows, W >= N_PARAM.
     options : ndarray, shape (B, N_OPTION)
-        Scheme options (read only; the block step has none).
+        Scheme options (read only).
     h : float
         Time step (s).
     n_steps : int
@@ -514,10 +651,10 @@ def run_rows_in_blocks(
         if halt[0] != 0:
             return
         end = min(a + BLOCK, stop)
-        if end - a >= FEWEST and _plain_block(params, a, end):
-            run_blocks(
-                block_step, a, end, state0, params, h, n_steps, every, drift_bound, samples, results, halt
-            )
+        if end - a >= FEWEST and _plain_block(params, options, a, end):
+            shared, bound = options[a], drift_bound  # the option row of every body of the block
+            run_blocks(block_step, init, n_work, a, end, state0, params, shared, h, n_steps, every, bound,
+                       samples, results, halt)
         else:
             single(
                 a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None

@@ -566,7 +566,7 @@ def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None, block=Non
         Other kernels for the rows whose option at ``slot`` is nonzero (a variant of the
         scheme chosen per body, such as its compensated step): the entry runs each run of
         such rows with them, so that the plain step stays as fast as without the variant.
-    block : compiled kernel ``(y, p, h, temp)``, optional
+    block : compiled kernel ``(block, opt, h)``, optional
         The scheme's block step (`rbstudy.numerics.block`): the entry then steps blocks of
         bodies with it where the kernels do not take the time, and ``step`` elsewhere; each
         body gets the same bits either way.

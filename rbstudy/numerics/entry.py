@@ -80,8 +80,8 @@ def run_single(start, stop, state0, params, options, h, n_steps, every, drift_bo
 def run_bodies_inplace(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                        samples, results, halt, clock):
     if clock is None:
-        run_rows_in_blocks(block_step, run_single, start, stop, state0, params, options, h,
-                           n_steps, every, drift_bound, samples, results, halt)
+        run_rows_in_blocks(block_step, init, N_WORK, run_single, start, stop, state0, params,
+                           options, h, n_steps, every, drift_bound, samples, results, halt)
     else:
         run_single(start, stop, state0, params, options, h, n_steps, every, drift_bound,
                    samples, results, halt, clock)
@@ -226,14 +226,26 @@ class CachedEntry:
     branch on the option inside one step kept LLVM from inlining the step into the loop over
     steps: plain euler and leapfrog ran at half their speed), and the switched kernels compile
     only for a batch that sets the option (`prepare`), not on every scheme's first run (5-7 s
-    of the default study's, docs/performance.md)."""
+    of the default study's, docs/performance.md).
+
+    With a ``block`` step (`rbstudy.numerics.block`), the ranges of rows that can fill a block
+    (`rbstudy.numerics.block.FEWEST` rows or more) of kernels without the time run through a
+    second entry point, whose module steps blocks; it too compiles only for a batch that uses
+    it (`prepare`)."""
 
     def __init__(self, step, init, n_work, wrapper=None, lanes=1, switch=None, block=None):
-        self._kernels = (step, init, n_work, wrapper, lanes, block)
+        self._kernels = (step, init, n_work, wrapper, lanes, None)
         self._dispatcher = None
         self._lock = threading.Lock()
         self._slot = None if switch is None else int(switch[0])
         self._switched = None if switch is None else CachedEntry(switch[1], switch[2], n_work, wrapper, lanes)
+        # the entry point of the blocks, of a module of its own, so that it compiles only for
+        # a batch that can fill a block (`prepare`): compiled beside every scheme's plain
+        # entry, the block steps of five schemes added ~30 s to a first run (docs/performance.md)
+        self._blocks = None
+        if block is not None:
+            self._blocks = CachedEntry(step, init, n_work, wrapper, lanes)
+            self._blocks._kernels = (step, init, n_work, wrapper, lanes, block)
 
     @property
     def dispatcher(self):
@@ -250,7 +262,14 @@ class CachedEntry:
     @property
     def has_block(self):
         """Whether the scheme steps blocks of bodies (`rbstudy.numerics.block`)."""
-        return self._kernels[5] is not None
+        return self._blocks is not None
+
+    def _in_blocks(self, start, stop, clock):
+        """Whether rows [start, stop) run through the entry point of the blocks: a range that
+        can fill a block, of kernels without the time."""
+        from rbstudy.numerics.block import FEWEST  # imported here: block imports the driver
+
+        return self._blocks is not None and clock is None and stop - start >= FEWEST
 
     @property
     def signatures(self):
@@ -273,8 +292,9 @@ class CachedEntry:
 
     def prepare(self, arguments):
         """Compile (or load) the switched entry point for these batch ``arguments`` (all but
-        ``start, stop``) when some row sets the switch's option: before the batch's clock
-        starts, as `rbstudy.schemes.Scheme.ensure_compiled` does for the plain one.
+        ``start, stop``) when some row sets the switch's option, and the blocks' entry point
+        when the batch can fill a block: before the batch's clock starts, as
+        `rbstudy.schemes.Scheme.ensure_compiled` does for the plain one.
 
         Parameters
         ----------
@@ -282,17 +302,29 @@ class CachedEntry:
             ``(state0, params, options, h, n_steps, every, drift_bound, samples, results,
             halt, clock)`` of a batch; ``options`` (B, N_OPTION).
         """
+        wanted = []
         if self._switched is not None and np.any(arguments[2][:, self._slot] != 0.0):
-            compile_ = getattr(self._switched.dispatcher, "compile", None)  # None: numba's JIT off
+            wanted.append(self._switched.dispatcher)
+        if self._in_blocks(0, arguments[0].shape[0], arguments[-1]):
+            wanted.append(self._blocks.dispatcher)
+        for dispatcher in wanted:
+            compile_ = getattr(dispatcher, "compile", None)  # None: numba's JIT off
             if compile_ is not None:
                 compile_(tuple(numba.typeof(value) for value in (0, 0, *arguments)))
 
+    def _run(self, start, stop, arguments):
+        """Rows [start, stop) through the blocks' entry point or the plain one."""
+        entry = self._blocks if self._in_blocks(start, stop, arguments[-1]) else self
+        entry.dispatcher(start, stop, *arguments)
+
     def __call__(self, start, stop, *arguments):
         if self._switched is None:
-            return self.dispatcher(start, stop, *arguments)
+            return self._run(start, stop, arguments)
         switched = arguments[2][start:stop, self._slot] != 0.0
         edges = [start, *(start + np.flatnonzero(switched[1:] != switched[:-1]) + 1).tolist(), stop]
         for a, b in zip(edges[:-1], edges[1:], strict=True):
-            entry = self._switched if switched[a - start] else self
-            entry.dispatcher(a, b, *arguments)
+            if switched[a - start]:
+                self._switched.dispatcher(a, b, *arguments)
+            else:
+                self._run(a, b, arguments)
         return None

@@ -31,7 +31,15 @@ from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Option
 
-__all__ = ["COMPOSITION", "ORDERS", "stage_weights", "stage_reach", "composed_step", "composed_entry"]
+__all__ = [
+    "COMPOSITION",
+    "ORDERS",
+    "stage_weights",
+    "stage_reach",
+    "composed_step",
+    "composed_block_step",
+    "composed_entry",
+]
 
 _TRIPLE_JUMP = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 # the weights from the outermost stage to the centre; the others mirror them
@@ -140,9 +148,24 @@ def composed_step(step, slot, y, p, opt, t, h, work):
     return OK, iterations
 
 
-def composed_entry(symmetric_step, init, n_work, slot, switch=None):
+@inline_jit
+def composed_block_step(step, slot, block, opt, h):
+    """`composed_step` of a block step ``step(block, opt, h)`` (`rbstudy.numerics.block`) on
+    a block whose bodies share the option row ``opt`` (N_OPTION,): the stages of every lane in
+    turn, with the same stage lengths. A lane that fails in a stage sets its row ``VERDICT``,
+    which the stages after it leave as it is (the block step's own business, as it is a step's
+    to return its status)."""
+    order = int(opt[slot])
+    if order <= 2:
+        step(block, opt, h)
+        return
+    for i in range(_STAGE_COUNT[order]):
+        step(block, opt, _STAGES[order, i] * h)
+
+
+def composed_entry(symmetric_step, init, n_work, slot, switch=None, block=None):
     """The entry point (`rbstudy.numerics.driver.make_entry`) of a scheme whose step is its
     ``symmetric_step`` composed as option ``composition``, at ``slot`` of the scheme's option
     row (`rbstudy.schemes.option_slots`), asks (`composed_step`); a ``switch``'s step is
-    composed alike."""
-    return make_entry(symmetric_step, init, n_work, wrapper=(composed_step, slot), switch=switch)
+    composed alike; a ``block`` step composes itself (`composed_block_step`)."""
+    return make_entry(symmetric_step, init, n_work, wrapper=(composed_step, slot), switch=switch, block=block)

@@ -97,7 +97,7 @@ _TURN = TEMP
 
 
 @jit
-def block_step(block, h):
+def block_step(block, opt, h):
     """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
     time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out. Each body's bits
     are those of `step_inplace`."""

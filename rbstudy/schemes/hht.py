@@ -29,10 +29,16 @@ updates as increments (the frame's as ``q_n (exp(Theta) - 1)``) with compensated
 (`rbstudy.schemes._compensated`).
 Reference: Simo & Vu-Quoc, Comput. Methods Appl. Mech. Eng. 66 (1988) 125; Hilber, Hughes &
 Taylor, Earthq. Eng. Struct. Dyn. 5 (1977) 283.
+
+The block step (`block_step`, bodies of a batch stepped side by side) runs Newton on every lane
+of a block while any lane still iterates, a lane that has converged or failed keeping its
+iterate; the rotation's sine is `rbstudy.numerics.lanes_math`'s on both paths, so that each
+body takes the iterations, and gets the bits, of its solo run.
 """
 
 import math
 
+from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
@@ -46,12 +52,12 @@ from rbstudy.numerics.dynamics import (
     to_momentum,
 )
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
     add,
     axpy,
     cross,
     norm,
-    quat_exp,
     quat_exp_minus_one,
     quat_mul,
     quat_normalize,
@@ -108,6 +114,26 @@ def residual(a, w, inertia_, moment):
 
 
 @jit
+def jacobian(w, inertia_, cw, alpha, d):
+    """``(1 + alpha) (J + d ([W]x J - [J W]x + C))`` at spin ``w``, ``cw`` the damping
+    coefficients ``C``, ``d = h gamma`` (module docstring)."""
+    jw = to_momentum(w, inertia_)
+    k = skew_matmul(w, inertia_)
+    c = 1.0 + alpha
+    return (
+        (c * (inertia_[0] + d * (k[0][0] + cw[0])), c * d * (k[0][1] + jw[2]), c * d * (k[0][2] - jw[1])),
+        (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * (k[1][1] + cw[1])), c * d * (k[1][2] + jw[0])),
+        (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]), c * (inertia_[2] + d * (k[2][2] + cw[2]))),
+    )
+
+
+@jit
+def newmark(alpha):
+    """``(gamma, beta)`` of HHT-alpha (module docstring)."""
+    return 0.5 - alpha, 0.25 * (1.0 - alpha) ** 2
+
+
+@jit
 def init_inplace(y, p, opt, t, h, work):
     q = read4(y, S.QUATERNION)
     w = read3(y, S.OMEGA)
@@ -121,8 +147,7 @@ def advance(y, p, opt, t, h, work, compensated):
     """One step (module docstring), its updates added as increments with compensation when
     ``compensated`` (a constant where it is inlined, so each kernel keeps one of the two)."""
     alpha = opt[_ALPHA]
-    gamma = 0.5 - alpha
-    beta = 0.25 * (1.0 - alpha) ** 2
+    gamma, beta = newmark(alpha)
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
@@ -140,7 +165,7 @@ def advance(y, p, opt, t, h, work, compensated):
     while iterations < NEWTON_MAX_ITERATIONS:
         w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
         theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
-        q_new = quat_mul(q, quat_exp(theta))
+        q_new = quat_mul(q, quat_exp_poly(theta))
         moment_new = body_moment(q_new, w_new, p, later(t, h))
         g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)), scale(alpha, r_old))
         size = norm(g)
@@ -152,16 +177,8 @@ def advance(y, p, opt, t, h, work, compensated):
         # the Jacobian leaves out how a moment that turns with the body (a space moment, a
         # space force at a node) changes with q_new: a quasi-Newton step, converging all the
         # same at the steps where the scheme is accurate
-        jw = to_momentum(w_new, inertia_)
-        k = skew_matmul(w_new, inertia_)
-        cw = spin_damping(p)  # -dT/dW of a damping moment (zero without)
-        c, d = 1.0 + alpha, h * gamma
-        jacobian = (
-            (c * (inertia_[0] + d * (k[0][0] + cw[0])), c * d * (k[0][1] + jw[2]), c * d * (k[0][2] - jw[1])),
-            (c * d * (k[1][0] - jw[2]), c * (inertia_[1] + d * (k[1][1] + cw[1])), c * d * (k[1][2] + jw[0])),
-            (c * d * (k[2][0] + jw[1]), c * d * (k[2][1] - jw[0]), c * (inertia_[2] + d * (k[2][2] + cw[2]))),
-        )
-        a_new = sub(a_new, solve3(jacobian, g))
+        # -dT/dW of a damping moment (zero without)
+        a_new = sub(a_new, solve3(jacobian(w_new, inertia_, spin_damping(p), alpha, h * gamma), g))
         iterations += 1
     if not converged:
         return NOT_CONVERGED, iterations
@@ -199,6 +216,124 @@ def compensated_step_inplace(y, p, opt, t, h, work):
     return advance(y, p, opt, t, h, work, True)
 
 
+# block rows: A_n and a_n, carried from step to step (the work's first six floats); scratch:
+# each lane's r_n and residual scale, its A_n+1, whether it iterates and whether it converged,
+# its iterations, the rotation vector Theta and its exponential, q_n+1 and W_n+1
+_ANGULAR_ROWS, _LINEAR_ROWS = B.WORK + _ANGULAR, B.WORK + _LINEAR
+_R_OLD, _SCALE, _A_NEW = B.TEMP, B.TEMP + 3, B.TEMP + 4
+_ACTIVE, _CONVERGED, _STEP_ITERATIONS = B.TEMP + 7, B.TEMP + 8, B.TEMP + 9
+_THETA, _EXP = B.TEMP + 10, B.TEMP + 13
+_Q_NEW, _W_NEW = B.TEMP + 17, B.TEMP + 21
+# a block step runs only without loads in time, and so without a damping moment
+_NO_DAMPING = (0.0, 0.0, 0.0)
+
+
+@jit
+def _block_start(block, alpha):
+    """Each lane's ``r_n``, residual scale and first iterate; a lane iterates when booked."""
+    for lane in range(B.BLOCK):
+        q, w = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.OMEGA, lane)
+        inertia_, a_old = B.column3(block, B.PARAM + S.INERTIA, lane), B.column3(block, _ANGULAR_ROWS, lane)
+        moment_old = B.loads_at(block, q, w, lane)[0]
+        scale_ = (
+            norm(to_momentum(w, inertia_)) * norm(w)
+            + norm(to_momentum(a_old, inertia_))
+            + norm(moment_old)
+            + 1e-300
+        )
+        B.set_column3(block, _R_OLD, lane, residual(a_old, w, inertia_, moment_old))
+        block[_SCALE * B.BLOCK + lane] = scale_
+        B.set_column3(block, _A_NEW, lane, a_old)
+    B.start_newton(block, _ACTIVE)
+
+
+@jit
+def _block_rotation(block, h, alpha):
+    """Each lane's ``Theta`` at its iterate ``A_n+1``, and its ``W_n+1``."""
+    gamma, beta = newmark(alpha)
+    for lane in range(B.BLOCK):
+        w, a_old = B.column3(block, B.STATE + S.OMEGA, lane), B.column3(block, _ANGULAR_ROWS, lane)
+        a_new = B.column3(block, _A_NEW, lane)
+        B.set_column3(block, _W_NEW, lane, axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w)))
+        theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
+        B.set_column3(block, _THETA, lane, theta)
+
+
+@jit
+def _block_newton(block, h, alpha):
+    """One pass of `advance`'s loop on every lane that iterates (selects): the residual at
+    its iterate, the test, the update; returns how many lanes still iterate."""
+    gamma, _ = newmark(alpha)
+    active = 0
+    for lane in range(B.BLOCK):
+        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
+        q, w_new = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, _W_NEW, lane)
+        q_new = quat_mul(q, B.column4(block, _EXP, lane))
+        a_new = B.column3(block, _A_NEW, lane)
+        moment_new = B.loads_at(block, q_new, w_new, lane)[0]
+        g = sub(
+            scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
+            scale(alpha, B.column3(block, _R_OLD, lane)),
+        )
+        size = norm(g)
+        iterating = B.at(block, _ACTIVE, lane) != 0.0
+        finite = iterating & math.isfinite(size)
+        converged = finite & (size <= NEWTON_RESIDUAL_RTOL * B.at(block, _SCALE, lane))
+        taken = B.at(block, _STEP_ITERATIONS, lane)
+        update = finite & (not converged)
+        a_next = sub(a_new, solve3(jacobian(w_new, inertia_, _NO_DAMPING, alpha, h * gamma), g))
+        B.set_column3(block, _A_NEW, lane, a_next if update else a_new)
+        B.set_column4(block, _Q_NEW, lane, q_new if iterating else B.column4(block, _Q_NEW, lane))
+        block[_STEP_ITERATIONS * B.BLOCK + lane] = taken + 1.0 if update else taken
+        block[_CONVERGED * B.BLOCK + lane] = 1.0 if converged else B.at(block, _CONVERGED, lane)
+        going_on = update & (taken + 1.0 < NEWTON_MAX_ITERATIONS)
+        block[_ACTIVE * B.BLOCK + lane] = 1.0 if going_on else 0.0
+        active += 1 if going_on else 0
+    return active
+
+
+@jit
+def _block_end(block, h, alpha):
+    """The end of `advance` for every lane (a lane that did not converge is no longer booked):
+    the translation, the frame, the spin, the carried accelerations, its verdict and
+    iterations."""
+    gamma, beta = newmark(alpha)
+    for lane in range(B.BLOCK):
+        q, w = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.OMEGA, lane)
+        q_new = B.column4(block, _Q_NEW, lane)
+        _, mass, f_old = B.loads_at(block, q, w, lane)
+        _, _, f_new = B.loads_at(block, q_new, B.column3(block, _W_NEW, lane), lane)
+        lin_old = B.column3(block, _LINEAR_ROWS, lane)
+        f_old, f_new = scale(1.0 / mass, f_old), scale(1.0 / mass, f_new)
+        lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old), f_new)
+        v, x = B.column3(block, B.STATE + S.VELOCITY, lane), B.column3(block, B.STATE + S.POSITION, lane)
+        x = axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x)))
+        B.set_column3(block, B.STATE + S.POSITION, lane, x)
+        v = axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v))
+        B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, quat_normalize(q_new))
+        B.set_column3(block, B.STATE + S.OMEGA, lane, B.column3(block, _W_NEW, lane))
+        B.set_column3(block, _ANGULAR_ROWS, lane, B.column3(block, _A_NEW, lane))
+        B.set_column3(block, _LINEAR_ROWS, lane, lin_new)
+    B.end_newton(block, _ACTIVE)
+
+
+@jit
+def block_step(block, opt, h):
+    """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
+    time, that share the option row ``opt`` (N_OPTION,): ``block`` (N_ROWS * BLOCK,) as
+    `rbstudy.numerics.block` lays it out, Newton's passes while any lane iterates. Each body's
+    bits, status and iterations are those of `step_inplace`."""
+    alpha = opt[_ALPHA]
+    _block_start(block, alpha)
+    for _ in range(NEWTON_MAX_ITERATIONS + 1):
+        _block_rotation(block, h, alpha)
+        B.quat_exp_columns(block, _THETA, _EXP)
+        if _block_newton(block, h, alpha) == 0:
+            break
+    _block_end(block, h, alpha)
+
+
 SCHEME = Scheme(
     name="hht",
     summary="Newmark/HHT-alpha on SO(3), material form (Abaqus implicit dynamics)",
@@ -207,7 +342,11 @@ SCHEME = Scheme(
     implicit=True,
     keeps=(),
     run_bodies_inplace=make_entry(
-        step_inplace, init_inplace, N_WORK, switch=switch(compensated_step_inplace, init_inplace, _SLOTS)
+        step_inplace,
+        init_inplace,
+        N_WORK,
+        switch=switch(compensated_step_inplace, init_inplace, _SLOTS),
+        block=block_step,
     ),
     reference="Simo & Vu-Quoc, CMAME 66 (1988) 125; Hilber, Hughes & Taylor, EESD 5 (1977) 283",
     options=_OPTIONS,

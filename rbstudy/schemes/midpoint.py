@@ -17,10 +17,15 @@ Order 2, implicit; order 4, 6 or 8 composed (option ``composition``,
 Option ``compensated`` solves for the increment ``mbar - m`` instead and adds the
 increments with compensated summation (`rbstudy.schemes._compensated`).
 Reference: Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105.
+
+The block step (`block_step`, bodies of a batch stepped side by side) runs Newton on every lane
+of a block at once, as long as any lane still iterates; a lane that has converged or failed
+keeps its solution, so that each body takes the iterations, and gets the bits, of its solo run.
 """
 
 import math
 
+from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
@@ -46,11 +51,13 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._composition import COMPOSITION, composed_entry
+from rbstudy.schemes._composition import COMPOSITION, composed_block_step, composed_entry
 from rbstudy.schemes._kicks import (
     compensated_drift_inplace,
     compensated_kick_inplace,
+    drift_block,
     drift_inplace,
+    kick_block,
     kick_inplace,
 )
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
@@ -63,6 +70,7 @@ N_WORK = _CARRY + CARRY_WIDTH
 # the option row as the registry lays it out (`option_slots`): where the kernels read each option
 _OPTIONS = (COMPOSITION, COMPENSATED)
 _SLOTS = option_slots(_OPTIONS)
+_COMPOSITION = _SLOTS["composition"]
 
 
 @jit
@@ -77,23 +85,35 @@ def newton_matrix(z, w, inverse, h):
     )
 
 
+@inline_jit
+def newton_update(m, u, inertia_, h, increment):
+    """One Newton iteration of `solve_midpoint` from ``u``: ``(u, size of the correction)``.
+    Inlined, so that ``increment`` is a constant of each copy: called, it kept the loop over a
+    block's lanes from vectorising."""
+    inverse = (1.0 / inertia_[0], 1.0 / inertia_[1], 1.0 / inertia_[2])
+    z = add(m, u) if increment else u
+    w = to_omega(z, inertia_)
+    half_step = u if increment else sub(z, m)
+    residual = sub(scale(2.0, half_step), scale(h, cross(z, w)))
+    correction = solve3(newton_matrix(z, w, inverse, h), residual)
+    return sub(u, correction), norm(correction)
+
+
+@jit
+def predicted(m, inertia_, h):
+    """The explicit predictor ``m + h/2 m x w`` of `solve_midpoint`'s ``mbar``."""
+    return add(scale(0.5 * h, cross(m, to_omega(m, inertia_))), m)
+
+
 @jit
 def solve_midpoint(m, inertia_, h, increment):
     """Newton solve of the free midpoint equation; returns ``(u, iterations, converged)``
     with ``u = mbar``, or with ``increment`` the half increment ``d = mbar - m``, solved for
     as the root of ``2 d - h (m + d) x I^-1 (m + d)`` so that it comes to its own relative
     accuracy (``mbar - m`` would carry the rounding of ``mbar``, an ulp of ``m``)."""
-    inverse = (1.0 / inertia_[0], 1.0 / inertia_[1], 1.0 / inertia_[2])
-    predicted = scale(0.5 * h, cross(m, to_omega(m, inertia_)))
-    u = predicted if increment else add(predicted, m)
+    u = scale(0.5 * h, cross(m, to_omega(m, inertia_))) if increment else predicted(m, inertia_, h)
     for iteration in range(1, NEWTON_MAX_ITERATIONS + 1):
-        z = add(m, u) if increment else u
-        w = to_omega(z, inertia_)
-        half_step = u if increment else sub(z, m)
-        residual = sub(scale(2.0, half_step), scale(h, cross(z, w)))
-        correction = solve3(newton_matrix(z, w, inverse, h), residual)
-        u = sub(u, correction)
-        size = norm(correction)
+        u, size = newton_update(m, u, inertia_, h, increment)
         if not math.isfinite(size):
             return u, iteration, False
         if size <= NEWTON_RTOL * norm(u):
@@ -135,6 +155,89 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, iterations
 
 
+# block scratch: each lane's momentum after the first kick, its Newton iterate, whether it
+# iterates and whether it converged, its iterations in this stage, then Newton's next iterate
+# and the size of its correction
+_MOMENTUM, _ITERATE = B.TEMP, B.TEMP + 3
+_ACTIVE, _CONVERGED, _STAGE_ITERATIONS = B.TEMP + 6, B.TEMP + 7, B.TEMP + 8
+_NEXT, _SIZE = B.TEMP + 9, B.TEMP + 12
+
+
+@jit
+def _block_start(block, h):
+    """The first kick of every lane and its Newton start; a lane iterates when it is booked
+    and has not failed in an earlier stage."""
+    kick_block(block, 0.5 * h)
+    for lane in range(B.BLOCK):
+        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
+        m = to_momentum(B.column3(block, B.STATE + S.OMEGA, lane), inertia_)
+        B.set_column3(block, _MOMENTUM, lane, m)
+        B.set_column3(block, _ITERATE, lane, predicted(m, inertia_, h))
+    B.start_newton(block, _ACTIVE)
+
+
+@jit
+def _block_newton(block, h, iteration):
+    """Newton iteration ``iteration`` of `solve_midpoint` on every lane, kept by the lanes that
+    still iterate (selects); returns how many still do. Two loops: as one, LLVM did not
+    vectorise it."""
+    for lane in range(B.BLOCK):
+        m, u = B.column3(block, _MOMENTUM, lane), B.column3(block, _ITERATE, lane)
+        u_next, size = newton_update(m, u, B.column3(block, B.PARAM + S.INERTIA, lane), h, False)
+        B.set_column3(block, _NEXT, lane, u_next)
+        block[_SIZE * B.BLOCK + lane] = size
+    active = 0
+    for lane in range(B.BLOCK):
+        u_next, size = B.column3(block, _NEXT, lane), B.at(block, _SIZE, lane)
+        iterating = B.at(block, _ACTIVE, lane) != 0.0
+        finite = iterating & math.isfinite(size)
+        converged = finite & (size <= NEWTON_RTOL * norm(u_next))
+        going_on = finite & (not converged)
+        B.set_column3(block, _ITERATE, lane, u_next if iterating else B.column3(block, _ITERATE, lane))
+        taken = B.at(block, _STAGE_ITERATIONS, lane)
+        block[_STAGE_ITERATIONS * B.BLOCK + lane] = iteration if iterating else taken
+        block[_CONVERGED * B.BLOCK + lane] = 1.0 if converged else B.at(block, _CONVERGED, lane)
+        block[_ACTIVE * B.BLOCK + lane] = 1.0 if going_on else 0.0
+        active += 1 if going_on else 0
+    return active
+
+
+@jit
+def _block_end(block, h):
+    """The end of `symmetric_step` for every lane: the Cayley turn, the spin, the drift and
+    the last kick (in every lane: a lane that did not converge is no longer booked), and each
+    lane's verdict and iterations."""
+    for lane in range(B.BLOCK):
+        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
+        m, mbar = B.column3(block, _MOMENTUM, lane), B.column3(block, _ITERATE, lane)
+        q = B.column4(block, B.STATE + S.QUATERNION, lane)
+        q = quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_)))))
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
+        B.set_column3(block, B.STATE + S.OMEGA, lane, to_omega(sub(scale(2.0, mbar), m), inertia_))
+    drift_block(block, h)
+    kick_block(block, 0.5 * h)
+    B.end_newton(block, _ACTIVE)
+
+
+@jit
+def symmetric_block_step(block, opt, h):
+    """`symmetric_step` of a block of bodies without a lever, a body-fixed force or loads in
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out, Newton's
+    iterations while any lane iterates. Each body's bits, status and iterations are those of
+    `symmetric_step`."""
+    _block_start(block, h)
+    for iteration in range(1, NEWTON_MAX_ITERATIONS + 1):
+        if _block_newton(block, h, iteration) == 0:
+            break
+    _block_end(block, h)
+
+
+@jit
+def block_step(block, opt, h):
+    """`symmetric_block_step` composed as option ``composition`` asks (`composed_step`)."""
+    composed_block_step(symmetric_block_step, _COMPOSITION, block, opt, h)
+
+
 SCHEME = Scheme(
     name="midpoint",
     summary="implicit midpoint on m with Cayley frame update; energy and L kept exactly",
@@ -146,8 +249,9 @@ SCHEME = Scheme(
         symmetric_step,
         init_nothing,
         N_WORK,
-        _SLOTS["composition"],
+        _COMPOSITION,
         switch=switch(compensated_step, init_nothing, _SLOTS),
+        block=block_step,
     ),
     reference="Austin, Krishnaprasad & Wang, J. Comput. Phys. 107 (1993) 105",
     options=_OPTIONS,

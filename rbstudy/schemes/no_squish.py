@@ -20,15 +20,21 @@ Option ``compensated`` adds the increments of ``q`` and ``P`` with compensated s
 (`rbstudy.schemes._compensated`), ``P``'s with a carry of its own.
 Reference: Miller, Eleftheriou, Pattnaik, Ndirango, Newns & Martyna, J. Chem. Phys. 116 (2002)
 8649.
+
+The sine and cosine of the flows are `rbstudy.numerics.lanes_math`'s, so that the block step
+(`block_step`, bodies of a batch stepped side by side, ``P`` carried in the block's `WORK`
+rows) gives each body the bits of its solo run.
 """
 
 import math
 
+from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, add4_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes_math import sin_cos
 from rbstudy.numerics.rotation import (
     axpy,
     axpy4,
@@ -44,10 +50,10 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._composition import COMPOSITION, composed_entry
-from rbstudy.schemes._kicks import compensated_drift_inplace, drift_inplace
+from rbstudy.schemes._composition import COMPOSITION, composed_block_step, composed_entry
+from rbstudy.schemes._kicks import compensated_drift_inplace, drift_block, drift_inplace
 from rbstudy.schemes._registry import Scheme, Style, option_slots
-from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
+from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
 # work: conjugate momentum P (4), then the carries of the compensated sums: the state's
 # (its OMEGA entries unused: the spin is computed from P) and P's
@@ -59,6 +65,7 @@ N_WORK = _MOMENTUM_CARRY + 4
 _OPTIONS = (AXIS_ORDER, COMPOSITION, COMPENSATED)
 _SLOTS = option_slots(_OPTIONS)
 _AXES = _SLOTS["axis_order"]
+_COMPOSITION = _SLOTS["composition"]
 
 
 @jit
@@ -88,7 +95,7 @@ def plane_rotation(x, k, c, s):
 def axis_flow(q, momentum, inertia_, k, d):
     """Exact flow of ``T_k`` for time ``d`` on ``(q, P)``."""
     zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
-    c, s = math.cos(zeta * d), math.sin(zeta * d)
+    s, c = sin_cos(zeta * d)
     return plane_rotation(q, k, c, s), plane_rotation(momentum, k, c, s)
 
 
@@ -161,6 +168,74 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, 0
 
 
+# block rows: P, carried from step to step (its work's first four floats); scratch: a flow's
+# angle and its sine and cosine
+_P = B.WORK
+_ANGLE = B.TEMP
+
+
+@jit
+def _block_kick(block, d):
+    """`kick_inplace` of every lane for a time ``d``, its P in rows `_P`."""
+    for lane in range(B.BLOCK):
+        q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
+        w = to_omega(body_momentum(q, momentum), B.column3(block, B.PARAM + S.INERTIA, lane))
+        moment, mass, force = B.loads_at(block, q, w, lane)
+        v = axpy(d / mass, force, B.column3(block, B.STATE + S.VELOCITY, lane))
+        B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
+        B.set_column4(block, _P, lane, axpy4(1.0, conjugate_momentum(q, scale(d, moment)), momentum))
+
+
+@inline_jit
+def _axis_flow_loops(block, k, d):
+    """`axis_flow` of every lane about axis ``k`` for a time ``d``: the angles, their sines
+    (`rbstudy.numerics.block.sin_cos_columns`), then the rotations."""
+    for lane in range(B.BLOCK):
+        q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
+        zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * B.at(block, B.PARAM + S.INERTIA + k, lane))
+        block[_ANGLE * B.BLOCK + lane] = zeta * d
+    B.sin_cos_columns(block, _ANGLE)
+    for lane in range(B.BLOCK):
+        s, c = B.at(block, _ANGLE + 1, lane), B.at(block, _ANGLE + 2, lane)
+        q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, plane_rotation(q, k, c, s))
+        B.set_column4(block, _P, lane, plane_rotation(momentum, k, c, s))
+
+
+@jit
+def _block_axis_flow(block, k, d):
+    """`_axis_flow_loops` about axis ``k``, a function of its own as splitting's."""
+    on_axis(_axis_flow_loops, block, k, d)
+
+
+@jit
+def _block_spin(block):
+    """Every lane's spin from its P and orientation, as `symmetric_step` ends."""
+    for lane in range(B.BLOCK):
+        q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
+        w = to_omega(body_momentum(q, momentum), B.column3(block, B.PARAM + S.INERTIA, lane))
+        B.set_column3(block, B.STATE + S.OMEGA, lane, w)
+
+
+@jit
+def symmetric_block_step(block, opt, h):
+    """`symmetric_step` of a block of bodies without a lever, a body-fixed force or loads in
+    time, that share the option row ``opt`` (N_OPTION,): ``block`` (N_ROWS * BLOCK,) as
+    `rbstudy.numerics.block` lays it out. Each body's bits are those of `symmetric_step`."""
+    _block_kick(block, 0.5 * h)
+    for k, fraction in flow_sequence(opt, _AXES):
+        _block_axis_flow(block, k, fraction * h)
+    drift_block(block, h)
+    _block_kick(block, 0.5 * h)
+    _block_spin(block)
+
+
+@jit
+def block_step(block, opt, h):
+    """`symmetric_block_step` composed as option ``composition`` asks (`composed_step`)."""
+    composed_block_step(symmetric_block_step, _COMPOSITION, block, opt, h)
+
+
 SCHEME = Scheme(
     name="no_squish",
     summary="NO_SQUISH: DLM splitting on quaternion + conjugate momentum (LAMMPS form)",
@@ -172,8 +247,9 @@ SCHEME = Scheme(
         symmetric_step,
         init_inplace,
         N_WORK,
-        _SLOTS["composition"],
+        _COMPOSITION,
         switch=switch(compensated_step, init_inplace, _SLOTS),
+        block=block_step,
     ),
     reference="Miller et al., J. Chem. Phys. 116 (2002) 8649",
     options=_OPTIONS,

@@ -188,7 +188,7 @@ def _block_update(block, h):
 
 
 @jit
-def block_step(block, h):
+def block_step(block, opt, h):
     """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
     time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out, a loop over the
     lanes per stage (one loop for the whole step did not vectorise). Each body's bits are

@@ -18,16 +18,22 @@ adds each sub-flow's and kick's increments with compensated summation
 (`rbstudy.schemes._compensated`); the stages of a composition share the carry.
 Reference: Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840; Fasso, J.
 Comput. Phys. 189 (2003) 527.
+
+The sine and cosine of the sub-flows are `rbstudy.numerics.lanes_math`'s, so that the block
+step (`block_step`, bodies of a batch stepped side by side) gives each body the bits of its
+solo run.
 """
 
 import math
 
+from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, add4_inplace, normalize_inplace
 from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import inertia, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes_math import sin_cos
 from rbstudy.numerics.rotation import (
     cos_minus_one,
     quat_mul_axis_rotation,
@@ -39,15 +45,17 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._composition import COMPOSITION, composed_entry
+from rbstudy.schemes._composition import COMPOSITION, composed_block_step, composed_entry
 from rbstudy.schemes._kicks import (
     compensated_drift_inplace,
     compensated_kick_inplace,
+    drift_block,
     drift_inplace,
+    kick_block,
     kick_inplace,
 )
 from rbstudy.schemes._registry import Scheme, Style, option_slots
-from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence
+from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -57,6 +65,7 @@ N_WORK = _CARRY + CARRY_WIDTH
 _OPTIONS = (AXIS_ORDER, COMPOSITION, COMPENSATED)
 _SLOTS = option_slots(_OPTIONS)
 _AXES = _SLOTS["axis_order"]
+_COMPOSITION = _SLOTS["composition"]
 
 
 @jit
@@ -79,7 +88,14 @@ def axis_flow(q, m, inertia_, k, d):
     sine from the quaternion's half angle by the double-angle formulas.
     """
     half = 0.5 * d * m[k] / inertia_[k]
-    sh, ch = math.sin(half), math.cos(half)
+    sh, ch = sin_cos(half)
+    return turned(q, m, k, sh, ch)
+
+
+@jit
+def turned(q, m, k, sh, ch):
+    """``(q, m)`` after the rotation about body axis ``k`` of half angle sine ``sh`` and cosine
+    ``ch`` (`axis_flow`)."""
     c, s = 1.0 - 2.0 * sh * sh, 2.0 * sh * ch
     return quat_mul_axis_rotation(q, k, sh, ch), turned_momentum(m, k, c, s, 1.0)
 
@@ -126,6 +142,79 @@ def symmetric_step(y, p, opt, t, h, work):
     return OK, 0
 
 
+# block scratch: each lane's momentum m = I w between the sub-flows, then a sub-flow's half
+# angle and its sine and cosine
+_MOMENTUM = B.TEMP
+_HALF, _SINE, _COSINE = B.TEMP + 3, B.TEMP + 4, B.TEMP + 5
+
+
+@jit
+def _block_start(block, d):
+    """The first kick, for a time ``d``, of every lane, and its momentum for the sub-flows."""
+    kick_block(block, d)
+    for lane in range(B.BLOCK):
+        w, inertia_ = B.column3(block, B.STATE + S.OMEGA, lane), B.column3(block, B.PARAM + S.INERTIA, lane)
+        B.set_column3(block, _MOMENTUM, lane, to_momentum(w, inertia_))
+
+
+@inline_jit
+def _axis_flow_loops(block, k, d):
+    """`axis_flow` of every lane about axis ``k`` for a time ``d``: the half angles, their
+    sines (`rbstudy.numerics.block.sin_cos_columns`), then the turn."""
+    for lane in range(B.BLOCK):
+        half = 0.5 * d * B.at(block, _MOMENTUM + k, lane) / B.at(block, B.PARAM + S.INERTIA + k, lane)
+        block[_HALF * B.BLOCK + lane] = half
+    B.sin_cos_columns(block, _HALF)
+    for lane in range(B.BLOCK):
+        q, m = turned(
+            B.column4(block, B.STATE + S.QUATERNION, lane),
+            B.column3(block, _MOMENTUM, lane),
+            k,
+            B.at(block, _SINE, lane),
+            B.at(block, _COSINE, lane),
+        )
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
+        B.set_column3(block, _MOMENTUM, lane, m)
+
+
+@jit
+def _block_axis_flow(block, k, d):
+    """`_axis_flow_loops` about axis ``k`` (`on_axis`). A function of its own per sub-flow:
+    inlined five times into one step, LLVM called the later ones instead of inlining them (as
+    `rbstudy.schemes.rk4._block_stage` says)."""
+    on_axis(_axis_flow_loops, block, k, d)
+
+
+@jit
+def _block_end(block, h):
+    """The end of `symmetric_step` for every lane: the frame renormalised, the spin from the
+    momentum, the drift and the last kick, for a step ``h``."""
+    for lane in range(B.BLOCK):
+        q = quat_normalize(B.column4(block, B.STATE + S.QUATERNION, lane))
+        w = to_omega(B.column3(block, _MOMENTUM, lane), B.column3(block, B.PARAM + S.INERTIA, lane))
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
+        B.set_column3(block, B.STATE + S.OMEGA, lane, w)
+    drift_block(block, h)
+    kick_block(block, 0.5 * h)
+
+
+@jit
+def symmetric_block_step(block, opt, h):
+    """`symmetric_step` of a block of bodies without a lever, a body-fixed force or loads in
+    time, that share the option row ``opt`` (N_OPTION,): ``block`` (N_ROWS * B.BLOCK,) as
+    `rbstudy.numerics.block` lays it out. Each body's bits are those of `symmetric_step`."""
+    _block_start(block, 0.5 * h)
+    for k, fraction in flow_sequence(opt, _AXES):
+        _block_axis_flow(block, k, fraction * h)
+    _block_end(block, h)
+
+
+@jit
+def block_step(block, opt, h):
+    """`symmetric_block_step` composed as option ``composition`` asks (`composed_step`)."""
+    composed_block_step(symmetric_block_step, _COMPOSITION, block, opt, h)
+
+
 SCHEME = Scheme(
     name="splitting",
     summary="DLM symplectic splitting into exact axis rotations; |L| and L kept exactly",
@@ -137,8 +226,9 @@ SCHEME = Scheme(
         symmetric_step,
         init_nothing,
         N_WORK,
-        _SLOTS["composition"],
+        _COMPOSITION,
         switch=switch(compensated_step, init_nothing, _SLOTS),
+        block=block_step,
     ),
     reference="Dullweber, Leimkuhler & McLachlan, J. Chem. Phys. 107 (1997) 5840",
     options=_OPTIONS,
