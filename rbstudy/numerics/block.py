@@ -489,8 +489,21 @@ def _store_column(samples, b, sample, block, lane):
 
 @inline_jit
 def run_blocks(
-    block_step, init, n_work, a, stop, state0, params, opt, h, n_steps, every, drift_bound,
-    samples, results, halt
+    block_step,
+    init,
+    n_work,
+    a,
+    stop,
+    state0,
+    params,
+    opt,
+    h,
+    n_steps,
+    every,
+    drift_bound,
+    samples,
+    results,
+    halt,
 ):
     """Integrate rows [a, stop) of a batch, at most `BLOCK` of them, with a scheme's block
     step; write their samples and results as `rbstudy.numerics.driver.run_rows` does.
@@ -653,8 +666,23 @@ def run_rows_in_blocks(
         end = min(a + BLOCK, stop)
         if end - a >= FEWEST and _plain_block(params, options, a, end):
             shared, bound = options[a], drift_bound  # the option row of every body of the block
-            run_blocks(block_step, init, n_work, a, end, state0, params, shared, h, n_steps, every, bound,
-                       samples, results, halt)
+            run_blocks(
+                block_step,
+                init,
+                n_work,
+                a,
+                end,
+                state0,
+                params,
+                shared,
+                h,
+                n_steps,
+                every,
+                bound,
+                samples,
+                results,
+                halt,
+            )
         else:
             single(
                 a, end, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, None
