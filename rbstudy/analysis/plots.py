@@ -601,7 +601,7 @@ def _figure_legend(fig, entries, reserved):
     longest = max(_em_width(label) for _, label in entries)
     text_em = min(longest, (LEGEND_MAX_WIDTH - LEGEND_FRAME_EM * points / 72) * 72 / points)
     labels = [_wrapped(label, text_em) for _, label in entries]
-    width = (min(longest, text_em) + LEGEND_FRAME_EM) * points / 72
+    width = (text_em + LEGEND_FRAME_EM) * points / 72
     fig.set_figwidth(fig.get_figwidth() - reserved + width)
     lines = sum(label.count("\n") + 1 for label in labels)
     fig.set_figheight(max(fig.get_figheight(), (lines * LEGEND_LINE_EM + 2) * points / 72 + 1.2))

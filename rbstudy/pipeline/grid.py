@@ -158,7 +158,8 @@ def _scheme_names(spec):
     ``builtin``) replaced by every scheme it stands for, installed here or not, each name once:
     a config means the same study wherever it runs, and a scheme not installed is refused
     with its fix as if named."""
-    groups = {**scheme_groups(), ALL_SCHEMES: scheme_groups()["builtin"]}
+    groups = scheme_groups()
+    groups[ALL_SCHEMES] = groups["builtin"]
     if not any(isinstance(name, str) and name in groups for name in spec):
         return spec  # names only: a name given twice is refused as in any sweep
     names = [member for name in spec for member in groups.get(name, [name])]
