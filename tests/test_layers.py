@@ -40,6 +40,7 @@ OUTSIDE = {
         "scipy",
         "xarray",
         "netCDF4",
+        "h5py",
         "dask",
         "distributed",
         "dask_jobqueue",

@@ -28,6 +28,7 @@ import pathlib
 import threading
 from dataclasses import dataclass
 
+import h5py
 import netCDF4
 import numpy as np
 
@@ -47,6 +48,8 @@ __all__ = [
     "verify_archive",
     "SIDECAR_SUFFIX",
     "ALGORITHM",
+    "close_unclosed",
+    "hdf5_writer",
     "netcdf_writer",
     "GROUP",
     "SEALS",
@@ -74,10 +77,10 @@ MEANING = "(global attributes)"
 # The archive's group of checksums, and its two attributes.
 GROUP = "integrity"
 SEALS = ("checksums", "part_checksums")
-# Closes of a netCDF file whose flush met a full disk, once its temporary is truncated
-# (`netcdf_writer`): measured on a full tmpfs, the first fails and the second succeeds.
+# Closes of an HDF5 file whose flush met a full disk, once its temporary is truncated
+# (`_close_or_truncate`): measured on a full tmpfs, the first fails and the second succeeds.
 _CLOSE_ATTEMPTS = 3
-# The files a full disk kept open even then (`netcdf_writer`), closed at the next write.
+# The files a full disk kept open even then (`_close_or_truncate`), closed at the next write.
 _UNCLOSED = []
 
 
@@ -241,42 +244,64 @@ def _read_checksum(variable):
 @contextlib.contextmanager
 def netcdf_writer(temporary, mode="w"):
     """``netCDF4.Dataset(temporary, mode)`` (NETCDF4) of a temporary file, closed on the way
-    out even when a full disk fails its close. HDF5 keeps a file it could not flush open, and
-    every further close fails flushing it too: a long-lived process (a cluster's worker, a
-    test) would hold the removed temporary's space after the user freed the disk. So the
-    temporary, worthless by then, is truncated: its space lets HDF5 finish the close. An
-    archive abandoned early (written beside its batches) may hold more cached chunks than
-    truncating it frees: it is closed at the next netCDF write, once the user has freed the
-    disk. Opening and closing take `HDF5_LOCK`; what the caller does in between takes it as
-    it needs."""
+    out even when a full disk fails its close (`_close_or_truncate`). Opening and closing
+    take `HDF5_LOCK`; what the caller does in between takes it as it needs."""
     with HDF5_LOCK:
-        _close_unclosed()
+        close_unclosed()
         nc = netCDF4.Dataset(temporary, mode, format="NETCDF4")
     try:
         yield nc
     finally:
-        try:
-            with HDF5_LOCK:
-                nc.close()
-        except (OSError, RuntimeError):
-            os.truncate(temporary, 0)
-            for _ in range(_CLOSE_ATTEMPTS):
-                with contextlib.suppress(OSError, RuntimeError), HDF5_LOCK:
-                    nc.close()
-                if not nc.isopen():
-                    break
-            else:
-                _UNCLOSED.append(nc)
-            raise
+        _close_or_truncate(nc, temporary, HDF5_LOCK)
 
 
-def _close_unclosed():
-    """Close what a full disk kept open (`netcdf_writer`) where the disk now has room."""
-    for nc in list(_UNCLOSED):
-        with contextlib.suppress(OSError, RuntimeError):
-            nc.close()
-        if not nc.isopen():
-            _UNCLOSED.remove(nc)
+@contextlib.contextmanager
+def hdf5_writer(temporary):
+    """``h5py.File(temporary, "r+")``, closed on the way out as `netcdf_writer` closes. h5py
+    carries its own HDF5 library and lock: `HDF5_LOCK`, netCDF4's, is not taken."""
+    close_unclosed()
+    handle = h5py.File(temporary, "r+")
+    try:
+        yield handle
+    finally:
+        _close_or_truncate(handle, temporary, contextlib.nullcontext())
+
+
+def _is_open(handle):
+    """Whether a netCDF4 dataset or an h5py file is still open."""
+    return handle.isopen() if isinstance(handle, netCDF4.Dataset) else bool(handle)
+
+
+def _close_or_truncate(handle, temporary, lock):
+    """Close ``handle`` (netCDF4 or h5py) of the file ``temporary``. HDF5 keeps a file it could
+    not flush open, and every further close fails flushing it too: a long-lived process (a
+    cluster's worker, a test) would hold the removed temporary's space after the user freed
+    the disk. So the temporary, worthless by then, is truncated: its space lets HDF5 finish
+    the close. An archive abandoned early (written beside its batches) may hold more cached
+    chunks than truncating it frees: it is closed at the next write, once the user has freed
+    the disk."""
+    try:
+        with lock:
+            handle.close()
+    except (OSError, RuntimeError):
+        os.truncate(temporary, 0)
+        for _ in range(_CLOSE_ATTEMPTS):
+            with contextlib.suppress(OSError, RuntimeError), lock:
+                handle.close()
+            if not _is_open(handle):
+                break
+        else:
+            _UNCLOSED.append(handle)
+        raise
+
+
+def close_unclosed():
+    """Close what a full disk kept open (`_close_or_truncate`) where the disk now has room."""
+    for handle in list(_UNCLOSED):
+        with contextlib.suppress(OSError, RuntimeError), HDF5_LOCK:  # h5py's need it not: harmless
+            handle.close()
+        if not _is_open(handle):
+            _UNCLOSED.remove(handle)
 
 
 def seal_archive(path, part_digests, streamed=None):

@@ -8,8 +8,9 @@ folder synced to disk first), so a reader, or a rerun after a kill or a machine 
 sees half a file; every part and the archive carry checksums
 (`rbstudy.pipeline.integrity`), so that a file damaged later is never reused.
 
-The consolidated dataset is written variable slab by slab with netCDF4, one part at a time, so
-memory stays bounded by the largest part whatever the size of the study. Its dimensions are
+The consolidated dataset is defined with netCDF4 and filled chunk by chunk, one part at a
+time, its chunks compressed on every core (`rbstudy.pipeline.chunks`), so memory stays
+bounded by the largest part whatever the size of the study. Its dimensions are
 the swept ones (named after their axes; ``dt`` ascending) then ``time``, ``node``, ``axis``
 (x, y, z) and ``component`` (x, y, z, w); a variable of the scene alone lies along the swept
 dimensions that change the scene only (`archive_dims`). Every attribute comes from
@@ -41,10 +42,12 @@ import yaml
 from rbstudy.errors import ConfigError, InputError, RbstudyError, one_line
 from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.batches import Batch, batches_digest
+from rbstudy.pipeline.chunks import ChunkedArchive
 from rbstudy.pipeline.integrity import (
     HDF5_LOCK,
     StreamedChecksum,
     file_digest,
+    hdf5_writer,
     netcdf_writer,
     part_digest,
     seal_archive,
@@ -109,10 +112,6 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
 # Target size of an archive chunk (uncompressed): `case_chunks`.
 CHUNK_BYTES = 2**18
-# The chunk cache of each archive variable while it is written: this many chunks (at least
-# 1 MiB) in a hash table of this many slots (a prime, as HDF5 advises).
-CHUNK_CACHE_CHUNKS = 8
-CHUNK_CACHE_SLOTS = 521
 # Free bytes below which a failed write is put down to a full disk.
 _FULL_BYTES = 2**20
 # The file of a study folder that names the config (its file's resolved path and its text's
@@ -673,14 +672,6 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
             "chunksizes": case_chunks(shape[:grid_rank], shape[grid_rank:], np.dtype(dtype).itemsize),
         }
     variable = nc.createVariable(name, dtype, dims, fill_value=fill, **compression)
-    if compression:
-        # a part fills its own chunks and one shared with each neighbour, written next: a
-        # few chunks of cache suffice. netCDF's default, 64 MiB a variable, held 460 MiB of
-        # a 1e5-case archive's chunks at once
-        chunk_bytes = math.prod(compression["chunksizes"]) * np.dtype(dtype).itemsize
-        variable.set_var_chunk_cache(
-            size=max(CHUNK_CACHE_CHUNKS * chunk_bytes, 2**20), nelems=CHUNK_CACHE_SLOTS, preemption=0.75
-        )
     if attrs:
         variable.setncatts(
             {k: (np.array(v, dtype=np.int8) if k == "flag_values" else v) for k, v in attrs.items()}
@@ -693,27 +684,36 @@ def _create(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
 def consolidate(study, arriving, target, attrs, advance=lambda: None):
     """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest)
     of the part of each batch of ``study.batches``, in their order, and may wait for a
-    part still being computed (the archive is written while later batches run, without
-    `HDF5_LOCK` while it waits). ``advance()`` after each part; then the archive is sealed
-    with its checksums, hashed as the values are written, and the parts' digests."""
+    part still being computed (the archive is written while later batches run). netCDF4
+    defines the archive; its chunks are then filled from the parts and compressed on every
+    core (`ChunkedArchive`, through h5py). ``advance()`` after each part; then the archive
+    is sealed with its checksums, hashed as the values are written, and the parts' digests."""
     shape = study.shape
     with _temporary_beside(target) as temporary:
-        with netcdf_writer(temporary) as nc:
-            with HDF5_LOCK:
-                targets = _define_archive(nc, study, attrs)
-            part_digests = []
-            for batch, (path, digest) in zip(study.batches, arriving, strict=True):
-                with HDF5_LOCK:
+        with netcdf_writer(temporary) as nc, HDF5_LOCK:
+            defined = _define_archive(nc, study, attrs)
+        with hdf5_writer(temporary) as h5file:
+            archive = ChunkedArchive(h5file)
+            try:
+                targets = {
+                    name: (archive.variable(name, grid_rank), along, stream)
+                    for name, (grid_rank, along, stream) in defined.items()
+                }
+                part_digests = []
+                for batch, (path, digest) in zip(study.batches, arriving, strict=True):
                     _copy_part(targets, read_part(path, study.variables), shape)
-                part_digests.append([batch.id, digest])
-                advance()
-        seal_archive(temporary, part_digests, {name: stream for name, (_, _, stream) in targets.items()})
+                    part_digests.append([batch.id, digest])
+                    advance()
+                archive.finish(variable for variable, _, _ in targets.values())
+            finally:
+                archive.close()
+        seal_archive(temporary, part_digests, {name: stream for name, (_, _, stream) in defined.items()})
 
 
 def _define_archive(nc, study, attrs):
     """Create the archive's dimensions, coordinates and (empty) variables in the open ``nc``;
-    name -> (netCDF variable, whether it lies along each grid dimension, its
-    `StreamedChecksum`) of the output variables."""
+    name -> (how many of its dimensions are the grid's, whether it lies along each grid
+    dimension, its `StreamedChecksum`) of the output variables."""
     grid = grid_coordinates(study)
     nc.setncatts(attrs)
     for dim in study.dimensions:
@@ -747,7 +747,7 @@ def _define_archive(nc, study, attrs):
         grid_rank = len(along) - len(VARIABLES[name].dims)
         variable = _create(nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank)
         targets[name] = (
-            variable,
+            grid_rank,
             tuple(d.name in along[:grid_rank] for d in study.dimensions),
             StreamedChecksum(variable, grid_rank),
         )
@@ -779,14 +779,14 @@ def archive_dims(study, name):
 
 def _copy_part(targets, part, shape):
     """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
-    -> (netCDF variable, whether it lies along each grid dimension, its `StreamedChecksum`,
-    fed what is written). A part holds a value per
+    -> (its chunk writer, `ChunkedArchive.variable`; whether it lies along each grid
+    dimension; its `StreamedChecksum`, fed what is written). A part holds a value per
     case; a variable of the scene alone takes its cases' values at the first position of the
     dimensions it does not lie along (the same at every other)."""
     cases = part["case"]
     if not shape:  # a one-case study
         for name, (variable, _, _) in targets.items():
-            variable[...] = part[name][0]
+            variable.write((), part[name][0])
         return
     block = _block(cases, shape)
     # else slabs of consecutive cases: a batch cut from a long grid (one scheme and dt, 510 of
@@ -808,7 +808,7 @@ def _copy_part(targets, part, shape):
             block = values[start : start + count].reshape(sizes + values.shape[1:])
             kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
             written = block[tuple(slice(None) if keep else 0 for keep in along)]
-            variable[kept or ...] = written
+            variable.write(kept, written)
             stream.wrote(kept, written)
             start += count
 
