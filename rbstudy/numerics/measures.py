@@ -21,7 +21,7 @@ import numpy as np
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics.jit import jit
-from rbstudy.numerics.rotation import cross, norm, quat_mul, read3, read4, sub, write3
+from rbstudy.numerics.rotation import add, cross, norm, quat_mul, read3, read4, sub, write3
 
 __all__ = [
     "turn",
@@ -95,6 +95,25 @@ def space_vectors(quaternion, vectors):
 
 
 @jit
+def _rigid_points(quaternion, base, offsets, omega):
+    """``base + R(q) s`` per sample and node, or with ``omega`` not None ``base + R(q) (w x
+    s)``: (B, T, N, 3), NaN where the sample failed."""
+    n_cases, n_times, n_nodes = quaternion.shape[0], quaternion.shape[1], offsets.shape[1]
+    out = np.full((n_cases, n_times, n_nodes, 3), np.nan)
+    for b in range(n_cases):
+        for t in range(n_times):
+            q = read4(quaternion[b, t], 0)
+            if _failed(q):
+                continue
+            for n in range(n_nodes):
+                s = read3(offsets[b, n], 0)
+                if omega is not None:
+                    s = cross(read3(omega[b, t], 0), s)
+                write3(out[b, t, n], 0, add(turn(q, s), read3(base[b, t], 0)))
+    return out
+
+
+@jit
 def node_positions(quaternion, position, offsets):
     """Space positions of the nodes, ``R(q) s + x`` per sample and node.
 
@@ -112,23 +131,12 @@ def node_positions(quaternion, position, offsets):
     ndarray, shape (B, T, N, 3)
         m; NaN where the sample failed.
     """
-    n_cases, n_times, n_nodes = quaternion.shape[0], quaternion.shape[1], offsets.shape[1]
-    out = np.full((n_cases, n_times, n_nodes, 3), np.nan)
-    for b in range(n_cases):
-        for t in range(n_times):
-            q = read4(quaternion[b, t], 0)
-            if _failed(q):
-                continue
-            x = read3(position[b, t], 0)
-            for n in range(n_nodes):
-                r = turn(q, read3(offsets[b, n], 0))
-                write3(out[b, t, n], 0, (r[0] + x[0], r[1] + x[1], r[2] + x[2]))
-    return out
+    return _rigid_points(quaternion, position, offsets, None)
 
 
 @jit
 def node_velocities(quaternion, omega, velocity, offsets):
-    """Space velocities of the nodes, ``v + R(q) (w x s)`` per sample and node.
+    """Space velocities of the nodes, ``R(q) (w x s) + v`` per sample and node.
 
     Parameters
     ----------
@@ -146,18 +154,7 @@ def node_velocities(quaternion, omega, velocity, offsets):
     ndarray, shape (B, T, N, 3)
         m/s; NaN where the sample failed.
     """
-    n_cases, n_times, n_nodes = quaternion.shape[0], quaternion.shape[1], offsets.shape[1]
-    out = np.full((n_cases, n_times, n_nodes, 3), np.nan)
-    for b in range(n_cases):
-        for t in range(n_times):
-            q = read4(quaternion[b, t], 0)
-            if _failed(q):
-                continue
-            w, v = read3(omega[b, t], 0), read3(velocity[b, t], 0)
-            for n in range(n_nodes):
-                r = turn(q, cross(w, read3(offsets[b, n], 0)))
-                write3(out[b, t, n], 0, (r[0] + v[0], r[1] + v[1], r[2] + v[2]))
-    return out
+    return _rigid_points(quaternion, velocity, offsets, omega)
 
 
 @jit
@@ -187,8 +184,7 @@ def node_distances(nodes, quaternion, position, offsets):
         for t in range(n_times):
             q, x = read4(quaternion[b, t], 0), read3(position[b, t], 0)
             for n in range(n_nodes):
-                r = turn(q, read3(offsets[b, n], 0))
-                place = (r[0] + x[0], r[1] + x[1], r[2] + x[2])
+                place = add(turn(q, read3(offsets[b, n], 0)), x)
                 out[b, t, n] = norm(sub(read3(nodes[b, t, n], 0), place))
     return out
 
