@@ -29,7 +29,7 @@ import numpy as np
 from rbstudy.numerics import algebra
 from rbstudy.numerics.loads import KIND
 from rbstudy.physics.loads import TURNING, constant_acting
-from rbstudy.physics.quaternions import quat_from_rotvec, quat_mul, quat_to_matrix
+from rbstudy.physics.quaternions import quat_to_matrix, rotvec_quaternion
 
 __all__ = [
     "REFERENCE_KINDS",
@@ -153,17 +153,22 @@ def symmetric_top(inertia, quaternion0, omega0, times):
         * (np.take_along_axis(inertia, pick, axis=-1)[..., 0] - transverse)
         / transverse
     )
-    e_s = np.eye(3)[axis]  # (..., 3)
     momentum = np.einsum("...ij,...j->...i", quat_to_matrix(quaternion0), inertia * omega0)
-    t = np.asarray(times, dtype=float)[:, None]  # (T, 1)
-    precession = quat_from_rotvec((momentum / transverse[..., None])[..., None, :] * t)
-    spin_back = quat_from_rotvec(-(rate[..., None] * e_s)[..., None, :] * t)
-    quaternion = quat_mul(quat_mul(precession, quaternion0[..., None, :]), spin_back)
-    omega = (
-        np.einsum("...tji,...j->...ti", quat_to_matrix(quaternion), momentum) / transverse[..., None, None]
-        - (rate[..., None] * e_s)[..., None, :]
-    )
-    return quaternion, omega
+    spin = rate[..., None] * np.eye(3)[axis]  # (..., 3): W e_s
+    # component-first, each component (..., T) (`rbstudy.numerics.algebra`'s formulas): laid
+    # out (..., T, 4) the same arithmetic took 2.4 times as long (a batch's references)
+    t = np.asarray(times, dtype=float)
+    precession = rotvec_quaternion([(momentum[..., k] / transverse)[..., None] * t for k in range(3)])
+    spin_back = rotvec_quaternion([-spin[..., k, None] * t for k in range(3)])
+    start = [quaternion0[..., k, None] for k in range(4)]
+    quaternion = algebra.hamilton_product(algebra.hamilton_product(precession, start), spin_back)
+    # w = R^T L / I_t - W e_s, R^T L summed in order as numpy's einsum sums a strided axis
+    m = [momentum[..., k, None] for k in range(3)]
+    omega = [
+        ((c[0] * m[0] + c[1] * m[1]) + c[2] * m[2]) / transverse[..., None] - spin[..., i, None]
+        for i, c in enumerate(algebra.rotation_columns(quaternion))
+    ]
+    return np.stack(quaternion, axis=-1), np.stack(omega, axis=-1)
 
 
 def axial_moment(inertia, quaternion0, omega0, moment_body, times):

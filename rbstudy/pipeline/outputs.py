@@ -4,7 +4,7 @@ Each takes a `BatchData` (the batch's rows of the scene table, its `Simulation`,
 references as columns and run time)
 and returns the variable's values with the case axis first: (B, T, 3) for vectors over time,
 (B, T, N, 3) for nodes, (B,) per case. `rbstudy.pipeline.variables` binds each to its name,
-units and needs. Quantities several variables share (finite samples, node positions, the
+units and needs. Quantities several variables share (node positions, the
 orientation error) are computed once per batch, on first use. Samples after a blow-up are NaN;
 every measure taken from them is NaN too.
 """
@@ -15,7 +15,6 @@ import numpy as np
 
 from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
-from rbstudy.physics.quaternions import quat_to_matrix
 from rbstudy.physics.scenes import triangle_ok
 
 __all__ = [
@@ -29,7 +28,6 @@ __all__ = [
     "UNJUDGED",
 ]
 
-_IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 # Codes of the accuracy verdict (`accuracy`): a failed case has none, and a finished case
 # without a reference (its DOP853 reference passed its step budget) cannot be judged.
 VERDICTS = ("accurate", "inaccurate", "failed", "unjudged")
@@ -38,6 +36,14 @@ ACCURATE, INACCURATE, FAILED, UNJUDGED = range(len(VERDICTS))
 # or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
 # inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.
 ACCURACY_BOUND = 1e-2
+
+
+def _compiled():
+    """`rbstudy.numerics.measures`, imported at the first batch: the archive readers import
+    this module, and must not load numba."""
+    from rbstudy.numerics import measures
+
+    return measures
 
 
 class BatchData:
@@ -67,21 +73,6 @@ class BatchData:
         return self.table.moment_free[self.rows]
 
     @cached_property
-    def finite(self):
-        """(B, T): the sample exists (the body had not failed yet)."""
-        return np.all(np.isfinite(self.run.quaternion), axis=-1)
-
-    @cached_property
-    def safe_quaternion(self):
-        """(B, T, 4): the orientations, the identity where a sample is missing."""
-        return np.where(self.finite[..., None], self.run.quaternion, _IDENTITY)
-
-    @cached_property
-    def rotation(self):
-        """(B, T, 3, 3): the rotation matrices of `safe_quaternion`."""
-        return quat_to_matrix(self.safe_quaternion)
-
-    @cached_property
     def inertia(self):
         """(B, 1, 3) principal inertias, broadcastable against (B, T, 3)."""
         return self.principal_inertia[:, None, :]
@@ -94,9 +85,7 @@ class BatchData:
     @cached_property
     def node_positions(self):
         """(B, T, N, 3) node positions in space, NaN after a failure."""
-        nodes = metrics.node_positions(self.safe_quaternion, self.run.position, self.node_offsets)
-        nodes[~self.finite] = np.nan
-        return nodes
+        return _compiled().node_positions(self.run.quaternion, self.run.position, self.node_offsets)
 
     def reference(self, name):
         """One field of every case's reference.
@@ -115,7 +104,9 @@ class BatchData:
 
     @cached_property
     def orientation_error(self):
-        return metrics.orientation_error(self.run.quaternion, self.reference("quaternion"))
+        """(B, T) rad: `rbstudy.physics.metrics.orientation_error` of the samples."""
+        vector, scalar = _compiled().orientation_parts(self.run.quaternion, self.reference("quaternion"))
+        return 2.0 * np.arctan2(vector, scalar)
 
     @cached_property
     def measured_precession(self):
@@ -212,8 +203,7 @@ def omega_space(batch):
     ndarray, shape (B, T, 3)
         rad/s; NaN after a failure.
     """
-    space = np.einsum("btij,btj->bti", batch.rotation, batch.run.omega_body)
-    return np.where(batch.finite[..., None], space, np.nan)
+    return _compiled().space_vectors(batch.run.quaternion, batch.run.omega_body)
 
 
 def quaternion(batch):
@@ -277,11 +267,8 @@ def node_velocity(batch):
     ndarray, shape (B, T, N, 3)
         m/s; NaN after a failure.
     """
-    spin = np.cross(batch.run.omega_body[:, :, None, :], batch.node_offsets[:, None, :, :])
-    turned = np.einsum("btij,btnj->btni", batch.rotation, spin)
-    velocity = turned + batch.run.velocity[:, :, None, :]
-    velocity[~batch.finite] = np.nan
-    return velocity
+    run = batch.run
+    return _compiled().node_velocities(run.quaternion, run.omega_body, run.velocity, batch.node_offsets)
 
 
 def energy_error(batch):
@@ -313,7 +300,7 @@ def momentum_error(batch):
     ndarray, shape (B, T)
         NaN after a failure.
     """
-    return metrics.momentum_error(batch.run.quaternion, batch.run.omega_body, batch.inertia)
+    return _compiled().momentum_errors(batch.run.quaternion, batch.run.omega_body, batch.principal_inertia)
 
 
 def orientation_error(batch):
@@ -345,7 +332,7 @@ def omega_error(batch):
     ndarray, shape (B, T)
         NaN after a failure.
     """
-    return metrics.omega_error(batch.run.omega_body, batch.reference("omega_body"))
+    return _compiled().relative_differences(batch.run.omega_body, batch.reference("omega_body"))
 
 
 def node_error(batch):
@@ -361,10 +348,9 @@ def node_error(batch):
     ndarray, shape (B, T, N)
         m; NaN after a failure.
     """
-    exact = metrics.node_positions(
-        batch.reference("quaternion"), batch.reference("position"), batch.node_offsets
+    return _compiled().node_distances(
+        batch.node_positions, batch.reference("quaternion"), batch.reference("position"), batch.node_offsets
     )
-    return metrics.node_error(batch.node_positions, exact)
 
 
 def precession_frequency(batch):
