@@ -230,7 +230,7 @@ def _sweep(args):
         from rbstudy.pipeline.cluster import start_forkserver
 
         start_forkserver()
-    from rbstudy.analysis.findings import FINDINGS_VARIABLES
+    from rbstudy.analysis.findings import FINDINGS_REDUCED, FINDINGS_VARIABLES
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.cluster import Where
@@ -271,8 +271,9 @@ def _sweep(args):
                 study, args.out, where=where, force=args.force, keep_parts=args.keep_parts, progress=progress
             )
             progress.phase(f"{study.name}: reading its findings")
+            return_free_memory()  # what the run's threads freed, before the reading's peak
             # proven by this run: sealed as written, or verified before it was reused
-            dataset = open_archive(done.path, FINDINGS_VARIABLES, verify=False)
+            dataset = open_archive(done.path, FINDINGS_VARIABLES, verify=False, reduced=FINDINGS_REDUCED)
             return_free_memory()  # what the run and the reading left, before the findings
             summary = _summary_text(dataset, wide=args.wide)
         if done.archive_problems:
@@ -313,12 +314,21 @@ def _summary(args):
     import csv
     import json
 
-    from rbstudy.analysis.findings import FINDINGS_VARIABLES, csv_rows, markdown_summary, summary_document
+    from rbstudy.analysis.findings import (
+        FINDINGS_REDUCED,
+        FINDINGS_VARIABLES,
+        csv_rows,
+        markdown_summary,
+        summary_document,
+    )
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.archive import open_archive
 
     # the per-case scalars, not the trajectories: 1e6 cases read whole took 4.5 GB
-    datasets = [open_archive(path, FINDINGS_VARIABLES, verify=not args.no_verify) for path in args.files]
+    datasets = [
+        open_archive(path, FINDINGS_VARIABLES, verify=not args.no_verify, reduced=FINDINGS_REDUCED)
+        for path in args.files
+    ]
     return_free_memory()  # the reading's transients, before the findings
     if args.format == "json":  # checked before anything is printed
         documents = [summary_document(dataset) for dataset in datasets]

@@ -174,15 +174,16 @@ def _verified(path, bypass=None):
     raise InputError(f"damaged: {shown}", fix, str(path))
 
 
-def open_archive(path, variables=None, verify=True):
+def open_archive(path, variables=None, verify=True, reduced=None):
     """The archive at ``path`` as a loaded xarray dataset (`rbstudy.pipeline.store
-    .open_results`: ``variables`` only, when given), after `check_layout` and, when
-    ``verify``, after proving every variable intact by its checksum."""
+    .open_results`: ``variables`` only, when given, and the time series of ``reduced``
+    reduced along time), after `check_layout` and, when ``verify``, after proving every
+    variable intact by its checksum."""
     check_layout(path)
     if verify:
         _verified(path, bypass="give --no-verify to read it as it is")
     try:
-        return open_results(path, variables)
+        return open_results(path, variables, reduced)
     except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block
         raise InputError(f"damaged: it cannot be read ({one_line(error)})", _REBUILD, str(path)) from None
 
