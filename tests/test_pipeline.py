@@ -38,7 +38,7 @@ from rbstudy.pipeline.execute import run_study, study_lock
 from rbstudy.pipeline.outputs import VERDICTS
 from rbstudy.pipeline.store import open_results
 from rbstudy.pipeline.variables import LONG_NAME_MAX
-from rbstudy.schemes import BUILTIN, SCHEMES
+from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
 
 # Timings differ between runs; everything else must not.
 TIMINGS = ["run_time"]
@@ -736,3 +736,34 @@ def test_every_run_of_consecutive_cases_is_written_as_few_slabs_in_order(shape):
             assert len(slabs) <= 2 * len(shape) - 1
             covered = [grid[index].ravel() for index in slabs]
             assert np.array_equal(np.concatenate(covered) if covered else [], np.arange(first, stop))
+
+
+def test_the_forecast_takes_the_block_rate_where_a_batch_fills_blocks(tmp_path):
+    """Batches of 16 bodies or more step in blocks across SIMD lanes (numerics/block.py),
+    3-6x the rate of one body after another: the forecast takes each scheme's block rate
+    there, and the single-body rate for a smaller batch, a lever or a force turning with the
+    body (the single-body loop), and `compensated` (kernels of their own)."""
+    leapfrog = get_scheme("leapfrog")
+
+    def kernel_seconds(count, scene=None, options=None):
+        run = {"scheme": "leapfrog", "dt": 0.01, **({"options": options} if options else {})}
+        config = write_study(
+            tmp_path,
+            name="blocks",
+            scene=scene,
+            run=run,
+            sweep={"scene.body.mass": np.linspace(1.0, 2.0, count).tolist()},
+        )
+        forecast = estimate(load_study(config), cores=1)
+        return forecast.scheme_seconds / forecast.body_steps
+
+    assert kernel_seconds(64) == pytest.approx(leapfrog.block_step_seconds)
+    assert kernel_seconds(8) == pytest.approx(leapfrog.step_seconds)
+    lever = {**abaqus_mapping(), "duration": 0.5, "loads": {"nodes": {"2": {"force_space": [0.0, 0.0, 0.1]}}}}
+    turning = {**abaqus_mapping(), "duration": 0.5, "loads": {"force_body": [0.0, 0.0, 0.1]}}
+    assert kernel_seconds(64, lever) == pytest.approx(leapfrog.step_seconds)
+    assert kernel_seconds(64, turning) == pytest.approx(leapfrog.step_seconds)
+    compensated = leapfrog.seconds_per_step({"compensated": 1})
+    assert kernel_seconds(64, options={"compensated": 1}) == pytest.approx(compensated)
+    # a scheme without a block step keeps its one rate
+    assert get_scheme("exact_split").block_seconds_per_step() is None

@@ -264,6 +264,11 @@ class CachedEntry:
         """Whether the scheme steps blocks of bodies (`rbstudy.numerics.block`)."""
         return self._blocks is not None
 
+    def steps_blocks(self, options):
+        """Whether a batch of rows of option row ``options`` (N_OPTION,) can step in blocks:
+        the scheme has a block step, and the row does not set the switch's option."""
+        return self._blocks is not None and (self._slot is None or options[self._slot] == 0.0)
+
     def _in_blocks(self, start, stop, clock):
         """Whether rows [start, stop) run through the entry point of the blocks: a range that
         can fill a block, of kernels without the time."""

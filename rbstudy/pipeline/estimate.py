@@ -21,8 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.errors import ConfigError
+from rbstudy.numerics.block import FEWEST
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
+from rbstudy.physics.loads import constant_acting, needs_time
 from rbstudy.physics.references import (
     REFERENCE_MAX_STEPS,
     REFERENCE_OPTIONS,
@@ -116,18 +118,19 @@ class Estimate:
     body_steps : steps over every case (the schemes studied). references : distinct scenes
     whose reference is integrated; reference_steps : the forecast steps of their two
     integrations (each capped at the budget); over_budget : cases whose integrations would
-    both pass `REFERENCE_MAX_STEPS` (they get reference "none"). core_seconds : schemes and
-    references together; longest_seconds : the longest batch or reference on its own (a
-    batch spreads over at most its bodies, a reference over one core), which no number of
-    cores shortens; cores : this machine's. peak_bytes : the process's peak memory.
-    archive_bytes : the archive, uncompressed (compression usually halves it); the disk a
-    sweep needs is `disk_needed`.
+    both pass `REFERENCE_MAX_STEPS` (they get reference "none"). scheme_seconds : the
+    schemes' batches alone; core_seconds : schemes and references together;
+    longest_seconds : the longest batch or reference on its own (a batch spreads over at
+    most its bodies, a reference over one core), which no number of cores shortens; cores :
+    this machine's. peak_bytes : the process's peak memory. archive_bytes : the archive,
+    uncompressed (compression usually halves it); the disk a sweep needs is `disk_needed`.
     """
 
     body_steps: int
     references: int
     reference_steps: int
     over_budget: int
+    scheme_seconds: float
     core_seconds: float
     longest_seconds: float
     cores: int
@@ -148,11 +151,36 @@ def _knot_factor(scenes):
     return 1.0 + KNOT_LEVEL_SHARE * float(np.log2(knots)) if knots > 1 else 1.0
 
 
+def _block_shares(scenes):
+    """(scenes,) True where a scene's body can step in a block of bodies
+    (`rbstudy.numerics.block.plain_loads`: no lever, no force turning with the body), or None
+    when no scene can: loads tabulated in time compile kernels of their own, without blocks."""
+    if needs_time(scenes.loads):
+        return None
+    return ~np.asarray(constant_acting(scenes.loads, ("force_body", "lever")), dtype=bool)
+
+
+def _batch_step_seconds(batch, scheme, cases, plain):
+    """Core-seconds a body-step of ``batch`` takes: in blocks across SIMD lanes for the share
+    of its bodies that can step in them, where it can fill a block (`_block_shares`:
+    ``plain``), else one body after another (`rbstudy.schemes.Scheme.step_seconds`)."""
+    if plain is None or len(batch.cases) < FEWEST:
+        return batch.step_seconds
+    rows = list(batch.cases)
+    # a batch never mixes costs (`plan_batches`): its first case's options stand for all
+    block = scheme.block_seconds_per_step(cases.runs[cases.run_rows[rows[0]]].options)
+    if block is None:
+        return batch.step_seconds
+    share = float(np.mean(plain[cases.scene_rows[rows]]))
+    return share * block + (1.0 - share) * batch.step_seconds
+
+
 def estimate(study, cores=None):
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
     cores = cores or default_threads()
     cases = study.cases
     knot_factor = _knot_factor(cases.scenes)
+    plain = _block_shares(cases.scenes)
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
@@ -163,12 +191,13 @@ def estimate(study, cores=None):
             steps = len(batch.cases) * step_count(study.duration, study.output_interval, batch.dt)
         body_steps += steps
         # a batch holds one cost per body-step (a composition's stages: `plan_batches`)
-        batch_seconds = steps * batch.step_seconds * knot_factor
+        batch_seconds = steps * _batch_step_seconds(batch, scheme, cases, plain) * knot_factor
         seconds += batch_seconds
         # a batch spreads its bodies over at most as many threads as it has bodies; dop853
         # is Python and holds the interpreter: one core
         spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
         longest = max(longest, batch_seconds / spread)
+    scheme_seconds = seconds
     # the references integrated, twice each: one per distinct scene without a closed form
     rows = np.flatnonzero(cases.scenes.reference_kinds == INTEGRATED)
     peer = dop853_steps[rows]
@@ -191,6 +220,7 @@ def estimate(study, cores=None):
         references=len(rows),
         reference_steps=reference_steps,
         over_budget=over_budget,
+        scheme_seconds=scheme_seconds,
         core_seconds=seconds,
         longest_seconds=longest,
         cores=cores,

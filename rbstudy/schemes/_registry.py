@@ -75,8 +75,9 @@ class Scheme:
     summary : one line for `rbstudy schemes`.
     order : nominal global order of accuracy with the options' defaults (`nominal_order`).
     step_seconds : core-seconds one body-step takes, as `rbstudy bench` measured it on the
-        development machine (one core, 1e4 bodies; dop853: per accepted step); the run-time
-        forecast of `rbstudy validate` starts from it. A number above 0 and finite.
+        development machine (one core, 1e4 bodies, one body after another; dop853: per
+        accepted step); the run-time forecast of `rbstudy validate` starts from it. A number
+        above 0 and finite.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
     keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
@@ -92,6 +93,10 @@ class Scheme:
     loads_held : takes the loads at each step's start and holds them over the step, as a
         caller hands loads to an engine (docs/engines.md): under a moment it is then of
         order 1 at most, whatever its integrator's order.
+    block_step_seconds : core-seconds a body-step takes where the scheme steps blocks of
+        bodies across SIMD lanes (`rbstudy.numerics.block`: batches of 16 bodies or more),
+        measured as `step_seconds` is; None: it has no block step. The forecast takes it
+        for such batches (`block_seconds_per_step`).
     slots : where its kernels read each option: name -> first slot of the (N_OPTION,) row,
         as `option_slots` lays it out from ``options`` (set on registering).
     """
@@ -110,6 +115,7 @@ class Scheme:
     origin: str = "rbstudy"
     code_digest: str | None = None
     loads_held: bool = False
+    block_step_seconds: float | None = None
     slots: Mapping = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -117,12 +123,18 @@ class Scheme:
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
         # NaN, infinity or a negative number would reach the forecast ("kernels ~nan s")
-        if not (isinstance(self.step_seconds, numbers.Real) and 0 < self.step_seconds < math.inf):
-            raise ValueError(
-                f"scheme {self.name!r}: step_seconds is {self.step_seconds!r}; "
-                "give the core-seconds per body-step `rbstudy bench` measures, "
-                "a number above 0"
-            )
+        for name, seconds in (
+            ("step_seconds", self.step_seconds),
+            ("block_step_seconds", self.block_step_seconds),
+        ):
+            if seconds is None and name == "block_step_seconds":
+                continue
+            if not (isinstance(seconds, numbers.Real) and 0 < seconds < math.inf):
+                raise ValueError(
+                    f"scheme {self.name!r}: {name} is {seconds!r}; "
+                    "give the core-seconds per body-step `rbstudy bench` measures, "
+                    "a number above 0"
+                )
         # frozen: set once, here, from the options (the same layout the scheme's file computes)
         object.__setattr__(self, "slots", option_slots(self.options, self.name))
 
@@ -141,6 +153,19 @@ class Scheme:
             if option.cost is not None:
                 seconds *= option.cost((values or {}).get(option.name, option.default))
         return seconds
+
+    def block_seconds_per_step(self, values: Mapping | None = None) -> float | None:
+        """`seconds_per_step` in blocks across SIMD lanes (`block_step_seconds`); None where
+        the scheme has no block step, or options ``values`` send its rows to kernels of
+        their own (``compensated``), which step one body at a time."""
+        steps_blocks = getattr(self.run_bodies_inplace, "steps_blocks", None)
+        if (
+            self.block_step_seconds is None
+            or steps_blocks is None
+            or not steps_blocks(self.option_row(values))
+        ):
+            return None
+        return self.seconds_per_step(values) * self.block_step_seconds / self.step_seconds
 
     def option_row(self, values: Mapping | None = None) -> np.ndarray:
         """Validate option ``values`` and pack them (defaults filled) into a (N_OPTION,) row."""
