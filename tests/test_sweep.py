@@ -62,6 +62,10 @@ def test_a_list_of_schemes_takes_groups(tmp_path):
         assert study.dimensions[0].axes[0].values == expected, given
     with pytest.raises(ConfigError, match="rk4 given twice"):
         load_study(write_study(tmp_path, sweep={"scheme": ["rk4", "rk4"]}))
+    # an unknown name beside a group is named at its place in the config's list (it was
+    # named at its place in the expanded one: scheme[9])
+    with pytest.raises(ConfigError, match=r"sweep\.scheme\[2\]: unknown scheme 'bogus'"):
+        load_study(write_study(tmp_path, sweep={"scheme": ["rk4", "builtin", "bogus"]}))
 
 
 def test_zipped_axes_share_one_dimension(tmp_path):

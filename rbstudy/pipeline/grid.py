@@ -153,23 +153,35 @@ def _scalar_values(reader, key, values):
     return tuple(values)
 
 
-def _scheme_names(spec):
+def _scheme_names(reader, key, spec):
     """A list of scheme names with each group (`rbstudy.schemes.scheme_groups`; ``all`` is
     ``builtin``) replaced by every scheme it stands for, installed here or not, each name once:
     a config means the same study wherever it runs, and a scheme not installed is refused
-    with its fix as if named."""
+    with its fix as if named. A name beside a group is checked here, where its place in the
+    list (``key[2]``) is still the one the config gives."""
     groups = scheme_groups()
     groups[ALL_SCHEMES] = groups["builtin"]
-    if not any(isinstance(name, str) and name in groups for name in spec):
+    grouped = [isinstance(name, str) and name in groups for name in spec]
+    if not any(grouped):
         return spec  # names only: a name given twice is refused as in any sweep
-    names = [member for name in spec for member in groups.get(name, [name])]
+    for position, (name, group) in enumerate(zip(spec, grouped, strict=True)):
+        if not group:
+            try:
+                get_scheme(name)
+            except InputError as error:
+                raise reader.locate(error, f"{key}[{position}]") from None
+    names = [
+        member
+        for name, group in zip(spec, grouped, strict=True)
+        for member in (groups[name] if group else [name])
+    ]
     return list(dict.fromkeys(names))
 
 
 def _values(reader, key, spec):
     """The tuple of values of one axis from its YAML spec."""
     if key.endswith("scheme") and (spec == ALL_SCHEMES or isinstance(spec, list)):
-        spec = _scheme_names([spec] if spec == ALL_SCHEMES else spec)
+        spec = _scheme_names(reader, key, [spec] if spec == ALL_SCHEMES else spec)
     if isinstance(spec, list):
         if not spec:
             reader.fail(key, "empty sweep", "give at least one value")
