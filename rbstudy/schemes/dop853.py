@@ -33,7 +33,7 @@ from rbstudy.schemes.rk4 import rates
 
 # Tight enough that the reference error (~1e-12) sits below every compiled scheme's error at
 # the time steps studied; scipy itself floors rtol near 100 eps = 2.2e-14.
-RTOL = ATOL = 1e-13
+RTOL = 1e-13  # and atol
 # Accepted steps one body may take as a scheme: about 11 minutes of one core (65 us a step),
 # |w0| T up to ~1.5e6 rad at the ~6.5 steps per radian it takes. A study forecast past the
 # --max-body-steps budget is refused before it runs; this bounds a run the forecast could
@@ -90,7 +90,7 @@ def _segment_ends(p, end):
     return [*knots[(knots > 0.0) & (knots < end)].tolist(), float(end)]
 
 
-def integrate(y0, p, times, max_steps=None, halt=None):
+def integrate(y0, p, times, max_steps=None, halt=None, tolerance=RTOL):
     """Integrate state row ``y0`` (N_STATE,) with parameters ``p`` (a parameter row) over
     ``times`` (T,), 0 first, step by step, sampling the dense output of each step that covers
     a sample time (so memory stays (T, N_STATE) however many steps a fast spin takes). The
@@ -98,7 +98,8 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     kink of the loads.
 
     ``max_steps`` bounds the accepted steps (None: no bound); ``halt`` (a (1,) array, see
-    `rbstudy.numerics.driver.request_halt`) is read every step.
+    `rbstudy.numerics.driver.request_halt`) is read every step. ``tolerance``: rtol and
+    atol (the scheme's `RTOL`; a benchmark asks for less).
     """
     # here, not at the top: scipy.integrate costs every command that loads the schemes
     # 0.1-0.25 s, and a first run's notice should come at once (issue 30)
@@ -113,7 +114,7 @@ def integrate(y0, p, times, max_steps=None, halt=None):
     # non-finite and is reported so (not finished), without numpy's warnings on the terminal
     with np.errstate(all="ignore"):
         for end in _segment_ends(p, float(times[-1])):
-            solver = DOP853(lambda t, y: derivative(t, y, p), start, y, end, rtol=RTOL, atol=ATOL)
+            solver = DOP853(lambda t, y: derivative(t, y, p), start, y, end, rtol=tolerance, atol=tolerance)
             while solver.status == "running" and filled < len(times):
                 if (halt is not None and halt[0]) or (max_steps is not None and steps >= max_steps):
                     stopped = True
