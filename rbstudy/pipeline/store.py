@@ -21,6 +21,7 @@ import datetime
 import decimal
 import errno
 import hashlib
+import itertools
 import math
 import os
 import pathlib
@@ -725,6 +726,10 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
     core (`ChunkedArchive`, through h5py). ``advance()`` after each part; then the archive
     is sealed with its checksums, hashed as the values are written, and the parts' digests."""
     shape = study.shape
+    parts = zip(study.batches, arriving, strict=True)
+    # the archive is defined once the first part is there, so that a disk too small for one
+    # part fails on the part alone (the archive's metadata, written at once, takes its pages)
+    first = next(parts, None)
     with _temporary_beside(target) as temporary:
         with netcdf_writer(temporary) as nc, HDF5_LOCK:
             defined = _define_archive(nc, study, attrs)
@@ -736,7 +741,7 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
                     for name, (grid_rank, along, stream) in defined.items()
                 }
                 part_digests = []
-                for batch, (path, digest) in zip(study.batches, arriving, strict=True):
+                for batch, (path, digest) in itertools.chain([first] if first else [], parts):
                     _copy_part(targets, read_part(path, study.variables), shape)
                     part_digests.append([batch.id, digest])
                     advance()
