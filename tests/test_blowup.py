@@ -186,6 +186,13 @@ def test_a_block_gives_every_body_the_bits_of_the_single_body_loop(name):
         assert np.any(runs[0][1][:, 0] == NOT_CONVERGED)
 
 
+def test_every_fixed_step_scheme_but_exact_split_steps_blocks():
+    """The two tests above cover each scheme with a block step (issue 33): every fixed-step
+    scheme of rbstudy's but exact_split, whose exact flow has none."""
+    without = [name for name in FIXED_STEP if not get_scheme(name).run_bodies_inplace.has_block]
+    assert without == ["exact_split"]
+
+
 # Options that a block step reads (a composition's stages, splitting's axis order), each set on
 # every body of a batch, and then on every other body, so that no block holds one option row.
 BLOCK_OPTIONS = [

@@ -7,6 +7,7 @@ import numba
 import numpy as np
 import pytest
 
+from rbstudy.numerics import block as B
 from rbstudy.numerics.lanes_math import REDUCED, ULPS, quat_exp_poly, sin_cos
 from rbstudy.numerics.rotation import SMALL_ANGLE, quat_exp
 
@@ -76,3 +77,31 @@ def test_the_rotation_of_a_step_is_libm_s_within_an_ulp_or_two():
             if np.linalg.norm(v) < SMALL_ANGLE:
                 assert np.array_equal(ours, libm)
             assert _ulps(ours, libm).max() <= _ROTATION_ULPS, v
+
+
+@numba.njit
+def _block_rotations(vectors):
+    """`block.quat_exp_columns` of the rotation vectors ``vectors`` (BLOCK, 3), one a lane."""
+    rows = np.zeros(B.N_ROWS * B.BLOCK)
+    for lane in range(B.BLOCK):
+        B.set_column3(rows, B.TEMP, lane, (vectors[lane, 0], vectors[lane, 1], vectors[lane, 2]))
+    B.quat_exp_columns(rows, B.TEMP, B.TEMP + 3)
+    out = np.empty((B.BLOCK, 4))
+    for lane in range(B.BLOCK):
+        out[lane] = B.column4(rows, B.TEMP + 3, lane)
+    return out
+
+
+@pytest.mark.parametrize("odd_lanes", [False, True])
+def test_a_block_s_rotations_are_quat_exp_poly_s_lane_for_lane(odd_lanes):
+    """The rotations of a block's lanes (`block.quat_exp_columns`) have the bits of
+    quat_exp_poly on every lane: angles from the Taylor branch to 3 rad, and with
+    ``odd_lanes`` a lane past `REDUCED` and a NaN lane among them (libm's sine there)."""
+    rng = np.random.default_rng(33)
+    vectors = rng.normal(size=(B.BLOCK, 3)) * np.logspace(-6, 0.5, B.BLOCK)[:, None]
+    if odd_lanes:
+        vectors[5] = (1e12, 1.0, -2.0)  # where the polynomial's reduction is no longer exact
+        vectors[9, 1] = np.nan
+    ours = _block_rotations(vectors)
+    for lane in range(B.BLOCK):
+        assert np.array_equal(ours[lane], quat_exp_poly(tuple(vectors[lane])), equal_nan=True), lane
