@@ -265,8 +265,18 @@ class CachedEntry:
         return self._blocks is not None
 
     def steps_blocks(self, options):
-        """Whether a batch of rows of option row ``options`` (N_OPTION,) can step in blocks:
-        the scheme has a block step, and the row does not set the switch's option."""
+        """Whether a batch of rows of one option row can step in blocks: the scheme has a
+        block step, and the row does not set the switch's option.
+
+        Parameters
+        ----------
+        options : ndarray, shape (N_OPTION,)
+            The rows' option row.
+
+        Returns
+        -------
+        bool
+        """
         return self._blocks is not None and (self._slot is None or options[self._slot] == 0.0)
 
     def _in_blocks(self, start, stop, clock):
