@@ -328,3 +328,40 @@ def test_each_stated_order_is_the_slope_of_the_errors_over_dt(archives, name):
                 checked += 1
     if not checked:
         pytest.skip(f"{name}: no value of the other axes has all its errors in the window")
+
+
+def test_the_findings_read_their_time_series_reduced_slab_by_slab(tmp_path, monkeypatch):
+    """`FINDINGS_REDUCED`: momentum_error's largest sample (NaN where any sample is) and
+    energy_error's last, read a few cases at a time, are what the whole series give, and the
+    energy rates the findings state from them are the same numbers."""
+    import xarray as xr
+
+    from rbstudy.analysis.findings import FINDINGS_REDUCED, energy_rates
+    from rbstudy.pipeline import store
+
+    rng = np.random.default_rng(3)
+    series = rng.random((7, 5, 11))
+    series[2, 3, 6:] = np.nan  # a blow-up: NaN from its sixth sample on
+    series[4, 0, 4] = 10.0  # a largest sample mid-run
+    dims = ("spin", "tilt", "time")
+    coords = {"spin": np.arange(7.0), "tilt": np.arange(5.0), "time": np.linspace(0.0, 2.0, 11)}
+    whole = xr.Dataset(
+        {
+            "momentum_error": (dims, series),
+            "energy_error": (dims, -series),
+            "status": (dims[:2], np.zeros((7, 5))),
+        },
+        coords=coords,
+    )
+    path = tmp_path / "a.nc"
+    whole.to_netcdf(path)
+    monkeypatch.setattr(store, "_REDUCTION_SLAB_BYTES", 2 * 5 * 11 * 8)  # two spins a slab: four slabs
+    reduced = store.open_results(path, ["momentum_error", "energy_error", "status"], FINDINGS_REDUCED)
+    assert reduced.momentum_error.dims == ("spin", "tilt") and "time" not in reduced.dims
+    expected = series.max(axis=-1)
+    assert np.isnan(reduced.momentum_error.values[2, 3]) and reduced.momentum_error.values[4, 0] == 10.0
+    assert np.array_equal(reduced.momentum_error.values, expected, equal_nan=True)
+    assert np.array_equal(reduced.energy_error.values, -series[..., -1], equal_nan=True)
+    assert float(reduced.energy_error["time"]) == 2.0
+    assert np.array_equal(energy_rates(reduced).values, energy_rates(whole).values, equal_nan=True)
+    assert np.array_equal(reduced.status.values, whole.status.values)

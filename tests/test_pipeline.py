@@ -2,6 +2,7 @@
 agreement with direct runs, resume after kill -9, --force, changed configs, the lock, and the
 same numbers on a two-worker LocalCluster."""
 
+import dataclasses
 import importlib.metadata
 import json
 import math
@@ -767,3 +768,7 @@ def test_the_forecast_takes_the_block_rate_where_a_batch_fills_blocks(tmp_path):
     assert kernel_seconds(64, options={"compensated": 1}) == pytest.approx(compensated)
     # a scheme without a block step keeps its one rate
     assert get_scheme("exact_split").block_seconds_per_step() is None
+    # a block rate that is not a finite number above 0 would reach the forecast as it is
+    for bad in (float("nan"), 0.0, -1e-8):
+        with pytest.raises(ValueError, match="block_step_seconds is"):
+            dataclasses.replace(leapfrog, block_step_seconds=bad)

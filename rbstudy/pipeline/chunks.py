@@ -91,6 +91,8 @@ class _ChunkedVariable:
         self.archive = archive
         self.dataset = dataset
         self.grid_rank = grid_rank
+        # read once: each of h5py's properties is a call into HDF5 under h5py's lock
+        self.shape, self.dtype, self.fill = dataset.shape, dataset.dtype, dataset.fillvalue
         self.chunk = dataset.chunks
         self.level = _deflate_level(dataset)
         self.open = {}  # chunk number (grid dimensions) -> [values, which grid positions came]
@@ -99,12 +101,12 @@ class _ChunkedVariable:
     def write(self, index, values):
         """Write ``values`` (the block at ``index``: a slice of step 1 or a list of positions
         per grid dimension, then every position of the variable's own dimensions)."""
-        if not self.dataset.size:
+        if 0 in self.shape:
             return
         values = np.asarray(values)
         pieces = [
             list(_pieces(where, size, step))
-            for where, size, step in zip(index, self.dataset.shape, self.chunk, strict=False)
+            for where, size, step in zip(index, self.shape, self.chunk, strict=False)
         ]
         for combination in itertools.product(*pieces):
             number = tuple(chunk for chunk, _, _ in combination)
@@ -123,13 +125,13 @@ class _ChunkedVariable:
             came = self.on_disk.pop(number)
             self.archive.write_all()  # its first values may still be on their way
             _, data = self.dataset.id.read_direct_chunk(self._offset(number))
-            values = unshuffled(zlib.decompress(data), self.dataset.dtype, shape)
+            values = unshuffled(zlib.decompress(data), self.dtype, shape)
         else:
-            values = np.full(shape, self.dataset.fillvalue, dtype=self.dataset.dtype)
+            values = np.full(shape, self.fill, dtype=self.dtype)
             # the positions of an edge chunk beyond the variable come never: count them in
             inside = tuple(
                 slice(0, min(step, size - chunk * step))
-                for chunk, step, size in zip(number, shape, self.dataset.shape, strict=False)
+                for chunk, step, size in zip(number, shape, self.shape, strict=False)
             )
             came = np.ones(shape[: self.grid_rank], dtype=bool)
             came[inside] = False
@@ -149,7 +151,7 @@ class _ChunkedVariable:
         if not came.all():
             self.on_disk[number] = came
         self.archive.compress(self.dataset, self._offset(number), values, self.level)
-        self.archive.closed(self, number, values.nbytes)
+        self.archive.closed(self, number)
 
     def flush_all(self):
         for number in list(self.open):
@@ -209,7 +211,7 @@ class ChunkedArchive:
                 continue
             oldest[0]._flush(oldest[1])
 
-    def closed(self, variable, number, size):
+    def closed(self, variable, number):
         self.open_bytes -= self.open_chunks.pop((variable, number))
 
     def compress(self, dataset, offset, values, level):

@@ -41,7 +41,7 @@ from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
 from rbstudy.pipeline.config import StudyConfig
 from rbstudy.pipeline.estimate import check_disk, disk_needed
-from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, close_unclosed, sealed
+from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.progress import Progress
 from rbstudy.pipeline.store import (
@@ -586,10 +586,6 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
             raise
         finally:
             writing.shutdown(wait=True)
-            # a full disk may have kept the archive's temporary open (`integrity.
-            # _close_or_truncate`); the failed batches' temporaries are gone by now, and the
-            # room they leave lets it close
-            close_unclosed()
         write_text_atomic(resolved_config(study), folder / "study.yaml")
         if keep_parts:
             current = {path.name for path in parts.values()}

@@ -48,7 +48,6 @@ __all__ = [
     "verify_archive",
     "SIDECAR_SUFFIX",
     "ALGORITHM",
-    "close_unclosed",
     "hdf5_writer",
     "netcdf_writer",
     "GROUP",
@@ -247,7 +246,7 @@ def netcdf_writer(temporary, mode="w"):
     out even when a full disk fails its close (`_close_or_truncate`). Opening and closing
     take `HDF5_LOCK`; what the caller does in between takes it as it needs."""
     with HDF5_LOCK:
-        close_unclosed()
+        _close_unclosed()
         nc = netCDF4.Dataset(temporary, mode, format="NETCDF4")
     try:
         yield nc
@@ -259,7 +258,7 @@ def netcdf_writer(temporary, mode="w"):
 def hdf5_writer(temporary):
     """``h5py.File(temporary, "r+")``, closed on the way out as `netcdf_writer` closes. h5py
     carries its own HDF5 library and lock: `HDF5_LOCK`, netCDF4's, is not taken."""
-    close_unclosed()
+    _close_unclosed()
     handle = h5py.File(temporary, "r+")
     try:
         yield handle
@@ -295,7 +294,7 @@ def _close_or_truncate(handle, temporary, lock):
         raise
 
 
-def close_unclosed():
+def _close_unclosed():
     """Close what a full disk kept open (`_close_or_truncate`) where the disk now has room."""
     for handle in list(_UNCLOSED):
         with contextlib.suppress(OSError, RuntimeError), HDF5_LOCK:  # h5py's need it not: harmless

@@ -123,12 +123,10 @@ class Scheme:
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
         # NaN, infinity or a negative number would reach the forecast ("kernels ~nan s")
-        for name, seconds in (
-            ("step_seconds", self.step_seconds),
-            ("block_step_seconds", self.block_step_seconds),
-        ):
-            if seconds is None and name == "block_step_seconds":
-                continue
+        given = {"step_seconds": self.step_seconds}
+        if self.block_step_seconds is not None:  # optional: a scheme without a block step
+            given["block_step_seconds"] = self.block_step_seconds
+        for name, seconds in given.items():
             if not (isinstance(seconds, numbers.Real) and 0 < seconds < math.inf):
                 raise ValueError(
                     f"scheme {self.name!r}: {name} is {seconds!r}; "
