@@ -25,7 +25,7 @@ import sys
 import textwrap
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean
+from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean, printable
 
 __all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -969,10 +969,39 @@ def _quiet_stdout():
     os.dup2(devnull, sys.stdout.fileno())
 
 
+class _PrintableStream:
+    """A text stream that writes what it is given `printable`; all else is the stream's."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text):
+        return self.stream.write(printable(text))
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def _printable_stdout():
+    """stdout, for the verb's run, shows the control characters of the text it prints (a
+    scheme's name, an archive's attribute, a path) rather than letting a terminal obey them:
+    no printing code has to remember it. stderr's lines are each made printable where they
+    are written (the errors, the progress display), as rich draws its bar there with
+    control sequences of its own."""
+    plain = sys.stdout
+    sys.stdout = _PrintableStream(plain)
+    try:
+        yield
+    finally:
+        sys.stdout = plain
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)  # bad usage: argparse exits with EXIT_USAGE
     try:
-        code = args.run(args)
+        with _printable_stdout():
+            code = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, after the work is done
         return code
     except RbstudyError as error:
@@ -988,7 +1017,7 @@ def main(argv=None):
         )
         return 130
     except Exception:  # noqa: BLE001 (a bug: shown whole, once, with where to report it)
-        traceback.print_exc()
+        sys.stderr.write(printable(traceback.format_exc()))
         print(
             "rbstudy: this is a bug in rbstudy, not in your input; please report it with "
             "the command, the config and the lines above",
