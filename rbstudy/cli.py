@@ -21,7 +21,9 @@ import math
 import os
 import pathlib
 import re
+import shutil
 import sys
+import tempfile
 import textwrap
 import traceback
 
@@ -1026,15 +1028,32 @@ def main(argv=None):
         return EXIT_BUG
 
 
+def _scratch_folder():
+    """The folder for every temporary file made while the command runs, its child
+    processes' too (the forkserver and workers of ``--workers``): multiprocessing's own
+    (``pymp-*``), which holds the forkserver's socket, so that the socket's path (of about
+    100 bytes at most) is no longer than before; dask's ``dask-scratch-space``, which dask
+    keeps by design, goes into it. multiprocessing removes it at the interpreter's exit, which `command`
+    skips: `command` removes it then."""
+    from multiprocessing.util import get_temp_dir
+
+    folder = get_temp_dir()
+    tempfile.tempdir = folder
+    os.environ["TMPDIR"] = folder  # the processes this one starts
+    return folder
+
+
 def command():
     """The ``rbstudy`` command: `main`, then the process ends at once with its exit code.
 
     Python's own shutdown would then spend 0.3-0.6 s tearing down the modules of numba,
     scipy, xarray and dask (measured: docs/performance.md). Nothing is lost by skipping it:
     every file rbstudy writes is closed and synced, and every thread pool and cluster shut
-    down, before `main` returns; the output streams are flushed here. argparse's own exits
-    (``--help``, bad usage) end the usual way.
+    down, before `main` returns; the output streams are flushed and the temporary files
+    removed here (`_scratch_folder`). argparse's own exits (``--help``, bad usage) end the
+    usual way.
     """
+    scratch = _scratch_folder()
     code = main()
     if code:
         # what failed may have left objects to the cycle collector, among them the queues of
@@ -1045,6 +1064,7 @@ def command():
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError):  # a reader gone: main has said so already
             stream.flush()
+    shutil.rmtree(scratch, ignore_errors=True)
     os._exit(code)
 
 
