@@ -21,11 +21,13 @@ import math
 import os
 import pathlib
 import re
+import shutil
 import sys
+import tempfile
 import textwrap
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean
+from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean, printable
 
 __all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -969,10 +971,39 @@ def _quiet_stdout():
     os.dup2(devnull, sys.stdout.fileno())
 
 
+class _PrintableStream:
+    """A text stream that writes what it is given `printable`; all else is the stream's."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text):
+        return self.stream.write(printable(text))
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def _printable_stdout():
+    """stdout, for the verb's run, shows the control characters of the text it prints (a
+    scheme's name, an archive's attribute, a path) rather than letting a terminal obey them:
+    no printing code has to remember it. stderr's lines are each made printable where they
+    are written (the errors, the progress display), as rich draws its bar there with
+    control sequences of its own."""
+    plain = sys.stdout
+    sys.stdout = _PrintableStream(plain)
+    try:
+        yield
+    finally:
+        sys.stdout = plain
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)  # bad usage: argparse exits with EXIT_USAGE
     try:
-        code = args.run(args)
+        with _printable_stdout():
+            code = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, after the work is done
         return code
     except RbstudyError as error:
@@ -988,7 +1019,7 @@ def main(argv=None):
         )
         return 130
     except Exception:  # noqa: BLE001 (a bug: shown whole, once, with where to report it)
-        traceback.print_exc()
+        sys.stderr.write(printable(traceback.format_exc()))
         print(
             "rbstudy: this is a bug in rbstudy, not in your input; please report it with "
             "the command, the config and the lines above",
@@ -997,15 +1028,32 @@ def main(argv=None):
         return EXIT_BUG
 
 
+def _scratch_folder():
+    """The folder for every temporary file made while the command runs, its child
+    processes' too (the forkserver and workers of ``--workers``): multiprocessing's own
+    (``pymp-*``), which holds the forkserver's socket, so that the socket's path (of about
+    100 bytes at most) is no longer than before; dask's ``dask-scratch-space``, which dask
+    keeps by design, goes into it. multiprocessing removes it at the interpreter's exit, which `command`
+    skips: `command` removes it then."""
+    from multiprocessing.util import get_temp_dir
+
+    folder = get_temp_dir()
+    tempfile.tempdir = folder
+    os.environ["TMPDIR"] = folder  # the processes this one starts
+    return folder
+
+
 def command():
     """The ``rbstudy`` command: `main`, then the process ends at once with its exit code.
 
     Python's own shutdown would then spend 0.3-0.6 s tearing down the modules of numba,
     scipy, xarray and dask (measured: docs/performance.md). Nothing is lost by skipping it:
     every file rbstudy writes is closed and synced, and every thread pool and cluster shut
-    down, before `main` returns; the output streams are flushed here. argparse's own exits
-    (``--help``, bad usage) end the usual way.
+    down, before `main` returns; the output streams are flushed and the temporary files
+    removed here (`_scratch_folder`). argparse's own exits (``--help``, bad usage) end the
+    usual way.
     """
+    scratch = _scratch_folder()
     code = main()
     if code:
         # what failed may have left objects to the cycle collector, among them the queues of
@@ -1016,6 +1064,7 @@ def command():
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError):  # a reader gone: main has said so already
             stream.flush()
+    shutil.rmtree(scratch, ignore_errors=True)
     os._exit(code)
 
 

@@ -5,9 +5,14 @@ received) and the fix. It prints as ``<file>: <key>: <message>; <fix>``. Code th
 know the file or the key (a scheme's option parser, the time-step check) raises it without
 them, and the caller that does places it with `InputError.located`, so that no message is
 ever rewritten as text.
+
+Text from a file (a config's key, an archive's attribute, a plug-in's scheme name) may hold
+the control characters a terminal obeys (ESC starts the sequences that clear the screen or
+set the window's title): `printable` shows them as escapes, and every error prints so.
 """
 
 import difflib
+import re
 
 __all__ = [
     "RbstudyError",
@@ -18,6 +23,7 @@ __all__ = [
     "MAX_LENGTH",
     "one_line",
     "did_you_mean",
+    "printable",
 ]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
@@ -25,6 +31,15 @@ MAX_LENGTH = 1000
 # How alike a name must be to a valid one to be offered as what was meant (difflib's ratio:
 # 'hhtt' and 'hht' 0.86, 'duraton' and 'duration' 0.93, 'sweep' and 'bench' 0.2).
 SIMILAR_NAME = 0.75
+# What a terminal acts on rather than shows: the C0 controls but the line's own newline and
+# tab, DEL, and the C1 controls (U+009B is a CSI as ESC [ is).
+_CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def printable(text):
+    """``text`` with each control character a terminal would act on shown as Python
+    writes it in a string's repr (``\\x1b``, ``\\x9b``, ``\\r``)."""
+    return _CONTROL.sub(lambda match: repr(match[0])[1:-1], text)
 
 
 def did_you_mean(name, valid):
@@ -34,7 +49,10 @@ def did_you_mean(name, valid):
 
 
 class RbstudyError(Exception):
-    """Base class of all expected, user-caused failures."""
+    """Base class of all expected, user-caused failures; its text is `printable`."""
+
+    def __str__(self):
+        return printable(super().__str__())
 
 
 class InputError(RbstudyError):
@@ -54,7 +72,7 @@ class InputError(RbstudyError):
         """One line, of bounded length: a key may hold a newline, a value may be huge."""
         text = self.message if not self.fix else f"{self.message}; {self.fix}"
         line = ": ".join(str(part) for part in (self.source, self.key, text) if part)
-        line = line.replace("\r", "\\r").replace("\n", "\\n")
+        line = printable(line.replace("\n", "\\n"))  # \r and the other controls too
         return line if len(line) <= MAX_LENGTH else f"{line[: MAX_LENGTH - 30]} ... (cut)"
 
     def located(self, source=None, key=None, kind=None):

@@ -2,6 +2,7 @@
 
 import math
 import pathlib
+import re
 import shutil
 
 import numpy as np
@@ -59,6 +60,13 @@ def abaqus_mapping(**body):
 
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+
+# Text a hostile file may hold: ESC sequences that set the window's title (ended by BEL)
+# and clear the screen, a C1 CSI, a carriage return and DEL; and how rbstudy shows it.
+HOSTILE = "\x1b]0;pwned\x07\x1b[2J\x9b31m\rx\x7f"
+HOSTILE_SHOWN = r"\x1b]0;pwned\x07\x1b[2J\x9b31m\rx\x7f"
+# What a terminal obeys rather than shows: the C0 controls but newline and tab, DEL, C1.
+TERMINAL_CONTROLS = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 
 
 def listed_schemes(listing):

@@ -10,7 +10,7 @@ import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import abaqus_mapping, write_study
+from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, abaqus_mapping, write_study
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.report import write_report
@@ -92,11 +92,11 @@ def _text_in_place_of_numbers(ds):
     )
 
 
-def _bookkeeping_of_other_shapes(path):
+def _bookkeeping_of_other_shapes(path, source="a hand"):
     """The issue's file: a study attribute and the bookkeeping names, other shapes."""
     path.unlink()
     xr.Dataset(
-        {name: ("x", np.zeros(3)) for name in BOOKKEEPING}, attrs={"study": "fake", "source": "a hand"}
+        {name: ("x", np.zeros(3)) for name in BOOKKEEPING}, attrs={"study": "fake", "source": source}
     ).to_netcdf(path)
 
 
@@ -135,6 +135,10 @@ CRAFTED = {
         _bookkeeping_of_other_shapes,
         ": not an rbstudy archive: it lacks scheme, dt (written by a hand)",
     ),
+    "a writer of control characters": (
+        lambda path: _bookkeeping_of_other_shapes(path, source=HOSTILE),
+        f": not an rbstudy archive: it lacks scheme, dt (written by {HOSTILE_SHOWN})",
+    ),
     "a YAML file": (
         lambda path: path.write_text("name: tiny\nrun: {scheme: rk4}\n"),
         ": not an rbstudy archive: not a netCDF file",
@@ -168,7 +172,20 @@ def test_a_damaged_or_foreign_archive_is_one_line_and_nothing_is_written(
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "Traceback" not in error, error
     assert f"rbstudy: error: {path}{CRAFTED[kind][1]}" in error
+    assert not TERMINAL_CONTROLS.search(error), repr(error)
     assert _files(tmp_path) == before and not (tmp_path / "top").exists()
+
+
+@pytest.mark.parametrize("form", ("text", "md", "csv"))
+def test_a_scheme_name_of_control_characters_is_summarised_as_escapes(archive, tmp_path, capsys, form):
+    """A crafted archive whose scheme is named to set the terminal's title and clear its
+    screen: the summary shows the name, escaped (json's own rules escape it as \\u001b)."""
+    path = _crafted(archive, tmp_path, "an edited value")  # an edit: read with --no-verify
+    _rewritten(path, lambda ds: ds.assign_coords(scheme=[HOSTILE, "rk4"]))
+    assert main(["summary", str(path), "--no-verify", "--format", form]) == 0
+    out = capsys.readouterr().out
+    assert not TERMINAL_CONTROLS.search(out), repr(out)
+    assert (HOSTILE_SHOWN[:20] if form == "text" else HOSTILE_SHOWN) in out  # text cuts long names
 
 
 @pytest.mark.slow

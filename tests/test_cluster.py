@@ -15,7 +15,7 @@ import dask
 import pytest
 import xarray as xr
 import yaml
-from conftest import write_study
+from conftest import abaqus_mapping, write_study
 from distributed import Client, LocalCluster
 
 from rbstudy.cli import main
@@ -275,6 +275,40 @@ def test_a_local_cluster_file_runs_the_study(tmp_path, capsys):
     )
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     _assert_same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
+
+
+@pytest.mark.slow
+def test_a_sweep_with_workers_leaves_no_temporary_file(tmp_path):
+    """Before: each ``--workers`` sweep left multiprocessing's ``pymp-*`` folder (its
+    forkserver's socket) and dask's ``dask-scratch-space`` in the temporary folder, and so
+    did a sweep refused after its forkserver started."""
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    config = write_study(
+        tmp_path,
+        name="tiny",
+        scene={**abaqus_mapping(), "duration": 0.2},
+        output={"interval": 0.02},
+        sweep={"dt": [0.02, 0.01]},
+    )
+    env = {**os.environ, "TMPDIR": str(temporary), "PYTHONPATH": str(pathlib.Path(__file__).parents[1])}
+    sweep = [
+        sys.executable,
+        "-m",
+        "rbstudy",
+        "sweep",
+        "--workers",
+        "2",
+        "--out",
+        str(tmp_path / "out"),
+        "--quiet",
+    ]
+    done = subprocess.run([*sweep, str(config)], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "out" / "tiny" / "tiny.nc").is_file()
+    refused = subprocess.run([*sweep, str(tmp_path / "none.yaml")], env=env, capture_output=True, timeout=300)
+    assert refused.returncode == 1
+    assert list(temporary.iterdir()) == []
 
 
 @pytest.mark.parametrize(

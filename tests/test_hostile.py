@@ -9,7 +9,7 @@ import io
 
 import pytest
 import yaml
-from conftest import CONFIGS, copy_node_tables
+from conftest import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, copy_node_tables, write_study
 
 from rbstudy.cli import main
 
@@ -73,3 +73,16 @@ def test_every_mutation_of_the_shipped_configs_fails_in_one_line(tmp_path):
                 failures.append(f"{verb[0]} {stem} {kind} {path}: exit {code}: {error[-300:]}")
     assert count >= MIN_MUTATIONS
     assert not failures, "\n".join(failures[:20])
+
+
+def test_control_characters_of_a_config_are_shown_not_obeyed(tmp_path, capsys):
+    """A key of a config that would set the terminal's title and clear its screen is
+    named in the error line as escapes."""
+    config = write_study(tmp_path, name="top")
+    study = yaml.safe_load(config.read_text())
+    study["scene"]["body"][HOSTILE] = 1
+    config.write_text(yaml.safe_dump(study, sort_keys=False))
+    assert main(["validate", str(config)]) == 1
+    error = capsys.readouterr().err
+    assert f"rbstudy: error: {config}: scene.body.{HOSTILE_SHOWN}: unknown key" in error
+    assert not TERMINAL_CONTROLS.search(error), repr(error)

@@ -10,9 +10,10 @@ import time
 
 import pytest
 import yaml
-from conftest import write_study
+from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 from test_cluster import _parts, _slow_study
 
+from rbstudy import cli
 from rbstudy.cli import main
 from rbstudy.errors import one_line
 from rbstudy.pipeline.config import load_study
@@ -90,6 +91,20 @@ def test_a_library_message_of_several_lines_is_passed_on_whole_in_one_line():
         "dependencies, see: https://docs.xarray.dev/en/stable/getting-started-guide/installing.html"
     )
     assert one_line(KeyError()) == "KeyError"
+
+
+def test_a_bug_s_traceback_shows_the_text_it_quotes_as_escapes(monkeypatch, capsys):
+    """A bug's message may quote a file's text: its traceback is shown, a terminal's
+    control characters in it escaped."""
+
+    def bug(args):
+        raise ValueError(f"a library read {HOSTILE}")
+
+    monkeypatch.setattr(cli, "_schemes", bug)
+    assert main(["schemes"]) == cli.EXIT_BUG
+    error = capsys.readouterr().err
+    assert f"ValueError: a library read {HOSTILE_SHOWN}\n" in error
+    assert not TERMINAL_CONTROLS.search(error), repr(error)
 
 
 def test_a_job_cluster_s_advice_is_shown_whole(tmp_path, capsys):

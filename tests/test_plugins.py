@@ -14,7 +14,16 @@ import textwrap
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import CONFIGS, LOADED, abaqus_mapping, listed_schemes, write_study
+from conftest import (
+    CONFIGS,
+    HOSTILE,
+    HOSTILE_SHOWN,
+    LOADED,
+    TERMINAL_CONTROLS,
+    abaqus_mapping,
+    listed_schemes,
+    write_study,
+)
 
 from rbstudy.errors import InputError, SchemeError
 from rbstudy.extending import make_batch_entry
@@ -247,6 +256,30 @@ def test_plugins_that_cannot_load_are_listed_with_the_fix(fake_plugins, capsys):
     assert main(["schemes"]) == 0
     listed = listed_schemes(capsys.readouterr().out)
     assert 'fix: pip install "rbstudy[engines]"' in listed["engine_rk4"]
+
+
+def test_a_plugin_named_in_control_characters_is_listed_as_escapes(fake_plugins, capsys):
+    """A plug-in's scheme name and its reason are another package's text: `rbstudy
+    schemes` shows what a terminal would obey in them as escapes."""
+    folder, register = fake_plugins
+    _plugin_module(
+        folder,
+        "hostile_plugin",
+        f"""
+        from rbstudy.extending import SchemeUnavailable
+        raise SchemeUnavailable({HOSTILE!r}, "reinstall it")
+        """,
+    )
+    register({f"x{HOSTILE}": "hostile_plugin:SCHEME"})
+    from rbstudy.cli import main
+
+    assert main(["schemes"]) == 0
+    listing = capsys.readouterr().out
+    assert not TERMINAL_CONTROLS.search(listing), repr(listing)
+    listed = " ".join(listing.split())
+    assert f"x{HOSTILE_SHOWN} " in listed
+    reason = HOSTILE_SHOWN.replace(r"\r", " ")  # wrapped as words: \r is a space between them
+    assert f"unavailable {reason}; fix: reinstall it" in listed
 
 
 def test_builtin_and_engine_names_import_no_plugin(fake_plugins):

@@ -10,7 +10,7 @@ import threading
 import time
 
 import pytest
-from conftest import write_study
+from conftest import HOSTILE, HOSTILE_SHOWN, write_study
 
 from rbstudy.pipeline import cluster
 from rbstudy.pipeline.cluster import dashboard_line
@@ -134,6 +134,29 @@ def test_no_bar_in_ci_or_when_quiet(monkeypatch):
     lines = stream.getvalue().splitlines()
     assert lines[0] == "study: 4 cases" and lines[1].startswith("study: 4 cases done in ")
     assert len(lines) == 2
+
+
+@pytest.mark.parametrize("stream", (Terminal, io.StringIO))
+def test_its_text_is_shown_as_text(monkeypatch, stream):
+    """Words from a config or an archive (a study's or a scheme's name) are shown: a
+    terminal's control sequences escaped, rich's markup and emoji codes as typed. On a
+    terminal rich draws with control sequences of its own: none of the words' is there."""
+    monkeypatch.delenv("CI", raising=False)
+    stream, words = stream(), f"{HOSTILE} [bold]x[/bold] :smile:"
+    with Progress(words, "4 cases", stream=stream) as progress:
+        progress.phase(f"phase {words}", 4, "cases")
+        progress.update(f"update {words}")
+        progress.say(f"said {words}")
+        time.sleep(0.3)  # a redraw or two on a terminal
+    text = stream.getvalue()
+    own = isinstance(stream, Terminal)  # rich's: ESC [ 2K, \r and so on
+    for part in ("\x1b]0;pwned", "\x07", "\x1b[2J", "\x9b", "\x7f", *(() if own else ("\x1b", "\r"))):
+        assert part not in text, repr(text[-300:])
+    assert f"said {HOSTILE_SHOWN} [bold]x[/bold] :smile:" in text
+    if own:  # the bar's words, drawn before it was erased
+        assert f"update {HOSTILE_SHOWN[:20]}" in text
+    else:
+        assert text.startswith(f"{HOSTILE_SHOWN} [bold]x[/bold] :smile:: 4 cases\n")
 
 
 class _Client:

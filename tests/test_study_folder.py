@@ -3,12 +3,12 @@ one study (one config file) per folder."""
 
 import pytest
 import xarray as xr
-from conftest import write_study
+from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
+from rbstudy.pipeline.store import OWNER, open_results
 
 # The kernel's clock time: the one stored value that two runs of one case do not share.
 TIMINGS = ["run_time"]
@@ -137,6 +137,22 @@ def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp
     assert capsys.readouterr().err == _refusal(first, folder, second)
     write_study(tmp_path / "second", name="top", run={"scheme": "leapfrog", "dt": 0.005})  # edited
     assert main(["sweep", str(second), "--out", str(out), "--quiet"]) == 0
+
+
+def test_an_owner_record_of_control_characters_is_named_as_escapes(tmp_path, capsys):
+    """The refusal names the folder's owner as its record says: escaped, what a terminal
+    would obey (a record is a file anyone may have written), up to its carriage return,
+    where reading the record as text ends its line."""
+    config = write_study(tmp_path, name="top")
+    folder = tmp_path / "out" / "top"
+    folder.mkdir(parents=True)
+    (folder / OWNER).write_text(f"/elsewhere/{HOSTILE}.yaml\n{'0' * 64}\n")
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith(f"rbstudy: error: {config}: name: ") and error.count("\n") == 1
+    before_return = HOSTILE_SHOWN[: HOSTILE_SHOWN.index(r"\r")]
+    assert f", /elsewhere/{before_return}; give this study" in error
+    assert not TERMINAL_CONTROLS.search(error), repr(error)
 
 
 def test_the_same_config_moved_to_another_file_is_the_same_study(tmp_path, capsys):

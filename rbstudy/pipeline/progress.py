@@ -10,6 +10,8 @@ Elsewhere (a pipe, a file, ``CI`` set) a start line and an end line, nothing bet
 ``--quiet`` nothing. The start line waits for the work's first phase, so that input refused
 before it (an archive that is not one) is told in its one error line alone. Lines that
 must be read (the first run's compile notice) are `say`-ed in all but the quiet case.
+All of its text is shown as text: made `printable` (a study's or a scheme's name may hold
+the control characters a terminal obeys), never read as rich's markup or emoji codes.
 
 rich rather than tqdm: rich's live display redraws itself on its own thread (tqdm redraws
 when it is updated, so a ticking timer would be a thread of ours), has a spinner for phases
@@ -27,6 +29,8 @@ from rich.progress import BarColumn, ProgressColumn, SpinnerColumn, TextColumn
 from rich.progress import Progress as LiveDisplay
 from rich.table import Column
 from rich.text import Text
+
+from rbstudy.errors import printable
 
 __all__ = ["Progress", "live_wanted", "WIDTH", "SILENT"]
 
@@ -110,7 +114,12 @@ class Progress:
         if live_wanted(self.quiet, self.stream):
             width = min(WIDTH, shutil.get_terminal_size((WIDTH, 24)).columns)
             console = Console(
-                file=self.stream, width=width, force_terminal=True, force_interactive=True, highlight=False
+                file=self.stream,
+                width=width,
+                force_terminal=True,
+                force_interactive=True,
+                highlight=False,
+                emoji=False,
             )
             self._display = LiveDisplay(
                 SpinnerColumn(),
@@ -130,7 +139,7 @@ class Progress:
                 expand=True,
             )
             words = self.label if self.opening is None else f"{self.label}: {self.opening}"
-            self._task = self._display.add_task(words, total=None, unit="")
+            self._task = self._display.add_task(printable(words), total=None, unit="")
             with _LIVE_LOCK:
                 self._display.start()
                 _LIVE.append(self._display)
@@ -152,12 +161,14 @@ class Progress:
         self._begin()
         if self._display is not None:  # a task of its own: rich keeps a total once set
             self._display.remove_task(self._task)
-            self._task = self._display.add_task(what, total=total, unit=unit)
+            self._task = self._display.add_task(printable(what), total=total, unit=unit)
 
     def update(self, what=None, done=None):
         """The phase's words and how much of it is done, as they change."""
         if self._display is not None:
-            self._display.update(self._task, description=what, completed=done)
+            self._display.update(
+                self._task, description=None if what is None else printable(what), completed=done
+            )
 
     def advance(self, amount=1):
         """``amount`` more of the phase's total done."""
@@ -169,12 +180,13 @@ class Progress:
         off a terminal after the start line."""
         self._begin()
         if self._display is not None:
-            self._display.console.print(text, markup=False, soft_wrap=True)
+            self._display.console.print(printable(text), markup=False, soft_wrap=True)
         elif not self.quiet:
             self._line(text)
 
     def echo(self, text):
         """A line of the verb's result (stdout), above the bar where both are on a terminal."""
+        text = printable(text)
         if self._display is not None and sys.stdout.isatty():
             self._display.console.print(text, markup=False, soft_wrap=True)
         else:
@@ -187,7 +199,7 @@ class Progress:
         self._started = True
 
     def _line(self, text):
-        self.stream.write(text + "\n")
+        self.stream.write(printable(text) + "\n")
         self.stream.flush()
 
 
