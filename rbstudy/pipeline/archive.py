@@ -11,13 +11,13 @@ failure is one `InputError` naming the file, the attribute or variable, and the 
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
 
-import pathlib
+import errno
 
 import netCDF4
 import numpy as np
 
 from rbstudy.errors import InputError, one_line
-from rbstudy.inputs.reader import FOLDER_NAME_RULE, is_folder_name
+from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
 from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
 from rbstudy.pipeline.store import HDF5_LOCK, open_results
 from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
@@ -51,16 +51,24 @@ def _foreign(path, key, what):
     return InputError(f"{NOT_AN_ARCHIVE}: {what}", GIVE_AN_ARCHIVE, str(path), key)
 
 
+def _head(path):
+    """The first bytes of the file at ``path``, after refusing a missing or unreadable path
+    and one that is no regular file (a folder, a FIFO, a device: never opened to wait or to
+    read forever), saying which it is."""
+    try:
+        with open_regular_file(path) as handle:
+            return handle.read(_HEAD_BYTES)
+    except NotARegularFile as error:
+        raise _foreign(path, None, f"{error.kind}, not a file") from None
+    except OSError as error:
+        said = "no such file" if error.errno == errno.ENOENT else f"cannot read it: {error.strerror}"
+        raise InputError(said, GIVE_AN_ARCHIVE, str(path)) from None
+
+
 def _check_netcdf(path):
-    """Refuse a missing file, a folder, and a file that is not netCDF at all (text, YAML,
-    an image), saying which it is: a non-archive, never a damaged archive."""
-    path = pathlib.Path(path)
-    if path.is_dir():
-        raise _foreign(path, None, "a folder, not a file")
-    if not path.is_file():
-        raise InputError("no such file", GIVE_AN_ARCHIVE, str(path))
-    with open(path, "rb") as handle:
-        head = handle.read(_HEAD_BYTES)
+    """Refuse what `_head` refuses, and a file that is not netCDF at all (text, YAML, an
+    image), saying which it is: a non-archive, never a damaged archive."""
+    head = _head(path)
     if not head.startswith(_SIGNATURES):
         raise _foreign(path, None, f"not a netCDF file{_kind_of_file(head)}")
 
@@ -191,7 +199,8 @@ def open_archive(path, variables=None, verify=True, reduced=None):
 def verify_file(path):
     """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
     its digest beside it); an `InputError` naming the first problems when it is not."""
-    if sidecar(path).exists() and pathlib.Path(path).is_file():
+    _head(path)  # a file, before its digest's name is made from its name ("." has none)
+    if sidecar(path).exists():
         if part_digest(path) is None:
             raise InputError(
                 "damaged: its bytes do not match the digest stored beside it",
