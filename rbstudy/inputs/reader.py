@@ -29,6 +29,7 @@ __all__ = [
     "MAX_INPUT_BYTES",
     "is_folder_name",
     "FOLDER_NAME_RULE",
+    "MAX_NAME_BYTES",
 ]
 
 # The largest input file read: a config is kilobytes, a node table of a million nodes with
@@ -108,14 +109,23 @@ def read_input_file(path, what, fix):
     return data
 
 
+# The longest name, in bytes of UTF-8: it names a folder and files in it, each within the 255
+# bytes of a file name (ext4, XFS, APFS): the longest are the archive's temporary
+# `.<name>.nc.<8 random>.tmp` (name + 17) and the figure `<name>_benchmark_omega_time.png`
+# (name + 26).
+MAX_NAME_BYTES = 200
 # What a name that becomes a folder or file name may hold (a study's, from a config or read
 # back from an archive): no path separator and no "..", so it can never point elsewhere.
-FOLDER_NAME_RULE = "letters, digits, '-' and '_' only"
+FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES} bytes"
 
 
 def is_folder_name(value):
     """Whether ``value`` is a string that keeps `FOLDER_NAME_RULE`."""
-    return isinstance(value, str) and value.replace("_", "").replace("-", "").isalnum()
+    return (
+        isinstance(value, str)
+        and value.replace("_", "").replace("-", "").isalnum()
+        and len(value.encode()) <= MAX_NAME_BYTES
+    )
 
 
 class Reader:

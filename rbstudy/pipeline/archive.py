@@ -143,6 +143,36 @@ def _layout_problem(path, nc):
     return None
 
 
+def _content_problem(path, nc):
+    """The first value of the open archive ``nc`` (of an archive's layout) that rbstudy never
+    writes, as an `InputError`; None when there is none. Its checksums may match (a file
+    sealed anew after an edit): the summary would otherwise print wrong words (a status of
+    -1 read as the last, "not_converged") or fail on them. Reads the flags, a byte a case."""
+    for dim in (*nc["status"].dimensions, "time"):
+        if dim in nc.dimensions and not len(nc.dimensions[dim]):
+            held = "no output times" if dim == "time" else "no cases"
+            return _foreign(path, dim, f"it holds {held} ({dim} has length 0)")
+    if "accuracy_bound" in nc.ncattrs():
+        bound = np.asarray(nc.getncattr("accuracy_bound"))
+        if bound.dtype.kind not in "iuf" or bound.size != 1 or not np.isfinite(bound).all() or bound <= 0:
+            return _foreign(
+                path,
+                "accuracy_bound",
+                f"the accuracy_bound attribute holds {bound.tolist()!r:.80}, not a number above 0",
+            )
+    nc.set_auto_maskandscale(False)
+    for name, variable in nc.variables.items():
+        flags = VARIABLES[name].flags if name in VARIABLES else ()
+        if not flags:
+            continue
+        values = np.asarray(variable[...])
+        odd = values[(values < 0) | (values >= len(flags))]
+        if odd.size:
+            codes = ", ".join(f"{code} ({flag})" for code, flag in enumerate(flags))
+            return _foreign(path, name, f"{name} holds {odd.flat[0]}; its values are {codes}")
+    return None
+
+
 def _in_order(names, grid):
     """Whether ``names`` are some of ``grid``'s, in its order."""
     rest = iter(grid)
@@ -153,11 +183,13 @@ def check_layout(path):
     """Refuse the file at ``path`` unless it is netCDF with an archive's layout: the study
     attribute (a study name), the bookkeeping variables and the ``scheme`` and ``dt``
     coordinates, and every output variable along the swept dimensions (a variable of the
-    scene alone: some of them) then its own, of its type. Reads the file's header only."""
+    scene alone: some of them) then its own, of its type; then that it holds cases and
+    output times, an accuracy bound that is a number above 0, and only the codes of each
+    flag (`_content_problem`). Reads the file's header and its flags."""
     _check_netcdf(path)
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            problem = _layout_problem(path, nc)
+            problem = _layout_problem(path, nc) or _content_problem(path, nc)
     except (OSError, RuntimeError) as error:
         raise InputError(
             f"damaged: it cannot be read as netCDF ({one_line(error)})", _REBUILD, str(path)
