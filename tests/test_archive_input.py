@@ -113,7 +113,7 @@ CRAFTED = {
     "a study up two folders": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "../../escaped")),
         ": study: not an rbstudy archive: the study attribute '../../escaped' is not a study "
-        "name (letters, digits, '-' and '_' only, at most 200 bytes)",
+        "name (letters, digits, '-' and '_' only, at most 215 bytes)",
     ),
     "a study with a slash": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "sub/escaped")),
@@ -262,7 +262,7 @@ ODD_CONTENT = {
     "a study name of 300 characters": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "a" * 300)),
         f": study: not an rbstudy archive: the study attribute '{'a' * 79} is not a study "
-        "name (letters, digits, '-' and '_' only, at most 200 bytes)",
+        "name (letters, digits, '-' and '_' only, at most 215 bytes)",
     ),
 }
 

@@ -110,10 +110,9 @@ def read_input_file(path, what, fix):
 
 
 # The longest name, in bytes of UTF-8: it names a folder and files in it, each within the 255
-# bytes of a file name (ext4, XFS, APFS): the longest are the archive's temporary
-# `.<name>.nc.<8 random>.tmp` (name + 17) and the figure `<name>_benchmark_omega_time.png`
-# (name + 26).
-MAX_NAME_BYTES = 200
+# bytes of a file name (ext4, XFS, Btrfs, APFS), the longest its figures'
+# (`<name>_convergence_momentum_magnitude.svg`: 35 bytes more); 40 bytes are kept for them.
+MAX_NAME_BYTES = 255 - 40
 # What a name that becomes a folder or file name may hold (a study's, from a config or read
 # back from an archive): no path separator and no "..", so it can never point elsewhere.
 FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES} bytes"
