@@ -2,6 +2,7 @@
 archive in one line (exit 1, no traceback, nothing written anywhere), and no figure is ever
 written outside its folder. Each crafted file is a copy of one small real archive."""
 
+import json
 import pathlib
 import shutil
 import zlib
@@ -18,6 +19,7 @@ from rbstudy.cli import main
 from rbstudy.errors import InputError
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.integrity import GROUP, seal_archive, verify_archive
 from rbstudy.pipeline.store import open_results
 from rbstudy.pipeline.variables import BOOKKEEPING
 
@@ -111,7 +113,7 @@ CRAFTED = {
     "a study up two folders": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "../../escaped")),
         ": study: not an rbstudy archive: the study attribute '../../escaped' is not a study "
-        "name (letters, digits, '-' and '_' only)",
+        "name (letters, digits, '-' and '_' only, at most 215 bytes)",
     ),
     "a study with a slash": (
         lambda path: _edit(path, lambda nc: nc.setncattr("study", "sub/escaped")),
@@ -222,3 +224,82 @@ def test_no_figure_is_written_or_deleted_outside_its_folder(archive, tmp_path):
     with pytest.raises(InputError, match="it names a folder"):  # not even the report's marker
         write_report(dataset, folder / "report")
     assert _files(tmp_path) == [victim]
+
+
+def _sealed_anew(path, change):
+    """The archive after ``change`` (of its path), its checksums computed anew, as a hostile
+    or buggy writer would leave it: `verify` finds every variable matching its checksum."""
+    with netCDF4.Dataset(path) as nc:
+        parts = json.loads(nc.groups[GROUP].getncattr("part_checksums"))
+    change(path)
+    seal_archive(path, parts)
+
+
+def _emptied(dim):
+    def change(path):
+        dataset = open_results(path).isel({dim: slice(0, 0)})
+        for variable in dataset.variables.values():
+            variable.encoding.clear()  # chunks of the old sizes fit no empty dimension
+        path.unlink()
+        dataset.to_netcdf(path)
+
+    return change
+
+
+# name -> (how the sealed copy is changed, what the error line says after the file's name)
+ODD_CONTENT = {
+    "a status of -1": (
+        lambda path: _edit(path, lambda nc: nc["status"].__setitem__((0, 0), -1)),
+        ": status: not an rbstudy archive: status holds -1; its values are 0 (ok), 1 "
+        "(unstable), 2 (not_converged)",
+    ),
+    "a status of 3": (
+        lambda path: _edit(path, lambda nc: nc["status"].__setitem__((1, 1), 3)),
+        ": status: not an rbstudy archive: status holds 3; its values are 0 (ok),",
+    ),
+    "an accuracy flag of 7": (
+        lambda path: _edit(path, lambda nc: nc["accuracy"].__setitem__((0, 1), 7)),
+        ": accuracy: not an rbstudy archive: accuracy holds 7; its values are 0 (accurate), "
+        "1 (inaccurate), 2 (failed), 3 (unjudged)",
+    ),
+    "a text accuracy_bound": (
+        lambda path: _edit(path, lambda nc: nc.setncattr("accuracy_bound", "tight")),
+        ": accuracy_bound: not an rbstudy archive: the accuracy_bound attribute holds "
+        "'tight', not a number above 0",
+    ),
+    "an accuracy_bound of 0": (
+        lambda path: _edit(path, lambda nc: nc.setncattr("accuracy_bound", 0.0)),
+        ": accuracy_bound: not an rbstudy archive: the accuracy_bound attribute holds 0.0,",
+    ),
+    "no cases": (_emptied("dt"), ": dt: not an rbstudy archive: it holds no cases (dt has length 0)"),
+    "no output times": (
+        _emptied("time"),
+        ": time: not an rbstudy archive: it holds no output times (time has length 0)",
+    ),
+    "a study name of 300 characters": (
+        lambda path: _edit(path, lambda nc: nc.setncattr("study", "a" * 300)),
+        f": study: not an rbstudy archive: the study attribute '{'a' * 79} is not a study "
+        "name (letters, digits, '-' and '_' only, at most 215 bytes)",
+    ),
+}
+
+
+@pytest.mark.parametrize("kind", ODD_CONTENT)
+def test_an_archive_sealed_anew_with_odd_content_is_refused_by_every_verb(archive, tmp_path, capsys, kind):
+    """Before: each passed `verify`; a status of -1 was summarised as "not_converged: the
+    implicit solver failed", a text accuracy_bound, no cases or no output times ended
+    `summary`, `plot` or `report` in a traceback, and a 300-character study name `plot`'s
+    figure files (File name too long)."""
+    path = tmp_path / "input" / "tiny.nc"
+    path.parent.mkdir()
+    shutil.copyfile(archive, path)
+    _sealed_anew(path, ODD_CONTENT[kind][0])
+    assert verify_archive(path).problems == ()  # its checksums match
+    before = _files(tmp_path)
+    for verb in ("verify", "summary", "plot", "report"):
+        out = ["--out", str(tmp_path / "out")] if verb in ("plot", "report") else []
+        assert main([verb, str(path), *out]) == 1, verb
+        captured = capsys.readouterr()
+        assert captured.out == "" and captured.err.count("\n") == 1, captured
+        assert captured.err.startswith(f"rbstudy: error: {path}{ODD_CONTENT[kind][1]}"), captured.err
+    assert _files(tmp_path) == before

@@ -8,14 +8,17 @@ that need them are skipped with the reason. Every mount and attribute is undone.
 
 import contextlib
 import os
+import shutil
 import subprocess
 
+import h5py
 import pytest
 import xarray as xr
 from conftest import write_study
 
 from rbstudy.cli import main
 from rbstudy.pipeline import execute
+from rbstudy.pipeline.chunks import ChunkedArchive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
@@ -250,3 +253,49 @@ def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, c
         assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1
         assert "no space left on the file system" in _one_line_only(capsys)
         assert list(disk.iterdir()) == []  # and so the folders this run made
+
+
+def test_an_hdf5_error_on_a_full_disk_while_the_chunks_are_written_is_one_line(tmp_path, capsys, monkeypatch):
+    """Before: h5py's direct chunk write failed on the full disk, its close then failed to
+    flush (a RuntimeError that hid the first), and truncating the temporary freed the space
+    that told a full disk: a traceback (exit 70). Here the disk is full while the archive's
+    temporary holds its bytes, as on a tmpfs, which frees a truncated file's pages."""
+    config = write_study(tmp_path, name="small", sweep={"scheme": ["euler", "midpoint"]})
+    folder = tmp_path / "out" / "small"
+    measured, truncate, truncated = shutil.disk_usage, os.truncate, []
+
+    def usage(path):  # full from the archive's first write until its temporary is truncated
+        written = list(folder.glob(".small.nc.*.tmp")) and not truncated
+        return measured(path)._replace(free=0) if written else measured(path)
+
+    def truncating(path, length):
+        truncated.append(path)
+        truncate(path, length)
+
+    def write_fails(archive):
+        raise RuntimeError(
+            "Can't write unprocessed chunk data (file write failed: errno = 28, error "
+            "message = 'No space left on device')"
+        )
+
+    closes, close = [], h5py.File.close
+
+    def flush_fails_once(handle):
+        if not closes:
+            closes.append(handle)
+            raise RuntimeError("Disable slist on flush dest failure failed (errno = 28)")
+        close(handle)
+
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+    monkeypatch.setattr(os, "truncate", truncating)
+    monkeypatch.setattr(ChunkedArchive, "_write_oldest", write_fails)
+    monkeypatch.setattr(h5py.File, "close", flush_fails_once)
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    mount = tmp_path
+    while not os.path.ismount(mount):
+        mount = mount.parent
+    assert _one_line_only(capsys) == (
+        f"rbstudy: error: {folder}: no space left on the file system at {mount}; free "
+        "space and rerun the same command (a sweep keeps its finished parts and resumes)"
+    )
+    assert closes and truncated and not list(folder.glob(".*.tmp")) and not (folder / "small.nc").exists()

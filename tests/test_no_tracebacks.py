@@ -145,3 +145,50 @@ def test_verify_calls_a_non_archive_a_non_archive(tmp_path, capsys, make, said):
     error = capsys.readouterr().err
     assert error.startswith(f"rbstudy: error: {path}: {said}")
     assert "damaged" not in error and error.count("\n") == 1
+
+
+def _unreadable(path, monkeypatch):
+    """A file its user may not read (root reads any: the system's refusal is played then)."""
+    path.write_bytes(b"\x89HDF\r\n\x1a\n")
+    path.chmod(0)
+    if os.geteuid() == 0:
+        opened = os.open
+
+        def refused(name, *args, **kwargs):
+            if os.path.abspath(name) == str(path):
+                raise PermissionError(13, "Permission denied", str(path))
+            return opened(name, *args, **kwargs)
+
+        monkeypatch.setattr(os, "open", refused)
+    return str(path)
+
+
+# path given -> what the line says of it (after "rbstudy: error: <path>: ")
+INPUT_PATHS = {
+    ".": "not an rbstudy archive: a folder, not a file",
+    "./": "not an rbstudy archive: a folder, not a file",
+    "/": "not an rbstudy archive: a folder, not a file",
+    "/dev/null": "not an rbstudy archive: a character device, not a file",
+    "/dev/zero": "not an rbstudy archive: a character device, not a file",
+    "zero.nc": "not an rbstudy archive: a character device, not a file",  # a link to /dev/zero
+    "fifo.nc": "not an rbstudy archive: a FIFO (named pipe), not a file",
+    "absent.nc": "no such file",
+    "unreadable.nc": "cannot read it: Permission denied",
+}
+
+
+@pytest.mark.parametrize("verb", ["verify", "summary", "plot", "report"])
+def test_a_path_that_is_no_readable_file_is_one_line(tmp_path, capsys, monkeypatch, verb):
+    """Before: `verify .`, `./` and `/` ended in "PosixPath('.') has an empty name" (exit 70);
+    a device or a FIFO was called "no such file", an unreadable file a traceback."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "zero.nc").symlink_to("/dev/zero")
+    os.mkfifo(tmp_path / "fifo.nc")
+    _unreadable(tmp_path / "unreadable.nc", monkeypatch)
+    out = ["--out", str(tmp_path / "out")] if verb in ("plot", "report") else []
+    for path, said in INPUT_PATHS.items():
+        assert main([verb, path, *out]) == 1, path
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and "Traceback" not in error, error
+        assert error.startswith(f"rbstudy: error: {path}: {said}"), error
+    assert not (tmp_path / "out").exists()

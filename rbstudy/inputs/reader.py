@@ -21,7 +21,16 @@ import numpy as np
 
 from rbstudy.errors import InputError, did_you_mean
 
-__all__ = ["Reader", "read_input_file", "MAX_INPUT_BYTES", "is_folder_name", "FOLDER_NAME_RULE"]
+__all__ = [
+    "Reader",
+    "read_input_file",
+    "open_regular_file",
+    "NotARegularFile",
+    "MAX_INPUT_BYTES",
+    "is_folder_name",
+    "FOLDER_NAME_RULE",
+    "MAX_NAME_BYTES",
+]
 
 # The largest input file read: a config is kilobytes, a node table of a million nodes with
 # their inertias ~130 MiB. A larger file is not one written for rbstudy (a log, a mesh, a
@@ -38,14 +47,38 @@ _KINDS = {
 }
 
 
-def _check_file(info, path, what, fix):
-    """Refuse the file of ``os.stat`` result ``info`` unless it is a regular file within
-    `MAX_INPUT_BYTES`."""
+class NotARegularFile(OSError):
+    """A path that names no regular file: ``kind`` says what it is ("a folder", "a FIFO
+    (named pipe)"); its ``strerror`` says so as a reason ("it is a folder, not a regular
+    file")."""
+
+    def __init__(self, kind, path):
+        super().__init__(None, f"it is {kind}, not a regular file", str(path))
+        self.kind = kind
+
+
+def _check_kind(info, path):
     if not stat.S_ISREG(info.st_mode):
-        kind = _KINDS.get(stat.S_IFMT(info.st_mode), "not a file")
-        raise InputError(f"cannot read {what}: it is {kind}, not a regular file", fix, str(path))
-    if info.st_size > MAX_INPUT_BYTES:
-        _too_large(info.st_size, path, what)
+        raise NotARegularFile(_KINDS.get(stat.S_IFMT(info.st_mode), "not a file"), path)
+
+
+def open_regular_file(path):
+    """The regular file ``path`` (a link is followed) opened for reading bytes; anything else
+    (a folder, a FIFO, a device) is a `NotARegularFile`, and a path that cannot be opened the
+    system's `OSError`. Every command that reads a file a user names opens it here.
+
+    A FIFO blocks whoever opens it and a device such as /dev/zero never ends, so the kind is
+    checked before the file is opened, and again on the opened file (opened non-blocking, so
+    that a path swapped for a FIFO in between cannot hang it).
+    """
+    _check_kind(os.stat(path), path)
+    file = os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb")
+    try:
+        _check_kind(os.fstat(file.fileno()), path)
+    except OSError:
+        file.close()
+        raise
+    return file
 
 
 def _too_large(size, path, what):
@@ -58,39 +91,40 @@ def _too_large(size, path, what):
 
 
 def read_input_file(path, what, fix):
-    """The bytes of the regular file ``path`` (a link is followed), at most `MAX_INPUT_BYTES`;
-    anything else is an `InputError` at ``path`` (no key: the caller places it) saying
-    "cannot read ``what``" ("the node table") and why, with ``fix``.
-
-    A FIFO blocks whoever opens it and a device such as /dev/zero never ends, so the kind and
-    size are checked before the file is opened, and again on the opened file (opened
-    non-blocking, so that a path swapped for a FIFO in between cannot hang it); at most one
-    byte past the bound is read, so that a file growing meanwhile is refused too.
-    """
+    """The bytes of the regular file ``path`` (`open_regular_file`), at most
+    `MAX_INPUT_BYTES`; anything else is an `InputError` at ``path`` (no key: the caller
+    places it) saying "cannot read ``what``" ("the node table") and why, with ``fix``. The
+    size is checked before reading, and at most one byte past the bound is read, so that a
+    file growing meanwhile is refused too."""
     try:
-        _check_file(os.stat(path), path, what, fix)
-        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        with open_regular_file(path) as file:
+            size = os.fstat(file.fileno()).st_size
+            if size > MAX_INPUT_BYTES:
+                _too_large(size, path, what)
+            data = file.read(MAX_INPUT_BYTES + 1)
     except OSError as error:
         raise InputError(f"cannot read {what}: {error.strerror}", fix, str(path)) from None
-    with os.fdopen(descriptor, "rb") as file:
-        try:
-            _check_file(os.fstat(descriptor), path, what, fix)
-            data = file.read(MAX_INPUT_BYTES + 1)
-        except OSError as error:
-            raise InputError(f"cannot read {what}: {error.strerror}", fix, str(path)) from None
     if len(data) > MAX_INPUT_BYTES:
         _too_large(len(data), path, what)
     return data
 
 
+# The longest name, in bytes of UTF-8: it names a folder and files in it, each within the 255
+# bytes of a file name (ext4, XFS, Btrfs, APFS), the longest its figures'
+# (`<name>_convergence_momentum_magnitude.svg`: 35 bytes more); 40 bytes are kept for them.
+MAX_NAME_BYTES = 255 - 40
 # What a name that becomes a folder or file name may hold (a study's, from a config or read
 # back from an archive): no path separator and no "..", so it can never point elsewhere.
-FOLDER_NAME_RULE = "letters, digits, '-' and '_' only"
+FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES} bytes"
 
 
 def is_folder_name(value):
     """Whether ``value`` is a string that keeps `FOLDER_NAME_RULE`."""
-    return isinstance(value, str) and value.replace("_", "").replace("-", "").isalnum()
+    return (
+        isinstance(value, str)
+        and value.replace("_", "").replace("-", "").isalnum()
+        and len(value.encode()) <= MAX_NAME_BYTES
+    )
 
 
 class Reader:

@@ -11,13 +11,13 @@ failure is one `InputError` naming the file, the attribute or variable, and the 
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
 
-import pathlib
+import errno
 
 import netCDF4
 import numpy as np
 
 from rbstudy.errors import InputError, one_line
-from rbstudy.inputs.reader import FOLDER_NAME_RULE, is_folder_name
+from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
 from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
 from rbstudy.pipeline.store import HDF5_LOCK, open_results
 from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
@@ -51,16 +51,24 @@ def _foreign(path, key, what):
     return InputError(f"{NOT_AN_ARCHIVE}: {what}", GIVE_AN_ARCHIVE, str(path), key)
 
 
+def _head(path):
+    """The first bytes of the file at ``path``, after refusing a missing or unreadable path
+    and one that is no regular file (a folder, a FIFO, a device: never opened to wait or to
+    read forever), saying which it is."""
+    try:
+        with open_regular_file(path) as handle:
+            return handle.read(_HEAD_BYTES)
+    except NotARegularFile as error:
+        raise _foreign(path, None, f"{error.kind}, not a file") from None
+    except OSError as error:
+        said = "no such file" if error.errno == errno.ENOENT else f"cannot read it: {error.strerror}"
+        raise InputError(said, GIVE_AN_ARCHIVE, str(path)) from None
+
+
 def _check_netcdf(path):
-    """Refuse a missing file, a folder, and a file that is not netCDF at all (text, YAML,
-    an image), saying which it is: a non-archive, never a damaged archive."""
-    path = pathlib.Path(path)
-    if path.is_dir():
-        raise _foreign(path, None, "a folder, not a file")
-    if not path.is_file():
-        raise InputError("no such file", GIVE_AN_ARCHIVE, str(path))
-    with open(path, "rb") as handle:
-        head = handle.read(_HEAD_BYTES)
+    """Refuse what `_head` refuses, and a file that is not netCDF at all (text, YAML, an
+    image), saying which it is: a non-archive, never a damaged archive."""
+    head = _head(path)
     if not head.startswith(_SIGNATURES):
         raise _foreign(path, None, f"not a netCDF file{_kind_of_file(head)}")
 
@@ -135,6 +143,36 @@ def _layout_problem(path, nc):
     return None
 
 
+def _content_problem(path, nc):
+    """The first value of the open archive ``nc`` (of an archive's layout) that rbstudy never
+    writes, as an `InputError`; None when there is none. Its checksums may match (a file
+    sealed anew after an edit): the summary would otherwise print wrong words (a status of
+    -1 read as the last, "not_converged") or fail on them. Reads the flags, a byte a case."""
+    for dim in (*nc["status"].dimensions, "time"):
+        if dim in nc.dimensions and not len(nc.dimensions[dim]):
+            held = "no output times" if dim == "time" else "no cases"
+            return _foreign(path, dim, f"it holds {held} ({dim} has length 0)")
+    if "accuracy_bound" in nc.ncattrs():
+        bound = np.asarray(nc.getncattr("accuracy_bound"))
+        if bound.dtype.kind not in "iuf" or bound.size != 1 or not np.isfinite(bound).all() or bound <= 0:
+            return _foreign(
+                path,
+                "accuracy_bound",
+                f"the accuracy_bound attribute holds {bound.tolist()!r:.80}, not a number above 0",
+            )
+    nc.set_auto_maskandscale(False)
+    for name, variable in nc.variables.items():
+        flags = VARIABLES[name].flags if name in VARIABLES else ()
+        if not flags:
+            continue
+        values = np.asarray(variable[...])
+        odd = values[(values < 0) | (values >= len(flags))]
+        if odd.size:
+            codes = ", ".join(f"{code} ({flag})" for code, flag in enumerate(flags))
+            return _foreign(path, name, f"{name} holds {odd.flat[0]}; its values are {codes}")
+    return None
+
+
 def _in_order(names, grid):
     """Whether ``names`` are some of ``grid``'s, in its order."""
     rest = iter(grid)
@@ -145,11 +183,13 @@ def check_layout(path):
     """Refuse the file at ``path`` unless it is netCDF with an archive's layout: the study
     attribute (a study name), the bookkeeping variables and the ``scheme`` and ``dt``
     coordinates, and every output variable along the swept dimensions (a variable of the
-    scene alone: some of them) then its own, of its type. Reads the file's header only."""
+    scene alone: some of them) then its own, of its type; then that it holds cases and
+    output times, an accuracy bound that is a number above 0, and only the codes of each
+    flag (`_content_problem`). Reads the file's header and its flags."""
     _check_netcdf(path)
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            problem = _layout_problem(path, nc)
+            problem = _layout_problem(path, nc) or _content_problem(path, nc)
     except (OSError, RuntimeError) as error:
         raise InputError(
             f"damaged: it cannot be read as netCDF ({one_line(error)})", _REBUILD, str(path)
@@ -191,7 +231,8 @@ def open_archive(path, variables=None, verify=True, reduced=None):
 def verify_file(path):
     """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
     its digest beside it); an `InputError` naming the first problems when it is not."""
-    if sidecar(path).exists() and pathlib.Path(path).is_file():
+    _head(path)  # a file, before its digest's name is made from its name ("." has none)
+    if sidecar(path).exists():
         if part_digest(path) is None:
             raise InputError(
                 "damaged: its bytes do not match the digest stored beside it",

@@ -21,10 +21,12 @@ a changed title is redescribed in place without touching the data (`store.refres
 """
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
 import pathlib
+import shutil
 import threading
 from dataclasses import dataclass
 
@@ -54,6 +56,8 @@ __all__ = [
     "SEALS",
     "HDF5_LOCK",
     "StreamedChecksum",
+    "FULL_BYTES",
+    "nearly_full",
 ]
 
 # The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
@@ -81,6 +85,10 @@ SEALS = ("checksums", "part_checksums")
 _CLOSE_ATTEMPTS = 3
 # The files a full disk kept open even then (`_close_or_truncate`), closed at the next write.
 _UNCLOSED = []
+# Free bytes below which a failed write is put down to a full disk: HDF5 reports one as "HDF
+# error" (a RuntimeError), "Disable slist on flush dest failure failed" or even "Permission
+# denied", so the free space, not the error, tells.
+FULL_BYTES = 2**20
 
 
 def file_digest(path):
@@ -243,15 +251,13 @@ def _read_checksum(variable):
 @contextlib.contextmanager
 def netcdf_writer(temporary, mode="w"):
     """``netCDF4.Dataset(temporary, mode)`` (NETCDF4) of a temporary file, closed on the way
-    out even when a full disk fails its close (`_close_or_truncate`). Opening and closing
-    take `HDF5_LOCK`; what the caller does in between takes it as it needs."""
+    out even when a full disk fails its close (`_closed_on_exit`). Opening and closing take
+    `HDF5_LOCK`; what the caller does in between takes it as it needs."""
     with HDF5_LOCK:
         _close_unclosed()
         nc = netCDF4.Dataset(temporary, mode, format="NETCDF4")
-    try:
+    with _closed_on_exit(nc, temporary, HDF5_LOCK):
         yield nc
-    finally:
-        _close_or_truncate(nc, temporary, HDF5_LOCK)
 
 
 @contextlib.contextmanager
@@ -260,10 +266,46 @@ def hdf5_writer(temporary):
     carries its own HDF5 library and lock: `HDF5_LOCK`, netCDF4's, is not taken."""
     _close_unclosed()
     handle = h5py.File(temporary, "r+")
+    with _closed_on_exit(handle, temporary, contextlib.nullcontext()):
+        yield handle
+
+
+def nearly_full(path):
+    """Whether the file system of ``path`` (or of its nearest existing ancestor) has less
+    than `FULL_BYTES` free; one of no blocks at all (/proc, /sys) never is."""
+    place = pathlib.Path(path).absolute()
+    while not place.is_dir():
+        place = place.parent
+    usage = shutil.disk_usage(place)
+    return usage.free < FULL_BYTES and usage.total > 0
+
+
+def _no_space(temporary):
+    """The `OSError` (ENOSPC) of a write to ``temporary`` that failed on a nearly full disk:
+    what the callers tell as the full disk, whatever HDF5 called the failure."""
+    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(temporary))
+
+
+@contextlib.contextmanager
+def _closed_on_exit(handle, temporary, lock):
+    """Close ``handle`` of ``temporary`` on the way out (`_close_or_truncate`). When what was
+    written failed, its error is the one raised, not the close's that follows it (HDF5 then
+    fails to flush too), and an HDF5 error on a nearly full disk becomes ENOSPC: measured
+    before the close truncates the temporary, which frees the space that told."""
     try:
         yield handle
-    finally:
-        _close_or_truncate(handle, temporary, contextlib.nullcontext())
+    except (OSError, RuntimeError) as error:
+        full = nearly_full(temporary)
+        with contextlib.suppress(OSError, RuntimeError):
+            _close_or_truncate(handle, temporary, lock)
+        if full:
+            raise _no_space(temporary) from error
+        raise
+    except BaseException:
+        with contextlib.suppress(OSError, RuntimeError):
+            _close_or_truncate(handle, temporary, lock)
+        raise
+    _close_or_truncate(handle, temporary, lock)
 
 
 def _is_open(handle):
@@ -278,11 +320,12 @@ def _close_or_truncate(handle, temporary, lock):
     the disk. So the temporary, worthless by then, is truncated: its space lets HDF5 finish
     the close. An archive abandoned early (written beside its batches) may hold more cached
     chunks than truncating it frees: it is closed at the next write, once the user has freed
-    the disk."""
+    the disk. A close that failed on a nearly full disk raises ENOSPC (`_no_space`)."""
     try:
         with lock:
             handle.close()
-    except (OSError, RuntimeError):
+    except (OSError, RuntimeError) as error:
+        full = nearly_full(temporary)  # before the truncation frees the space that tells
         os.truncate(temporary, 0)
         for _ in range(_CLOSE_ATTEMPTS):
             with contextlib.suppress(OSError, RuntimeError), lock:
@@ -291,6 +334,8 @@ def _close_or_truncate(handle, temporary, lock):
                 break
         else:
             _UNCLOSED.append(handle)
+        if full:
+            raise _no_space(temporary) from error
         raise
 
 

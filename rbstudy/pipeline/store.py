@@ -49,6 +49,7 @@ from rbstudy.pipeline.integrity import (
     StreamedChecksum,
     file_digest,
     hdf5_writer,
+    nearly_full,
     netcdf_writer,
     part_digest,
     seal_archive,
@@ -113,8 +114,6 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
 # Target size of an archive chunk (uncompressed): `case_chunks`.
 CHUNK_BYTES = 2**18
-# Free bytes below which a failed write is put down to a full disk.
-_FULL_BYTES = 2**20
 # The file of a study folder that names the config (its file's resolved path and its text's
 # SHA-256) whose study the folder holds: another config of the same name would replace its
 # archive and parts.
@@ -392,8 +391,8 @@ def _temporary_beside(path):
         _sync(temporary)  # the data on disk before the name points at it
         os.replace(temporary, path)
         _sync(path.parent)  # and the rename itself, so that a crash keeps one or the other
-    except (OSError, RuntimeError):
-        _raise_if_full(path.parent)
+    except (OSError, RuntimeError) as error:
+        _raise_if_full(path.parent, error)
         raise
     finally:
         if os.path.exists(temporary):
@@ -402,6 +401,8 @@ def _temporary_beside(path):
 
 # What a file system answers a write it refuses: read-only, immutable, not ours, full.
 WRITE_REFUSALS = frozenset({errno.EROFS, errno.EPERM, errno.EACCES, errno.ENOSPC, errno.EDQUOT})
+# What a file system answers a write that found no room: no blocks, or the user's quota spent.
+_NO_SPACE = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
 class UnwritableFolder(RbstudyError):
@@ -415,7 +416,7 @@ def unwritable(folder, error, label=""):
     `UnwritableFolder` with the system's reason, to raise. ``label`` goes before the
     folder (``"--out "``)."""
     if error.errno != errno.EROFS:  # read-only media (an ISO image) report no free space
-        _raise_if_full(folder)
+        _raise_if_full(folder, error)
     # a system file system (/proc) answers a new name with "No such file or directory"
     reason = (
         "its file system takes no new files"
@@ -455,16 +456,14 @@ def check_output_folder(folder, label="--out "):
             path.rmdir()
 
 
-def _raise_if_full(folder):
-    """The one-line error of a full disk, when the file system of ``folder`` (or of its
-    nearest existing ancestor) is (nearly) full. HDF5 reports a full disk as "HDF error" or
-    even "Permission denied", so the free space, not the error, tells."""
-    mount = pathlib.Path(folder).absolute()
-    while not mount.is_dir():
-        mount = mount.parent
-    usage = shutil.disk_usage(mount)
-    if usage.free >= _FULL_BYTES or usage.total == 0:  # /proc and /sys have no blocks at all
+def _raise_if_full(folder, error=None):
+    """The one-line error of a full disk, when the write that failed with ``error`` said so
+    (ENOSPC: `rbstudy.pipeline.integrity` turns HDF5's errors on a nearly full disk into
+    one, measured before the temporary was truncated) or the file system of ``folder`` (or
+    of its nearest existing ancestor) is (nearly) full (`integrity.nearly_full`)."""
+    if getattr(error, "errno", None) not in _NO_SPACE and not nearly_full(folder):
         return
+    mount = pathlib.Path(folder).absolute()
     while not os.path.ismount(mount):
         mount = mount.parent
     raise RbstudyError(
