@@ -285,6 +285,12 @@ def _sweep(args):
                 f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
                 "match their checksums) recomputed"
             )
+        if done.removed_parts:
+            _say(
+                f"{study.name}: removed {done.removed_parts} part file"
+                f"{'s' * (done.removed_parts != 1)} left beside its current archive, which holds "
+                "them (--keep-parts keeps them)"
+            )
         if done.up_to_date:
             _say(f"{study.name}: {done.path} is up to date (the same config and code); --force recomputes it")
         else:

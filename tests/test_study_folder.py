@@ -1,6 +1,12 @@
 """What a study folder holds is the study's: table files bound by name to their contents, and
 one study (one config file) per folder."""
 
+import contextlib
+import hashlib
+import multiprocessing
+import os
+
+import netCDF4
 import pytest
 import xarray as xr
 from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
@@ -8,7 +14,7 @@ from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import OWNER, open_results
+from rbstudy.pipeline.store import IDENTITY, OWNER, open_results
 
 # The kernel's clock time: the one stored value that two runs of one case do not share.
 TIMINGS = ["run_time"]
@@ -141,8 +147,7 @@ def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp
 
 def test_an_owner_record_of_control_characters_is_named_as_escapes(tmp_path, capsys):
     """The refusal names the folder's owner as its record says: escaped, what a terminal
-    would obey (a record is a file anyone may have written), up to its carriage return,
-    where reading the record as text ends its line."""
+    would obey (a record is a file anyone may have written), its carriage return too."""
     config = write_study(tmp_path, name="top")
     folder = tmp_path / "out" / "top"
     folder.mkdir(parents=True)
@@ -150,8 +155,7 @@ def test_an_owner_record_of_control_characters_is_named_as_escapes(tmp_path, cap
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err
     assert error.startswith(f"rbstudy: error: {config}: name: ") and error.count("\n") == 1
-    before_return = HOSTILE_SHOWN[: HOSTILE_SHOWN.index(r"\r")]
-    assert f", /elsewhere/{before_return}; give this study" in error
+    assert f", /elsewhere/{HOSTILE_SHOWN}.yaml; give this study" in error
     assert not TERMINAL_CONTROLS.search(error), repr(error)
 
 
@@ -172,3 +176,132 @@ def test_the_same_config_moved_to_another_file_is_the_same_study(tmp_path, capsy
     write_study(tmp_path / "here", name="top", run={"scheme": "leapfrog", "dt": 0.01})
     assert main(["sweep", str(first), "--out", str(out), "--quiet"]) == 1
     assert capsys.readouterr().err == _refusal(first, out / "top", moved)
+
+
+# What may be in the place of a study folder's owner record, the last with an archive and
+# parts from before they named their config.
+RECORD_KINDS = (
+    "deleted",
+    "fifo",
+    "symlink to /dev/zero",
+    "directory",
+    "empty",
+    "garbled",
+    "archive from before",
+)
+
+
+def _mtimes(folder):
+    return {path: path.stat().st_mtime_ns for path in [*folder.glob("*.nc"), *folder.glob("parts/*")]}
+
+
+def _put_record(record, kind, folder):
+    """Put ``kind`` of thing in the place of the study folder's owner record ``record``."""
+    if record.is_dir() and not record.is_symlink():
+        record.rmdir()
+    else:
+        record.unlink(missing_ok=True)
+    if kind == "fifo":
+        os.mkfifo(record)
+    elif kind == "symlink to /dev/zero":
+        record.symlink_to("/dev/zero")
+    elif kind == "directory":
+        record.mkdir()
+    elif kind == "empty":
+        record.write_text("")
+    elif kind == "garbled":
+        record.write_bytes(b"\xff\xfe not a path\n")
+    elif kind == "archive from before":  # the record gone, the results without their identity
+        for path in [folder / "top.nc", *folder.glob("parts/*.nc")]:
+            with netCDF4.Dataset(path, "a") as nc:
+                nc.delncattr(IDENTITY)
+
+
+@pytest.mark.slow
+def test_the_archive_and_parts_keep_their_study_without_the_owner_record(tmp_path, capsys):
+    """With the owner record deleted or replaced by a FIFO, a symlink to /dev/zero, a
+    directory, an empty or a garbled file, a second config of the same name is still refused
+    in one line naming both files (the archive and the parts name their config), the first's
+    archive and kept parts untouched; the first config itself resumes. An archive from
+    before it named its config is taken for the config text and path it stores."""
+    (tmp_path / "first").mkdir()
+    (tmp_path / "second").mkdir()
+    first = write_study(tmp_path / "first", name="top")
+    second = write_study(tmp_path / "second", name="top", run={"scheme": "leapfrog", "dt": 0.01})
+    out = tmp_path / "out"
+    folder = out / "top"
+    assert main(["sweep", str(first), "--out", str(out), "--keep-parts", "--quiet"]) == 0
+    record = folder / OWNER
+    owner = f"{first.resolve()}\n{hashlib.sha256(first.read_bytes()).hexdigest()}\n"
+    for kind in RECORD_KINDS:
+        _put_record(record, kind, folder)
+        kept, mtimes = _folder_bytes(folder), _mtimes(folder)
+        assert any(path.parent.name == "parts" for path in kept)
+        capsys.readouterr()
+        assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet"]) == 1, kind
+        assert capsys.readouterr().err == _refusal(second, folder, first), kind
+        assert (_folder_bytes(folder), _mtimes(folder)) == (kept, mtimes), kind
+        assert main(["sweep", str(first), "--out", str(out), "--keep-parts"]) == 0, kind
+        assert "is up to date" in " ".join(capsys.readouterr().out.split()), kind
+        assert _mtimes(folder) == mtimes, kind
+        if kind != "directory":  # a folder in its place is left there
+            assert record.read_text() == owner, kind
+
+
+def test_a_rerun_removes_the_parts_left_beside_a_current_archive(tmp_path, capsys):
+    """A sweep killed after its archive's rename, before it removed the parts, leaves them
+    (as --keep-parts does): a rerun finds the archive current, removes the parts of its
+    batches and their digests and says so, the archive untouched."""
+    config = write_study(tmp_path, name="top")
+    out = tmp_path / "out"
+    assert main(["sweep", str(config), "--out", str(out), "--keep-parts", "--quiet"]) == 0
+    folder = out / "top"
+    archive = (folder / "top.nc").read_bytes(), (folder / "top.nc").stat().st_mtime_ns
+    left = sorted(path.name for path in (folder / "parts").iterdir())
+    assert len(left) == 2 and left[1] == left[0] + ".sha256"
+    capsys.readouterr()
+    assert main(["sweep", str(config), "--out", str(out)]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "top: removed 1 part file left beside its current archive, which holds them" in said
+    assert "is up to date" in said
+    assert not (folder / "parts").exists()
+    assert ((folder / "top.nc").read_bytes(), (folder / "top.nc").stat().st_mtime_ns) == archive
+
+
+def _sweep_in_child(config, out, start, stderr):
+    """A forked child's sweep of ``config`` into ``out`` once ``start`` lets it go: its exit
+    code, with what it printed on stderr written to the file ``stderr``."""
+    start.wait()
+    with open(stderr, "w") as stream, contextlib.redirect_stderr(stream):
+        code = main(["sweep", str(config), "--out", str(out), "--quiet"])
+    os._exit(code)
+
+
+@pytest.mark.slow
+def test_sweeps_into_one_new_nested_folder_at_once_are_told_another_holds_it(tmp_path):
+    """Sweeps of one study into the same new nested --out, started at the same instant: one
+    runs, every other finds it up to date or is told in one line that another sweep holds the
+    study (none "File exists" or "its file system takes no new files", none removes what the
+    one writes)."""
+    config = write_study(tmp_path, name="top")
+    assert main(["sweep", str(config), "--out", str(tmp_path / "warm"), "--quiet"]) == 0  # compiled
+    fork = multiprocessing.get_context("fork")
+    for round_ in range(4):
+        out = tmp_path / f"fresh{round_}" / "a" / "b"
+        start = fork.Barrier(6)
+        children = [
+            fork.Process(target=_sweep_in_child, args=(config, out, start, tmp_path / f"err{round_}-{k}"))
+            for k in range(6)
+        ]
+        for child in children:
+            child.start()
+        for child in children:
+            child.join(timeout=120)
+        errors = [(tmp_path / f"err{round_}-{k}").read_text() for k in range(6)]
+        assert [child.exitcode for child in children].count(0) >= 1, errors
+        for child, error in zip(children, errors, strict=True):
+            if child.exitcode:
+                assert child.exitcode == 1 and error.count("\n") == 1, error
+                assert "another rbstudy sweep is writing this study" in error, error
+        assert (out / "top" / "top.nc").is_file()
+        assert not (out / "top" / "parts").exists()

@@ -41,7 +41,7 @@ from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
 from rbstudy.pipeline.config import StudyConfig
 from rbstudy.pipeline.estimate import check_disk, disk_needed
-from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed
+from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed, sidecar
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.progress import Progress
 from rbstudy.pipeline.store import (
@@ -54,6 +54,7 @@ from rbstudy.pipeline.store import (
     consolidate,
     folder_claim,
     global_attrs,
+    make_folders,
     open_results,
     part_complete,
     refresh_description,
@@ -66,7 +67,7 @@ from rbstudy.pipeline.store import (
 from rbstudy.pipeline.variables import evaluate
 from rbstudy.schemes import get_ready, get_scheme
 
-__all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
+__all__ = ["run_study", "study_progress", "StudyRun", "StudyBusy", "compute_batch", "compute_references"]
 
 # The folder, among the part files, where batch jobs write their output (else SLURM writes
 # slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
@@ -76,6 +77,11 @@ _JOB_LOGS = "jobs"
 PID_FILE = ".lock.pid"
 # How often the bar shows the archive's parts written while the last of them are copied.
 _REDRAW_SECONDS = 0.2
+
+
+class StudyBusy(RbstudyError):
+    """Another sweep holds the study's lock: the folder is that sweep's, even if this one
+    made it an instant before."""
 
 
 class _Abandoned(Exception):
@@ -140,8 +146,9 @@ class BatchJob:
 class StudyRun:
     """What a sweep did: the dataset path, batches computed and reused, wall time (s),
     whether the archive was already current (nothing to do), the parts found damaged (and
-    recomputed), what was wrong with a damaged archive (rebuilt), and how many parts this
-    process wrote from values a cluster's workers sent back (they did not see the folder)."""
+    recomputed), what was wrong with a damaged archive (rebuilt), how many parts this
+    process wrote from values a cluster's workers sent back (they did not see the folder),
+    and how many parts left beside a current archive it removed."""
 
     path: pathlib.Path
     computed: int
@@ -152,6 +159,7 @@ class StudyRun:
     damaged_parts: int = 0
     archive_problems: tuple = ()
     returned: int = 0
+    removed_parts: int = 0
 
     @property
     def said(self):
@@ -258,7 +266,7 @@ def study_lock(folder):
     try:
         held = lock.acquire()
     except Timeout:
-        raise RbstudyError(
+        raise StudyBusy(
             f"{folder}: another rbstudy sweep is writing this study (pid "
             f"{_holder(folder)}); wait for it to finish or use another "
             "--out"
@@ -286,12 +294,63 @@ def _holder(folder):
 
 
 def _prepare(root, study):
+    """The study's folder, made with its parents, and the folders this process made
+    (`rbstudy.pipeline.store.make_folders`)."""
     folder = pathlib.Path(root) / study.name
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        return folder, make_folders(folder)
     except OSError as error:
         raise unwritable(folder, error) from None
-    return folder
+
+
+def _remove_made(folder, made):
+    """After a failed run, remove the folders it ``made`` when it left nothing worth keeping:
+    the study's folder whole (under its lock, or where none could be taken), its parents
+    only while empty (another study's sweep may write there)."""
+    if not made or any(folder.glob("*.nc")) or any(folder.glob("parts/*.nc")):
+        return
+    if folder in made:
+        shutil.rmtree(folder)
+    for path in reversed([path for path in made if path != folder]):
+        try:
+            path.rmdir()
+        except OSError:
+            return
+
+
+@contextlib.contextmanager
+def _failures_cleaned(folder, made):
+    """Under the study's lock: a write the study folder refuses (an `OSError` naming a path
+    in it: an immutable folder under --force) becomes its one-line error, and a failed
+    run removes what it made (`_remove_made`) before another sweep may take the lock."""
+    try:
+        try:
+            yield
+        except OSError as error:
+            if (
+                error.errno not in WRITE_REFUSALS
+                or error.filename is None
+                or not pathlib.Path(error.filename).is_relative_to(folder)
+            ):
+                raise  # not a refusal of the study folder: a bug
+            raise unwritable(folder, error) from None
+    except RbstudyError:
+        _remove_made(folder, made)
+        raise
+
+
+def _remove_parts(parts_dir, study):
+    """Remove the parts of ``study``'s batches and their digests from ``parts_dir``, left
+    beside its current archive by a sweep killed before it removed them; how many parts."""
+    removed = 0
+    for batch in study.batches:
+        path = parts_dir / f"{batch.id}.nc"
+        removed += path.exists()
+        path.unlink(missing_ok=True)
+        sidecar(path).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        parts_dir.rmdir()  # unless something else is there (job logs, another config's parts)
+    return removed
 
 
 def _reference_chunks(study, pending):
@@ -444,50 +503,40 @@ def run_study(
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    made = [path for path in (pathlib.Path(root), pathlib.Path(root) / study.name) if not path.exists()]
-    folder = _prepare(root, study)
-    try:
-        try:
-            with contextlib.ExitStack() as stack:
-                own = progress is None
-                if own:
-                    progress = stack.enter_context(study_progress(study, quiet))
-                run = _run_in(folder, study, where, force, progress, keep_parts, started, started_clock)
-                if own:
-                    progress.end = run.said
-            return run
-        except OSError as error:  # the folder refused a write (an immutable one under --force)
-            if (
-                error.errno not in WRITE_REFUSALS
-                or error.filename is None
-                or not pathlib.Path(error.filename).is_relative_to(folder)
-            ):
-                raise  # not a refusal of the study folder: a bug
-            raise unwritable(folder, error) from None
-    except RbstudyError:
-        if made and not any(folder.glob("*.nc")) and not any(folder.glob("parts/*.nc")):
-            shutil.rmtree(made[0])  # this run made the folder and left nothing worth keeping
-        raise
+    folder, made = _prepare(root, study)
+    with contextlib.ExitStack() as stack:
+        own = progress is None
+        if own:
+            progress = stack.enter_context(study_progress(study, quiet))
+        run = _run_in(folder, made, study, where, force, progress, keep_parts, started, started_clock)
+        if own:
+            progress.end = run.said
+    return run
 
 
-def _run_in(folder, study, where, force, progress, keep_parts, started, started_clock):
-    """`run_study` inside its study folder, shown by ``progress``."""
+def _run_in(folder, made, study, where, force, progress, keep_parts, started, started_clock):
+    """`run_study` inside its study folder, of which it ``made`` those folders
+    (`_prepare`), shown by ``progress``."""
     parts_dir = folder / "parts"
     target = folder / f"{study.name}.nc"
     try:
         lock = study_lock(folder)
-    except UnwritableFolder:
+    except StudyBusy:
+        raise  # the other sweep's folder: nothing of it is removed
+    except RbstudyError as error:
         # A read-only folder can still answer a rerun of its study: every file in it is
         # replaced whole by a rename, so reading needs no lock. Only when there is nothing
         # to write: the archive current and intact, and described by this very text.
         if (
-            force
-            or archive_state(target, study)[0] != "current"
-            or _described_by(target) != study.archived_text
+            isinstance(error, UnwritableFolder)
+            and not force
+            and archive_state(target, study)[0] == "current"
+            and _described_by(target) == study.archived_text
         ):
-            raise
-        return _up_to_date(target, study, started_clock)
-    with lock:
+            return _up_to_date(target, study, started_clock)
+        _remove_made(folder, made)  # a full disk refused the lock's pid
+        raise
+    with lock, _failures_cleaned(folder, made):
         # again under the lock, before anything is written or deleted: the command line
         # checks every study before it runs any, but another sweep may claim the folder since
         folder_claim(folder.parent, study, force)
@@ -500,7 +549,8 @@ def _run_in(folder, study, where, force, progress, keep_parts, started, started_
                 # the same cases and code, another text (a title, a comment): redescribe
                 refresh_description(target, global_attrs(study, started=started))
                 write_text_atomic(resolved_config(study), folder / "study.yaml")
-            return _up_to_date(target, study, started_clock)
+            removed = 0 if keep_parts else _remove_parts(parts_dir, study)
+            return _up_to_date(target, study, started_clock, removed)
         parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         digests = {}
@@ -611,8 +661,9 @@ def _described_by(target):
     return open_results(target, ()).attrs.get("config")
 
 
-def _up_to_date(target, study, started_clock):
-    """The `StudyRun` of a sweep that found its archive current: nothing run."""
+def _up_to_date(target, study, started_clock, removed_parts=0):
+    """The `StudyRun` of a sweep that found its archive current: nothing run (but
+    ``removed_parts`` left beside it)."""
     return StudyRun(
         path=target,
         computed=0,
@@ -620,4 +671,5 @@ def _up_to_date(target, study, started_clock):
         cases=len(study.cases),
         up_to_date=True,
         wall_seconds=time.perf_counter() - started_clock,
+        removed_parts=removed_parts,
     )

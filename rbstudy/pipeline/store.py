@@ -2,7 +2,8 @@
 
 Layout (docs/architecture.md): ``<root>/<study>/study.yaml`` (the resolved config),
 ``parts/<batch-id>.nc`` (one finished batch, dimension ``case``), ``<study>.nc`` (every
-case on the study's grid) and `OWNER` (the config whose study the folder holds). Every
+case on the study's grid) and `OWNER` (the config whose study the folder holds, which the
+archive and every part name too: `IDENTITY`). Every
 file is written under a temporary name in the same folder and renamed (the file and then its
 folder synced to disk first), so a reader, or a rerun after a kill or a machine crash, never
 sees half a file; every part and the archive carry checksums
@@ -28,6 +29,7 @@ import pathlib
 import platform
 import shlex
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
@@ -87,7 +89,10 @@ __all__ = [
     "decimal_grid",
     "COMPRESSION",
     "OWNER",
+    "IDENTITY",
+    "study_identity",
     "folder_claim",
+    "make_folders",
     "claim_folder",
     "inside",
     "source_text",
@@ -118,6 +123,15 @@ CHUNK_BYTES = 2**18
 # SHA-256) whose study the folder holds: another config of the same name would replace its
 # archive and parts.
 OWNER = ".rbstudy-study"
+# The global attribute of the archive and of each part that names the config of its study,
+# as `OWNER` does (its two lines): the results identify their study without the record.
+IDENTITY = "config_identity"
+# Bytes of an owner record read at most: a resolved path and a digest.
+_OWNER_BYTES = 2**13
+# Attempts of `check_output_folder` and `make_folders` to write in a folder that another
+# command's check, started at the same instant, removes under them (each removes only the
+# folders it made, once).
+_CHECK_ATTEMPTS = 10
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
 _MAX_DECIMALS = 15
@@ -186,6 +200,7 @@ def global_attrs(study, command=None, started=None):
         "accuracy_bound": study.accuracy_bound,
         "config": study.archived_text,
         "config_path": study.path,
+        IDENTITY: "\n".join(study_identity(study)),
         "overrides": "\n".join(study.overrides),
         "platform": platform.platform(),
         "python": sys.version.split()[0],
@@ -220,6 +235,7 @@ class Layout:
     n_times: int
     output_interval: float
     node_names: tuple
+    identity: tuple  # `study_identity`
 
     @classmethod
     def of(cls, study):
@@ -229,6 +245,7 @@ class Layout:
             n_times=study.n_times,
             output_interval=study.output_interval,
             node_names=study.node_names,
+            identity=study_identity(study),
         )
 
 
@@ -345,7 +362,7 @@ def _write_part_file(nc, layout, batch, values):
     (C order of the grid), uncompressed (a part lives until the archive is written). Written
     with netCDF4 directly: through xarray a part took 2-3 times as long, and the default
     study writes one per batch (docs/performance.md)."""
-    nc.setncatts({"study": layout.study, "batch": batch.id})
+    nc.setncatts({"study": layout.study, "batch": batch.id, IDENTITY: "\n".join(layout.identity)})
     cases = np.array(batch.cases)
     nc.createDimension("case", len(cases))
     _create(nc, "case", ("case",), cases, {"long_name": "case number in the study"})
@@ -432,28 +449,66 @@ def check_output_folder(folder, label="--out "):
     """Refuse ``folder``, in one line, when rbstudy could not write there: a path that is, or
     lies under, a file, or a folder whose file system refuses a new file (read-only,
     immutable, /proc). Called before a command prints or computes anything; it leaves
-    nothing behind: the folders it makes to try are removed again."""
+    nothing behind: the folders it makes to try are removed again. Another command checking
+    the same new folder at the same instant may remove it under this one: then it tries
+    again."""
     folder = pathlib.Path(folder)
-    place, missing = folder.absolute(), []
-    while not place.exists():
-        missing.append(place)
-        place = place.parent
-    if not place.is_dir():
-        what = "is a file" if not missing else f"lies under the file {place}"
-        raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder with --out")
+    for attempt in range(1, _CHECK_ATTEMPTS + 1):
+        place, under = folder.absolute(), False
+        while not place.exists():
+            place, under = place.parent, True
+        if not place.is_dir():
+            what = "is a file" if not under else f"lies under the file {place}"
+            raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder with --out")
+        made = []
+        try:
+            made = make_folders(folder)
+            handle, probe = tempfile.mkstemp(dir=folder, prefix=".rbstudy-probe-")
+            os.close(handle)
+            os.remove(probe)
+            return
+        except OSError as error:
+            # a folder gone under this check (or /proc, which takes no new name: it fails
+            # each time)
+            if error.errno != errno.ENOENT or attempt == _CHECK_ATTEMPTS:
+                raise unwritable(folder, error, label) from None
+        finally:
+            _remove_folders(made)
+
+
+def make_folders(folder):
+    """Make ``folder`` and its missing parents; the folders this process made, outermost
+    first (one that another process makes at the same instant is found, not made; one that
+    another command's check removes under it, `check_output_folder`, is made again). On a
+    failure the folders it made are removed again."""
     made = []
-    try:
-        for path in reversed(missing):
-            path.mkdir()
-            made.append(path)
-        handle, probe = tempfile.mkstemp(dir=folder, prefix=".rbstudy-probe-")
-        os.close(handle)
-        os.remove(probe)
-    except OSError as error:
-        raise unwritable(folder, error, label) from None
-    finally:
-        for path in reversed(made):
+    for attempt in itertools.count(1):
+        missing, place = [], pathlib.Path(folder)
+        while not place.exists():
+            missing.append(place)
+            place = place.parent
+        try:
+            for path in reversed(missing):
+                try:
+                    path.mkdir()
+                    made.append(path)
+                except FileExistsError:
+                    pass  # made by another: a file there fails the next mkdir, or the caller
+            return made
+        except OSError as error:
+            if not isinstance(error, FileNotFoundError) or attempt == _CHECK_ATTEMPTS:
+                _remove_folders(made)
+                raise
+
+
+def _remove_folders(made):
+    """Remove the folders `make_folders` made, innermost first, as long as they are empty:
+    another command may be writing in them."""
+    for path in reversed(made):
+        try:
             path.rmdir()
+        except OSError:
+            return
 
 
 def _raise_if_full(folder, error=None):
@@ -575,33 +630,108 @@ def archive_state(path, study):
     return ("damaged", list(problems)) if problems else ("current", [])
 
 
-def _owner_lines(study):
-    """What `OWNER` holds for ``study``: its config file (resolved path) and the SHA-256 of
-    the config's text."""
-    return [str(pathlib.Path(study.path).resolve()), hashlib.sha256(study.text.encode()).hexdigest()]
+def study_identity(study):
+    """Who ``study`` is to its folder (`OWNER`, `IDENTITY`): its config file's resolved path
+    and the SHA-256 of the config's text. Two identities are one study when either matches:
+    the same file edited, or the same text moved to another file."""
+    return (str(pathlib.Path(study.path).resolve()), hashlib.sha256(study.text.encode()).hexdigest())
+
+
+def _parsed_identity(text):
+    """The (path, digest) of `study_identity` written one a line, or None where ``text`` is
+    no such thing (empty, garbled, not text)."""
+    lines = text.split("\n") if isinstance(text, str) else []
+    if len(lines) < 2 or not lines[0] or len(lines[1]) != 64 or set(lines[1]) - set("0123456789abcdef"):
+        return None
+    return lines[0], lines[1]
+
+
+def _regular_file(path):
+    """Whether ``path`` is (or links to) a regular file: a FIFO would hang its reader and a
+    device (/dev/zero) never end, so neither is opened."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
+def _recorded_identity(record):
+    """The identity `OWNER` at ``record`` names, or None: absent, unreadable, not a regular
+    file, empty or garbled. Read without blocking (a FIFO put in its place after the check)
+    and at most `_OWNER_BYTES`."""
+    if not _regular_file(record):
+        return None
+    try:
+        handle = os.open(record, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(handle).st_mode):
+            return None
+        text = os.read(handle, _OWNER_BYTES + 1)
+    except OSError:
+        return None
+    finally:
+        os.close(handle)
+    if len(text) > _OWNER_BYTES:
+        return None
+    try:
+        return _parsed_identity(text.decode())
+    except UnicodeDecodeError:
+        return None
+
+
+def _results_identity(path):
+    """The identity the archive or part at ``path`` names (`IDENTITY`), or None. An archive
+    from before that attribute is taken for the config it stores: its recorded
+    ``config_path`` (resolved from here) and the digest of its ``config`` text, which is the
+    file's unless ``--set`` changed it; a part from before names nobody."""
+    if not _regular_file(path):
+        return None
+    try:
+        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+            attrs = {
+                name: nc.getncattr(name)
+                for name in (IDENTITY, "config", "config_path")
+                if name in nc.ncattrs()
+            }
+    except (OSError, RuntimeError, UnicodeDecodeError):
+        return None
+    if IDENTITY in attrs:
+        return _parsed_identity(attrs[IDENTITY])
+    config, config_path = attrs.get("config"), attrs.get("config_path")
+    if not isinstance(config, str) or not isinstance(config_path, str) or not config_path:
+        return None
+    return str(pathlib.Path(config_path).resolve()), hashlib.sha256(config.encode()).hexdigest()
+
+
+def _results_owner(folder, study):
+    """The identity of another config named by ``folder``'s archive or parts, or None when
+    none names one, or one names ``study`` (parts of every age: the file edited since some
+    of them were written is still the same study)."""
+    mine, other = set(study_identity(study)), None
+    for path in [folder / f"{study.name}.nc", *sorted((folder / "parts").glob("*.nc"))]:
+        identity = _results_identity(path)
+        if identity is not None and set(identity) & mine:
+            return None
+        other = other or identity
+    return other
 
 
 def folder_claim(root, study, force=False):
     """Whether ``<root>/<study.name>`` may take ``study``'s results; reads only.
 
     A study folder belongs to the config that made it (`OWNER`: its file and its text's
-    digest). Edited, that file is still the same study: its rerun resumes or rebuilds as it
-    always has; so is the same text moved or copied to another file. A new folder, or one
-    from before folders named their config, takes any. A folder of another config of the same
-    name is refused (a `ConfigError` naming both files), unless ``force``: then the line
-    saying what the run replaces is returned; else None.
+    digest; where that record is missing or is no record, the config its archive and parts
+    name, `IDENTITY`). Edited, that file is still the same study: its rerun resumes or
+    rebuilds as it always has; so is the same text moved or copied to another file. A new
+    folder, or one whose files name no config (from before they did), takes any. A folder of
+    another config of the same name is refused (a `ConfigError` naming both files), unless
+    ``force``: then the line saying what the run replaces is returned; else None.
     """
     folder = pathlib.Path(root) / study.name
-    record = folder / OWNER
-    try:
-        owner = record.read_text().split("\n") if record.is_file() else None
-    except (OSError, UnicodeDecodeError) as error:
-        raise RbstudyError(
-            f"{record}: cannot read the study folder's owner record "
-            f"({getattr(error, 'strerror', None) or error}); remove it, or give "
-            "another --out"
-        ) from None
-    if owner is None or set(owner[:2]) & set(_owner_lines(study)):
+    owner = _recorded_identity(folder / OWNER) or _results_owner(folder, study)
+    if owner is None or set(owner) & set(study_identity(study)):
         return None
     if not force:
         raise ConfigError(
@@ -620,11 +750,14 @@ def folder_claim(root, study, force=False):
 
 def claim_folder(folder, study):
     """Record ``study``'s config as the one whose study ``folder`` holds (`folder_claim`
-    must have let it)."""
-    text = "\n".join(_owner_lines(study)) + "\n"
+    must have let it). A rename replaces whatever is in the record's place but a folder,
+    which is not rbstudy's to remove: then the archive and the parts name the study alone."""
+    identity = study_identity(study)
     path = pathlib.Path(folder) / OWNER
-    if not path.is_file() or path.read_text() != text:
-        write_text_atomic(text, path)
+    if path.is_dir() and not path.is_symlink():
+        return
+    if _recorded_identity(path) != identity:
+        write_text_atomic("\n".join(identity) + "\n", path)
 
 
 def part_complete(path, batch):
