@@ -130,7 +130,7 @@ class Reader:
         for name in value:
             if name not in allowed:
                 self.fail(
-                    f"{key}.{name}" if key else name,
+                    f"{key}.{name}" if key else str(name),  # `1e400: 1`: YAML made the key a number
                     f"unknown key{did_you_mean(name, allowed)}; valid keys here: {', '.join(allowed)}",
                 )
         return value

@@ -45,7 +45,16 @@ from rbstudy.pipeline.variables import (
 )
 from rbstudy.schemes import composition_reach, get_scheme
 
-__all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
+__all__ = [
+    "StudyConfig",
+    "OrderDimension",
+    "load_study",
+    "BATCH_MAX_CASES",
+    "BATCH_MAX_BYTES",
+    "MAX_CASES",
+    "MAX_NAME_BYTES",
+    "MAX_TITLE_CHARACTERS",
+]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -55,6 +64,20 @@ _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 # few enough that several batches run at once and a kill loses little work.
 BATCH_MAX_CASES = 4096
 BATCH_MAX_BYTES = 256 * 2**20
+
+# A file name holds at most 255 bytes on the common file systems (ext4, XFS, Btrfs, APFS;
+# NTFS 255 UTF-16 units), and a study's name goes into file names: the longest, its figures'
+# (`<name>_convergence_momentum_magnitude.svg`, `rbstudy.analysis.plots.figure_name`, 35
+# bytes more), ahead of the temporary of the archive's checksum (`.<name>.nc.sha256.<8
+# random>.tmp`, `rbstudy.pipeline.store`, 24 more). Five bytes more leave room for a longer
+# figure name. The --out folder is not known when a config is validated, so its own limit
+# (`os.pathconf`) cannot be asked.
+_FILE_NAME_BYTES = 255
+_BYTES_AROUND_NAME = 40
+MAX_NAME_BYTES = _FILE_NAME_BYTES - _BYTES_AROUND_NAME
+# A title is one line atop every figure, where two lines hold about 200 characters; a longer
+# one is no title (the figures would show only it).
+MAX_TITLE_CHARACTERS = 200
 
 
 @dataclass(frozen=True)
@@ -272,7 +295,21 @@ def _validated(path, text, overridden):
         if key not in data:
             reader.fail(key, "missing")
     name = reader.folder_name(data["name"], "name")
+    if len(name.encode()) > MAX_NAME_BYTES:
+        reader.fail(
+            "name",
+            f"{len(name.encode()):,} bytes long (UTF-8), at most {MAX_NAME_BYTES}: it goes into file "
+            f"names such as {name[:20]}..._convergence_momentum_magnitude.svg, which a file "
+            f"system keeps to {_FILE_NAME_BYTES} bytes",
+            f"shorten it to {MAX_NAME_BYTES} bytes or fewer",
+        )
     title = reader.line(data.get("title", name), "title")
+    if "title" in data and len(title) > MAX_TITLE_CHARACTERS:  # the default, the name, is bounded
+        reader.fail(
+            "title",
+            f"{len(title):,} characters long, at most {MAX_TITLE_CHARACTERS}: it heads every figure",
+            "shorten it, and put the longer description in a comment of the config",
+        )
     run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
     dimensions = parse_sweep(reader, data.get("sweep"))
     count = math.prod(d.size for d in dimensions)
