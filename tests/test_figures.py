@@ -15,6 +15,7 @@ from matplotlib.colors import to_rgb
 from rbstudy.analysis.plots import all_figures, convergence
 from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows, table_columns
 from rbstudy.cli import main
+from rbstudy.inputs.reader import MAX_NAME_BYTES
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import open_results
@@ -94,6 +95,8 @@ def test_every_shipped_study_gives_its_figures(name, tmp_path):
         assert {"convergence_orientation", "work_precision"} <= shown, shown
     for png in figures.written:
         assert png.name.startswith(f"{study}_")
+        # a name of the most bytes a config may give keeps every file name within 255
+        assert len(png.with_suffix(".svg").name.encode()) - len(study.encode()) + MAX_NAME_BYTES <= 255
         assert png.stat().st_size > 10_000 and png.with_suffix(".svg").stat().st_size > 10_000
 
 
@@ -543,3 +546,25 @@ def test_every_log_tick_reads_as_its_value(span):
         match = re.fullmatch(r"\$(?:([\d.]+)\\times)?10\^\{(-?\d+)\}\$", text)
         value = float(match[1] or 1) * 10.0 ** int(match[2])
         assert value == pytest.approx(at, rel=5e-3), (at, text)
+
+
+@pytest.mark.parametrize("title", ["t" * 10**6, "word " * 200_000, "a\n" * 1000])
+def test_a_long_title_from_an_archive_heads_a_figure_in_two_lines_cut_with_an_ellipsis(title):
+    """An archive made elsewhere may carry any title: a megabyte of one took `plot` 171 s
+    and covered every panel."""
+    import time
+
+    import matplotlib.pyplot as plt
+    import xarray as xr
+
+    from rbstudy.analysis.plots import TITLE_LINES, _title
+
+    fig = plt.figure(figsize=(5.4, 4.2))
+    started = time.perf_counter()
+    _title(fig, xr.Dataset(attrs={"title": title}), "what it shows")
+    drawn = fig._suptitle.get_text().split("\n")
+    fig.canvas.draw()
+    plt.close(fig)
+    assert time.perf_counter() - started < 1.0
+    assert drawn[-1] == "what it shows" and len(drawn) == TITLE_LINES + 1
+    assert drawn[-2].endswith("\u2026") and all(len(line) < 120 for line in drawn)

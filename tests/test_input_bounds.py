@@ -207,3 +207,115 @@ def test_dop853_as_a_scheme_stops_at_its_step_cap_as_not_converged(monkeypatch, 
     assert int(capped.results["n_steps"][0]) == 20
     monkeypatch.setattr(dop853, "MAX_STEPS", 10**7)
     assert STATUS_NAMES[int(simulate([asymmetric_scene], "dop853", 0.05).results["status"][0])] == "ok"
+
+
+def validated(*argv):
+    """(exit code, stderr) of ``rbstudy validate argv`` run in this process: input checks
+    run no kernel."""
+    from test_hostile import _run
+
+    return _run(["validate", *map(str, argv)])
+
+
+def refused(*argv):
+    """The message of a validate that is refused in one line (exit 1)."""
+    code, err = validated(*argv)
+    assert code == 1 and "\n" not in err and err.startswith("rbstudy: error: "), (code, err[-500:])
+    return err
+
+
+@pytest.mark.parametrize(
+    "text, column, character",
+    [
+        ("# \f c\n", 3, "U+000C"),  # a form feed in a comment
+        ("title: a\x07b\n", 9, "U+0007"),
+        ("title: a\ufffeb\n", 9, "U+FFFE"),
+    ],
+)
+def test_a_non_printable_character_is_one_line_naming_where_and_which(tmp_path, text, column, character):
+    config = study(tmp_path)
+    line = config.read_text().count("\n") + 1
+    config.write_text(config.read_text() + text)
+    err = refused(config)
+    assert f"{config}: line {line}, column {column}: holds the non-printable character {character}" in err
+    assert "delete it" in err
+
+
+def test_a_non_printable_character_in_a_set_value_is_one_line(tmp_path):
+    config = study(tmp_path)
+    err = refused(config, "--set", "title=a\fb")
+    assert f"{config}: --set title: line 1, column 2: holds the non-printable character U+000C" in err
+
+
+def test_a_name_too_long_for_a_file_name_is_refused_by_validate(tmp_path):
+    """The name goes into file names (`<name>_convergence_momentum_magnitude.svg`, the
+    archive's temporaries): 256 characters failed with a traceback, 240-250 after every
+    batch had run."""
+    from rbstudy.inputs.reader import MAX_NAME_BYTES
+
+    assert MAX_NAME_BYTES + len("_convergence_momentum_magnitude.svg") <= 255
+    config = study(tmp_path)
+    assert validated(config, "--set", f"name={'a' * MAX_NAME_BYTES}")[0] == 0
+    for name in ("a" * (MAX_NAME_BYTES + 1), "a" * 256, "\xe9" * (MAX_NAME_BYTES // 2 + 1)):
+        err = refused(config, "--set", f"name={name}")
+        assert f"--set name: {len(name.encode()):,} bytes long (UTF-8), at most {MAX_NAME_BYTES}" in err
+
+
+def test_an_absurd_title_is_refused_by_validate(tmp_path):
+    from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
+
+    config = study(tmp_path)
+    assert validated(config, "--set", f"title={'t' * MAX_TITLE_CHARACTERS}")[0] == 0
+    err = refused(config, "--set", f"title={'t' * 100_000}")
+    assert f"--set title: 100,000 characters long, at most {MAX_TITLE_CHARACTERS}" in err
+
+
+def test_a_long_literal_list_is_refused_by_its_length_not_as_aliases(tmp_path, monkeypatch):
+    from rbstudy.inputs import yaml_file
+
+    monkeypatch.setattr(yaml_file, "MAX_ENTRIES", 1000)
+    config = study(tmp_path)
+    config.write_text(config.read_text() + f"sweep: {{spin: {list(np.linspace(1.0, 2.0, 1001))}}}\n")
+    err = refused(config)
+    assert f"{config}: sweep.spin: a list of 1,001 entries (at most 1,000" in err
+    assert "alias" not in err
+
+
+@pytest.mark.slow
+def test_a_list_past_an_axis_s_million_values_is_refused_before_it_is_composed(tmp_path):
+    """A million values written out took 60-90 s to compose before they were refused as
+    "aliases"; counted on libyaml's events, one more than a million is refused in seconds."""
+    import time
+
+    config = study(tmp_path)
+    values = ", ".join(["1.5"] * 1_000_001)
+    config.write_text(config.read_text() + f"sweep: {{spin: [{values}]}}\n")
+    started = time.perf_counter()
+    err = refused(config)
+    assert time.perf_counter() - started < 20
+    assert f"{config}: sweep.spin: a list of 1,000,001 entries (at most 1,000,000" in err
+    assert "alias" not in err
+
+
+def test_aliases_that_add_too_many_values_are_still_refused(tmp_path):
+    config = study(tmp_path)
+    bomb = "title:\n  a0: &a0 x\n" + "".join(
+        f"  a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 9) + "]\n" for k in range(1, 7)
+    )
+    config.write_text(config.read_text() + bomb)
+    assert (
+        "title: its aliases expand to 672,612 values (at most 100,000 more than the 15 written)"
+        in refused(config)
+    )
+
+
+def test_a_set_key_deeper_than_any_config_is_refused_at_once(tmp_path):
+    """5,000 dotted parts took over 120 s (each level joined every longer prefix)."""
+    import time
+
+    config = study(tmp_path)
+    started = time.perf_counter()
+    err = refused(config, "--set", "a." * 4999 + "a=1")
+    assert time.perf_counter() - started < 1.5
+    assert "a key of 5,000 dotted parts (a config nests at most 32 deep)" in err
+    assert len(err) < 300

@@ -324,8 +324,18 @@ def _grid(count, width=5.4, height=4.2, columns=2, legend_width=0.0):
 _NARROW, _WIDE = set(" .,;:'|!()[]ijlft-"), set("MWmw")
 
 
+_NARROWEST_EM = 0.35
+# The study's title heads every figure in at most this many lines, its end cut with an
+# ellipsis: an archive made elsewhere may carry a title of any length (a megabyte of one took
+# `plot` 171 s, and its lines covered every panel).
+TITLE_LINES = 2
+_ELLIPSIS = "\u2026"
+
+
 def _em_width(text):
-    return sum(0.35 if c in _NARROW else 1.0 if c in _WIDE else 0.75 if c.isupper() else 0.64 for c in text)
+    return sum(
+        _NARROWEST_EM if c in _NARROW else 1.0 if c in _WIDE else 0.75 if c.isupper() else 0.64 for c in text
+    )
 
 
 def _wrapped(text, width_em):
@@ -339,11 +349,42 @@ def _wrapped(text, width_em):
     return "\n".join(lines)
 
 
+def _fitting(text, width_em):
+    """How many of ``text``'s first characters fit in ``width_em`` (at least one)."""
+    width = 0.0
+    for count, character in enumerate(text):
+        width += _em_width(character)
+        if width > width_em:
+            return max(count, 1)
+    return len(text)
+
+
+def _shortened(text, width_em, lines):
+    """``text`` wrapped to ``width_em`` in at most ``lines`` lines (a word wider than a line
+    broken), its end cut with an ellipsis when it is longer. Only what could fit is measured."""
+    room = int(lines * width_em / _NARROWEST_EM) + 1
+    words = []
+    for word in text[:room].split():
+        while len(word) > 1 and _em_width(word) > width_em:
+            cut = _fitting(word, width_em)
+            words.append(word[:cut])
+            word = word[cut:]
+        words.append(word)
+    wrapped = _wrapped(" ".join(words), width_em).split("\n")
+    if len(wrapped) <= lines and len(text) <= room:
+        return "\n".join(wrapped)
+    last = wrapped[lines - 1]
+    last = last[: _fitting(last, width_em - _em_width(_ELLIPSIS))].rstrip()
+    return "\n".join([*wrapped[: lines - 1], last + _ELLIPSIS])
+
+
 def _title(fig, ds, what):
-    """The study's title and what the figure shows, each wrapped to the figure's width."""
+    """The study's title (at most `TITLE_LINES` lines of it) and what the figure shows, each
+    wrapped to the figure's width."""
     size = FontProperties(size=plt.rcParams["figure.titlesize"]).get_size_in_points()
     width_em = 0.97 * fig.get_figwidth() * 72 / size
-    fig.suptitle("\n".join(_wrapped(line, width_em) for line in (ds.attrs.get("title", ""), what)))
+    title = _shortened(str(ds.attrs.get("title", "")), width_em, TITLE_LINES)
+    fig.suptitle(f"{title}\n{_wrapped(what, width_em)}")
 
 
 def zero_floor(values):

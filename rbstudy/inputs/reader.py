@@ -109,10 +109,15 @@ def read_input_file(path, what, fix):
     return data
 
 
-# The longest name, in bytes of UTF-8: it names a folder and files in it, each within the 255
-# bytes of a file name (ext4, XFS, Btrfs, APFS), the longest its figures'
-# (`<name>_convergence_momentum_magnitude.svg`: 35 bytes more); 40 bytes are kept for them.
-MAX_NAME_BYTES = 255 - 40
+# A file name holds at most 255 bytes on the common file systems (ext4, XFS, Btrfs, APFS;
+# NTFS 255 UTF-16 units), and a study's name goes into file names: the longest, its figures'
+# (`<name>_convergence_momentum_magnitude.svg`, `rbstudy.analysis.plots.figure_name`, 35
+# bytes more), ahead of the temporary of the archive's checksum (`.<name>.nc.sha256.<8
+# random>.tmp`, `rbstudy.pipeline.store`, 24 more). Five bytes more leave room for a longer
+# figure name. The --out folder is not known when a config is validated, so its own limit
+# (`os.pathconf`) cannot be asked.
+_FILE_NAME_BYTES = 255
+MAX_NAME_BYTES = _FILE_NAME_BYTES - 40
 # What a name that becomes a folder or file name may hold (a study's, from a config or read
 # back from an archive): no path separator and no "..", so it can never point elsewhere.
 FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES} bytes"
@@ -164,7 +169,7 @@ class Reader:
         for name in value:
             if name not in allowed:
                 self.fail(
-                    f"{key}.{name}" if key else name,
+                    f"{key}.{name}" if key else str(name),  # `1e400: 1`: YAML made the key a number
                     f"unknown key{did_you_mean(name, allowed)}; valid keys here: {', '.join(allowed)}",
                 )
         return value
@@ -233,6 +238,14 @@ class Reader:
 
     def folder_name(self, value, key):
         """``value`` as a name that keeps `FOLDER_NAME_RULE`."""
+        if isinstance(value, str) and len(value.encode()) > MAX_NAME_BYTES:
+            self.fail(
+                key,
+                f"{len(value.encode()):,} bytes long (UTF-8), at most {MAX_NAME_BYTES}: it goes into "
+                f"file names such as {value[:20]}..._convergence_momentum_magnitude.svg, which a "
+                f"file system keeps to {_FILE_NAME_BYTES} bytes",
+                f"shorten it to {MAX_NAME_BYTES} bytes or fewer",
+            )
         if not is_folder_name(value):
             self.fail(key, f"use {FOLDER_NAME_RULE} (it names a folder), got {value!r}")
         return value

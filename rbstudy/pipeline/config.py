@@ -45,7 +45,15 @@ from rbstudy.pipeline.variables import (
 )
 from rbstudy.schemes import composition_reach, get_scheme
 
-__all__ = ["StudyConfig", "OrderDimension", "load_study", "BATCH_MAX_CASES", "BATCH_MAX_BYTES", "MAX_CASES"]
+__all__ = [
+    "StudyConfig",
+    "OrderDimension",
+    "load_study",
+    "BATCH_MAX_CASES",
+    "BATCH_MAX_BYTES",
+    "MAX_CASES",
+    "MAX_TITLE_CHARACTERS",
+]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 
@@ -55,6 +63,10 @@ _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 # few enough that several batches run at once and a kill loses little work.
 BATCH_MAX_CASES = 4096
 BATCH_MAX_BYTES = 256 * 2**20
+
+# A title is one line atop every figure, where two lines hold about 200 characters; a longer
+# one is no title (the figures would show only it).
+MAX_TITLE_CHARACTERS = 200
 
 
 @dataclass(frozen=True)
@@ -273,6 +285,12 @@ def _validated(path, text, overridden):
             reader.fail(key, "missing")
     name = reader.folder_name(data["name"], "name")
     title = reader.line(data.get("title", name), "title")
+    if "title" in data and len(title) > MAX_TITLE_CHARACTERS:  # the default, the name, is bounded
+        reader.fail(
+            "title",
+            f"{len(title):,} characters long, at most {MAX_TITLE_CHARACTERS}: it heads every figure",
+            "shorten it, and put the longer description in a comment of the config",
+        )
     run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
     dimensions = parse_sweep(reader, data.get("sweep"))
     count = math.prod(d.size for d in dimensions)

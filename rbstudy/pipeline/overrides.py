@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import yaml
 
 from rbstudy.errors import ConfigError
-from rbstudy.inputs.yaml_file import parse_yaml
+from rbstudy.inputs.yaml_file import MAX_DEPTH, parse_yaml
 
 __all__ = ["Override", "Overridden", "apply_overrides"]
 
@@ -108,6 +108,13 @@ def _parse(assignment, source):
     if not equals:
         raise ConfigError(f"no '=' in {assignment!r}", _FORM, source, f"--set {key}")
     parts = tuple(key.split("."))
+    if len(parts) > MAX_DEPTH:  # no config nests so deep; finding the path would take minutes
+        raise ConfigError(
+            f"a key of {len(parts):,} dotted parts (a config nests at most {MAX_DEPTH} deep)",
+            _FORM,
+            source,
+            f"--set {key[:40]}..." if len(key) > 40 else f"--set {key}",
+        )
     if not all(part.strip() for part in parts):
         raise ConfigError(
             f"{key!r} is no dotted path of keys", _FORM, source, f"--set {key}" if key else "--set"
