@@ -568,3 +568,18 @@ def test_a_long_title_from_an_archive_heads_a_figure_in_two_lines_cut_with_an_el
     assert time.perf_counter() - started < 1.0
     assert drawn[-1] == "what it shows" and len(drawn) == TITLE_LINES + 1
     assert drawn[-2].endswith("\u2026") and all(len(line) < 120 for line in drawn)
+
+
+def test_a_title_with_a_long_run_of_spaces_is_drawn_whole():
+    """A run of white space wider than the title's room left fewer lines than it fills and
+    failed (IndexError) in plot and report; its words are drawn, the run one space."""
+    import matplotlib.pyplot as plt
+    import xarray as xr
+
+    from rbstudy.analysis.plots import _title
+
+    fig = plt.figure(figsize=(5.4, 4.2))
+    _title(fig, xr.Dataset(attrs={"title": "a" + " " * 600 + "b"}), "what it shows")
+    drawn = fig._suptitle.get_text().split("\n")
+    plt.close(fig)
+    assert drawn == ["a b", "what it shows"]

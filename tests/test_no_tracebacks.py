@@ -10,7 +10,7 @@ import time
 
 import pytest
 import yaml
-from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
+from conftest import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 from test_cluster import _parts, _slow_study
 
 from rbstudy import cli
@@ -192,3 +192,16 @@ def test_a_path_that_is_no_readable_file_is_one_line(tmp_path, capsys, monkeypat
         assert error.count("\n") == 1 and "Traceback" not in error, error
         assert error.startswith(f"rbstudy: error: {path}: {said}"), error
     assert not (tmp_path / "out").exists()
+
+
+def test_a_path_with_a_nul_character_is_one_line(tmp_path, capsys):
+    """A NUL in a path (a node table's, given with --set) raised ValueError from os.stat:
+    exit 70."""
+    config = tmp_path / "radioss_body.yaml"
+    config.write_text((CONFIGS / "radioss_body.yaml").read_text())
+    assert main(["validate", str(config), "--set", 'scene.assembly.nodes="a\\0b.csv"']) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "cannot read the node table" in error, error
+    assert main(["verify", str(tmp_path / "a\0b.nc")]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "no file's name holds a NUL character" in error, error

@@ -361,7 +361,10 @@ def _fitting(text, width_em):
 
 def _shortened(text, width_em, lines):
     """``text`` wrapped to ``width_em`` in at most ``lines`` lines (a word wider than a line
-    broken), its end cut with an ellipsis when it is longer. Only what could fit is measured."""
+    broken), its end cut with an ellipsis when it is longer. Only what could fit is measured,
+    once runs of white space are one space (a run longer than the room would leave fewer
+    lines than ``lines`` and the words after it unseen)."""
+    text = " ".join(text.split())
     room = int(lines * width_em / _NARROWEST_EM) + 1
     words = []
     for word in text[:room].split():

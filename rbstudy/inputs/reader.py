@@ -13,6 +13,7 @@ The files themselves (a study config, a cluster file, a node or load table) are 
 a huge file fails in one line instead of hanging or exhausting the memory.
 """
 
+import errno
 import math
 import os
 import stat
@@ -71,7 +72,10 @@ def open_regular_file(path):
     checked before the file is opened, and again on the opened file (opened non-blocking, so
     that a path swapped for a FIFO in between cannot hang it).
     """
-    _check_kind(os.stat(path), path)
+    try:
+        _check_kind(os.stat(path), path)
+    except ValueError:  # a NUL in the path, which no file's name holds
+        raise OSError(errno.EINVAL, "no file's name holds a NUL character", str(path)) from None
     file = os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb")
     try:
         _check_kind(os.fstat(file.fileno()), path)
