@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError, one_line
+from rbstudy.inputs.reader import open_regular_file
 from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.batches import Batch, batches_digest
 from rbstudy.pipeline.chunks import ChunkedArchive
@@ -657,22 +658,13 @@ def _regular_file(path):
 
 def _recorded_identity(record):
     """The identity `OWNER` at ``record`` names, or None: absent, unreadable, not a regular
-    file, empty or garbled. Read without blocking (a FIFO put in its place after the check)
-    and at most `_OWNER_BYTES`."""
-    if not _regular_file(record):
-        return None
+    file (`open_regular_file`: a FIFO or /dev/zero is never read), empty or garbled; read
+    at most `_OWNER_BYTES`."""
     try:
-        handle = os.open(record, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+        with open_regular_file(record) as file:
+            text = file.read(_OWNER_BYTES + 1)
     except OSError:
         return None
-    try:
-        if not stat.S_ISREG(os.fstat(handle).st_mode):
-            return None
-        text = os.read(handle, _OWNER_BYTES + 1)
-    except OSError:
-        return None
-    finally:
-        os.close(handle)
     if len(text) > _OWNER_BYTES:
         return None
     try:
