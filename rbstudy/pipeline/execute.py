@@ -58,6 +58,7 @@ from rbstudy.pipeline.store import (
     open_results,
     part_complete,
     refresh_description,
+    remove_folders,
     resolved_config,
     unwritable,
     utc_now,
@@ -311,11 +312,7 @@ def _remove_made(folder, made):
         return
     if folder in made:
         shutil.rmtree(folder)
-    for path in reversed([path for path in made if path != folder]):
-        try:
-            path.rmdir()
-        except OSError:
-            return
+    remove_folders([path for path in made if path != folder])
 
 
 @contextlib.contextmanager

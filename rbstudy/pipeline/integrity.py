@@ -56,7 +56,6 @@ __all__ = [
     "SEALS",
     "HDF5_LOCK",
     "StreamedChecksum",
-    "FULL_BYTES",
     "nearly_full",
 ]
 
@@ -88,7 +87,7 @@ _UNCLOSED = []
 # Free bytes below which a failed write is put down to a full disk: HDF5 reports one as "HDF
 # error" (a RuntimeError), "Disable slist on flush dest failure failed" or even "Permission
 # denied", so the free space, not the error, tells.
-FULL_BYTES = 2**20
+_FULL_BYTES = 2**20
 
 
 def file_digest(path):
@@ -272,12 +271,17 @@ def hdf5_writer(temporary):
 
 def nearly_full(path):
     """Whether the file system of ``path`` (or of its nearest existing ancestor) has less
-    than `FULL_BYTES` free; one of no blocks at all (/proc, /sys) never is."""
+    than `_FULL_BYTES` free; one of no blocks at all (/proc, /sys) never is, nor one that
+    cannot tell (it is asked while a write's error is handled: that error stays the one
+    raised)."""
     place = pathlib.Path(path).absolute()
     while not place.is_dir():
         place = place.parent
-    usage = shutil.disk_usage(place)
-    return usage.free < FULL_BYTES and usage.total > 0
+    try:
+        usage = shutil.disk_usage(place)
+    except OSError:
+        return False
+    return usage.free < _FULL_BYTES and usage.total > 0
 
 
 def _no_space(temporary):

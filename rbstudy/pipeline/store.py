@@ -94,6 +94,7 @@ __all__ = [
     "study_identity",
     "folder_claim",
     "make_folders",
+    "remove_folders",
     "claim_folder",
     "inside",
     "source_text",
@@ -474,7 +475,7 @@ def check_output_folder(folder, label="--out "):
             if error.errno != errno.ENOENT or attempt == _CHECK_ATTEMPTS:
                 raise unwritable(folder, error, label) from None
         finally:
-            _remove_folders(made)
+            remove_folders(made)
 
 
 def make_folders(folder):
@@ -498,11 +499,11 @@ def make_folders(folder):
             return made
         except OSError as error:
             if not isinstance(error, FileNotFoundError) or attempt == _CHECK_ATTEMPTS:
-                _remove_folders(made)
+                remove_folders(made)
                 raise
 
 
-def _remove_folders(made):
+def remove_folders(made):
     """Remove the folders `make_folders` made, innermost first, as long as they are empty:
     another command may be writing in them."""
     for path in reversed(made):
