@@ -286,6 +286,7 @@ def test_sweeps_into_one_new_nested_folder_at_once_are_told_another_holds_it(tmp
     config = write_study(tmp_path, name="top")
     assert main(["sweep", str(config), "--out", str(tmp_path / "warm"), "--quiet"]) == 0  # compiled
     fork = multiprocessing.get_context("fork")
+    refused = 0
     for round_ in range(4):
         out = tmp_path / f"fresh{round_}" / "a" / "b"
         start = fork.Barrier(6)
@@ -303,5 +304,7 @@ def test_sweeps_into_one_new_nested_folder_at_once_are_told_another_holds_it(tmp
             if child.exitcode:
                 assert child.exitcode == 1 and error.count("\n") == 1, error
                 assert "another rbstudy sweep is writing this study" in error, error
+                refused += 1
         assert (out / "top" / "top.nc").is_file()
         assert not (out / "top" / "parts").exists()
+    assert refused, "no two sweeps ran at once: the race was never met"
