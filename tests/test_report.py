@@ -178,3 +178,20 @@ def test_the_report_of_another_shipped_study_has_distinct_captions(tmp_path, cap
     page = _parsed(_report(path, tmp_path / "report", "--quiet"))
     assert len(set(page.captions)) == len(page.captions) > 3
     assert any(re.search(r"a line per alpha \(", caption) for caption in page.captions)
+
+
+@pytest.mark.slow
+def test_a_long_title_heads_the_page_cut_to_a_config_s_bound(archive, tmp_path):
+    """An archive made elsewhere may carry a megabyte of title: the page held it whole twice
+    (its <title> and <h1>), 7 MB of text covering the answer."""
+    from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
+
+    edited = tmp_path / "long.nc"
+    edited.write_bytes(archive.read_bytes())
+    with netCDF4.Dataset(edited, "a") as nc:
+        nc.setncattr("title", "a top,   spinning " * 60_000)
+    page = _report(edited, tmp_path / "report").read_text()
+    (heading,) = re.findall(r"<h1>(.*?)</h1>", page, flags=re.S)
+    assert len(html.unescape(heading)) <= MAX_TITLE_CHARACTERS and heading.endswith("\u2026")
+    assert html.unescape(heading).startswith("a top, spinning a top, spinning")
+    assert page.count("spinning") < 100  # of 60,000

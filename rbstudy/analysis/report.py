@@ -51,6 +51,7 @@ from rbstudy.physics.metrics import (
     MIN_CONVERGENCE_ORDER,
     ORDER_SPREAD,
 )
+from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
 from rbstudy.pipeline.progress import SILENT
 from rbstudy.pipeline.store import write_text_atomic
 
@@ -264,6 +265,16 @@ def _data_uri(png):
     return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
 
 
+def _page_title(ds, study):
+    """The archive's title as the page heads it (its ``<title>`` and ``<h1>``): white space
+    one space, at most `MAX_TITLE_CHARACTERS` (a config's bound; an archive made elsewhere
+    may carry megabytes), cut with an ellipsis."""
+    title = " ".join(str(ds.attrs.get("title", study)).split())
+    if len(title) <= MAX_TITLE_CHARACTERS:
+        return title
+    return title[: MAX_TITLE_CHARACTERS - 1].rstrip() + "\u2026"
+
+
 def _table_intro(ds):
     floor, ceiling = ERROR_MEASURES["orientation"].floor, ERROR_MEASURES["orientation"].ceiling
     return (
@@ -318,7 +329,7 @@ def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
     provenance = [(key, str(ds.attrs[key])) for key in _PROVENANCE if key in ds.attrs]
     page = render(
         "report.html.j2",
-        title=ds.attrs.get("title", study),
+        title=_page_title(ds, study),
         study=study,
         cases=int(ds["status"].size),
         dims=dims,
