@@ -48,11 +48,17 @@ def did_you_mean(name, valid):
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def _as_line(text):
+    """``text`` as one printable line: its newlines shown as ``\\n`` (a path or a key may
+    hold one), its other controls as `printable` shows them."""
+    return printable(text.replace("\n", "\\n"))
+
+
 class RbstudyError(Exception):
-    """Base class of all expected, user-caused failures; its text is `printable`."""
+    """Base class of all expected, user-caused failures; its text is one `printable` line."""
 
     def __str__(self):
-        return printable(super().__str__())
+        return _as_line(super().__str__())
 
 
 class InputError(RbstudyError):
@@ -72,7 +78,7 @@ class InputError(RbstudyError):
         """One line, of bounded length: a key may hold a newline, a value may be huge."""
         text = self.message if not self.fix else f"{self.message}; {self.fix}"
         line = ": ".join(str(part) for part in (self.source, self.key, text) if part)
-        line = printable(line.replace("\n", "\\n"))  # \r and the other controls too
+        line = _as_line(line)
         return line if len(line) <= MAX_LENGTH else f"{line[: MAX_LENGTH - 30]} ... (cut)"
 
     def located(self, source=None, key=None, kind=None):

@@ -205,3 +205,12 @@ def test_a_path_with_a_nul_character_is_one_line(tmp_path, capsys):
     assert main(["verify", str(tmp_path / "a\0b.nc")]) == 1
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "no file's name holds a NUL character" in error, error
+
+
+def test_an_error_naming_a_path_with_a_newline_is_one_line(tmp_path, capsys):
+    """A plain `RbstudyError` (an --out its file system refuses) printed a path's newline as
+    it is: two lines."""
+    config = write_study(tmp_path, name="top")
+    assert main(["sweep", str(config), "--out", "/proc/x\ny"]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("rbstudy: error: --out /proc/x\\ny: "), error
