@@ -262,7 +262,7 @@ def test_a_name_too_long_for_a_file_name_is_refused_by_validate(tmp_path):
 
 
 def test_an_absurd_title_is_refused_by_validate(tmp_path):
-    from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
+    from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS
 
     config = study(tmp_path)
     assert validated(config, "--set", f"title={'t' * MAX_TITLE_CHARACTERS}")[0] == 0

@@ -184,7 +184,7 @@ def test_the_report_of_another_shipped_study_has_distinct_captions(tmp_path, cap
 def test_a_long_title_heads_the_page_cut_to_a_config_s_bound(archive, tmp_path):
     """An archive made elsewhere may carry a megabyte of title: the page held it whole twice
     (its <title> and <h1>), 7 MB of text covering the answer."""
-    from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
+    from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS
 
     edited = tmp_path / "long.nc"
     edited.write_bytes(archive.read_bytes())

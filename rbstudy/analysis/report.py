@@ -43,7 +43,7 @@ from rbstudy.analysis.summary import (
     step_load,
 )
 from rbstudy.errors import InputError
-from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
 from rbstudy.numerics.sources import SOURCE_DIGEST
 from rbstudy.physics.metrics import (
     MAX_SLOPE_DRIFT,
@@ -51,7 +51,6 @@ from rbstudy.physics.metrics import (
     MIN_CONVERGENCE_ORDER,
     ORDER_SPREAD,
 )
-from rbstudy.pipeline.config import MAX_TITLE_CHARACTERS
 from rbstudy.pipeline.progress import SILENT
 from rbstudy.pipeline.store import write_text_atomic
 

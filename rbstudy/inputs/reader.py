@@ -31,6 +31,7 @@ __all__ = [
     "is_folder_name",
     "FOLDER_NAME_RULE",
     "MAX_NAME_BYTES",
+    "MAX_TITLE_CHARACTERS",
 ]
 
 # The largest input file read: a config is kilobytes, a node table of a million nodes with
@@ -125,6 +126,9 @@ MAX_NAME_BYTES = _FILE_NAME_BYTES - 40
 # What a name that becomes a folder or file name may hold (a study's, from a config or read
 # back from an archive): no path separator and no "..", so it can never point elsewhere.
 FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES} bytes"
+# A title is one line atop every figure, where two lines hold about 200 characters; a longer
+# one is no title (the figures would show only it). The report's page cuts an archive's to it.
+MAX_TITLE_CHARACTERS = 200
 
 
 def is_folder_name(value):

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rbstudy.errors import ConfigError, InputError
-from rbstudy.inputs.reader import Reader
+from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.time_grid import output_count
@@ -52,7 +52,6 @@ __all__ = [
     "BATCH_MAX_CASES",
     "BATCH_MAX_BYTES",
     "MAX_CASES",
-    "MAX_TITLE_CHARACTERS",
 ]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
@@ -63,10 +62,6 @@ _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
 # few enough that several batches run at once and a kill loses little work.
 BATCH_MAX_CASES = 4096
 BATCH_MAX_BYTES = 256 * 2**20
-
-# A title is one line atop every figure, where two lines hold about 200 characters; a longer
-# one is no title (the figures would show only it).
-MAX_TITLE_CHARACTERS = 200
 
 
 @dataclass(frozen=True)
