@@ -25,6 +25,7 @@ import shutil
 import sys
 import tempfile
 import textwrap
+import threading
 import traceback
 
 from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean, printable
@@ -320,6 +321,7 @@ def _summary_text(dataset, wide=False, table_only=False):
 
 def _summary(args):
     import csv
+    import io
     import json
 
     from rbstudy.analysis.findings import (
@@ -331,43 +333,56 @@ def _summary(args):
     )
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.archive import open_archive
+    from rbstudy.pipeline.progress import Progress, live_wanted
 
-    # the per-case scalars, not the trajectories: 1e6 cases read whole took 4.5 GB
-    datasets = [
-        open_archive(path, FINDINGS_VARIABLES, verify=not args.no_verify, reduced=FINDINGS_REDUCED)
-        for path in args.files
-    ]
-    return_free_memory()  # the reading's transients, before the findings
-    if args.format == "json":  # checked before anything is printed
-        documents = [summary_document(dataset) for dataset in datasets]
-        print(json.dumps(documents[0] if len(documents) == 1 else documents, indent=1, allow_nan=False))
-    elif args.format == "csv":
-        rows = [row for dataset in datasets for row in csv_rows(dataset)]
-        writer = csv.DictWriter(sys.stdout, fieldnames=list(rows[0]), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-    else:
-
-        def render(dataset):
-            return (
-                markdown_summary(dataset)
-                if args.format == "md"
-                else _summary_text(dataset, wide=args.wide, table_only=args.quiet)
+    # its phases on a terminal only: elsewhere its stderr holds nothing but errors, for the
+    # scripts that read its JSON or CSV
+    with Progress("summary", "", quiet=not live_wanted(args.quiet), opening="starting") as progress:
+        # the per-case scalars, not the trajectories: 1e6 cases read whole took 4.5 GB
+        datasets = [
+            open_archive(
+                path,
+                FINDINGS_VARIABLES,
+                verify=not args.no_verify,
+                reduced=FINDINGS_REDUCED,
+                progress=progress,
             )
+            for path in args.files
+        ]
+        return_free_memory()  # the reading's transients, before the findings
+        progress.phase("summary: computing the findings")
+        if args.format == "json":  # checked before anything is printed
+            documents = [summary_document(dataset) for dataset in datasets]
+            text = json.dumps(documents[0] if len(documents) == 1 else documents, indent=1, allow_nan=False)
+        elif args.format == "csv":
+            rows = [row for dataset in datasets for row in csv_rows(dataset)]
+            table = io.StringIO()
+            writer = csv.DictWriter(table, fieldnames=list(rows[0]), lineterminator="\n")
+            writer.writeheader()
+            writer.writerows(rows)
+            text = table.getvalue().removesuffix("\n")
+        else:
 
-        print(
-            "\n\n".join(
+            def render(dataset):
+                return (
+                    markdown_summary(dataset)
+                    if args.format == "md"
+                    else _summary_text(dataset, wide=args.wide, table_only=args.quiet)
+                )
+
+            text = "\n\n".join(
                 render(dataset)
                 if len(datasets) == 1 or args.format == "md"
                 else f"== {path}\n{render(dataset)}"
                 for path, dataset in zip(args.files, datasets, strict=True)
             )
-        )
+    print(text)  # once the phases are erased
     return 0
 
 
 def _plot(args):
     from rbstudy.analysis.plots import all_figures
+    from rbstudy.analysis.report import figures_digest
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
@@ -400,13 +415,16 @@ def _plot(args):
             path, f"drawing its figures into {folder}", quiet=args.quiet, opening="reading"
         ) as progress:
             dataset = _select(opened(path), args.select, path)
+            styles = _styles_of(dataset)
+            # recorded beside them, for a report of the same archive to copy them
             figures = all_figures(
                 dataset,
                 folder,
                 formats,
                 processes=default_threads(),
+                digest=figures_digest(dataset, styles),
                 progress=progress,
-                styles=_styles_of(dataset),
+                styles=styles,
             )
         kinds = " and ".join(kind.upper() for kind in formats)
         print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
@@ -593,6 +611,7 @@ def _report(args):
                 svg=args.svg,
                 progress=progress,
                 styles=_styles_of(dataset),
+                drawn=[pathlib.Path(path).parent / "figures"],  # `rbstudy plot`'s, to copy
             )
         print(f"{path}: report in {report}")
     return 0
@@ -818,7 +837,7 @@ def build_parser():
         "-q",
         "--quiet",
         action="store_true",
-        help="the table without the findings (text form; the others are unchanged)",
+        help="the table without the findings (text form; the others are unchanged), and no progress",
     )
     _no_verify_argument(summary)
     summary.set_defaults(run=_summary)
@@ -977,39 +996,77 @@ def _quiet_stdout():
     os.dup2(devnull, sys.stdout.fileno())
 
 
-class _PrintableStream:
-    """A text stream that writes what it is given `printable`; all else is the stream's."""
+class _FirstLine:
+    """The line a verb shows at once on a terminal: before any verb can say a word, Python
+    imports numpy, xarray, numba, dask or matplotlib, 2-8 s on a loaded machine. It is
+    written without a newline and erased before the verb's first output on either stream
+    (`_Stream`), as the progress bar erases itself; never shown when stderr is no terminal,
+    in CI or with --quiet (as `rbstudy.pipeline.progress.live_wanted` decides, which would
+    import rich first)."""
 
-    def __init__(self, stream):
+    def __init__(self, args, stream):
         self.stream = stream
+        self.shown = False
+        self._lock = threading.Lock()
+        if not getattr(args, "quiet", False) and stream.isatty() and not os.environ.get("CI"):
+            # one row of the terminal, so that erasing its row erases it all
+            width = shutil.get_terminal_size().columns - 1
+            stream.write(f"rbstudy {args.command}: starting (loading its libraries) ..."[:width])
+            stream.flush()
+            self.shown = True
+
+    def erase(self):
+        if self.shown:  # checked again under the lock: rich's drawing thread writes too
+            with self._lock:
+                if self.shown:
+                    self.shown = False
+                    self.stream.write("\r\x1b[K")  # to the row's start, then erase the row
+                    self.stream.flush()
+
+
+class _Stream:
+    """A text stream whose writes first erase the `_FirstLine`, each made `printable`
+    when ``printable``; all else is the stream's."""
+
+    def __init__(self, stream, first_line, printable):
+        self.stream, self.first_line, self.printable = stream, first_line, printable
 
     def write(self, text):
-        return self.stream.write(printable(text))
+        self.first_line.erase()
+        return self.stream.write(printable(text) if self.printable else text)
 
     def __getattr__(self, name):
         return getattr(self.stream, name)
 
 
 @contextlib.contextmanager
-def _printable_stdout():
-    """stdout, for the verb's run, shows the control characters of the text it prints (a
-    scheme's name, an archive's attribute, a path) rather than letting a terminal obey them:
-    no printing code has to remember it. stderr's lines are each made printable where they
-    are written (the errors, the progress display), as rich draws its bar there with
-    control sequences of its own."""
-    plain = sys.stdout
-    sys.stdout = _PrintableStream(plain)
+def _streams(args):
+    """stdout and stderr for the verb's run, after its `_FirstLine`. stdout shows the
+    control characters of the text it prints (a scheme's name, an archive's attribute, a
+    path) rather than letting a terminal obey them: no printing code has to remember it.
+    stderr's lines are each made printable where they are written (the errors, the progress
+    display), as rich draws its bar there with control sequences of its own."""
+    plain = sys.stdout, sys.stderr
+    first_line = _FirstLine(args, sys.stderr)
+    sys.stdout = _Stream(plain[0], first_line, printable=True)
+    sys.stderr = _Stream(plain[1], first_line, printable=False)
     try:
         yield
     finally:
-        sys.stdout = plain
+        sys.stdout, sys.stderr = plain
+        first_line.erase()  # a verb that printed nothing (verify -q of intact files)
 
 
 def main(argv=None):
     args = build_parser().parse_args(argv)  # bad usage: argparse exits with EXIT_USAGE
+    with _streams(args):
+        return _run(args)
+
+
+def _run(args):
+    """The verb of ``args``, run; its exit code."""
     try:
-        with _printable_stdout():
-            code = args.run(args)
+        code = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, after the work is done
         return code
     except RbstudyError as error:

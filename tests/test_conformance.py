@@ -129,6 +129,30 @@ def test_a_rerun_reuses_the_golden_archives(scorecard, capsys):
 
 
 @pytest.mark.slow
+def test_each_case_is_said_with_the_kernel_time_forecast_for_the_cases_left(scorecard, capsys):
+    """The default conformance ran 19.5 min showing only each case's bar: each case is now
+    said as it starts, "case k of n", with the forecast kernel time of it and the cases
+    after it, as a sweep's forecast line gives each study's."""
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.estimate import duration_text, estimate
+
+    out, _ = scorecard
+    capsys.readouterr()
+    argv = ["conformance", "--cases", "abaqus_top,t_handle", "--schemes", "euler,midpoint,rk4"]
+    assert main([*argv, "--steps", "3", "-o", str(out)]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if ": case " in line]
+    seconds = [
+        estimate(load_study(out / "golden" / f"conformance_{case}.yaml")).wall_seconds
+        for case in ("abaqus_top", "t_handle")
+    ]
+    assert said == [
+        f"conformance: case 1 of 2, abaqus_top: kernels {duration_text(seconds[0])}, "
+        f"{duration_text(sum(seconds))} with the 1 after it (forecast)",
+        f"conformance: case 2 of 2, t_handle: kernels {duration_text(seconds[1])} (forecast)",
+    ]
+
+
+@pytest.mark.slow
 def test_a_card_is_the_same_judged_alone_or_beside_others(scorecard, tmp_path, monkeypatch):
     """The example plug-in's numpy scheme, of order 1, finishes on the T-handle where euler
     blows up. Judged beside it, euler still gets the card it gets alone (and beside midpoint

@@ -2,8 +2,11 @@
 whose timer ticks between batches on a terminal, a start and an end line elsewhere."""
 
 import io
+import json
 import os
+import pty
 import re
+import select
 import subprocess
 import sys
 import threading
@@ -14,7 +17,11 @@ from conftest import HOSTILE, HOSTILE_SHOWN, write_study
 
 from rbstudy.pipeline import cluster
 from rbstudy.pipeline.cluster import dashboard_line
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import _show_compiling, run_study
 from rbstudy.pipeline.progress import Progress, live_wanted
+from rbstudy.pipeline.store import open_results
+from rbstudy.schemes._ready import Compiling
 
 # Seconds within which the first run's announcement must reach stderr (issue 30).
 ANNOUNCED_WITHIN = 2.0
@@ -157,6 +164,99 @@ def test_its_text_is_shown_as_text(monkeypatch, stream):
         assert f"update {HOSTILE_SHOWN[:20]}" in text
     else:
         assert text.startswith(f"{HOSTILE_SHOWN} [bold]x[/bold] :smile:: 4 cases\n")
+
+
+def test_compiling_shows_the_schemes_done_and_no_time_left(monkeypatch):
+    """Compiling children end schemes in bunches: one done after 60 s of 4 forecast "~180 s
+    left" from the rate so far (issue 41 met "~599 s left" with ~60 s to go). The count is
+    shown, and what compiles now; no time left."""
+    monkeypatch.delenv("CI", raising=False)
+    terminal, now = Terminal(), [0.0]
+    with Progress("study", "4 cases", stream=terminal, clock=lambda: now[0]) as progress:
+        _show_compiling(progress, "study", Compiling(4, 0, (), 2, "/cache"))
+        now[0] = 60.0
+        _show_compiling(progress, "study", Compiling(4, 1, ("rk4", "hht"), 2, "/cache"))
+        deadline = time.monotonic() + REDRAW_WAIT
+        while "1/4 schemes  60.0 s" not in terminal.text():
+            assert time.monotonic() < deadline, terminal.text()[-300:]
+            time.sleep(0.05)
+    text = terminal.text()
+    assert "study: compiling rk4, hht" in text
+    assert "left" not in text and "/s" not in text, text[-300:]
+
+
+# Writes a mark on stderr when numpy is first imported: a child's site customisation.
+_NUMPY_WATCH = """
+import os, sys
+
+class _Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy":
+            sys.meta_path.remove(self)
+            os.write(2, b"<numpy>")
+        return None
+
+sys.meta_path.insert(0, _Watch())
+"""
+
+
+def _on_terminal(argv, env=None):
+    """``rbstudy argv`` in a process of its own, stderr a terminal (a pseudo-terminal),
+    stdout a pipe: what the terminal got, and stdout."""
+    main, child = pty.openpty()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "rbstudy", *argv], stdout=subprocess.PIPE, stderr=child, env=env
+    )
+    os.close(child)
+    shown = b""
+    while True:
+        ready, _, _ = select.select([main], [], [], 0.05)
+        try:
+            chunk = os.read(main, 65536) if ready else b""
+        except OSError:  # the child's end closed
+            break
+        if ready and not chunk:
+            break
+        shown += chunk
+        if not ready and process.poll() is not None:
+            break
+    out = process.stdout.read().decode()
+    assert process.wait() == 0, shown
+    os.close(main)
+    return shown.decode(), out
+
+
+@pytest.fixture(scope="module")
+def small_archive(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("summary")
+    config = write_study(folder, name="small", sweep={"scheme": ["rk4", "hht"], "dt": [0.01, 0.005]})
+    return run_study(load_study(config), folder / "out", quiet=True).path
+
+
+@pytest.mark.slow
+def test_a_first_line_before_the_libraries_load_then_the_summary_s_phases(small_archive, tmp_path):
+    """Every verb was silent for 2-8 s under load while numpy, xarray and numba load, and
+    summary for its whole run. On a terminal a first line comes before numpy is imported,
+    and is erased; the summary's phases follow on stderr, its JSON alone on stdout."""
+    (tmp_path / "sitecustomize.py").write_text(_NUMPY_WATCH)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    env.pop("CI", None)
+    shown, out = _on_terminal(["summary", "--format", "json", str(small_archive)], env)
+    first = "rbstudy summary: starting (loading its libraries) ..."
+    assert shown.startswith(first + "<numpy>"), shown[:200]
+    assert shown.index("\r\x1b[K") > shown.index("<numpy>")  # erased, once loaded
+    cases = open_results(small_archive)["status"].size  # 2 schemes x 2 steps
+    for phase in ("checking its checksums", f"reading its {cases} cases", "summary: computing the findings"):
+        assert phase in shown, shown[-500:]
+    assert json.loads(out)["study"] == "small"
+    # elsewhere: stderr holds nothing (no line, no phases), stdout the same JSON
+    piped = subprocess.run(
+        [sys.executable, "-m", "rbstudy", "summary", "--format", "json", str(small_archive)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert piped.stderr == "<numpy>" and piped.stdout == out
 
 
 class _Client:

@@ -153,6 +153,36 @@ def test_a_second_report_reuses_its_figures_and_an_edited_archive_redraws(archiv
 
 
 @pytest.mark.slow
+def test_a_report_copies_the_figures_plot_drew_for_the_same_archive(archive, tmp_path, capsys):
+    """`report` drew every figure again right after `plot` drew them (15-69 s): it now
+    copies those plot recorded beside the archive under the same digest (the archive's
+    values and the code that draws), and draws them when the archive changed since."""
+    copy = tmp_path / "study" / archive.name
+    copy.parent.mkdir()
+    copy.write_bytes(archive.read_bytes())
+    plotted = copy.parent / "figures"
+    capsys.readouterr()
+    assert main(["plot", str(copy)]) == 0
+    pngs = sorted(plotted.glob("*.png"))
+    drawn = {png: png.stat().st_mtime_ns for png in pngs}
+    capsys.readouterr()
+    out = tmp_path / "report"
+    _report(copy, out)
+    assert _progress(capsys) == (0, len(pngs))
+    copied = sorted((out / "figures").glob("*.png"))
+    assert [png.name for png in copied] == [png.name for png in pngs]
+    assert all(png.read_bytes() == (plotted / png.name).read_bytes() for png in copied)
+    assert {png: png.stat().st_mtime_ns for png in pngs} == drawn  # plot's left as they were
+    # the archive changed since plot drew: the report draws them all
+    with netCDF4.Dataset(copy, "a") as nc:
+        error = nc["final_orientation_error"]
+        first = (0,) * error.ndim
+        error[first] = 1.01 * error[first]
+    _report(copy, out, "--no-verify")
+    assert _progress(capsys) == (len(pngs), 0)
+
+
+@pytest.mark.slow
 def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_path, capsys):
     report = _report(archive, tmp_path / "report", "--quiet").read_text()
     cell = Cell(

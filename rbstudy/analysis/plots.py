@@ -42,6 +42,7 @@ import contextlib
 import json
 import multiprocessing
 import pathlib
+import shutil
 from dataclasses import dataclass, field
 
 import matplotlib
@@ -1281,7 +1282,21 @@ def _recorded(manifest, digest, formats):
     return reused
 
 
-def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT, styles=None):
+def _copied(figures, folder, formats):
+    """``figures`` (`Figures`, recorded in another folder) copied into ``folder`` in each of
+    ``formats``, as the `Figures` of the copies."""
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for path in figures.written:
+        for suffix in formats:
+            shutil.copyfile(path.with_suffix(f".{suffix}"), inside(folder, f"{path.stem}.{suffix}"))
+        written.append(folder / f"{path.stem}.{formats[0]}")
+    return Figures(written, dict(figures.absent))
+
+
+def all_figures(
+    ds, folder, formats=FORMATS, processes=1, digest=None, progress=SILENT, styles=None, drawn=()
+):
     """Every figure the dataset supports, as a `Figures` (files written in the first of
     ``formats``, absent with why), in the same order however drawn.
 
@@ -1298,6 +1313,9 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
     are done, and its end line tells the figures drawn and reused. ``styles``: the schemes'
     registered styles (name -> (colour, marker, line style); `rbstudy.schemes.scheme_styles`),
     which the digest must cover; a scheme without one is given one (`line_styles`).
+    ``drawn``: other folders whose figures, recorded there under the same digest, are copied
+    rather than drawn again (the report takes those that ``rbstudy plot`` drew beside the
+    archive: 15-69 s of drawing for a copy).
     """
     global _INHERITED
     folder = pathlib.Path(folder)
@@ -1309,6 +1327,11 @@ def all_figures(ds, folder, formats=FORMATS, processes=1, digest=None, progress=
             if old.suffix.lstrip(".") in ALL_FORMATS:
                 old.unlink()
         manifest.unlink(missing_ok=True)
+    others = [pathlib.Path(other) for other in drawn if pathlib.Path(other).resolve() != folder.resolve()]
+    for other in others if digest is not None else ():
+        for index, figures in _recorded(_manifest(other, ds), digest, formats).items():
+            if index not in reused:
+                reused[index] = _copied(figures, folder, formats)
     todo = [index for index in range(len(_DRAWINGS)) if index not in reused]
     processes = min(processes, len(todo))
     _INHERITED = (ds, folder, formats, styles)

@@ -6,7 +6,8 @@ a PNG data URI with a caption built from this study's numbers (which schemes, wh
 axis, the fitted orders, which lines coincide), the figures the study could not show and why,
 and at the end the provenance and the config recorded in the dataset. It needs no other file:
 the PNGs in ``<out>/figures/`` are kept only so that a later report of the same dataset reuses
-them (their digest is recorded beside them); SVG files are written there, and linked, only on
+them (their digest is recorded beside them, as ``rbstudy plot`` records it beside its own,
+which a report copies rather than draws again); SVG files are written there, and linked, only on
 request. A report folder belongs to one study (``.rbstudy-report`` names it): writing
 another study's report there is refused. The page is the template ``report.html.j2``
 (`rbstudy.analysis.pages`).
@@ -289,11 +290,13 @@ def _table_intro(ds):
     )
 
 
-def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
+def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None, drawn=()):
     """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
     ``out/figures/`` in ``processes`` processes, its schemes in their registered ``styles``
     (`rbstudy.analysis.plots.all_figures`), with SVG files linked when ``svg``; shown by
-    ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path."""
+    ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path. The figures
+    recorded in the folders ``drawn`` (``rbstudy plot``'s) under the same digest are copied
+    from there rather than drawn."""
     out = pathlib.Path(out)
     # before the folder is claimed: the study names the figure files
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
@@ -307,6 +310,7 @@ def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None):
         digest=figures_digest(ds, styles),
         progress=progress,
         styles=styles,
+        drawn=drawn,
     )
     progress.phase(f"{study}: writing {REPORT_NAME}")
     names = [png.stem.removeprefix(f"{study}_") for png in figures.written]

@@ -12,6 +12,7 @@ netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
 
 import errno
+import pathlib
 
 import netCDF4
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from rbstudy.errors import InputError, one_line
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
 from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
+from rbstudy.pipeline.progress import SILENT
 from rbstudy.pipeline.store import HDF5_LOCK, open_results
 from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
 
@@ -185,17 +187,20 @@ def check_layout(path):
     coordinates, and every output variable along the swept dimensions (a variable of the
     scene alone: some of them) then its own, of its type; then that it holds cases and
     output times, an accuracy bound that is a number above 0, and only the codes of each
-    flag (`_content_problem`). Reads the file's header and its flags."""
+    flag (`_content_problem`). Reads the file's header and its flags; returns the number of
+    cases it holds."""
     _check_netcdf(path)
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
             problem = _layout_problem(path, nc) or _content_problem(path, nc)
+            cases = None if problem else int(nc["status"].size)
     except (OSError, RuntimeError) as error:
         raise InputError(
             f"damaged: it cannot be read as netCDF ({one_line(error)})", _REBUILD, str(path)
         ) from None
     if problem is not None:
         raise problem
+    return cases
 
 
 def _verified(path, bypass=None):
@@ -214,14 +219,18 @@ def _verified(path, bypass=None):
     raise InputError(f"damaged: {shown}", fix, str(path))
 
 
-def open_archive(path, variables=None, verify=True, reduced=None):
+def open_archive(path, variables=None, verify=True, reduced=None, progress=SILENT):
     """The archive at ``path`` as a loaded xarray dataset (`rbstudy.pipeline.store
     .open_results`: ``variables`` only, when given, and the time series of ``reduced``
     reduced along time), after `check_layout` and, when ``verify``, after proving every
-    variable intact by its checksum."""
-    check_layout(path)
+    variable intact by its checksum; each step a phase of ``progress``
+    (`rbstudy.pipeline.progress.Progress`) once the layout is known to be an archive's."""
+    cases = check_layout(path)
+    name = pathlib.PurePath(path).name
     if verify:
+        progress.phase(f"{name}: checking its checksums")
         _verified(path, bypass="give --no-verify to read it as it is")
+    progress.phase(f"{name}: reading its {cases} case{'s' * (cases != 1)}")
     try:
         return open_results(path, variables, reduced)
     except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block

@@ -40,6 +40,7 @@ __all__ = [
     "Estimate",
     "estimate",
     "describe",
+    "duration_text",
     "check_limits",
     "check_disk",
     "disk_needed",
@@ -236,7 +237,7 @@ def disk_needed(study, pending):
     return (cases + len(study.cases)) * study.bytes_per_case() + (len(pending) + 1) * _FILE_OVERHEAD
 
 
-def _duration(seconds):
+def duration_text(seconds):
     """``~17 h`` (``~3.2e+12 h``), ``~3 min``, ``~2.5 s`` or ``under 0.1 s``."""
     for unit, size in (("h", 3600.0), ("min", 60.0)):
         if seconds >= 2 * size:  # digits past a million hours say nothing more
@@ -265,7 +266,7 @@ def describe(study, cost):
             f"({_count(cost.references, 'scene')}, each integrated twice)"
         )
     text += (
-        f", kernels {_duration(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
+        f", kernels {duration_text(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
         f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB"
     )
     if cost.over_budget:
@@ -291,7 +292,7 @@ def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
     memory). The disk is checked against what is left to write (`check_disk`)."""
     if cost.body_steps > max_body_steps:
         raise ConfigError(
-            f"needs {cost.body_steps:.2g} body-steps, kernels {_duration(cost.wall_seconds)} on "
+            f"needs {cost.body_steps:.2g} body-steps, kernels {duration_text(cost.wall_seconds)} on "
             f"{_count(cost.cores, 'core')} (limit {max_body_steps:.2g}, --max-body-steps)",
             "use a larger dt, a shorter duration or fewer cases, or raise --max-body-steps",
             source=study.path,

@@ -244,7 +244,9 @@ def _show_compiling(progress, name, compiling):
             "at a time, once per machine\n  and rbstudy version, into numba's cache "
             f"{compiling.cache}"
         )
-        progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes")
+        # no time left: the schemes take 1-30 s each and end in bunches, so the rate so far
+        # forecast ten times the wait; the count of schemes done is what is known
+        progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes", eta=False)
     else:
         progress.update(
             f"{name}: compiling {', '.join(running)}" if running else f"{name}: loading the compiled schemes",

@@ -52,11 +52,24 @@ from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.analytic import symmetric_top
 from rbstudy.physics.quaternions import quat_to_matrix
 from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.estimate import duration_text, estimate
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.schemes import BUILTIN, get_scheme
 
-__all__ = ["Check", "Figure", "GoldenCase", "GOLDEN", "baseline", "write_golden", "run_golden"]
+__all__ = [
+    "Check",
+    "Figure",
+    "GoldenCase",
+    "GOLDEN",
+    "GOLDEN_PREFIX",
+    "baseline",
+    "write_golden",
+    "run_golden",
+]
+
+# What names a golden case's study (and its folder and config): conformance_<case>.
+GOLDEN_PREFIX = "conformance_"
 
 
 @dataclass(frozen=True)
@@ -380,7 +393,7 @@ GOLDEN = (
 
 def _study(case, schemes, count):
     return {
-        "name": f"conformance_{case.name}",
+        "name": f"{GOLDEN_PREFIX}{case.name}",
         "title": f"conformance: {case.title}",
         "scene": case.scene,
         "output": {"interval": case.interval},
@@ -405,7 +418,7 @@ def write_golden(folder, schemes, cases=GOLDEN, steps=4):
     try:
         folder.mkdir(parents=True, exist_ok=True)
         for case in cases:
-            path = folder / f"conformance_{case.name}.yaml"
+            path = folder / f"{GOLDEN_PREFIX}{case.name}.yaml"
             text = yaml.safe_dump(_study(case, schemes, steps), sort_keys=False)
             if not path.exists() or path.read_text() != text:  # a rerun keeps its archives
                 write_text_atomic(text, path)
@@ -420,5 +433,22 @@ def write_golden(folder, schemes, cases=GOLDEN, steps=4):
 
 def run_golden(paths, out, progress):
     """Sweep the golden studies at ``paths`` into ``out``, shown by the one ``progress``
-    (`rbstudy.pipeline.progress.Progress`) of them all; returns their archives' paths."""
-    return [run_study(load_study(path), out, progress=progress).path for path in paths]
+    (`rbstudy.pipeline.progress.Progress`) of them all; returns their archives' paths.
+
+    Each case is said as it starts (``case 3 of 12``), with the kernel time forecast for it
+    and for the cases left: `rbstudy.pipeline.estimate`'s, as a sweep's forecast line gives
+    it, so that the costs it is made from serve both. A case whose archive is current takes
+    none of it: a rerun's forecasts fall as it goes."""
+    studies = [load_study(path) for path in paths]
+    seconds = [estimate(study).wall_seconds for study in studies]
+    archives = []
+    for number, study in enumerate(studies, 1):
+        name = study.name.removeprefix(GOLDEN_PREFIX)
+        own = duration_text(seconds[number - 1])
+        said = f"conformance: case {number} of {len(studies)}, {name}: kernels {own}"
+        if number < len(studies):
+            left = len(studies) - number
+            said += f", {duration_text(sum(seconds[number - 1 :]))} with the {left} after it"
+        progress.say(said + " (forecast)")
+        archives.append(run_study(study, out, progress=progress).path)
+    return archives

@@ -52,9 +52,10 @@ def live_wanted(quiet, stream=None):
 
 
 class _Counts(ProgressColumn):
-    """done/total unit, elapsed, rate and time left; a phase without a total: elapsed only.
-    The rate is done over elapsed, which falls while a slow batch runs, rather than rich's
-    estimate from its last updates, which stands still between them."""
+    """done/total unit, elapsed, rate and time left (unless the phase has no ``eta``); a
+    phase without a total: elapsed only. The rate is done over elapsed, which falls while a
+    slow batch runs, rather than rich's estimate from its last updates, which stands still
+    between them."""
 
     def render(self, task):
         elapsed = task.elapsed or 0.0
@@ -62,7 +63,7 @@ class _Counts(ProgressColumn):
             return Text(f"{elapsed:5.1f} s")
         done, total = int(task.completed), int(task.total)
         text = f"{done}/{total} {task.fields.get('unit', '')} {elapsed:5.1f} s"
-        if done and elapsed > 0:
+        if done and elapsed > 0 and task.fields.get("eta", True):
             rate = done / elapsed
             per_second = f"{rate:.0f}" if rate >= 100 else f"{rate:.3g}"
             text += f" {per_second}/s ~{(total - done) / rate:.0f} s left"
@@ -155,13 +156,17 @@ class Progress:
             self._line(f"{self.label}: {self.end} in {self.clock() - self._began:.1f} s")
         return False
 
-    def phase(self, what, total=None, unit=""):
+    def phase(self, what, total=None, unit="", eta=True):
         """A new phase of the work, ``what`` (``abaqus_top: running batches``): the bar counts
-        to ``total`` (None: a spinner) in ``unit``, from 0 and with its own timer."""
+        to ``total`` (None: a spinner) in ``unit``, from 0 and with its own timer. ``eta``:
+        show the rate and the time left it gives, for units that each take about as long
+        (the cases of a sweep); not for units that end in bunches after long silences (the
+        schemes that child processes compile: "~599 s left" with 60 s to go), where the count
+        is the honest news."""
         self._begin()
         if self._display is not None:  # a task of its own: rich keeps a total once set
             self._display.remove_task(self._task)
-            self._task = self._display.add_task(printable(what), total=total, unit=unit)
+            self._task = self._display.add_task(printable(what), total=total, unit=unit, eta=eta)
 
     def update(self, what=None, done=None):
         """The phase's words and how much of it is done, as they change."""
