@@ -133,14 +133,16 @@ def test_each_case_is_said_with_the_kernel_time_forecast_for_the_cases_left(scor
     """The default conformance ran 19.5 min showing only each case's bar: each case is now
     said as it starts, "case k of n", with the forecast kernel time of it and the cases
     after it, as a sweep's forecast line gives each study's."""
-    from rbstudy.pipeline.config import load_study
-    from rbstudy.pipeline.estimate import duration_text, estimate
-
     out, _ = scorecard
     capsys.readouterr()
     argv = ["conformance", "--cases", "abaqus_top,t_handle", "--schemes", "euler,midpoint,rk4"]
     assert main([*argv, "--steps", "3", "-o", str(out)]) == 0
     said = [line for line in capsys.readouterr().err.splitlines() if ": case " in line]
+    assert len(said) == 2, said
+    # the forecasts, as a sweep's forecast line words them
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.estimate import duration_text, estimate
+
     seconds = [
         estimate(load_study(out / "golden" / f"conformance_{case}.yaml")).wall_seconds
         for case in ("abaqus_top", "t_handle")
