@@ -52,17 +52,17 @@ def _schemes(args):
         return 0
     missing = unavailable_schemes()
     width = max(map(len, [*SCHEMES, *missing]))
+    kinds = max(len(scheme.kind) for scheme in SCHEMES.values())  # "linearly implicit"
     # the summaries wrap within the terminal, under their column (at least 30 wide)
-    column = width + 1 + 7 + 1 + 9 + 1 + 16 + 1  # " {order:>7} {kind:9} {keeps:16} "
+    column = width + 1 + 7 + 1 + kinds + 1 + 16 + 1  # " {order:>7} {kind} {keeps:16} "
     text = functools.partial(
         textwrap.fill,
         width=max(TERMINAL_WIDTH, column + 30),
         subsequent_indent=" " * column,
         break_on_hyphens=False,
     )
-    print(f"{'scheme':{width}s} {'order':>7s} {'kind':9s} {'keeps':16s} options / summary")
+    print(f"{'scheme':{width}s} {'order':>7s} {'kind':{kinds}s} {'keeps':16s} options / summary")
     for name, scheme in SCHEMES.items():
-        kind = "adaptive" if scheme.adaptive else "implicit" if scheme.implicit else "explicit"
         keeps = ", ".join(INVARIANTS[name] for name in scheme.keeps) or "-"
         options = ", ".join(f"{o.name}={o.default}" for o in scheme.options)
         # a composition's orders: "2,4,6,8"
@@ -81,14 +81,14 @@ def _schemes(args):
         print(
             text(
                 scheme.summary + (f" [{options}]" if options else "") + origin,
-                initial_indent=f"{name:{width}s} {orders:>7s} {kind:9s} {keeps:16s} ",
+                initial_indent=f"{name:{width}s} {orders:>7s} {scheme.kind:{kinds}s} {keeps:16s} ",
             )
         )
     for name, why in missing.items():
         print(
             text(
                 f"{why.reason}; fix: {why.fix} ({why.origin})",
-                initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':26s} ",
+                initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':{kinds + 17}s} ",
             )
         )
     return 0
@@ -111,7 +111,7 @@ def _bench(args):
 
 
 def _costed(study, args, disk):
-    """The study's one-line estimate (and a line per warning of the study), after refusing
+    """The study's one-line estimate (and a line per note and warning of the study), after refusing
     it past the limits of ``args`` (and past the free disk under ``args.out`` when ``disk``:
     a sweep checks it once it knows which parts are already there)."""
     from rbstudy.pipeline.estimate import (
@@ -122,14 +122,16 @@ def _costed(study, args, disk):
         forecast_disk,
     )
 
-    if not args.max_body_steps > 0 or (args.max_memory is not None and not args.max_memory > 0):
-        raise RbstudyError("--max-body-steps and --max-memory take a number above 0")
+    for option, value in (("--max-body-steps", args.max_body_steps), ("--max-memory", args.max_memory)):
+        if value is not None and not value > 0:
+            raise RbstudyError(f"{option} takes a number above 0, got {value:g}")
     cost = estimate(study)
     max_memory = None if args.max_memory is None else args.max_memory * 2**20
     check_limits(study, cost, args.max_body_steps, max_memory)
     if disk:
         check_disk(study, forecast_disk(study, args.out), args.out)
-    return "\n".join([describe(study, cost), *_warning_lines(study)])
+    notes = [f"{study.path}: note: {note}" for note in study.notes]
+    return "\n".join([describe(study, cost), *notes, *_warning_lines(study)])
 
 
 def _warning_lines(study):

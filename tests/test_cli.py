@@ -186,6 +186,56 @@ def test_schemes_name_the_invariants_they_keep(capsys):
     assert "momentum" not in rows["midpoint"]
 
 
+# What each engine's step solves (its adapter's docstring, and the engine's own docs):
+# velocities then positions (semi-implicit), one linear solve in the new velocity (linearly
+# implicit), Newton iterations (implicit).
+ENGINE_KINDS = {
+    "mujoco_euler": "semi-implicit",
+    "mujoco_implicit": "linearly implicit",
+    "mujoco_implicitfast": "linearly implicit",
+    "mujoco_rk4": "explicit",
+    "bullet_multibody": "semi-implicit",
+    "bullet_rigidbody": "linearly implicit",
+    "drake_discrete": "semi-implicit",
+    "drake_implicit_euler": "implicit",
+    "drake_rk2": "explicit",
+    "exudyn_genalpha": "implicit",
+    "exudyn_rk44": "explicit",
+}
+
+
+def test_schemes_say_what_each_step_solves(capsys):
+    """The kind column, read under its header: no engine that solves for its new velocity is
+    called explicit (issue 41)."""
+    assert main(["schemes"]) == 0
+    listing = capsys.readouterr().out
+    header = listing.splitlines()[0]
+    start, end = header.index("kind"), header.index("keeps")
+    kinds = {name: row[start:end].strip() for name, row in listed_schemes(listing).items()}
+    assert {kinds[name] for name in ("hht", "midpoint")} == {"implicit"} and kinds["dop853"] == "adaptive"
+    assert {kinds[name] for name in ("euler", "rk4", "splitting")} == {"explicit"}
+    installed = {name: kind for name, kind in ENGINE_KINDS.items() if kinds.get(name) != "unavailable"}
+    assert {name: kinds[name] for name in installed} == installed
+
+
+def test_limits_name_the_option_given(tmp_path, capsys):
+    config = write_study(tmp_path)
+    for option in ("--max-memory", "--max-body-steps"):
+        assert main(["validate", str(config), option, "-5"]) == 1
+        assert capsys.readouterr().err.strip() == f"rbstudy: error: {option} takes a number above 0, got -5"
+
+
+def test_validate_notes_an_option_that_only_some_schemes_take(tmp_path, capsys):
+    config = write_study(
+        tmp_path,
+        run={"scheme": "hht", "options": {"alpha": 0.0}, "dt": 0.01},
+        sweep={"scheme": ["hht", "rk4"]},
+    )
+    assert main(["validate", str(config)]) == 0
+    said = " ".join(capsys.readouterr().out.split())  # wrapped within 100 columns
+    assert f"{config}: note: run.options.alpha applies to hht only; the other schemes run without it" in said
+
+
 def test_the_magnitude_drift_has_its_name_and_the_old_one_still_works(tmp_path):
     """max_momentum_error was the drift of |L|, next to momentum_error, the vector's: renamed
     max_momentum_magnitude_error; the old name stays an alias for one release."""

@@ -161,9 +161,10 @@ def test_an_empty_mapping_and_a_name_yaml_reads_as_a_number_take_overrides(tmp_p
         ),
         (
             ["--set", "run.options.alpah=-0.1"],
-            "{config}: --set run.options: alpah is an option of "
+            "{config}: --set run.options.alpah: alpah is an option of "
             "none of the study's schemes (hht, rk4) (did you mean "
-            "'alpha'?); see `rbstudy schemes`",
+            "'alpha'?); remove it (or --set 'run.options={{}}'); `rbstudy schemes` lists "
+            "each scheme's options",
         ),
         (
             ["--set", "sweep.dt.cout=3"],
@@ -211,8 +212,9 @@ def test_several_files_each_take_the_overrides_or_refuse_them(tmp_path, capsys):
     ]
     assert main(argv) == 1
     assert capsys.readouterr().err == (
-        f"rbstudy: error: {plain}: --set run.options: alpha is an option of none of the "
-        "study's schemes (rk4); see `rbstudy schemes`\n"
+        f"rbstudy: error: {plain}: --set run.options.alpha: alpha is an option of none of the "
+        "study's schemes (rk4); remove it (or --set 'run.options={}'), or sweep a scheme that "
+        "takes it (hht)\n"
     )
     assert not (tmp_path / "out").exists()
 

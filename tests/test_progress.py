@@ -280,3 +280,86 @@ def test_the_dashboard_link_or_how_to_get_one(monkeypatch):
         dashboard_line(_Client({"dashboard": 8787}))
         == "no dask dashboard: it needs bokeh; pip install 'rbstudy[dashboard]'"
     )
+
+
+# A bar under way, in a process of its own, which ends as the CLI does on Ctrl-C.
+_INTERRUPTED = """
+import sys, time
+from rbstudy.pipeline.progress import Progress
+try:
+    with Progress("study", "start") as progress:
+        progress.phase("study: running batches", 4, "cases")
+        time.sleep(60)
+except KeyboardInterrupt:
+    sys.stderr.write("\\nrbstudy: interrupted\\n")
+"""
+
+
+def _screen(raw, width):
+    """The lines a terminal ``width`` columns wide shows after ``raw``: text with its
+    wrap at the last column (made when the next character comes), carriage return, line
+    feed, cursor up and erase line; other controls shown as nothing."""
+    lines, row, col, wrap = [[]], 0, 0, False
+    for token in re.findall(r"\x1b\[[?0-9;]*[A-Za-z]|.", raw.decode("utf-8", "replace"), re.S):
+        if token.startswith("\x1b"):
+            if token[-1] == "A":
+                row, wrap = max(0, row - int(token[2:-1] or 1)), False
+            elif token == "\x1b[2K":
+                lines[row] = []
+        elif token == "\r":
+            col, wrap = 0, False
+        elif token == "\n":
+            row, wrap = row + 1, False
+        elif token >= " ":
+            if wrap:
+                row, col, wrap = row + 1, 0, False
+            lines += [[] for _ in range(row + 1 - len(lines))]
+            lines[row] += [" "] * (col + 1 - len(lines[row]))
+            lines[row][col] = token
+            col, wrap = (col, True) if col == width - 1 else (col + 1, False)
+        lines += [[] for _ in range(row + 1 - len(lines))]
+    return ["".join(line).rstrip() for line in lines]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="a pseudo-terminal needs POSIX")
+def test_ctrl_c_leaves_no_frozen_bar_on_screen():
+    """Ctrl-C in a terminal 100 columns wide: the terminal echoes "^C" after the bar, and
+    the bar's line is erased with it, so the prompt follows on a clean screen (issue 41)."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    width = 100
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 30, width, 0, 0))
+    env = {**os.environ, "COLUMNS": str(width), "LINES": "30"}
+    env.pop("CI", None)
+    process = subprocess.Popen(
+        [sys.executable, "-c", _INTERRUPTED],
+        stdin=follower,
+        stdout=follower,
+        stderr=follower,
+        env=env,
+        start_new_session=True,  # the terminal's foreground: Ctrl-C reaches it alone
+        preexec_fn=lambda: fcntl.ioctl(0, termios.TIOCSCTTY, 0),
+    )
+    os.close(follower)
+    raw, sent = b"", False
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            chunk = os.read(leader, 65536)
+        except OSError:  # the process ended and closed the terminal
+            break
+        if not chunk:
+            break
+        raw += chunk
+        if not sent and raw.count(b"running batches") >= 3:  # drawn, and redrawn
+            os.write(leader, b"\x03")  # Ctrl-C, as a user types it
+            sent = True
+    os.close(leader)
+    assert process.wait(timeout=30) == 0 and sent, raw[-300:]
+    assert b"^C" in raw  # the terminal echoed it
+    shown = [line for line in _screen(raw, width) if line]
+    assert shown == ["rbstudy: interrupted"], shown

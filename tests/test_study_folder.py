@@ -14,6 +14,7 @@ from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.progress import Progress
 from rbstudy.pipeline.store import IDENTITY, OWNER, open_results
 
 # The kernel's clock time: the one stored value that two runs of one case do not share.
@@ -308,3 +309,28 @@ def test_sweeps_into_one_new_nested_folder_at_once_are_told_another_holds_it(tmp
         assert (out / "top" / "top.nc").is_file()
         assert not (out / "top" / "parts").exists()
     assert refused, "no two sweeps ran at once: the race was never met"
+
+
+class _Phases(Progress):
+    """A silent progress that records the phases a run shows."""
+
+    def __init__(self):
+        super().__init__("", "", quiet=True)
+        self.phases = []
+
+    def phase(self, what, total=None, unit=""):
+        self.phases.append((what, total, unit))
+
+
+def test_stored_parts_are_checked_and_said_to_be_only_where_there_are_some(tmp_path):
+    """An empty folder has no parts to check: no "checking stored parts 2/2" (issue 41);
+    the parts a killed run left (here: the archive gone) are checked, and counted."""
+    study = load_study(write_study(tmp_path, name="top", sweep={"dt": [0.01, 0.005]}))
+    first = _Phases()
+    run_study(study, tmp_path / "out", keep_parts=True, progress=first)
+    assert first.phases and not [p for p in first.phases if "checking stored parts" in p[0]]
+    (tmp_path / "out" / "top" / "top.nc").unlink()
+    again = _Phases()
+    run = run_study(study, tmp_path / "out", progress=again)
+    assert ("top: checking stored parts", 2, "parts") in again.phases
+    assert run.computed == 0 and run.reused == 2

@@ -12,7 +12,7 @@ from rbstudy.errors import ConfigError
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.pipeline import estimate
 from rbstudy.pipeline.config import load_study
-from rbstudy.schemes import BUILTIN
+from rbstudy.schemes import BUILTIN, SCHEMES, Scheme
 
 
 def test_value_forms_expand_as_documented(tmp_path):
@@ -107,6 +107,62 @@ def test_scheme_options_apply_to_the_schemes_that_have_them(tmp_path):
     assert [d.name for d in study.dimensions] == ["scheme", "alpha"]
     options = {(c.scheme, c.index[1]): c.options for c in study.cases}
     assert options[("hht", 1)] == {"alpha": -0.1} and options[("rk4", 1)] == {}
+
+
+@pytest.mark.parametrize("other", ["rk4", "mujoco_implicit", "bullet_rigidbody"])
+def test_an_option_of_some_schemes_is_dropped_for_the_others_with_a_note(tmp_path, other):
+    """The Abaqus top's run.options.alpha with an engine swept beside hht (issue 41): the
+    engine runs without it, said in one note; hht's cases keep it, and the dimensions are
+    those of the sweep."""
+    if other != "rk4" and not isinstance(SCHEMES.find(other), Scheme):
+        pytest.skip(f"{other} is not installed here")
+    study = load_study(
+        write_study(
+            tmp_path,
+            run={"scheme": "hht", "options": {"alpha": 0.0}, "dt": 0.01},
+            sweep={"scheme": ["hht", other], "dt": [0.01, 0.005]},
+        )
+    )
+    assert study.notes == ("run.options.alpha applies to hht only; the other schemes run without it",)
+    assert [d.name for d in study.dimensions] == ["scheme", "dt"] and study.shape == (2, 2)
+    assert {c.scheme: c.options for c in study.cases} == {"hht": {"alpha": 0.0}, other: {}}
+    swept = load_study(
+        write_study(
+            tmp_path, name="swept", sweep={"scheme": ["hht", other], "run.options.alpha": [0.0, -0.1]}
+        )
+    )
+    assert [d.name for d in swept.dimensions] == ["scheme", "alpha"] and len(swept.notes) == 1
+    assert [c.options for c in swept.cases if c.scheme == "hht"] == [{"alpha": 0.0}, {"alpha": -0.1}]
+    alone = load_study(
+        write_study(tmp_path, name="alone", run={"scheme": "hht", "options": {"alpha": -0.1}, "dt": 0.01})
+    )
+    assert alone.notes == ()  # every scheme of the study takes it
+
+
+def test_an_option_no_scheme_of_the_study_takes_is_refused_with_the_fix(tmp_path):
+    path = write_study(tmp_path, run={"scheme": "rk4", "options": {"alpha": 0.0}, "dt": 0.01})
+    with pytest.raises(ConfigError) as error:
+        load_study(path)
+    assert str(error.value) == (
+        f"{path}: run.options.alpha: alpha is an option of none of the study's schemes (rk4); "
+        "remove it (or --set 'run.options={}'), or sweep a scheme that takes it (hht)"
+    )
+    path = write_study(tmp_path, run={"scheme": "rk4", "options": {"alpah": 0.0}, "dt": 0.01})
+    with pytest.raises(ConfigError, match="; remove it .* `rbstudy schemes` lists each scheme's options$"):
+        load_study(path)
+
+
+def test_a_missing_name_says_how_to_give_one(tmp_path):
+    path = write_study(tmp_path)
+    path.write_text("\n".join(line for line in path.read_text().splitlines() if not line.startswith("name:")))
+    with pytest.raises(ConfigError) as error:
+        load_study(path)
+    assert str(error.value).startswith(f"{path}: name: missing; add name: <letters, digits, '-' and '_' only")
+
+
+def test_a_group_alone_sweeps_its_schemes(tmp_path):
+    study = load_study(write_study(tmp_path, sweep={"scheme": "builtin"}))
+    assert [c.scheme for c in study.cases] == [name for name, s in BUILTIN.items() if not s.adaptive]
 
 
 def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
@@ -278,7 +334,7 @@ def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, 
         ),
         (
             {"scheme": ["rk4", "rk5"]},
-            "sweep (scheme[1] = 'rk5'): run.scheme: unknown scheme 'rk5'; valid schemes: dop853, euler",
+            "sweep.scheme[1]: unknown scheme 'rk5'; valid schemes: dop853, euler",
         ),
         (
             {"zip": {"pair": {"spin": [1.0], "tilt": [1.0, 2.0]}}},
@@ -288,7 +344,8 @@ def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, 
         ({"dt": {"halving": 0.01}}, "sweep.dt: expected a list of values"),
         (
             {"run.options.alpha": [0.0]},
-            "run.options: alpha is an option of none of the study's schemes (rk4)",
+            "sweep.run.options.alpha: alpha is an option of none of the study's schemes (rk4); "
+            "remove it, or sweep a scheme that takes it (hht)",
         ),
         ({"scene.body.mass": [1.0, -1.0]}, "sweep (body_mass[1] = -1.0): scene.body.mass: must be > 0"),
         (

@@ -267,6 +267,9 @@ def _scheme(name, maximal, summary, step_seconds, style):
         step_seconds=step_seconds,
         order=1,
         implicit=False,  # one Newton step at most: no iterations to count
+        # the velocity first, then the turn with the new one; a rigid body's gyroscopic term
+        # by one Newton step (a linear solve), a multibody's at the old velocity
+        kind="linearly implicit" if maximal else "semi-implicit",
         keeps=(),
         run_bodies_inplace=make_batch_entry(step, _starter(maximal), n_work=1),
         reference="Coumans & Bai, PyBullet, pybullet.org (2016-2021); Featherstone, Rigid "

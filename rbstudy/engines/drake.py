@@ -214,6 +214,8 @@ def _scheme(name, flag, order, summary, step_seconds, style):
         # Newton iterations Drake's own: pydrake does not expose the implicit integrator's
         # counters, so the archive's `iterations` stays 0
         implicit=flag == "implicit_euler",
+        # the discrete plant: the velocity by the forces at the step's start, then q by it
+        kind="semi-implicit" if flag is None else None,
         keeps=(),
         run_bodies_inplace=make_batch_entry(_stepper(flag), _start, n_work=1),
         reference="Tedrake et al., Drake: model-based design and verification for robotics, "

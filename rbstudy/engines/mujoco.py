@@ -195,13 +195,14 @@ def _stepper(integrator):
     return step
 
 
-def _scheme(name, integrator, order, summary, step_seconds, style):
+def _scheme(name, integrator, order, kind, summary, step_seconds, style):
     return Scheme(
         name=name,
         summary=f"MuJoCo {summary}",
         step_seconds=step_seconds,
         order=order,
         implicit=False,  # a linear solve at most: no Newton iterations to count
+        kind=kind,
         keeps=(),
         run_bodies_inplace=make_batch_entry(_stepper(integrator)),
         reference="Todorov, Erez & Tassa, MuJoCo, IROS 2012; mujoco.readthedocs.io, "
@@ -217,6 +218,7 @@ EULER = _scheme(
     "mujoco_euler",
     mujoco.mjtIntegrator.mjINT_EULER,
     1,
+    "semi-implicit",
     "Euler: semi-implicit, velocities then positions",
     2.8e-06,
     style=Style("navy", "<", "-."),
@@ -225,6 +227,7 @@ IMPLICITFAST = _scheme(
     "mujoco_implicitfast",
     mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
     1,
+    "linearly implicit",
     "implicitfast: velocity-implicit; on one free body the same as implicit",
     3.0e-06,
     # solid under mujoco_implicit's dashed line: the two coincide on one free
@@ -235,6 +238,7 @@ IMPLICIT = _scheme(
     "mujoco_implicit",
     mujoco.mjtIntegrator.mjINT_IMPLICIT,
     1,
+    "linearly implicit",
     "implicit: the gyroscopic term linearised-implicit",
     3.3e-06,
     # dashed over mujoco_implicitfast's solid line (and bullet_rigidbody's dotted
@@ -245,6 +249,7 @@ RK4 = _scheme(
     "mujoco_rk4",
     mujoco.mjtIntegrator.mjINT_RK4,
     4,
+    "explicit",
     "RK4 on (qpos, qvel), loads held over the step",
     5.7e-06,
     style=Style("magenta", "*", "-."),

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rbstudy.errors import ConfigError, InputError
-from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
+from rbstudy.inputs.reader import FOLDER_NAME_RULE, MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.time_grid import output_count
@@ -28,6 +28,7 @@ from rbstudy.pipeline.grid import (
     Dimension,
     expand,
     label_options,
+    option_notes,
     parse_sweep,
     read_dt,
     touches_scene,
@@ -55,6 +56,12 @@ __all__ = [
 ]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
+# The keys a study cannot do without, and how to add each (docs/config.md).
+_REQUIRED_KEYS = {
+    "name": f"add name: <{FOLDER_NAME_RULE}> (it names the results folder)",
+    "scene": "add scene: with its body and initial state (docs/config.md)",
+    "run": "add run: with scheme and dt, or sweep them (docs/config.md)",
+}
 
 # A batch holds at most this many cases, and at most this many bytes of sampled states: enough
 # bodies to amortise a task's and its part file's fixed cost (a part of 512 cases cost ~120 us
@@ -134,6 +141,12 @@ class StudyConfig:
         parameter row (long with long load tables)."""
         knots = self.cases.scenes.loads["knots"].shape[-1]
         return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times + row_width(knots))
+
+    @property
+    def notes(self):
+        """What a user should know of how the study runs, one line each: a scheme option
+        that only some of its schemes take (`rbstudy.pipeline.grid.option_notes`)."""
+        return option_notes(self.base, self.dimensions, self.cases.runs)
 
     @property
     def warnings(self):
@@ -275,9 +288,9 @@ def _validated(path, text, overridden):
     """The `StudyConfig` of the `Overridden` mapping of the file ``path`` of text ``text``."""
     reader = Reader(path, ConfigError)
     data = reader.mapping(overridden.data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
-    for key in ("name", "scene", "run"):
+    for key, fix in _REQUIRED_KEYS.items():
         if key not in data:
-            reader.fail(key, "missing")
+            reader.fail(key, "missing", fix)
     name = reader.folder_name(data["name"], "name")
     title = reader.line(data.get("title", name), "title")
     if "title" in data and len(title) > MAX_TITLE_CHARACTERS:  # the default, the name, is bounded

@@ -553,9 +553,11 @@ def _run_in(folder, made, study, where, force, progress, keep_parts, started, st
         parts_dir.mkdir(exist_ok=True)
         parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
         digests = {}
-        if not force:
-            progress.phase(f"{study.name}: checking stored parts", len(study.batches), "parts")
-            for batch in study.batches:
+        # only parts on disk are checked, and said to be: an empty folder has none
+        stored = [] if force else [batch for batch in study.batches if parts[batch.id].exists()]
+        if stored:
+            progress.phase(f"{study.name}: checking stored parts", len(stored), "parts")
+            for batch in stored:
                 digests[batch.id] = part_complete(parts[batch.id], batch)
                 progress.advance()
         pending = [batch for batch in study.batches if digests.get(batch.id) is None]

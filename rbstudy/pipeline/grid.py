@@ -42,7 +42,7 @@ from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.time_grid import steps_per
 from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
-from rbstudy.schemes import get_scheme, scheme_groups
+from rbstudy.schemes import SCHEMES, get_scheme, scheme_groups
 
 __all__ = [
     "Axis",
@@ -58,6 +58,7 @@ __all__ = [
     "MAX_HALVINGS",
     "parse_sweep",
     "expand",
+    "option_notes",
     "touches_scene",
     "label_options",
     "read_dt",
@@ -157,19 +158,19 @@ def _scheme_names(reader, key, spec):
     """A list of scheme names with each group (`rbstudy.schemes.scheme_groups`; ``all`` is
     ``builtin``) replaced by every scheme it stands for, installed here or not, each name once:
     a config means the same study wherever it runs, and a scheme not installed is refused
-    with its fix as if named. A name beside a group is checked here, where its place in the
-    list (``key[2]``) is still the one the config gives."""
+    with its fix as if named. Each name is checked here, under the key the config gives it
+    (``sweep.scheme[2]``), not under the ``run.scheme`` of the case it makes."""
     groups = scheme_groups()
     groups[ALL_SCHEMES] = groups["builtin"]
     grouped = [isinstance(name, str) and name in groups for name in spec]
-    if not any(grouped):
-        return spec  # names only: a name given twice is refused as in any sweep
     for position, (name, group) in enumerate(zip(spec, grouped, strict=True)):
         if not group:
             try:
                 get_scheme(name)
             except InputError as error:
                 raise reader.locate(error, f"{key}[{position}]") from None
+    if not any(grouped):
+        return spec  # names only: a name given twice is refused as in any sweep
     names = [
         member
         for name, group in zip(spec, grouped, strict=True)
@@ -180,8 +181,10 @@ def _scheme_names(reader, key, spec):
 
 def _values(reader, key, spec):
     """The tuple of values of one axis from its YAML spec."""
-    if key.endswith("scheme") and (spec == ALL_SCHEMES or isinstance(spec, list)):
-        spec = _scheme_names(reader, key, [spec] if spec == ALL_SCHEMES else spec)
+    # a group alone (``all``, ``engines``, ``mujoco``) stands for its schemes as a list would
+    group = isinstance(spec, str) and (spec == ALL_SCHEMES or spec in scheme_groups())
+    if key.endswith("scheme") and (group or isinstance(spec, list)):
+        spec = _scheme_names(reader, key, [spec] if group else spec)
     if isinstance(spec, list):
         if not spec:
             reader.fail(key, "empty sweep", "give at least one value")
@@ -681,6 +684,40 @@ def _rows_of(dimensions, chosen, shape):
     return np.ravel_multi_index([index[k] for k in chosen], [shape[k] for k in chosen])
 
 
+def _given_options(base, dimensions):
+    """Each scheme option the study gives -> the key it is given under: ``run.options.alpha``,
+    or the sweep's ``sweep.run.options.alpha`` (``sweep.zip.<dimension>.run.options.alpha``)."""
+    given = {name: f"run.options.{name}" for name in base["run"].get("options") or {}}
+    for d in dimensions:
+        for axis in d.axes:
+            if axis.target.startswith("run.options."):
+                zipped = len(d.axes) > 1 or d.name != axis.coordinate
+                given[axis.target.removeprefix("run.options.")] = (
+                    f"sweep.zip.{d.name}.{axis.target}" if zipped else f"sweep.{axis.target}"
+                )
+    return given
+
+
+def _takers(option, schemes):
+    """The names of the `Scheme`s of ``schemes`` that take the option named ``option``."""
+    return [scheme.name for scheme in schemes if any(o.name == option for o in scheme.options)]
+
+
+def option_notes(base, dimensions, runs):
+    """A line for each scheme option the study gives that only some of its schemes take
+    (``runs``: its `Run`s): the others run without it, and a study of several schemes
+    (an engine beside hht) needs no option written for each."""
+    schemes = [get_scheme(name) for name in sorted({run.scheme for run in runs})]
+    notes = []
+    for name in _given_options(base, dimensions):
+        takers = _takers(name, schemes)
+        if takers and len(takers) < len(schemes):
+            notes.append(
+                f"run.options.{name} applies to {', '.join(takers)} only; the other schemes run without it"
+            )
+    return tuple(notes)
+
+
 def expand(reader, base, dimensions, output_interval):
     """Every case of the grid as `Cases`, every distinct scene and run built and checked.
 
@@ -709,22 +746,22 @@ def expand(reader, base, dimensions, output_interval):
             runs.append(_run(reader, base, run_dimensions, index, output_interval))
         except InputError as error:
             raise reader.locate(error, _where(run_dimensions, index) if index else None) from None
-    given = set(base["run"].get("options") or {}) | {
-        axis.target.removeprefix("run.options.")
-        for d in dimensions
-        for axis in d.axes
-        if axis.target.startswith("run.options.")
-    }
-    unknown = sorted(given - {name for run in runs for name in run.options})
+    given = _given_options(base, dimensions)
+    unknown = sorted(set(given) - {name for run in runs for name in run.options})
     if unknown:
         schemes = sorted({run.scheme for run in runs})
         options = {option.name for name in schemes for option in get_scheme(name).options}
+        key, takers = given[unknown[0]], _takers(unknown[0], SCHEMES.values())
+        # run.options as written can go from the command line too
+        remove = "remove it" + (" (or --set 'run.options={}')" if key.startswith("run.") else "")
         reader.fail(
-            "run.options",
+            key,
             f"{', '.join(unknown)} is an option of none of the study's "
             f"schemes ({', '.join(schemes)})"
             f"{did_you_mean(unknown[0], options)}",
-            "see `rbstudy schemes`",
+            f"{remove}, or sweep a scheme that takes it ({', '.join(takers)})"
+            if takers
+            else f"{remove}; `rbstudy schemes` lists each scheme's options",
         )
     return Cases(
         shape=shape,

@@ -36,6 +36,12 @@ __all__ = ["Progress", "live_wanted", "WIDTH", "SILENT"]
 
 # Users read rbstudy in terminals 100 columns wide: the bar never takes more.
 WIDTH = 100
+# Columns the bar leaves free at the end of its line. A terminal echoes Ctrl-C as "^C" where
+# the cursor is, after the bar: on a line drawn to the last column the echo wraps onto a new
+# line, below the bar, and the bar rich erases on stopping is the one there, leaving the
+# frozen bar above it on screen. With room for the two characters they stay on the bar's
+# line, and are erased with it.
+_ECHO_ROOM = 2
 # Redraws per second: the elapsed time shows tenths.
 _REDRAWS = 10
 # The columns of the phase's words; longer words end in an ellipsis.
@@ -113,7 +119,8 @@ class Progress:
     def __enter__(self):
         self._began = self.clock()
         if live_wanted(self.quiet, self.stream):
-            width = min(WIDTH, shutil.get_terminal_size((WIDTH, 24)).columns)
+            columns = shutil.get_terminal_size((WIDTH, 24)).columns
+            width = max(1, min(WIDTH, columns - _ECHO_ROOM))
             console = Console(
                 file=self.stream,
                 width=width,

@@ -28,12 +28,13 @@ from rbstudy.schemes._plugins import (
     load_plugins,
 )
 from rbstudy.schemes._ready import get_ready
-from rbstudy.schemes._registry import INVARIANTS, Option, Scheme, Style, option_slots
+from rbstudy.schemes._registry import INVARIANTS, KINDS, Option, Scheme, Style, option_slots
 
 __all__ = [
     "SCHEMES",
     "BUILTIN",
     "INVARIANTS",
+    "KINDS",
     "COMPOSITION_ORDERS",
     "Option",
     "Scheme",

@@ -14,9 +14,19 @@ from numba import types
 from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
 
-__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "option_slots"]
+__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "KINDS", "option_slots"]
 
 INVARIANTS = S.INVARIANTS
+# What a scheme's step solves, as `rbstudy schemes` lists it: kind -> what it means.
+KINDS = {
+    "explicit": "every stage from values already known",
+    "semi-implicit": "the velocities from the forces at the step's start, then the positions "
+    "and the frame with the new velocities (symplectic Euler)",
+    "linearly implicit": "one linear solve a step: the forces linearised in the new velocity "
+    "(no Newton iterations)",
+    "implicit": "a nonlinear system solved each step by Newton iterations",
+    "adaptive": "chooses its own steps",
+}
 
 
 @dataclass(frozen=True)
@@ -79,6 +89,9 @@ class Scheme:
         accepted step); the run-time forecast of `rbstudy validate` starts from it. A number
         above 0 and finite.
     implicit : solves a nonlinear system each step (Newton iterations are counted).
+    kind : what its step solves, one of `KINDS`; None: "adaptive", "implicit" or "explicit"
+        from ``adaptive`` and ``implicit``. An engine's semi-implicit or linearly implicit
+        step says so here (set on registering where None).
     keeps : invariants kept to round-off for the moment-free body (names of `INVARIANTS`).
     adaptive : chooses its own steps (dt only sets the output grid).
     options : the scheme's options.
@@ -116,6 +129,7 @@ class Scheme:
     code_digest: str | None = None
     loads_held: bool = False
     block_step_seconds: float | None = None
+    kind: str | None = None
     slots: Mapping = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -133,6 +147,11 @@ class Scheme:
                     "give the core-seconds per body-step `rbstudy bench` measures, "
                     "a number above 0"
                 )
+        if self.kind is None:  # frozen: set once, here
+            derived = "adaptive" if self.adaptive else "implicit" if self.implicit else "explicit"
+            object.__setattr__(self, "kind", derived)
+        if self.kind not in KINDS:
+            raise ValueError(f"scheme {self.name!r}: kind {self.kind!r}; give one of {', '.join(KINDS)}")
         # frozen: set once, here, from the options (the same layout the scheme's file computes)
         object.__setattr__(self, "slots", option_slots(self.options, self.name))
 

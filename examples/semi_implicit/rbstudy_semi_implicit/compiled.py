@@ -37,6 +37,7 @@ SCHEME = Scheme(
     step_seconds=6e-08,
     order=1,
     implicit=False,
+    kind="linearly implicit",  # one linear solve a step, no Newton iterations
     keeps=(),
     run_bodies_inplace=make_entry(step_inplace, init_nothing, N_WORK),
     reference="Catto, Physics for game programmers: numerical methods, GDC 2015",

@@ -55,6 +55,7 @@ SCHEME = Scheme(
     step_seconds=2e-06,
     order=1,
     implicit=False,
+    kind="linearly implicit",  # one linear solve a step, no Newton iterations
     keeps=(),
     run_bodies_inplace=make_batch_entry(step),
     reference="Catto, Physics for game programmers: numerical methods, GDC 2015",
