@@ -23,8 +23,10 @@ from rbstudy.pipeline.progress import Progress, live_wanted
 from rbstudy.pipeline.store import open_results
 from rbstudy.schemes._ready import Compiling
 
-# Seconds within which the first run's announcement must reach stderr (issue 30).
-ANNOUNCED_WITHIN = 2.0
+# The share of a first run's time within which its announcement must reach stderr (issue
+# 30): it comes before the compiling, which is most of that run (a bound in seconds failed
+# on a loaded machine, where the imports before it took 3 s).
+ANNOUNCED_WITHIN = 0.2
 # How long a test waits for the bar's drawing thread to redraw (it does ten times a second).
 REDRAW_WAIT = 10.0
 
@@ -85,7 +87,7 @@ def test_a_first_run_says_it_compiles_before_it_does(one_scheme):
     ]
     assert len(announced) == 1, lines
     seconds, line = announced[0]
-    assert seconds < ANNOUNCED_WITHIN, lines
+    assert seconds < ANNOUNCED_WITHIN * lines[-1][0], lines
     assert line.endswith(", once per machine")
     following = lines[lines.index(announced[0]) + 1][1]
     assert following == f"  and rbstudy version, into numba's cache {cache}"  # where it goes

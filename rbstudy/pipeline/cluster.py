@@ -188,10 +188,18 @@ def _forked_local_cluster(**options):
     starts Python and imports both itself. A forkserver is one thread with no file of the
     sweep open, unlike the sweep process, which a plain fork would copy with its scheduler's
     threads and its study lock."""
+    import warnings
+
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set({"distributed.worker.multiprocessing-method": start_forkserver()}):
+    with (
+        dask.config.set({"distributed.worker.multiprocessing-method": start_forkserver()}),
+        warnings.catch_warnings(),
+    ):
+        # another dask (a second sweep, a notebook) holding the dashboard's port 8787 is no
+        # fault: distributed takes another port, and `dashboard_line` says which
+        warnings.filterwarnings("ignore", "Port .* is already in use", UserWarning)
         return LocalCluster(**options)
 
 
