@@ -56,7 +56,6 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLoca
 from rbstudy.analysis.summary import (  # noqa: E402
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
-    FLOOR_WORDS,
     UNCERTAINTY_FACTOR,
     agree,
     at_floor,
@@ -561,8 +560,12 @@ def _fit_text(errors, fit, failed, limits, round_off):
         text = "failed at every dt" if failed else "no reference at any dt"
     elif np.all(finite == 0.0):
         text = "exact at every dt"
-    elif why := at_floor(errors, round_off, limits / UNCERTAINTY_FACTOR):
-        text = FLOOR_WORDS[why]
+    elif why := at_floor(errors, round_off, limits / UNCERTAINTY_FACTOR):  # in a legend's ( )
+        text = (
+            "at the round-off floor"
+            if why == "round-off"
+            else f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty"
+        )
     else:
         text = "no asymptotic range"
     return text
