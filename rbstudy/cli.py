@@ -28,7 +28,7 @@ import textwrap
 import threading
 import traceback
 
-from rbstudy.errors import ConfigError, InputError, RbstudyError, did_you_mean, printable
+from rbstudy.errors import ConfigError, InputError, RbstudyError, counted, did_you_mean, printable
 
 __all__ = ["main", "command", "EXIT_OK", "EXIT_USER_ERROR", "EXIT_USAGE", "EXIT_BUG", "EXIT_PIPE"]
 
@@ -285,25 +285,25 @@ def _sweep(args):
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); rebuilt it")
         if done.damaged_parts:
             _say(
-                f"{study.name}: {done.damaged_parts} damaged parts (their bytes no longer "
+                f"{study.name}: {counted(done.damaged_parts, 'damaged part')} (their bytes no longer "
                 "match their checksums) recomputed"
             )
         if done.removed_parts:
             _say(
-                f"{study.name}: removed {done.removed_parts} part file"
-                f"{'s' * (done.removed_parts != 1)} left beside its current archive, which holds "
+                f"{study.name}: removed {counted(done.removed_parts, 'part file')} left beside its "
+                "current archive, which holds "
                 "them (--keep-parts keeps them)"
             )
         if done.up_to_date:
             _say(f"{study.name}: {done.path} is up to date (the same config and code); --force recomputes it")
         else:
             _say(
-                f"{study.name}: {done.computed} batches run, {done.reused} reused, "
+                f"{study.name}: {counted(done.computed, 'batch', 'batches')} run, {done.reused} reused, "
                 f"{done.wall_seconds:.1f} s; wrote {done.path}"
             )
         if done.returned:
             _say(
-                f"{study.name}: {done.returned} parts written here from the values the "
+                f"{study.name}: {counted(done.returned, 'part')} written here from the values the "
                 "workers sent back (they do not see the results folder)"
             )
         print(summary)
@@ -429,7 +429,7 @@ def _plot(args):
                 styles=styles,
             )
         kinds = " and ".join(kind.upper() for kind in formats)
-        print(f"{path}: {len(figures.written)} figures ({kinds}) in {folder}")
+        print(f"{path}: {counted(len(figures.written), 'figure')} ({kinds}) in {folder}")
         if not args.quiet:
             for name, reason in figures.absent.items():
                 _say(f"  not drawn: {name}: {reason}")
@@ -498,7 +498,9 @@ def _conformance(args):
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells, failed = {}, {}
     with Progress(
-        "conformance", f"{len(schemes)} schemes x {len(cases)} golden cases", quiet=args.quiet
+        "conformance",
+        f"{counted(len(schemes), 'scheme')} x {counted(len(cases), 'golden case')}",
+        quiet=args.quiet,
     ) as progress:
         archives = run_golden(paths, out, progress)
         progress.phase("conformance: scoring", len(cases), "cases")
@@ -512,7 +514,8 @@ def _conformance(args):
     seconds = time.perf_counter() - started
     fixed = "".join(f" ({case.name}: {case.steps})" for case in cases if case.steps)
     header = [
-        f"{len(schemes)} schemes x {len(cases)} golden cases x {args.steps} time steps"
+        f"{counted(len(schemes), 'scheme')} x {counted(len(cases), 'golden case')} x "
+        f"{counted(args.steps, 'time step')}"
         f"{fixed}; "
         f"this run took {seconds:.0f} s of wall time (a rerun reuses the golden "
         "archives it finds)",

@@ -9,6 +9,9 @@ ever rewritten as text.
 Text from a file (a config's key, an archive's attribute, a plug-in's scheme name) may hold
 the control characters a terminal obeys (ESC starts the sequences that clear the screen or
 set the window's title): `printable` shows them as escapes, and every error prints so.
+
+`counted` says a count with its noun (``1 scheme``, ``2 schemes``), for every message of
+every layer above: "1 schemes" was an s appended to a count.
 """
 
 import difflib
@@ -24,6 +27,7 @@ __all__ = [
     "one_line",
     "did_you_mean",
     "printable",
+    "counted",
 ]
 
 # An error is one line a terminal can show: longer ones (a value of 90,000 items) are cut.
@@ -40,6 +44,12 @@ def printable(text):
     """``text`` with each control character a terminal would act on shown as Python
     writes it in a string's repr (``\\x1b``, ``\\x9b``, ``\\r``)."""
     return _CONTROL.sub(lambda match: repr(match[0])[1:-1], text)
+
+
+def counted(number, noun, plural=None):
+    """``1 scheme``, ``2 schemes``, ``0 batches`` (``plural``: the noun's plural where it is
+    not the noun and an s); ``number`` as given (an int, or a text such as ``1,000``)."""
+    return f"{number} {noun if str(number) == '1' else plural or noun + 's'}"
 
 
 def did_you_mean(name, valid):

@@ -235,7 +235,8 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         capsys.readouterr()
         subprocess.run(["mount", "-o", "remount,size=4m", disk], check=True)
         assert main([*sweep, "--keep-parts"]) == 0
-        assert f"small: {4 - len(kept)} batches run, {len(kept)} reused" in capsys.readouterr().out
+        run = 4 - len(kept)
+        assert f"small: {run} batch{'es' * (run != 1)} run, {len(kept)} reused" in capsys.readouterr().out
         assert [path.stat().st_mtime_ns for path in kept] == kept_times  # reused, not rewritten
         _same_numbers(whole.path, disk / "out" / "small" / "small.nc")
         assert not _open_in(disk)

@@ -224,7 +224,7 @@ def _runs(capsys):
     said = _said(capsys)
     if "is up to date" in said:
         return "up to date"
-    run, reused = re.search(r"(\d+) batches run, (\d+) reused", said).groups()
+    run, reused = re.search(r"(\d+) batch(?:es)? run, (\d+) reused", said).groups()
     return int(run), int(reused)
 
 

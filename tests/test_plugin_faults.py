@@ -207,7 +207,7 @@ def test_a_plugin_step_that_raises_ends_the_sweep_in_one_line_and_keeps_finished
         {**bad_steps, "STEP_MENDED": "1"}, "sweep", config, "--out", "out", "--quiet", cwd=tmp_path
     )
     assert resumed.returncode == 0, resumed.stderr
-    assert "faults: 1 batches run, 1 reused" in resumed.stdout
+    assert "faults: 1 batch run, 1 reused" in resumed.stdout
 
 
 @pytest.mark.slow

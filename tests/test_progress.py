@@ -365,3 +365,19 @@ def test_ctrl_c_leaves_no_frozen_bar_on_screen():
     assert b"^C" in raw  # the terminal echoed it
     shown = [line for line in _screen(raw, width) if line]
     assert shown == ["rbstudy: interrupted"], shown
+
+
+def test_a_count_of_one_names_one_thing(tmp_path):
+    """A study of one case says "1 case in 1 batch", its forecast likewise, and every count
+    of the messages goes through one rule: "1 schemes" had an s appended to its count."""
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.estimate import describe, estimate
+    from rbstudy.pipeline.execute import study_progress
+
+    study = load_study(write_study(tmp_path, name="one"))
+    assert study_progress(study).start == "1 case in 1 batch"
+    assert describe(study, estimate(study)).startswith("one: 1 case (one case) in 1 batch, ")
+    from rbstudy.errors import counted
+
+    assert [counted(n, "scheme") for n in (0, 1, 2)] == ["0 schemes", "1 scheme", "2 schemes"]
+    assert counted(1, "batch", "batches") == "1 batch" and counted(3, "batch", "batches") == "3 batches"

@@ -216,3 +216,67 @@ def test_a_long_line_breaks_after_its_clauses_and_never_inside_a_path():
     line = f"{'x' * 60}; {'y' * 30}; z z; wrote {path}"
     assert wrap_clauses(line, indent="  ") == [f"{'x' * 60}; {'y' * 30}; z z;", "  wrote", f"  {path}"]
     assert wrap_clauses(f"{'x' * 60}; {'y' * 40}") == [f"{'x' * 60};", f"{'y' * 40}"]
+
+
+def _row(scheme, **changes):
+    """A row of `scheme_rows` of a scheme with an order, an error, an accurate range and
+    kept invariants; ``changes`` take some away."""
+    row = {
+        "scheme": scheme,
+        "nominal": 2,
+        "cases": 4,
+        "unstable": 0,
+        "inaccurate": 0,
+        "unjudged": 0,
+        "radioss": 0,
+        "order": (2.0, 2.0),
+        "finest": (2.0, 2.0),
+        "fits": 2,
+        "tries": 2,
+        "floored": {},
+        "fit_dt": (0.001, 0.01),
+        "error_dt": 0.01,
+        "error": 1e-4,
+        "error_small_dt": 0.001,
+        "error_small": 1e-6,
+        "ns_per_step": 100.0,
+        "accurate_hw": 0.1,
+        "inaccurate_hw": 0.2,
+        "unstable_hw": 0.4,
+        "physical": 4,
+        "judged_physical": 4,
+        "kept": ("energy",),
+        "invariants_measured": True,
+    }
+    return {**row, **changes}
+
+
+def test_each_missing_value_says_what_it_means_and_only_the_marks_used_are_noted():
+    """A table with a scheme without a reference, one with no accurate step and one keeping
+    nothing: each of those cells says which (no "-", which meant all three), and the
+    footnotes explain exactly the words used, in text, Markdown, HTML and CSV alike."""
+    rows = [
+        _row("unreferenced", error=None, judged_physical=0, accurate_hw=float("nan")),
+        _row("inaccurate", accurate_hw=float("nan")),
+        _row("drifting", kept=()),
+    ]
+    expected = {
+        ("unreferenced", "error"): "no ref",
+        ("unreferenced", "accurate_hw"): "no ref",
+        ("inaccurate", "accurate_hw"): "none",
+        ("drifting", "kept"): "none",
+    }
+    notes = {'error "no ref"', 'dt|w0| "no ref"', 'dt|w0| "none"', 'kept "none"'}
+    unused = ['"failed"', '"n/a"', '"round-off"', '"ref floor"', 'order "none"', 'error "none"']
+    for wide in (False, True):
+        columns = [c.key for c in table_columns(rows) if wide or c.narrow]
+        values = list(csv.reader(io.StringIO(format_table(rows, wide=wide, fmt="csv"))))[1:]
+        cells = {(row[0], key): cell for row in values for key, cell in zip(columns, row, strict=True)}
+        assert all(cells[where] == word for where, word in expected.items()), cells
+        assert "-" not in cells.values()
+        for fmt in ("text", "markdown", "html"):
+            text = format_table(rows, wide=wide, fmt=fmt).replace("&quot;", '"')
+            assert all(note + ":" in text for note in notes), (fmt, text)
+            assert not any(note in text for note in unused), (fmt, text)
+        text = format_table(rows, wide=wide)
+        assert max(map(len, text.splitlines())) <= TERMINAL_WIDTH or wide

@@ -58,6 +58,7 @@ from rbstudy.analysis.summary import (
     status_text,
     wrap_clauses,
 )
+from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS
 
 __all__ = [
@@ -271,7 +272,7 @@ def _failure(ds, scheme, row):
 
 
 def _cases(count):
-    return f"{int(count)} case{'s' if count != 1 else ''}"
+    return counted(int(count), "case")
 
 
 _JUDGES = {"order": _order, "invariants": _invariants, "energy": _energy, "flip": _flip, "failure": _failure}

@@ -30,10 +30,13 @@ import numpy as np
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
+    FLOOR_WORDS,
     KEPT_TOLERANCE,
+    NONE,
     SUMMARY_VARIABLES,
     coinciding_pairs,
     error_measure,
+    floor_reason,
     format_table,
     order_text,
     per_scheme,
@@ -73,8 +76,8 @@ FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
 VERDICT_ACCURATE = 0
 # The findings a terminal shows before the table (text and md); the JSON form has them all.
 MAX_FINDING_LINES = 12
-# The per-value lines of the study's question name at most this many values; more are cut
-# with "..." (JSON carries them all).
+# A list of values is named whole up to this many; a longer one as a range that loses none
+# ("0.0001 to 10000, 17 values, every value swept", "all 17 values but 3.16": `_axis_text`).
 _SHOWN_VALUES = 6
 # A finding's line is at most this wide where it can be (a terminal of 100 columns): a
 # question whose parts do not fit together is told in a line per part.
@@ -147,34 +150,120 @@ def _label_text(labels):
     return ", ".join(f"{name}={_g(v) if isinstance(v, float) else v}" for name, v in labels.items())
 
 
+class _Place(dict):
+    """The coordinates of one value of the other swept axes (name -> value), as `_cases`
+    yields them, which also know where they lie: ``positions`` (dim -> index) along
+    ``axes`` (dim -> `_label_values` of that dim, every value swept), so that a list of them
+    can be told without losing a value (`_where`). Elsewhere it is the plain mapping."""
+
+    positions: dict = {}
+    axes: dict = {}
+
+
 def _where(labels):
-    """Where a recommendation holds, short: the values of each coordinate named in ``labels``
-    (a list of `_labels` mappings), ``inertia_ratio 0.5, 1.5, 2``; a zipped axis's index is
-    left out beside its coordinates, and more than `_SHOWN_VALUES` values are cut."""
-    names = list(labels[0])
-    if len(names) > 1:  # a zipped axis: its index (the axis's own name) says nothing
-        names = [
-            name
-            for name in names
-            if not any(
-                name == f"{a}_{b}" or "_" in name and name.split("_")[0] in names
-                for a in names
-                for b in names
-            )
-        ] or names
-    return "; ".join(f"{name} " + _series([label[name] for label in labels]) for name in names)
+    """Where a finding holds, every value of it (`_held`): ``inertia_ratio 0.5, 1.5, 2`` or
+    ``inertia_ratio 0.0001 to 10000, 17 values, every value swept``, for the ``labels`` (a
+    list of `_cases`' `_Place` mappings); a zipped axis's coordinates together
+    (``spin/tilt 1/0, 2/0.5``), its index left out. Where the values held are not every
+    combination of the axes' values held, it is told per value of the later axes
+    (``alpha 0, -0.05 at inertia_ratio 1; alpha 0 at inertia_ratio 2``)."""
+    axes = labels[0].axes if isinstance(labels[0], _Place) else {}
+    if not axes:  # plain mappings: every value named
+        return "; ".join(
+            f"{name} " + ", ".join(dict.fromkeys(_text(label[name]) for label in labels))
+            for name in labels[0]
+        )
+    return _held([tuple(label.positions[dim] for dim in axes) for label in labels], list(axes.items()))
+
+
+def _held(positions, axes):
+    """`_where`'s text of the held ``positions`` (tuples of indices along ``axes``, a list of
+    (dim, `_label_values` of it)): per axis when they are every combination of the axes'
+    values they hold, else the first axis's values per combination of the others."""
+    first = sorted({p[0] for p in positions})
+    if len(axes) == 1:
+        return _axis_text(*axes[0], first)
+    rests = {}
+    for p in positions:
+        rests.setdefault(p[1:], set()).add(p[0])
+    groups = {}
+    for rest, held in rests.items():
+        groups.setdefault(tuple(sorted(held)), []).append(rest)
+    if len(groups) == 1 and len(positions) == len(first) * len(rests):  # every combination
+        return "; ".join([_axis_text(*axes[0], first), _held(list(rests), axes[1:])])
+    return "; ".join(
+        f"{_axis_text(*axes[0], list(held))} at {_held(rest, axes[1:])}" for held, rest in groups.items()
+    )
+
+
+def _axis_names(dim, axis):
+    """The coordinates that name the values along ``dim`` (`_label_values` ``axis``): a zipped
+    axis's own, its index (the dimension's name) left out."""
+    return [name for name in axis if name != dim] or [dim]
+
+
+def _value_texts(dim, axis):
+    """Every value along ``dim`` as text, a zipped axis's coordinates joined by "/"."""
+    names = _axis_names(dim, axis)
+    return ["/".join(_text(axis[name][k]) for name in names) for k in range(len(axis[names[0]]))]
+
+
+def _axis_text(dim, axis, held):
+    """The values at positions ``held`` (sorted) along ``dim`` (`_label_values` ``axis``),
+    none lost: each named when at most `_SHOWN_VALUES`; ``0.0001 to 10000, 17 values, every
+    value swept``; ``all 17 values but 3.16``; or runs of neighbouring swept values, ``0.0001
+    to 0.1, 1 (8 of the 17 values: every swept value of each range)``."""
+    values = _value_texts(dim, axis)
+    name = "/".join(_axis_names(dim, axis))
+    count = len(values)
+    if len(held) <= _SHOWN_VALUES:
+        return f"{name} " + ", ".join(values[k] for k in held)
+    if len(held) == count:
+        return f"{name} {values[0]} to {values[-1]}, {count} values, every value swept"
+    left = sorted(set(range(count)) - set(held))
+    if len(left) <= _SHOWN_VALUES:
+        return f"{name} all {count} values but " + ", ".join(values[k] for k in left)
+    return (
+        f"{name} {_runs(values, held)} ({len(held)} of the {count} values: every swept value of each range)"
+    )
+
+
+def _runs(values, held):
+    """The ``values`` at positions ``held`` as runs of neighbours: ``a to b`` for three or
+    more, ``a and b`` for two."""
+    runs = []
+    for k in held:
+        if runs and k == runs[-1][-1] + 1:
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    return ", ".join(
+        f"{values[run[0]]} to {values[run[-1]]}" if len(run) >= 3 else " and ".join(values[k] for k in run)
+        for run in runs
+    )
+
+
+def _text(value):
+    """A coordinate value as text: 3 significant digits, 3160 and 10000 rather than 3.16e+03
+    and 1e+04."""
+    if not isinstance(value, float):
+        return str(value)
+    return f"{float(_g(value)):.0f}" if 1e3 <= abs(value) < 1e6 else _g(value)
 
 
 def _cases(ds):
     """The cases of every value of the other swept axes, in C order: (labels, isel indexer)
-    pairs."""
+    pairs, the labels a `_Place`."""
     dims = _other_dims(ds)
     labels_of = [_label_values(ds, dim) for dim in dims]
+    axes = dict(zip(dims, labels_of, strict=True))
     for index in np.ndindex(*[ds.sizes[d] for d in dims]):
-        labels = {}
+        labels = _Place()
         for values, k in zip(labels_of, index, strict=True):
             labels.update({name: column[k] for name, column in values.items()})
-        yield labels, dict(zip(dims, index, strict=True))
+        labels.positions = dict(zip(dims, index, strict=True))
+        labels.axes = axes
+        yield labels, dict(labels.positions)
 
 
 def case_seconds(ds):
@@ -433,7 +522,12 @@ def _verdict(ds, row, rates):
     name, numbers = row["scheme"], {}
     floor = ERROR_MEASURES["orientation"].floor
     largest = row.get("error")
-    if row["order"] is None and largest is not None and np.isfinite(largest) and largest <= floor:
+    reason = floor_reason(row)
+    if reason is not None:  # no order through errors at the floor (exact_split's "0.60")
+        parts = [FLOOR_WORDS[reason]]
+        if largest is not None:
+            numbers["error_rad"] = largest
+    elif row["order"] is None and largest is not None and np.isfinite(largest) and largest <= floor:
         parts = ["exact to round-off"]
         numbers["error_rad"] = largest
     elif row["order"] is not None:
@@ -472,9 +566,20 @@ def _verdict(ds, row, rates):
     )
 
 
-def _series(values):
-    shown = [v if isinstance(v, str) else _g(v) for v in values[:_SHOWN_VALUES]]
-    return ", ".join(shown) + (", ..." if len(values) > _SHOWN_VALUES else "")
+def _series(texts, values):
+    """``texts``, one per value of an axis (``values``, its `_value_texts`), none lost: each
+    in turn (``4.00, 4.00, 3.99``, in the order of the values the line names) where they are
+    few or all differ, else each run of equal neighbours with the values it holds for, ``4.00
+    at 0.0001 to 0.1, 3.99 at 0.316, none at 1 to 10000``."""
+    runs = []
+    for k, text in enumerate(texts):
+        if runs and runs[-1][0] == text:
+            runs[-1][1].append(k)
+        else:
+            runs.append((text, [k]))
+    if len(texts) <= _SHOWN_VALUES or 2 * len(runs) > len(texts):
+        return ", ".join(texts)
+    return ", ".join(f"{text} at {_runs(values, held)}" for text, held in runs)
 
 
 def _rows_along(ds, dim):
@@ -517,10 +622,7 @@ def _questions(ds, rates):
         size = ds.sizes[dim]
         labels = _label_values(ds, dim)
         per_label = [{name: column[k] for name, column in labels.items()} for k in range(size)]
-        values = [
-            "/".join(_g(v) if isinstance(v, float) else str(v) for v in one.values()) for one in per_label
-        ]
-        axis = "/".join(labels)
+        values = _value_texts(dim, labels)
         rows_of = _rows_along(ds, dim)
         for scheme in schemes_of(ds):
             rows = rows_of(scheme)
@@ -528,7 +630,7 @@ def _questions(ds, rates):
             if "dt" in ds["status"].dims:
                 numbers["order"] = [None if r["order"] is None else r["order"][0] for r in rows]
                 orders = [order_text(r) for r in rows]
-                parts, serieses = [f"order {_series(orders)}"], [orders]
+                parts, serieses = [f"order {_series(orders, values)}"], [orders]
                 if rates is not None:
                     along = per_scheme(rates, scheme)
                     status = per_scheme(ds["status"], scheme)
@@ -539,7 +641,7 @@ def _questions(ds, rates):
                     if any(c is not None for c in changes):
                         numbers["energy_rate_per_s"] = changes
                         energy = ["kept" if c is None else f"{c:+.1e}" for c in changes]
-                        parts.append("energy per s " + _series(energy))
+                        parts.append("energy per s " + _series(energy, values))
                         serieses.append(energy)
             else:
                 numbers["accurate_cases"] = [
@@ -548,11 +650,11 @@ def _questions(ds, rates):
                 numbers["failed_cases"] = [r["unstable"] for r in rows]
                 accurate = [f"{a}/{r['cases']}" for a, r in zip(numbers["accurate_cases"], rows, strict=True)]
                 failed = [f"{r['unstable']}/{r['cases']}" for r in rows]
-                parts = [f"accurate {_series(accurate)}", f"failed {_series(failed)}"]
+                parts = [f"accurate {_series(accurate, values)}", f"failed {_series(failed, values)}"]
                 serieses = [accurate, failed]
             if all(len(set(series)) == 1 for series in serieses):
                 continue  # nothing changes along the axis: the verdict line says it once
-            head = f"{scheme} over {axis} {_series(values)}: "
+            head = f"{scheme} over {_axis_text(dim, labels, range(size))}: "
             texts = [head + "; ".join(parts)]
             if len(texts[0]) > MAX_LINE:  # a line a part, those that change along the axis
                 texts = [
@@ -681,11 +783,9 @@ def finding_lines(found):
 
 
 def _cell(value):
-    if value is None:
-        return "-"
-    if isinstance(value, list):
-        return ", ".join(map(str, value)) or "-"
-    return _g(value) if isinstance(value, float) else str(value)
+    """A list of a record (the invariants kept) as one CSV cell: "none" when empty, as the
+    table says it (a missing number is an empty cell)."""
+    return ", ".join(map(str, value)) or NONE
 
 
 def markdown_summary(ds):

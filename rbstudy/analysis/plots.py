@@ -59,15 +59,18 @@ from rbstudy.analysis.summary import (  # noqa: E402
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
     agree,
+    at_floor,
     error_measure,
     fitted_order,
     per_scheme,
+    round_off_of,
     schemes_of,
     span,
     step_load,
     uncertainty_of,
     verdicts,
 )
+from rbstudy.errors import counted  # noqa: E402
 from rbstudy.numerics.state import OK, RADIOSS_STEP_ANGLE, STATUSES  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
@@ -545,12 +548,11 @@ def _reference_slopes(ax, dts, errors, orders):
         )
 
 
-def _fit_text(errors, fit, round_off, failed, limits):
+def _fit_text(errors, fit, failed, limits, round_off):
     """``order 4.00, finest 4.01`` in one panel, or why a line has no order: failed (``failed``: a
-    case of the line did; else it had no reference), exact, at round-off (an invariant kept:
-    errors at or below ``round_off``), within the reference's uncertainty (every error at or
-    below its ``limits``, `UNCERTAINTY_FACTOR` times the uncertainty), or no asymptotic
-    range."""
+    case of the line did; else it had no reference), exact, at the floor (`at_floor`: too few
+    errors above their ``round_off`` (an invariant kept), or above their ``limits``,
+    `UNCERTAINTY_FACTOR` times the reference's uncertainty), or no asymptotic range."""
     present = np.isfinite(errors)
     finite = errors[present]
     if np.isfinite(fit.order):
@@ -559,10 +561,12 @@ def _fit_text(errors, fit, round_off, failed, limits):
         text = "failed at every dt" if failed else "no reference at any dt"
     elif np.all(finite == 0.0):
         text = "exact at every dt"
-    elif np.all(finite <= round_off):
-        text = "at round-off at every dt"
-    elif np.all(finite <= limits[present]):
-        text = f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty at every dt"
+    elif why := at_floor(errors, round_off, limits / UNCERTAINTY_FACTOR):  # in a legend's ( )
+        text = (
+            "at the round-off floor"
+            if why == "round-off"
+            else f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty"
+        )
     else:
         text = "no asymptotic range"
     return text
@@ -670,7 +674,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
     line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
     for key, spec in ERROR_MEASURES.items():
-        label, units, round_off = spec.label, spec.units, spec.floor
+        label, units = spec.label, spec.units
         if measures is not None and key not in measures:
             continue
         measure = error_measure(ds, key)
@@ -683,6 +687,11 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             _uncertainty_limit(uncertainty, facet, value, reduced, panel)
             for value, panel in zip(values, panels, strict=True)
         ]
+        # the round-off floor of the worst case is the largest of the panel's (`round_off_of`)
+        round_off = round_off_of(ds, key, measure)
+        round_offs = [
+            _worst(round_off.sel({facet: value}) if facet else round_off, reduced) for value in values
+        ]
         failures = [
             _worst((ds["status"] != 0).sel({facet: value}) if facet else ds["status"] != 0, reduced)
             for value in values
@@ -694,8 +703,8 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             if np.isfinite(panel.values).any() or failed.values.any()
         ] or list(range(len(values)))
         unreferenced = [values[k] for k in range(len(values)) if k not in shown]
-        facet_values, panels, failures, limits = (
-            [items[k] for k in shown] for items in (values, panels, failures, limits)
+        facet_values, panels, failures, limits, round_offs = (
+            [items[k] for k in shown] for items in (values, panels, failures, limits, round_offs)
         )
         fits = [
             [
@@ -703,20 +712,24 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                     line_name,
                     style,
                     data.values,
-                    fitted_order(dts, data.values, key, limit.values),
+                    fitted_order(dts, data.values, key, limit.values, floor.values),
                     bool(failed.values.any()),
                     limit.values,
+                    floor.values,
                 )
-                for (line_name, style, data), (*_, failed), (*_, limit) in zip(
+                for (line_name, style, data), (*_, failed), (*_, limit), (*_, floor) in zip(
                     _lines(panel, line_dim),
                     _lines(failures_of_panel, line_dim),
                     _lines(panel_limits, line_dim),
+                    _lines(panel_floors, line_dim),
                     strict=True,
                 )
             ]
-            for panel, failures_of_panel, panel_limits in zip(panels, failures, limits, strict=True)
+            for panel, failures_of_panel, panel_limits, panel_floors in zip(
+                panels, failures, limits, round_offs, strict=True
+            )
         ]
-        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _, _ in panel):
+        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _, _, _ in panel):
             figures.absent[name] = (
                 f"no case has a reference to measure the {label} against (reference = none)"
                 if _unreferenced(ds).all()
@@ -745,7 +758,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for j, (_, _, errors, fit, _, _) in enumerate(lines):
+                for j, (_, _, errors, fit, *_) in enumerate(lines):
                     style = drawn[j]
                     handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
                     ax.plot(
@@ -776,8 +789,8 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                         _fit_label(
                             [fits[0][j][0] for j in group],
                             [
-                                _fit_text(errors, fit, round_off, failed, line_limits)
-                                for _, _, errors, fit, failed, line_limits in (
+                                _fit_text(errors, fit, failed, line_limits, line_floors)
+                                for _, _, errors, fit, failed, line_limits, line_floors in (
                                     lines[group[0]] for lines in fits
                                 )
                             ],
@@ -792,7 +805,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             unjudged_gap = any(
                 not failed and not np.isfinite(errors).all()
                 for panel in fits
-                for _, _, errors, _, failed, _ in panel
+                for _, _, errors, _, failed, *_ in panel
             )
             gaps = (
                 "failed cases, or cases without a reference"
@@ -1354,7 +1367,7 @@ def all_figures(
         figures += done[index]
     kept = sum(len(done[index].written) for index in reused)
     drawn = len(figures.written) - kept
-    progress.end = f"{drawn} figure{'s' * (drawn != 1)} drawn, {kept} reused"
+    progress.end = f"{counted(drawn, 'figure')} drawn, {kept} reused"
     if digest is not None:
         record = {
             "digest": digest,

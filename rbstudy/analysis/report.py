@@ -34,9 +34,12 @@ from rbstudy.analysis.plots import (
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
+    FLOOR_WORDS,
+    ROUND_OFF_ULPS,
     UNCERTAINTY_FACTOR,
     coinciding_pairs,
     error_measure,
+    floor_reason,
     format_table,
     order_text,
     scheme_rows,
@@ -148,9 +151,15 @@ def _convergence_caption(ds, rows, key, first):
     )
     if key == "orientation":  # the table's fits: the words cannot disagree with it
         fitted = [f"{row['scheme']} {order_text(row)}" for row in rows if row["order"]]
-        unfitted = [row["scheme"] for row in rows if not row["order"]]
+        floored = {
+            reason: [row["scheme"] for row in rows if floor_reason(row) == reason] for reason in FLOOR_WORDS
+        }
+        unfitted = [row["scheme"] for row in rows if not row["order"] and floor_reason(row) is None]
         if fitted:
             text += f" Fitted orders: {_listing(fitted)}."
+        for reason, schemes in floored.items():
+            if schemes:  # no order is fitted through errors at the floor
+                text += f" {FLOOR_WORDS[reason].capitalize()}: {_listing(schemes)}."
         if unfitted:
             text += f" No asymptotic range: {_listing(unfitted)}."
     elif line in errors.dims:  # the finest step's error of each line, its worst case
@@ -279,10 +288,14 @@ def _table_intro(ds):
     floor, ceiling = ERROR_MEASURES["orientation"].floor, ERROR_MEASURES["orientation"].ceiling
     return (
         "The table rbstudy sweep --wide prints, its footnotes under it. No order is fitted "
-        f"through an error below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
-        "uncertainty (reference_uncertainty). The asymptotic range: the longest run of at "
-        f"least {MIN_ASYMPTOTIC_POINTS} neighbouring steps with errors between {floor:g} and "
-        f"{ceiling:g} rad whose local slopes agree within {ORDER_SPREAD:g} of the fitted "
+        f"through an error at the floor: below {UNCERTAINTY_FACTOR:g}x its integrated reference's "
+        "uncertainty (reference_uncertainty), or at round-off, which is "
+        f"{floor:g} rad or {ROUND_OFF_ULPS:g} ulps of the steps plus the largest angle the "
+        "motion sweeps (|w| T times the largest over the smallest moment of inertia), whichever "
+        "is larger. "
+        f"The asymptotic range: the longest run of at least {MIN_ASYMPTOTIC_POINTS} "
+        f"neighbouring steps with errors above the floor and below {ceiling:g} rad whose local "
+        f"slopes agree within {ORDER_SPREAD:g} of the fitted "
         f"order (itself at least {MIN_CONVERGENCE_ORDER:g}) and do not drift by more than "
         f"{MAX_SLOPE_DRIFT:g} in their trend; among equally long runs, the finest. Accuracy "
         f"bound of this study: {ds.attrs.get('accuracy_bound', '-')} (rad for the "

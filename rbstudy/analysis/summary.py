@@ -26,8 +26,9 @@ from typing import NamedTuple
 import numpy as np
 from tabulate import tabulate
 
+from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS, OK, STATUSES
-from rbstudy.physics.metrics import asymptotic_order
+from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS, asymptotic_order
 
 __all__ = [
     "ERROR_MEASURES",
@@ -41,10 +42,16 @@ __all__ = [
     "error_measure",
     "fitted_order",
     "uncertainty_of",
+    "round_off_of",
+    "at_floor",
     "UNCERTAINTY_FACTOR",
+    "ROUND_OFF_ULPS",
     "scheme_rows",
     "format_table",
     "order_text",
+    "floor_reason",
+    "FLOOR_WORDS",
+    "NONE",
     "Column",
     "table_columns",
     "table_notes",
@@ -66,7 +73,8 @@ class ErrorMeasure(NamedTuple):
     label, units : its words and units. floor, ceiling : its asymptotic range: below the floor
     an error is round-off, above the ceiling it is not asymptotic (or the run failed).
     variable : the archive's variable. uncertainty : the variable of the uncertainty of its
-    reference, or None (a closed form, or a measure not against a reference).
+    reference, or None (a closed form, or a measure not against a reference). turns : whether
+    its round-off grows with the angle the body turns (`round_off_of`).
     """
 
     label: str
@@ -75,6 +83,7 @@ class ErrorMeasure(NamedTuple):
     ceiling: float
     variable: str
     uncertainty: str | None = None
+    turns: bool = False
 
 
 # The floor is a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
@@ -90,6 +99,7 @@ ERROR_MEASURES = {
         ceiling=1e-1,
         variable="final_orientation_error",
         uncertainty="reference_uncertainty",
+        turns=True,
     ),
     "omega": ErrorMeasure(
         label="max relative angular velocity error",
@@ -98,6 +108,7 @@ ERROR_MEASURES = {
         ceiling=1e-1,
         variable="omega_error",
         uncertainty="reference_omega_uncertainty",
+        turns=True,
     ),
     "nodes": ErrorMeasure(
         label="max node position error",
@@ -141,6 +152,12 @@ ERROR_MEASURES = {
 # An error within this factor of its reference's uncertainty says as much about the reference
 # as about the scheme: no order is fitted through it.
 UNCERTAINTY_FACTOR = 10.0
+# A measure that turns with the body rounds about an ulp a step and an ulp of the largest
+# angle the run's motion sweeps: exact_split, exact on a free body, ends the Abaqus top
+# 9.8e-13 rad off after 6,400 steps (0.7 ulp a step) and stiff_inertia's disk of I3/I1 = 1e4
+# (its precession sweeps 6.3e4 rad in 1 s) 1.4e-11 rad off at every dt, at most 1.3 ulps of
+# steps and angle together; ten times that is round-off (`round_off_of`).
+ROUND_OFF_ULPS = 10.0
 # What `scheme_rows` reads: per-case scalars, and momentum_error (the vector L is checked at
 # the samples: a time series per case).
 SUMMARY_VARIABLES = (
@@ -156,6 +173,8 @@ SUMMARY_VARIABLES = (
     "physical_body",
     "radioss_dt_limit",
     "reference_uncertainty",
+    "max_step_angle",
+    "inertia",
 )
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
@@ -184,15 +203,63 @@ def uncertainty_of(ds, key, like):
     return ds[name].broadcast_like(like) if name is not None and name in ds else None
 
 
-def fitted_order(dts, errors, key, uncertainty=None):
+def round_off_of(ds, key, like):
+    """The round-off floor of measure ``key`` per case, broadcast like the measure ``like``:
+    its constant ``floor`` (relative to 1), raised for a measure that ``turns`` with the body to
+    `ROUND_OFF_ULPS` float64 ulps of its steps (``n_steps``) plus the largest angle the run's
+    motion sweeps: ``|w| T`` (``max_step_angle`` times ``n_steps``) times the inertia's
+    largest over its smallest moment, as fast as ``|L| / I_min``, the precession of L seen
+    from the body, can outrun ``|w|``. A failed case (no finite angle) keeps the constant
+    floor: its error is NaN."""
+    spec = ERROR_MEASURES[key]
+    floor = like.copy(data=np.full(like.shape, spec.floor))
+    if not spec.turns or not {"max_step_angle", "n_steps", "inertia"} <= set(ds.variables):
+        return floor
+    inertia = ds["inertia"]
+    steps = ds["n_steps"]
+    swept = steps + ds["max_step_angle"] * steps * inertia.max("axis") / inertia.min("axis")
+    scaled = (ROUND_OFF_ULPS * np.finfo(float).eps * swept).broadcast_like(like).transpose(*like.dims)
+    return np.fmax(floor, scaled.where(np.isfinite(scaled)))
+
+
+def fitted_order(dts, errors, key, uncertainty=None, round_off=None):
     """Observed order of measure ``key`` over its asymptotic range, an
-    `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope). A point whose
-    error is below `UNCERTAINTY_FACTOR` times its reference's ``uncertainty`` (per point;
-    NaN or None: none known) is not fitted."""
-    floor, ceiling = ERROR_MEASURES[key].floor, ERROR_MEASURES[key].ceiling
+    `rbstudy.physics.metrics.OrderFit` (order, used mask, finest pair's slope). A point at the
+    floor is not fitted: at or below its ``round_off`` (per point, `round_off_of`; None: the
+    measure's constant floor), or below `UNCERTAINTY_FACTOR` times its reference's
+    ``uncertainty`` (per point; NaN or None: none known)."""
+    spec = ERROR_MEASURES[key]
+    return asymptotic_order(dts, errors, _floor(spec.floor, uncertainty, round_off), spec.ceiling)
+
+
+def _floor(constant, uncertainty, round_off):
+    """The larger of the round-off floor (``round_off`` per point, else ``constant``) and
+    `UNCERTAINTY_FACTOR` times the reference's ``uncertainty`` (NaN: none known)."""
+    floor = constant if round_off is None else np.asarray(round_off, dtype=float)
     if uncertainty is not None:
         floor = np.fmax(floor, UNCERTAINTY_FACTOR * np.asarray(uncertainty, dtype=float))
-    return asymptotic_order(dts, errors, floor, ceiling)
+    return floor
+
+
+def at_floor(errors, round_off, uncertainty=None):
+    """Why no order can be fitted through ``errors`` over the steps: ``"round-off"`` when too
+    few finite errors lie above their ``round_off`` (per point) for a fit (fewer than
+    `MIN_ASYMPTOTIC_POINTS` where that many are finite, else none), ``"reference"`` when too
+    few lie above `UNCERTAINTY_FACTOR` times the reference's ``uncertainty`` as well; None
+    when enough do (or no error is finite: the cases failed)."""
+    errors = np.asarray(errors, dtype=float)
+    finite = np.isfinite(errors)
+
+    def too_few(above):
+        shown = finite & above
+        enough = finite.sum() >= MIN_ASYMPTOTIC_POINTS
+        return shown.sum() < MIN_ASYMPTOTIC_POINTS and (enough or not shown.any())
+
+    if not finite.any():
+        return None
+    if too_few(errors > round_off):
+        return "round-off"
+    return "reference" if too_few(errors > _floor(0.0, uncertainty, round_off)) else None
 
 
 def schemes_of(ds):
@@ -226,7 +293,7 @@ def status_text(code, cases):
         cases
         if isinstance(cases, str)
         else (
-            f"{sum(cases.values())} case{'s' * (sum(cases.values()) != 1)} ("
+            f"{counted(sum(cases.values()), 'case')} ("
             + ", ".join(f"{scheme} {count}" for scheme, count in cases.items())
             + ")"
         )
@@ -239,30 +306,33 @@ def step_load(ds):
     return (ds["dt"] * ds["initial_spin"]).broadcast_like(ds["status"])
 
 
-def _orders(errors, uncertainty):
+def _orders(errors, uncertainty, round_off):
     """Observed orders over ``dt`` for every value of the other swept axes: the successful
-    fits, how many were tried, and the union of the dt values fitted. ``uncertainty``: the
-    reference's, like ``errors``, or None."""
+    fits, how many were tried, the union of the dt values fitted, and of the values without a
+    fit how many were at the floor (`at_floor`: reason -> count). ``uncertainty``: the
+    reference's, like ``errors``, or None; ``round_off``: the round-off floor, like
+    ``errors``."""
     others = [d for d in errors.dims if d != "dt"]
 
     def stack(values):
+        values = values.transpose(*errors.dims)
         return values.stack(other=others) if others else values.expand_dims(other=[0])
 
     stacked = stack(errors)
-    limits = None if uncertainty is None else stack(uncertainty.transpose(*errors.dims))
+    limits = None if uncertainty is None else stack(uncertainty)
+    floors = stack(round_off)
     dts = errors["dt"].values
-    fits, used = [], np.zeros(dts.shape, dtype=bool)
+    fits, used, floored = [], np.zeros(dts.shape, dtype=bool), {}
     for k in range(stacked.sizes["other"]):
-        fit = fitted_order(
-            dts,
-            stacked.isel(other=k).values,
-            _ORDER_MEASURE,
-            None if limits is None else limits.isel(other=k).values,
-        )
+        values, floor = stacked.isel(other=k).values, floors.isel(other=k).values
+        limit = None if limits is None else limits.isel(other=k).values
+        fit = fitted_order(dts, values, _ORDER_MEASURE, limit, floor)
         if np.isfinite(fit.order):
             fits.append(fit)
             used |= fit.used
-    return fits, stacked.sizes["other"], dts[used]
+        elif why := at_floor(values, floor, limit):
+            floored[why] = floored.get(why, 0) + 1
+    return fits, stacked.sizes["other"], dts[used], floored
 
 
 def verdicts(ds, scheme):
@@ -336,7 +406,8 @@ def _scheme_rows(ds):
     without a reference), radioss (cases past the OpenRadioss limit dt |w| = 1); order
     ((min, max) over the successful fits, or None) and finest ((min, max) of the fits'
     finest-pair slopes),
-    fits and tries (how many of the other axes' values gave an asymptotic range), fit_dt
+    fits and tries (how many of the other axes' values gave an asymptotic range), floored (of
+    the others, how many had too few errors above the floor, by `at_floor`'s reason), fit_dt
     ((smallest, largest) dt fitted); error_dt / error at the largest dt and error_small_dt /
     error_small at the smallest, the worst over the other axes (NaN when a case there failed:
     a failure is never hidden behind the stable cases; None when a case there had no
@@ -344,8 +415,9 @@ def _scheme_rows(ds):
     body-step, all the scheme's time over all its steps); and over physical cases, by
     ``dt |w0|``: accurate_hw (accurate up to: the largest of an accurate case below the
     first that is not), inaccurate_hw (the smallest of a finished but inaccurate case) and
-    unstable_hw (the smallest of a failed one), NaN where none; kept (invariants every stable
-    case kept to `KEPT_TOLERANCE`).
+    unstable_hw (the smallest of a failed one), NaN where none; physical and judged_physical
+    (its cases of a physical body, and of those the ones with a reference); kept (invariants
+    every stable case kept to `KEPT_TOLERANCE`) and invariants_measured (whether any was).
     """
     rows = []
     load = step_load(ds)
@@ -355,6 +427,7 @@ def _scheme_rows(ds):
     drifts = {label: error_measure(ds, key) for key, label in INVARIANTS.items()}
     orientation = error_measure(ds, _ORDER_MEASURE)
     uncertainty = None if orientation is None else uncertainty_of(ds, _ORDER_MEASURE, orientation)
+    round_off = None if orientation is None else round_off_of(ds, _ORDER_MEASURE, orientation)
     for scheme in schemes_of(ds):
         status = per_scheme(ds["status"], scheme)
         accurate, inaccurate, failed, unjudged = verdicts(ds, scheme)
@@ -369,6 +442,7 @@ def _scheme_rows(ds):
             "finest": None,
             "fits": 0,
             "tries": 0,
+            "floored": {},
             "fit_dt": (),
             "error": None,
             "error_small": None,
@@ -388,13 +462,18 @@ def _scheme_rows(ds):
         limit = np.fmin(first["inaccurate"], first["failed"])  # NaN when every case is fine
         good = accurate & real & (scheme_load < limit if np.isfinite(limit) else True)
         row["accurate_hw"] = float(np.max(scheme_load[good])) if good.any() else np.nan
+        # what a missing dt |w0| means: no physical body, or none judged (no reference)
+        row["physical"] = int(real.sum())
+        row["judged_physical"] = int((real & ~unjudged).sum())
         row["inaccurate_hw"], row["unstable_hw"] = first["inaccurate"], first["failed"]
         row["kept"], row["invariants_measured"] = _kept(drifts, scheme, ~failed)
         if orientation is not None:
             errors = per_scheme(orientation, scheme)
             if "dt" in errors.dims:
-                fits, row["tries"], fitted = _orders(
-                    errors, None if uncertainty is None else per_scheme(uncertainty, scheme)
+                fits, row["tries"], fitted, row["floored"] = _orders(
+                    errors,
+                    None if uncertainty is None else per_scheme(uncertainty, scheme),
+                    per_scheme(round_off, scheme),
                 )
                 row["fits"] = len(fits)
                 if fits:
@@ -449,23 +528,72 @@ def coinciding_pairs(ds, errors):
     ]
 
 
+# The words a cell shows where it has no number, each explained under the table where used
+# (`Column.marks`): a "-" said "no reference", "no accurate step" and "none kept" alike.
+NOT_APPLICABLE = "n/a"
+NONE = "none"
+NO_REFERENCE = "no ref"
+FAILED = "failed"
+ROUND_OFF = "round-off"
+REFERENCE_FLOOR = "ref floor"
+# What the findings say for a row whose every value was at the floor (`at_floor`'s reason).
+FLOOR_WORDS = {
+    "round-off": "at the floor (round-off)",
+    "reference": f"at the floor ({UNCERTAINTY_FACTOR:g}x the reference's uncertainty)",
+}
+
+
+def floor_reason(row):
+    """``"round-off"`` or ``"reference"`` (`at_floor`) when no value of the other axes had a
+    fit and every one of them was at the floor (round-off where any was), else None."""
+    floored = row.get("floored", {})
+    if row["order"] is not None or not row["tries"] or sum(floored.values()) < row["tries"]:
+        return None
+    return "round-off" if floored.get("round-off") else "reference"
+
+
 def order_text(row):
-    """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), with ``(3/4 fits)``
-    when some values of the other axes had no asymptotic range; ``-`` without any."""
-    if row["order"] is None:
-        return "-" if not row["tries"] else f"- (0/{row['tries']})"
-    text = span(row["order"])
-    return text if row["fits"] == row["tries"] else f"{text} ({row['fits']}/{row['tries']})"
+    """``2.00`` or ``1.98-2.01`` (the range over the other swept axes), with ``(3/4)`` when
+    some values of the other axes had no asymptotic range; without any, why: `ROUND_OFF` or
+    `REFERENCE_FLOOR` (every value at the floor, `floor_reason`), `NONE` (no asymptotic
+    range, ``(0/4)``) or `NOT_APPLICABLE` (dt not swept)."""
+    if row["order"] is not None:
+        text = span(row["order"])
+    elif not row["tries"]:
+        return NOT_APPLICABLE
+    else:
+        reason = floor_reason(row)
+        if reason is not None:
+            return ROUND_OFF if reason == "round-off" else REFERENCE_FLOOR
+        text = NONE
+    whole = row["fits"] == row["tries"] or row["tries"] == 1  # (0/1) says nothing more
+    return text if whole else f"{text} ({row['fits']}/{row['tries']})"
 
 
 def _error(value):
     if value is None:
-        return "-"
-    return "failed" if not np.isfinite(value) else f"{value:.1e}"
+        return NO_REFERENCE
+    return FAILED if not np.isfinite(value) else f"{value:.1e}"
 
 
-def _number(value, spec):
-    return "-" if value is None or not np.isfinite(value) else f"{value:{spec}}"
+def _number(value, spec, missing=NONE):
+    return missing if value is None or not np.isfinite(value) else f"{value:{spec}}"
+
+
+def _step_load(row, key):
+    """The ``dt |w0|`` cell ``key`` of ``row``, or why it has none: `NOT_APPLICABLE` (no
+    physical body), `NO_REFERENCE` (none of them judged), `NONE` (no such case)."""
+    if not row["physical"]:
+        return _number(row[key], ".3g", NOT_APPLICABLE)
+    if key != "unstable_hw" and not row["judged_physical"]:
+        return _number(row[key], ".3g", NO_REFERENCE)
+    return _number(row[key], ".3g")
+
+
+def _kept_text(row):
+    if row["kept"]:
+        return ", ".join(row["kept"])
+    return NONE if row["invariants_measured"] else NOT_APPLICABLE
 
 
 # The terminal's width the default table and its footnotes keep to (characters).
@@ -477,8 +605,10 @@ TABLE_FORMATS = ("text", "markdown", "csv", "html")
 class Column:
     """A column of the per-scheme table: its ``key``, its ``header`` (the name, then its
     units; the terminal shows each line of it on a line of its own, the other formats one
-    line), the ``cell`` text of a row, whether the default ``narrow`` table shows it, and
-    its footnotes ``notes`` (none when the header says it all)."""
+    line), the ``cell`` text of a row, whether the default ``narrow`` table shows it, its
+    footnotes ``notes`` (none when the header says it all), and ``marks``: (word, footnote)
+    pairs, each word a cell may hold instead of a number with what it means there, noted
+    only under a table whose cells of the column use it."""
 
     key: str
     header: str
@@ -486,6 +616,7 @@ class Column:
     narrow: bool
     notes: tuple = ()
     left: bool = False
+    marks: tuple = ()
 
 
 def table_columns(rows):
@@ -497,94 +628,116 @@ def table_columns(rows):
     def error_at(dt):
         return "error\n(rad)" if dt is None else f"error at\ndt={dt:g} s\n(rad)"
 
+    errors = (
+        (FAILED, f'"{FAILED}": a case blew up'),
+        (NO_REFERENCE, f'error "{NO_REFERENCE}": a case had no reference'),
+    )
+    load_marks = (
+        (NONE, f'dt|w0| "{NONE}": no such case'),
+        (NOT_APPLICABLE, f'dt|w0| "{NOT_APPLICABLE}": no physical body'),
+        (NO_REFERENCE, f'dt|w0| "{NO_REFERENCE}": none had a reference'),
+    )
     columns = [
         Column("scheme", "scheme", lambda row: row["scheme"], True, left=True),
         Column(
             "nominal",
             "nominal\norder",
-            lambda row: "-" if row["nominal"] is None else str(row["nominal"]),
+            lambda row: NOT_APPLICABLE if row["nominal"] is None else str(row["nominal"]),
             True,
+            marks=((NOT_APPLICABLE, f'nominal "{NOT_APPLICABLE}": not in the archive'),),
         ),
         Column(
             "order",
             "observed\norder",
             order_text,
             True,
-            (
-                "observed order: fitted over the asymptotic range per value of the other axes",
-                "(k/n): k of the n had one",
+            ("observed order: per value of the other axes, (k/n): k of n fitted",),
+            marks=(
+                (ROUND_OFF, f'"{ROUND_OFF}": errors at round-off'),
+                (REFERENCE_FLOOR, f'"{REFERENCE_FLOOR}": under {UNCERTAINTY_FACTOR:g}x its uncertainty'),
+                (NONE, f'order "{NONE}": no asymptotic range'),
+                (NOT_APPLICABLE, f'order "{NOT_APPLICABLE}": dt not swept'),
             ),
         ),
         Column(
             "finest",
             "finest\npair",
-            lambda row: "-" if row["finest"] is None else span(row["finest"]),
+            lambda row: NONE if row["finest"] is None else span(row["finest"]),
             False,
             ("finest pair: slope of the two finest fitted steps",),
         ),
         Column(
             "fit_dt",
             "fit over\ndt (s)",
-            lambda row: "-" if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}",
+            lambda row: NONE if not row["fit_dt"] else f"{row['fit_dt'][0]:.3g}..{row['fit_dt'][1]:.3g}",
             False,
+            marks=((NONE, f'finest pair, fit over "{NONE}": no order fitted'),),
         ),
         Column(
             "error",
             error_at(large),
             lambda row: _error(row["error"]),
             True,
-            (
-                "error: final orientation error, the worst over the other axes",
-                '"failed": one blew up',
-                '"-": one had no reference',
-            ),
+            ("error: final orientation error, worst case",),
+            marks=errors,
         ),
     ]
     if small is not None and small != large:
         columns.append(
-            Column("error_small", error_at(small), lambda row: _error(row.get("error_small")), False)
+            Column(
+                "error_small",
+                error_at(small),
+                lambda row: _error(row.get("error_small")),
+                False,
+                marks=errors,
+            )
         )
     columns += [
         Column(
             "ns_per_step",
             "ns per\nstep",
-            lambda row: _number(row["ns_per_step"], ".0f"),
+            lambda row: _number(row["ns_per_step"], ".0f", NOT_APPLICABLE),
             True,
             ("ns: kernel CPU time",),
+            marks=((NOT_APPLICABLE, f'ns "{NOT_APPLICABLE}": no step timed'),),
         ),
         Column(
             "accurate_hw",
             "accurate\nto dt|w0|\n(rad)",
-            lambda row: _number(row["accurate_hw"], ".3g"),
+            lambda row: _step_load(row, "accurate_hw"),
             True,
             (
-                "accurate to: largest accurate dt|w0| below the first inaccurate or failed one",
+                "accurate to: largest accurate dt|w0| below any inaccurate or failed",
                 "dt|w0|: physical bodies only",
             ),
+            marks=load_marks,
         ),
         Column(
             "inaccurate_hw",
             "first\ninaccurate\ndt|w0| (rad)",
-            lambda row: _number(row["inaccurate_hw"], ".3g"),
+            lambda row: _step_load(row, "inaccurate_hw"),
             False,
+            marks=load_marks,
         ),
         Column(
             "unstable_hw",
             "first\nfailed\ndt|w0| (rad)",
-            lambda row: _number(row["unstable_hw"], ".3g"),
+            lambda row: _step_load(row, "unstable_hw"),
             False,
+            marks=load_marks,
         ),
         Column(
             "inaccurate",
             "inaccurate\ncases",
             lambda row: (
-                "-"
+                NOT_APPLICABLE
                 if row["inaccurate"] is None
                 else f"{row['inaccurate']}/{row['cases']}"
                 + (f" ({row['unjudged']} unjudged)" if row["unjudged"] else "")
             ),
             False,
             ("inaccurate: past the accuracy bound (unjudged: no reference)",),
+            marks=((NOT_APPLICABLE, f'inaccurate "{NOT_APPLICABLE}": the archive has no verdict'),),
         ),
         Column(
             "failed",
@@ -609,22 +762,29 @@ def table_columns(rows):
         Column(
             "kept",
             "kept",
-            lambda row: ", ".join(row["kept"]) or "-",
+            _kept_text,
             True,
-            (
-                f"kept: drift < {KEPT_TOLERANCE:g} in every stable case (energy and "
-                "|L| at every step, L at the samples)",
-            ),
+            (f"kept: drift < {KEPT_TOLERANCE:g} in every stable case (L at the samples)",),
             left=True,
+            marks=(
+                (NONE, f'kept "{NONE}": no invariant kept'),
+                (NOT_APPLICABLE, f'kept "{NOT_APPLICABLE}": none measured (a moment acts)'),
+            ),
         )
     )
     return columns
 
 
-def table_notes(columns, width=TERMINAL_WIDTH):
-    """The footnotes of ``columns``, keyed by their column's name, as lines of at most
-    ``width`` characters."""
-    return wrap_clauses("; ".join(note for column in columns for note in column.notes), width)
+def table_notes(columns, rows, width=TERMINAL_WIDTH):
+    """The footnotes of ``columns`` over ``rows``, as lines of at most ``width`` characters:
+    each column's notes, then what each of its `Column.marks` means, of those its cells of
+    ``rows`` hold (a mark's note said once, where columns share it)."""
+    notes = []
+    for column in columns:
+        notes += column.notes
+        used = {column.cell(row) for row in rows}
+        notes += [note for mark, note in column.marks if any(cell.startswith(mark) for cell in used)]
+    return wrap_clauses("; ".join(dict.fromkeys(notes)), width)
 
 
 def wrap_clauses(line, width=TERMINAL_WIDTH, indent=""):
@@ -663,13 +823,13 @@ def format_table(rows, wide=False, fmt="text"):
             ).splitlines()
         ]
         # the footnotes of a wide table as wide as it
-        return "\n".join(lines + table_notes(columns, max(TERMINAL_WIDTH, *map(len, lines))))
+        return "\n".join(lines + table_notes(columns, rows, max(TERMINAL_WIDTH, *map(len, lines))))
     headers = [_one_line(c.header) for c in columns]
     if fmt == "csv":
         text = io.StringIO()
         csv.writer(text, lineterminator="\n").writerows([headers, *cells])
         return text.getvalue()
-    notes = table_notes(columns)
+    notes = table_notes(columns, rows)
     if fmt == "markdown":  # a | inside a cell (|L|, dt|w0|) would end it
         table = tabulate(
             [[_pipes(text) for text in line] for line in cells],

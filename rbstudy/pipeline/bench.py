@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from rbstudy.errors import RbstudyError, SchemeError
+from rbstudy.errors import RbstudyError, SchemeError, counted
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.inputs.yaml_file import parse_yaml
 from rbstudy.numerics.driver import run_batch
@@ -124,14 +124,14 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
     scene = abaqus_top_scene()
     cores = default_threads()
     rows = []
-    with Progress("bench", f"{len(chosen)} schemes", quiet=not progress) as shown:
+    with Progress("bench", counted(len(chosen), "scheme"), quiet=not progress) as shown:
         # two lines, each within 100 columns for any --body-steps and number of cores
         shown.echo(
             f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per figure,"
         )
         shown.echo(
-            f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {cores} "
-            "cores; rates in body-steps/s of B bodies"
+            f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {counted(cores, 'core')}"
+            "; rates in body-steps/s of B bodies"
         )
         width = max(10, *(len(_label(*pair)) for pair in chosen))  # a plug-in's may be long
         # two header lines, so that six rates keep to 100 columns
@@ -141,7 +141,7 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
         )
         shown.echo(
             f"{'scheme':{width}s} {'s':>9s}"
-            + f" {'1 core':>{_RATE}s} {f'{cores} cores':>{_RATE}s}" * len(batch_sizes)
+            + f" {'1 core':>{_RATE}s} {counted(cores, 'core'):>{_RATE}s}" * len(batch_sizes)
         )
         for scheme, own in chosen:
             rows.append(_measure(scheme, own, scene, batch_sizes, body_steps, cores, width, shown))
@@ -173,7 +173,7 @@ def _measure(scheme, options, scene, batch_sizes, body_steps, cores, width, prog
                 continue
             steps = REFERENCE_STEPS
         for threads in (1, cores):
-            progress.update(f"bench: {name}, B={size} on {threads} thread" + "s" * (threads > 1))
+            progress.update(f"bench: {name}, B={size} on {counted(threads, 'thread')}")
             rate, _ = _rate(scheme, scene, size, steps, threads, options)
             row[f"B{size}_threads{threads}"] = rate
             line += f" {rate:{_RATE}.3e}"

@@ -31,7 +31,7 @@ from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from rbstudy.errors import ConfigError, RbstudyError, one_line
+from rbstudy.errors import ConfigError, RbstudyError, counted, one_line
 from rbstudy.inputs.reader import Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.pipeline.integrity import sealed
@@ -126,7 +126,7 @@ class Where:
         return (
             f"connecting to {self.scheduler}"
             if self.scheduler
-            else f"starting {self.workers} workers"
+            else f"starting {counted(self.workers, 'worker')}"
             if self.workers
             else "starting the cluster"
         )
@@ -361,7 +361,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     def kept():  # counted on disk: a worker may have written a part whose news was lost
         paths = [target.path for target in targets.values()]
         return (
-            f"{sum(map(sealed, paths))} of {len(paths)} batches are kept in "
+            f"{sum(map(sealed, paths))} of {counted(len(paths), 'batch', 'batches')} are kept in "
             f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume"
         )
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.errors import ConfigError
+from rbstudy.errors import ConfigError, counted
 from rbstudy.numerics.block import FEWEST
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
@@ -248,31 +248,27 @@ def duration_text(seconds):
     return f"~{seconds:.1f} s" if seconds < 10 else f"~{seconds:,.0f} s"
 
 
-def _count(number, noun, plural=None):
-    return f"{number} {noun if number == 1 else plural or noun + 's'}"
-
-
 def describe(study, cost):
     """One line: cases, batches, output times and the `Estimate`."""
     axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
     text = (
-        f"{study.name}: {_count(len(study.cases), 'case')} ({axes}) in "
-        f"{_count(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
+        f"{study.name}: {counted(len(study.cases), 'case')} ({axes}) in "
+        f"{counted(len(study.batches), 'batch', 'batches')}, {study.n_times} output times; "
         f"{cost.body_steps:.2g} body-steps"
     )
     if cost.references:
         text += (
             f" and {cost.reference_steps:.2g} reference steps "
-            f"({_count(cost.references, 'scene')}, each integrated twice)"
+            f"({counted(cost.references, 'scene')}, each integrated twice)"
         )
     text += (
-        f", kernels {duration_text(cost.wall_seconds)} on {_count(cost.cores, 'core')}; archive "
+        f", kernels {duration_text(cost.wall_seconds)} on {counted(cost.cores, 'core')}; archive "
         f"~{cost.archive_bytes / _MIB:,.1f} MiB, peak memory ~{cost.peak_bytes / _MIB:,.0f} MiB"
     )
     if cost.over_budget:
         text += (
             f"; no reference within {REFERENCE_MAX_STEPS:.0e} steps for "
-            f"{_count(cost.over_budget, 'case')} (too many turns): reference = none there"
+            f"{counted(cost.over_budget, 'case')} (too many turns): reference = none there"
         )
     return text
 
@@ -293,7 +289,7 @@ def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
     if cost.body_steps > max_body_steps:
         raise ConfigError(
             f"needs {cost.body_steps:.2g} body-steps, kernels {duration_text(cost.wall_seconds)} on "
-            f"{_count(cost.cores, 'core')} (limit {max_body_steps:.2g}, --max-body-steps)",
+            f"{counted(cost.cores, 'core')} (limit {max_body_steps:.2g}, --max-body-steps)",
             "use a larger dt, a shorter duration or fewer cases, or raise --max-body-steps",
             source=study.path,
             key="sweep" if study.dimensions else "run.dt",

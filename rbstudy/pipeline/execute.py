@@ -30,7 +30,7 @@ import dask.threaded
 import numpy as np
 from filelock import FileLock, Timeout
 
-from rbstudy.errors import RbstudyError
+from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.loads import needs_time
@@ -165,13 +165,21 @@ class StudyRun:
     @property
     def said(self):
         """What the run did, in the words of its progress's end line."""
-        return "up to date" if self.up_to_date else f"{self.computed} batches run, {self.reused} reused"
+        return (
+            "up to date"
+            if self.up_to_date
+            else f"{counted(self.computed, 'batch', 'batches')} run, {self.reused} reused"
+        )
 
 
 def study_progress(study, quiet=False):
     """The `rbstudy.pipeline.progress.Progress` of a sweep of ``study`` (its start line
     counts the cases and batches), to enter and hand to `run_study`."""
-    return Progress(study.name, f"{len(study.cases)} cases in {len(study.batches)} batches", quiet=quiet)
+    return Progress(
+        study.name,
+        f"{counted(len(study.cases), 'case')} in {counted(len(study.batches), 'batch', 'batches')}",
+        quiet=quiet,
+    )
 
 
 def compute_references(
@@ -238,15 +246,14 @@ def _show_compiling(progress, name, compiling):
     any stream, then shown as it goes."""
     total, done, running = compiling.total, compiling.done, compiling.running
     if not done and not running:
-        plural = "s" * (total > 1)
         progress.say(
-            f"{name}: compiling {total} scheme{plural} first, {compiling.processes} "
+            f"{name}: compiling {counted(total, 'scheme')} first, {compiling.processes} "
             "at a time, once per machine\n  and rbstudy version, into numba's cache "
             f"{compiling.cache}"
         )
         # no time left: the schemes take 1-30 s each and end in bunches, so the rate so far
         # forecast ten times the wait; the count of schemes done is what is known
-        progress.phase(f"{name}: compiling {total} scheme{plural}", total, "schemes", eta=False)
+        progress.phase(f"{name}: compiling {counted(total, 'scheme')}", total, "schemes", eta=False)
     else:
         progress.update(
             f"{name}: compiling {', '.join(running)}" if running else f"{name}: loading the compiled schemes",
