@@ -28,19 +28,20 @@ from rbstudy.analysis.plots import (
     FORMATS,
     all_figures,
     benchmark_case,
+    coinciding_lines,
     figure_layout,
 )
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
-    coinciding_pairs,
     error_measure,
     format_table,
     order_text,
     scheme_rows,
     schemes_of,
     step_load,
+    verdicts,
 )
 from rbstudy.errors import InputError
 from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
@@ -132,7 +133,10 @@ def _lines_and_panels(ds, first):
     if facet is not None:
         words.append(f"a panel per {facet} ({_values(ds, facet)})")
     if reduced:
-        words.append(f"the worst case over {_listing(reduced)}")
+        words.append(
+            f"a band over {_listing(reduced)} (the line the worst of the cases that gave a "
+            "value, thin dots the best)"
+        )
     return ", ".join(words)
 
 
@@ -163,7 +167,7 @@ def _convergence_caption(ds, rows, key, first):
             )
             + "."
         )
-    pairs = [f"{first} = {second}" for first, second in coinciding_pairs(ds, errors)]
+    pairs = [f"{first} = {second}" for first, second in coinciding_lines(ds, key)]
     if pairs:
         text += f" Coinciding to {COINCIDENT_DIGITS} digits: {_listing(pairs)}."
     return text
@@ -185,14 +189,30 @@ def _work_precision_caption(ds, rows, found, first):
 
 
 def _stability_caption(ds, rows):
+    """The map's numbers in words: each scheme's cases by the verdicts the map draws
+    (`verdicts`), so that no scheme is called accurate in every case where the map shows
+    one failing; then the table's dt |w0| limits, which count physical bodies only."""
     load = step_load(ds).values
     text = (
         f"Each of the {load.size} cases by its dt |w0|, from {np.nanmin(load):.3g} to "
         f"{np.nanmax(load):.3g} rad."
     )
-    always = [
-        row["scheme"] for row in rows if np.isnan(row["inaccurate_hw"]) and np.isnan(row["unstable_hw"])
+    counts = {scheme: [int(mask.sum()) for mask in verdicts(ds, scheme)] for scheme in schemes_of(ds)}
+    always = [scheme for scheme, (good, *rest) in counts.items() if not any(rest)]
+    if always:
+        text += f" Accurate in every case: {_listing(always)}."
+    kinds = ("inaccurate", "failed", "unjudged")
+    others = [
+        f"{scheme} {good} of {sum(count)} accurate, "
+        + ", ".join(f"{n} {kind}" for n, kind in zip(rest, kinds, strict=True) if n)
+        for scheme, count in counts.items()
+        if scheme not in always
+        for good, *rest in [count]
     ]
+    if others:
+        text += f" Not accurate in every case: {'; '.join(others)}."
+    physical = "physical_body" in ds and not bool((ds["physical_body"] == 1).all())
+    among = " (physical bodies, physical_body = 1)" if physical else ""
     limited = [
         f"{row['scheme']} to {row['accurate_hw']:.3g}"
         for row in rows
@@ -201,12 +221,10 @@ def _stability_caption(ds, rows):
     failing = [
         f"{row['scheme']} from {row['unstable_hw']:.3g}" for row in rows if np.isfinite(row["unstable_hw"])
     ]
-    if always:
-        text += f" Accurate in every case: {_listing(always)}."
     if limited:
-        text += f" Accurate up to: {_listing(limited)}."
+        text += f" By dt |w0|{among}, accurate up to: {_listing(limited)}."
     if failing:
-        text += f" Failing: {_listing(failing)}."
+        text += f" Failing{among}: {_listing(failing)}."
     return text
 
 
