@@ -650,6 +650,13 @@ def test_every_scheme_keeps_a_line_where_an_axis_is_too_long_for_panels(
         f"of {ratios} values of inertia_ratio" in hht
         and f"no value in {steps} of {steps * ratios} cases" in hht
     )
+    # and the caption, as the figure: hht's worst error where it finished, its failure counted
+    from rbstudy.analysis.findings import findings
+    from rbstudy.analysis.report import captions
+
+    rows = scheme_rows(ds)
+    text, _ = captions(ds, ["convergence_energy"], rows, findings(ds, rows))["convergence_energy"]
+    assert re.search(rf"hht \S+ \(1 of {ratios} cases failed\)", text), text
 
 
 @pytest.mark.slow

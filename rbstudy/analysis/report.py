@@ -156,17 +156,19 @@ def _convergence_caption(ds, rows, key, first):
             text += f" Fitted orders: {_listing(fitted)}."
         if unfitted:
             text += f" No asymptotic range: {_listing(unfitted)}."
-    elif line in errors.dims:  # the finest step's error of each line, its worst case
+    elif line in errors.dims:  # the finest step's error of each line, as the figure draws it
         finest = errors.sel(dt=dts.min())
-        worst = {value: float(finest.sel({line: value}).max(skipna=False)) for value in ds[line].values}
         named = "" if line == "scheme" else f"{line} "
-        text += (
-            f" At the smallest dt ({dts.min():g} s) the worst errors: "
-            + _listing(
-                f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}" for v, e in worst.items()
-            )
-            + "."
-        )
+        words = []
+        for value in ds[line].values:
+            cases = np.ravel(finest.sel({line: value}).values)
+            missing = int(np.isnan(cases).sum())
+            if missing == cases.size:
+                words.append(f"{named}{_value(value)} failed")
+                continue
+            lost = f" ({missing} of {cases.size} cases failed)" if missing else ""
+            words.append(f"{named}{_value(value)} {np.nanmax(cases):.1e}{lost}")
+        text += f" At the smallest dt ({dts.min():g} s) the worst errors: {_listing(words)}."
     pairs = [f"{first} = {second}" for first, second in coinciding_lines(ds, key)]
     if pairs:
         text += f" Coinciding to {COINCIDENT_DIGITS} digits: {_listing(pairs)}."
