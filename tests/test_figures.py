@@ -267,23 +267,31 @@ def test_a_scheme_without_a_style_gets_one_no_other_line_of_the_study_wears():
     )
 
 
-def test_an_exact_zero_is_a_point_on_the_floor_not_a_gap():
+def test_an_exact_zero_is_on_the_floor_with_its_own_mark_and_a_failure_a_gap():
+    """Zeros were drawn as gaps in their line, the mark of a failed case."""
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from rbstudy.analysis.figure_marks import EXACT_ZERO_LABEL, zero_entry
     from rbstudy.analysis.plots import plot_with_zeros, zero_floor
 
-    errors = np.array([3e-4, 0.0, np.nan, 2e-6])  # a zero, and a failed case
+    errors = np.array([3e-4, 0.0, 1e-5, np.nan, 2e-6])  # a zero, and a failed case
     floor = zero_floor(errors)
     assert floor == 10**-7.5  # between the tick labels 1e-8 and 1e-7, below every value
     fig, ax = plt.subplots()
     style = dict(
         color="k", marker="o", linestyle="-", markersize=4, markerfacecolor="k", zorder=2, linewidth=1
     )
-    plot_with_zeros(ax, np.arange(4.0), errors, floor, "x", style)
+    plot_with_zeros(ax, np.arange(5.0), errors, floor, "x", style)
     line, zeros = ax.lines
-    assert np.isnan(line.get_ydata()[1]) and np.isnan(line.get_ydata()[2])
-    assert list(zeros.get_xdata()) == [1.0] and list(zeros.get_ydata()) == [floor]  # only 0
+    drawn = line.get_ydata()
+    assert drawn[1] == floor and np.isfinite(drawn[:3]).all()  # the line runs down to the zero
+    assert np.isnan(drawn[3])  # only the failure is a gap
+    assert 1 not in line.get_markevery()  # the zero wears no scheme marker ...
+    assert list(zeros.get_xdata()) == [1.0] and list(zeros.get_ydata()) == [floor]
+    assert zeros.get_marker() not in {m for m in "o^sDvPX*<>hdp8Hx"}  # ... but its own
+    ((handle,), label), *rest = zero_entry(fig)
+    assert label == EXACT_ZERO_LABEL and handle.get_marker() == zeros.get_marker() and not rest
     plt.close(fig)
 
 
@@ -309,6 +317,7 @@ def drawn_figures(monkeypatch):
 def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path, drawn_figures):
     import matplotlib.colors as colors
 
+    from rbstudy.analysis.figure_marks import EXACT_ZERO_LABEL
     from rbstudy.analysis.plots import ZERO_LABEL
     from rbstudy.cli import _styles_of
 
@@ -331,7 +340,8 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
             if scheme is not None and line.get_marker() == styles[scheme].marker:
                 styled.add(scheme)
     assert styled == set(SHRUNK_SCHEMES)  # every scheme drawn, each in its own style
-    assert {text.get_text().split(" (")[0] for text in legend.get_texts()} == set(SHRUNK_SCHEMES)
+    named = {text.get_text().split(" (")[0] for text in legend.get_texts()}
+    assert named == set(SHRUNK_SCHEMES) | {EXACT_ZERO_LABEL.split(" (")[0]}  # hht's energy: exactly 0
     texts = [t.get_text() for ax in panels for t in ax.texts]
     assert ZERO_LABEL in texts  # hht keeps the energy exactly: drawn on the floor
     bench = drawn_figures["benchmark_omega_time"]
@@ -468,6 +478,8 @@ def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_tw
 
 
 def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_path, drawn_figures):
+    from rbstudy.analysis.figure_marks import EXACT_ZERO_LABEL
+
     all_figures(top_with_twins, tmp_path)
     fig = drawn_figures["invariant_drift"]
     title = fig._suptitle.get_text().replace("\n", " ")
@@ -477,7 +489,8 @@ def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_p
         "axis; the largest dt at which every scheme ran stable)"
     ) in title
     (legend,) = fig.legends
-    assert [text.get_text() for text in legend.get_texts()] == ["euler", "leapfrog", "hht"]
+    # and the exact-zero mark: hht keeps the energy exactly
+    assert [text.get_text() for text in legend.get_texts()] == ["euler", "leapfrog", "hht", EXACT_ZERO_LABEL]
 
 
 def test_one_swept_axis_gives_a_strip_chart_and_an_all_accurate_map_is_left_out(tmp_path, drawn_figures):
@@ -583,3 +596,203 @@ def test_a_title_with_a_long_run_of_spaces_is_drawn_whole():
     drawn = fig._suptitle.get_text().split("\n")
     plt.close(fig)
     assert drawn == ["a b", "what it shows"]
+
+
+def _with_a_failed_value(ds, scheme):
+    """``ds`` with ``scheme`` failed at every dt of the first inertia ratio (as an archive
+    holds a blow-up: status 1, no error)."""
+    import numpy as np
+
+    ds = ds.copy(deep=True)
+    at = {"scheme": scheme, "inertia_ratio": ds["inertia_ratio"].values[0]}
+    ds["status"].loc[at] = 1
+    for name, variable in ds.data_vars.items():
+        if {"scheme", "inertia_ratio"} <= set(variable.dims) and variable.dtype.kind == "f":
+            if name not in ("run_time",):
+                ds[name].loc[at] = np.nan
+    return ds
+
+
+@pytest.mark.slow
+def test_every_scheme_keeps_a_line_where_an_axis_is_too_long_for_panels(
+    top_with_twins, tmp_path, drawn_figures, monkeypatch
+):
+    """stiff_inertia's figures showed the worst case over its 17 inertia ratios with a
+    failure kept as NaN: 6 of 9 schemes had no line, 4 of 6 convergence figures were left
+    out. A scheme that failed at one value still shows where it did not, and its order is
+    fitted value by value."""
+    import numpy as np
+
+    from rbstudy.analysis import plots
+
+    monkeypatch.setattr(plots, "MAX_FACETS", 1)  # the three ratios become one reduced axis
+    from rbstudy.cli import _styles_of
+
+    ds = _with_a_failed_value(top_with_twins, "hht")
+    figures = all_figures(ds, tmp_path, styles=_styles_of(ds))
+    assert {"convergence_orientation", "work_precision"} <= drawn(figures, ds.attrs["study"])
+    for name in ("convergence_orientation", "work_precision"):
+        (ax,) = [ax for ax in drawn_figures[name].axes if ax.get_visible()]
+        colours = {
+            to_rgb(line.get_color())
+            for line in ax.get_lines()
+            if np.isfinite(np.asarray(line.get_ydata(), dtype=float)).sum() > 1
+        }
+        for scheme in ds["scheme"].values:
+            assert to_rgb(SCHEMES[str(scheme)].style.color) in colours, (name, scheme)
+    legend = [
+        t.get_text().replace("\n", " ")
+        for t in drawn_figures["convergence_orientation"].legends[0].get_texts()
+    ]
+    hht = next(text for text in legend if text.startswith("hht"))
+    steps, ratios = ds.sizes["dt"], ds.sizes["inertia_ratio"]
+    assert (
+        f"of {ratios} values of inertia_ratio" in hht
+        and f"no value in {steps} of {steps * ratios} cases" in hht
+    )
+    # and the caption, as the figure: hht's worst error where it finished, its failure counted
+    from rbstudy.analysis.findings import findings
+    from rbstudy.analysis.report import captions
+
+    rows = scheme_rows(ds)
+    text, _ = captions(ds, ["convergence_energy"], rows, findings(ds, rows))["convergence_energy"]
+    assert re.search(rf"hht \S+ \(1 of {ratios} cases failed\)", text), text
+
+
+@pytest.mark.slow
+def test_the_stability_caption_says_what_the_map_draws(top_with_twins):
+    """stiff_inertia's caption called rk4 "accurate in every case" (the table's dt |w0|
+    limits count physical bodies only) beside a map of its failures at I3/I1 >= 100."""
+    import numpy as np
+
+    from rbstudy.analysis.findings import findings
+    from rbstudy.analysis.report import captions
+
+    ds = top_with_twins.copy(deep=True)
+    unphysical = {"inertia_ratio": ds["inertia_ratio"].values[-1]}
+    ds["physical_body"].loc[unphysical] = 0
+    ds["accuracy"].loc[{"scheme": "hht", **unphysical}] = 1  # inaccurate there only
+    rows = scheme_rows(ds)
+    text, _ = captions(ds, ["stability_map"], rows, findings(ds, rows))["stability_map"]
+    accurate = [
+        str(scheme)
+        for scheme in ds["scheme"].values
+        if bool(((ds["accuracy"] == 0) & (ds["status"] == 0)).sel(scheme=scheme).all())
+    ]
+    said = re.search(r"Accurate in every case: ([^.]*)\.", text)
+    named = re.split(r", | and ", said[1]) if said else []
+    assert named == accurate, text
+    hht = ds["accuracy"].sel(scheme="hht")
+    assert f"hht {int((hht == 0).sum())} of {hht.size} accurate, {int((hht == 1).sum())} inaccurate" in text
+    assert np.any(hht == 1)
+
+
+@pytest.mark.slow
+def test_lines_on_top_of_each_other_are_named_in_the_drift_figure(top_with_twins, tmp_path, drawn_figures):
+    """invariant_drift named no overlap: hht's and midpoint's exact energies lay on the
+    floor as one line. Each panel names the lines it draws on top of each other."""
+    import numpy as np
+
+    from rbstudy.analysis.summary import agree
+
+    all_figures(top_with_twins, tmp_path)
+    fig = drawn_figures["invariant_drift"]
+    for ax in [ax for ax in fig.axes if ax.get_visible()]:
+        lines = {}  # colour -> the drawn values of its scheme's line
+        for line in ax.get_lines():
+            if line.get_gid() is None and np.asarray(line.get_xdata()).size > 2:
+                lines.setdefault(line.get_color(), np.asarray(line.get_ydata(), dtype=float))
+        values = list(lines.values())
+        overlapping = any(agree(a, b) for i, a in enumerate(values) for b in values[i + 1 :])
+        title = ax.get_title().replace("\n", " ")
+        assert overlapping == title.startswith("on top of each other:"), title
+    title = fig.axes[0].get_title().replace("\n", " ")
+    assert "euler = leapfrog to 3 digits" in title  # their energies agree on the top
+
+
+def test_lines_apart_only_at_round_off_coincide():
+    """rk4 and rkmk4 differed by 2% at one precession error of 2.6e-14 rad and were drawn as
+    one line with no note: below the measure's round-off floor a figure cannot part them."""
+    import numpy as np
+
+    from rbstudy.analysis.plots import _coincident, _together
+
+    rows = [np.array([4.6e-13, 2.6e-14, 1e-8]), np.array([4.6e-13, 2.55e-14, 1e-8])]
+    assert _coincident(rows, 1e-13) == [[0, 1]]
+    assert _coincident(rows) == [[0], [1]]  # exact agreement still asked above the floor
+    assert _together(["rk4", "rkmk4"], rows, 1e-13) == "rk4 = rkmk4 to 3 digits above round-off (1e-13)"
+
+
+def _data_points(ax, labels):
+    """Display points of the data lines of ``ax`` (sampled along their segments, and their
+    markers): what a label must not cover."""
+    import numpy as np
+
+    points = []
+    for line in ax.get_lines():
+        if line.get_linestyle() == ":" and to_rgb(line.get_color()) == to_rgb("0.6"):
+            continue  # a slope guide
+        data = np.column_stack([line.get_xdata(), line.get_ydata()]).astype(float)
+        xy = line.get_transform().transform(data)
+        finite = np.isfinite(xy).all(axis=1)
+        if line.get_linestyle() != "None":
+            both = finite[:-1] & finite[1:]
+            for t in np.linspace(0, 1, 200):
+                points.append((xy[:-1] + t * (xy[1:] - xy[:-1]))[both])
+        if line.get_marker() not in ("None", "", None):
+            points.append(xy[finite])
+    return np.concatenate(points)
+
+
+@pytest.mark.slow
+def test_slope_labels_cover_no_line(top_with_twins, tmp_path, drawn_figures):
+    """The slope guides kept clear of the lines, their labels did not: "order 2" sat on the
+    data in the README's own figure."""
+
+    all_figures(top_with_twins, tmp_path)
+    for name in ("convergence_orientation", "convergence_precession", "convergence_energy"):
+        fig = drawn_figures[name]
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        for ax in [ax for ax in fig.axes if ax.get_visible()]:
+            labels = [t for t in ax.texts if t.get_text().startswith("order ")]
+            assert labels
+            points = _data_points(ax, labels)
+            for label in labels:
+                box = label.get_window_extent(renderer)
+                inside = (
+                    (points[:, 0] > box.x0)
+                    & (points[:, 0] < box.x1)
+                    & (points[:, 1] > box.y0)
+                    & (points[:, 1] < box.y1)
+                )
+                assert not inside.any(), (name, label.get_text())
+
+
+@pytest.mark.slow
+def test_the_work_precision_figure_draws_the_bound_and_the_recommended_point(
+    top_with_twins, tmp_path, drawn_figures
+):
+    import numpy as np
+
+    from rbstudy.analysis.findings import findings
+
+    all_figures(top_with_twins, tmp_path)
+    fig = drawn_figures["work_precision"]
+    bound = top_with_twins.attrs["accuracy_bound"]
+    answer = next(f for f in findings(top_with_twins) if f.kind == "recommendation")
+    scheme, dt = answer.cases[0]["scheme"], answer.cases[0]["dt"]
+    error = top_with_twins["final_orientation_error"].sel(scheme=scheme, dt=dt)
+    seconds = top_with_twins["run_time"].sel(scheme=scheme, dt=dt)
+    for ax in [ax for ax in fig.axes if ax.get_visible()]:
+        ratio = float(ax.get_title().split("= ")[1])
+        vertical = [
+            line for line in ax.get_lines() if np.allclose(np.asarray(line.get_xdata(), dtype=float), bound)
+        ]
+        assert vertical, "no accuracy bound line"
+        (star,) = [line for line in ax.get_lines() if line.get_marker() == "*"]
+        assert star.get_xdata()[0] == pytest.approx(float(error.sel(inertia_ratio=ratio)))
+        assert star.get_ydata()[0] == pytest.approx(float(seconds.sel(inertia_ratio=ratio)))
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert f"recommended: {scheme} at dt = {dt:g} s" in texts
+    assert any(text.startswith(f"accuracy bound {bound:g} rad") for text in texts)

@@ -199,6 +199,37 @@ def test_the_conformance_page_and_the_report_share_one_base_page(archive, tmp_pa
     assert page.count('class="fail"') == 1 and "✗ order" in page and "· energy" in page
 
 
+def test_a_conformance_table_of_22_schemes_and_12_cases_scrolls_inside_the_page():
+    """It was ~3000 px wide in a 1240 px page: the window scrolled, the rules and header with
+    it. Now the table sits alone in a box that scrolls both ways within the window."""
+
+    class Parents(html.parser.HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.open, self.parent = [], None
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "table":
+                self.parent = self.open[-1] if self.open else None
+            self.open.append((tag, dict(attrs).get("class")))
+
+        def handle_endtag(self, tag):
+            while self.open and self.open.pop()[0] != tag:
+                pass
+
+    verdict = {"order": Verdict(True, 2.0, "observed 2.00 (nominal 2), dt 0.01-0.0025")}
+    cases = [f"case_{k}" for k in range(12)]
+    cells = {case: {f"scheme_{k}": Cell(True, 2.0, verdict) for k in range(22)} for case in cases}
+    page = scorecard_html(cells, cases, {case: case for case in cases}, ["a header line"])
+    parser = Parents()
+    parser.feed(page)
+    tag, box = parser.parent
+    assert tag == "div" and box
+    style = re.search(rf"div\.{box} {{([^}}]*)}}", page).group(1)
+    assert "overflow: auto" in style and "max-width: 100%" in style and "max-height" in style
+    assert page.count("<td") == 22 * 12
+
+
 @pytest.mark.slow
 def test_the_report_of_another_shipped_study_has_distinct_captions(tmp_path, capsys):
     """A one-scheme study (hht's damping swept): lines are the swept option's values."""

@@ -25,17 +25,23 @@ Every scheme keeps one colour, marker and line style in every figure: the style 
 (`rbstudy.schemes.Style`, in the scheme's own file), which the command line reads from the
 registry and hands to the figure functions (``styles``: this layer never loads the schemes);
 a scheme without one gets a style no other line of the study wears (`line_styles`). Schemes
-whose curves coincide differ in marker and dash, so that both stay visible; in a
-convergence figure they are named together ("euler = leapfrog to 3 digits") and mark
-alternate points. A figure has one legend, outside the data. An exact zero, which log axes
-cannot show, is a marked point on a floor line labelled "0 (exact)"; a gap is a failed
-case, or a case without a reference (its DOP853 reference passed its step budget:
-`reference = none`).
+whose values agree to 3 digits (`_coincident`, round-off aside) are drawn on top of each
+other, differing in marker and dash so that both stay visible, and named together in every
+figure type ("euler = leapfrog to 3 digits": in the legend of a convergence or
+work-precision figure, over each invariant-drift panel). A figure has one legend, outside
+the data. An exact zero, which log axes cannot show, lies on a floor line labelled
+"0 (exact)", its line running down to it, with its own mark and legend entry ("exact
+zero"); a gap is a failed case, or a case without a reference (its DOP853 reference passed
+its step budget: `reference = none`). The slope guides' labels sit where their boxes cover
+no line (`figure_marks.clear_labels`). The work-precision figure draws the accuracy bound and
+marks the findings' recommendation.
 
 Large sweeps stay readable: lines are the schemes (or, in a one-scheme study, the values of
 a swept axis with at most `MAX_LINES` values); a further axis with at most `MAX_FACETS`
-values becomes one panel per value; any other axis is reduced to its worst case (a failed
-case makes the worst case a gap, never hidden), and the panel title says so.
+values becomes one panel per value; any other axis is reduced to a band (`band`): the line
+is its worst case over the cases that gave a value, a thin dotted line its best, the legend
+counts the cases that gave none (failed or unjudged) and gives the orders fitted value by
+value; the panel title says so.
 """
 
 import contextlib
@@ -52,8 +58,19 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.font_manager import FontProperties  # noqa: E402
 from matplotlib.legend_handler import HandlerTuple  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
 
+from rbstudy.analysis.figure_marks import (  # noqa: E402
+    BOUND_STYLE,
+    RECOMMENDED_STYLE,
+    band,
+    bound_label,
+    clear_labels,
+    recommended_point,
+    zero_entry,
+    zero_marks,
+)
 from rbstudy.analysis.summary import (  # noqa: E402
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
@@ -98,6 +115,7 @@ __all__ = [
     "benchmark_case",
     "zero_floor",
     "plot_with_zeros",
+    "coinciding_lines",
 ]
 
 MAX_FACETS = 4
@@ -199,11 +217,12 @@ def _value_text(dim, value):
     return f"{dim} = {shown}"
 
 
-def _panel_title(dim, value, reduced):
-    """``inertia_ratio = 0.5; worst over spin``: which cases a panel shows."""
+def _panel_title(dim, value, reduced, lines="line: worst, thin dots: best"):
+    """``inertia_ratio = 0.5; line: worst, thin dots: best, over spin``: which cases a
+    panel shows, its ``lines`` over the ``reduced`` axes (`band`)."""
     parts = [] if dim is None else [_value_text(dim, value)]
     if reduced:
-        parts.append(f"worst over {', '.join(reduced)}")
+        parts.append(f"{lines}, over {', '.join(reduced)}")
     return "; ".join(parts)
 
 
@@ -253,11 +272,6 @@ def _style(key, schemes):
         zorder=2 if solid else 3,
         markerfacecolor="none" if solid else color,
     )
-
-
-def _worst(da, reduced):
-    """The worst case over ``reduced`` dims; a failed (NaN) case makes it NaN, never hidden."""
-    return da.max(reduced, skipna=False) if reduced else da
 
 
 def _power_of_ten(value, _position=None):
@@ -452,27 +466,24 @@ def _mark_floor(ax, floor):
     ax.set_ylim(bottom=floor / 2.0, top=max(ax.get_ylim()[1], floor * 10.0))
 
 
+# A dense time series marks every this many of its exact zeros (each point would be a smear).
+ZERO_MARK_EVERY = 8
+
+
 def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
-    """A line with exact zeros drawn on the floor line (failed cases, NaN, stay gaps): as its
-    markers there, or for a dense time series (``markers`` off) as stretches of its line."""
+    """A line with its exact zeros on the floor line, the line running down to them, each
+    with the exact-zero mark (`rbstudy.analysis.figure_marks.zero_marks`) instead of the
+    line's own (for a dense time series, ``markers`` off, no marks of its own, the zeros
+    marked every `ZERO_MARK_EVERY`): only a failed case (NaN) is a gap."""
     y = np.asarray(y, dtype=float)
-    line_style = style if markers else {**style, "marker": ""}
-    (line,) = ax.plot(x, np.where(y > 0, y, np.nan), label=label, **line_style)
     zero = y == 0.0
-    if zero.any() and floor is not None:
-        if markers:
-            ax.plot(
-                np.asarray(x)[zero],
-                np.full(zero.sum(), floor),
-                linestyle="none",
-                marker=style["marker"],
-                markersize=style["markersize"],
-                color=style["color"],
-                markerfacecolor=style["markerfacecolor"],
-                zorder=style["zorder"],
-            )
-        else:
-            ax.plot(x, np.where(zero, floor, np.nan), **line_style)
+    drawn = np.where(y > 0, y, np.where(zero, np.nan if floor is None else floor, np.nan))
+    line_style = style if markers else {**style, "marker": ""}
+    if markers and zero.any():  # the line's marks on its non-zero points only
+        every = style.get("markevery") or (0, 1)
+        line_style = {**style, "markevery": [k for k in range(every[0], y.size, every[1]) if not zero[k]]}
+    (line,) = ax.plot(x, drawn, label=label, **line_style)
+    zero_marks(ax, x, zero, floor, style, every=1 if markers else ZERO_MARK_EVERY)
     return line
 
 
@@ -501,11 +512,14 @@ def _reference_slopes(ax, dts, errors, orders):
     """A dotted guide per order in ``orders``, each over `GUIDE_STEPS` consecutive steps
     placed where it crosses no line of ``errors`` (lines x steps) and no other guide, within
     the errors' range (a guide never stretches the axis): of the places that cross fewest,
-    the longest, at the largest steps, nearest the errors' middle."""
+    the longest, at the largest steps, nearest the errors' middle. Returns the labels
+    ("order n") to place clear of the data once the figure is laid out
+    (`rbstudy.analysis.figure_marks.clear_labels`): (annotation, guide, anchors along it)."""
+    labels = []
     with np.errstate(divide="ignore", invalid="ignore"):
         logs = np.log10(np.where(errors > 0, errors, np.nan))
     if not np.isfinite(logs).any():
-        return
+        return labels
     order_of_steps = np.argsort(dts)
     x, logs = np.log10(dts[order_of_steps]), logs[:, order_of_steps]
     low, high = np.nanmin(logs), np.nanmax(logs)
@@ -534,11 +548,12 @@ def _reference_slopes(ax, dts, errors, orders):
         row[span] = guide
         logs = np.vstack([logs, row])  # the next guide keeps clear of this one
         shown_dts, shown = 10.0 ** x[span], 10.0**guide
-        ax.plot(shown_dts, shown, color="0.6", linestyle=":", linewidth=1, zorder=1)
-        # named above its middle, inside its clearance: never beyond the axes' edge
-        ax.annotate(
+        (line,) = ax.plot(shown_dts, shown, color="0.6", linestyle=":", linewidth=1, zorder=1)
+        # named at its middle, else at one of its steps: wherever its box is clear of the data
+        centre = (10.0 ** x[span].mean(), 10.0 ** guide.mean())
+        text = ax.annotate(
             f"order {order}",
-            (10.0 ** x[span].mean(), 10.0 ** guide.mean()),
+            centre,
             xytext=(0, 2),
             textcoords="offset points",
             ha="center",
@@ -546,6 +561,8 @@ def _reference_slopes(ax, dts, errors, orders):
             fontsize=7,
             color="0.4",
         )
+        labels.append((text, line, [centre, *zip(shown_dts, shown, strict=True)]))
+    return labels
 
 
 def _fit_text(errors, fit, failed, limits, round_off):
@@ -572,11 +589,42 @@ def _fit_text(errors, fit, failed, limits, round_off):
     return text
 
 
-def _fit_label(names, texts, fits):
+def _together(names, rows=None, floor=0.0):
+    """The name of lines drawn on top of each other (`_coincident` of their ``rows`` of
+    values with the round-off ``floor``): ``euler = leapfrog to 3 digits``, ``... to 3
+    digits above round-off (1e-13)`` where they agree only once values at the floor count as
+    one, ``... (at round-off: at most 1e-12)`` where every value is there; or a line's own
+    name."""
+    joined = " = ".join(names)
+    if len(names) == 1:
+        return joined
+    if rows is not None and floor > 0:
+        finite = np.concatenate([np.asarray(row)[np.isfinite(row)] for row in rows])
+        if finite.size and np.all(np.abs(finite) <= floor):
+            return f"{joined} (at round-off: at most {floor:g})"
+        if not all(agree(rows[0], row) for row in rows[1:]):
+            return f"{joined} to {COINCIDENT_DIGITS} digits above round-off ({floor:g})"
+    return f"{joined} to {COINCIDENT_DIGITS} digits"
+
+
+def coinciding_lines(ds, key):
+    """The (first, second) schemes whose lines the convergence figure of measure ``key``
+    draws on top of each other and names together (`_coincident` over every case, the
+    measure's round-off floor aside): the figure's caption names the same pairs."""
+    errors = error_measure(ds, key)
+    if errors is None or "scheme" not in errors.dims:
+        return []
+    names = list(schemes_of(ds))
+    groups = _coincident(
+        [per_scheme(errors, name).values.ravel() for name in names], ERROR_MEASURES[key].floor
+    )
+    return [(names[group[0]], names[other]) for group in groups for other in group[1:]]
+
+
+def _fit_label(name, texts, fits):
     """The legend entry of a line over a figure's panels (``texts`` and ``fits``, one per
     panel): ``rk4 (order 4.00, finest 3.99-4.01)``, ``in 3 of 4 panels`` where the others
-    had none; lines that coincide (``names``, more than one) are named together."""
-    name = " = ".join(names) + (f" to {COINCIDENT_DIGITS} digits" if len(names) > 1 else "")
+    had none; ``name``: the line's, or the lines' that coincide (`_together`)."""
     fitted = [fit for fit in fits if np.isfinite(fit.order)]
     if len(set(texts)) == 1:
         text = texts[0]
@@ -589,12 +637,83 @@ def _fit_label(names, texts, fits):
     return f"{name} ({text})".strip()
 
 
-def _coincident(errors):
+def _missing_text(bands, line_dim, index, behind):
+    """``no value in 17 of 68 cases`` for the line ``index`` of a figure whose points each
+    stand for ``behind`` cases (`band`, per panel: more than one where an axis is reduced),
+    where some of them failed or had no reference; else nothing."""
+    if behind == 1:
+        return ""
+    counts = [_lines(missing, line_dim)[index][2].values for _, _, missing in bands]
+    missing, cases = sum(int(c.sum()) for c in counts), sum(c.size for c in counts) * behind
+    return f"no value in {missing} of {cases} cases" if missing else ""
+
+
+def _value_fits(dts, measure, uncertainty, round_off, facet, value, line_dim, reduced, key):
+    """Per line of a panel (``measure`` of its cases, ``round_off`` their floors), the
+    `fitted_order` at each value of the ``reduced`` axes with why it has none (`at_floor`:
+    ``"round-off"``, ``"reference"`` or None), as pairs; none when no axis is reduced."""
+    if not reduced:
+        return []
+    limits = None
+    if uncertainty is not None:
+        limits = uncertainty.sel({facet: value}) if facet else uncertainty
+
+    def rows(da, k):  # line k's cases, a row per value of the reduced axes
+        return _lines(da, line_dim)[k][2].stack(value=reduced).transpose("value", "dt").values
+
+    result = []
+    for k in range(len(_lines(measure, line_dim))):
+        errors, floors = rows(measure, k), rows(round_off, k)
+        bounds = [None] * len(errors) if limits is None else rows(limits, k)
+        result.append(
+            [
+                (fitted_order(dts, row, key, bound, floor), at_floor(row, floor, bound))
+                for row, floor, bound in zip(errors, floors, bounds, strict=True)
+            ]
+        )
+    return result
+
+
+def _values_label(name, fits, reduced):
+    """The legend entry of a line that stands for the values of ``reduced`` axes: its orders
+    fitted value by value (``fits``: per panel, a (fit, floor) pair per value, `_value_fits`),
+    ``rk4 (order 3.98-4.02, finest 3.9-4.1, at 12 of 17 values of inertia_ratio)``; a line
+    whose every value lies at a floor says which (exact_split's round-off)."""
+    every = [pair for panel in fits for pair in panel]
+    fitted = [fit for fit, _ in every if np.isfinite(fit.order)]
+    axes = ", ".join(reduced)
+    where = f"at {len(fitted)} of {len(every)} values of {axes}"
+    if not fitted:
+        floors = {floor for _, floor in every}
+        if floors == {"round-off"}:
+            return f"{name} (at the round-off floor at all {len(every)} values of {axes})"
+        return f"{name} (no asymptotic range at any of {len(every)} values of {axes})"
+    orders = f"order {span([f.order for f in fitted])}, finest {span([f.finest_slope for f in fitted])}"
+    return f"{name} ({orders}, {where})"
+
+
+def _aside(text, form):
+    """``text`` in ``form`` (``"; {}"``), or nothing when there is no text."""
+    return form.format(text) if text else ""
+
+
+def _draw_band(ax, x, best, worst, floor, style):
+    """The band from a line's best to its worst value (`band`), faint, its best edge a
+    thin dotted line in the line's colour, zeros on the floor."""
+    low = np.where(best > 0, best, floor if floor is not None else np.nan)
+    ax.fill_between(x, low, worst, color=style["color"], alpha=0.05, linewidth=0, zorder=1)
+    ax.plot(x, low, color=style["color"], linestyle=(0, (1, 2)), linewidth=0.9, zorder=1)
+
+
+def _coincident(errors, floor=0.0):
     """Groups of line indices (first line first) whose ``errors`` (lines x points) agree to
     `COINCIDENT_DIGITS` significant digits at every point (`agree`, the findings' test),
-    gaps at the same points; each
+    gaps at the same points, points where both lie at or below the measure's round-off
+    ``floor`` counting as agreeing (a figure cannot tell them apart: rk4 and rkmk4 differed
+    by 2% at one precession error of 2.6e-14 and were drawn as one line, unnamed); each
     line is in exactly one group, alone when it has no point to agree on (failed at every
     dt)."""
+    errors = [np.where(np.abs(e) <= floor, 0.0, e) if floor > 0 else e for e in errors]
     groups, placed = [], set()
     for first in range(len(errors)):
         if first in placed:
@@ -681,7 +800,9 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         name = f"convergence_{key}"
         if measure is None:
             continue  # not stored: not a figure this study could have
-        panels = [_worst(measure.sel({facet: value}) if facet else measure, reduced) for value in values]
+        bands = [band(measure.sel({facet: value}) if facet else measure, reduced) for value in values]
+        behind = int(np.prod([ds.sizes[d] for d in reduced]))  # cases behind each point
+        panels = [worst for worst, _, _ in bands]
         uncertainty = uncertainty_of(ds, key, measure)
         limits = [
             _uncertainty_limit(uncertainty, facet, value, reduced, panel)
@@ -690,10 +811,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         # the round-off floor of the worst case is the largest of the panel's (`round_off_of`)
         round_off = round_off_of(ds, key, measure)
         round_offs = [
-            _worst(round_off.sel({facet: value}) if facet else round_off, reduced) for value in values
+            band(round_off.sel({facet: value}) if facet else round_off, reduced)[0] for value in values
         ]
         failures = [
-            _worst((ds["status"] != 0).sel({facet: value}) if facet else ds["status"] != 0, reduced)
+            band((ds["status"] != 0).sel({facet: value}) if facet else ds["status"] != 0, reduced)[0]
             for value in values
         ]
         # a panel whose every case finished without a reference has nothing to show
@@ -703,8 +824,8 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             if np.isfinite(panel.values).any() or failed.values.any()
         ] or list(range(len(values)))
         unreferenced = [values[k] for k in range(len(values)) if k not in shown]
-        facet_values, panels, failures, limits, round_offs = (
-            [items[k] for k in shown] for items in (values, panels, failures, limits, round_offs)
+        facet_values, panels, failures, limits, round_offs, bands = (
+            [items[k] for k in shown] for items in (values, panels, failures, limits, round_offs, bands)
         )
         fits = [
             [
@@ -729,17 +850,44 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 panels, failures, limits, round_offs, strict=True
             )
         ]
-        if not any(np.isfinite(fit.order) for panel in fits for *_, fit, _, _, _ in panel):
+        # where a line stands for many cases, an order is fitted at each value of the reduced
+        # axes (the table's fits), never through the worst case's envelope
+        value_fits = [
+            _value_fits(
+                dts,
+                measure.sel({facet: value}) if facet else measure,
+                uncertainty,
+                round_off.sel({facet: value}) if facet else round_off,
+                facet,
+                value,
+                line_dim,
+                reduced,
+                key,
+            )
+            for value in facet_values
+        ]
+        if not any(
+            np.isfinite(fit.order)
+            for panel in (value_fits if reduced else [[[(f, None)] for *_, f, _, _, _ in p] for p in fits])
+            for line in panel
+            for fit, _ in line
+        ):
             figures.absent[name] = (
                 f"no case has a reference to measure the {label} against (reference = none)"
                 if _unreferenced(ds).all()
                 else f"no line shows an asymptotic range of the {label} (every line failed, "
-                "stalled or was exact at every dt)"
+                "stalled, or was exact or at the round-off floor at every dt)"
             )
             continue
-        # the lines are the same in every panel: those that coincide over the whole figure
-        # are drawn on top of each other in turn and named together
-        groups = _coincident([np.concatenate([lines[j][2] for lines in fits]) for j in range(len(fits[0]))])
+        # the lines are the same in every panel: those that coincide in every case (as
+        # `coinciding_lines` tells the caption) are drawn on top of each other in turn and
+        # named together
+        rows = [data.values.ravel() for *_, data in _lines(measure, line_dim)]
+        groups = _coincident(rows, round_off)
+        group_names = {
+            group[0]: _together([fits[0][j][0] for j in group], [rows[j] for j in group], round_off)
+            for group in groups
+        }
         drawn = {
             j: (
                 _coincident_style(_style(fits[0][j][1], schemes), rank, len(group))
@@ -752,15 +900,21 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         with plt.rc_context(_RC):
             fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
             reserved = LEGEND_WIDTH
-            floors, handles = [], {}
-            for ax, value, panel, lines, limit in zip(axes, facet_values, panels, fits, limits, strict=True):
+            floors, handles, labels = [], {}, []
+            for ax, value, panel, lines, limit, (_, best, _) in zip(
+                axes, facet_values, panels, fits, limits, bands, strict=True
+            ):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for j, (_, _, errors, fit, *_) in enumerate(lines):
+                for j, ((_, _, errors, fit, *_), (*_, least)) in enumerate(
+                    zip(lines, _lines(best, line_dim), strict=True)
+                ):
                     style = drawn[j]
                     handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
+                    if reduced:
+                        _draw_band(ax, dts, least.values, errors, floor, style)
                     ax.plot(
                         dts[fit.used],
                         errors[fit.used],
@@ -772,7 +926,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                         color=style["color"],
                         zorder=1,
                     )
-                _reference_slopes(
+                labels += _reference_slopes(
                     ax, dts, np.array([errors for _, _, errors, *_ in lines]), _guide_orders(ds, facet, value)
                 )
                 _mark_uncertainty(ax, limit.values)
@@ -787,7 +941,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                     (
                         [handles[j] for j in group],
                         _fit_label(
-                            [fits[0][j][0] for j in group],
+                            group_names[group[0]],
                             [
                                 _fit_text(errors, fit, failed, line_limits, line_floors)
                                 for _, _, errors, fit, failed, line_limits, line_floors in (
@@ -795,10 +949,16 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                                 )
                             ],
                             [lines[group[0]][3] for lines in fits],
-                        ),
+                        )
+                        if not reduced
+                        else _values_label(
+                            group_names[group[0]], [lines[group[0]] for lines in value_fits], reduced
+                        )
+                        + _aside(_missing_text(bands, line_dim, group[0], behind), "; {}"),
                     )
                     for group in groups
-                ],
+                ]
+                + zero_entry(fig),
                 reserved,
             )
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
@@ -823,12 +983,15 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 f"convergence: {label}; large circles: the fitted asymptotic range; "
                 f"gaps: {gaps}{zeros}{left_out}",
             )
+            _log_labels(fig)  # the ticks as saved: the layout the labels are placed in
+            clear_labels(fig, labels)
             figures.written.append(_save(fig, folder, ds, name, formats))
     return figures
 
 
 def work_precision(ds, folder, formats=FORMATS, styles=None):
-    """Run time per case against the final orientation error, a line per scheme over dt;
+    """Run time per case against the final orientation error, a line per scheme over dt,
+    the accuracy bound and the study's recommended point (`recommended_point`);
     ``styles``: the schemes' registered styles (`line_styles`)."""
     figures = Figures()
     schemes = line_styles(schemes_of(ds), styles)
@@ -840,30 +1003,78 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
         return figures
     line_dim, facet, reduced = figure_layout(ds)
     values = list(ds[facet].values) if facet else [None]
+    picks = [{facet: value} if facet else {} for value in values]
+    # a line's points: the worst error over the reduced axes and the dearest time, of the
+    # cases that finished (`band`)
+    bands = [band(measure.sel(pick), reduced) for pick in picks]
+    behind = int(np.prod([ds.sizes[d] for d in reduced]))  # cases behind each point
+    panels = [
+        [
+            (name, key, errors.values, times.values)
+            for (name, key, errors), (*_, times) in zip(
+                _lines(errors_band[0], line_dim),
+                _lines(band(ds["run_time"].sel(pick), reduced)[0], line_dim),
+                strict=True,
+            )
+        ]
+        for pick, errors_band in zip(picks, bands, strict=True)
+    ]
+    # lines drawn on top of each other (error and time alike at every point) named together
+    groups = _coincident(
+        [np.concatenate([np.r_[p[j][2], p[j][3]] for p in panels]) for j in range(len(panels[0]))]
+    )
+    drawn = {
+        j: _coincident_style(_style(panels[0][j][1], schemes), rank, len(group))
+        if len(group) > 1
+        else _style(panels[0][j][1], schemes)
+        for group in groups
+        for rank, j in enumerate(group)
+    }
+    bound = ds.attrs.get("accuracy_bound")
+    point = recommended_point(ds)
     with plt.rc_context(_RC):
-        reserved = LEGEND_WIDTH / 2 if line_dim else 0
+        reserved = LEGEND_WIDTH / 2
         fig, axes = _grid(len(values), width=5.0, legend_width=reserved)
-        handles = {}
-        for ax, value in zip(axes, values, strict=True):
-            pick = {facet: value} if facet else {}
-            errors = _worst(measure.sel(pick), reduced)
-            times = _worst(ds["run_time"].sel(pick), reduced)
-            for (name, style_key, error_line), (*_, time_line) in zip(
-                _lines(errors, line_dim), _lines(times, line_dim), strict=True
-            ):
-                (line,) = ax.loglog(error_line.values, time_line.values, **_style(style_key, schemes))
-                handles.setdefault(name, [line])
+        handles, extras = {}, {}
+        for ax, pick, lines in zip(axes, picks, panels, strict=True):
+            for j, (_, _, errors, times) in enumerate(lines):
+                shown = errors > 0  # an exact zero has no place on a log axis: said in the title
+                (line,) = ax.loglog(np.where(shown, errors, np.nan), times, **drawn[j])
+                handles.setdefault(j, line)
+            if bound is not None:
+                extras.setdefault("bound", (ax.axvline(bound, **BOUND_STYLE), bound_label(bound)))
+            for j, (name, _, errors, times) in enumerate(lines if point is not None else []):
+                # the line the answer lies on: its scheme's, or in a one-scheme study the
+                # line of each value of the answer's cases
+                at = pick if line_dim in (None, "scheme") else {**pick, line_dim: ds[line_dim].values[j]}
+                if (line_dim == "scheme" and name != point.scheme) or not point.covers(at):
+                    continue
+                k = int(np.flatnonzero(ds["dt"].values == point.dt)[0])
+                (star,) = ax.plot(errors[k], times[k], **RECOMMENDED_STYLE)
+                extras.setdefault("point", (star, point.label))
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("run time per case (core-seconds)")
-            ax.set_title(_panel_title(facet, value, reduced))
+            ax.set_title(_panel_title(facet, pick.get(facet), reduced, "the worst error and time"))
             ax.grid(True, which="major", alpha=0.3)
-        if line_dim:
-            _figure_legend(fig, [(lines, name) for name, lines in handles.items()], reserved)
+        entries = (
+            [
+                (
+                    [handles[j] for j in group],
+                    _together([panels[0][j][0] for j in group])
+                    + _aside(_missing_text(bands, line_dim, group[0], behind), " ({})"),
+                )
+                for group in groups
+            ]
+            if line_dim
+            else []
+        )
+        _figure_legend(fig, entries + [([h], text) for h, text in extras.values()], reserved)
+        zeros = " (exact zeros, which a log axis cannot show, left out)" if (measure == 0).any() else ""
         _title(
             fig,
             ds,
             "work-precision: kernel CPU time of each batch divided among its "
-            "cases, compilation excluded; each point a dt",
+            f"cases, compilation excluded; each point a dt{zeros}",
         )
         figures.written.append(_save(fig, folder, ds, "work_precision", formats))
     return figures
@@ -1040,6 +1251,10 @@ def stability_map(ds, folder, formats=FORMATS):
     return figures
 
 
+# The error measure of each invariant-drift panel's variable: its round-off floor.
+_DRIFT_MEASURES = {"energy_error": "energy", "momentum_error": "momentum_vector"}
+
+
 def _drift_case(ds, scheme):
     """The case of ``scheme`` the drift figure shows and its dt (None when dt is not swept):
     the first value of every axis but dt, and the largest dt with a stable case (by value);
@@ -1096,30 +1311,48 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
     schemes = line_styles(schemes_of(ds), styles)
     several_dts = len(set(steps.values())) > 1
     times = ds["time"].values[1:]  # at t = 0 every error is zero by definition
+    series = [[np.abs(case[name].values[1:]) for _, case, _ in cases] for name, _ in panels]
+    names = [f"{scheme} (dt = {dt:g} s)" if several_dts else scheme for scheme, _, dt in cases]
     with plt.rc_context(_RC):
         fig, axes = _grid(len(panels), width=5.4, legend_width=LEGEND_WIDTH / 2)
         reserved = LEGEND_WIDTH / 2
-        floors, handles = [], {}
-        for ax, (name, label) in zip(axes, panels, strict=True):
+        floors = []
+        for ax, (name, label), values in zip(axes, panels, series, strict=True):
             ax.set_yscale("log")
-            floor = zero_floor(np.concatenate([np.abs(case[name].values[1:]) for _, case, _ in cases]))
+            floor = zero_floor(np.concatenate(values))
             floors.append(floor)
-            for scheme, case, dt in cases:
-                line = plot_with_zeros(
-                    ax,
-                    times,
-                    np.abs(case[name].values[1:]),
-                    floor,
-                    None,
-                    _style(scheme, schemes),
-                    markers=False,
+            # lines on top of each other in this panel (hht's and midpoint's zero energy
+            # error) drawn in turn, dashed over solid, and named over it
+            groups = _coincident(values, ERROR_MEASURES[_DRIFT_MEASURES[name]].floor)
+            for group in groups:
+                for rank, k in enumerate(group):
+                    style = _style(cases[k][0], schemes)
+                    style = _coincident_style(style, rank, len(group)) if len(group) > 1 else style
+                    plot_with_zeros(ax, times, values[k], floor, None, style, markers=False)
+            overlaps = [
+                _together(
+                    [names[k] for k in group],
+                    [values[k] for k in group],
+                    ERROR_MEASURES[_DRIFT_MEASURES[name]].floor,
                 )
-                handles.setdefault(f"{scheme} (dt = {dt:g} s)" if several_dts else scheme, [line])
+                for group in groups
+                if len(group) > 1
+            ]
+            width_em = (
+                0.9 * ax.get_position().width * fig.get_figwidth() * 72 / plt.rcParams["axes.titlesize"]
+            )
+            ax.set_title(
+                _wrapped(f"on top of each other: {'; '.join(overlaps)}", width_em) if overlaps else ""
+            )
             _mark_floor(ax, floor)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
-        _figure_legend(fig, [(lines, name) for name, lines in handles.items()], reserved)
+        entries = [
+            ([Line2D([], [], **{**_style(scheme, schemes), "marker": ""})], names[k])
+            for k, (scheme, _, _) in enumerate(cases)
+        ]
+        _figure_legend(fig, entries + zero_entry(fig), reserved)
         zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
         _title(fig, ds, f"invariant drift, bounded or secular; case: {_drift_title(ds, steps)}{zeros}")
         figures.written.append(_save(fig, folder, ds, "invariant_drift", formats))
@@ -1227,11 +1460,12 @@ CAPTIONS = {
     "the local slope of the finest fitted pair, and names together the lines "
     "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
     "of the data; a gap is a failed case (or one without a reference); a "
-    "point on the dotted floor is exactly 0.",
+    "point marked 0 on the dotted floor is exactly 0.",
     "work_precision": "Kernel run time per case against the final orientation error, one "
     "point per dt: the cheapest scheme for a given accuracy is the lowest "
     "line. Run time is the CPU time of the compiled batch call divided "
-    "among its cases, compilation excluded.",
+    "among its cases, compilation excluded. The dash-dotted line is the "
+    "study's accuracy bound, the star the findings' recommendation.",
     "stability_map": "Every case by its dt |w0|, a row per scheme (or, with more than one "
     "swept axis, a panel per scheme against the swept parameter, where the "
     "line joins the largest accurate value): green accurate, orange "
@@ -1241,8 +1475,9 @@ CAPTIONS = {
     "invariant_drift": "Energy and angular-momentum (vector) errors against time for one "
     "case per scheme, the case named in the title (the largest stable dt "
     "when dt is swept; a failed case ends where it failed): bounded "
-    "oscillation or secular growth; a point on the dotted floor is "
-    "exactly 0.",
+    "oscillation or secular growth; a stretch on the dotted floor, marked "
+    "0, is exactly 0; lines drawn on top of each other are named over "
+    "their panel.",
     "benchmark": "The Abaqus benchmark figures for the case named in the legend (HHT on the "
     "flat disk at the largest dt where the study has it), with the closed-form "
     "solution dashed.",

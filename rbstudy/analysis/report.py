@@ -29,6 +29,7 @@ from rbstudy.analysis.plots import (
     FORMATS,
     all_figures,
     benchmark_case,
+    coinciding_lines,
     figure_layout,
 )
 from rbstudy.analysis.summary import (
@@ -37,7 +38,6 @@ from rbstudy.analysis.summary import (
     FLOOR_WORDS,
     ROUND_OFF_ULPS,
     UNCERTAINTY_FACTOR,
-    coinciding_pairs,
     error_measure,
     floor_reason,
     format_table,
@@ -45,6 +45,7 @@ from rbstudy.analysis.summary import (
     scheme_rows,
     schemes_of,
     step_load,
+    verdicts,
 )
 from rbstudy.errors import InputError
 from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
@@ -136,7 +137,10 @@ def _lines_and_panels(ds, first):
     if facet is not None:
         words.append(f"a panel per {facet} ({_values(ds, facet)})")
     if reduced:
-        words.append(f"the worst case over {_listing(reduced)}")
+        words.append(
+            f"a band over {_listing(reduced)} (the line the worst of the cases that gave a "
+            "value, thin dots the best)"
+        )
     return ", ".join(words)
 
 
@@ -162,18 +166,20 @@ def _convergence_caption(ds, rows, key, first):
                 text += f" {FLOOR_WORDS[reason].capitalize()}: {_listing(schemes)}."
         if unfitted:
             text += f" No asymptotic range: {_listing(unfitted)}."
-    elif line in errors.dims:  # the finest step's error of each line, its worst case
+    elif line in errors.dims:  # the finest step's error of each line, as the figure draws it
         finest = errors.sel(dt=dts.min())
-        worst = {value: float(finest.sel({line: value}).max(skipna=False)) for value in ds[line].values}
         named = "" if line == "scheme" else f"{line} "
-        text += (
-            f" At the smallest dt ({dts.min():g} s) the worst errors: "
-            + _listing(
-                f"{named}{_value(v)} {'failed' if np.isnan(e) else f'{e:.1e}'}" for v, e in worst.items()
-            )
-            + "."
-        )
-    pairs = [f"{first} = {second}" for first, second in coinciding_pairs(ds, errors)]
+        words = []
+        for value in ds[line].values:
+            cases = np.ravel(finest.sel({line: value}).values)
+            missing = int(np.isnan(cases).sum())
+            if missing == cases.size:
+                words.append(f"{named}{_value(value)} failed")
+                continue
+            lost = f" ({missing} of {cases.size} cases failed)" if missing else ""
+            words.append(f"{named}{_value(value)} {np.nanmax(cases):.1e}{lost}")
+        text += f" At the smallest dt ({dts.min():g} s) the worst errors: {_listing(words)}."
+    pairs = [f"{first} = {second}" for first, second in coinciding_lines(ds, key)]
     if pairs:
         text += f" Coinciding to {COINCIDENT_DIGITS} digits: {_listing(pairs)}."
     return text
@@ -195,14 +201,30 @@ def _work_precision_caption(ds, rows, found, first):
 
 
 def _stability_caption(ds, rows):
+    """The map's numbers in words: each scheme's cases by the verdicts the map draws
+    (`verdicts`), so that no scheme is called accurate in every case where the map shows
+    one failing; then the table's dt |w0| limits, which count physical bodies only."""
     load = step_load(ds).values
     text = (
         f"Each of the {load.size} cases by its dt |w0|, from {np.nanmin(load):.3g} to "
         f"{np.nanmax(load):.3g} rad."
     )
-    always = [
-        row["scheme"] for row in rows if np.isnan(row["inaccurate_hw"]) and np.isnan(row["unstable_hw"])
+    counts = {scheme: [int(mask.sum()) for mask in verdicts(ds, scheme)] for scheme in schemes_of(ds)}
+    always = [scheme for scheme, (good, *rest) in counts.items() if not any(rest)]
+    if always:
+        text += f" Accurate in every case: {_listing(always)}."
+    kinds = ("inaccurate", "failed", "unjudged")
+    others = [
+        f"{scheme} {good} of {sum(count)} accurate, "
+        + ", ".join(f"{n} {kind}" for n, kind in zip(rest, kinds, strict=True) if n)
+        for scheme, count in counts.items()
+        if scheme not in always
+        for good, *rest in [count]
     ]
+    if others:
+        text += f" Not accurate in every case: {'; '.join(others)}."
+    physical = "physical_body" in ds and not bool((ds["physical_body"] == 1).all())
+    among = " (physical bodies, physical_body = 1)" if physical else ""
     limited = [
         f"{row['scheme']} to {row['accurate_hw']:.3g}"
         for row in rows
@@ -211,12 +233,10 @@ def _stability_caption(ds, rows):
     failing = [
         f"{row['scheme']} from {row['unstable_hw']:.3g}" for row in rows if np.isfinite(row["unstable_hw"])
     ]
-    if always:
-        text += f" Accurate in every case: {_listing(always)}."
     if limited:
-        text += f" Accurate up to: {_listing(limited)}."
+        text += f" By dt |w0|{among}, accurate up to: {_listing(limited)}."
     if failing:
-        text += f" Failing: {_listing(failing)}."
+        text += f" Failing{among}: {_listing(failing)}."
     return text
 
 

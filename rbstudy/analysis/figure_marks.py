@@ -1,0 +1,203 @@
+"""Marks the figures of `rbstudy.analysis.plots` share: the band a line stands for when a
+swept axis is too long for panels, the exact-zero mark and its legend entry, the accuracy
+bound and the recommended point of the work-precision figure, and text labels moved clear
+of the data they annotate.
+
+Kept apart from plots.py, which draws the figures, so that each stays a small module.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.lines import Line2D
+
+from rbstudy.analysis.findings import findings
+
+__all__ = [
+    "EXACT_ZERO_LABEL",
+    "EXACT_ZERO_GID",
+    "band",
+    "zero_marks",
+    "zero_entry",
+    "clear_labels",
+    "BOUND_STYLE",
+    "RECOMMENDED_STYLE",
+    "bound_label",
+    "RecommendedPoint",
+    "recommended_point",
+]
+
+# An exact zero, which a log axis cannot show, is drawn on the floor line in its line's
+# colour with this mark (no scheme wears it), and named once in the legend: a gap in a line
+# is a failed case, never a zero.
+EXACT_ZERO_LABEL = "exact zero (on the dotted floor)"
+EXACT_ZERO_MARKER = "$0$"
+EXACT_ZERO_GID = "exact_zero"
+# Where a label may sit around its anchor, in points (x, y) with its alignment, tried in
+# turn: above, below, then beside, then farther off.
+_PLACES = [
+    (0, 2, "center", "bottom"),
+    (0, -2, "center", "top"),
+    (4, 0, "left", "center"),
+    (-4, 0, "right", "center"),
+    (0, 10, "center", "bottom"),
+    (0, -10, "center", "top"),
+    (12, 6, "left", "bottom"),
+    (-12, -6, "right", "top"),
+]
+# Points sampled along each segment of a line when testing it against a label's box.
+_SAMPLES = 64
+
+
+def band(da, reduced):
+    """A line's values over the ``reduced`` dims as (worst, best, failed): the largest and
+    smallest over the cases that gave a value (a case that failed at some values of them
+    still shows where it did not: the worst case with NaN kept hid six schemes of nine in
+    the stiff_inertia study), and how many of those cases gave none (failed, or without a
+    reference). NaN where no case gave a value."""
+    if not reduced:
+        return da, da, da.isnull().astype(int)
+    return da.max(reduced, skipna=True), da.min(reduced, skipna=True), da.isnull().sum(reduced)
+
+
+def zero_marks(ax, x, zeros, floor, style, every=1):
+    """The points of ``x`` where ``zeros`` (booleans), on the ``floor`` line, in the line's
+    colour with the exact-zero mark (every ``every``-th of them for a dense time series)."""
+    if floor is None or not np.any(zeros):
+        return
+    (marks,) = ax.plot(
+        np.asarray(x)[zeros][::every],
+        np.full(int(np.sum(zeros)), floor)[::every],
+        linestyle="none",
+        marker=EXACT_ZERO_MARKER,
+        markersize=style["markersize"] + 3,
+        color=style["color"],
+        zorder=style["zorder"] + 1,
+    )
+    marks.set_gid(EXACT_ZERO_GID)
+
+
+def zero_entry(fig):
+    """The legend entry of the exact-zero mark, a list of one (handles, label), when some
+    panel of ``fig`` shows one; else empty."""
+    shown = any(line.get_gid() == EXACT_ZERO_GID for ax in fig.axes for line in ax.get_lines())
+    if not shown:
+        return []
+    handle = Line2D([], [], linestyle="none", marker=EXACT_ZERO_MARKER, markersize=9, color="0.3")
+    return [([handle], EXACT_ZERO_LABEL)]
+
+
+def _obstacles(ax, own):
+    """Display points of the data of ``ax`` a label must keep off: points sampled along each
+    drawn segment of every line but ``own`` (the label's own guide), and the markers."""
+    points = []
+    for line in ax.get_lines():
+        if line is own or not line.get_visible():
+            continue
+        data = np.column_stack([line.get_xdata(), line.get_ydata()]).astype(float)
+        xy = line.get_transform().transform(data)
+        finite = np.isfinite(xy).all(axis=1)
+        if line.get_linestyle() not in ("None", "none", "", " "):
+            joined = finite[:-1] & finite[1:]
+            start, end = xy[:-1][joined], xy[1:][joined]
+            steps = np.linspace(0.0, 1.0, _SAMPLES)[None, :, None]
+            points.append((start[:, None, :] + steps * (end - start)[:, None, :]).reshape(-1, 2))
+        if line.get_marker() not in ("None", "none", "", " ", None):
+            points.append(xy[finite])
+    return np.concatenate(points) if points else np.zeros((0, 2))
+
+
+def _hits(box, obstacles, margin):
+    inside = (
+        (obstacles[:, 0] > box.x0 - margin)
+        & (obstacles[:, 0] < box.x1 + margin)
+        & (obstacles[:, 1] > box.y0 - margin)
+        & (obstacles[:, 1] < box.y1 + margin)
+    )
+    return int(inside.sum())
+
+
+def _place(text, anchor, place):
+    dx, dy, ha, va = place
+    text.xy = anchor
+    text.xyann = (dx, dy)
+    text.set_horizontalalignment(ha)
+    text.set_verticalalignment(va)
+
+
+def clear_labels(fig, labels):
+    """Move each of ``labels`` ((annotation, its offset in points; the Line2D it names;
+    anchors: data points along it, the first preferred)) to the first of its anchors and of
+    `_PLACES` around it where its box, widened by a marker's radius, holds no point of any
+    other line (data, floors, other guides) and lies inside its panel; where none is clear,
+    to the place that touches the fewest. The figure is laid out first: the boxes are
+    measured where they will be drawn."""
+    if not labels:
+        return
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    margin = 6.0 * fig.dpi / 72.0  # half the largest marker of a line (a fitted point's circle)
+    for text, guide, anchors in labels:
+        ax = text.axes
+        obstacles = _obstacles(ax, guide)
+        frame = ax.get_window_extent(renderer)
+        best = None
+        for anchor in anchors:
+            for place in _PLACES:
+                _place(text, anchor, place)
+                box = text.get_window_extent(renderer)
+                outside = box.x0 < frame.x0 or box.x1 > frame.x1 or box.y0 < frame.y0 or box.y1 > frame.y1
+                score = (outside, _hits(box, obstacles, margin))
+                if best is None or score < best[0]:
+                    best = (score, anchor, place)
+                if score == (False, 0):
+                    break
+            if best[0] == (False, 0):
+                break
+        _place(text, best[1], best[2])
+
+
+# The accuracy bound on the work-precision figure, and the recommended point on it.
+BOUND_STYLE = dict(color="0.15", linestyle="-.", linewidth=1.0, zorder=1)
+RECOMMENDED_STYLE = dict(
+    linestyle="none",
+    marker="*",
+    markersize=16,
+    markerfacecolor="gold",
+    markeredgecolor="k",
+    markeredgewidth=0.8,
+    zorder=10,
+)
+
+
+def bound_label(bound):
+    """The legend entry of the accuracy bound's line on the final-error axis."""
+    return f"accuracy bound {bound:g} rad (judged on the error at every sample)"
+
+
+@dataclass(frozen=True)
+class RecommendedPoint:
+    """The study's answer as the findings give it (its first recommendation): ``scheme`` at
+    ``dt``, over the ``cases`` (coordinate -> value mappings; an axis not named: every
+    value), and the legend's ``label``."""
+
+    scheme: str
+    dt: float
+    cases: tuple
+    label: str
+
+    def covers(self, pick):
+        """Whether a panel of the other axes' values ``pick`` shows a case of the answer."""
+        return any(all(case.get(d, v) == v for d, v in pick.items()) for case in self.cases)
+
+
+def recommended_point(ds):
+    """The `RecommendedPoint` of ``ds``: the first recommendation of
+    `rbstudy.analysis.findings.findings` (the study-wide pick where there is one), or None."""
+    found = next((f for f in findings(ds) if f.kind == "recommendation"), None)
+    if found is None:
+        return None
+    first = found.cases[0]
+    scheme, dt = str(first["scheme"]), float(first["dt"])
+    where = "" if len(found.cases) == 1 and set(first) <= {"scheme", "dt"} else " (where the findings say)"
+    return RecommendedPoint(scheme, dt, found.cases, f"recommended: {scheme} at dt = {dt:g} s{where}")
