@@ -883,9 +883,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         # `coinciding_lines` tells the caption) are drawn on top of each other in turn and
         # named together
         rows = [data.values.ravel() for *_, data in _lines(measure, line_dim)]
-        groups = _coincident(rows, round_off)
+        # coinciding below the measure's constant floor, as `coinciding_lines` tells the caption
+        groups = _coincident(rows, spec.floor)
         group_names = {
-            group[0]: _together([fits[0][j][0] for j in group], [rows[j] for j in group], round_off)
+            group[0]: _together([fits[0][j][0] for j in group], [rows[j] for j in group], spec.floor)
             for group in groups
         }
         drawn = {
