@@ -308,9 +308,9 @@ def recommendations(ds):
             seconds_per_case=float(seconds),
             axes=labels,
             tied=tuple(
-                _answer(ds, k, order)
-                for k in np.flatnonzero(tied)
-                if _answer(ds, k, order) != (str(schemes[scheme]), float(dts[dt]))
+                other
+                for other in (_answer(ds, k, order) for k in np.flatnonzero(tied))
+                if other != (str(schemes[scheme]), float(dts[dt]))
             ),
         )
         if met
