@@ -191,7 +191,8 @@ def estimate(study, cores=None):
     # the schemes ready to run now (an engine's adapter, kernels in numba's cache) are costed
     # as measured here (once per machine); the others at their declared cost until the sweep
     # has compiled and measured them
-    calibrate({batch.scheme for batch in study.batches if get_scheme(batch.scheme).is_cached()})
+    names = {batch.scheme for batch in study.batches}
+    calibrate({name for name in names if get_scheme(name).is_cached()})
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
