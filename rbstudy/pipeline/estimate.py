@@ -218,8 +218,7 @@ def estimate(study, cores=None):
     over_budget = int(np.sum(neither[cases.scene_rows]))
     peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
     per_composed = step_cost(get_scheme(REFERENCE_SCHEME), REFERENCE_OPTIONS).seconds
-    # dop853's declared figure: per accepted step at a reference's sparse output (a calibration
-    # samples every few steps, which costs it ~4x as much a step)
+    # dop853's declared figure: it is not calibrated (`calibration.calibrate`)
     per_peer = get_scheme("dop853").step_seconds
     each = peer * per_peer + composed * per_composed
     seconds += float(each.sum())
