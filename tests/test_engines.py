@@ -199,6 +199,32 @@ def test_mujoco_schemes_sweep_into_the_archive(tmp_path):
         assert abs(np.log2(e[1] / e[0]) - order) < 0.2, scheme
 
 
+def test_an_engines_forecast_is_its_calibrated_cost(tmp_path, monkeypatch):
+    """An engine's adapter needs no compiling: the forecast measures it (once per machine) at
+    a study's small batch, where each step's calls from Python cost ~0.1 ms a body, 10-30x
+    the declared best-batch figure (which forecast "kernels ~0.3 s" for a run of 68 s). The
+    forecast of a study is then within 2x of its archived kernel time."""
+    from conftest import write_study
+
+    from rbstudy.pipeline.config import load_study
+    from rbstudy.pipeline.estimate import estimate
+    from rbstudy.pipeline.execute import run_study
+    from rbstudy.pipeline.store import open_results
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # nothing measured yet
+    config = write_study(
+        tmp_path,
+        run={"scheme": "mujoco_euler", "dt": 0.01},
+        scene={**abaqus_mapping(), "duration": 2.0},
+        sweep={"scheme": ["mujoco_euler", "mujoco_rk4"], "scene.body.mass": [1.0, 2.0, 3.0, 4.0]},
+    )
+    study = load_study(config)
+    forecast = estimate(study, cores=1)
+    ds = open_results(run_study(study, tmp_path / "out", quiet=True).path)
+    kernels = float(ds.run_time.sum())
+    assert 0.5 < forecast.scheme_seconds / kernels < 2.0, (forecast.scheme_seconds, kernels)
+
+
 @pytest.mark.parametrize("scheme", MUJOCO)
 def test_a_state_mujoco_refuses_is_a_blow_up_of_that_body_alone(scheme, tmp_path, monkeypatch):
     """A body whose velocity MuJoCo judges unusable stops as unstable at its first step; the

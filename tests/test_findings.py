@@ -7,6 +7,7 @@ numbers. A finding that is not true is as wrong as a wrong error value.
 """
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -72,7 +73,8 @@ def _first_axes(ds):
 
 
 def _pooled_cost(ds):
-    """Each case's steps at its scheme's seconds per step over every dt (numpy only), in the
+    """Each case's steps at its run's calibrated seconds per body-step (an archive before
+    them: at its scheme's seconds per step pooled over every dt), numpy only, in the
     dimension order of ``status``."""
     dims = ds["status"].dims
     shape = ds["status"].shape
@@ -87,19 +89,34 @@ def _pooled_cost(ds):
         ).astype(float)
 
     run_time, steps = spread("run_time"), spread("n_steps")
+    if "step_seconds" in ds:
+        return steps * spread("step_seconds")
     if "dt" not in dims:
         return run_time
     axis = dims.index("dt")
     return steps * run_time.sum(axis, keepdims=True) / steps.sum(axis, keepdims=True)
 
 
+def _spread_like_status(ds, name):
+    """Variable ``name`` broadcast to the dimension order of ``status`` (0 where absent)."""
+    if name not in ds:
+        return np.zeros(ds["status"].shape)
+    return np.nan_to_num(ds[name].broadcast_like(ds["status"]).transpose(*ds["status"].dims).values)
+
+
 def _expected_picks(ds):
-    """The cheapest accurate (scheme, dt, seconds) per value of the other axes, numpy only."""
+    """The cheapest accurate (scheme, dt, seconds) per value of the other axes, numpy only;
+    of the candidates whose cost ranges (step_seconds_uncertainty) overlap the cheapest's,
+    the one of least final orientation error."""
     status, accuracy = ds["status"], ds["accuracy"]
     order = _first_axes(ds) + _others(ds)
     good = (accuracy.values == 0) & (status.values == 0)
     good = np.moveaxis(good, [status.dims.index(d) for d in order], range(len(order)))
     cost = np.moveaxis(_pooled_cost(ds), [status.dims.index(d) for d in order], range(len(order)))
+    moved = [status.dims.index(d) for d in order]
+    spread = np.moveaxis(_spread_like_status(ds, "step_seconds_uncertainty"), moved, range(len(order)))
+    error = np.abs(ds["final_orientation_error"].broadcast_like(status).values)
+    error = np.moveaxis(np.nan_to_num(error, nan=np.inf), moved, range(len(order)))
     lead = len(_first_axes(ds))
     schemes = np.atleast_1d(ds["scheme"].values)
     dts = np.atleast_1d(ds["dt"].values)
@@ -110,8 +127,11 @@ def _expected_picks(ds):
         if not np.isfinite(seconds).any():
             picks.append(None)
             continue
-        at = dict(zip(_first_axes(ds), np.unravel_index(np.argmin(seconds), seconds.shape), strict=True))
-        picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]), float(seconds.min())))
+        least = np.unravel_index(np.argmin(seconds), seconds.shape)
+        tied = seconds * (1 - spread[here]) <= seconds[least] * (1 + spread[here][least])
+        best = np.unravel_index(np.argmin(np.where(tied, error[here], np.inf)), seconds.shape)
+        at = dict(zip(_first_axes(ds), best, strict=True))
+        picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]), float(seconds[best])))
     return picks
 
 
@@ -129,19 +149,28 @@ def test_the_recommendation_is_the_cheapest_accurate_case(archives, name):
         assert first.kind == "no_recommendation"
         assert "no scheme and step meet" in first.text
         return
-    # the whole study's answer: every case of the other axes accurate, least mean cost
+    # the whole study's answer: every case of the other axes accurate, least mean cost, the
+    # candidates whose cost ranges overlap its one answer, of least worst error
     axes = _first_axes(ds)
-    ok = ((ds["accuracy"] == 0) & (ds["status"] == 0)).all(_others(ds)).transpose(*axes).values
+    others = _others(ds)
+    ok = ((ds["accuracy"] == 0) & (ds["status"] == 0)).all(others).transpose(*axes).values
     pooled = ds["status"].copy(data=_pooled_cost(ds))
-    mean = pooled.mean(_others(ds)).transpose(*axes).values
+    mean = pooled.mean(others).transpose(*axes).values
+    spread = ds["status"].copy(data=_spread_like_status(ds, "step_seconds_uncertainty"))
+    spread = spread.max(others).transpose(*axes).values
+    worst = abs(ds["final_orientation_error"]).max(others).transpose(*axes).values
     if ok.any():
-        at = np.unravel_index(np.argmin(np.where(ok, mean, np.inf)), ok.shape)
+        costs = np.where(ok, mean, np.inf)
+        least = np.unravel_index(np.argmin(costs), ok.shape)
+        tied = costs * (1 - spread) <= costs[least] * (1 + spread[least])
+        at = np.unravel_index(np.argmin(np.where(tied, np.nan_to_num(worst, nan=np.inf), np.inf)), ok.shape)
         pick = dict(zip(axes, at, strict=True))
         scheme = str(np.atleast_1d(ds["scheme"].values)[pick.get("scheme", 0)])
         assert first.kind == "recommendation"
         assert first.cases[0]["scheme"] == scheme
         assert first.numbers["dt_s"] == float(np.atleast_1d(ds["dt"].values)[pick.get("dt", 0)])
-        assert first.text.startswith(f"recommended: {scheme} at dt=")
+        assert len(first.numbers["equal_cost"]) == tied.sum() - 1
+        assert first.text.startswith(f"recommended: {scheme}" + (" at dt=" if tied.sum() == 1 else ""))
 
 
 def _agree(a, b):
@@ -492,3 +521,169 @@ def test_each_recommendation_names_every_value_it_holds_for(tmp_path):
             )
         )
         assert held == expected[answer], finding.text
+
+
+def _abaqus_top_variant(folder, name, **changes):
+    """A copy of the default study with ``changes`` (dotted key -> value) swept into
+    ``folder/name``; its archive's path."""
+    config = yaml.safe_load((CONFIGS / "abaqus_top.yaml").read_text())
+    config["run"] = {"scheme": "rk4", "dt": 0.01}  # without hht's alpha: hht is not swept here
+    for key, value in changes.items():
+        *path, last = key.split(".")
+        mapping = config
+        for part in path:
+            mapping = mapping[part]
+        mapping[last] = value
+    target = folder / name
+    target.mkdir()
+    path = target / "abaqus_top.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return run_study(load_study(path), target / "out", quiet=True).path
+
+
+@pytest.fixture(scope="module")
+def cost_archives(tmp_path_factory):
+    """Two small copies of the default study: its own dt grid (the answer at its largest
+    dt), and a grid up to dt = 0.32 s, where no scheme meets the bound."""
+    folder = tmp_path_factory.mktemp("cost")
+    schemes = ["euler", "leapfrog", "midpoint", "rk4", "rkmk4"]
+    return {
+        "capped": _abaqus_top_variant(
+            folder,
+            "capped",
+            **{
+                "sweep.scheme": schemes,
+                "sweep.dt": {"halving": 0.01, "count": 3},
+                "sweep.inertia_ratio": [0.5, 2.0],
+            },
+        ),
+        "wide": _abaqus_top_variant(
+            folder,
+            "wide",
+            **{
+                "sweep.scheme": ["euler", "midpoint", "rk4"],
+                "sweep.dt": [0.01, 0.02, 0.04, 0.08, 0.16, 0.32],
+                "sweep.inertia_ratio": [0.5, 2.0],
+                "output.interval": 0.32,
+                "scene.duration": 2.56,
+            },
+        ),
+    }
+
+
+def _with_costs(ds, seconds, uncertainty):
+    """``ds`` with each scheme's calibrated seconds per body-step set (scheme -> s) and one
+    relative ``uncertainty``."""
+    ds = ds.copy()
+    values = np.array([seconds[str(name)] for name in ds["scheme"].values])
+    ds["step_seconds"] = ds["step_seconds"].copy(
+        data=np.broadcast_to(
+            values.reshape([-1 if d == "scheme" else 1 for d in ds["step_seconds"].dims]),
+            ds["step_seconds"].shape,
+        ).copy()
+    )
+    ds["step_seconds_uncertainty"] = ds["step_seconds_uncertainty"].copy(
+        data=np.full(ds["step_seconds_uncertainty"].shape, uncertainty)
+    )
+    return ds
+
+
+def _mean_cost(ds, scheme, dt):
+    """The mean over the other axes of n_steps x step_seconds of (scheme, dt), numpy only."""
+    case = ds.sel(scheme=scheme, dt=dt)
+    return float(np.mean(case["n_steps"].values * case["step_seconds"].values))
+
+
+def _worst_error(ds, scheme, dt):
+    return float(np.max(np.abs(ds["final_orientation_error"].sel(scheme=scheme, dt=dt).values)))
+
+
+def test_costs_within_the_calibrations_uncertainty_are_one_answer_said_as_one(cost_archives):
+    """rk4 and rkmk4 at 1% apart with 2% uncertainty: a tie, named as one, represented by
+    the smaller worst error; at 5% apart the cheaper alone. Recomputed from the archive."""
+    ds = open_archive(cost_archives["capped"])
+    # euler, leapfrog dearer here: at dt = 0.01 s they meet the bound too, at its edge
+    costs = {"euler": 5e-7, "leapfrog": 5e-7, "midpoint": 3e-7, "rk4": 2e-7}
+    tie = _with_costs(ds, {**costs, "rkmk4": 2.02e-7}, 0.02)
+    first, second = sorted(["rk4", "rkmk4"], key=lambda scheme: _worst_error(ds, scheme, 0.01))
+    found = findings(tie)[0]
+    assert found.text.startswith(
+        f"recommended: {first} or {second}, equal cost, at dt=0.01 s, "
+        f"{_mean_cost(tie, first, 0.01):.2g} s a case, error {_worst_error(ds, first, 0.01):.3g} rad "
+        "(bound 0.01, every case)"
+    )
+    assert found.numbers["equal_cost"] == [{"scheme": second, "dt_s": 0.01}]
+    assert found.cases == ({"scheme": first, "dt": 0.01},)
+    apart = findings(_with_costs(ds, {**costs, "rkmk4": 2.1e-7}, 0.02))[0]
+    assert apart.text.startswith(
+        f"recommended: rk4 at dt=0.01 s, {_mean_cost(tie, 'rk4', 0.01):.2g} s a case"
+    )
+    assert apart.numbers["equal_cost"] == []
+    # per value of the other axes too: each value's line names the tie
+    for pick in recommendations(tie):
+        assert {pick.scheme, *(scheme for scheme, _ in pick.tied)} == {"rk4", "rkmk4"}
+
+
+@pytest.mark.parametrize(("error", "edge"), [(0.00995, True), (0.0098, False)])
+def test_an_answer_at_the_bounds_edge_is_marked(cost_archives, error, edge):
+    ds = _with_costs(
+        open_archive(cost_archives["capped"]),
+        {"euler": 5e-7, "leapfrog": 5e-7, "midpoint": 3e-7, "rk4": 2e-7, "rkmk4": 4e-7},
+        0.02,
+    )
+    values = ds["final_orientation_error"].copy()
+    values.loc[{"scheme": "rk4", "dt": 0.01}] = error
+    ds["final_orientation_error"] = values
+    bound = ds.attrs["accuracy_bound"]
+    assert bound == 0.01
+    found = findings(ds)[0]
+    assert found.cases == ({"scheme": "rk4", "dt": 0.01},)
+    assert found.numbers["at_bound_edge"] is edge
+    if edge:
+        assert f"error {error:.3g} rad: within 1% of the bound 0.01 (every case)" in found.text
+    else:
+        assert f"error {error:.3g} rad (bound 0.01, every case)" in found.text
+        assert "within" not in found.text
+
+
+def test_an_answer_at_the_largest_swept_dt_says_it_is_capped_by_the_grid(cost_archives):
+    for name, capped in (("capped", True), ("wide", False)):
+        ds = open_archive(cost_archives[name])
+        largest = float(ds["dt"].max())
+        answers = [f for f in findings(ds) if f.kind == "recommendation"]
+        assert answers
+        for found in answers:
+            at_largest = found.numbers["dt_s"] == largest
+            assert at_largest is capped  # the wide grid's 0.32 s meets the bound nowhere
+            assert found.numbers["capped_by_grid"] is at_largest
+            assert ("capped by the grid" in found.text) is at_largest
+        if capped:
+            assert (
+                "capped by the grid: dt=0.01 s is the largest swept, a larger one may also meet the bound"
+                in (answers[0].text)
+            )
+
+
+def test_an_archive_without_calibrated_costs_says_its_cost_is_run_time(cost_archives):
+    ds = open_archive(cost_archives["capped"]).drop_vars(["step_seconds", "step_seconds_uncertainty"])
+    found = findings(ds)[0]
+    assert found.kind == "recommendation"
+    assert found.text.endswith(
+        "; costed by run_time, which moves between runs (sweep again to store calibrated step costs)"
+    )
+    assert found.numbers["cost_model"] == "run_time"
+
+
+@pytest.mark.slow
+def test_ten_runs_of_the_default_study_give_one_recommendation(tmp_path, capsys):
+    """The default study swept ten times over (``--force``), as a user would: the same
+    answer each time, its cost from the calibrated step costs, not the runs' timers."""
+    said = []
+    for _ in range(10):
+        assert main(["sweep", str(CONFIGS / "abaqus_top.yaml"), "--out", str(tmp_path), "--force"]) == 0
+        # each finding one text (a wrapped one's lines start with two spaces)
+        texts = re.sub(r"\n  ", " ", capsys.readouterr().out).splitlines()
+        answers = [text for text in texts if text.startswith(("recommended: ", "cheapest at "))]
+        assert answers[0].startswith("recommended: ")
+        said.append([re.sub(r", [0-9.e+-]+ s a case", "", text) for text in answers])  # without the cost
+    assert all(answers == said[0] for answers in said), said

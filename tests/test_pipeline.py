@@ -32,6 +32,7 @@ from rbstudy.physics.references import composed_steps
 from rbstudy.physics.scenes import Body
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline import cluster, execute
+from rbstudy.pipeline.calibration import calibration_path, machine_key, step_cost
 from rbstudy.pipeline.cluster import Where
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
@@ -739,6 +740,28 @@ def test_every_run_of_consecutive_cases_is_written_as_few_slabs_in_order(shape):
             assert np.array_equal(np.concatenate(covered) if covered else [], np.arange(first, stop))
 
 
+def test_the_forecast_and_the_archive_cost_a_step_as_calibrated_once_per_machine(tmp_path, monkeypatch):
+    """A scheme ready to run is measured once (cached beside the kernels, in a cache folder
+    of its own here); the forecast and the archive's step_seconds then take that figure, and
+    neither a second forecast nor the sweep measures it again."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    config = write_study(tmp_path, run={"scheme": "leapfrog", "dt": 0.01}, sweep={"dt": [0.01, 0.005]})
+    study = load_study(config)
+    get_scheme("leapfrog").ensure_compiled()  # ready: the forecast measures it
+    forecast = estimate(study, cores=1)
+    with open(calibration_path(), encoding="utf-8") as file:
+        figure = json.load(file)[machine_key()]["leapfrog rbstudy"]
+    assert figure["seconds"] > 0 and figure["uncertainty"] >= 0.1
+    assert forecast.scheme_seconds == pytest.approx(forecast.body_steps * figure["seconds"], rel=1e-12)
+    stamp = os.stat(calibration_path()).st_mtime_ns
+    assert estimate(study, cores=1).scheme_seconds == forecast.scheme_seconds
+    ds = open_results(run_study(study, tmp_path / "out", quiet=True).path)
+    assert os.stat(calibration_path()).st_mtime_ns == stamp  # measured once
+    assert np.all(ds.step_seconds.values == figure["seconds"])
+    assert np.all(ds.step_seconds_uncertainty.values == figure["uncertainty"])
+    assert ds.step_seconds.attrs["units"] == "s"
+
+
 def test_the_forecast_takes_the_block_rate_where_a_batch_fills_blocks(tmp_path):
     """Batches of 16 bodies or more step in blocks across SIMD lanes (numerics/block.py),
     3-6x the rate of one body after another: the forecast takes each scheme's block rate
@@ -758,13 +781,17 @@ def test_the_forecast_takes_the_block_rate_where_a_batch_fills_blocks(tmp_path):
         forecast = estimate(load_study(config), cores=1)
         return forecast.scheme_seconds / forecast.body_steps
 
-    assert kernel_seconds(64) == pytest.approx(leapfrog.block_step_seconds)
-    assert kernel_seconds(8) == pytest.approx(leapfrog.step_seconds)
+    # at this machine's calibrated cost where there is one (the declared one else), the
+    # block's scaled alike
+    single = step_cost(leapfrog).seconds
+    scale = single / leapfrog.step_seconds
+    assert kernel_seconds(64) == pytest.approx(leapfrog.block_step_seconds * scale)
+    assert kernel_seconds(8) == pytest.approx(single)
     lever = {**abaqus_mapping(), "duration": 0.5, "loads": {"nodes": {"2": {"force_space": [0.0, 0.0, 0.1]}}}}
     turning = {**abaqus_mapping(), "duration": 0.5, "loads": {"force_body": [0.0, 0.0, 0.1]}}
-    assert kernel_seconds(64, lever) == pytest.approx(leapfrog.step_seconds)
-    assert kernel_seconds(64, turning) == pytest.approx(leapfrog.step_seconds)
-    compensated = leapfrog.seconds_per_step({"compensated": 1})
+    assert kernel_seconds(64, lever) == pytest.approx(single)
+    assert kernel_seconds(64, turning) == pytest.approx(single)
+    compensated = leapfrog.seconds_per_step({"compensated": 1}) * scale
     assert kernel_seconds(64, options={"compensated": 1}) == pytest.approx(compensated)
     # a scheme without a block step keeps its one rate
     assert get_scheme("exact_split").block_seconds_per_step() is None

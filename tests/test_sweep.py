@@ -389,7 +389,7 @@ def test_unknown_output_variable_and_one_a_scene_lacks(tmp_path):
 def test_output_variables_narrow_trajectories_but_keep_the_bookkeeping(tmp_path):
     study = load_study(write_study(tmp_path, output={"interval": 0.01, "variables": ["quaternion"]}))
     assert "quaternion" in study.variables and "omega_body" not in study.variables
-    assert {"status", "run_time", "n_steps", "initial_spin"} <= set(study.variables)
+    assert {"status", "run_time", "n_steps", "initial_spin", "step_seconds"} <= set(study.variables)
 
 
 def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeypatch):

@@ -64,16 +64,22 @@ __all__ = [
     "FINDINGS_VARIABLES",
     "FINDINGS_REDUCED",
     "case_seconds",
+    "calibrated",
+    "EDGE_SHARE",
 ]
 
 # What `findings` reads: the table's per-case scalars, and the energy series whose last value
 # says whether a scheme gains or loses energy.
-FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error")
+FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds", "step_seconds_uncertainty")
 # Of those, the time series the findings reduce along time, and how; read so
 # (`store.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
 # The archive's accuracy verdict of a case that met the bound (pipeline/outputs.py VERDICTS).
 VERDICT_ACCURATE = 0
+# A recommended error within this share of the bound is at its edge, and said so: a step a
+# little larger, or another body, may pass it (euler was recommended at 0.00995 rad against
+# the default bound 0.01).
+EDGE_SHARE = 0.01
 # The findings a terminal shows before the table (text and md); the JSON form has them all.
 MAX_FINDING_LINES = 12
 # A list of values is named whole up to this many; a longer one as a range that loses none
@@ -106,7 +112,9 @@ class Recommendation:
     """The cheapest accurate scheme and step for one value of the other swept axes.
 
     axes: those values (coordinate name -> value; empty when nothing else is swept);
-    error: the case's final orientation error (rad); seconds_per_case: its kernel time.
+    error: the case's final orientation error (rad); seconds_per_case: its kernel time
+    (`case_seconds`); tied: the other (scheme, dt) whose cost is within the calibration's
+    uncertainty of it (this one has the smallest error of them).
     """
 
     scheme: str
@@ -114,6 +122,7 @@ class Recommendation:
     error: float
     seconds_per_case: float
     axes: dict
+    tied: tuple = ()
 
 
 def _g(value, digits=3):
@@ -266,18 +275,52 @@ def _cases(ds):
         yield labels, dict(labels.positions)
 
 
+def calibrated(ds):
+    """Whether ``ds`` costs its cases by the calibrated model (its ``step_seconds``: archives
+    before it have none)."""
+    return "step_seconds" in ds
+
+
 def case_seconds(ds):
     """The kernel seconds of every case (the shape of ``status``): its steps (``n_steps``)
-    at its scheme's seconds per step, pooled over the swept ``dt`` (the summed ``run_time``
-    over the summed steps, at the same values of the other axes). One case's ``run_time`` of
-    microseconds is mostly timer noise, and picked the cheapest of two schemes by chance; the
-    pooled rate is measured over the longest runs, and keeps the cost proportional to the
-    steps along ``dt``."""
-    run_time = ds["run_time"].broadcast_like(ds["status"])
+    times its run's calibrated seconds per body-step (``step_seconds``,
+    `rbstudy.pipeline.calibration`), which no run's timer noise moves.
+
+    An archive without ``step_seconds`` (older) is costed as it was: the steps at the
+    scheme's seconds per step pooled over the swept ``dt`` (the summed ``run_time`` over the
+    summed steps, at the same values of the other axes); one case's ``run_time`` of
+    microseconds is mostly timer noise, and even pooled it changed the default study's
+    recommendation between two runs."""
     steps = ds["n_steps"].broadcast_like(ds["status"]).astype(float)
+    if calibrated(ds):
+        return steps * ds["step_seconds"].broadcast_like(ds["status"])
+    run_time = ds["run_time"].broadcast_like(ds["status"])
     if "dt" not in run_time.dims:
         return run_time
     return steps * (run_time.sum("dt") / steps.sum("dt"))
+
+
+def _cost_uncertainty(ds):
+    """The relative uncertainty of every case's `case_seconds`: its calibration's (0 where
+    none is known: an older archive, a scheme costed at its declared figure)."""
+    if "step_seconds_uncertainty" not in ds:
+        return ds["status"].copy(data=np.zeros(ds["status"].shape))
+    return ds["step_seconds_uncertainty"].broadcast_like(ds["status"]).fillna(0.0)
+
+
+def _choose(seconds, uncertainty, error):
+    """Per row of candidates (n, m): the cheapest, and those whose cost is within the
+    calibration's uncertainty of it (their ranges overlap), a tie; the one of them with the
+    smallest ``error`` (then the earliest) represents them. ``seconds`` is inf where a
+    candidate does not meet the bound. Returns (pick (n,), tied (n, m))."""
+    rows = np.arange(seconds.shape[0])
+    cheapest = np.argmin(seconds, axis=1)
+    least, spread = seconds[rows, cheapest][:, None], uncertainty[rows, cheapest][:, None]
+    with np.errstate(invalid="ignore"):
+        tied = np.isfinite(seconds) & (seconds * (1.0 - uncertainty) <= least * (1.0 + spread))
+    ranked = np.where(tied, np.nan_to_num(error, nan=np.inf), np.inf)
+    pick = np.where(tied.any(axis=1), np.argmin(ranked, axis=1), cheapest)
+    return pick, tied
 
 
 class _Picks(typing.NamedTuple):
@@ -285,19 +328,22 @@ class _Picks(typing.NamedTuple):
     (C order), as columns: ``met`` (n,) whether any case there meets the bound; ``scheme``
     and ``dt`` (n,) the positions of the cheapest along those axes (0 where not swept, or
     nothing meets the bound); ``error`` (n,) its final orientation error (rad);
-    ``seconds`` (n,) its kernel time (inf where nothing meets the bound)."""
+    ``seconds`` (n,) its kernel time (inf where nothing meets the bound); ``tied`` (n, m)
+    the (scheme, dt) candidates in C order of equal cost (`_choose`)."""
 
     met: np.ndarray
     scheme: np.ndarray
     dt: np.ndarray
     error: np.ndarray
     seconds: np.ndarray
+    tied: np.ndarray
 
 
 def _picks(ds):
     """The `_Picks` of ``ds``, every value of the other axes at once. Cheapest: the least
-    `case_seconds`; ties go to the earlier scheme, then the earlier dt (archive order: the
-    smaller, as dt is stored ascending since rbstudy 0.4)."""
+    `case_seconds`, costs within their uncertainty a tie that the smaller error represents
+    (`_choose`); then the earlier scheme, then the earlier dt (archive order: the smaller,
+    as dt is stored ascending since rbstudy 0.4)."""
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     dims = [*_other_dims(ds), *order]
 
@@ -307,18 +353,30 @@ def _picks(ds):
 
     good = flat((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
     seconds = np.where(good, flat(case_seconds(ds)), np.inf)
-    cheapest = np.argmin(seconds, axis=1)
+    error = error_measure(ds, "orientation")
+    errors = flat(error) if error is not None else np.full(seconds.shape, math.nan)
+    cheapest, tied = _choose(seconds, flat(_cost_uncertainty(ds)), errors)
     shape = [ds.sizes[d] for d in order]
     position = dict(zip(order, np.unravel_index(cheapest, shape), strict=True)) if order else {}
-    error = error_measure(ds, "orientation")
     everywhere = np.arange(len(cheapest))
     zeros = np.zeros_like(cheapest)
     return _Picks(
         met=good.any(axis=1),
         scheme=position.get("scheme", zeros),
         dt=position.get("dt", zeros),
-        error=flat(error)[everywhere, cheapest] if error is not None else np.full(len(cheapest), math.nan),
+        error=errors[everywhere, cheapest],
         seconds=seconds[everywhere, cheapest],
+        tied=tied,
+    )
+
+
+def _answer(ds, flat, order):
+    """(scheme, dt) of the candidate at C-order position ``flat`` along ``order``."""
+    shape = [ds.sizes[d] for d in order]
+    at = dict(zip(order, np.unravel_index(flat, shape), strict=True)) if order else {}
+    return (
+        str(schemes_of(ds)[at.get("scheme", 0)]),
+        float(np.atleast_1d(ds["dt"].values)[at.get("dt", 0)]),
     )
 
 
@@ -330,6 +388,7 @@ def recommendations(ds):
     picks = _picks(ds)
     schemes = schemes_of(ds)
     dts = np.atleast_1d(ds["dt"].values)
+    order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     return [
         Recommendation(
             scheme=str(schemes[scheme]),
@@ -337,33 +396,120 @@ def recommendations(ds):
             error=float(error),
             seconds_per_case=float(seconds),
             axes=labels,
+            tied=tuple(
+                other
+                for other in (_answer(ds, k, order) for k in np.flatnonzero(tied))
+                if other != (str(schemes[scheme]), float(dts[dt]))
+            ),
         )
         if met
         else None
-        for (labels, _), met, scheme, dt, error, seconds in zip(_cases(ds), *picks, strict=True)
+        for (labels, _), met, scheme, dt, error, seconds, tied in zip(_cases(ds), *picks, strict=True)
     ]
+
+
+class _Uniform(typing.NamedTuple):
+    """The study-wide answer: (scheme, dt), its mean kernel seconds per case, its worst final
+    orientation error (rad), and the other (scheme, dt) of equal cost (`_choose`)."""
+
+    scheme: str
+    dt: float
+    seconds: float
+    error: float
+    tied: tuple
 
 
 def _uniform(ds):
     """The cheapest (scheme, dt) that meets the bound in every case of the other axes, by
-    total kernel time: (scheme, dt, seconds per case, worst error) or None."""
+    total kernel time, costs within their uncertainty a tie that the smaller worst error
+    represents: a `_Uniform`, or None."""
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     others = _other_dims(ds)
     meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)).all(others)
     cost = case_seconds(ds).mean(others)
-    seconds = np.where(meets.transpose(*order).values, cost.transpose(*order).values, np.inf)
+    seconds = np.where(meets.transpose(*order).values, cost.transpose(*order).values, np.inf).reshape(1, -1)
     if not np.isfinite(seconds).any():
         return None
-    flat = int(np.argmin(seconds))
-    pick = dict(zip(order, np.unravel_index(flat, seconds.shape) if seconds.ndim else (), strict=True))
+    spread = _cost_uncertainty(ds).max(others).transpose(*order).values.reshape(1, -1)
     error = error_measure(ds, "orientation")
-    worst = float(error.isel(pick).max()) if error is not None else math.nan
-    return (
-        schemes_of(ds)[pick.get("scheme", 0)],
-        float(np.atleast_1d(ds["dt"].values)[pick.get("dt", 0)]),
-        float(seconds.flat[flat]),
-        worst,
+    worst = (
+        error.max(others).transpose(*order).values.reshape(1, -1)
+        if error is not None
+        else np.full(seconds.shape, math.nan)
     )
+    pick, tied = _choose(seconds, spread, worst)
+    flat = int(pick[0])
+    scheme, dt = _answer(ds, flat, order)
+    return _Uniform(
+        scheme=scheme,
+        dt=dt,
+        seconds=float(seconds[0, flat]),
+        error=float(worst[0, flat]),
+        tied=tuple(_answer(ds, k, order) for k in np.flatnonzero(tied[0]) if k != flat),
+    )
+
+
+def _choice_text(scheme, dt, tied):
+    """``rk4 at dt=0.01 s``; with candidates of equal cost ``rk4 or rkmk4, equal cost, at
+    dt=0.01 s`` (another dt named with its scheme)."""
+    if not tied:
+        return f"{scheme} at dt={_g(dt)} s"
+    if all(other_dt == dt for _, other_dt in tied):
+        return _alternatives([scheme, *(name for name, _ in tied)]) + f", equal cost, at dt={_g(dt)} s"
+    return (
+        _alternatives([f"{name} at dt={_g(step)} s" for name, step in ((scheme, dt), *tied)]) + ", equal cost"
+    )
+
+
+def _alternatives(names):
+    """``a or b``, ``a, b or c``."""
+    return ", ".join(names[:-1]) + f" or {names[-1]}"
+
+
+def _at_edge(error, bound):
+    return bool(bound is not None and math.isfinite(error) and error >= (1.0 - EDGE_SHARE) * bound)
+
+
+def _error_text(error, bound, tail=None):
+    """``error 2.8e-07 rad``, or at the bound's edge (`EDGE_SHARE`) ``error 0.00995 rad:
+    within 1% of the bound 0.01``; with a ``tail`` (``", every case)"``), the bound follows
+    the error (``error 2.8e-07 rad (bound 0.01, every case)``)."""
+    if _at_edge(error, bound):
+        return f"error {_g(error)} rad: within {EDGE_SHARE:.0%} of the bound {_g(bound)}" + (
+            f" ({tail.removeprefix(', ')}" if tail and tail != ")" else ""
+        )
+    return f"error {_g(error)} rad" + (f" (bound {_g(bound)}{tail}" if tail is not None else "")
+
+
+def _capped(ds, dt):
+    """Whether ``dt`` is the largest step of a swept ``dt``: the grid, not the bound, may
+    have stopped the answer there."""
+    return bool("dt" in ds["status"].dims and ds.sizes["dt"] > 1 and dt == float(ds["dt"].max()))
+
+
+def _capped_text(dt, short=False):
+    """What a recommendation at the largest swept ``dt`` says; ``short`` for a per-value line,
+    under the study-wide one that says it whole."""
+    if short:
+        return f"capped by the grid (dt={_g(dt)} s, the largest swept)"
+    return (
+        f"capped by the grid: dt={_g(dt)} s is the largest swept, a larger one may also meet the "
+        "bound (widen sweep.dt)"
+    )
+
+
+def _recommendation_numbers(ds, dt, seconds, error, bound, tied):
+    """The numbers of a recommendation finding (units in the names)."""
+    return {
+        "dt_s": dt,
+        "seconds_per_case": seconds,
+        "error_rad": error,
+        "accuracy_bound": bound,
+        "equal_cost": [{"scheme": name, "dt_s": step} for name, step in tied],
+        "capped_by_grid": _capped(ds, dt),
+        "at_bound_edge": _at_edge(error, bound),
+        "cost_model": "calibrated step_seconds" if calibrated(ds) else "run_time",
+    }
 
 
 def _recommendation_findings(ds):
@@ -388,40 +534,47 @@ def _recommendation_findings(ds):
             )
         ]
     result = []
+    # an older archive's costs move with its run's timer: said where the answer is
+    uncalibrated = (
+        ""
+        if calibrated(ds)
+        else "; costed by run_time, which moves between runs (sweep again to store calibrated step costs)"
+    )
     uniform = _uniform(ds)
     if uniform is not None:
-        scheme, dt, seconds, worst = uniform
         everywhere = ", every case" if _other_dims(ds) else ""
+        text = (
+            f"recommended: {_choice_text(uniform.scheme, uniform.dt, uniform.tied)}, "
+            f"{_g(uniform.seconds, 2)} s a case, {_error_text(uniform.error, bound, f'{everywhere})')}"
+        )
+        if _capped(ds, uniform.dt):
+            text += "; " + _capped_text(uniform.dt)
         result.append(
             Finding(
                 kind="recommendation",
-                cases=({"scheme": scheme, "dt": dt},),
-                numbers={
-                    "dt_s": dt,
-                    "seconds_per_case": seconds,
-                    "error_rad": worst,
-                    "accuracy_bound": bound,
-                },
-                text=f"recommended: {scheme} at dt={_g(dt)} s, {_g(seconds, 2)} s a case, error "
-                f"{_g(worst)} rad (bound {_g(bound)}{everywhere})",
+                cases=({"scheme": uniform.scheme, "dt": uniform.dt},),
+                numbers=_recommendation_numbers(
+                    ds, uniform.dt, uniform.seconds, uniform.error, bound, uniform.tied
+                ),
+                text=text + uncalibrated,
             )
         )
     answers = set(zip(picks.scheme[picks.met].tolist(), picks.dt[picks.met].tolist(), strict=True))
     if uniform is None or len(answers) > 1 or not picks.met.all():
-        # grouped by answer as arrays; a dict per case only for the finding's own cases (a
-        # million cases' Recommendation objects and labels took ~600 MiB)
+        # grouped by answer (and its candidates of equal cost) as arrays; a dict per case
+        # only for the finding's own cases (a million cases' Recommendation objects and
+        # labels took ~600 MiB)
         labels = [labels for labels, _ in _cases(ds)]
         dts = np.atleast_1d(ds["dt"].values)
+        order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
         key = np.where(picks.met, picks.scheme * len(dts) + picks.dt, -1)
-        for first in np.sort(np.unique(key, return_index=True)[1]):
-            members = np.flatnonzero(key == key[first])
+        keys = np.column_stack([key, np.packbits(picks.tied & picks.met[:, None], axis=1)])
+        _, first_of, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        group = group.reshape(-1)
+        for first in np.sort(first_of):
+            members = np.flatnonzero(group == group[first])
             where = _where([labels[k] for k in members])
-            answer = (
-                None
-                if key[first] < 0
-                else (str(schemes_of(ds)[picks.scheme[first]]), float(dts[picks.dt[first]]))
-            )
-            if answer is None:
+            if key[first] < 0:
                 result.append(
                     Finding(
                         kind="no_recommendation",
@@ -431,20 +584,26 @@ def _recommendation_findings(ds):
                     )
                 )
                 continue
-            seconds = picks.seconds[members].tolist()
-            errors = picks.error[members].tolist()
+            answer = (str(schemes_of(ds)[picks.scheme[first]]), float(dts[picks.dt[first]]))
+            tied = tuple(
+                other
+                for other in (_answer(ds, k, order) for k in np.flatnonzero(picks.tied[first]))
+                if other != answer
+            )
+            seconds = float(picks.seconds[members].max())
+            error = float(picks.error[members].max())
+            text = (
+                f"cheapest at {where}: {_choice_text(*answer, tied)}, {_g(seconds, 2)} s a case, "
+                + _error_text(error, bound)
+            )
+            if _capped(ds, answer[1]):
+                text += "; " + _capped_text(answer[1], short=uniform is not None and _capped(ds, uniform.dt))
             result.append(
                 Finding(
                     kind="recommendation",
                     cases=tuple({"scheme": answer[0], "dt": answer[1], **labels[k]} for k in members),
-                    numbers={
-                        "dt_s": answer[1],
-                        "seconds_per_case": max(seconds),
-                        "error_rad": max(errors),
-                        "accuracy_bound": bound,
-                    },
-                    text=f"cheapest at {where}: {answer[0]} at dt={_g(answer[1])} s, "
-                    f"{_g(max(seconds), 2)} s a case, error {_g(max(errors))} rad",
+                    numbers=_recommendation_numbers(ds, answer[1], seconds, error, bound, tied),
+                    text=text,
                 )
             )
     return result

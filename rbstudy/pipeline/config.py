@@ -37,6 +37,7 @@ from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.overrides import apply_overrides
 from rbstudy.pipeline.variables import (
     BOOKKEEPING,
+    COST_MODEL,
     DEPRECATED,
     SCHEME_COORDINATES,
     UNCERTAINTIES,
@@ -193,8 +194,8 @@ def _knot_warnings(cases, duration):
 
 def _variables(reader, requested, scenes):
     """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when
-    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING` and the
-    reference's `UNCERTAINTIES` are always kept,
+    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING`, the
+    `COST_MODEL` and the reference's `UNCERTAINTIES` are always kept,
     and a deprecated name brings its new name along)."""
     available = selected(scene_features(scenes))
     if requested is None:
@@ -214,7 +215,7 @@ def _variables(reader, requested, scenes):
                 "remove it",
             )
     wanted = set(requested) | {DEPRECATED[name] for name in requested if name in DEPRECATED}
-    kept = set(wanted) | set(BOOKKEEPING) | set(UNCERTAINTIES)
+    kept = set(wanted) | set(BOOKKEEPING) | set(COST_MODEL) | set(UNCERTAINTIES)
     return tuple(name for name in available if name in kept)
 
 

@@ -4,7 +4,8 @@
 for the adaptive dop853, its steps per radian turned), the two integrations of each
 reference no closed form gives (the composed exact-flow splitting and DOP853) and which
 cases would have neither within its step budget, the run time on this machine's cores (each scheme's
-measured seconds per body-step, `rbstudy.schemes.Scheme.step_seconds`), the process's peak
+seconds per body-step calibrated on this machine, `rbstudy.pipeline.calibration`, else its
+declared `rbstudy.schemes.Scheme.step_seconds`), the process's peak
 memory (a measured baseline plus the batches in flight) and the bytes the parts and the
 archive need on disk. `check_limits` refuses a study past ``--max-body-steps``,
 ``--max-memory`` or the free space of the results folder, with the estimate and the fix.
@@ -34,6 +35,7 @@ from rbstudy.physics.references import (
     planned_steps,
 )
 from rbstudy.physics.time_grid import output_count, step_count
+from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.schemes import get_scheme
 
 __all__ = [
@@ -162,18 +164,22 @@ def _block_shares(scenes):
 
 
 def _batch_step_seconds(batch, scheme, cases, plain):
-    """Core-seconds a body-step of ``batch`` takes: in blocks across SIMD lanes for the share
-    of its bodies that can step in them, where it can fill a block (`_block_shares`:
-    ``plain``), else one body after another (`rbstudy.schemes.Scheme.step_seconds`)."""
-    if plain is None or len(batch.cases) < FEWEST:
-        return batch.step_seconds
+    """Core-seconds a body-step of ``batch`` takes: one body after another at its scheme's
+    calibrated cost (`rbstudy.pipeline.calibration.step_cost`; the declared
+    `rbstudy.schemes.Scheme.step_seconds` where it is not calibrated yet), and in blocks
+    across SIMD lanes for the share of its bodies that can step in them, where it can fill a
+    block (`_block_shares`: ``plain``), the declared block cost scaled alike."""
     rows = list(batch.cases)
     # a batch never mixes costs (`plan_batches`): its first case's options stand for all
-    block = scheme.block_seconds_per_step(cases.runs[cases.run_rows[rows[0]]].options)
+    options = cases.runs[cases.run_rows[rows[0]]].options
+    single = step_cost(scheme, options).seconds
+    if plain is None or len(rows) < FEWEST:
+        return single
+    block = scheme.block_seconds_per_step(options)
     if block is None:
-        return batch.step_seconds
+        return single
     share = float(np.mean(plain[cases.scene_rows[rows]]))
-    return share * block + (1.0 - share) * batch.step_seconds
+    return share * block * single / scheme.seconds_per_step(options) + (1.0 - share) * single
 
 
 def estimate(study, cores=None):
@@ -183,6 +189,11 @@ def estimate(study, cores=None):
     knot_factor = _knot_factor(cases.scenes)
     plain = _block_shares(cases.scenes)
     dop853_steps = _dop853_steps(cases.scenes)  # per distinct scene
+    # the schemes ready to run now (an engine's adapter, kernels in numba's cache) are costed
+    # as measured here (once per machine); the others at their declared cost until the sweep
+    # has compiled and measured them
+    names = {batch.scheme for batch in study.batches}
+    calibrate({name for name in names if get_scheme(name).is_cached()})
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
@@ -207,7 +218,8 @@ def estimate(study, cores=None):
     neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
     over_budget = int(np.sum(neither[cases.scene_rows]))
     peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
-    per_composed = get_scheme(REFERENCE_SCHEME).seconds_per_step(REFERENCE_OPTIONS)
+    per_composed = step_cost(get_scheme(REFERENCE_SCHEME), REFERENCE_OPTIONS).seconds
+    # dop853's declared figure: it is not calibrated (`calibration.calibrate`)
     per_peer = get_scheme("dop853").step_seconds
     each = peer * per_peer + composed * per_composed
     seconds += float(each.sum())

@@ -38,6 +38,7 @@ from rbstudy.physics.references import References, table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
+from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
 from rbstudy.pipeline.config import StudyConfig
 from rbstudy.pipeline.estimate import check_disk, disk_needed
@@ -141,6 +142,7 @@ class BatchJob:
     variables: tuple[str, ...]
     accuracy_bound: float  # rad for the orientation, relative for energy and |L|
     references: np.ndarray  # (n, 2) per case: (chunk, position) in the chunks it is given
+    step_cost: tuple = (np.nan, np.nan)  # calibrated (s, relative uncertainty) of a body-step
 
 
 @dataclass(frozen=True)
@@ -206,7 +208,8 @@ def compute_batch(
     run = simulate(rows, job.scheme, job.dt, job.output_interval, job.options, threads=threads)
     per_case = run.output.kernel_cpu_seconds / len(job.scene_rows)
     return evaluate(
-        job.variables, BatchData(table, job.scene_rows, run, references, per_case, job.accuracy_bound)
+        job.variables,
+        BatchData(table, job.scene_rows, run, references, per_case, job.accuracy_bound, job.step_cost),
     )
 
 
@@ -427,6 +430,7 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
             variables=study.variables,
             accuracy_bound=study.accuracy_bound,
             references=positions,
+            step_cost=_step_cost(study, batch),
         )
         values = dask.delayed(compute_batch)(
             dask.delayed(job, traverse=False),
@@ -449,6 +453,14 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
         )
         targets[key] = PartTarget(layout=layout, batch=batch, path=path)
     return tasks, targets
+
+
+def _step_cost(study, batch):
+    """The calibrated (s, relative uncertainty) of a body-step of ``batch``: a batch never
+    mixes costs (`plan_batches`), so its first case's run stands for all."""
+    run = study.cases.runs[study.cases.run_rows[batch.cases[0]]]
+    cost = step_cost(get_scheme(batch.scheme), run.options)
+    return cost.seconds, cost.uncertainty
 
 
 def _run_local(tasks, targets, progress, workers, arrivals):
@@ -575,15 +587,6 @@ def _run_in(folder, made, study, where, force, progress, keep_parts, started, st
         threads = 1 if where.distributed else max(1, cores // max(1, len(pending)))
         token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
         probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
-        tasks, targets = _graph(
-            study,
-            pending,
-            parts_dir,
-            threads,
-            token,
-            where.writer,
-            (str(probe), token) if where.distributed else None,
-        )
         # the kernels take the time where the scenes have load tables, or loads only those
         # kernels carry (numerics/clock.py)
         timed = needs_time(study.cases.scenes.loads)
@@ -595,6 +598,17 @@ def _run_in(folder, made, study, where, force, progress, keep_parts, started, st
             {(batch.scheme, timed) for batch in pending},
             cores,
             watch=functools.partial(_show_compiling, progress, study.name),
+        )
+        # then each scheme's cost per step, which the parts store (once per machine: cached)
+        calibrate({batch.scheme for batch in pending}, progress)
+        tasks, targets = _graph(
+            study,
+            pending,
+            parts_dir,
+            threads,
+            token,
+            where.writer,
+            (str(probe), token) if where.distributed else None,
         )
         cases = sum(target.cases for target in targets.values())
         # the archive is written by a thread of its own as the parts arrive, in the batches'

@@ -46,6 +46,9 @@ def _compiled():
     return measures
 
 
+_UNCOSTED = (np.nan, np.nan)
+
+
 class BatchData:
     """What the variables of a batch of B cases are computed from, as columns (no object
     per case).
@@ -54,13 +57,18 @@ class BatchData:
     of it; run : their `Simulation` (T samples); references :
     `rbstudy.physics.references.References` (B cases on the same T times); run_time : (B,) s,
     kernel time per case; accuracy_bound : the study's bound on the orientation error (rad)
-    and the relative energy and |L| drift of a case judged accurate.
+    and the relative energy and |L| drift of a case judged accurate; step_cost : the
+    calibrated (s, relative uncertainty) of a body-step of the batch's run
+    (`rbstudy.pipeline.calibration.StepCost`; NaN where not given).
     """
 
-    def __init__(self, table, rows, run, references, run_time, accuracy_bound=ACCURACY_BOUND):
+    def __init__(
+        self, table, rows, run, references, run_time, accuracy_bound=ACCURACY_BOUND, step_cost=_UNCOSTED
+    ):
         self.table, self.rows, self.run, self.references = table, np.asarray(rows), run, references
         self.run_time = np.broadcast_to(np.asarray(run_time, dtype=float), self.rows.shape)
         self.accuracy_bound = accuracy_bound
+        self.step_cost = step_cost
 
     @cached_property
     def principal_inertia(self):
@@ -464,6 +472,38 @@ def run_time(batch):
         s
     """
     return batch.run_time
+
+
+def step_seconds(batch):
+    """Calibrated kernel time of a body-step of each case's run.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        s
+    """
+    return np.full(batch.rows.shape, float(batch.step_cost[0]))
+
+
+def step_seconds_uncertainty(batch):
+    """Relative uncertainty of `step_seconds`.
+
+    Parameters
+    ----------
+    batch : BatchData
+        B cases sampled at T times (N nodes).
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        1
+    """
+    return np.full(batch.rows.shape, float(batch.step_cost[1]))
 
 
 def final_orientation_error(batch):

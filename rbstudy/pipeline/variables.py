@@ -37,6 +37,7 @@ __all__ = [
     "selected",
     "evaluate",
     "BOOKKEEPING",
+    "COST_MODEL",
     "UNCERTAINTIES",
     "PER_SCENE",
 ]
@@ -304,6 +305,23 @@ VARIABLES = {
             "CPU time of the compiled batch call, summed over its threads, divided by the batch's "
             "cases; compilation excluded",
         ),
+        _v(
+            "step_seconds",
+            (),
+            "s",
+            "calibrated kernel CPU time per body-step",
+            "core-seconds a body-step of the case's scheme and options takes on the machine that "
+            "ran it, calibrated once per machine and source tree (rbstudy.pipeline.calibration); "
+            "a case costs n_steps times it, the cost the findings rank by",
+        ),
+        _v(
+            "step_seconds_uncertainty",
+            (),
+            "1",
+            "relative uncertainty of step_seconds",
+            "half the spread of the calibration's runs relative to their median, at least the "
+            "spread between calibrations; costs within it of each other are a tie",
+        ),
         _result(
             "max_energy_error",
             "1",
@@ -558,6 +576,9 @@ BOOKKEEPING = (
     "initial_spin",
     "radioss_dt_limit",
 )
+# The cost model (`rbstudy.pipeline.calibration`), kept whatever `output.variables` says; not
+# required of an archive (those before it have none: the findings then cost by run_time).
+COST_MODEL = ("step_seconds", "step_seconds_uncertainty")
 # The reference's uncertainties (the variables of integrated references), kept whatever
 # `output.variables` says wherever a study defines them: the order fits read them.
 UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items() if "integrated" in variable.needs)
