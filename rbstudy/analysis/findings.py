@@ -329,7 +329,8 @@ class _Picks(typing.NamedTuple):
     and ``dt`` (n,) the positions of the cheapest along those axes (0 where not swept, or
     nothing meets the bound); ``error`` (n,) its final orientation error (rad);
     ``seconds`` (n,) its kernel time (inf where nothing meets the bound); ``tied`` (n, m)
-    the (scheme, dt) candidates in C order of equal cost (`_choose`)."""
+    the (scheme, dt) candidates in C order of equal cost (`_choose`); ``errors`` (n, m) every
+    candidate's final orientation error (rad)."""
 
     met: np.ndarray
     scheme: np.ndarray
@@ -337,6 +338,7 @@ class _Picks(typing.NamedTuple):
     error: np.ndarray
     seconds: np.ndarray
     tied: np.ndarray
+    errors: np.ndarray
 
 
 def _picks(ds):
@@ -367,6 +369,7 @@ def _picks(ds):
         error=errors[everywhere, cheapest],
         seconds=seconds[everywhere, cheapest],
         tied=tied,
+        errors=errors,
     )
 
 
@@ -404,7 +407,7 @@ def recommendations(ds):
         )
         if met
         else None
-        for (labels, _), met, scheme, dt, error, seconds, tied in zip(_cases(ds), *picks, strict=True)
+        for (labels, _), met, scheme, dt, error, seconds, tied, _ in zip(_cases(ds), *picks, strict=True)
     ]
 
 
@@ -559,22 +562,24 @@ def _recommendation_findings(ds):
                 text=text + uncalibrated,
             )
         )
-    answers = set(zip(picks.scheme[picks.met].tolist(), picks.dt[picks.met].tolist(), strict=True))
-    if uniform is None or len(answers) > 1 or not picks.met.all():
+    answers = len(np.unique(np.packbits(picks.tied[picks.met], axis=1), axis=0))  # of equal cost
+    if uniform is None or answers > 1 or not picks.met.all():
         # grouped by answer (and its candidates of equal cost) as arrays; a dict per case
         # only for the finding's own cases (a million cases' Recommendation objects and
         # labels took ~600 MiB)
         labels = [labels for labels, _ in _cases(ds)]
-        dts = np.atleast_1d(ds["dt"].values)
         order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
-        key = np.where(picks.met, picks.scheme * len(dts) + picks.dt, -1)
-        keys = np.column_stack([key, np.packbits(picks.tied & picks.met[:, None], axis=1)])
+        # grouped by the candidates of equal cost, not by the one that represents them at each
+        # value: "euler or leapfrog" at one ratio and "leapfrog or euler" at the next are one
+        # answer, told once
+        tied = picks.tied & picks.met[:, None]
+        keys = np.column_stack([picks.met, np.packbits(tied, axis=1)])
         _, first_of, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
         group = group.reshape(-1)
         for first in np.sort(first_of):
             members = np.flatnonzero(group == group[first])
             where = _where([labels[k] for k in members])
-            if key[first] < 0:
+            if not picks.met[first]:
                 result.append(
                     Finding(
                         kind="no_recommendation",
@@ -584,16 +589,16 @@ def _recommendation_findings(ds):
                     )
                 )
                 continue
-            answer = (str(schemes_of(ds)[picks.scheme[first]]), float(dts[picks.dt[first]]))
-            tied = tuple(
-                other
-                for other in (_answer(ds, k, order) for k in np.flatnonzero(picks.tied[first]))
-                if other != answer
-            )
+            # the candidate with the smallest worst error over the group represents it
+            candidates = np.flatnonzero(tied[first])
+            worst = np.nan_to_num(picks.errors[np.ix_(members, candidates)], nan=np.inf).max(axis=0)
+            chosen = candidates[int(np.argmin(worst))]
+            answer = _answer(ds, chosen, order)
+            tied_others = tuple(_answer(ds, k, order) for k in candidates if k != chosen)
             seconds = float(picks.seconds[members].max())
-            error = float(picks.error[members].max())
+            error = float(picks.errors[members, chosen].max())
             text = (
-                f"cheapest at {where}: {_choice_text(*answer, tied)}, {_g(seconds, 2)} s a case, "
+                f"cheapest at {where}: {_choice_text(*answer, tied_others)}, {_g(seconds, 2)} s a case, "
                 + _error_text(error, bound)
             )
             if _capped(ds, answer[1]):
@@ -602,7 +607,7 @@ def _recommendation_findings(ds):
                 Finding(
                     kind="recommendation",
                     cases=tuple({"scheme": answer[0], "dt": answer[1], **labels[k]} for k in members),
-                    numbers=_recommendation_numbers(ds, answer[1], seconds, error, bound, tied),
+                    numbers=_recommendation_numbers(ds, answer[1], seconds, error, bound, tied_others),
                     text=text,
                 )
             )
