@@ -51,7 +51,7 @@ def test_a_one_case_study_names_its_scheme_and_dt(tmp_path, capsys):
     row = next(
         line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("splitting ")
     )  # the table row, not the verdict
-    assert row[2] == "-" and row[-3:] == ["0/1", "|L|,", "L"]  # no dt axis: no order; L kept
+    assert row[2] == "n/a" and row[-3:] == ["0/1", "|L|,", "L"]  # no dt axis: no order; L kept
 
 
 def test_validate_reports_cases_batches_and_memory(capsys):
