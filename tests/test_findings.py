@@ -444,6 +444,27 @@ def test_no_order_is_fitted_through_errors_at_round_off(stiff):
         assert low - 0.1 <= slope <= high + 0.1 and abs(low - nominal) < 0.25 and abs(high - nominal) < 0.25
 
 
+@pytest.mark.slow
+def test_kept_drifts_lie_at_their_round_off_floor(stiff):
+    """exact_split keeps energy and |L|: its drifts, 1e-16 to 1e-13 after hundreds of steps,
+    are round-off at every inertia ratio (above the constant 1e-15 floor of the energy they
+    were fitted as "no asymptotic range"), each within 10 ulps per step, recomputed here."""
+    from rbstudy.analysis.summary import at_floor, error_measure, round_off_of
+
+    _, ds = stiff
+    for key in ("energy", "momentum_magnitude"):
+        errors = error_measure(ds, key)
+        floors = round_off_of(ds, key, errors)
+        kept = errors.sel(scheme="exact_split").transpose("inertia_ratio", "dt")
+        steps = ds["n_steps"].broadcast_like(errors).sel(scheme="exact_split").transpose(*kept.dims)
+        assert np.all(kept.values <= 10 * np.finfo(float).eps * steps.values)
+        assert kept.values.max() > 1e-15
+        below = floors.sel(scheme="exact_split").transpose(*kept.dims).values
+        assert [at_floor(row, floor) for row, floor in zip(kept.values, below, strict=True)] == [
+            "round-off"
+        ] * len(kept)
+
+
 def _recovered(text, values):
     """The positions along an axis of swept value texts ``values`` that a list of them as the
     findings write it (after the axis's name) names: whole, ``a to b, 17 values, every value
