@@ -200,4 +200,18 @@ def recommended_point(ds):
     first = found.cases[0]
     scheme, dt = str(first["scheme"]), float(first["dt"])
     where = "" if len(found.cases) == 1 and set(first) <= {"scheme", "dt"} else " (where the findings say)"
-    return RecommendedPoint(scheme, dt, found.cases, f"recommended: {scheme} at dt = {dt:g} s{where}")
+    return RecommendedPoint(scheme, dt, found.cases, _answer_label(scheme, dt, found) + where)
+
+
+def _answer_label(scheme, dt, found):
+    """``recommended: rk4 at dt = 0.01 s``; the candidates of equal cost the finding names
+    with it (``numbers["equal_cost"]``) named too, as the finding does: the star marks the
+    one that represents them."""
+    tied = found.numbers.get("equal_cost", [])
+    if not tied:
+        return f"recommended: {scheme} at dt = {dt:g} s"
+    if all(other["dt_s"] == dt for other in tied):
+        names = [scheme, *(other["scheme"] for other in tied)]
+        return f"recommended: {', '.join(names[:-1])} or {names[-1]}, equal cost, at dt = {dt:g} s"
+    others = ", ".join(f"{other['scheme']} at dt = {other['dt_s']:g} s" for other in tied)
+    return f"recommended: {scheme} at dt = {dt:g} s (equal cost: {others})"

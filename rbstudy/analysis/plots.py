@@ -71,6 +71,7 @@ from rbstudy.analysis.figure_marks import (  # noqa: E402
     zero_entry,
     zero_marks,
 )
+from rbstudy.analysis.findings import calibrated, case_seconds  # noqa: E402
 from rbstudy.analysis.summary import (  # noqa: E402
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
@@ -991,8 +992,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
 
 
 def work_precision(ds, folder, formats=FORMATS, styles=None):
-    """Run time per case against the final orientation error, a line per scheme over dt,
-    the accuracy bound and the study's recommended point (`recommended_point`);
+    """Cost per case against the final orientation error, a line per scheme over dt, the
+    accuracy bound and the study's recommended point (`recommended_point`): the cost the
+    findings rank by (`case_seconds`: steps at the scheme's calibrated seconds a step, or an
+    older archive's run time), so that the star lies where the words put it;
     ``styles``: the schemes' registered styles (`line_styles`)."""
     figures = Figures()
     schemes = line_styles(schemes_of(ds), styles)
@@ -1008,13 +1011,14 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
     # a line's points: the worst error over the reduced axes and the dearest time, of the
     # cases that finished (`band`)
     bands = [band(measure.sel(pick), reduced) for pick in picks]
+    cost = case_seconds(ds)
     behind = int(np.prod([ds.sizes[d] for d in reduced]))  # cases behind each point
     panels = [
         [
             (name, key, errors.values, times.values)
             for (name, key, errors), (*_, times) in zip(
                 _lines(errors_band[0], line_dim),
-                _lines(band(ds["run_time"].sel(pick), reduced)[0], line_dim),
+                _lines(band(cost.sel(pick), reduced)[0], line_dim),
                 strict=True,
             )
         ]
@@ -1054,8 +1058,8 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
                 (star,) = ax.plot(errors[k], times[k], **RECOMMENDED_STYLE)
                 extras.setdefault("point", (star, point.label))
             ax.set_xlabel("final orientation error (rad)")
-            ax.set_ylabel("run time per case (core-seconds)")
-            ax.set_title(_panel_title(facet, pick.get(facet), reduced, "the worst error and time"))
+            ax.set_ylabel("cost per case (core-seconds)")
+            ax.set_title(_panel_title(facet, pick.get(facet), reduced, "the worst error and cost"))
             ax.grid(True, which="major", alpha=0.3)
         entries = (
             [
@@ -1074,8 +1078,14 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
         _title(
             fig,
             ds,
-            "work-precision: kernel CPU time of each batch divided among its "
-            f"cases, compilation excluded; each point a dt{zeros}",
+            (
+                "work-precision: cost as the findings rank it, each case's steps at its scheme's "
+                "seconds a step, calibrated once on this machine"
+                if calibrated(ds)
+                else "work-precision: kernel CPU time of each batch divided among its cases, "
+                "compilation excluded"
+            )
+            + f"; each point a dt{zeros}",
         )
         figures.written.append(_save(fig, folder, ds, "work_precision", formats))
     return figures
@@ -1462,11 +1472,12 @@ CAPTIONS = {
     "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
     "of the data; a gap is a failed case (or one without a reference); a "
     "point marked 0 on the dotted floor is exactly 0.",
-    "work_precision": "Kernel run time per case against the final orientation error, one "
-    "point per dt: the cheapest scheme for a given accuracy is the lowest "
-    "line. Run time is the CPU time of the compiled batch call divided "
-    "among its cases, compilation excluded. The dash-dotted line is the "
-    "study's accuracy bound, the star the findings' recommendation.",
+    "work_precision": "Cost per case against the final orientation error, one point per dt: "
+    "the cheapest scheme for a given accuracy is the lowest line. The cost is the one the "
+    "findings rank by: a case's steps at its scheme's seconds a step, calibrated once on the "
+    "machine that ran it (an archive from before rbstudy calibrated: the CPU time of the "
+    "compiled batch call divided among its cases). The dash-dotted line is the study's "
+    "accuracy bound, the star the findings' recommendation.",
     "stability_map": "Every case by its dt |w0|, a row per scheme (or, with more than one "
     "swept axis, a panel per scheme against the swept parameter, where the "
     "line joins the largest accurate value): green accurate, orange "

@@ -21,7 +21,7 @@ import pathlib
 import markupsafe
 import numpy as np
 
-from rbstudy.analysis.findings import findings
+from rbstudy.analysis.findings import calibrated, findings
 from rbstudy.analysis.pages import render
 from rbstudy.analysis.plots import (
     BENCHMARK_NODE,
@@ -42,6 +42,7 @@ from rbstudy.analysis.summary import (
     floor_reason,
     format_table,
     order_text,
+    per_scheme,
     scheme_rows,
     schemes_of,
     step_load,
@@ -187,14 +188,21 @@ def _convergence_caption(ds, rows, key, first):
 
 def _work_precision_caption(ds, rows, found, first):
     text = (
-        f"Kernel time per case against the final orientation error, a point per dt "
-        f"({ds.sizes['dt']} values), {_lines_and_panels(ds, first)}."
+        f"{'Calibrated cost' if calibrated(ds) else 'Kernel time'} per case against the final "
+        f"orientation error, a point per dt ({ds.sizes['dt']} values), {_lines_and_panels(ds, first)}."
     )
-    cost = sorted(rows, key=lambda row: row["ns_per_step"])
+    # a step's cost as the figure draws it: the calibrated figure where the archive has one
+    step_ns = {
+        row["scheme"]: float(per_scheme(ds["step_seconds"], row["scheme"]).median()) * 1e9
+        if calibrated(ds)
+        else row["ns_per_step"]
+        for row in rows
+    }
+    cost = sorted(step_ns, key=step_ns.get)
     if len(cost) > 1:
         text += (
-            f" Cheapest step: {cost[0]['scheme']} ({cost[0]['ns_per_step']:.0f} ns); "
-            f"dearest: {cost[-1]['scheme']} ({cost[-1]['ns_per_step']:.0f} ns)."
+            f" Cheapest step: {cost[0]} ({step_ns[cost[0]]:.0f} ns); "
+            f"dearest: {cost[-1]} ({step_ns[cost[-1]]:.0f} ns)."
         )
     answer = next((f.text for f in found if f.kind in ("recommendation", "no_recommendation")), None)
     return text + (f" The study's answer: {answer}." if answer else "")
