@@ -448,8 +448,8 @@ def test_no_order_is_fitted_through_errors_at_round_off(stiff):
 def test_kept_drifts_lie_at_their_round_off_floor(stiff):
     """exact_split keeps energy and |L|: its drifts, 1e-16 to 1e-13 after hundreds of steps,
     are round-off at every inertia ratio (above the constant 1e-15 floor of the energy they
-    were fitted as "no asymptotic range"), each within 10 ulps per step, recomputed here."""
-    from rbstudy.analysis.summary import at_floor, error_measure, round_off_of
+    were fitted as "no asymptotic range"), each within `ROUND_OFF_ULPS` a step, recomputed."""
+    from rbstudy.analysis.summary import ROUND_OFF_ULPS, at_floor, error_measure, round_off_of
 
     _, ds = stiff
     for key in ("energy", "momentum_magnitude"):
@@ -457,7 +457,7 @@ def test_kept_drifts_lie_at_their_round_off_floor(stiff):
         floors = round_off_of(ds, key, errors)
         kept = errors.sel(scheme="exact_split").transpose("inertia_ratio", "dt")
         steps = ds["n_steps"].broadcast_like(errors).sel(scheme="exact_split").transpose(*kept.dims)
-        assert np.all(kept.values <= 10 * np.finfo(float).eps * steps.values)
+        assert np.all(kept.values <= ROUND_OFF_ULPS * np.finfo(float).eps * steps.values)
         assert kept.values.max() > 1e-15
         below = floors.sel(scheme="exact_split").transpose(*kept.dims).values
         assert [at_floor(row, floor) for row, floor in zip(kept.values, below, strict=True)] == [
