@@ -5,6 +5,7 @@ import contextlib
 import hashlib
 import multiprocessing
 import os
+import pathlib
 
 import netCDF4
 import pytest
@@ -15,7 +16,7 @@ from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.progress import Progress
-from rbstudy.pipeline.store import IDENTITY, OWNER, open_results
+from rbstudy.pipeline.store import IDENTITY, OWNER, check_output_folder, open_results
 
 # The kernel's clock time: the one stored value that two runs of one case do not share.
 TIMINGS = ["run_time"]
@@ -309,6 +310,26 @@ def test_sweeps_into_one_new_nested_folder_at_once_are_told_another_holds_it(tmp
         assert (out / "top" / "top.nc").is_file()
         assert not (out / "top" / "parts").exists()
     assert refused, "no two sweeps ran at once: the race was never met"
+
+
+def test_checking_a_new_out_makes_and_removes_no_folder_that_sweeps_at_once_share(tmp_path, monkeypatch):
+    """The check of a new nested --out writes only in a private folder of the nearest existing
+    one: a folder on the path itself, made and removed by the check of one sweep, is removed
+    under another that found it (its lock met "No such file or directory" on a loaded CI)."""
+    touched = []
+    for name in ("mkdir", "rmdir"):
+        original = getattr(pathlib.Path, name)
+
+        def recorded(path, *args, _original=original, **kwargs):
+            touched.append(path)
+            return _original(path, *args, **kwargs)
+
+        monkeypatch.setattr(pathlib.Path, name, recorded)
+    out = tmp_path / "fresh" / "a" / "b"
+    check_output_folder(out / "top")
+    shared = {out / "top", *(out / "top").parents}
+    assert touched and not shared.intersection(touched), touched
+    assert list(tmp_path.iterdir()) == []
 
 
 class _Phases(Progress):

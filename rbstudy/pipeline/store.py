@@ -130,9 +130,8 @@ OWNER = ".rbstudy-study"
 IDENTITY = "config_identity"
 # Bytes of an owner record read at most: a resolved path and a digest.
 _OWNER_BYTES = 2**13
-# Attempts of `check_output_folder` and `make_folders` to write in a folder that another
-# command's check, started at the same instant, removes under them (each removes only the
-# folders it made, once).
+# Attempts of `check_output_folder` and `make_folders` to write in a folder that a failed
+# sweep, at the same instant, removes under them (each removes only the folders it made).
 _CHECK_ATTEMPTS = 10
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid
 # keeps the plain products.
@@ -450,10 +449,11 @@ def unwritable(folder, error, label=""):
 def check_output_folder(folder, label="--out "):
     """Refuse ``folder``, in one line, when rbstudy could not write there: a path that is, or
     lies under, a file, or a folder whose file system refuses a new file (read-only,
-    immutable, /proc). Called before a command prints or computes anything; it leaves
-    nothing behind: the folders it makes to try are removed again. Another command checking
-    the same new folder at the same instant may remove it under this one: then it tries
-    again."""
+    immutable, /proc) or one of its missing names (too long). Called before a command prints
+    or computes anything. It touches no folder another command may share: the missing
+    folders are made, with a file in the last, inside a private folder of the nearest one
+    that exists, which it removes whole (`_probe_under`). A failed sweep that removes that
+    nearest folder under the check at the same instant makes it look again."""
     folder = pathlib.Path(folder)
     for attempt in range(1, _CHECK_ATTEMPTS + 1):
         place, under = folder.absolute(), False
@@ -462,26 +462,34 @@ def check_output_folder(folder, label="--out "):
         if not place.is_dir():
             what = "is a file" if not under else f"lies under the file {place}"
             raise UnwritableFolder(f"{label}{folder}: {what}, not a folder; choose another folder with --out")
-        made = []
         try:
-            made = make_folders(folder)
-            handle, probe = tempfile.mkstemp(dir=folder, prefix=".rbstudy-probe-")
-            os.close(handle)
-            os.remove(probe)
+            _probe_under(place, folder.absolute().relative_to(place))
             return
         except OSError as error:
-            # a folder gone under this check (or /proc, which takes no new name: it fails
-            # each time)
+            # the nearest folder gone under this check (or /proc, which takes no new name:
+            # it fails each time)
             if error.errno != errno.ENOENT or attempt == _CHECK_ATTEMPTS:
                 raise unwritable(folder, error, label) from None
-        finally:
-            remove_folders(made)
+
+
+def _probe_under(place, missing):
+    """Make the relative path ``missing`` (``.``: none) and a file in it inside a new private
+    folder of the existing folder ``place``, then remove that folder whole: raises the
+    `OSError` a write of those names in ``place`` meets."""
+    private = pathlib.Path(tempfile.mkdtemp(dir=place, prefix=".rbstudy-probe-"))
+    try:
+        deepest = private / missing
+        deepest.mkdir(parents=True, exist_ok=True)
+        handle, _ = tempfile.mkstemp(dir=deepest)
+        os.close(handle)
+    finally:
+        shutil.rmtree(private, ignore_errors=True)
 
 
 def make_folders(folder):
     """Make ``folder`` and its missing parents; the folders this process made, outermost
-    first (one that another process makes at the same instant is found, not made; one that
-    another command's check removes under it, `check_output_folder`, is made again). On a
+    first (one that another process makes at the same instant is found, not made; one that a failed
+    sweep that made it removes under it is made again). On a
     failure the folders it made are removed again."""
     made = []
     for attempt in itertools.count(1):
