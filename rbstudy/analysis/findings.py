@@ -68,9 +68,10 @@ __all__ = [
     "EDGE_SHARE",
 ]
 
-# What `findings` reads: the table's per-case scalars, and the energy series whose last value
-# says whether a scheme gains or loses energy.
-FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds", "step_seconds_uncertainty")
+# What `findings` reads: the table's per-case scalars (the calibrated step cost among them),
+# the energy series whose last value says whether a scheme gains or loses energy, and the
+# cost's uncertainty, within which two costs are a tie.
+FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertainty")
 # Of those, the time series the findings reduce along time, and how; read so
 # (`store.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}

@@ -161,11 +161,13 @@ UNCERTAINTY_FACTOR = 10.0
 # (2.4e-12 rad) still fall by 16 a halving: a floor must sit under the errors a scheme makes.
 ROUND_OFF_ULPS = 2.0
 # What `scheme_rows` reads: per-case scalars, and momentum_error (the vector L is checked at
-# the samples: a time series per case).
+# the samples: a time series per case). step_seconds is the step cost its "ns per step" column
+# gives (an archive older than the cost model has none: run_time is read in its place).
 SUMMARY_VARIABLES = (
     "status",
     "accuracy",
     "run_time",
+    "step_seconds",
     "n_steps",
     "final_orientation_error",
     "max_energy_error",
