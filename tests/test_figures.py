@@ -710,6 +710,65 @@ def test_lines_on_top_of_each_other_are_named_in_the_drift_figure(top_with_twins
     assert "euler = leapfrog to 3 digits" in title  # their energies agree on the top
 
 
+@pytest.mark.slow
+def test_lines_on_top_of_each_other_in_one_panel_only_are_named_over_it(
+    top_with_twins, tmp_path, drawn_figures
+):
+    """The legend names the lines that coincide in every case; two that coincide at one
+    inertia ratio only (as rk4 and rkmk4's errors nearly do at I3/I1 = 0.1 and differ 3-76x
+    at the others) lay on top of each other in that panel with no note. The panel names
+    them, and no pair the legend names."""
+    from rbstudy.analysis.summary import agree
+
+    ds = top_with_twins.copy(deep=True)
+    variable = ERROR_MEASURES["precession"].variable
+    apart = {"scheme": "leapfrog", "inertia_ratio": ds["inertia_ratio"].values[1:]}
+    ds[variable].loc[apart] = 1.1 * ds[variable].loc[apart]  # euler's only at the first ratio
+    convergence(ds, tmp_path, measures=("precession",))
+    fig = drawn_figures["convergence_precession"]
+    legend = [text.get_text().replace("\n", " ") for text in fig.legends[0].get_texts()]
+    assert not any(" = " in text for text in legend), legend  # apart over the whole study
+    euler, leapfrog = (abs(ds[variable].sel(scheme=s)) for s in ("euler", "leapfrog"))
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    for ax, ratio in zip(panels, ds["inertia_ratio"].values, strict=True):
+        together = agree(euler.sel(inertia_ratio=ratio).values, leapfrog.sel(inertia_ratio=ratio).values)
+        title = ax.get_title().replace("\n", " ")
+        assert together == (ratio == ds["inertia_ratio"].values[0]), ratio
+        assert ("on top of each other: euler = leapfrog to 3 digits" in title) == together, title
+    # a pair the legend names is not named again over a panel: euler and leapfrog coincide
+    # everywhere in the archive as run, and their panels say nothing
+    drawn_figures.clear()
+    convergence(top_with_twins, tmp_path, measures=("precession",))
+    fig = drawn_figures["convergence_precession"]
+    assert fig.legends[0].get_texts()[0].get_text().startswith("euler = leapfrog to 3 digits")
+    titles = [ax.get_title() for ax in fig.axes]
+    assert not any("on top of each other" in title for title in titles), titles
+
+
+def test_a_panel_names_only_the_lines_its_legend_keeps_apart():
+    """Lines coinciding in a panel are named there by their legend groups' first lines:
+    never a pair the legend already names."""
+    import numpy as np
+
+    from rbstudy.analysis.plots import _panel_overlaps
+
+    same, other = np.array([1e-3, 1e-5, 1e-7]), np.array([2e-3, 2e-5, 2e-7])
+    names = ["rk4", "rkmk4", "exudyn_rk44", "euler"]
+    # the legend names rk4 = rkmk4; here exudyn_rk44 lies on them too, euler apart
+    assert _panel_overlaps(names, [same, same, same, other], [[0, 1], [2], [3]]) == [
+        "rk4 = exudyn_rk44 to 3 digits"
+    ]
+    assert _panel_overlaps(names, [same, same, other, other], [[0, 1], [2], [3]]) == [
+        "exudyn_rk44 = euler to 3 digits"
+    ]
+    assert _panel_overlaps(names, [same, same, other, 3 * other], [[0, 1], [2], [3]]) == []
+    # hht's and midpoint's energies, exactly 0 at every dt, read as such, not "to 3 digits"
+    zeros = np.zeros(3)
+    assert _panel_overlaps(["hht", "midpoint"], [zeros, zeros], [[0], [1]], 1e-15) == [
+        "hht = midpoint (exactly 0 throughout)"
+    ]
+
+
 def test_lines_apart_only_at_round_off_coincide():
     """rk4 and rkmk4 differed by 2% at one precession error of 2.6e-14 rad and were drawn as
     one line with no note: below the measure's round-off floor a figure cannot part them."""

@@ -28,8 +28,9 @@ a scheme without one gets a style no other line of the study wears (`line_styles
 whose values agree to 3 digits (`_coincident`, round-off aside) are drawn on top of each
 other, differing in marker and dash so that both stay visible, and named together in every
 figure type ("euler = leapfrog to 3 digits": in the legend of a convergence or
-work-precision figure, over each invariant-drift panel). A figure has one legend, outside
-the data. An exact zero, which log axes cannot show, lies on a floor line labelled
+work-precision figure, over each invariant-drift panel); lines that agree so in one panel
+only are named over it (`_panel_overlaps`), the legend's pairs not again. A figure has one
+legend, outside the data. An exact zero, which log axes cannot show, lies on a floor line labelled
 "0 (exact)", its line running down to it, with its own mark and legend entry ("exact
 zero"); a gap is a failed case, or a case without a reference (its DOP853 reference passed
 its step budget: `reference = none`). The slope guides' labels sit where their boxes cover
@@ -594,13 +595,15 @@ def _together(names, rows=None, floor=0.0):
     """The name of lines drawn on top of each other (`_coincident` of their ``rows`` of
     values with the round-off ``floor``): ``euler = leapfrog to 3 digits``, ``... to 3
     digits above round-off (1e-13)`` where they agree only once values at the floor count as
-    one, ``... (at round-off: at most 1e-12)`` where every value is there; or a line's own
-    name."""
+    one, ``... (at round-off: at most 1e-12)`` where every value is there, ``... (exactly 0
+    throughout)`` where every value is 0; or a line's own name."""
     joined = " = ".join(names)
-    if len(names) == 1:
-        return joined
-    if rows is not None and floor > 0:
-        finite = np.concatenate([np.asarray(row)[np.isfinite(row)] for row in rows])
+    if len(names) == 1 or rows is None:
+        return joined if len(names) == 1 else f"{joined} to {COINCIDENT_DIGITS} digits"
+    finite = np.concatenate([np.asarray(row)[np.isfinite(row)] for row in rows])
+    if finite.size and np.all(finite == 0.0):
+        return f"{joined} (exactly 0 throughout)"
+    if floor > 0:
         if finite.size and np.all(np.abs(finite) <= floor):
             return f"{joined} (at round-off: at most {floor:g})"
         if not all(agree(rows[0], row) for row in rows[1:]):
@@ -729,6 +732,34 @@ def _coincident(errors, floor=0.0):
         placed.update(group)
         groups.append(group)
     return groups
+
+
+def _panel_overlaps(names, values, groups, floor=0.0):
+    """The lines a panel draws on top of each other that its figure's legend does not name
+    together: ``values`` (lines x points) as the panel draws them, ``groups`` the figure's
+    (`_coincident` over every case, named in the legend). The same test, `_coincident`,
+    on this panel's points; each legend group is named by its first line, so that no pair
+    the legend names is named again: ``no_squish = splitting to 3 digits`` over abaqus_top's
+    energy errors at I3/I1 = 0.1, 0.5 and 1.5, where the legend cannot name them (they part
+    at 2)."""
+    first_of = {k: group[0] for group in groups for k in group}
+    notes = []
+    for group in _coincident(values, floor):
+        firsts = list(dict.fromkeys(first_of[k] for k in group))
+        if len(firsts) > 1:
+            notes.append(_together([names[k] for k in firsts], [values[k] for k in firsts], floor))
+    return notes
+
+
+def _overlap_title(ax, fig, title, notes):
+    """A panel's ``title`` and, on lines of their own wrapped to the panel's width, the
+    ``notes`` of the lines it draws on top of each other (`_panel_overlaps`): over the
+    panel, never over its data."""
+    if not notes:
+        return title
+    width_em = 0.9 * ax.get_position().width * fig.get_figwidth() * 72 / plt.rcParams["axes.titlesize"]
+    note = _wrapped(f"on top of each other: {'; '.join(notes)}", width_em)
+    return f"{title}\n{note}" if title else note
 
 
 def _coincident_style(style, rank, count):
@@ -935,7 +966,14 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 _mark_floor(ax, floor)
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
-                ax.set_title(_panel_title(facet, value, reduced))
+                # lines that coincide in this panel only: the legend cannot name them
+                here = _panel_overlaps(
+                    [fits[0][j][0] for j in range(len(lines))],
+                    [errors for _, _, errors, *_ in lines],
+                    groups,
+                    spec.floor,
+                )
+                ax.set_title(_overlap_title(ax, fig, _panel_title(facet, value, reduced), here))
                 ax.grid(True, which="major", alpha=0.3)
             _figure_legend(
                 fig,
@@ -1059,7 +1097,11 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
                 extras.setdefault("point", (star, point.label))
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("cost per case (core-seconds)")
-            ax.set_title(_panel_title(facet, pick.get(facet), reduced, "the worst error and cost"))
+            here = _panel_overlaps(
+                [name for name, *_ in lines], [np.r_[errors, times] for _, _, errors, times in lines], groups
+            )
+            title = _panel_title(facet, pick.get(facet), reduced, "the worst error and cost")
+            ax.set_title(_overlap_title(ax, fig, title, here))
             ax.grid(True, which="major", alpha=0.3)
         entries = (
             [
@@ -1349,12 +1391,7 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
                 for group in groups
                 if len(group) > 1
             ]
-            width_em = (
-                0.9 * ax.get_position().width * fig.get_figwidth() * 72 / plt.rcParams["axes.titlesize"]
-            )
-            ax.set_title(
-                _wrapped(f"on top of each other: {'; '.join(overlaps)}", width_em) if overlaps else ""
-            )
+            ax.set_title(_overlap_title(ax, fig, "", overlaps))
             _mark_floor(ax, floor)
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
@@ -1469,15 +1506,17 @@ CAPTIONS = {
     "of the swept axis in a one-scheme study); the legend gives the order "
     "fitted on the circled points, the asymptotic range (see the table), and "
     "the local slope of the finest fitted pair, and names together the lines "
-    "that agree to 3 digits; dotted lines are slopes 1, 2 and 4, placed clear "
-    "of the data; a gap is a failed case (or one without a reference); a "
-    "point marked 0 on the dotted floor is exactly 0.",
+    "that agree to 3 digits (over a panel, those that agree in it only); dotted "
+    "lines are slopes 1, 2 and 4, placed clear of the data; a gap is a failed "
+    "case (or one without a reference); a point marked 0 on the dotted floor is "
+    "exactly 0.",
     "work_precision": "Cost per case against the final orientation error, one point per dt: "
     "the cheapest scheme for a given accuracy is the lowest line. The cost is the one the "
     "findings rank by: a case's steps at its scheme's seconds a step, calibrated once on the "
     "machine that ran it (an archive from before rbstudy calibrated: the CPU time of the "
     "compiled batch call divided among its cases). The dash-dotted line is the study's "
-    "accuracy bound, the star the findings' recommendation.",
+    "accuracy bound, the star the findings' recommendation. Lines whose errors and costs agree "
+    "to 3 digits are named together: in the legend, or over the panel where they agree only.",
     "stability_map": "Every case by its dt |w0|, a row per scheme (or, with more than one "
     "swept axis, a panel per scheme against the swept parameter, where the "
     "line joins the largest accurate value): green accurate, orange "
