@@ -281,6 +281,7 @@ def _sweep(args):
             dataset = open_archive(done.path, FINDINGS_VARIABLES, verify=False, reduced=FINDINGS_REDUCED)
             return_free_memory()  # what the run and the reading left, before the findings
             summary = _summary_text(dataset, wide=args.wide)
+            searched = _find_step(study, dataset, done.path, args, progress) if args.find_step else []
         if done.archive_problems:
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); rebuilt it")
         if done.damaged_parts:
@@ -307,7 +308,22 @@ def _sweep(args):
                 "workers sent back (they do not see the results folder)"
             )
         print(summary)
+        if searched:
+            print()
+            _say("\n".join(searched))
     return 0
+
+
+def _find_step(study, dataset, archive, args, progress):
+    """The lines of the step search of ``study`` (`rbstudy.pipeline.step_search`), from its
+    archive's ``dataset``, its probes kept beside the ``archive``."""
+    from rbstudy.analysis.searched import search_lines
+    from rbstudy.pipeline.step_search import SEARCH_TOLERANCE, search_path, search_steps
+
+    folder = pathlib.Path(archive).parent
+    tolerance = SEARCH_TOLERANCE if args.step_tolerance is None else args.step_tolerance
+    search = search_steps(study, dataset, folder, tolerance, args.force, progress)
+    return search_lines(search, dataset, search_path(folder))
 
 
 def _summary_text(dataset, wide=False, table_only=False):
@@ -752,6 +768,18 @@ def build_parser():
         action="store_true",
         help="print every column of the summary table (default: the columns that fit 100 characters)",
     )
+    sweep.add_argument(
+        "--find-step",
+        action="store_true",
+        help="then search, per scheme and value of the other axes, the largest step meeting the "
+        "accuracy bound (kept in <study>/search/steps.nc)",
+    )
+    sweep.add_argument(
+        "--step-tolerance",
+        type=_step_tolerance,
+        metavar="SHARE",
+        help="--find-step ends where a step this share larger fails (default 0.05)",
+    )
     _limit_arguments(sweep)
     _set_argument(sweep)
     sweep.set_defaults(run=_sweep)
@@ -908,6 +936,17 @@ def build_parser():
     conformance.add_argument("-q", "--quiet", action="store_true", help="no progress")
     conformance.set_defaults(run=_conformance)
     return parser
+
+
+def _step_tolerance(text):
+    """A share between 0 and 1 (``0.05``: 5%)."""
+    try:
+        share = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a share such as 0.05, got {text!r}") from None
+    if not 0 < share < 1:
+        raise argparse.ArgumentTypeError(f"expected a share between 0 and 1 such as 0.05, got {text!r}")
+    return share
 
 
 def _whole_number(text):

@@ -66,6 +66,7 @@ __all__ = [
     "case_seconds",
     "calibrated",
     "EDGE_SHARE",
+    "study_wide",
 ]
 
 # What `findings` reads: the table's per-case scalars (the calibrated step cost among them),
@@ -423,7 +424,7 @@ class _Uniform(typing.NamedTuple):
     tied: tuple
 
 
-def _uniform(ds):
+def study_wide(ds):
     """The cheapest (scheme, dt) that meets the bound in every case of the other axes, by
     total kernel time, costs within their uncertainty a tie that the smaller worst error
     represents: a `_Uniform`, or None."""
@@ -498,7 +499,7 @@ def _capped_text(dt, short=False):
         return f"capped by the grid (dt={_g(dt)} s, the largest swept)"
     return (
         f"capped by the grid: dt={_g(dt)} s is the largest swept, a larger one may also meet the "
-        "bound (widen sweep.dt)"
+        "bound (widen sweep.dt, or sweep --find-step)"
     )
 
 
@@ -544,7 +545,7 @@ def _recommendation_findings(ds):
         if calibrated(ds)
         else "; costed by run_time, which moves between runs (sweep again to store calibrated step costs)"
     )
-    uniform = _uniform(ds)
+    uniform = study_wide(ds)
     if uniform is not None:
         everywhere = ", every case" if _other_dims(ds) else ""
         text = (

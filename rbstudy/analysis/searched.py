@@ -1,0 +1,112 @@
+"""The words of a step search (``rbstudy sweep --find-step``, `rbstudy.pipeline.step_search`):
+the largest step that meets the accuracy bound, beside the grid's best.
+
+The search hands its answers as arrays (a `rbstudy.pipeline.step_search.Search`); the words
+are told here, in the analysis layer, which never loads the kernels. Costs are those the
+findings rank the grid by (steps times the calibrated seconds a step, mean over the other
+axes' values), and costs within their calibration's uncertainty are one answer.
+"""
+
+import math
+
+import numpy as np
+
+from rbstudy.analysis.findings import study_wide
+
+__all__ = ["search_lines"]
+
+
+def _g(value, digits=3):
+    return f"{value:.{digits}g}"
+
+
+def _axes_text(search):
+    """``every inertia_ratio`` (the other swept axes), or empty with none."""
+    names = sorted({name for labels in search.labels for name in labels})
+    return f"every {', '.join(names)}" if names else ""
+
+
+def _cheapest(common):
+    """The cheapest scheme of ``common`` (name -> (dt, seconds, uncertainty)) and the others
+    whose costs' ranges overlap its own, cheapest first."""
+    ranked = sorted(common, key=lambda name: (common[name][1], name))
+    least, spread = common[ranked[0]][1], common[ranked[0]][2]
+    spread = 0.0 if math.isnan(spread) else spread
+    reach = least * (1.0 + spread)
+    tied = [name for name in ranked[1:] if common[name][1] * (1.0 - common[name][2]) <= reach]
+    return ranked[0], tied
+
+
+def _answer_line(search, ds, bound, axes):
+    """The study-wide answer: the cheapest scheme at its least found step."""
+    scope = f"searched to {search.tolerance:.0%}" + (f", {axes}" if axes else "")
+    if not search.common:
+        return f"step search ({scope}): no scheme meets the bound {_g(bound)} at one step in every case"
+    best, tied = _cheapest(search.common)
+    dt, seconds, _ = search.common[best]
+    named = best if not tied else ", ".join([best, *tied[:-1]]) + f" or {tied[-1]}, equal cost,"
+    steps = {search.common[name][0] for name in (best, *tied)}
+    at = f"at dt={_g(dt)} s" if len(steps) == 1 else "each at its step"
+    text = f"largest step meeting the bound {_g(bound)} ({scope}): {named} {at}, {_g(seconds, 2)} s a case"
+    grid = study_wide(ds)
+    if grid is None:
+        return text + "; the grid has no one answer for every case to compare"
+    ratio = grid.seconds / seconds
+    compared = f"{ratio:.1f}x cheaper than" if ratio >= 1.05 else "as costly as"
+    named = [grid.scheme, *(name for name, step in grid.tied if step == grid.dt)]
+    schemes = named[0] if len(named) == 1 else ", ".join(named[:-1]) + f" or {named[-1]}"
+    best = f"{schemes} at dt={_g(grid.dt)} s, {_g(grid.seconds, 2)} s a case"
+    return f"{text}, {compared} the grid's best ({best})"
+
+
+def _scheme_texts(search):
+    """Each searched scheme's found steps, ``rk4 0.0833`` or ``euler 0.0004-0.0008`` (least
+    to most over the other axes' values), cheapest at its least first, with what bounds them
+    where a step within the tolerance above does not fail (`_bracket_note`); then the schemes
+    that met the bound nowhere on the grid."""
+    texts, nowhere = [], []
+    names = sorted(set(search.scheme), key=lambda n: (search.common.get(n, (0, math.inf))[1], n))
+    for name in names:
+        mine = search.scheme == name
+        found = search.found_dt[mine]
+        if not np.isfinite(found).any():
+            nowhere.append(name)
+            continue
+        least, most = float(np.nanmin(found)), float(np.nanmax(found))
+        span = _g(least) if _g(least) == _g(most) else f"{_g(least)}-{_g(most)}"
+        everywhere = name in search.common or np.isfinite(found).sum() == 1
+        notes = [_bracket_note(found, search.failing_dt[mine], search.tolerance)]
+        notes += [] if everywhere else ["not at every value"]
+        notes = [note for note in notes if note]
+        texts.append(f"{name} {span}" + (f" ({', '.join(notes)})" if notes else ""))
+    return texts, nowhere
+
+
+def _bracket_note(found, failing, tolerance):
+    """What ends a scheme's search where no step within ``tolerance`` above its found one
+    fails: the whole run in one step met the bound, or the next whole division of the
+    duration (``+33%``) is the nearest larger step."""
+    searched = np.isfinite(found)
+    if np.isnan(failing[searched]).all():
+        return "the whole run in one step"
+    with np.errstate(invalid="ignore"):
+        widest = np.nanmax(failing[searched] / found[searched]) - 1.0
+    return f"next larger step +{widest:.0%}" if widest > tolerance * (1 + 1e-9) else ""
+
+
+def search_lines(search, ds, path):
+    """The lines a sweep prints of a finished ``search`` of the study of archive ``ds``,
+    whose probes it wrote to ``path``."""
+    bound = ds.attrs.get("accuracy_bound")
+    axes = _axes_text(search)
+    lines = [_answer_line(search, ds, bound, axes)]
+    texts, nowhere = _scheme_texts(search)
+    if texts:
+        over = f", least-most over {axes.removeprefix('every ')}" if axes else ""
+        head = f"largest steps found (s{over}, {search.tolerance:.0%} larger fails): "
+        lines.append(head + ", ".join(texts))
+    if nowhere:
+        lines.append(f"not searched (no swept step meets the bound): {', '.join(nowhere)}")
+    probes = search.probes.sizes.get("probe", 0)
+    lines.append(f"{probes} probes ({search.reused} reused); wrote {path}")
+    return lines

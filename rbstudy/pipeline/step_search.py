@@ -1,0 +1,388 @@
+"""The largest step that meets the accuracy bound, searched (``rbstudy sweep --find-step``).
+
+A sweep answers at the steps it swept: when its largest ``dt`` meets the bound, a larger
+one may as well, and the recommendation is capped by the grid. The search answers per
+*group*, a scheme at one value of every other swept axis, starting from the grid's own
+verdicts (the archive's ``accuracy``): ``lo``, the group's largest accurate swept step, and
+``hi``, the smallest step above it that is not accurate (inaccurate, failed or unjudged).
+
+- Bracketing: without a ``hi``, the step is doubled (its step count over the duration
+  halved) until a probe is not accurate, or the whole duration is one step.
+- Bisection: the geometric mean of ``lo`` and ``hi``, until ``hi / lo - 1`` is within the
+  tolerance, or their step counts are adjacent.
+
+Steps divide the duration (``dt = duration / n``): a run ends on it. A probe whose step
+divides ``output.interval`` is judged at the study's samples, any other at every step (its
+own samples: a step longer than the interval has no sample between). A probe is one case of
+the study at another step, run and judged as the sweep runs and judges its cases (the same
+`compute_batch`: kernels, references, verdict, calibrated cost).
+
+Bisection assumes one crossing between ``lo`` and ``hi``: the answer is a step that meets
+the bound, with a larger step within the tolerance that does not; a larger step still may
+meet it again (an error that wraps round). The study-wide answer, the least found step of a
+scheme over the other axes' values, is run at every value before it is named.
+
+The probes are kept in ``<study folder>/search/steps.nc`` (dimension ``probe``), rewritten
+after every batch of probes: a rerun of the same study, tolerance and code reuses them, so
+an interrupted search resumes where it stopped.
+"""
+
+import math
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+
+from rbstudy.numerics.machine import default_threads
+from rbstudy.physics.time_grid import output_count, steps_per
+from rbstudy.pipeline.batches import batches_digest, canonical_id
+from rbstudy.pipeline.calibration import calibrate, step_cost
+from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references, study_lock
+from rbstudy.pipeline.integrity import HDF5_LOCK
+from rbstudy.pipeline.outputs import ACCURATE
+from rbstudy.pipeline.store import utc_now, write_dataset_atomic
+from rbstudy.schemes import get_scheme
+
+__all__ = ["SEARCH_TOLERANCE", "SEARCH_FILE", "Search", "search_steps", "search_path"]
+
+# Default relative width of the final bracket: the answer and a step at most 5% larger that
+# fails, so that 1.1 times the answer fails too where the error grows with the step.
+SEARCH_TOLERANCE = 0.05
+# Where a study's probes are kept, in its folder.
+SEARCH_FILE = pathlib.Path("search") / "steps.nc"
+# What a probe's run gives: the archive's names for the case's verdict and cost.
+_PROBE_VARIABLES = ("status", "accuracy", "n_steps", "step_seconds")
+# What the probes file keeps of each probe, along ``probe``.
+_PROBE_COLUMNS = ("case", "steps", "scheme", "dt", "output_interval", *_PROBE_VARIABLES)
+
+
+def search_path(folder):
+    """The probes file of the study folder ``folder``."""
+    return pathlib.Path(folder) / SEARCH_FILE
+
+
+@dataclass(frozen=True)
+class Search:
+    """A finished search, per group (g,) in C order of the study's dimensions without
+    ``dt``: ``scheme`` (g,) names; ``case`` (g,) a grid case of the group (its scene and
+    options); ``grid_dt`` (g,) its largest accurate swept step (NaN: none, not searched);
+    ``found_dt`` (g,) the largest step found to meet the bound (NaN: none); ``failing_dt``
+    (g,) the smallest step above it that does not (NaN: the whole duration meets it);
+    ``found_seconds`` (g,) a case's calibrated kernel seconds at ``found_dt``;
+    ``labels`` the other axes' values of each group (coordinate -> value); ``common``
+    scheme -> (dt, mean seconds a case, their relative uncertainty) of its least found
+    step, met at every value of the other axes (a scheme is missing where it was not);
+    ``probes`` the probes run or reused,
+    a dataset along ``probe``; ``reused`` how many were reused; ``tolerance`` the relative
+    width of the final brackets."""
+
+    scheme: np.ndarray
+    case: np.ndarray
+    grid_dt: np.ndarray
+    found_dt: np.ndarray
+    failing_dt: np.ndarray
+    found_seconds: np.ndarray
+    labels: list
+    common: dict
+    probes: xr.Dataset
+    reused: int
+    tolerance: float
+
+
+def _identity(study, tolerance):
+    """What the probes depend on: the study's batches (config, grid, code), the tolerance."""
+    return canonical_id({"batches": batches_digest(study.batches), "tolerance": tolerance})
+
+
+def _grid(study, dataset):
+    """The study's grid verdicts as (groups, dt) arrays: accurate (bool), case numbers, and
+    the swept steps (dt,) ascending; with the dimension names of the groups."""
+    names = [d.name for d in study.dimensions]
+    cases = np.arange(len(study.cases)).reshape(study.shape)
+    accurate = (dataset["accuracy"].transpose(*names).values == ACCURATE) & (
+        dataset["status"].transpose(*names).values == 0
+    )
+    if "dt" in names:
+        k = names.index("dt")
+        dts = np.asarray(dataset["dt"].values, dtype=float)
+        accurate, cases = np.moveaxis(accurate, k, -1), np.moveaxis(cases, k, -1)
+        group_dims = names[:k] + names[k + 1 :]
+    else:
+        dts = np.array([study.cases.runs[0].dt])
+        accurate, cases = accurate[..., None], cases[..., None]
+        group_dims = names
+    return accurate.reshape(-1, len(dts)), cases.reshape(-1, len(dts)), dts, group_dims
+
+
+def _steps(study, dt):
+    """The whole number of steps ``dt`` takes over the study's duration."""
+    return steps_per(study.duration, dt, "dt", "duration")
+
+
+class _Probes:
+    """The probes of a search: those kept from an earlier run of it, those run now, keyed by
+    (case, steps); written to ``path`` after every batch."""
+
+    def __init__(self, study, path, identity, force):
+        self.study, self.path, self.identity = study, path, identity
+        self.rows, self.reused = {}, 0
+        if path.is_file() and not force:
+            with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+                kept = xr.load_dataset(path)
+            if kept.attrs.get("search_identity") == identity:
+                columns = {name: kept[name].values for name in _PROBE_COLUMNS}
+                for k in range(kept.sizes["probe"]):
+                    row = {name: values[k].item() for name, values in columns.items()}
+                    self.rows[(row["case"], row["steps"])] = row
+        self.kept = set(self.rows)
+
+    def verdicts(self, wanted, progress):
+        """Whether each (case, steps) of ``wanted`` meets the bound, running those not kept."""
+        missing = sorted({key for key in wanted if key not in self.rows})
+        self.reused += len({key for key in wanted if key in self.kept})
+        self.kept -= set(wanted)
+        by_run = {}
+        for case, steps in missing:
+            by_run.setdefault((self._scheme(case), steps), []).append(case)
+        for (scheme, steps), cases in sorted(by_run.items()):
+            self._run(scheme, steps, np.asarray(cases))
+            self.write()
+            if progress is not None:
+                progress.advance(len(cases))
+        return [self.rows[key]["accuracy"] == ACCURATE and self.rows[key]["status"] == 0 for key in wanted]
+
+    def _scheme(self, case):
+        cases = self.study.cases
+        return cases.runs[cases.run_rows[case]].scheme
+
+    def _run(self, scheme, steps, cases):
+        """Run the grid ``cases`` (all of ``scheme``) at ``steps`` steps over the duration."""
+        study = self.study
+        dt = study.duration / steps
+        interval = study.output_interval if _divides(study, steps) else dt
+        n_times = output_count(study.duration, interval)
+        scene_rows = study.cases.scene_rows[cases]
+        distinct, position = np.unique(scene_rows, return_inverse=True)
+        table = study.cases.scenes
+        references = compute_references(table, distinct, n_times, interval)
+        runs = [study.cases.runs[r] for r in study.cases.run_rows[cases]]
+        cost = step_cost(get_scheme(scheme), runs[0].options)
+        job = BatchJob(
+            scheme=scheme,
+            dt=dt,
+            output_interval=interval,
+            scene_rows=scene_rows,
+            options=np.array([get_scheme(scheme).option_row(run.options) for run in runs]),
+            variables=_PROBE_VARIABLES,
+            accuracy_bound=study.accuracy_bound,
+            references=np.stack([np.zeros_like(position), position.reshape(-1)], axis=1),
+            step_cost=(cost.seconds, cost.uncertainty),
+        )
+        values = compute_batch(job, table, [references], default_threads())
+        for k, case in enumerate(cases):
+            self.rows[(int(case), steps)] = {
+                "case": int(case),
+                "steps": steps,
+                "scheme": scheme,
+                "dt": dt,
+                "output_interval": interval,
+                **{name: values[name][k].item() for name in _PROBE_VARIABLES},
+            }
+
+    def dataset(self):
+        """The probes as a dataset along ``probe`` (in the order of their keys)."""
+        keys = sorted(self.rows)
+        columns = {
+            name: ("probe", np.array([self.rows[key][name] for key in keys])) for name in _PROBE_COLUMNS
+        }
+        columns["scheme"] = ("probe", np.array(columns["scheme"][1], dtype=object))
+        probes = xr.Dataset(columns)
+        for name, (units, long_name) in _PROBE_ATTRS.items():
+            probes[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
+        probes.attrs.update(
+            {
+                "title": f"{self.study.title}: the step search's probes",
+                "study": self.study.name,
+                "accuracy_bound": self.study.accuracy_bound,
+                "search_identity": self.identity,
+                "history": f"{utc_now()} rbstudy sweep --find-step",
+            }
+        )
+        return probes
+
+    def write(self, search=None):
+        """The probes to `path`, with the groups' answers of a finished ``search``."""
+        written = self.dataset()
+        if search is not None:
+            written = written.assign(
+                group_scheme=("group", np.array(search.scheme, dtype=object)),
+                group_case=("group", search.case),
+                grid_dt=("group", search.grid_dt),
+                found_dt=("group", search.found_dt),
+                failing_dt=("group", search.failing_dt),
+            )
+            for name, (units, long_name) in _GROUP_ATTRS.items():
+                written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
+            written.attrs["tolerance"] = search.tolerance
+        self.path.parent.mkdir(exist_ok=True)
+        write_dataset_atomic(written, self.path)
+
+
+def _divides(study, steps):
+    """Whether a step of ``steps`` over the duration divides the output interval."""
+    return steps % (output_count(study.duration, study.output_interval) - 1) == 0
+
+
+_PROBE_ATTRS = {
+    "case": (None, "grid case whose scene and scheme options the probe runs (C order of the sweep)"),
+    "steps": ("1", "time steps over the duration"),
+    "scheme": (None, "integration scheme"),
+    "dt": ("s", "time step"),
+    "output_interval": ("s", "interval of the samples the verdict is taken at"),
+    "status": (None, "termination status code (as the archive's status)"),
+    "accuracy": (None, "accuracy verdict: 0 accurate, 1 inaccurate, 2 failed, 3 unjudged"),
+    "n_steps": ("1", "time steps the scheme took"),
+    "step_seconds": ("s", "calibrated kernel seconds of a body-step"),
+}
+
+
+def _next_steps(lo, hi, tolerance):
+    """The step count to probe next in a group whose largest accurate step takes ``lo``
+    steps and whose smallest failing one ``hi`` (0: none yet); 0 when the search is done."""
+    if not hi:
+        return lo // 2  # the step doubled (0: the whole duration in one step met the bound)
+    if lo - hi <= 1 or lo / hi - 1 <= tolerance:
+        return 0
+    return min(max(round(math.sqrt(lo * hi)), hi + 1), lo - 1)
+
+
+def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False, progress=None):
+    """The `Search` of ``study`` from its archive's ``dataset`` (``accuracy``, ``status``),
+    its probes kept in the study folder ``folder`` (`SEARCH_FILE`), under the study's lock;
+    ``force``: the kept probes are run again. Adaptive schemes choose their own steps and
+    are not searched."""
+    accurate, cases, dts, group_dims = _grid(study, dataset)
+    runs = study.cases.runs
+    schemes = np.array([runs[study.cases.run_rows[row[0]]].scheme for row in cases], dtype=object)
+    searched = accurate.any(axis=1) & np.array(
+        [not get_scheme(name).adaptive for name in schemes], dtype=bool
+    )
+    lo, hi, grid_dt = np.zeros(len(cases), int), np.zeros(len(cases), int), np.full(len(cases), math.nan)
+    for g in np.flatnonzero(searched):
+        best = np.flatnonzero(accurate[g]).max()
+        grid_dt[g], lo[g] = dts[best], _steps(study, dts[best])
+        above = np.flatnonzero(~accurate[g, best + 1 :])
+        hi[g] = _steps(study, dts[best + 1 + above[0]]) if above.size else 0
+    calibrate(set(schemes[searched]), progress)
+    if progress is not None:
+        progress.phase(
+            f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
+        )
+    probes = _Probes(study, search_path(folder), _identity(study, tolerance), force)
+    with study_lock(pathlib.Path(folder)):
+        while True:
+            wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
+            wanted = {g: steps for g, steps in wanted.items() if steps}
+            if not wanted:
+                break
+            keys = [(int(cases[g, 0]), steps) for g, steps in wanted.items()]
+            for (g, steps), good in zip(wanted.items(), probes.verdicts(keys, progress), strict=True):
+                if good:
+                    lo[g] = steps
+                else:
+                    hi[g] = steps
+        common = _common_steps(study, schemes, cases, lo, searched, probes, progress)
+    found = np.where(searched, study.duration / np.maximum(lo, 1), math.nan)
+    failing = np.where(searched & (hi > 0), study.duration / np.maximum(hi, 1), math.nan)
+    seconds = np.array([lo[g] * _step_seconds(study, cases[g, 0]) for g in range(len(cases))])
+    result = Search(
+        scheme=schemes,
+        case=cases[:, 0],
+        grid_dt=grid_dt,
+        found_dt=found,
+        failing_dt=failing,
+        found_seconds=np.where(searched, seconds, math.nan),
+        labels=_group_labels(dataset, group_dims),
+        common={
+            name: _common_cost(study, cases, steps, members) for name, (steps, members) in common.items()
+        },
+        probes=probes.dataset(),
+        reused=probes.reused,
+        tolerance=tolerance,
+    )
+    probes.write(result)
+    return result
+
+
+def _common_steps(study, schemes, cases, lo, searched, probes, progress):
+    """Per scheme searched at every value of the other axes: the step count of its least
+    found step, and its groups, once every group of it has met the bound at that step
+    (probed where its own found step is larger); name -> (steps, groups)."""
+    common = {}
+    for name in sorted(set(schemes)):
+        members = np.flatnonzero(schemes == name)
+        if not searched[members].all():
+            continue
+        steps = int(lo[members].max())
+        keys = [(int(cases[g, 0]), steps) for g in members if lo[g] != steps]
+        if all(probes.verdicts(keys, progress)):
+            common[name] = (steps, members)
+    return common
+
+
+def _common_cost(study, cases, steps, members):
+    """(dt, mean calibrated kernel seconds a case, their relative uncertainty) of ``steps``
+    steps at the groups ``members``: the cost the findings rank the grid's answers by."""
+    costs = [
+        step_cost(get_scheme(_run(study, cases[g, 0]).scheme), _run(study, cases[g, 0]).options)
+        for g in members
+    ]
+    return (
+        study.duration / steps,
+        steps * float(np.mean([cost.seconds for cost in costs])),
+        max(cost.uncertainty for cost in costs),
+    )
+
+
+def _run(study, case):
+    """The `Run` (scheme, options, dt) of the grid case ``case``."""
+    return study.cases.runs[study.cases.run_rows[case]]
+
+
+def _step_seconds(study, case):
+    """The calibrated seconds of a body-step of the grid case ``case``'s scheme and options."""
+    run = _run(study, case)
+    return step_cost(get_scheme(run.scheme), run.options).seconds
+
+
+def _group_labels(dataset, group_dims):
+    """The values of the other swept axes (not ``scheme``) of each group, coordinate ->
+    value, in C order of ``group_dims``."""
+    shape = [dataset.sizes[d] for d in group_dims]
+    named = {
+        d: [name for name, coord in dataset.coords.items() if coord.dims == (d,) and name != d or name == d]
+        for d in group_dims
+        if d != "scheme"
+    }
+    labels = []
+    for index in np.ndindex(*shape):
+        place = dict(zip(group_dims, index, strict=True))
+        labels.append(
+            {
+                name: dataset[name].values[place[d]].item()
+                for d, names in named.items()
+                for name in names
+                if not (len(names) > 1 and name == d)  # a zipped dimension's own index
+            }
+        )
+    return labels
+
+
+_GROUP_ATTRS = {
+    "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
+    "group_case": (None, "a grid case of the group: its scene and scheme options"),
+    "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
+    "found_dt": ("s", "largest step found to meet the accuracy bound"),
+    "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
+}

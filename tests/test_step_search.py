@@ -1,0 +1,150 @@
+"""The step search (`rbstudy sweep --find-step`): the largest step that meets the accuracy
+bound, per scheme and value of the other axes, checked by independent sweeps at that step
+and at 1.1 times it."""
+
+import contextlib
+import io
+import math
+import re
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+from conftest import CONFIGS
+
+from rbstudy.cli import main
+from rbstudy.pipeline.step_search import _next_steps
+
+BOUND = 0.01  # the default study's accuracy bound (rad)
+
+
+@pytest.mark.parametrize("tolerance", [0.05, 0.01, 0.2])
+def test_the_search_ends_on_the_largest_step_meeting_a_monotone_bound_within_its_tolerance(tolerance):
+    """Bracketing then bisection, on step counts n over a duration (dt = T / n): whatever
+    the least step count that meets the bound and wherever the grid's accurate step lies,
+    the search ends on a step that meets it, with a failing one above it within the
+    tolerance or one whole division of the duration away."""
+    for least in [1, 2, 3, 7, 25, 99, 100, 640, 1001, 12_345]:
+        for start in sorted({least, least + 1, 2 * least, 64 * least + 5}):
+            lo, hi, probes = start, 0, 0
+            while steps := _next_steps(lo, hi, tolerance):
+                probes += 1
+                assert 0 < steps < lo and (not hi or steps > hi)
+                lo, hi = (steps, hi) if steps >= least else (lo, steps)
+            assert lo == least if least == 1 else lo >= least, (least, start, lo, hi)
+            if least > 1:
+                assert hi == least - 1 or lo / hi - 1 <= tolerance, (least, start, lo, hi)
+                assert lo / (least - 1) - 1 <= max(tolerance, 1 / (least - 1)) + 1e-12
+            assert probes <= 2 * math.log2(start + 1) + 8
+
+
+def _sweep_printing(args):
+    """``rbstudy`` ``args``: (exit code, what it printed)."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(args)
+    return code, out.getvalue()
+
+
+def _independent(tmp_path, name, scheme, dt, ratios, duration=2.0):
+    """The default study's body at ``ratios`` run by a plain sweep with ``scheme`` at ``dt``
+    (samples at every step) over ``duration``: the archive's worst orientation error (rad)
+    and whether every case was judged accurate."""
+    study = yaml.safe_load((CONFIGS / "abaqus_top.yaml").read_text())
+    study["name"] = name
+    study["scene"]["duration"] = float(duration)
+    study["run"] = {"scheme": scheme, "dt": float(dt)}
+    study["output"] = {"interval": float(dt)}
+    study["sweep"] = {"inertia_ratio": [float(r) for r in ratios]}
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(study, sort_keys=False))
+    code, _ = _sweep_printing(["sweep", str(path), "--out", str(tmp_path / "checks"), "--quiet"])
+    assert code == 0
+    ds = xr.load_dataset(tmp_path / "checks" / name / f"{name}.nc")
+    return float(ds["orientation_error"].max()), bool((ds["accuracy"] == 0).all())
+
+
+@pytest.mark.slow
+def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_it(tmp_path):
+    """The default study swept with --find-step: every scheme's least found step (the one it
+    names for every inertia ratio) meets the bound at every ratio in an independent sweep,
+    and 1.1 times the step found at each ratio fails there (rounded up to a whole division
+    of the duration, as every run's step is); the answer it
+    names and its "Nx cheaper" are recomputed from the archive; a rerun
+    reuses every probe and prints the same lines."""
+    out = tmp_path / "results"
+    args = ["sweep", str(CONFIGS / "abaqus_top.yaml"), "--out", str(out), "--find-step", "--quiet"]
+    code, printed = _sweep_printing(args)
+    assert code == 0
+    searched = printed[printed.index("largest step meeting") :]
+    found = xr.load_dataset(out / "abaqus_top" / "search" / "steps.nc")
+    grid = xr.load_dataset(out / "abaqus_top" / "abaqus_top.nc")
+    ratios = grid["inertia_ratio"].values
+    assert list(found["group_scheme"].values) == list(np.repeat(grid["scheme"].values, len(ratios)))
+
+    for scheme in ["rk4", "hht", "euler"]:
+        mine = found["group_scheme"].values == scheme
+        steps, failing = found["found_dt"].values[mine], found["failing_dt"].values[mine]
+        least = float(steps.min())
+        assert least > 0.01 or scheme == "euler"  # past the grid's largest step, 0.01 s
+        error, accurate = _independent(tmp_path, f"{scheme}_at", scheme, least, ratios)
+        assert accurate and error <= BOUND, (scheme, least, error)
+        for ratio, step, fails in zip(ratios, steps, failing, strict=True):
+            # runs end on a whole step: 1.1 times the step, up to the next whole division of
+            # the duration (2 / 12 s -> 2 / 10 s): a shorter run would have less time to err
+            larger = 2.0 / math.floor(2.0 / (1.1 * step) + 1e-9)
+            assert fails <= larger * (1 + 1e-12), (scheme, ratio, step, fails)
+            error, accurate = _independent(tmp_path, f"{scheme}_over", scheme, larger, [ratio])
+            assert not accurate and error > BOUND, (scheme, ratio, step, error)
+
+    # the answer: the cheapest scheme at its least found step, every ratio, recomputed
+    seconds = {}
+    for scheme in grid["scheme"].values:
+        mine = found["group_scheme"].values == scheme
+        if np.isfinite(found["found_dt"].values[mine]).all():
+            step = found["found_dt"].values[mine].min()
+            per_step = grid["step_seconds"].sel(scheme=scheme).values.mean()
+            seconds[str(scheme)] = round(2.0 / step) * per_step
+    best = min(seconds, key=seconds.get)
+    answer = r"\): (\w+)\b.*? at dt=([\d.e-]+) s, ([\d.e+-]+) s a case, ([\d.]+)x cheaper"
+    named = re.search(answer, " ".join(searched.split()))  # the lines unwrapped
+    assert named, searched
+    assert named.group(1) == best
+    step = found["found_dt"].values[found["group_scheme"].values == best].min()
+    assert float(named.group(2)) == pytest.approx(step, rel=1e-3)
+    assert float(named.group(3)) == pytest.approx(seconds[best], rel=0.05)
+    # "Nx cheaper than the grid's best (..., S s a case)": S is the recommendation's cost as
+    # the findings print it (of the scheme that represents its tie), the least cost on the
+    # grid that meets the bound at every ratio or within the calibration's uncertainty of it
+    grid_best = re.search(
+        r"grid's best \(.*? at dt=0\.01 s, ([\d.e+-]+) s a case\)", " ".join(searched.split())
+    )
+    recommended = re.search(r"recommended: .*? at dt=0\.01 s, ([\d.e+-]+) s a case", printed)
+    assert grid_best and recommended and grid_best.group(1) == recommended.group(1)
+    assert float(named.group(4)) == pytest.approx(float(grid_best.group(1)) / seconds[best], rel=0.05)
+    meets = ((grid["accuracy"] == 0) & (grid["status"] == 0)).all("inertia_ratio")
+    cost = (grid["n_steps"] * grid["step_seconds"]).mean("inertia_ratio").where(meets)
+    spread = float(grid["step_seconds_uncertainty"].max())
+    assert (
+        float(cost.min()) * 0.95 <= float(grid_best.group(1)) <= float(cost.min()) * (1 + 2 * spread) * 1.05
+    )
+    if best == "exact_split":  # exact for a free body: the whole run in one step meets the bound
+        error, accurate = _independent(tmp_path, "answer", best, 2.0, ratios)
+        assert accurate and error <= BOUND
+
+    code, again = _sweep_printing(args)
+    assert code == 0
+    probes = found.sizes["probe"]
+    assert f"{probes} probes ({probes} reused)" in again
+    assert again[again.index("largest step meeting") :] == searched.replace(
+        f"{probes} probes (0 reused)", f"{probes} probes ({probes} reused)"
+    )
+
+
+def test_a_step_tolerance_outside_0_and_1_is_refused_in_one_line(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["sweep", str(CONFIGS / "abaqus_top.yaml"), "--find-step", "--step-tolerance", "5"])
+    assert stop.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--step-tolerance" in error and "between 0 and 1" in error
