@@ -92,12 +92,15 @@ IN_CHILDREN = textwrap.dedent("""
 
     variants = [("leapfrog", False), ("rk4", False), ("rk4", True)]
     before = [SCHEMES[name].is_cached(timed) for name, timed in variants]
-    in_children = get_ready(variants, processes=2)
+    seen = []
+    in_children = get_ready(variants, processes=2, watch=seen.append)
     stats = {name: SCHEMES[name].run_bodies_inplace.dispatcher.stats for name in ("leapfrog", "rk4")}
     print(json.dumps({"before": before, "in_children": in_children,
                       "hits": {name: sum(s.cache_hits.values()) for name, s in stats.items()},
                       "misses": {name: sum(s.cache_misses.values()) for name, s in stats.items()},
-                      "after": [SCHEMES[name].is_cached(timed) for name, timed in variants]}))
+                      "after": [SCHEMES[name].is_cached(timed) for name, timed in variants],
+                      "took": dict(seen[-1].took) if seen else {},
+                      "names": list(seen[0].names) if seen else []}))
 """)
 
 
@@ -117,6 +120,9 @@ def test_a_cold_cache_is_filled_by_child_processes_and_loaded_here(tmp_path):
     assert ready["misses"] == {"leapfrog": 0, "rk4": 0}
     assert ready["hits"] == {"leapfrog": 1, "rk4": 2}
     assert ready["after"] == [True, True, True]
+    # the seconds each took, which the next compile's time left is told by
+    assert ready["names"] == ["leapfrog", "rk4"]
+    assert sorted(ready["took"]) == ["leapfrog", "rk4"] and all(0 < s < 600 for s in ready["took"].values())
     again = subprocess.run(
         [sys.executable, "-c", IN_CHILDREN],
         capture_output=True,

@@ -15,7 +15,7 @@ import time
 import pytest
 from conftest import HOSTILE, HOSTILE_SHOWN, write_study
 
-from rbstudy.pipeline import cluster
+from rbstudy.pipeline import cluster, execute
 from rbstudy.pipeline.cluster import dashboard_line
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import _show_compiling, run_study
@@ -171,8 +171,9 @@ def test_its_text_is_shown_as_text(monkeypatch, stream):
 def test_compiling_shows_the_schemes_done_and_no_time_left(monkeypatch):
     """Compiling children end schemes in bunches: one done after 60 s of 4 forecast "~180 s
     left" from the rate so far (issue 41 met "~599 s left" with ~60 s to go). The count is
-    shown, and what compiles now; no time left."""
+    shown, and what compiles now; no time left where no compile of this machine was timed."""
     monkeypatch.delenv("CI", raising=False)
+    monkeypatch.setattr(execute, "compile_seconds", dict)
     terminal, now = Terminal(), [0.0]
     with Progress("study", "4 cases", stream=terminal, clock=lambda: now[0]) as progress:
         _show_compiling(progress, "study", Compiling(4, 0, (), 2, "/cache"))
@@ -185,6 +186,50 @@ def test_compiling_shows_the_schemes_done_and_no_time_left(monkeypatch):
     text = terminal.text()
     assert "study: compiling rk4, hht" in text
     assert "left" not in text and "/s" not in text, text[-300:]
+
+
+class _Said:
+    """A silent progress that records the words of its phases and updates."""
+
+    def __init__(self):
+        self.words = []
+
+    def say(self, text):
+        pass
+
+    def phase(self, what, total=None, unit="", eta=True):
+        self.words.append(what)
+
+    def update(self, what=None, done=None):
+        self.words.append(what)
+
+
+def test_compiling_tells_the_time_left_by_what_each_scheme_took_the_last_time(monkeypatch):
+    """The time left comes from the seconds each scheme took to compile on this machine the
+    last time, not from the rate so far: the schemes not done shared by the processes, or the
+    longest of them alone; and what they took now is kept for the next compile."""
+    last = {"rk4": 20.0, "hht": 10.0, "euler": 6.0, "rkmk4": 40.0}
+    kept = []
+    monkeypatch.setattr(execute, "compile_seconds", lambda: last)
+    monkeypatch.setattr(execute, "record_compile", kept.append)
+    names = ("euler", "hht", "rk4", "rkmk4")
+    said = _Said()
+    _show_compiling(said, "study", Compiling(4, 0, (), 2, "/cache", names))
+    _show_compiling(said, "study", Compiling(4, 1, ("rk4", "rkmk4"), 2, "/cache", names, (("euler", 5.0),)))
+    took = (("euler", 5.0), ("hht", 9.0), ("rk4", 19.0))
+    _show_compiling(said, "study", Compiling(4, 3, ("rkmk4",), 2, "/cache", names, took))
+    _show_compiling(said, "study", Compiling(4, 4, (), 2, "/cache", names, (*took, ("rkmk4", 41.0))))
+    assert said.words[:3] == [
+        "study: ~40 s left, compiling 4 schemes",  # (6+10+20+40)/2 = 38 < 40
+        "study: ~40 s left, compiling rk4, rkmk4",
+        "study: ~40 s left, compiling rkmk4",
+    ]
+    assert kept == [{"euler": 5.0, "hht": 9.0, "rk4": 19.0, "rkmk4": 41.0}]
+    # a scheme never timed is taken at the mean of those that were
+    monkeypatch.setattr(execute, "compile_seconds", lambda: {"rk4": 20.0, "hht": 10.0})
+    said = _Said()
+    _show_compiling(said, "study", Compiling(3, 0, (), 1, "/cache", ("euler", "hht", "rk4")))
+    assert said.words == ["study: ~45 s left, compiling 3 schemes"]
 
 
 # Writes a mark on stderr when numpy is first imported: a child's site customisation.

@@ -48,6 +48,8 @@ __all__ = [
     "measure",
     "machine_key",
     "calibration_path",
+    "compile_seconds",
+    "record_compile",
     "CALIBRATION_BODIES",
     "REPEATS",
 ]
@@ -71,6 +73,7 @@ BETWEEN_CALIBRATIONS = 0.1
 # Output samples every this many steps, as a study at dt = interval / 8 samples.
 SAMPLE_EVERY = 8
 _FILE = "calibration.json"
+_COMPILE_FILE = "compile_seconds.json"
 
 
 @dataclass(frozen=True)
@@ -103,29 +106,49 @@ def _scheme_key(scheme):
     return " ".join(filter(None, (scheme.name, scheme.origin, scheme.code_digest)))
 
 
+def compile_path():
+    """The file of the seconds each scheme took to compile, beside numba's caches of every
+    source tree (`compile_seconds`: an edit of the sources compiles them all again, in about
+    the time they took before)."""
+    return os.path.join(os.path.dirname(cache_dir()), _COMPILE_FILE)
+
+
+def compile_seconds():
+    """The seconds each scheme took to compile on this machine the last time, name -> s."""
+    return {name: float(s) for name, s in _read(compile_path()).items() if isinstance(s, (int, float))}
+
+
+def record_compile(took):
+    """Keep the seconds each scheme of ``took`` (name -> s) took to compile."""
+    _write({name: seconds for name, seconds in took.items() if math.isfinite(seconds)}, compile_path())
+
+
 _read_memo = {}  # (path, modification time) -> figures: the forecast asks once a batch
 
 
-def _read():
-    """The cache's figures of this machine: scheme key -> {seconds, uncertainty}."""
-    path = calibration_path()
+def _read(path=None):
+    """The figures of this machine in the cache file ``path`` (the calibration's by
+    default): scheme key -> its figures."""
+    path = path or calibration_path()
     try:
         stamp = (path, os.stat(path).st_mtime_ns)
         if stamp not in _read_memo:
             with open(path, encoding="utf-8") as file:
                 stored = json.load(file)
             figures = stored.get(machine_key(), {}) if isinstance(stored, dict) else {}
-            _read_memo.clear()
+            for older in [key for key in _read_memo if key[0] == path]:
+                del _read_memo[older]
             _read_memo[stamp] = figures if isinstance(figures, dict) else {}
         return _read_memo[stamp]
     except (OSError, ValueError):
         return {}
 
 
-def _write(figures):
-    """Merge ``figures`` (scheme key -> {seconds, uncertainty}) into the cache, replaced whole
-    by a rename; a cache that cannot be written costs a measurement next time, nothing else."""
-    path = calibration_path()
+def _write(figures, path=None):
+    """Merge ``figures`` (scheme key -> its figures) into the cache file ``path`` (the
+    calibration's by default), replaced whole by a rename; a cache that cannot be written
+    costs a measurement next time, nothing else."""
+    path = path or calibration_path()
     with contextlib.suppress(OSError):
         try:
             with open(path, encoding="utf-8") as file:
@@ -136,7 +159,9 @@ def _write(figures):
             stored = {}
         stored.setdefault(machine_key(), {}).update(figures)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=os.path.dirname(path), prefix=f".{_FILE}.", suffix=".tmp")
+        handle, temporary = tempfile.mkstemp(
+            dir=os.path.dirname(path), prefix=f".{os.path.basename(path)}.", suffix=".tmp"
+        )
         try:
             with os.fdopen(handle, "w", encoding="utf-8") as file:
                 json.dump(stored, file, indent=1, sort_keys=True)

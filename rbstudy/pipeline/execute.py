@@ -38,7 +38,7 @@ from rbstudy.physics.references import References, table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
-from rbstudy.pipeline.calibration import calibrate, step_cost
+from rbstudy.pipeline.calibration import calibrate, compile_seconds, record_compile, step_cost
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
 from rbstudy.pipeline.config import StudyConfig
 from rbstudy.pipeline.estimate import check_disk, disk_needed
@@ -246,22 +246,44 @@ def sees_folder(probe):
 
 def _show_compiling(progress, name, compiling):
     """`rbstudy.schemes.get_ready`'s watch: a first run said before anything is compiled, on
-    any stream, then shown as it goes."""
+    any stream, then shown as it goes, with the time left by what each scheme took to compile
+    the last time (`_compile_left`); the seconds they took now kept for the next."""
     total, done, running = compiling.total, compiling.done, compiling.running
+    left = _compile_left(compiling, compile_seconds())
+    wait = "" if left is None else f"~{left:.0f} s left, "  # first: the bar cuts long words
     if not done and not running:
         progress.say(
             f"{name}: compiling {counted(total, 'scheme')} first, {compiling.processes} "
             "at a time, once per machine\n  and rbstudy version, into numba's cache "
             f"{compiling.cache}"
         )
-        # no time left: the schemes take 1-30 s each and end in bunches, so the rate so far
-        # forecast ten times the wait; the count of schemes done is what is known
-        progress.phase(f"{name}: compiling {counted(total, 'scheme')}", total, "schemes", eta=False)
+        # no rate: the schemes take 1-30 s each and end in bunches, so the rate so far
+        # forecast ten times the wait; the count done, and what they took the last time
+        progress.phase(f"{name}: {wait}compiling {counted(total, 'scheme')}", total, "schemes", eta=False)
+    elif done < total:
+        words = f"{wait}compiling {', '.join(running)}" if running else "loading the compiled schemes"
+        progress.update(f"{name}: {words}", done)
     else:
-        progress.update(
-            f"{name}: compiling {', '.join(running)}" if running else f"{name}: loading the compiled schemes",
-            done,
-        )
+        record_compile(dict(compiling.took))
+        progress.update(f"{name}: loading the compiled schemes", done)
+
+
+def _compile_left(compiling, figures):
+    """Seconds left of a `rbstudy.schemes.Compiling` by ``figures`` (name -> the seconds
+    each took the last time; a scheme without one is taken at their mean): the schemes not
+    done shared by its processes, or the longest of them, which no process shares. None
+    without a figure or the schemes' names."""
+    if not figures or not compiling.names:
+        return None
+    finished = {name for name, _ in compiling.took}
+    remaining = [
+        figures.get(name, sum(figures.values()) / len(figures))
+        for name in compiling.names
+        if name not in finished
+    ]
+    if not remaining:
+        return 0.0
+    return max(sum(remaining) / compiling.processes, max(remaining))
 
 
 def study_lock(folder):

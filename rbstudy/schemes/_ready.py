@@ -15,6 +15,7 @@ itself; a scheme's variants are compiled by one child, one after the other, beca
 rewrites a function's cache index without a lock.
 """
 
+import math
 import os
 import subprocess
 import sys
@@ -28,7 +29,7 @@ __all__ = ["get_ready", "Compiling"]
 
 # A child: compile each scheme it is first to claim, every variant it is given.
 _CHILD = """
-import os, sys
+import os, sys, time
 from rbstudy.schemes._ready import DONE
 from rbstudy.schemes import get_scheme
 claims = sys.argv[1]
@@ -38,9 +39,14 @@ for item in sys.argv[2:]:
         os.close(os.open(os.path.join(claims, name), os.O_CREAT | os.O_EXCL))
     except FileExistsError:
         continue
+    started = time.perf_counter()
     for variant in variants.split(","):
         get_scheme(name).ensure_compiled(timed=variant == "timed")
-    os.close(os.open(os.path.join(claims, name + DONE), os.O_CREAT))
+    took = str(time.perf_counter() - started).encode()
+    done = os.open(os.path.join(claims, name + DONE + ".tmp"), os.O_CREAT | os.O_WRONLY)
+    os.write(done, took)
+    os.close(done)
+    os.replace(os.path.join(claims, name + DONE + ".tmp"), os.path.join(claims, name + DONE))
 """
 # The name a child gives a scheme's claim once the cache holds all its variants.
 DONE = ".done"
@@ -51,13 +57,16 @@ LOOK_SECONDS = 0.1
 class Compiling(NamedTuple):
     """How the first run's compilation goes, as `get_ready` tells its ``watch``: the
     schemes the cache lacks (``total``), how many are done, those being compiled now, how
-    many processes compile them, and numba's cache folder, where they go."""
+    many processes compile them, numba's cache folder, where they go, the names of the
+    schemes the cache lacks and the seconds each done took to compile."""
 
     total: int
     done: int
     running: tuple
     processes: int
     cache: str
+    names: tuple = ()  # the schemes the cache lacks
+    took: tuple = ()  # (name, seconds) of each compiled so far
 
 
 def get_ready(variants, processes=1, watch=None):
@@ -84,9 +93,10 @@ def get_ready(variants, processes=1, watch=None):
     processes = max(1, min(processes, len(cold)))
     tell = watch or (lambda compiling: None)
     cache = numba.config.CACHE_DIR
+    names = tuple(cold)
     if cold:
-        tell(Compiling(len(cold), 0, (), processes, cache))
-    compiled = 0
+        tell(Compiling(len(cold), 0, (), processes, cache, names))
+    compiled, took = 0, {}
     if processes > 1:
         items = [
             f"{name}:{','.join('timed' if timed else 'plain' for timed in timings)}"
@@ -103,7 +113,7 @@ def get_ready(variants, processes=1, watch=None):
                 for _ in range(processes)
             ]
             try:
-                _follow(children, claims, len(cold), tell, cache)
+                took = _follow(children, claims, names, tell, cache)
             except BaseException:  # Ctrl-C: no child goes on compiling behind the user
                 for child in children:
                     child.kill()
@@ -118,25 +128,44 @@ def get_ready(variants, processes=1, watch=None):
         if processes == 1 or not all(get_scheme(name).is_cached(timed) for timed in timings)
     ]
     for count, name in enumerate(here):
-        tell(Compiling(len(cold), len(cold) - len(here) + count, (name,), 1, cache))
+        tell(
+            Compiling(len(cold), len(cold) - len(here) + count, (name,), 1, cache, names, tuple(took.items()))
+        )
+        started = time.perf_counter()
         for timed in cold[name]:
             get_scheme(name).ensure_compiled(timed=timed)
+        took[name] = time.perf_counter() - started
     for name, timed in variants:  # loaded from the cache, in milliseconds
         get_scheme(name).ensure_compiled(timed=timed)
     if cold:
-        tell(Compiling(len(cold), len(cold), (), processes, cache))
+        tell(Compiling(len(cold), len(cold), (), processes, cache, names, tuple(took.items())))
     return compiled
 
 
-def _follow(children, claims, total, tell, cache):
+def _follow(children, claims, names, tell, cache):
     """Wait for the compiling ``children``, telling ``tell`` what their ``claims`` show
-    (a file per scheme claimed, another when it is done) as it changes."""
-    said = (0, ())  # as told before the children started
+    (a file per scheme claimed, another when it is done, holding the seconds it took) as
+    it changes; the seconds of each scheme they compiled, name -> s."""
+    said, took = (0, ()), {}  # as told before the children started
     while any(child.poll() is None for child in children):
-        names = set(os.listdir(claims))
-        done = {name for name in names if name.endswith(DONE)}
-        now = (len(done), tuple(sorted(name for name in names - done if name + DONE not in done)))
+        _took(claims, took)
+        claimed = {name for name in os.listdir(claims) if not name.endswith((DONE, ".tmp"))}
+        now = (len(took), tuple(sorted(claimed - set(took))))
         if now != said:
             said = now
-            tell(Compiling(total, *now, len(children), cache))
+            tell(Compiling(len(names), *now, len(children), cache, names, tuple(took.items())))
         time.sleep(LOOK_SECONDS)
+    _took(claims, took)
+    return took
+
+
+def _took(claims, took):
+    """Add to ``took`` the seconds of each scheme whose claim in ``claims`` is done."""
+    for entry in os.listdir(claims):
+        name = entry.removesuffix(DONE)
+        if entry.endswith(DONE) and name not in took:
+            try:
+                with open(os.path.join(claims, entry), encoding="utf-8") as file:
+                    took[name] = float(file.read())
+            except (OSError, ValueError):  # unreadable: done, with no figure
+                took[name] = math.nan
