@@ -188,10 +188,16 @@ def _styles_of(dataset):
 
 def _say(text):
     """Print ``text`` with each line within the summary table's width, the lines that
-    continue one indented (`rbstudy.analysis.summary.wrap_clauses`)."""
+    continue one indented (`_wrapped`)."""
+    print(_wrapped(text.splitlines()))
+
+
+def _wrapped(lines):
+    """``lines`` each within the summary table's width, the lines that continue one indented
+    (`rbstudy.analysis.summary.wrap_clauses`), as one text."""
     from rbstudy.analysis.summary import wrap_clauses
 
-    print("\n".join(short for line in text.splitlines() for short in wrap_clauses(line, indent="  ")))
+    return "\n".join(short for line in lines for short in wrap_clauses(line, indent="  "))
 
 
 def _each_file(paths, say):
@@ -317,13 +323,26 @@ def _sweep(args):
 def _find_step(study, dataset, archive, args, progress):
     """The lines of the step search of ``study`` (`rbstudy.pipeline.step_search`), from its
     archive's ``dataset``, its probes kept beside the ``archive``."""
-    from rbstudy.analysis.searched import search_lines
-    from rbstudy.pipeline.step_search import SEARCH_TOLERANCE, search_path, search_steps
+    from rbstudy.pipeline.step_search import SEARCH_TOLERANCE, search_steps
+    from rbstudy.pipeline.store import search_path
 
     folder = pathlib.Path(archive).parent
     tolerance = SEARCH_TOLERANCE if args.step_tolerance is None else args.step_tolerance
     search = search_steps(study, dataset, folder, tolerance, args.force, progress)
-    return search_lines(search, dataset, search_path(folder))
+    path = search_path(archive)
+    probes = f"{counted(search.probes.sizes['probe'], 'probe')} ({search.reused} reused); wrote {path}"
+    return [*_searched(path, dataset), probes]
+
+
+def _searched(path, dataset, said_where=False):
+    """The lines that tell the step search kept at ``path`` for ``dataset``'s archive (none
+    where there is none), and where it is kept when ``said_where``."""
+    from rbstudy.analysis.searched import read_search, search_lines
+
+    search = read_search(path, dataset)
+    if search is None or isinstance(search, str):
+        return [] if search is None else [search]
+    return search_lines(search, dataset) + [f"(the step search kept in {path})"] * said_where
 
 
 def _summary_text(dataset, wide=False, table_only=False):
@@ -352,6 +371,7 @@ def _summary(args):
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress, live_wanted
+    from rbstudy.pipeline.store import search_path
 
     # its phases on a terminal only: elsewhere its stderr holds nothing but errors, for the
     # scripts that read its JSON or CSV
@@ -381,17 +401,23 @@ def _summary(args):
             text = table.getvalue().removesuffix("\n")
         else:
 
-            def render(dataset):
-                return (
+            def render(path, dataset):
+                text = (
                     markdown_summary(dataset)
                     if args.format == "md"
                     else _summary_text(dataset, wide=args.wide, table_only=args.quiet)
                 )
+                searched = [] if args.quiet else _searched(search_path(path), dataset, said_where=True)
+                if not searched:
+                    return text
+                if args.format == "md":
+                    return "\n\n".join([text, "\n".join(f"- {line}" for line in searched)])
+                return "\n\n".join([text, _wrapped(searched)])
 
             text = "\n\n".join(
-                render(dataset)
+                render(path, dataset)
                 if len(datasets) == 1 or args.format == "md"
-                else f"== {path}\n{render(dataset)}"
+                else f"== {path}\n{render(path, dataset)}"
                 for path, dataset in zip(args.files, datasets, strict=True)
             )
     print(text)  # once the phases are erased
@@ -611,6 +637,7 @@ def _report(args):
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
+    from rbstudy.pipeline.store import search_path
 
     opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) == 1:  # -o names the report folder itself, as cp's target names a copy
@@ -633,6 +660,7 @@ def _report(args):
                 progress=progress,
                 styles=_styles_of(dataset),
                 drawn=[pathlib.Path(path).parent / "figures"],  # `rbstudy plot`'s, to copy
+                searched=_searched(search_path(path), dataset),
             )
         print(f"{path}: report in {report}")
     return 0

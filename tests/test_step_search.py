@@ -3,10 +3,12 @@ bound, per scheme and value of the other axes, checked by independent sweeps at 
 and at 1.1 times it."""
 
 import contextlib
+import html
 import io
 import math
 import re
 
+import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
@@ -133,6 +135,17 @@ def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_
         error, accurate = _independent(tmp_path, "answer", best, 2.0, ratios)
         assert accurate and error <= BOUND
 
+    # summary and report tell the same search from the file beside the archive
+    archive = str(out / "abaqus_top" / "abaqus_top.nc")
+    told = re.split(r"\n\d+ probes \(", searched)[0].splitlines()  # without the sweep's own line
+    code, summary = _sweep_printing(["summary", archive])
+    assert code == 0 and "\n".join(told) in summary
+    report = tmp_path / "report"
+    assert _sweep_printing(["report", archive, "--out", str(report), "--quiet"])[0] == 0
+    page = html.unescape(" ".join((report / "report.html").read_text().split()))
+    answer = " ".join(" ".join(told).split()).split(" largest steps found")[0]
+    assert answer in page
+
     code, again = _sweep_printing(args)
     assert code == 0
     probes = found.sizes["probe"]
@@ -148,3 +161,25 @@ def test_a_step_tolerance_outside_0_and_1_is_refused_in_one_line(capsys):
     assert stop.value.code == 2
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--step-tolerance" in error and "between 0 and 1" in error
+
+
+@pytest.mark.slow
+def test_a_step_search_of_another_version_of_the_study_is_not_told_as_this_ones(tmp_path):
+    """summary reads the search beside the archive only where it is of the same study (the
+    archive's batches); another's is named, with the fix, not told as this one's."""
+    out = tmp_path / "results"
+    config = CONFIGS / "abaqus_top.yaml"
+    shrink = ["--set", "sweep.inertia_ratio=[0.5]", "--set", "sweep.dt={halving: 0.01, count: 2}"]
+    assert (
+        _sweep_printing(["sweep", str(config), "--out", str(out), "--find-step", "--quiet", *shrink])[0] == 0
+    )
+    archive = out / "abaqus_top" / "abaqus_top.nc"
+    code, told = _sweep_printing(["summary", str(archive)])
+    assert code == 0 and "largest step meeting the bound" in told
+    with netCDF4.Dataset(out / "abaqus_top" / "search" / "steps.nc", "a") as kept:
+        kept.setncattr("batches", "another")
+    code, told = _sweep_printing(["summary", str(archive)])
+    assert code == 0 and "largest step meeting the bound" not in told
+    told = " ".join(told.split())  # unwrapped
+    assert "steps.nc: a step search of another version of this study; sweep --find-step again" in told
+    assert "kept in" not in told

@@ -331,13 +331,14 @@ def _table_intro(ds):
     )
 
 
-def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None, drawn=()):
+def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None, drawn=(), searched=()):
     """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
     ``out/figures/`` in ``processes`` processes, its schemes in their registered ``styles``
     (`rbstudy.analysis.plots.all_figures`), with SVG files linked when ``svg``; shown by
     ``progress``, a `rbstudy.pipeline.progress.Progress`); returns its path. The figures
     recorded in the folders ``drawn`` (``rbstudy plot``'s) under the same digest are copied
-    from there rather than drawn."""
+    from there rather than drawn. ``searched``: the lines of its step search
+    (`rbstudy.analysis.searched.search_lines`), told after the findings."""
     out = pathlib.Path(out)
     # before the folder is claimed: the study names the figure files
     study = Reader(str(out)).folder_name(str(ds.attrs.get("study", "results")), "study")
@@ -378,6 +379,7 @@ def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None, 
         cases=int(ds["status"].size),
         dims=dims,
         findings=found,
+        searched=searched,
         table_intro=_table_intro(ds),
         # tabulate escapes the cells, format_table the footnotes
         table=markupsafe.Markup(format_table(rows, wide=True, fmt="html")),

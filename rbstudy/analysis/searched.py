@@ -1,19 +1,76 @@
 """The words of a step search (``rbstudy sweep --find-step``, `rbstudy.pipeline.step_search`):
 the largest step that meets the accuracy bound, beside the grid's best.
 
-The search hands its answers as arrays (a `rbstudy.pipeline.step_search.Search`); the words
-are told here, in the analysis layer, which never loads the kernels. Costs are those the
-findings rank the grid by (steps times the calibrated seconds a step, mean over the other
-axes' values), and costs within their calibration's uncertainty are one answer.
+The search keeps its answers in ``search/steps.nc`` beside the archive
+(`rbstudy.pipeline.store.SEARCH_FILE`); `read_search` reads them back for the sweep that
+ran it and for ``summary`` and ``report``, here in the analysis layer, which never loads the
+kernels. Costs are those the findings rank the grid by (steps times the calibrated seconds a
+step, mean over the other axes' values), and costs within their calibration's uncertainty
+are one answer.
 """
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+import xarray as xr
 
 from rbstudy.analysis.findings import study_wide
+from rbstudy.pipeline.integrity import HDF5_LOCK
 
-__all__ = ["search_lines"]
+__all__ = ["SearchRecord", "read_search", "search_lines"]
+
+
+@dataclass(frozen=True)
+class SearchRecord:
+    """A step search as its file keeps it, per group (g,) (a scheme at one value of the
+    other axes): ``scheme``, ``found_dt`` (s; NaN: not searched) and ``failing_dt`` (s; NaN:
+    none up to the duration); ``axes`` the other swept axes' names; ``common`` scheme ->
+    (dt s, mean seconds a case, relative uncertainty) of its step met at every value;
+    ``tolerance``; ``probes``, how many it ran."""
+
+    scheme: np.ndarray
+    found_dt: np.ndarray
+    failing_dt: np.ndarray
+    axes: tuple
+    common: dict
+    tolerance: float
+    probes: int
+
+
+def read_search(path, ds):
+    """The `SearchRecord` kept at ``path`` for the archive ``ds``; None where there is none,
+    or a line saying why it is not this archive's (another version of its study)."""
+    try:
+        with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+            kept = xr.load_dataset(path)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as error:
+        return f"{path}: not readable as a step search ({error}); sweep --find-step again"
+    if "found_dt" not in kept or kept.attrs.get("batches") != ds.attrs.get("batches"):
+        return f"{path}: a step search of another version of this study; sweep --find-step again"
+    names = [str(name) for name in kept["study_scheme"].values] if "study_scheme" in kept else []
+    return SearchRecord(
+        scheme=np.array([str(name) for name in kept["group_scheme"].values], dtype=object),
+        found_dt=kept["found_dt"].values,
+        failing_dt=kept["failing_dt"].values,
+        axes=tuple(kept.attrs.get("other_axes", "").split()),
+        common={
+            name: (float(dt), float(seconds), float(spread))
+            for name, dt, seconds, spread in zip(
+                names,
+                kept["study_dt"].values,
+                kept["study_seconds"].values,
+                kept["study_uncertainty"].values,
+                strict=True,
+            )
+        }
+        if names
+        else {},
+        tolerance=float(kept.attrs["tolerance"]),
+        probes=int(kept.sizes.get("probe", 0)),
+    )
 
 
 def _g(value, digits=3):
@@ -22,8 +79,7 @@ def _g(value, digits=3):
 
 def _axes_text(search):
     """``every inertia_ratio`` (the other swept axes), or empty with none."""
-    names = sorted({name for labels in search.labels for name in labels})
-    return f"every {', '.join(names)}" if names else ""
+    return f"every {', '.join(search.axes)}" if search.axes else ""
 
 
 def _cheapest(common):
@@ -94,9 +150,8 @@ def _bracket_note(found, failing, tolerance):
     return f"next larger step +{widest:.0%}" if widest > tolerance * (1 + 1e-9) else ""
 
 
-def search_lines(search, ds, path):
-    """The lines a sweep prints of a finished ``search`` of the study of archive ``ds``,
-    whose probes it wrote to ``path``."""
+def search_lines(search, ds):
+    """The lines that tell a `SearchRecord` ``search`` of the study of archive ``ds``."""
     bound = ds.attrs.get("accuracy_bound")
     axes = _axes_text(search)
     lines = [_answer_line(search, ds, bound, axes)]
@@ -107,6 +162,4 @@ def search_lines(search, ds, path):
         lines.append(head + ", ".join(texts))
     if nowhere:
         lines.append(f"not searched (no swept step meets the bound): {', '.join(nowhere)}")
-    probes = search.probes.sizes.get("probe", 0)
-    lines.append(f"{probes} probes ({search.reused} reused); wrote {path}")
     return lines

@@ -22,7 +22,9 @@ the bound, with a larger step within the tolerance that does not; a larger step 
 meet it again (an error that wraps round). The study-wide answer, the least found step of a
 scheme over the other axes' values, is run at every value before it is named.
 
-The probes are kept in ``<study folder>/search/steps.nc`` (dimension ``probe``), rewritten
+The probes are kept in ``<study folder>/search/steps.nc`` (dimension ``probe``,
+`rbstudy.pipeline.store.SEARCH_FILE`) with each group's answer and each scheme's study-wide
+one, which `rbstudy.analysis.searched` tells in words, rewritten
 after every batch of probes: a rerun of the same study, tolerance and code reuses them, so
 an interrupted search resumes where it stopped.
 """
@@ -41,25 +43,18 @@ from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references, study_lock
 from rbstudy.pipeline.integrity import HDF5_LOCK
 from rbstudy.pipeline.outputs import ACCURATE
-from rbstudy.pipeline.store import utc_now, write_dataset_atomic
+from rbstudy.pipeline.store import search_path, utc_now, write_dataset_atomic
 from rbstudy.schemes import get_scheme
 
-__all__ = ["SEARCH_TOLERANCE", "SEARCH_FILE", "Search", "search_steps", "search_path"]
+__all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]
 
 # Default relative width of the final bracket: the answer and a step at most 5% larger that
 # fails, so that 1.1 times the answer fails too where the error grows with the step.
 SEARCH_TOLERANCE = 0.05
-# Where a study's probes are kept, in its folder.
-SEARCH_FILE = pathlib.Path("search") / "steps.nc"
 # What a probe's run gives: the archive's names for the case's verdict and cost.
 _PROBE_VARIABLES = ("status", "accuracy", "n_steps", "step_seconds")
 # What the probes file keeps of each probe, along ``probe``.
 _PROBE_COLUMNS = ("case", "steps", "scheme", "dt", "output_interval", *_PROBE_VARIABLES)
-
-
-def search_path(folder):
-    """The probes file of the study folder ``folder``."""
-    return pathlib.Path(folder) / SEARCH_FILE
 
 
 @dataclass(frozen=True)
@@ -206,6 +201,7 @@ class _Probes:
                 "study": self.study.name,
                 "accuracy_bound": self.study.accuracy_bound,
                 "search_identity": self.identity,
+                "batches": batches_digest(self.study.batches),  # as the archive's: the same study
                 "history": f"{utc_now()} rbstudy sweep --find-step",
             }
         )
@@ -224,7 +220,25 @@ class _Probes:
             )
             for name, (units, long_name) in _GROUP_ATTRS.items():
                 written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
+            names = sorted(search.common)
+            written = written.assign(
+                study_scheme=("scheme_searched", np.array(names, dtype=object)),
+                study_dt=("scheme_searched", np.array([search.common[n][0] for n in names], dtype=float)),
+                study_seconds=(
+                    "scheme_searched",
+                    np.array([search.common[n][1] for n in names], dtype=float),
+                ),
+                study_uncertainty=(
+                    "scheme_searched",
+                    np.array([search.common[n][2] for n in names], dtype=float),
+                ),
+            )
+            for name, (units, long_name) in _STUDY_ATTRS.items():
+                written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
             written.attrs["tolerance"] = search.tolerance
+            written.attrs["other_axes"] = " ".join(
+                sorted({name for labels in search.labels for name in labels})
+            )
         self.path.parent.mkdir(exist_ok=True)
         write_dataset_atomic(written, self.path)
 
@@ -279,7 +293,9 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    probes = _Probes(study, search_path(folder), _identity(study, tolerance), force)
+    probes = _Probes(
+        study, search_path(pathlib.Path(folder) / f"{study.name}.nc"), _identity(study, tolerance), force
+    )
     with study_lock(pathlib.Path(folder)):
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
@@ -385,4 +401,10 @@ _GROUP_ATTRS = {
     "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
     "found_dt": ("s", "largest step found to meet the accuracy bound"),
     "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
+}
+_STUDY_ATTRS = {
+    "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
+    "study_dt": ("s", "its least found step, met at every value of the other axes"),
+    "study_seconds": ("s", "mean calibrated kernel seconds a case at that step"),
+    "study_uncertainty": ("1", "relative uncertainty of those seconds (the calibration's)"),
 }

@@ -70,6 +70,8 @@ from rbstudy.pipeline.variables import (
 
 __all__ = [
     "HDF5_LOCK",
+    "SEARCH_FILE",
+    "search_path",
     "Layout",
     "read_part",
     "write_text_atomic",
@@ -125,6 +127,9 @@ CHUNK_BYTES = 2**18
 # SHA-256) whose study the folder holds: another config of the same name would replace its
 # archive and parts.
 OWNER = ".rbstudy-study"
+# Where `sweep --find-step` keeps its probes, in the study folder, beside the archive
+# (`rbstudy.pipeline.step_search`): the readers of the archive find it there.
+SEARCH_FILE = pathlib.Path("search") / "steps.nc"
 # The global attribute of the archive and of each part that names the config of its study,
 # as `OWNER` does (its two lines): the results identify their study without the record.
 IDENTITY = "config_identity"
@@ -444,6 +449,11 @@ def unwritable(folder, error, label=""):
     return UnwritableFolder(
         f"{label}{folder}: cannot write results there ({reason}); choose another folder with --out"
     )
+
+
+def search_path(archive):
+    """The step search's file beside the archive at ``archive`` (`SEARCH_FILE`)."""
+    return pathlib.Path(archive).parent / SEARCH_FILE
 
 
 def check_output_folder(folder, label="--out "):
