@@ -217,6 +217,7 @@ class _Probes:
                 grid_dt=("group", search.grid_dt),
                 found_dt=("group", search.found_dt),
                 failing_dt=("group", search.failing_dt),
+                found_seconds=("group", search.found_seconds),
             )
             for name, (units, long_name) in _GROUP_ATTRS.items():
                 written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
@@ -401,6 +402,7 @@ _GROUP_ATTRS = {
     "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
     "found_dt": ("s", "largest step found to meet the accuracy bound"),
     "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
+    "found_seconds": ("s", "calibrated kernel seconds of the group's case at its found step"),
 }
 _STUDY_ATTRS = {
     "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
