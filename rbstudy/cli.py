@@ -345,6 +345,20 @@ def _searched(path, dataset, said_where=False):
     return search_lines(search, dataset) + [f"(the step search kept in {path})"] * said_where
 
 
+def _with_search(document, path, dataset):
+    """``document`` (`summary_document`) with the step search kept at ``path`` for
+    ``dataset``'s archive as its ``step_search`` (`search_document`; ``{"refused": why}``
+    where it is another study's), where there is one."""
+    from rbstudy.analysis.searched import read_search, search_document
+
+    search = read_search(path, dataset)
+    if search is None:
+        return document
+    return document | {
+        "step_search": {"refused": search} if isinstance(search, str) else search_document(search, dataset)
+    }
+
+
 def _summary_text(dataset, wide=False, table_only=False):
     """The findings (unless ``table_only``), then the per-scheme table (every column when
     ``wide``)."""
@@ -390,7 +404,10 @@ def _summary(args):
         return_free_memory()  # the reading's transients, before the findings
         progress.phase("summary: computing the findings")
         if args.format == "json":  # checked before anything is printed
-            documents = [summary_document(dataset) for dataset in datasets]
+            documents = [
+                _with_search(summary_document(dataset), search_path(path), dataset)
+                for path, dataset in zip(args.files, datasets, strict=True)
+            ]
             text = json.dumps(documents[0] if len(documents) == 1 else documents, indent=1, allow_nan=False)
         elif args.format == "csv":
             rows = [row for dataset in datasets for row in csv_rows(dataset)]

@@ -5,6 +5,7 @@ and at 1.1 times it."""
 import contextlib
 import html
 import io
+import json
 import math
 import re
 
@@ -140,6 +141,13 @@ def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_
     told = re.split(r"\n\d+ probes \(", searched)[0].splitlines()  # without the sweep's own line
     code, summary = _sweep_printing(["summary", archive])
     assert code == 0 and "\n".join(told) in summary
+    code, document = _sweep_printing(["summary", archive, "--format", "json"])
+    search = json.loads(document)["step_search"]
+    assert code == 0 and " ".join(search["lines"]).split() == " ".join(told).split()
+    cheapest = search["every_value"][0]
+    assert cheapest["scheme"] == best and cheapest["seconds_per_case"] == pytest.approx(
+        seconds[best], rel=0.05
+    )
     report = tmp_path / "report"
     assert _sweep_printing(["report", archive, "--out", str(report), "--quiet"])[0] == 0
     page = html.unescape(" ".join((report / "report.html").read_text().split()))

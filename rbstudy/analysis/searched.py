@@ -18,7 +18,7 @@ import xarray as xr
 from rbstudy.analysis.findings import study_wide
 from rbstudy.pipeline.integrity import HDF5_LOCK
 
-__all__ = ["SearchRecord", "read_search", "search_lines"]
+__all__ = ["SearchRecord", "read_search", "search_lines", "search_document"]
 
 
 @dataclass(frozen=True)
@@ -163,3 +163,29 @@ def search_lines(search, ds):
     if nowhere:
         lines.append(f"not searched (no swept step meets the bound): {', '.join(nowhere)}")
     return lines
+
+
+def search_document(search, ds):
+    """The JSON form of a `SearchRecord` (``summary --format json``'s ``step_search``):
+    the tolerance, each scheme's step met at every value of the other axes with its cost
+    (cheapest first), each scheme's least and most found step over those values, and the
+    lines `search_lines` tells."""
+    names = sorted(search.common, key=lambda name: (search.common[name][1], name))
+    found = {}
+    for name in sorted(set(search.scheme)):
+        steps = search.found_dt[search.scheme == name]
+        steps = steps[np.isfinite(steps)]
+        found[name] = {
+            "least_dt_s": float(steps.min()) if steps.size else None,
+            "most_dt_s": float(steps.max()) if steps.size else None,
+        }
+    return {
+        "tolerance": search.tolerance,
+        "probes": search.probes,
+        "every_value": [
+            {"scheme": name, "dt_s": search.common[name][0], "seconds_per_case": search.common[name][1]}
+            for name in names
+        ],
+        "found": found,
+        "lines": search_lines(search, ds),
+    }
