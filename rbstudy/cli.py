@@ -225,6 +225,8 @@ def _sweep(args):
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     if not args.worker_wait > 0:
         raise RbstudyError(f"--worker-wait: need a number of seconds above 0, got {args.worker_wait}")
+    if args.step_tolerance is not None and not args.find_step:
+        raise RbstudyError("--step-tolerance is the step search's: add --find-step, or drop it")
     cluster = None
     if args.cluster:
         from rbstudy.pipeline.cluster import read_cluster_file

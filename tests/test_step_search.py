@@ -6,15 +6,17 @@ import contextlib
 import io
 import math
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import CONFIGS
+from conftest import CONFIGS, abaqus_mapping, write_study
 
+from rbstudy.analysis.searched import _scheme_texts
 from rbstudy.cli import main
-from rbstudy.pipeline.step_search import _next_steps
+from rbstudy.pipeline.step_search import _next_steps, _Probes
 
 BOUND = 0.01  # the default study's accuracy bound (rad)
 
@@ -148,3 +150,74 @@ def test_a_step_tolerance_outside_0_and_1_is_refused_in_one_line(capsys):
     assert stop.value.code == 2
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--step-tolerance" in error and "between 0 and 1" in error
+
+
+def test_step_tolerance_without_find_step_is_refused_before_the_sweep_runs(tmp_path, capsys):
+    """--step-tolerance alone would be ignored: the sweep refuses it in one line, unrun."""
+    config = write_study(tmp_path)
+    code = main(["sweep", str(config), "--out", str(tmp_path / "out"), "--step-tolerance", "0.1", "-q"])
+    assert code == 1
+    assert "--find-step" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "out" / "study").exists()
+
+
+@pytest.mark.parametrize("damage", ["garbage", "empty", "truncated", "no probe columns"])
+def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
+    """A probes file that does not read back (or lacks its columns) keeps no probe: they are
+    run again and the file rewritten, where reading it stopped the sweep with a traceback."""
+    path = tmp_path / "steps.nc"
+    written = xr.Dataset({"case": ("probe", [0, 1]), "steps": ("probe", [4, 8])})
+    written.attrs["search_identity"] = "this search"
+    written.to_netcdf(path)
+    if damage == "garbage":
+        path.write_bytes(np.random.default_rng(1).bytes(5000))
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "truncated":
+        path.write_bytes(path.read_bytes()[:3000])
+    assert _Probes(None, path, "this search", force=False).rows == {}
+
+
+def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():
+    """A scheme with an accurate swept step at one value of the other axes only: its found
+    step is not said to hold at every value (one finite group of two is not every one)."""
+    search = SimpleNamespace(
+        scheme=np.array(["leapfrog", "leapfrog"], dtype=object),
+        found_dt=np.array([math.nan, 0.0714]),
+        failing_dt=np.array([math.nan, 0.0833]),
+        common={},
+        adaptive=(),
+        tolerance=0.05,
+    )
+    texts, nowhere = _scheme_texts(search)
+    assert texts == ["leapfrog 0.0714 (next larger step +17%, not at every value)"] and not nowhere
+
+
+@pytest.mark.slow
+def test_find_step_names_adaptive_schemes_as_such_and_reruns_past_a_damaged_file(tmp_path):
+    """dop853 meets the bound on the grid but chooses its own steps: it is named as not
+    searched for that, not for "no swept step meets the bound"; a tolerance of 0.1% is
+    printed as such (not "0%"); a garbage probes file is run again, with the same answer."""
+    config = write_study(
+        tmp_path,
+        sweep={"scheme": ["rk4", "dop853"], "dt": [0.01, 0.005]},
+        scene={**abaqus_mapping(), "duration": 0.5},
+    )
+    out = tmp_path / "out"
+    args = ["sweep", str(config), "--out", str(out), "--find-step", "--step-tolerance", "0.001", "-q"]
+    code, printed = _sweep_printing(args)
+    assert code == 0
+    grid = xr.load_dataset(out / "study" / "study.nc")
+    assert (grid["accuracy"].sel(scheme="dop853") == 0).all()  # it meets the bound on the grid
+    searched = " ".join(printed[printed.index("largest step meeting") :].split())
+    assert "not searched (adaptive: each chooses its own steps): dop853" in searched
+    assert "no swept step meets" not in searched
+    assert "searched to 0.1%" in searched and "0.1% larger fails" in searched
+    path = out / "study" / "search" / "steps.nc"
+    probes = xr.load_dataset(path).sizes["probe"]
+    path.write_bytes(np.random.default_rng(2).bytes(5000))
+    code, again = _sweep_printing(args)
+    assert code == 0
+    rerun = " ".join(again[again.index("largest step meeting") :].split())
+    assert rerun == searched
+    assert f"{probes} probes (0 reused)" in rerun and xr.load_dataset(path).sizes["probe"] == probes

@@ -73,7 +73,8 @@ class Search:
     ``labels`` the other axes' values of each group (coordinate -> value); ``common``
     scheme -> (dt, mean seconds a case, their relative uncertainty) of its least found
     step, met at every value of the other axes (a scheme is missing where it was not);
-    ``probes`` the probes run or reused,
+    ``adaptive`` the names of the study's adaptive schemes (not searched); ``probes`` the
+    probes run or reused,
     a dataset along ``probe``; ``reused`` how many were reused; ``tolerance`` the relative
     width of the final brackets."""
 
@@ -85,6 +86,7 @@ class Search:
     found_seconds: np.ndarray
     labels: list
     common: dict
+    adaptive: tuple
     probes: xr.Dataset
     reused: int
     tolerance: float
@@ -128,13 +130,7 @@ class _Probes:
         self.study, self.path, self.identity = study, path, identity
         self.rows, self.reused = {}, 0
         if path.is_file() and not force:
-            with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
-                kept = xr.load_dataset(path)
-            if kept.attrs.get("search_identity") == identity:
-                columns = {name: kept[name].values for name in _PROBE_COLUMNS}
-                for k in range(kept.sizes["probe"]):
-                    row = {name: values[k].item() for name, values in columns.items()}
-                    self.rows[(row["case"], row["steps"])] = row
+            self.rows = _kept_rows(path, identity)
         self.kept = set(self.rows)
 
     def verdicts(self, wanted, progress):
@@ -229,6 +225,24 @@ class _Probes:
         write_dataset_atomic(written, self.path)
 
 
+def _kept_rows(path, identity):
+    """The probes kept in the file ``path`` by a search of ``identity``, keyed by (case,
+    steps); none from a file of another search, or one that is damaged (truncated, emptied,
+    overwritten: run again, and the file rewritten)."""
+    try:
+        with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+            kept = xr.load_dataset(path)
+        if kept.attrs.get("search_identity") != identity:
+            return {}
+        columns = {name: kept[name].values for name in _PROBE_COLUMNS}
+        rows = [
+            {name: values[k].item() for name, values in columns.items()} for k in range(kept.sizes["probe"])
+        ]
+    except (OSError, ValueError, KeyError, IndexError, RuntimeError):
+        return {}
+    return {(row["case"], row["steps"]): row for row in rows}
+
+
 def _divides(study, steps):
     """Whether a step of ``steps`` over the duration divides the output interval."""
     return steps % (output_count(study.duration, study.output_interval) - 1) == 0
@@ -265,9 +279,8 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
     accurate, cases, dts, group_dims = _grid(study, dataset)
     runs = study.cases.runs
     schemes = np.array([runs[study.cases.run_rows[row[0]]].scheme for row in cases], dtype=object)
-    searched = accurate.any(axis=1) & np.array(
-        [not get_scheme(name).adaptive for name in schemes], dtype=bool
-    )
+    adaptive = tuple(sorted(name for name in set(schemes) if get_scheme(name).adaptive))
+    searched = accurate.any(axis=1) & ~np.isin(schemes, adaptive)
     lo, hi, grid_dt = np.zeros(len(cases), int), np.zeros(len(cases), int), np.full(len(cases), math.nan)
     for g in np.flatnonzero(searched):
         best = np.flatnonzero(accurate[g]).max()
@@ -279,8 +292,8 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    probes = _Probes(study, search_path(folder), _identity(study, tolerance), force)
     with study_lock(pathlib.Path(folder)):
+        probes = _Probes(study, search_path(folder), _identity(study, tolerance), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
@@ -307,6 +320,7 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         common={
             name: _common_cost(study, cases, steps, members) for name, (steps, members) in common.items()
         },
+        adaptive=adaptive,
         probes=probes.dataset(),
         reused=probes.reused,
         tolerance=tolerance,
