@@ -231,6 +231,8 @@ def _sweep(args):
         raise RbstudyError(f"--workers: need at least 1, got {args.workers}")
     if not args.worker_wait > 0:
         raise RbstudyError(f"--worker-wait: need a number of seconds above 0, got {args.worker_wait}")
+    if args.step_tolerance is not None and not args.find_step:
+        raise RbstudyError("--step-tolerance is the step search's: add --find-step, or drop it")
     cluster = None
     if args.cluster:
         from rbstudy.pipeline.cluster import read_cluster_file
@@ -287,7 +289,12 @@ def _sweep(args):
             dataset = open_archive(done.path, FINDINGS_VARIABLES, verify=False, reduced=FINDINGS_REDUCED)
             return_free_memory()  # what the run and the reading left, before the findings
             summary = _summary_text(dataset, wide=args.wide)
-            searched = _find_step(study, dataset, done.path, args, progress) if args.find_step else []
+            searched, refused = [], None
+            if args.find_step:
+                try:
+                    searched = _find_step(study, dataset, done.path, args, progress)
+                except RbstudyError as error:  # a read-only folder: the findings still told
+                    refused = error
         if done.archive_problems:
             _say(f"{study.name}: the archive was damaged ({done.archive_problems[0]}); rebuilt it")
         if done.damaged_parts:
@@ -314,6 +321,8 @@ def _sweep(args):
                 "workers sent back (they do not see the results folder)"
             )
         print(summary)
+        if refused is not None:
+            raise refused
         if searched:
             print()
             _say("\n".join(searched))

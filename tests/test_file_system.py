@@ -9,6 +9,7 @@ that need them are skipped with the reason. Every mount and attribute is undone.
 import contextlib
 import os
 import shutil
+import signal
 import subprocess
 
 import h5py
@@ -21,7 +22,7 @@ from rbstudy.pipeline import execute
 from rbstudy.pipeline.chunks import ChunkedArchive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
+from rbstudy.pipeline.store import open_results, write_dataset_atomic
 
 TIMINGS = ["run_time"]  # differ between runs; nothing else may
 PAGE = 4096  # tmpfs counts whole pages: a sidecar of 100 bytes takes one
@@ -300,3 +301,23 @@ def test_an_hdf5_error_on_a_full_disk_while_the_chunks_are_written_is_one_line(t
         "space and rerun the same command (a sweep keeps its finished parts and resumes)"
     )
     assert closes and truncated and not list(folder.glob(".*.tmp")) and not (folder / "small.nc").exists()
+
+
+def test_a_ctrl_c_during_a_dataset_write_waits_for_the_file(tmp_path, monkeypatch):
+    """A Ctrl-C while xarray writes a dataset (the step search's probes, after every batch)
+    is raised once the file is in place: xarray, interrupted holding its netCDF lock, waited
+    for that lock forever as it closed the file (a sweep --find-step hung so)."""
+    write = xr.Dataset.to_netcdf
+
+    def interrupted(dataset, *args, **kwargs):
+        signal.raise_signal(signal.SIGINT)  # the user's Ctrl-C, mid-write
+        return write(dataset, *args, **kwargs)
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", interrupted)
+    written = xr.Dataset({"steps": ("probe", [4, 8, 16])})
+    path = tmp_path / "steps.nc"
+    with pytest.raises(KeyboardInterrupt):
+        write_dataset_atomic(written, path)
+    assert xr.load_dataset(path)["steps"].values.tolist() == [4, 8, 16]
+    assert [p.name for p in tmp_path.iterdir()] == ["steps.nc"]  # no temporary left
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -8,16 +8,18 @@ import io
 import json
 import math
 import re
+from types import SimpleNamespace
 
 import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import CONFIGS
+from conftest import CONFIGS, abaqus_mapping, write_study
 
+from rbstudy.analysis.searched import _scheme_texts
 from rbstudy.cli import main
-from rbstudy.pipeline.step_search import _next_steps
+from rbstudy.pipeline.step_search import _next_steps, _Probes
 
 BOUND = 0.01  # the default study's accuracy bound (rad)
 
@@ -191,3 +193,101 @@ def test_a_step_search_of_another_version_of_the_study_is_not_told_as_this_ones(
     told = " ".join(told.split())  # unwrapped
     assert "steps.nc: a step search of another version of this study; sweep --find-step again" in told
     assert "kept in" not in told
+
+
+def test_step_tolerance_without_find_step_is_refused_before_the_sweep_runs(tmp_path, capsys):
+    """--step-tolerance alone would be ignored: the sweep refuses it in one line, unrun."""
+    config = write_study(tmp_path)
+    code = main(["sweep", str(config), "--out", str(tmp_path / "out"), "--step-tolerance", "0.1", "-q"])
+    assert code == 1
+    assert "--find-step" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "out" / "study").exists()
+
+
+@pytest.mark.parametrize("damage", ["garbage", "empty", "truncated", "no probe columns"])
+def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
+    """A probes file that does not read back (or lacks its columns) keeps no probe: they are
+    run again and the file rewritten, where reading it stopped the sweep with a traceback."""
+    path = tmp_path / "steps.nc"
+    written = xr.Dataset({"case": ("probe", [0, 1]), "steps": ("probe", [4, 8])})
+    written.attrs["search_identity"] = "this search"
+    written.to_netcdf(path)
+    if damage == "garbage":
+        path.write_bytes(np.random.default_rng(1).bytes(5000))
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "truncated":
+        path.write_bytes(path.read_bytes()[:3000])
+    assert _Probes(None, path, "this search", force=False).rows == {}
+
+
+def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():
+    """A scheme with an accurate swept step at one value of the other axes only: its found
+    step is not said to hold at every value (one finite group of two is not every one)."""
+    search = SimpleNamespace(
+        scheme=np.array(["leapfrog", "leapfrog"], dtype=object),
+        found_dt=np.array([math.nan, 0.0714]),
+        failing_dt=np.array([math.nan, 0.0833]),
+        common={},
+        adaptive=(),
+        tolerance=0.05,
+    )
+    texts, nowhere = _scheme_texts(search)
+    assert texts == ["leapfrog 0.0714 (next larger step +17%, not at every value)"] and not nowhere
+
+
+@pytest.mark.slow
+def test_find_step_names_adaptive_schemes_as_such_and_reruns_past_a_damaged_file(tmp_path):
+    """dop853 meets the bound on the grid but chooses its own steps: it is named as not
+    searched for that, not for "no swept step meets the bound"; a tolerance of 0.1% is
+    printed as such (not "0%"); a garbage probes file is run again, with the same answer."""
+    config = write_study(
+        tmp_path,
+        sweep={"scheme": ["rk4", "dop853"], "dt": [0.01, 0.005]},
+        scene={**abaqus_mapping(), "duration": 0.5},
+    )
+    out = tmp_path / "out"
+    args = ["sweep", str(config), "--out", str(out), "--find-step", "--step-tolerance", "0.001", "-q"]
+    code, printed = _sweep_printing(args)
+    assert code == 0
+    grid = xr.load_dataset(out / "study" / "study.nc")
+    assert (grid["accuracy"].sel(scheme="dop853") == 0).all()  # it meets the bound on the grid
+    searched = " ".join(printed[printed.index("largest step meeting") :].split())
+    assert "not searched (adaptive: each chooses its own steps): dop853" in searched
+    assert "no swept step meets" not in searched
+    assert "searched to 0.1%" in searched and "0.1% larger fails" in searched
+    path = out / "study" / "search" / "steps.nc"
+    probes = xr.load_dataset(path).sizes["probe"]
+    path.write_bytes(np.random.default_rng(2).bytes(5000))
+    code, again = _sweep_printing(args)
+    assert code == 0
+    rerun = " ".join(again[again.index("largest step meeting") :].split())
+    assert rerun == searched
+    assert f"{probes} probes (0 reused)" in rerun and xr.load_dataset(path).sizes["probe"] == probes
+
+
+@pytest.mark.slow
+def test_another_tolerance_reuses_the_probes_and_a_blocked_file_is_one_line_after_the_findings(
+    tmp_path, capsys
+):
+    """A probe's verdict does not depend on the tolerance: a search to another one reuses the
+    kept probes. A folder where the probes file goes refuses the search in one line, after
+    the findings, which the sweep still prints."""
+    config = write_study(tmp_path, sweep={"scheme": ["rk4", "euler"], "dt": [0.01, 0.005]})
+    out = tmp_path / "out"
+    args = ["sweep", str(config), "--out", str(out), "--find-step", "-q"]
+    code, first = _sweep_printing(args)
+    assert code == 0
+    probes = int(re.search(r"(\d+) probes \(0 reused\)", first).group(1))
+    code, wider = _sweep_printing([*args, "--step-tolerance", "0.2"])
+    reused = int(re.search(r"\d+ probes \((\d+) reused\)", wider).group(1))
+    assert code == 0 and 0 < reused <= probes, wider
+    path = out / "study" / "search" / "steps.nc"
+    path.unlink()
+    path.mkdir()
+    capsys.readouterr()
+    code, printed = _sweep_printing(args)
+    error = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and "recommended:" in printed
+    assert len(error) == 1 and "cannot write the step search there" in error[0], error
+    assert "remove what is in its place" in error[0]

@@ -27,7 +27,8 @@ class SearchRecord:
     other axes): ``scheme``, ``found_dt`` (s; NaN: not searched) and ``failing_dt`` (s; NaN:
     none up to the duration); ``axes`` the other swept axes' names; ``common`` scheme ->
     (dt s, mean seconds a case, relative uncertainty) of its step met at every value;
-    ``tolerance``; ``probes``, how many it ran."""
+    ``tolerance``; ``probes``, how many it ran; ``adaptive``, the schemes not searched
+    because they choose their own steps."""
 
     scheme: np.ndarray
     found_dt: np.ndarray
@@ -36,6 +37,7 @@ class SearchRecord:
     common: dict
     tolerance: float
     probes: int
+    adaptive: tuple = ()
 
 
 def read_search(path, ds):
@@ -70,11 +72,17 @@ def read_search(path, ds):
         else {},
         tolerance=float(kept.attrs["tolerance"]),
         probes=int(kept.sizes.get("probe", 0)),
+        adaptive=tuple(kept.attrs.get("adaptive_schemes", "").split()),
     )
 
 
 def _g(value, digits=3):
     return f"{value:.{digits}g}"
+
+
+def _share(tolerance):
+    """A share as a percentage to 3 figures: ``5%``, ``0.1%``, ``1e-07%`` (not ``0%``)."""
+    return f"{100 * tolerance:.3g}%"
 
 
 def _axes_text(search):
@@ -95,7 +103,7 @@ def _cheapest(common):
 
 def _answer_line(search, ds, bound, axes):
     """The study-wide answer: the cheapest scheme at its least found step."""
-    scope = f"searched to {search.tolerance:.0%}" + (f", {axes}" if axes else "")
+    scope = f"searched to {_share(search.tolerance)}" + (f", {axes}" if axes else "")
     if not search.common:
         return f"step search ({scope}): no scheme meets the bound {_g(bound)} at one step in every case"
     best, tied = _cheapest(search.common)
@@ -119,18 +127,19 @@ def _scheme_texts(search):
     """Each searched scheme's found steps, ``rk4 0.0833`` or ``euler 0.0004-0.0008`` (least
     to most over the other axes' values), cheapest at its least first, with what bounds them
     where a step within the tolerance above does not fail (`_bracket_note`); then the schemes
-    that met the bound nowhere on the grid."""
+    that met the bound nowhere on the grid (adaptive ones aside: they are not searched)."""
     texts, nowhere = [], []
     names = sorted(set(search.scheme), key=lambda n: (search.common.get(n, (0, math.inf))[1], n))
     for name in names:
         mine = search.scheme == name
         found = search.found_dt[mine]
         if not np.isfinite(found).any():
-            nowhere.append(name)
+            if name not in search.adaptive:
+                nowhere.append(name)
             continue
         least, most = float(np.nanmin(found)), float(np.nanmax(found))
         span = _g(least) if _g(least) == _g(most) else f"{_g(least)}-{_g(most)}"
-        everywhere = name in search.common or np.isfinite(found).sum() == 1
+        everywhere = name in search.common
         notes = [_bracket_note(found, search.failing_dt[mine], search.tolerance)]
         notes += [] if everywhere else ["not at every value"]
         notes = [note for note in notes if note]
@@ -158,10 +167,12 @@ def search_lines(search, ds):
     texts, nowhere = _scheme_texts(search)
     if texts:
         over = f", least-most over {axes.removeprefix('every ')}" if axes else ""
-        head = f"largest steps found (s{over}, {search.tolerance:.0%} larger fails): "
+        head = f"largest steps found (s{over}, {_share(search.tolerance)} larger fails): "
         lines.append(head + ", ".join(texts))
     if nowhere:
         lines.append(f"not searched (no swept step meets the bound): {', '.join(nowhere)}")
+    if search.adaptive:
+        lines.append(f"not searched (adaptive: each chooses its own steps): {', '.join(search.adaptive)}")
     return lines
 
 

@@ -29,6 +29,7 @@ after every batch of probes: a rerun of the same study, tolerance and code reuse
 an interrupted search resumes where it stopped.
 """
 
+import dataclasses
 import math
 import pathlib
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
+from rbstudy.errors import RbstudyError, one_line
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.time_grid import output_count, steps_per
 from rbstudy.pipeline.batches import batches_digest, canonical_id
@@ -68,7 +70,8 @@ class Search:
     ``labels`` the other axes' values of each group (coordinate -> value); ``common``
     scheme -> (dt, mean seconds a case, their relative uncertainty) of its least found
     step, met at every value of the other axes (a scheme is missing where it was not);
-    ``probes`` the probes run or reused,
+    ``adaptive`` the names of the study's adaptive schemes (not searched); ``probes`` the
+    probes run or reused,
     a dataset along ``probe``; ``reused`` how many were reused; ``tolerance`` the relative
     width of the final brackets."""
 
@@ -80,14 +83,16 @@ class Search:
     found_seconds: np.ndarray
     labels: list
     common: dict
+    adaptive: tuple
     probes: xr.Dataset
     reused: int
     tolerance: float
 
 
-def _identity(study, tolerance):
-    """What the probes depend on: the study's batches (config, grid, code), the tolerance."""
-    return canonical_id({"batches": batches_digest(study.batches), "tolerance": tolerance})
+def _identity(study):
+    """What a probe's verdict depends on: the study's batches (config, grid, code); not the
+    tolerance, which only says which probes to run."""
+    return canonical_id({"batches": batches_digest(study.batches)})
 
 
 def _grid(study, dataset):
@@ -123,13 +128,7 @@ class _Probes:
         self.study, self.path, self.identity = study, path, identity
         self.rows, self.reused = {}, 0
         if path.is_file() and not force:
-            with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
-                kept = xr.load_dataset(path)
-            if kept.attrs.get("search_identity") == identity:
-                columns = {name: kept[name].values for name in _PROBE_COLUMNS}
-                for k in range(kept.sizes["probe"]):
-                    row = {name: values[k].item() for name, values in columns.items()}
-                    self.rows[(row["case"], row["steps"])] = row
+            self.rows = _kept_rows(path, identity)
         self.kept = set(self.rows)
 
     def verdicts(self, wanted, progress):
@@ -237,11 +236,36 @@ class _Probes:
             for name, (units, long_name) in _STUDY_ATTRS.items():
                 written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
             written.attrs["tolerance"] = search.tolerance
+            written.attrs["adaptive_schemes"] = " ".join(search.adaptive)  # chose their own steps
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
-        self.path.parent.mkdir(exist_ok=True)
-        write_dataset_atomic(written, self.path)
+        try:
+            self.path.parent.mkdir(exist_ok=True)
+            write_dataset_atomic(written, self.path)
+        except OSError as error:  # a folder in its place, a file in its folder's
+            raise RbstudyError(
+                f"{self.path}: cannot write the step search there ({error.strerror or one_line(error)}); "
+                "remove what is in its place, or sweep into another --out"
+            ) from None
+
+
+def _kept_rows(path, identity):
+    """The probes kept in the file ``path`` by a search of ``identity``, keyed by (case,
+    steps); none from a file of another search, or one that is damaged (truncated, emptied,
+    overwritten: run again, and the file rewritten)."""
+    try:
+        with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+            kept = xr.load_dataset(path)
+        if kept.attrs.get("search_identity") != identity:
+            return {}
+        columns = {name: kept[name].values for name in _PROBE_COLUMNS}
+        rows = [
+            {name: values[k].item() for name, values in columns.items()} for k in range(kept.sizes["probe"])
+        ]
+    except (OSError, ValueError, KeyError, IndexError, RuntimeError):
+        return {}
+    return {(row["case"], row["steps"]): row for row in rows}
 
 
 def _divides(study, steps):
@@ -280,9 +304,8 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
     accurate, cases, dts, group_dims = _grid(study, dataset)
     runs = study.cases.runs
     schemes = np.array([runs[study.cases.run_rows[row[0]]].scheme for row in cases], dtype=object)
-    searched = accurate.any(axis=1) & np.array(
-        [not get_scheme(name).adaptive for name in schemes], dtype=bool
-    )
+    adaptive = tuple(sorted(name for name in set(schemes) if get_scheme(name).adaptive))
+    searched = accurate.any(axis=1) & ~np.isin(schemes, adaptive)
     lo, hi, grid_dt = np.zeros(len(cases), int), np.zeros(len(cases), int), np.full(len(cases), math.nan)
     for g in np.flatnonzero(searched):
         best = np.flatnonzero(accurate[g]).max()
@@ -294,10 +317,9 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    probes = _Probes(
-        study, search_path(pathlib.Path(folder) / f"{study.name}.nc"), _identity(study, tolerance), force
-    )
     with study_lock(pathlib.Path(folder)):
+        path = search_path(pathlib.Path(folder) / f"{study.name}.nc")
+        probes = _Probes(study, path, _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
@@ -310,10 +332,21 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
                 else:
                     hi[g] = steps
         common = _common_steps(study, schemes, cases, lo, searched, probes, progress)
+        result = _search(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common)
+        result = dataclasses.replace(
+            result, adaptive=adaptive, probes=probes.dataset(), reused=probes.reused, tolerance=tolerance
+        )
+        probes.write(result)  # under the lock, as every write of the folder
+    return result
+
+
+def _search(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common):
+    """The `Search` of the groups' final brackets (step counts ``lo`` met, ``hi`` failed,
+    0: none) and the schemes' ``common`` steps (`_common_steps`), its probes yet to add."""
     found = np.where(searched, study.duration / np.maximum(lo, 1), math.nan)
     failing = np.where(searched & (hi > 0), study.duration / np.maximum(hi, 1), math.nan)
     seconds = np.array([lo[g] * _step_seconds(study, cases[g, 0]) for g in range(len(cases))])
-    result = Search(
+    return Search(
         scheme=schemes,
         case=cases[:, 0],
         grid_dt=grid_dt,
@@ -324,12 +357,11 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         common={
             name: _common_cost(study, cases, steps, members) for name, (steps, members) in common.items()
         },
-        probes=probes.dataset(),
-        reused=probes.reused,
-        tolerance=tolerance,
+        adaptive=(),
+        probes=None,
+        reused=0,
+        tolerance=math.nan,
     )
-    probes.write(result)
-    return result
 
 
 def _common_steps(study, schemes, cases, lo, searched, probes, progress):

@@ -29,10 +29,12 @@ import pathlib
 import platform
 import shlex
 import shutil
+import signal
 import stat
 import subprocess
 import sys
 import tempfile
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
@@ -815,9 +817,28 @@ def write_text_atomic(text, path):
 
 def write_dataset_atomic(dataset, path):
     """Write an xarray ``dataset`` to the netCDF file ``path`` through a temporary beside it:
-    a reader never sees half a file (the conformance scorecard)."""
-    with _temporary_beside(path) as temporary, HDF5_LOCK:
+    a reader never sees half a file (the conformance scorecard, the step search's probes)."""
+    with _ctrl_c_held(), _temporary_beside(path) as temporary, HDF5_LOCK:
         dataset.to_netcdf(temporary)
+
+
+@contextmanager
+def _ctrl_c_held():
+    """Hold a Ctrl-C until the block ends, then raise it: xarray's ``to_netcdf``,
+    interrupted between taking its netCDF lock and releasing it, waits for that lock
+    forever as it closes the file (a sweep --find-step, interrupted, hung so). Only the
+    main thread receives Python's signals; elsewhere the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda number, frame: caught.append(number))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught and callable(previous):  # Python's own raises KeyboardInterrupt
+        previous(signal.SIGINT, None)
 
 
 def case_chunks(grid_shape, own_shape, itemsize):
