@@ -24,9 +24,9 @@ scheme over the other axes' values, is run at every value before it is named.
 
 The probes are kept in ``<study folder>/search/steps.nc`` (dimension ``probe``,
 `rbstudy.pipeline.store.SEARCH_FILE`) with each group's answer and each scheme's study-wide
-one, which `rbstudy.analysis.searched` tells in words, rewritten
-after every batch of probes: a rerun of the same study, tolerance and code reuses them, so
-an interrupted search resumes where it stopped.
+one, which `rbstudy.analysis.searched` tells in words, rewritten after every batch of
+probes: a rerun of the same study and code (to any tolerance) reuses them, so an
+interrupted search resumes where it stopped.
 """
 
 import dataclasses
