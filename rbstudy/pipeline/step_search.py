@@ -46,6 +46,7 @@ from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references
 from rbstudy.pipeline.integrity import HDF5_LOCK
 from rbstudy.pipeline.outputs import ACCURATE
 from rbstudy.pipeline.store import search_path, utc_now, write_dataset_atomic
+from rbstudy.pipeline.variables import cf_attrs
 from rbstudy.schemes import get_scheme
 
 __all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]
@@ -192,8 +193,6 @@ class _Probes:
         }
         columns["scheme"] = ("probe", np.array(columns["scheme"][1], dtype=object))
         probes = xr.Dataset(columns)
-        for name, (units, long_name) in _PROBE_ATTRS.items():
-            probes[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
         probes.attrs.update(
             {
                 "title": f"{self.study.title}: the step search's probes",
@@ -218,8 +217,6 @@ class _Probes:
                 failing_dt=("group", search.failing_dt),
                 found_seconds=("group", search.found_seconds),
             )
-            for name, (units, long_name) in _GROUP_ATTRS.items():
-                written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
             names = sorted(search.common)
             written = written.assign(
                 study_scheme=("scheme_searched", np.array(names, dtype=object)),
@@ -233,13 +230,13 @@ class _Probes:
                     np.array([search.common[n][2] for n in names], dtype=float),
                 ),
             )
-            for name, (units, long_name) in _STUDY_ATTRS.items():
-                written[name].attrs.update({"long_name": long_name} | ({"units": units} if units else {}))
             written.attrs["tolerance"] = search.tolerance
             written.attrs["adaptive_schemes"] = " ".join(search.adaptive)  # chose their own steps
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
+        for name in written.data_vars:  # the file's one table of what each variable means
+            written[name].attrs.update(cf_attrs(*_ATTRS[name]))
         try:
             self.path.parent.mkdir(exist_ok=True)
             write_dataset_atomic(written, self.path)
@@ -273,7 +270,8 @@ def _divides(study, steps):
     return steps % (output_count(study.duration, study.output_interval) - 1) == 0
 
 
-_PROBE_ATTRS = {
+# What each variable of the search's file means: (units, long_name), `cf_attrs`'s.
+_ATTRS = {
     "case": (None, "grid case whose scene and scheme options the probe runs (C order of the sweep)"),
     "steps": ("1", "time steps over the duration"),
     "scheme": (None, "integration scheme"),
@@ -283,6 +281,16 @@ _PROBE_ATTRS = {
     "accuracy": (None, "accuracy verdict: 0 accurate, 1 inaccurate, 2 failed, 3 unjudged"),
     "n_steps": ("1", "time steps the scheme took"),
     "step_seconds": ("s", "calibrated kernel seconds of a body-step"),
+    "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
+    "group_case": (None, "a grid case of the group: its scene and scheme options"),
+    "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
+    "found_dt": ("s", "largest step found to meet the accuracy bound"),
+    "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
+    "found_seconds": ("s", "calibrated kernel seconds of the group's case at its found step"),
+    "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
+    "study_dt": ("s", "its least found step, met at every value of the other axes"),
+    "study_seconds": ("s", "mean calibrated kernel seconds a case at that step"),
+    "study_uncertainty": ("1", "relative uncertainty of those seconds (the calibration's)"),
 }
 
 
@@ -426,19 +434,3 @@ def _group_labels(dataset, group_dims):
             }
         )
     return labels
-
-
-_GROUP_ATTRS = {
-    "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
-    "group_case": (None, "a grid case of the group: its scene and scheme options"),
-    "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
-    "found_dt": ("s", "largest step found to meet the accuracy bound"),
-    "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
-    "found_seconds": ("s", "calibrated kernel seconds of the group's case at its found step"),
-}
-_STUDY_ATTRS = {
-    "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
-    "study_dt": ("s", "its least found step, met at every value of the other axes"),
-    "study_seconds": ("s", "mean calibrated kernel seconds a case at that step"),
-    "study_uncertainty": ("1", "relative uncertainty of those seconds (the calibration's)"),
-}
