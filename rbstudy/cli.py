@@ -331,32 +331,30 @@ def _sweep(args):
 
 def _find_step(study, dataset, archive, args, progress):
     """The lines of the step search of ``study`` (`rbstudy.pipeline.step_search`), from its
-    archive's ``dataset``, its probes kept beside the ``archive``."""
+    archive's ``dataset``, its probes kept in the ``archive``."""
     from rbstudy.pipeline.step_search import SEARCH_TOLERANCE, search_steps
-    from rbstudy.pipeline.store import search_path
 
     folder = pathlib.Path(archive).parent
     tolerance = SEARCH_TOLERANCE if args.step_tolerance is None else args.step_tolerance
     search = search_steps(study, dataset, folder, tolerance, args.force, progress)
-    path = search_path(archive)
-    probes = f"{counted(search.probes.sizes['probe'], 'probe')} ({search.reused} reused); wrote {path}"
-    return [*_searched(path, dataset), probes]
+    probes = f"{counted(search.probes.sizes['probe'], 'probe')} ({search.reused} reused)"
+    return [*_searched(archive, dataset), f"{probes}; kept in {archive}, group search"]
 
 
 def _searched(path, dataset, said_where=False):
-    """The lines that tell the step search kept at ``path`` for ``dataset``'s archive (none
-    where there is none), and where it is kept when ``said_where``."""
+    """The lines that tell the step search kept in the archive at ``path``, read as
+    ``dataset`` (none where there is none), and where it is kept when ``said_where``."""
     from rbstudy.analysis.searched import read_search, search_lines
 
     search = read_search(path, dataset)
     if search is None or isinstance(search, str):
         return [] if search is None else [search]
-    return search_lines(search, dataset) + [f"(the step search kept in {path})"] * said_where
+    return search_lines(search, dataset) + [f"(the step search kept in {path}, group search)"] * said_where
 
 
 def _with_search(document, path, dataset):
-    """``document`` (`summary_document`) with the step search kept at ``path`` for
-    ``dataset``'s archive as its ``step_search`` (`search_document`; ``{"refused": why}``
+    """``document`` (`summary_document`) with the step search kept in the archive at
+    ``path``, read as ``dataset``, as its ``step_search`` (`search_document`; ``{"refused": why}``
     where it is another study's), where there is one."""
     from rbstudy.analysis.searched import read_search, search_document
 
@@ -394,7 +392,6 @@ def _summary(args):
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress, live_wanted
-    from rbstudy.pipeline.store import search_path
 
     # its phases on a terminal only: elsewhere its stderr holds nothing but errors, for the
     # scripts that read its JSON or CSV
@@ -414,7 +411,7 @@ def _summary(args):
         progress.phase("summary: computing the findings")
         if args.format == "json":  # checked before anything is printed
             documents = [
-                _with_search(summary_document(dataset), search_path(path), dataset)
+                _with_search(summary_document(dataset), path, dataset)
                 for path, dataset in zip(args.files, datasets, strict=True)
             ]
             text = json.dumps(documents[0] if len(documents) == 1 else documents, indent=1, allow_nan=False)
@@ -433,7 +430,7 @@ def _summary(args):
                     if args.format == "md"
                     else _summary_text(dataset, wide=args.wide, table_only=args.quiet)
                 )
-                searched = [] if args.quiet else _searched(search_path(path), dataset, said_where=True)
+                searched = [] if args.quiet else _searched(path, dataset, said_where=True)
                 if not searched:
                     return text
                 if args.format == "md":
@@ -663,7 +660,6 @@ def _report(args):
     from rbstudy.numerics.machine import default_threads
     from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
-    from rbstudy.pipeline.store import search_path
 
     opened = functools.partial(open_archive, verify=not args.no_verify)
     if len(args.files) == 1:  # -o names the report folder itself, as cp's target names a copy
@@ -686,7 +682,7 @@ def _report(args):
                 progress=progress,
                 styles=_styles_of(dataset),
                 drawn=[pathlib.Path(path).parent / "figures"],  # `rbstudy plot`'s, to copy
-                searched=_searched(search_path(path), dataset),
+                searched=_searched(path, dataset),
             )
         print(f"{path}: report in {report}")
     return 0
@@ -826,7 +822,7 @@ def build_parser():
         "--find-step",
         action="store_true",
         help="then search, per scheme and value of the other axes, the largest step meeting the "
-        "accuracy bound (kept in <study>/search/steps.nc)",
+        "accuracy bound (kept in the archive, its group search)",
     )
     sweep.add_argument(
         "--step-tolerance",

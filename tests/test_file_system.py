@@ -163,6 +163,27 @@ def test_force_on_an_immutable_study_folder_is_one_line(swept, capsys):
     assert (folder / "small.nc").read_bytes() == archive
 
 
+@pytest.mark.parametrize("frozen", ["study folder", "archive"])
+def test_a_step_search_that_cannot_rewrite_its_archive_is_one_line_after_the_findings(swept, capsys, frozen):
+    """The finished search goes into the archive, rewritten through a copy beside it: an
+    immutable study folder (no working file, no copy) or an immutable archive (not
+    replaced) is one line after the findings, the archive as it was and nothing left
+    beside it."""
+    config, folder, archive = swept
+    before = sorted(path.name for path in folder.iterdir())
+    with _immutable(folder if frozen == "study folder" else folder / "small.nc"):
+        code = main(["sweep", str(config), "--out", str(folder.parent), "--find-step", "--quiet"])
+        captured = capsys.readouterr()
+    assert code == 1 and "small:" in captured.out  # the findings, printed first
+    assert captured.err.strip() == (
+        f"rbstudy: error: {folder}: cannot write results there (Operation not permitted); "
+        "choose another folder with --out"
+    )
+    assert (folder / "small.nc").read_bytes() == archive
+    kept = sorted(path.name for path in folder.iterdir())
+    assert kept == before or frozen == "archive" and kept == sorted([*before, "search"])
+
+
 def test_a_read_only_study_folder_answers_an_up_to_date_rerun(swept, capsys):
     """Reading is all an up-to-date rerun needs: it no longer dies taking its lock (exit 70).
     What would have to write (--force, another title to record) is one line, exit 1."""

@@ -83,8 +83,9 @@ def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_
     code, printed = _sweep_printing(args)
     assert code == 0
     searched = printed[printed.index("largest step meeting") :]
-    found = xr.load_dataset(out / "abaqus_top" / "search" / "steps.nc")
+    found = xr.load_dataset(out / "abaqus_top" / "abaqus_top.nc", group="search")  # in the archive
     grid = xr.load_dataset(out / "abaqus_top" / "abaqus_top.nc")
+    assert not (out / "abaqus_top" / "search").exists()  # its working file, removed
     ratios = grid["inertia_ratio"].values
     assert list(found["group_scheme"].values) == list(np.repeat(grid["scheme"].values, len(ratios)))
 
@@ -138,7 +139,7 @@ def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_
         error, accurate = _independent(tmp_path, "answer", best, 2.0, ratios)
         assert accurate and error <= BOUND
 
-    # summary and report tell the same search from the file beside the archive
+    # summary and report tell the same search from the archive
     archive = str(out / "abaqus_top" / "abaqus_top.nc")
     told = re.split(r"\n\d+ probes \(", searched)[0].splitlines()  # without the sweep's own line
     code, summary = _sweep_printing(["summary", archive])
@@ -156,8 +157,10 @@ def test_find_step_on_the_default_study_is_met_at_its_step_and_not_at_1_1_times_
     answer = " ".join(" ".join(told).split()).split(" largest steps found")[0]
     assert answer in page
 
+    sealed = (out / "abaqus_top" / "abaqus_top.nc").read_bytes()
     code, again = _sweep_printing(args)
     assert code == 0
+    assert (out / "abaqus_top" / "abaqus_top.nc").read_bytes() == sealed  # not rewritten
     probes = found.sizes["probe"]
     assert f"{probes} probes ({probes} reused)" in again
     assert again[again.index("largest step meeting") :] == searched.replace(
@@ -174,25 +177,52 @@ def test_a_step_tolerance_outside_0_and_1_is_refused_in_one_line(capsys):
 
 
 @pytest.mark.slow
-def test_a_step_search_of_another_version_of_the_study_is_not_told_as_this_ones(tmp_path):
-    """summary reads the search beside the archive only where it is of the same study (the
-    archive's batches); another's is named, with the fix, not told as this one's."""
+def test_the_step_search_is_sealed_in_the_archive_and_a_change_to_it_is_caught(tmp_path, capsys):
+    """The search travels in the archive, as its group ``search``, under the archive's
+    checksums: ``verify`` proves it; a changed probe verdict or a search relabelled as
+    another study's is caught by ``verify`` and by ``summary``, which reads it only when
+    proven (or, unverified, only when it is of the same study). A sweep that finds its
+    archive changed rebuilds it, and the search runs again to the same answer."""
     out = tmp_path / "results"
     config = CONFIGS / "abaqus_top.yaml"
     shrink = ["--set", "sweep.inertia_ratio=[0.5]", "--set", "sweep.dt={halving: 0.01, count: 2}"]
-    assert (
-        _sweep_printing(["sweep", str(config), "--out", str(out), "--find-step", "--quiet", *shrink])[0] == 0
-    )
+    args = ["sweep", str(config), "--out", str(out), "--find-step", "--quiet", *shrink]
+    code, printed = _sweep_printing(args)
+    assert code == 0
     archive = out / "abaqus_top" / "abaqus_top.nc"
+    assert "kept in " + str(archive) in " ".join(printed.split())
+    assert set(xr.load_dataset(archive).data_vars).isdisjoint({"found_dt", "probe", "steps"})
+    code, told = _sweep_printing(["verify", str(archive)])
+    assert code == 0, told
+    with netCDF4.Dataset(archive) as nc:
+        sealed = json.loads(nc["integrity"].getncattr("checksums"))
+        kept = nc["search"]
+        assert {f"search/{name}" for name in kept.variables} <= set(sealed)
+        probes = kept.dimensions["probe"].size
     code, told = _sweep_printing(["summary", str(archive)])
-    assert code == 0 and "largest step meeting the bound" in told
-    with netCDF4.Dataset(out / "abaqus_top" / "search" / "steps.nc", "a") as kept:
-        kept.setncattr("batches", "another")
-    code, told = _sweep_printing(["summary", str(archive)])
+    assert code == 0 and "largest step meeting the bound" in told and "group search" in told
+
+    with netCDF4.Dataset(archive, "a") as nc:  # a probe's verdict changed
+        verdicts = nc["search"]["accuracy"]
+        verdicts[0] = 1 - verdicts[0]
+    capsys.readouterr()
+    assert main(["verify", str(archive)]) != 0
+    assert "variable search/accuracy differs from its checksum" in capsys.readouterr().err
+    code, again = _sweep_printing(args)  # the archive rebuilt, the search run again
+    assert code == 0
+    assert f"{probes} probes (0 reused)" in again
+    strip = lambda text: text[text.index("largest step meeting") :].split("probes (")[0]  # noqa: E731
+    assert strip(again) == strip(printed)
+
+    with netCDF4.Dataset(archive, "a") as nc:  # relabelled as another study's
+        nc["search"].setncattr("batches", "another")
+    capsys.readouterr()
+    assert main(["summary", str(archive)]) != 0
+    assert "the attributes of group search differ" in capsys.readouterr().err
+    code, told = _sweep_printing(["summary", str(archive), "--no-verify"])
     assert code == 0 and "largest step meeting the bound" not in told
     told = " ".join(told.split())  # unwrapped
-    assert "steps.nc: a step search of another version of this study; sweep --find-step again" in told
-    assert "kept in" not in told
+    assert "its step search is of another version of this study; sweep --find-step again" in told
 
 
 def test_step_tolerance_without_find_step_is_refused_before_the_sweep_runs(tmp_path, capsys):
@@ -208,7 +238,8 @@ def test_step_tolerance_without_find_step_is_refused_before_the_sweep_runs(tmp_p
 def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
     """A probes file that does not read back (or lacks its columns) keeps no probe: they are
     run again and the file rewritten, where reading it stopped the sweep with a traceback."""
-    path = tmp_path / "steps.nc"
+    path = tmp_path / "search" / "steps.nc"
+    path.parent.mkdir()
     written = xr.Dataset({"case": ("probe", [0, 1]), "steps": ("probe", [4, 8])})
     written.attrs["search_identity"] = "this search"
     written.to_netcdf(path)
@@ -218,7 +249,7 @@ def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
         path.write_bytes(b"")
     elif damage == "truncated":
         path.write_bytes(path.read_bytes()[:3000])
-    assert _Probes(None, path, "this search", force=False).rows == {}
+    assert _Probes(None, tmp_path / "study.nc", "this search", force=False).rows == {}
 
 
 def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():
@@ -240,7 +271,8 @@ def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():
 def test_find_step_names_adaptive_schemes_as_such_and_reruns_past_a_damaged_file(tmp_path):
     """dop853 meets the bound on the grid but chooses its own steps: it is named as not
     searched for that, not for "no swept step meets the bound"; a tolerance of 0.1% is
-    printed as such (not "0%"); a garbage probes file is run again, with the same answer."""
+    printed as such (not "0%"); a garbage working file left beside the archive is passed
+    over: the probes sealed in the archive are reused, with the same answer."""
     config = write_study(
         tmp_path,
         sweep={"scheme": ["rk4", "dop853"], "dt": [0.01, 0.005]},
@@ -256,14 +288,15 @@ def test_find_step_names_adaptive_schemes_as_such_and_reruns_past_a_damaged_file
     assert "not searched (adaptive: each chooses its own steps): dop853" in searched
     assert "no swept step meets" not in searched
     assert "searched to 0.1%" in searched and "0.1% larger fails" in searched
+    probes = xr.load_dataset(out / "study" / "study.nc", group="search").sizes["probe"]
     path = out / "study" / "search" / "steps.nc"
-    probes = xr.load_dataset(path).sizes["probe"]
+    path.parent.mkdir()
     path.write_bytes(np.random.default_rng(2).bytes(5000))
     code, again = _sweep_printing(args)
     assert code == 0
     rerun = " ".join(again[again.index("largest step meeting") :].split())
-    assert rerun == searched
-    assert f"{probes} probes (0 reused)" in rerun and xr.load_dataset(path).sizes["probe"] == probes
+    assert rerun == searched.replace(f"{probes} probes (0 reused)", f"{probes} probes ({probes} reused)")
+    assert not path.exists()  # the garbage removed with the working file
 
 
 @pytest.mark.slow
@@ -271,8 +304,8 @@ def test_another_tolerance_reuses_the_probes_and_a_blocked_file_is_one_line_afte
     tmp_path, capsys
 ):
     """A probe's verdict does not depend on the tolerance: a search to another one reuses the
-    kept probes. A folder where the probes file goes refuses the search in one line, after
-    the findings, which the sweep still prints."""
+    kept probes. A folder where the probes' working file goes refuses a search that runs
+    probes in one line, after the findings, which the sweep still prints."""
     config = write_study(tmp_path, sweep={"scheme": ["rk4", "euler"], "dt": [0.01, 0.005]})
     out = tmp_path / "out"
     args = ["sweep", str(config), "--out", str(out), "--find-step", "-q"]
@@ -283,10 +316,9 @@ def test_another_tolerance_reuses_the_probes_and_a_blocked_file_is_one_line_afte
     reused = int(re.search(r"\d+ probes \((\d+) reused\)", wider).group(1))
     assert code == 0 and 0 < reused <= probes, wider
     path = out / "study" / "search" / "steps.nc"
-    path.unlink()
-    path.mkdir()
+    path.mkdir(parents=True)
     capsys.readouterr()
-    code, printed = _sweep_printing(args)
+    code, printed = _sweep_printing([*args, "--force"])  # every probe run again, to keep
     error = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and "recommended:" in printed
     assert len(error) == 1 and "cannot write the step search there" in error[0], error

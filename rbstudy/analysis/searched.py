@@ -1,22 +1,21 @@
 """The words of a step search (``rbstudy sweep --find-step``, `rbstudy.pipeline.step_search`):
 the largest step that meets the accuracy bound, beside the grid's best.
 
-The search keeps its answers in ``search/steps.nc`` beside the archive
-(`rbstudy.pipeline.store.SEARCH_FILE`); `read_search` reads them back for the sweep that
-ran it and for ``summary`` and ``report``, here in the analysis layer, which never loads the
-kernels. Costs are those the findings rank the grid by (steps times the calibrated seconds a
-step, mean over the other axes' values), and costs within their calibration's uncertainty
-are one answer.
+The search keeps its probes and answers in the archive, as its netCDF group ``search``
+(`rbstudy.pipeline.store.SEARCH_GROUP`, sealed with the archive's checksums); `read_search`
+reads them back for the sweep that ran it and for ``summary`` and ``report``, here in the
+analysis layer, which never loads the kernels. Costs are those the findings rank the grid
+by (steps times the calibrated seconds a step, mean over the other axes' values), and costs
+within their calibration's uncertainty are one answer.
 """
 
 import math
 from dataclasses import dataclass
 
 import numpy as np
-import xarray as xr
 
 from rbstudy.analysis.findings import study_wide
-from rbstudy.pipeline.integrity import HDF5_LOCK
+from rbstudy.pipeline.store import SEARCH_GROUP, read_group
 
 __all__ = ["SearchRecord", "read_search", "search_lines", "search_document"]
 
@@ -41,17 +40,16 @@ class SearchRecord:
 
 
 def read_search(path, ds):
-    """The `SearchRecord` kept at ``path`` for the archive ``ds``; None where there is none,
-    or a line saying why it is not this archive's (another version of its study)."""
+    """The `SearchRecord` kept in the archive at ``path`` (read as ``ds``); None where it
+    holds none, or a line saying why it cannot be told (another version of its study)."""
     try:
-        with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
-            kept = xr.load_dataset(path)
-    except FileNotFoundError:
-        return None
+        kept = read_group(path, SEARCH_GROUP)
     except (OSError, ValueError) as error:
-        return f"{path}: not readable as a step search ({error}); sweep --find-step again"
+        return f"{path}: its step search is not readable ({error}); sweep --find-step again"
+    if kept is None:
+        return None
     if "found_dt" not in kept or kept.attrs.get("batches") != ds.attrs.get("batches"):
-        return f"{path}: a step search of another version of this study; sweep --find-step again"
+        return f"{path}: its step search is of another version of this study; sweep --find-step again"
     names = [str(name) for name in kept["study_scheme"].values] if "study_scheme" in kept else []
     return SearchRecord(
         scheme=np.array([str(name) for name in kept["group_scheme"].values], dtype=object),

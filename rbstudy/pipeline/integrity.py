@@ -14,7 +14,9 @@ Two kinds of file, two kinds of proof:
   ``part_checksums`` the digest of every part it was built from. `verify_archive`
   recomputes the first and checks that the second names exactly the study's batches (its
   ``batches`` attribute). Archives of rbstudy 0.3 hold the two as global attributes, and
-  are proven the same way.
+  are proven the same way. A group added to a sealed archive (the step search's ``search``)
+  is sealed with it: ``<group>/<variable>`` per variable and ``<group>/`` + `MEANING` for
+  its attributes, in the same ``checksums`` (`reseal_group`).
 
 The global attributes (title, history, config text) are not in the per-variable checksums:
 a changed title is redescribed in place without touching the data (`store.refresh_description`).
@@ -45,6 +47,8 @@ __all__ = [
     "sealed",
     "part_digest",
     "archive_checksums",
+    "group_checksums",
+    "reseal_group",
     "seal_archive",
     "ArchiveCheck",
     "verify_archive",
@@ -237,7 +241,37 @@ def archive_checksums(nc, streamed=None):
         found[name] = (streamed[name].checksum(variable) if name in streamed else None) or _read_checksum(
             variable
         )
+    for name in nc.groups:
+        if name != GROUP:
+            found.update(group_checksums(nc, name))
     return found
+
+
+def group_checksums(nc, group):
+    """Name -> ``sha256:<hex>`` for the group ``group`` of the open netCDF4 dataset ``nc``
+    (one added to a sealed archive, as the step search's): ``<group>/<variable>`` for each of
+    its variables, and ``<group>/`` + `MEANING` for all its attributes."""
+    held = nc.groups[group]
+    held.set_auto_maskandscale(False)
+    attributes = {key: np.asarray(held.getncattr(key)).tolist() for key in held.ncattrs()}
+    found = {
+        f"{group}/{MEANING}": f"{ALGORITHM}:"
+        + hashlib.sha256(json.dumps(attributes, sort_keys=True, default=str).encode()).hexdigest()
+    }
+    found.update({f"{group}/{name}": _read_checksum(variable) for name, variable in held.variables.items()})
+    return found
+
+
+def reseal_group(nc, group):
+    """Replace the checksums of the group ``group`` of the sealed archive open for writing as
+    ``nc`` by those of its present content (none when it is gone): the checksums of the
+    archive's own variables are kept as they were sealed, not recomputed."""
+    sealed_in = nc.groups[GROUP]
+    checksums = json.loads(sealed_in.getncattr(SEALS[0]))
+    checksums = {name: value for name, value in checksums.items() if not name.startswith(f"{group}/")}
+    if group in nc.groups:
+        checksums.update(group_checksums(nc, group))
+    sealed_in.setncattr(SEALS[0], json.dumps(checksums, sort_keys=True))
 
 
 def _read_checksum(variable):
@@ -365,7 +399,10 @@ def seal_archive(path, part_digests, streamed=None):
 
 
 def _named(name):
-    return f"the global attributes {', '.join(MEANING_ATTRIBUTES)}" if name == MEANING else f"variable {name}"
+    if name == MEANING:
+        return f"the global attributes {', '.join(MEANING_ATTRIBUTES)}"
+    group, _, rest = name.rpartition("/")
+    return f"the attributes of group {group}" if rest == MEANING else f"variable {name}"
 
 
 @dataclass(frozen=True)
@@ -415,4 +452,5 @@ def verify_archive(path):
             problems.append("its part_checksums do not name the batches of its `batches` attribute")
     except (TypeError, ValueError, AttributeError):
         return ArchiveCheck(("its checksums attributes are not what rbstudy writes (edited?)",))
-    return ArchiveCheck(tuple(problems), variables=len(stored) - (MEANING in stored), parts=len(parts))
+    variables = sum(not name.endswith(MEANING) for name in stored)
+    return ArchiveCheck(tuple(problems), variables=variables, parts=len(parts))

@@ -22,13 +22,18 @@ the bound, with a larger step within the tolerance that does not; a larger step 
 meet it again (an error that wraps round). The study-wide answer, the least found step of a
 scheme over the other axes' values, is run at every value before it is named.
 
-The probes are kept in ``<study folder>/search/steps.nc`` (dimension ``probe``,
-`rbstudy.pipeline.store.SEARCH_FILE`) with each group's answer and each scheme's study-wide
-one, which `rbstudy.analysis.searched` tells in words, rewritten after every batch of
-probes: a rerun of the same study and code (to any tolerance) reuses them, so an
-interrupted search resumes where it stopped.
+The finished search is kept in the archive, as its netCDF group ``search``
+(`rbstudy.pipeline.store.SEARCH_GROUP`, sealed with the archive's checksums: ``verify``
+proves it): the probes (dimension ``probe``), each group's answer (``group``) and each
+scheme's study-wide one (``scheme_searched``), which `rbstudy.analysis.searched` tells in
+words. Until it is done, the probes are rewritten after every batch to the study folder's
+working file ``search/steps.nc`` (`rbstudy.pipeline.store.SEARCH_FILE`), removed once the
+archive holds them, as the parts are. A rerun of the same study and code (to any tolerance)
+reuses the probes of both, so an interrupted search resumes where it stopped; a rebuilt
+archive (``--force``, or found damaged) starts it again.
 """
 
+import contextlib
 import dataclasses
 import math
 import pathlib
@@ -45,7 +50,16 @@ from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references, study_lock
 from rbstudy.pipeline.integrity import HDF5_LOCK
 from rbstudy.pipeline.outputs import ACCURATE
-from rbstudy.pipeline.store import search_path, utc_now, write_dataset_atomic
+from rbstudy.pipeline.store import (
+    SEARCH_GROUP,
+    WRITE_REFUSALS,
+    put_group,
+    read_group,
+    search_path,
+    unwritable,
+    utc_now,
+    write_dataset_atomic,
+)
 from rbstudy.pipeline.variables import cf_attrs
 from rbstudy.schemes import get_scheme
 
@@ -125,11 +139,11 @@ class _Probes:
     """The probes of a search: those kept from an earlier run of it, those run now, keyed by
     (case, steps); written to ``path`` after every batch."""
 
-    def __init__(self, study, path, identity, force):
-        self.study, self.path, self.identity = study, path, identity
+    def __init__(self, study, archive, identity, force):
+        self.study, self.path, self.identity = study, search_path(archive), identity
         self.rows, self.reused = {}, 0
-        if path.is_file() and not force:
-            self.rows = _kept_rows(path, identity)
+        if not force:  # a finished search's, in the archive, and an interrupted one's since
+            self.rows = _kept_rows(archive, identity, SEARCH_GROUP) | _kept_rows(self.path, identity)
         self.kept = set(self.rows)
 
     def verdicts(self, wanted, progress):
@@ -185,8 +199,7 @@ class _Probes:
                 **{name: values[name][k].item() for name in _PROBE_VARIABLES},
             }
 
-    def dataset(self):
-        """The probes as a dataset along ``probe`` (in the order of their keys)."""
+    def _probes(self):
         keys = sorted(self.rows)
         columns = {
             name: ("probe", np.array([self.rows[key][name] for key in keys])) for name in _PROBE_COLUMNS
@@ -205,9 +218,10 @@ class _Probes:
         )
         return probes
 
-    def write(self, search=None):
-        """The probes to `path`, with the groups' answers of a finished ``search``."""
-        written = self.dataset()
+    def dataset(self, search=None):
+        """The probes as a dataset along ``probe`` (in the order of their keys), with the
+        groups' answers of a finished ``search``."""
+        written = self._probes()
         if search is not None:
             written = written.assign(
                 group_scheme=("group", np.array(search.scheme, dtype=object)),
@@ -235,25 +249,43 @@ class _Probes:
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
-        for name in written.data_vars:  # the file's one table of what each variable means
+        for name in written.data_vars:  # the group's one table of what each variable means
             written[name].attrs.update(cf_attrs(*_ATTRS[name]))
+        return written
+
+    def write(self):
+        """The probes so far to the working file `path`, which a rerun resumes from."""
         try:
             self.path.parent.mkdir(exist_ok=True)
-            write_dataset_atomic(written, self.path)
-        except OSError as error:  # a folder in its place, a file in its folder's
+            write_dataset_atomic(self.dataset(), self.path)
+        except OSError as error:
+            if error.errno in WRITE_REFUSALS:  # read-only, immutable, full: the folder's fault
+                raise unwritable(self.path.parent.parent, error) from None
+            # a folder in its place, a file in its folder's
             raise RbstudyError(
                 f"{self.path}: cannot write the step search there ({error.strerror or one_line(error)}); "
                 "remove what is in its place, or sweep into another --out"
             ) from None
 
+    def seal(self, search, archive):
+        """The finished ``search`` into the archive at ``archive`` (its group `SEARCH_GROUP`,
+        sealed with it), then the working file removed, as the parts are once the archive
+        holds them; an archive that holds this very search already is left as it is."""
+        sealed = self.dataset(search)
+        if not _holds(archive, sealed):
+            put_group(archive, SEARCH_GROUP, sealed)
+        with contextlib.suppress(OSError):  # what is left is read with the archive's, no harm
+            self.path.unlink(missing_ok=True)
+            self.path.parent.rmdir()  # unless something else is there
 
-def _kept_rows(path, identity):
-    """The probes kept in the file ``path`` by a search of ``identity``, keyed by (case,
-    steps); none from a file of another search, or one that is damaged (truncated, emptied,
-    overwritten: run again, and the file rewritten)."""
+
+def _kept_rows(path, identity, group=None):
+    """The probes kept in the file ``path`` (in its group ``group``) by a search of
+    ``identity``, keyed by (case, steps); none from a file of another search, or one that is
+    damaged (truncated, emptied, overwritten: run again, and the file rewritten)."""
     try:
         with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
-            kept = xr.load_dataset(path)
+            kept = xr.load_dataset(path, group=group)
         if kept.attrs.get("search_identity") != identity:
             return {}
         columns = {name: kept[name].values for name in _PROBE_COLUMNS}
@@ -263,6 +295,16 @@ def _kept_rows(path, identity):
     except (OSError, ValueError, KeyError, IndexError, RuntimeError):
         return {}
     return {(row["case"], row["steps"]): row for row in rows}
+
+
+def _holds(archive, search):
+    """Whether the archive at ``archive`` holds the step search ``search`` (a dataset) as
+    its group, but for when it was run (its ``history``)."""
+    try:
+        kept = read_group(archive, SEARCH_GROUP)
+    except (OSError, ValueError):
+        return False
+    return kept is not None and kept.assign_attrs(history=search.attrs["history"]).identical(search)
 
 
 def _divides(study, steps):
@@ -326,8 +368,8 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
     with study_lock(pathlib.Path(folder)):
-        path = search_path(pathlib.Path(folder) / f"{study.name}.nc")
-        probes = _Probes(study, path, _identity(study), force)
+        archive = pathlib.Path(folder) / f"{study.name}.nc"
+        probes = _Probes(study, archive, _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
@@ -344,7 +386,7 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         result = dataclasses.replace(
             result, adaptive=adaptive, probes=probes.dataset(), reused=probes.reused, tolerance=tolerance
         )
-        probes.write(result)  # under the lock, as every write of the folder
+        probes.seal(result, archive)  # under the lock, as every write of the folder
     return result
 
 

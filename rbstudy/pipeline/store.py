@@ -57,6 +57,7 @@ from rbstudy.pipeline.integrity import (
     nearly_full,
     netcdf_writer,
     part_digest,
+    reseal_group,
     seal_archive,
     sidecar,
     sidecar_text,
@@ -73,7 +74,10 @@ from rbstudy.pipeline.variables import (
 __all__ = [
     "HDF5_LOCK",
     "SEARCH_FILE",
+    "SEARCH_GROUP",
     "search_path",
+    "put_group",
+    "read_group",
     "Layout",
     "read_part",
     "write_text_atomic",
@@ -129,8 +133,10 @@ CHUNK_BYTES = 2**18
 # SHA-256) whose study the folder holds: another config of the same name would replace its
 # archive and parts.
 OWNER = ".rbstudy-study"
-# Where `sweep --find-step` keeps its probes, in the study folder, beside the archive
-# (`rbstudy.pipeline.step_search`): the readers of the archive find it there.
+# Where `sweep --find-step` keeps its probes (`rbstudy.pipeline.step_search`): the archive's
+# netCDF group, sealed with it (`put_group`), once the search is done; until then the working
+# file of the study folder, which an interrupted search resumes from.
+SEARCH_GROUP = "search"
 SEARCH_FILE = pathlib.Path("search") / "steps.nc"
 # The global attribute of the archive and of each part that names the config of its study,
 # as `OWNER` does (its two lines): the results identify their study without the record.
@@ -454,7 +460,7 @@ def unwritable(folder, error, label=""):
 
 
 def search_path(archive):
-    """The step search's file beside the archive at ``archive`` (`SEARCH_FILE`)."""
+    """The step search's working file beside the archive at ``archive`` (`SEARCH_FILE`)."""
     return pathlib.Path(archive).parent / SEARCH_FILE
 
 
@@ -626,11 +632,50 @@ def inside(folder, name):
 def refresh_description(path, attrs):
     """Replace the global attributes of the archive at ``path`` (its title, config text and
     provenance) without touching its data: a changed title or comment needs no recomputation.
-    Written through a copy and a rename, like every other write."""
-    with _temporary_beside(path) as temporary, HDF5_LOCK:
-        shutil.copyfile(path, temporary)
+    Written through a copy and a rename, like every other write (`_rewritten`)."""
+    with _rewritten(path) as temporary, netcdf_writer(temporary, "a") as nc:
+        nc.setncatts(attrs)
+
+
+@contextmanager
+def _rewritten(path):
+    """A copy of the archive at ``path`` under a temporary name beside it, to change, then
+    renamed over it (under `HDF5_LOCK`, a Ctrl-C held till then): a file system that refuses
+    the copy or the rename (read-only, immutable, full) is one line naming the folder."""
+    try:
+        with _ctrl_c_held(), _temporary_beside(path) as temporary, HDF5_LOCK:
+            shutil.copyfile(path, temporary)
+            yield temporary
+    except OSError as error:
+        if error.errno in WRITE_REFUSALS:
+            raise unwritable(pathlib.Path(path).parent, error) from None
+        raise
+
+
+def put_group(path, group, dataset):
+    """Put the xarray ``dataset`` into the sealed archive at ``path`` as its netCDF group
+    ``group`` (replacing one of that name), sealed with the archive's own checksums
+    (`rbstudy.pipeline.integrity.reseal_group`): the step search's probes travel in the
+    archive, and ``verify`` proves them. Written through a copy and a rename (`_rewritten`)."""
+    with _rewritten(path) as temporary:
+        with hdf5_writer(temporary) as h5file:
+            if group in h5file:  # netCDF4 cannot remove a group; HDF5 unlinks it
+                del h5file[group]
+        dataset.to_netcdf(temporary, mode="a", group=group)
         with netcdf_writer(temporary, "a") as nc:
-            nc.setncatts(attrs)
+            reseal_group(nc, group)
+
+
+def read_group(path, group):
+    """The netCDF group ``group`` of the file at ``path`` as a loaded xarray dataset; None
+    where the file has no such group (an archive without a step search)."""
+    import xarray as xr  # here, as in `open_results`
+
+    with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+        with netCDF4.Dataset(path) as nc:
+            if group not in nc.groups:
+                return None
+        return xr.load_dataset(path, group=group)
 
 
 def archive_state(path, study):
