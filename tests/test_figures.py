@@ -420,7 +420,7 @@ def top_with_twins(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_one_legend_per_figure_names_coinciding_lines_together(top_with_twins, tmp_path, drawn_figures):
+def test_one_legend_per_figure_names_coinciding_linestogether(top_with_twins, tmp_path, drawn_figures):
     """It was a 9-entry legend in each of 4 panels, and up to 5 of 9 lines hidden."""
     import numpy as np
 
@@ -523,7 +523,7 @@ def test_lines_coincide_when_every_point_agrees_to_three_digits():
     """Two lines failed at every dt have nothing to agree on: each stays its own entry."""
     import numpy as np
 
-    from rbstudy.analysis.plots import _coincident
+    from rbstudy.analysis.overlaps import coincident
 
     nan = float("nan")
     errors = np.array(
@@ -535,7 +535,7 @@ def test_lines_coincide_when_every_point_agrees_to_three_digits():
             [1e-3, 2.01e-6, nan],
         ]
     )
-    assert _coincident(errors) == [[0, 1], [2], [3], [4]]
+    assert coincident(errors) == [[0, 1], [2], [3], [4]]
 
 
 @pytest.mark.parametrize("span", [(0.0116, 0.046), (0.0056, 0.028), (1.02, 1.4), (1e-15, 1e-1)])
@@ -750,23 +750,73 @@ def test_a_panel_names_only_the_lines_its_legend_keeps_apart():
     never a pair the legend already names."""
     import numpy as np
 
-    from rbstudy.analysis.plots import _panel_overlaps
+    from rbstudy.analysis.overlaps import panel_overlaps
 
     same, other = np.array([1e-3, 1e-5, 1e-7]), np.array([2e-3, 2e-5, 2e-7])
     names = ["rk4", "rkmk4", "exudyn_rk44", "euler"]
     # the legend names rk4 = rkmk4; here exudyn_rk44 lies on them too, euler apart
-    assert _panel_overlaps(names, [same, same, same, other], [[0, 1], [2], [3]]) == [
+    assert panel_overlaps(names, [same, same, same, other], [[0, 1], [2], [3]]) == [
         "rk4 = exudyn_rk44 to 3 digits"
     ]
-    assert _panel_overlaps(names, [same, same, other, other], [[0, 1], [2], [3]]) == [
+    assert panel_overlaps(names, [same, same, other, other], [[0, 1], [2], [3]]) == [
         "exudyn_rk44 = euler to 3 digits"
     ]
-    assert _panel_overlaps(names, [same, same, other, 3 * other], [[0, 1], [2], [3]]) == []
+    assert panel_overlaps(names, [same, same, other, 3 * other], [[0, 1], [2], [3]]) == []
     # hht's and midpoint's energies, exactly 0 at every dt, read as such, not "to 3 digits"
     zeros = np.zeros(3)
-    assert _panel_overlaps(["hht", "midpoint"], [zeros, zeros], [[0], [1]], 1e-15) == [
+    assert panel_overlaps(["hht", "midpoint"], [zeros, zeros], [[0], [1]], 1e-15) == [
         "hht = midpoint (exactly 0 throughout)"
     ]
+
+
+def _log_panel(decades=16):
+    """A 5 x 3.5 inch log-log panel over ``decades`` decades of y, its limits set; and its
+    height in points, measured by matplotlib."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(1e-3, 1e-2)
+    ax.set_ylim(10.0**-decades, 1.0)
+    fig.canvas.draw()
+    return fig, ax, ax.get_window_extent().height / fig.dpi * 72
+
+
+def test_lines_the_eye_cannot_part_are_named_with_how_far_apart_they_are():
+    """euler's and leapfrog's worst errors over stiff_inertia's ratios, 0.3-1.4% apart, drew
+    one line with no note. A line whose every point lies within a line's width (2 pt) of
+    another's, on the page as drawn, is named with it; 1 pt apart is near, 3 pt is not; a
+    gap where the other has a value parts them; lines the data already names as one are
+    named once."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from rbstudy.analysis.overlaps import near_lines, panel_overlaps
+
+    fig, ax, height = _log_panel()
+    dts = np.array([1.25e-3, 2.5e-3, 5e-3, 1e-2])
+    euler = np.array([2.6e-2, 2.6e-1, 1.34e-2, 2.76e-2])
+    leapfrog = euler * np.array([1.003, 1.014, 0.997, 0.995])
+    one_pt, three_pt = 10.0 ** (16 / height), 10.0 ** (3 * 16 / height)  # factors in y
+    curves = [(dts, euler), (dts, leapfrog), (dts, euler * one_pt), (dts, euler * three_pt)]
+    names = ["euler", "leapfrog", "one_pt", "three_pt"]
+    assert near_lines(ax, names, curves) == [f"euler ≈ leapfrog ≈ one_pt (within {1 - 1 / one_pt:.1%})"]
+    assert near_lines(ax, names[:2], curves[:2]) == ["euler ≈ leapfrog (within 1.4%)"]
+    gapped = np.where([True, True, False, True], leapfrog, np.nan)
+    assert near_lines(ax, names[:2], [(dts, euler), (dts, gapped)]) == []
+    # an exact pair (the legend's rk4 = rkmk4) and a near pair, each named once
+    rk4 = np.array([4.1e-4, 4.0e-4, 1.06e-3, 1.27e-3])
+    values = [rk4, rk4, euler, leapfrog]
+    notes = panel_overlaps(
+        ["rk4", "rkmk4", "euler", "leapfrog"],
+        values,
+        [[0], [1], [2], [3]],
+        ax=ax,
+        curves=[(dts, v) for v in values],
+    )
+    assert notes == ["rk4 = rkmk4 to 3 digits", "euler ≈ leapfrog (within 1.4%)"]
+    plt.close(fig)
 
 
 def test_lines_apart_only_at_round_off_coincide():
@@ -774,12 +824,12 @@ def test_lines_apart_only_at_round_off_coincide():
     one line with no note: below the measure's round-off floor a figure cannot part them."""
     import numpy as np
 
-    from rbstudy.analysis.plots import _coincident, _together
+    from rbstudy.analysis.overlaps import coincident, together
 
     rows = [np.array([4.6e-13, 2.6e-14, 1e-8]), np.array([4.6e-13, 2.55e-14, 1e-8])]
-    assert _coincident(rows, 1e-13) == [[0, 1]]
-    assert _coincident(rows) == [[0], [1]]  # exact agreement still asked above the floor
-    assert _together(["rk4", "rkmk4"], rows, 1e-13) == "rk4 = rkmk4 to 3 digits above round-off (1e-13)"
+    assert coincident(rows, 1e-13) == [[0, 1]]
+    assert coincident(rows) == [[0], [1]]  # exact agreement still asked above the floor
+    assert together(["rk4", "rkmk4"], rows, 1e-13) == "rk4 = rkmk4 to 3 digits above round-off (1e-13)"
 
 
 def _data_points(ax, labels):

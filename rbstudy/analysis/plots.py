@@ -25,11 +25,11 @@ Every scheme keeps one colour, marker and line style in every figure: the style 
 (`rbstudy.schemes.Style`, in the scheme's own file), which the command line reads from the
 registry and hands to the figure functions (``styles``: this layer never loads the schemes);
 a scheme without one gets a style no other line of the study wears (`line_styles`). Schemes
-whose values agree to 3 digits (`_coincident`, round-off aside) are drawn on top of each
+whose values agree to 3 digits (`rbstudy.analysis.overlaps`, round-off aside) are drawn on top of each
 other, differing in marker and dash so that both stay visible, and named together in every
 figure type ("euler = leapfrog to 3 digits": in the legend of a convergence or
 work-precision figure, over each invariant-drift panel); lines that agree so in one panel
-only are named over it (`_panel_overlaps`), the legend's pairs not again. A figure has one
+only are named over it (`rbstudy.analysis.overlaps`), the legend's pairs not again. A figure has one
 legend, outside the data. An exact zero, which log axes cannot show, lies on a floor line labelled
 "0 (exact)", its line running down to it, with its own mark and legend entry ("exact
 zero"); a gap is a failed case, or a case without a reference (its DOP853 reference passed
@@ -73,11 +73,10 @@ from rbstudy.analysis.figure_marks import (  # noqa: E402
     zero_marks,
 )
 from rbstudy.analysis.findings import calibrated, case_seconds  # noqa: E402
+from rbstudy.analysis.overlaps import coincident, near_lines, panel_overlaps, together  # noqa: E402
 from rbstudy.analysis.summary import (  # noqa: E402
-    COINCIDENT_DIGITS,
     ERROR_MEASURES,
     UNCERTAINTY_FACTOR,
-    agree,
     at_floor,
     error_measure,
     fitted_order,
@@ -117,7 +116,6 @@ __all__ = [
     "benchmark_case",
     "zero_floor",
     "plot_with_zeros",
-    "coinciding_lines",
 ]
 
 MAX_FACETS = 4
@@ -472,6 +470,13 @@ def _mark_floor(ax, floor):
 ZERO_MARK_EVERY = 8
 
 
+def _on_floor(y, floor):
+    """``y`` as `plot_with_zeros` draws it: its exact zeros on the ``floor`` line (None: it
+    has no zero)."""
+    y = np.asarray(y, dtype=float)
+    return y if floor is None else np.where(y == 0.0, floor, y)
+
+
 def plot_with_zeros(ax, x, y, floor, label, style, markers=True):
     """A line with its exact zeros on the floor line, the line running down to them, each
     with the exact-zero mark (`rbstudy.analysis.figure_marks.zero_marks`) instead of the
@@ -591,44 +596,10 @@ def _fit_text(errors, fit, failed, limits, round_off):
     return text
 
 
-def _together(names, rows=None, floor=0.0):
-    """The name of lines drawn on top of each other (`_coincident` of their ``rows`` of
-    values with the round-off ``floor``): ``euler = leapfrog to 3 digits``, ``... to 3
-    digits above round-off (1e-13)`` where they agree only once values at the floor count as
-    one, ``... (at round-off: at most 1e-12)`` where every value is there, ``... (exactly 0
-    throughout)`` where every value is 0; or a line's own name."""
-    joined = " = ".join(names)
-    if len(names) == 1 or rows is None:
-        return joined if len(names) == 1 else f"{joined} to {COINCIDENT_DIGITS} digits"
-    finite = np.concatenate([np.asarray(row)[np.isfinite(row)] for row in rows])
-    if finite.size and np.all(finite == 0.0):
-        return f"{joined} (exactly 0 throughout)"
-    if floor > 0:
-        if finite.size and np.all(np.abs(finite) <= floor):
-            return f"{joined} (at round-off: at most {floor:g})"
-        if not all(agree(rows[0], row) for row in rows[1:]):
-            return f"{joined} to {COINCIDENT_DIGITS} digits above round-off ({floor:g})"
-    return f"{joined} to {COINCIDENT_DIGITS} digits"
-
-
-def coinciding_lines(ds, key):
-    """The (first, second) schemes whose lines the convergence figure of measure ``key``
-    draws on top of each other and names together (`_coincident` over every case, the
-    measure's round-off floor aside): the figure's caption names the same pairs."""
-    errors = error_measure(ds, key)
-    if errors is None or "scheme" not in errors.dims:
-        return []
-    names = list(schemes_of(ds))
-    groups = _coincident(
-        [per_scheme(errors, name).values.ravel() for name in names], ERROR_MEASURES[key].floor
-    )
-    return [(names[group[0]], names[other]) for group in groups for other in group[1:]]
-
-
 def _fit_label(name, texts, fits):
     """The legend entry of a line over a figure's panels (``texts`` and ``fits``, one per
     panel): ``rk4 (order 4.00, finest 3.99-4.01)``, ``in 3 of 4 panels`` where the others
-    had none; ``name``: the line's, or the lines' that coincide (`_together`)."""
+    had none; ``name``: the line's, or the lines' that coincide (`together`)."""
     fitted = [fit for fit in fits if np.isfinite(fit.order)]
     if len(set(texts)) == 1:
         text = texts[0]
@@ -709,51 +680,9 @@ def _draw_band(ax, x, best, worst, floor, style):
     ax.plot(x, low, color=style["color"], linestyle=(0, (1, 2)), linewidth=0.9, zorder=1)
 
 
-def _coincident(errors, floor=0.0):
-    """Groups of line indices (first line first) whose ``errors`` (lines x points) agree to
-    `COINCIDENT_DIGITS` significant digits at every point (`agree`, the findings' test),
-    gaps at the same points, points where both lie at or below the measure's round-off
-    ``floor`` counting as agreeing (a figure cannot tell them apart: rk4 and rkmk4 differed
-    by 2% at one precession error of 2.6e-14 and were drawn as one line, unnamed); each
-    line is in exactly one group, alone when it has no point to agree on (failed at every
-    dt)."""
-    errors = [np.where(np.abs(e) <= floor, 0.0, e) if floor > 0 else e for e in errors]
-    groups, placed = [], set()
-    for first in range(len(errors)):
-        if first in placed:
-            continue
-        shown = np.isfinite(errors[first]).any()
-        group = [first] + [
-            other
-            for other in range(first + 1, len(errors))
-            if shown
-            if other not in placed and agree(errors[other], errors[first])
-        ]
-        placed.update(group)
-        groups.append(group)
-    return groups
-
-
-def _panel_overlaps(names, values, groups, floor=0.0):
-    """The lines a panel draws on top of each other that its figure's legend does not name
-    together: ``values`` (lines x points) as the panel draws them, ``groups`` the figure's
-    (`_coincident` over every case, named in the legend). The same test, `_coincident`,
-    on this panel's points; each legend group is named by its first line, so that no pair
-    the legend names is named again: ``no_squish = splitting to 3 digits`` over abaqus_top's
-    energy errors at I3/I1 = 0.1, 0.5 and 1.5, where the legend cannot name them (they part
-    at 2)."""
-    first_of = {k: group[0] for group in groups for k in group}
-    notes = []
-    for group in _coincident(values, floor):
-        firsts = list(dict.fromkeys(first_of[k] for k in group))
-        if len(firsts) > 1:
-            notes.append(_together([names[k] for k in firsts], [values[k] for k in firsts], floor))
-    return notes
-
-
 def _overlap_title(ax, fig, title, notes):
     """A panel's ``title`` and, on lines of their own wrapped to the panel's width, the
-    ``notes`` of the lines it draws on top of each other (`_panel_overlaps`): over the
+    ``notes`` of the lines it draws on top of each other (`rbstudy.analysis.overlaps`): over the
     panel, never over its data."""
     if not notes:
         return title
@@ -916,9 +845,9 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         # named together
         rows = [data.values.ravel() for *_, data in _lines(measure, line_dim)]
         # coinciding below the measure's constant floor, as `coinciding_lines` tells the caption
-        groups = _coincident(rows, spec.floor)
+        groups = coincident(rows, spec.floor)
         group_names = {
-            group[0]: _together([fits[0][j][0] for j in group], [rows[j] for j in group], spec.floor)
+            group[0]: together([fits[0][j][0] for j in group], [rows[j] for j in group], spec.floor)
             for group in groups
         }
         drawn = {
@@ -967,11 +896,13 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 ax.set_xlabel("time step dt (s)")
                 ax.set_ylabel(f"{label} ({units})")
                 # lines that coincide in this panel only: the legend cannot name them
-                here = _panel_overlaps(
+                here = panel_overlaps(
                     [fits[0][j][0] for j in range(len(lines))],
                     [errors for _, _, errors, *_ in lines],
                     groups,
                     spec.floor,
+                    ax,
+                    [(dts, _on_floor(errors, floor)) for _, _, errors, *_ in lines],
                 )
                 ax.set_title(_overlap_title(ax, fig, _panel_title(facet, value, reduced), here))
                 ax.grid(True, which="major", alpha=0.3)
@@ -1063,7 +994,7 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
         for pick, errors_band in zip(picks, bands, strict=True)
     ]
     # lines drawn on top of each other (error and time alike at every point) named together
-    groups = _coincident(
+    groups = coincident(
         [np.concatenate([np.r_[p[j][2], p[j][3]] for p in panels]) for j in range(len(panels[0]))]
     )
     drawn = {
@@ -1097,8 +1028,12 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
                 extras.setdefault("point", (star, point.label))
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("cost per case (core-seconds)")
-            here = _panel_overlaps(
-                [name for name, *_ in lines], [np.r_[errors, times] for _, _, errors, times in lines], groups
+            here = panel_overlaps(
+                [name for name, *_ in lines],
+                [np.r_[errors, times] for _, _, errors, times in lines],
+                groups,
+                ax=ax,
+                curves=[(errors, times) for _, _, errors, times in lines],  # zeros not drawn
             )
             title = _panel_title(facet, pick.get(facet), reduced, "the worst error and cost")
             ax.set_title(_overlap_title(ax, fig, title, here))
@@ -1107,7 +1042,7 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             [
                 (
                     [handles[j] for j in group],
-                    _together([panels[0][j][0] for j in group])
+                    together([panels[0][j][0] for j in group])
                     + _aside(_missing_text(bands, line_dim, group[0], behind), " ({})"),
                 )
                 for group in groups
@@ -1376,14 +1311,14 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
             floors.append(floor)
             # lines on top of each other in this panel (hht's and midpoint's zero energy
             # error) drawn in turn, dashed over solid, and named over it
-            groups = _coincident(values, ERROR_MEASURES[_DRIFT_MEASURES[name]].floor)
+            groups = coincident(values, ERROR_MEASURES[_DRIFT_MEASURES[name]].floor)
             for group in groups:
                 for rank, k in enumerate(group):
                     style = _style(cases[k][0], schemes)
                     style = _coincident_style(style, rank, len(group)) if len(group) > 1 else style
                     plot_with_zeros(ax, times, values[k], floor, None, style, markers=False)
             overlaps = [
-                _together(
+                together(
                     [names[k] for k in group],
                     [values[k] for k in group],
                     ERROR_MEASURES[_DRIFT_MEASURES[name]].floor,
@@ -1391,8 +1326,13 @@ def invariant_drift(ds, folder, formats=FORMATS, styles=None):
                 for group in groups
                 if len(group) > 1
             ]
-            ax.set_title(_overlap_title(ax, fig, "", overlaps))
             _mark_floor(ax, floor)
+            overlaps += near_lines(
+                ax,
+                [names[group[0]] for group in groups],
+                [(times, _on_floor(values[group[0]], floor)) for group in groups],
+            )
+            ax.set_title(_overlap_title(ax, fig, "", overlaps))
             ax.set_xlabel("time (s)")
             ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)

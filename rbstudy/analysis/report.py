@@ -22,6 +22,7 @@ import markupsafe
 import numpy as np
 
 from rbstudy.analysis.findings import calibrated, findings
+from rbstudy.analysis.overlaps import coinciding_lines
 from rbstudy.analysis.pages import render
 from rbstudy.analysis.plots import (
     BENCHMARK_NODE,
@@ -29,7 +30,6 @@ from rbstudy.analysis.plots import (
     FORMATS,
     all_figures,
     benchmark_case,
-    coinciding_lines,
     figure_layout,
 )
 from rbstudy.analysis.summary import (
