@@ -121,6 +121,7 @@ def near_lines(ax, names, curves):
     drawn on ``ax``, whose limits are set: exact zeros at the floor they are drawn on,
     failures NaN) whose every point lies within `NEAR_POINTS` of the first's, gaps at the
     same points; the share is their largest relative difference in x or y."""
+    ax.get_xlim(), ax.get_ylim()  # the limits autoscaled now: the transform reads them as they stand
     box = ax.get_position()
     size = np.array([box.width * ax.figure.get_figwidth(), box.height * ax.figure.get_figheight()]) * 72
     to_axes = ax.transScale + ax.transLimits  # data -> the panel's unit square, log axes too

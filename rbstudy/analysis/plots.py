@@ -29,7 +29,9 @@ whose values agree to 3 digits (`rbstudy.analysis.overlaps`, round-off aside) ar
 other, differing in marker and dash so that both stay visible, and named together in every
 figure type ("euler = leapfrog to 3 digits": in the legend of a convergence or
 work-precision figure, over each invariant-drift panel); lines that agree so in one panel
-only are named over it (`rbstudy.analysis.overlaps`), the legend's pairs not again. A figure has one
+only are named over it, the legend's pairs not again, and so are lines that differ but lie
+within a line's width of each other on the page ("euler ≈ leapfrog (within 1.4%)"; both
+tests in `rbstudy.analysis.overlaps`). A figure has one
 legend, outside the data. An exact zero, which log axes cannot show, lies on a floor line labelled
 "0 (exact)", its line running down to it, with its own mark and legend entry ("exact
 zero"); a gap is a failed case, or a case without a reference (its DOP853 reference passed
