@@ -3,6 +3,7 @@ of the whole process group of a sweep with workers, a library's message of sever
 and a file that is no archive at all. Each says its one line, and only that."""
 
 import os
+import pathlib
 import signal
 import subprocess
 import sys
@@ -214,3 +215,89 @@ def test_an_error_naming_a_path_with_a_newline_is_one_line(tmp_path, capsys):
     assert main(["sweep", str(config), "--out", "/proc/x\ny"]) == 1
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and error.startswith("rbstudy: error: --out /proc/x\\ny: "), error
+
+
+# A path given where a verb reads a file, as the test makes it in tmp_path (None: as it is).
+NOT_A_FILE = {
+    "folder": (lambda path: path.mkdir(), "it is a folder, not a regular file"),
+    "/dev/null": (None, "it is a character device, not a regular file"),
+    "missing": (lambda path: None, "No such file or directory"),
+}
+
+
+@pytest.mark.parametrize("kind", NOT_A_FILE)
+@pytest.mark.parametrize("verb", ["sweep", "sweep --cluster", "validate"])
+def test_a_config_or_cluster_file_that_is_no_file_is_one_line(tmp_path, capsys, verb, kind):
+    make, said = NOT_A_FILE[kind]
+    path = tmp_path / "given.yaml"
+    if make is None:
+        path = pathlib.Path(kind)
+    else:
+        make(path)
+    command, *option = verb.split()
+    files = [str(write_study(tmp_path, name="top"))] if option else []
+    out = tmp_path / "out"
+    assert main([command, *files, *option, str(path), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith(f"rbstudy: error: {path}: cannot read the file: {said}; "), captured.err
+    assert not out.exists()
+
+
+# An --out that is no folder, as the test makes it in tmp_path (None: as it is).
+NOT_A_FOLDER = {
+    "/dev/null": (None, "is a file, not a folder"),
+    "a file": (lambda path: path.write_text("x"), "is a file, not a folder"),
+    "under a file": (lambda path: path.write_text("x"), "lies under the file"),
+}
+
+
+@pytest.mark.parametrize("kind", NOT_A_FOLDER)
+@pytest.mark.parametrize("verb", ["sweep", "validate", "plot", "report", "conformance"])
+def test_an_out_that_is_no_folder_is_one_line(tmp_path, capsys, verb, kind):
+    """validate said "ok" of an --out its sweep refuses (a file, /dev/null)."""
+    make, said = NOT_A_FOLDER[kind]
+    out = pathlib.Path(kind) if make is None else tmp_path / "taken"
+    if make is not None:
+        make(out)
+    out = out / "results" if kind == "under a file" else out
+    given = {
+        "sweep": [str(write_study(tmp_path, name="top"))],
+        "validate": [str(write_study(tmp_path, name="top"))],
+        "plot": ["x.nc"],
+        "report": ["x.nc"],
+        "conformance": ["--cases", "x"],
+    }[verb]
+    assert main([verb, *given, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith(f"rbstudy: error: --out {out}: {said}"), captured.err
+
+
+def test_verify_names_a_digest_that_is_no_file_and_never_waits_on_it(tmp_path):
+    """A part's digest (``<part>.nc.sha256``) that was a FIFO hung `verify` (and a sweep
+    reusing the part) on opening it, a link to /dev/zero read it until the memory ran out,
+    and a folder was called "damaged: its bytes do not match"."""
+    makers = {
+        "fifo": os.mkfifo,
+        "zero": lambda path: path.symlink_to("/dev/zero"),
+        "folder": lambda path: path.mkdir(),
+    }
+    parts = []
+    for name, make in makers.items():
+        part = tmp_path / f"{name}.nc"
+        part.write_bytes(b"\x89HDF\r\n\x1a\n")
+        make(tmp_path / f"{name}.nc.sha256")
+        parts.append(str(part))
+    # a process of its own: one that waits is ended (subprocess.run kills it at the timeout)
+    done = subprocess.run(
+        [sys.executable, "-m", "rbstudy", "verify", *parts], capture_output=True, text=True, timeout=60
+    )
+    error = done.stderr
+    assert done.returncode == 1 and done.stdout == ""
+    kinds = ("a FIFO (named pipe)", "a character device", "a folder")
+    assert error.splitlines() == [
+        f"rbstudy: error: {part}: cannot read its digest {pathlib.Path(part).name}.sha256: it is {kind}, "
+        "not a regular file; remove it and rerun its sweep: the part is recomputed"
+        for part, kind in zip(parts, kinds, strict=True)
+    ]
