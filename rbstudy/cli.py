@@ -250,6 +250,10 @@ def _sweep(args):
         from rbstudy.pipeline.cluster import read_cluster_file
 
         cluster = read_cluster_file(args.cluster)
+    if args.scheduler:
+        from rbstudy.pipeline.cluster import check_scheduler
+
+        check_scheduler(args.scheduler)  # before the forecast: a typo waited for it
     if not args.scheduler and (args.workers or (cluster and cluster.kind == "local")):
         # the local workers' forkserver imports rbstudy while this process reads the studies
         from rbstudy.pipeline.cluster import start_forkserver

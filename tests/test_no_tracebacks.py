@@ -5,6 +5,7 @@ and a file that is no archive at all. Each says its one line, and only that."""
 import os
 import pathlib
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -35,8 +36,9 @@ def _rbstudy(*args, **popen):
 
 @pytest.mark.slow
 def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
-    """The option fails in the worker as it starts: the worker's semaphores were reported
-    as leaked by Python's resource tracker (a warning of two lines, twice) after the error."""
+    """The option failed in the worker as it started: the worker's semaphores were reported
+    as leaked by Python's resource tracker (a warning of two lines, twice) after the error.
+    Now the count is refused as the cluster file is read, before any worker (or forecast)."""
     config = write_study(tmp_path, name="small")
     cluster = tmp_path / "cluster.yaml"
     cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1, "options": {"threads_per_worker": -1}}))
@@ -45,11 +47,8 @@ def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
     )
     error = process.communicate(timeout=300)[1]
     assert process.returncode == 1
-    assert error == (
-        f"rbstudy: error: {cluster}: options: Nanny failed to start. (ValueError: "
-        "max_workers must be greater than 0); see the keyword arguments of "
-        "LocalCluster\n"
-    )
+    said = "options.threads_per_worker: expected a whole number >= 1, got -1"
+    assert error == f"rbstudy: error: {cluster}: {said}\n"
 
 
 @pytest.mark.slow
@@ -301,3 +300,37 @@ def test_verify_names_a_digest_that_is_no_file_and_never_waits_on_it(tmp_path):
         "not a regular file; remove it and rerun its sweep: the part is recomputed"
         for part, kind in zip(parts, kinds, strict=True)
     ]
+
+
+def _closed_port():
+    """A TCP port of this machine on which nothing listens (bound, then let go)."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    "where, said",
+    [
+        ({"cluster": {"options": {"threds_per_worker": 2}}}, "options.threds_per_worker: no keyword"),
+        ({"cluster": {"options": {"threads_per_worker": -1}}}, "options.threads_per_worker: expected"),
+        ({"scheduler": "nonsense"}, "--scheduler nonsense: not a scheduler address (missing port number"),
+        ({"scheduler": "closed"}, ": cannot connect (Connection refused); start the cluster first"),
+    ],
+)
+def test_a_bad_cluster_or_scheduler_is_refused_before_the_forecast(tmp_path, capsys, where, said):
+    """Both printed the study's forecast first, and the error once the cluster was started
+    or reached ('--scheduler nonsense': a traceback, exit 70)."""
+    config = write_study(tmp_path, name="small")
+    if "cluster" in where:
+        cluster = tmp_path / "cluster.yaml"
+        cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1, **where["cluster"]}))
+        option = ["--cluster", str(cluster)]
+    else:
+        address = where["scheduler"]
+        option = ["--scheduler", f"tcp://127.0.0.1:{_closed_port()}" if address == "closed" else address]
+    assert main(["sweep", str(config), *option, "--out", str(tmp_path / "out")]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith("rbstudy: error: ") and said in captured.err, captured.err
+    assert not (tmp_path / "out").exists()
