@@ -149,6 +149,22 @@ def _check_out(folder, given=True):
     check_output_folder(folder, "--out " if given else "")
 
 
+def _check_root(root):
+    """Refuse the results root ``root`` (--out) in one line when it is no folder (a file, a
+    device, a path under a file); return the `UnwritableFolder` error of a folder rbstudy
+    cannot write (read-only), which a rerun whose archives are up to date needs no write
+    of, or None."""
+    from rbstudy.pipeline.store import UnwritableFolder
+
+    try:
+        _check_out(root)
+    except UnwritableFolder as error:
+        if not pathlib.Path(root).is_dir():  # a file, under a file: no archive to find there
+            raise
+        return error
+    return None
+
+
 def _study_folders(studies, args):
     """Check --out and each study's folder in it before a sweep prints anything, and return
     the names of the studies whose folder cannot be written but holds an archive: a rerun
@@ -158,13 +174,7 @@ def _study_folders(studies, args):
     from rbstudy.pipeline.store import UnwritableFolder
 
     root = pathlib.Path(args.out)
-    try:
-        _check_out(root)
-        refused = None
-    except UnwritableFolder as error:
-        if not root.is_dir():  # a file, under a file: no archive to find there
-            raise
-        refused = error  # read-only: each study's folder decides
+    refused = _check_root(root)
     read_only = set()
     for study in studies:
         folder = root / study.name
@@ -218,6 +228,8 @@ def _each_file(paths, say):
 def _validate(args):
     from rbstudy.pipeline.config import load_study
 
+    _check_root(args.out)  # what the sweep would refuse before any study: --out no folder
+
     def checked(path):
         study = load_study(path, args.set)
         line = _costed(study, args, disk=True)  # the limits are checked even when quiet
@@ -238,6 +250,10 @@ def _sweep(args):
         from rbstudy.pipeline.cluster import read_cluster_file
 
         cluster = read_cluster_file(args.cluster)
+    if args.scheduler:
+        from rbstudy.pipeline.cluster import check_scheduler
+
+        check_scheduler(args.scheduler)  # before the forecast: a typo waited for it
     if not args.scheduler and (args.workers or (cluster and cluster.kind == "local")):
         # the local workers' forkserver imports rbstudy while this process reads the studies
         from rbstudy.pipeline.cluster import start_forkserver

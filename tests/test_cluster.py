@@ -322,7 +322,8 @@ def test_a_sweep_with_workers_leaves_no_temporary_file(tmp_path):
         ("kind: pbs\njobs: 1\nqueue: short\n", "queue: unknown key; valid keys here: kind, jobs"),
         (
             "kind: local\njobs: 1\noptions: {no_such_option: 1}\n",
-            "options: .*no_such_option.*; see the keyword arguments of LocalCluster",
+            "options.no_such_option: no keyword argument of LocalCluster or its workers; "
+            "see the keyword arguments of LocalCluster",
         ),
     ],
 )

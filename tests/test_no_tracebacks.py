@@ -3,7 +3,9 @@ of the whole process group of a sweep with workers, a library's message of sever
 and a file that is no archive at all. Each says its one line, and only that."""
 
 import os
+import pathlib
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -34,8 +36,9 @@ def _rbstudy(*args, **popen):
 
 @pytest.mark.slow
 def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
-    """The option fails in the worker as it starts: the worker's semaphores were reported
-    as leaked by Python's resource tracker (a warning of two lines, twice) after the error."""
+    """The option failed in the worker as it started: the worker's semaphores were reported
+    as leaked by Python's resource tracker (a warning of two lines, twice) after the error.
+    Now the count is refused as the cluster file is read, before any worker (or forecast)."""
     config = write_study(tmp_path, name="small")
     cluster = tmp_path / "cluster.yaml"
     cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1, "options": {"threads_per_worker": -1}}))
@@ -44,11 +47,8 @@ def test_a_bad_local_cluster_option_is_one_line_and_no_warning(tmp_path):
     )
     error = process.communicate(timeout=300)[1]
     assert process.returncode == 1
-    assert error == (
-        f"rbstudy: error: {cluster}: options: Nanny failed to start. (ValueError: "
-        "max_workers must be greater than 0); see the keyword arguments of "
-        "LocalCluster\n"
-    )
+    said = "options.threads_per_worker: expected a whole number >= 1, got -1"
+    assert error == f"rbstudy: error: {cluster}: {said}\n"
 
 
 @pytest.mark.slow
@@ -214,3 +214,123 @@ def test_an_error_naming_a_path_with_a_newline_is_one_line(tmp_path, capsys):
     assert main(["sweep", str(config), "--out", "/proc/x\ny"]) == 1
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and error.startswith("rbstudy: error: --out /proc/x\\ny: "), error
+
+
+# A path given where a verb reads a file, as the test makes it in tmp_path (None: as it is).
+NOT_A_FILE = {
+    "folder": (lambda path: path.mkdir(), "it is a folder, not a regular file"),
+    "/dev/null": (None, "it is a character device, not a regular file"),
+    "missing": (lambda path: None, "No such file or directory"),
+}
+
+
+@pytest.mark.parametrize("kind", NOT_A_FILE)
+@pytest.mark.parametrize("verb", ["sweep", "sweep --cluster", "validate"])
+def test_a_config_or_cluster_file_that_is_no_file_is_one_line(tmp_path, capsys, verb, kind):
+    make, said = NOT_A_FILE[kind]
+    path = tmp_path / "given.yaml"
+    if make is None:
+        path = pathlib.Path(kind)
+    else:
+        make(path)
+    command, *option = verb.split()
+    files = [str(write_study(tmp_path, name="top"))] if option else []
+    out = tmp_path / "out"
+    assert main([command, *files, *option, str(path), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith(f"rbstudy: error: {path}: cannot read the file: {said}; "), captured.err
+    assert not out.exists()
+
+
+# An --out that is no folder, as the test makes it in tmp_path (None: as it is).
+NOT_A_FOLDER = {
+    "/dev/null": (None, "is a file, not a folder"),
+    "a file": (lambda path: path.write_text("x"), "is a file, not a folder"),
+    "under a file": (lambda path: path.write_text("x"), "lies under the file"),
+}
+
+
+@pytest.mark.parametrize("kind", NOT_A_FOLDER)
+@pytest.mark.parametrize("verb", ["sweep", "validate", "plot", "report", "conformance"])
+def test_an_out_that_is_no_folder_is_one_line(tmp_path, capsys, verb, kind):
+    """validate said "ok" of an --out its sweep refuses (a file, /dev/null)."""
+    make, said = NOT_A_FOLDER[kind]
+    out = pathlib.Path(kind) if make is None else tmp_path / "taken"
+    if make is not None:
+        make(out)
+    out = out / "results" if kind == "under a file" else out
+    given = {
+        "sweep": [str(write_study(tmp_path, name="top"))],
+        "validate": [str(write_study(tmp_path, name="top"))],
+        "plot": ["x.nc"],
+        "report": ["x.nc"],
+        "conformance": ["--cases", "x"],
+    }[verb]
+    assert main([verb, *given, "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith(f"rbstudy: error: --out {out}: {said}"), captured.err
+
+
+def test_verify_names_a_digest_that_is_no_file_and_never_waits_on_it(tmp_path):
+    """A part's digest (``<part>.nc.sha256``) that was a FIFO hung `verify` (and a sweep
+    reusing the part) on opening it, a link to /dev/zero read it until the memory ran out,
+    and a folder was called "damaged: its bytes do not match"."""
+    makers = {
+        "fifo": os.mkfifo,
+        "zero": lambda path: path.symlink_to("/dev/zero"),
+        "folder": lambda path: path.mkdir(),
+    }
+    parts = []
+    for name, make in makers.items():
+        part = tmp_path / f"{name}.nc"
+        part.write_bytes(b"\x89HDF\r\n\x1a\n")
+        make(tmp_path / f"{name}.nc.sha256")
+        parts.append(str(part))
+    # a process of its own: one that waits is ended (subprocess.run kills it at the timeout)
+    done = subprocess.run(
+        [sys.executable, "-m", "rbstudy", "verify", *parts], capture_output=True, text=True, timeout=60
+    )
+    error = done.stderr
+    assert done.returncode == 1 and done.stdout == ""
+    kinds = ("a FIFO (named pipe)", "a character device", "a folder")
+    assert error.splitlines() == [
+        f"rbstudy: error: {part}: cannot read its digest {pathlib.Path(part).name}.sha256: it is {kind}, "
+        "not a regular file; remove it and rerun its sweep: the part is recomputed"
+        for part, kind in zip(parts, kinds, strict=True)
+    ]
+
+
+def _closed_port():
+    """A TCP port of this machine on which nothing listens (bound, then let go)."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    "where, said",
+    [
+        ({"cluster": {"options": {"threds_per_worker": 2}}}, "options.threds_per_worker: no keyword"),
+        ({"cluster": {"options": {"threads_per_worker": -1}}}, "options.threads_per_worker: expected"),
+        ({"scheduler": "nonsense"}, "--scheduler nonsense: not a scheduler address (missing port number"),
+        ({"scheduler": "closed"}, ": cannot connect (Connection refused); start the cluster first"),
+    ],
+)
+def test_a_bad_cluster_or_scheduler_is_refused_before_the_forecast(tmp_path, capsys, where, said):
+    """Both printed the study's forecast first, and the error once the cluster was started
+    or reached ('--scheduler nonsense': a traceback, exit 70)."""
+    config = write_study(tmp_path, name="small")
+    if "cluster" in where:
+        cluster = tmp_path / "cluster.yaml"
+        cluster.write_text(yaml.safe_dump({"kind": "local", "jobs": 1, **where["cluster"]}))
+        option = ["--cluster", str(cluster)]
+    else:
+        address = where["scheduler"]
+        option = ["--scheduler", f"tcp://127.0.0.1:{_closed_port()}" if address == "closed" else address]
+    assert main(["sweep", str(config), *option, "--out", str(tmp_path / "out")]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1, captured
+    assert captured.err.startswith("rbstudy: error: ") and said in captured.err, captured.err
+    assert not (tmp_path / "out").exists()

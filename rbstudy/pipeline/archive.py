@@ -241,7 +241,16 @@ def verify_file(path):
     """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
     its digest beside it); an `InputError` naming the first problems when it is not."""
     _head(path)  # a file, before its digest's name is made from its name ("." has none)
-    if sidecar(path).exists():
+    digest = sidecar(path)
+    if digest.exists():
+        try:  # a folder, a FIFO or /dev/zero there is not a digest that does not match
+            open_regular_file(digest).close()
+        except OSError as error:
+            raise InputError(
+                f"cannot read its digest {digest.name}: {error.strerror}",
+                "remove it and rerun its sweep: the part is recomputed",
+                str(path),
+            ) from None
         if part_digest(path) is None:
             raise InputError(
                 "damaged: its bytes do not match the digest stored beside it",

@@ -21,17 +21,19 @@ a fixed number of jobs that have all ended ends the run at once.
 
 import contextlib
 import importlib.util
+import inspect
 import logging
 import math
 import pathlib
 import signal
+import socket
 import subprocess
 import time
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from rbstudy.errors import ConfigError, RbstudyError, counted, one_line
+from rbstudy.errors import ConfigError, RbstudyError, counted, did_you_mean, one_line
 from rbstudy.inputs.reader import Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.pipeline.integrity import sealed
@@ -41,6 +43,7 @@ __all__ = [
     "Where",
     "LOCAL",
     "read_cluster_file",
+    "check_scheduler",
     "connect",
     "run_on_cluster",
     "dashboard_line",
@@ -53,7 +56,8 @@ WRITERS = ("auto", "workers", "client")
 # Seconds to wait for a first worker (batch jobs queue) or for workers to come back.
 WORKER_WAIT = 600.0
 # How long to wait for a --scheduler to answer: a cluster on a busy login node may be slow.
-CONNECT_TIMEOUT = "10s"
+CONNECT_SECONDS = 10.0
+CONNECT_TIMEOUT = f"{CONNECT_SECONDS:g}s"
 # Seconds between two looks at the cluster's workers, and between two looks for finished
 # batches when none has finished.
 POLL_SECONDS = 1.0
@@ -163,7 +167,76 @@ def read_cluster_file(path):
     options = data.get("options") or {}
     if not isinstance(options, dict) or not all(isinstance(key, str) for key in options):
         reader.fail("options", f"expected a mapping of keyword arguments, got {options!r:.80}")
+    _check_options(reader, kind, options)
     return ClusterFile(path, kind, jobs, adaptive, options)
+
+
+def _keywords(*classes):
+    """The names of the keyword arguments the ``__init__`` of ``classes`` take."""
+    return {
+        name
+        for cls in classes
+        for name, parameter in inspect.signature(cls.__init__).parameters.items()
+        if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
+    } - {"self"}
+
+
+def _check_options(reader, kind, options):
+    """Refuse, before a sweep prints anything, the ``options`` of a cluster of ``kind`` that
+    no class they reach takes (a local cluster passes those it does not take to each worker:
+    Nanny, Worker, Server; a job cluster to each job), and a local cluster's counts of
+    workers and threads that are none: distributed would say so only once the cluster
+    starts, after the forecast. A job cluster without dask-jobqueue is left to `_start`,
+    which says how to install it."""
+    if kind == "local":
+        from distributed import LocalCluster, Nanny, Worker
+        from distributed.core import Server
+
+        named, taken = "LocalCluster", _keywords(LocalCluster, Nanny, Worker, Server)
+        for name, least in (("n_workers", 0), ("threads_per_worker", 1)):
+            if options.get(name) is not None:
+                reader.count(options[name], f"options.{name}", minimum=least)
+    else:
+        try:
+            import dask_jobqueue
+            from dask_jobqueue.core import Job, JobQueueCluster
+        except ImportError:
+            return
+        named = JOB_CLUSTERS[kind]
+        cluster = getattr(dask_jobqueue, named)
+        taken = _keywords(cluster, JobQueueCluster, cluster.job_cls, Job)
+    for name in options:
+        if name not in taken:
+            reader.fail(
+                f"options.{name}",
+                f"no keyword argument of {named} or its workers{did_you_mean(name, taken)}",
+                f"see the keyword arguments of {named}",
+            )
+
+
+def check_scheduler(address):
+    """Refuse ``address`` (--scheduler) in one line, before a sweep prints anything, when it
+    is no scheduler address (``tcp://host:port``) or nothing listens there: a TCP connection
+    tried for at most `CONNECT_SECONDS` (the protocols other than tcp and tls are left to
+    `connect`)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address)
+        if protocol not in ("tcp", "tls"):
+            return
+        host, port = parse_host_port(location)
+    except ValueError as error:
+        raise RbstudyError(
+            f"--scheduler {address}: not a scheduler address ({one_line(error)}); give tcp://host:port"
+        ) from None
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_SECONDS).close()
+    except OSError as error:
+        raise RbstudyError(
+            f"--scheduler {address}: cannot connect ({error.strerror or one_line(error) or 'timed out'}); "
+            "start the cluster first or drop --scheduler"
+        ) from None
 
 
 def start_forkserver():
@@ -318,7 +391,7 @@ def connect(scheduler=None, workers=None, cluster=None, logs=None):
             if scheduler:
                 try:
                     client = Client(scheduler, timeout=CONNECT_TIMEOUT)
-                except (OSError, TimeoutError) as error:
+                except (OSError, TimeoutError, ValueError) as error:  # ValueError: no port
                     raise RbstudyError(
                         f"--scheduler {scheduler}: cannot connect "
                         f"({one_line(error)}); "

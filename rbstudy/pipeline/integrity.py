@@ -37,6 +37,7 @@ import netCDF4
 import numpy as np
 
 from rbstudy.errors import one_line
+from rbstudy.inputs.reader import open_regular_file
 from rbstudy.pipeline.batches import ids_digest
 
 __all__ = [
@@ -72,6 +73,9 @@ SIDECAR_SUFFIX = ".sha256"
 # Bytes read at once while hashing a file, and values per slab while hashing a variable:
 # bounded memory whatever the size of the study.
 _READ_BYTES = 1 << 20
+# The most of a digest file read: its one line (`sidecar_text`) is ~80 bytes and the part's
+# name; more is not one rbstudy wrote (a link to /dev/zero, which never ends).
+_SIDECAR_BYTES = 4096
 _SLAB_BYTES = 1 << 23
 # Slots of a variable's chunk cache while it is hashed (a prime, as HDF5 advises).
 _CACHE_SLOTS = 521
@@ -95,9 +99,10 @@ _FULL_BYTES = 2**20
 
 
 def file_digest(path):
-    """``sha256:<hex>`` of the bytes of the file at ``path``."""
+    """``sha256:<hex>`` of the bytes of the regular file at ``path`` (`open_regular_file`:
+    a FIFO or a device in a part's place is refused, never waited on or read forever)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as handle:
+    with open_regular_file(path) as handle:
         while block := handle.read(_READ_BYTES):
             digest.update(block)
     return f"{ALGORITHM}:{digest.hexdigest()}"
@@ -129,10 +134,11 @@ def sealed(path):
 
 def part_digest(path):
     """The digest of the part at ``path`` when its bytes match the one stored beside it at
-    writing, else None (no part, no digest, or any byte changed since)."""
-    path = pathlib.Path(path)
+    writing, else None (no part, no digest, no regular file for either, or any byte changed
+    since)."""
     try:
-        stored = sidecar(path).read_text().split()[0]
+        with open_regular_file(sidecar(path)) as handle:
+            stored = handle.read(_SIDECAR_BYTES).decode().split()[0]
         return stored if file_digest(path) == stored else None
     except (OSError, IndexError, UnicodeDecodeError):
         return None
