@@ -34,7 +34,6 @@ archive (``--force``, or found damaged) starts it again.
 """
 
 import contextlib
-import dataclasses
 import math
 import pathlib
 from dataclasses import dataclass
@@ -60,7 +59,7 @@ from rbstudy.pipeline.store import (
     utc_now,
     write_dataset_atomic,
 )
-from rbstudy.pipeline.variables import cf_attrs
+from rbstudy.pipeline.variables import COORDINATES, cf_attrs, variable_attrs
 from rbstudy.schemes import get_scheme
 
 __all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]
@@ -249,8 +248,8 @@ class _Probes:
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
-        for name in written.data_vars:  # the group's one table of what each variable means
-            written[name].attrs.update(cf_attrs(*_ATTRS[name]))
+        for name in written.data_vars:
+            written[name].attrs.update(_attrs(name))
         return written
 
     def write(self):
@@ -312,17 +311,19 @@ def _divides(study, steps):
     return steps % (output_count(study.duration, study.output_interval) - 1) == 0
 
 
-# What each variable of the search's file means: (units, long_name), `cf_attrs`'s.
+def _attrs(name):
+    """The CF attributes of the search's variable ``name``: the archive's own for what a probe
+    shares with a case (its scheme and step, `_PROBE_VARIABLES`), else `_ATTRS`'s."""
+    if name in _PROBE_VARIABLES:
+        return variable_attrs(name)
+    return cf_attrs(*(COORDINATES[name] if name in COORDINATES else _ATTRS[name]))
+
+
+# What each variable of the search's own means: (units, long_name), `cf_attrs`'s.
 _ATTRS = {
     "case": (None, "grid case whose scene and scheme options the probe runs (C order of the sweep)"),
     "steps": ("1", "time steps over the duration"),
-    "scheme": (None, "integration scheme"),
-    "dt": ("s", "time step"),
     "output_interval": ("s", "interval of the samples the verdict is taken at"),
-    "status": (None, "termination status code (as the archive's status)"),
-    "accuracy": (None, "accuracy verdict: 0 accurate, 1 inaccurate, 2 failed, 3 unjudged"),
-    "n_steps": ("1", "time steps the scheme took"),
-    "step_seconds": ("s", "calibrated kernel seconds of a body-step"),
     "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
     "group_case": (None, "a grid case of the group: its scene and scheme options"),
     "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
@@ -382,21 +383,24 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
                 else:
                     hi[g] = steps
         common = _common_steps(study, schemes, cases, lo, searched, probes, progress)
-        result = _search(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common)
-        result = dataclasses.replace(
-            result, adaptive=adaptive, probes=probes.dataset(), reused=probes.reused, tolerance=tolerance
+        result = Search(
+            **_answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common),
+            adaptive=adaptive,
+            probes=probes.dataset(),
+            reused=probes.reused,
+            tolerance=tolerance,
         )
         probes.seal(result, archive)  # under the lock, as every write of the folder
     return result
 
 
-def _search(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common):
-    """The `Search` of the groups' final brackets (step counts ``lo`` met, ``hi`` failed,
-    0: none) and the schemes' ``common`` steps (`_common_steps`), its probes yet to add."""
+def _answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common):
+    """The `Search` fields of the groups' final brackets (step counts ``lo`` met, ``hi``
+    failed, 0: none) and the schemes' ``common`` steps (`_common_steps`)."""
     found = np.where(searched, study.duration / np.maximum(lo, 1), math.nan)
     failing = np.where(searched & (hi > 0), study.duration / np.maximum(hi, 1), math.nan)
     seconds = np.array([lo[g] * _step_seconds(study, cases[g, 0]) for g in range(len(cases))])
-    return Search(
+    return dict(
         scheme=schemes,
         case=cases[:, 0],
         grid_dt=grid_dt,
@@ -407,10 +411,6 @@ def _search(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searche
         common={
             name: _common_cost(study, cases, steps, members) for name, (steps, members) in common.items()
         },
-        adaptive=(),
-        probes=None,
-        reused=0,
-        tolerance=math.nan,
     )
 
 
