@@ -47,7 +47,7 @@ start = time.perf_counter()
 from rbstudy.cli import main
 code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet"])
 wall = time.perf_counter() - start
-from rbstudy.pipeline.store import open_results
+from rbstudy.archive.load import open_results
 import pathlib
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the sweep's, not ours
 archive = next(pathlib.Path(sys.argv[2]).glob("*/*.nc"))

@@ -144,7 +144,7 @@ def _check_out(folder, given=True):
     """Refuse an output folder rbstudy could not write (a file, a path under one, /proc, a
     read-only or immutable folder) in one line, before a command prints or computes anything;
     ``given``: the folder is the user's --out (else a command's default folder)."""
-    from rbstudy.pipeline.store import check_output_folder
+    from rbstudy.archive.files import check_output_folder
 
     check_output_folder(folder, "--out " if given else "")
 
@@ -154,7 +154,7 @@ def _check_root(root):
     device, a path under a file); return the `UnwritableFolder` error of a folder rbstudy
     cannot write (read-only), which a rerun whose archives are up to date needs no write
     of, or None."""
-    from rbstudy.pipeline.store import UnwritableFolder
+    from rbstudy.archive.files import UnwritableFolder
 
     try:
         _check_out(root)
@@ -171,7 +171,7 @@ def _study_folders(studies, args):
     may still find it up to date, which needs no write (`run_study` tells, or refuses in
     one line naming the folder). A folder that cannot be written is refused at once under
     --force, and where it holds no archive."""
-    from rbstudy.pipeline.store import UnwritableFolder
+    from rbstudy.archive.files import UnwritableFolder
 
     root = pathlib.Path(args.out)
     refused = _check_root(root)
@@ -260,12 +260,12 @@ def _sweep(args):
 
         start_forkserver()
     from rbstudy.analysis.findings import FINDINGS_REDUCED, FINDINGS_VARIABLES
+    from rbstudy.archive.owner import folder_claim
+    from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import return_free_memory
-    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.cluster import Where
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.execute import run_study, study_progress
-    from rbstudy.pipeline.store import folder_claim
 
     # all configs checked before any run, each with every --set
     studies = [load_study(path, args.set) for path in args.files]
@@ -405,8 +405,8 @@ def _summary(args):
         markdown_summary,
         summary_document,
     )
+    from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import return_free_memory
-    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress, live_wanted
 
     # its phases on a terminal only: elsewhere its stderr holds nothing but errors, for the
@@ -466,8 +466,8 @@ def _summary(args):
 def _plot(args):
     from rbstudy.analysis.plots import all_figures
     from rbstudy.analysis.report import figures_digest
+    from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import default_threads
-    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
 
     if args.select and not args.out:
@@ -521,8 +521,8 @@ def _studies(paths, args, select=None):
     """The study of each archive of ``paths``, every one read before any is drawn (only its
     bookkeeping, one at a time; proven intact unless --no-verify; narrowed by ``select``, so
     that a bad choice fails first), and how to open each in full then (not verified again)."""
-    from rbstudy.pipeline.archive import open_archive
-    from rbstudy.pipeline.variables import BOOKKEEPING
+    from rbstudy.archive.reader import open_archive
+    from rbstudy.archive.variables import BOOKKEEPING
 
     studies = [
         str(_select(open_archive(path, BOOKKEEPING, verify=not args.no_verify), select, path).attrs["study"])
@@ -570,10 +570,11 @@ def _conformance(args):
         status_lines,
         tally_statuses,
     )
-    from rbstudy.pipeline.archive import open_archive
+    from rbstudy.archive.files import write_dataset_atomic, write_text_atomic
+    from rbstudy.archive.provenance import source_text
+    from rbstudy.archive.reader import open_archive
     from rbstudy.pipeline.golden import baseline, run_golden, write_golden
     from rbstudy.pipeline.progress import Progress
-    from rbstudy.pipeline.store import source_text, write_dataset_atomic, write_text_atomic
 
     out = pathlib.Path(args.out)
     paths = write_golden(out / "golden", schemes, cases, args.steps)
@@ -662,7 +663,7 @@ def _select(dataset, choices, path):
 
 
 def _verify(args):
-    from rbstudy.pipeline.archive import verify_file
+    from rbstudy.archive.reader import verify_file
 
     def proven(path):
         said = verify_file(path)
@@ -673,8 +674,8 @@ def _verify(args):
 
 def _report(args):
     from rbstudy.analysis.report import write_report
+    from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import default_threads
-    from rbstudy.pipeline.archive import open_archive
     from rbstudy.pipeline.progress import Progress
 
     opened = functools.partial(open_archive, verify=not args.no_verify)

@@ -15,13 +15,13 @@ from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, abaqus_mapping, 
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.report import write_report
+from rbstudy.archive.checksums import GROUP, seal_archive, verify_archive
+from rbstudy.archive.load import open_results
+from rbstudy.archive.variables import BOOKKEEPING
 from rbstudy.cli import main
 from rbstudy.errors import InputError
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.integrity import GROUP, seal_archive, verify_archive
-from rbstudy.pipeline.store import open_results
-from rbstudy.pipeline.variables import BOOKKEEPING
 
 VERBS = ("plot", "report", "verify")
 # Damage that `verify` has refused since it exists (tests/test_integrity.py); new here for

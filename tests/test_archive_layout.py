@@ -16,13 +16,14 @@ import pytest
 from conftest import abaqus_mapping, write_study
 
 from rbstudy.analysis.findings import summary_document
+from rbstudy.archive import layout
+from rbstudy.archive.layout import grid_coordinates
+from rbstudy.archive.provenance import source_text
+from rbstudy.archive.reader import open_archive
+from rbstudy.archive.variables import LONG_NAME_MAX, PER_SCENE
 from rbstudy.cli import main
-from rbstudy.pipeline import store
-from rbstudy.pipeline.archive import open_archive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import grid_coordinates, source_text
-from rbstudy.pipeline.variables import LONG_NAME_MAX, PER_SCENE
 from rbstudy.schemes import BUILTIN
 
 # Written by rbstudy 0.3.0 (the code at commit a5eacda) from legacy_v03.yaml beside it.
@@ -165,4 +166,4 @@ def test_the_scene_variables_of_a_zipped_option_and_body_lie_along_their_dimensi
     assert np.array_equal(
         ds.initial_spin.values, np.linalg.norm(ds.omega_body.isel(time=0, dt=0).values, axis=-1)
     )
-    assert store.archive_dims(load_study(config), "inertia") == ("pair", "axis")
+    assert layout.archive_dims(load_study(config), "inertia") == ("pair", "axis")

@@ -1,4 +1,4 @@
-"""The archive's chunks compressed on every core and written whole (`pipeline.chunks`): a
+"""The archive's chunks compressed on every core and written whole (`archive.chunks`): a
 file so written reads, through netCDF4 and xarray, exactly as one HDF5 filled itself, in
 whatever order and slabs the values come, with chunks spilled to disk and read back."""
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from rbstudy.pipeline import chunks
-from rbstudy.pipeline.chunks import ChunkedArchive, shuffled, unshuffled
-from rbstudy.pipeline.store import COMPRESSION
+from rbstudy.archive import chunks
+from rbstudy.archive.chunks import ChunkedArchive, shuffled, unshuffled
+from rbstudy.archive.layout import COMPRESSION
 
 GRID = (7, 23)  # two swept dimensions: chunks of (2, 5) leave edge chunks on both
 OWN = (3, 4)

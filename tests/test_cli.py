@@ -6,8 +6,8 @@ import pytest
 import yaml
 from conftest import CONFIGS, abaqus_mapping, listed_schemes, write_study
 
+from rbstudy.archive.load import open_results
 from rbstudy.cli import build_parser, main
-from rbstudy.pipeline.store import open_results
 
 
 def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):

@@ -18,12 +18,12 @@ import yaml
 from conftest import abaqus_mapping, write_study
 from distributed import Client, LocalCluster
 
+from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.errors import ConfigError, RbstudyError
 from rbstudy.pipeline.cluster import Where, read_cluster_file
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 
 # Timings differ between runs; everything else must not.
 TIMINGS = ["run_time"]

@@ -8,6 +8,7 @@ from conftest import LOADED, write_study
 from free_body_mp import angle_between, exact_state
 
 from rbstudy.analysis.summary import scheme_rows
+from rbstudy.archive.load import open_results
 from rbstudy.errors import SchemeError
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.metrics import asymptotic_order, momentum_error, omega_error, orientation_error
@@ -15,7 +16,6 @@ from rbstudy.physics.references import dop853_reference, reference_solution
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import BUILTIN, COMPOSITION_ORDERS, composition_reach, get_scheme
 from rbstudy.schemes._composition import stage_weights
 

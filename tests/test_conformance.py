@@ -233,7 +233,7 @@ def test_every_golden_case_names_known_rules():
 
 
 def _golden(scorecard, case="t_handle"):
-    from rbstudy.pipeline.store import open_results
+    from rbstudy.archive.load import open_results
 
     out, _ = scorecard
     return open_results(out / f"conformance_{case}" / f"conformance_{case}.nc")

@@ -11,6 +11,7 @@ import pytest
 from conftest import abaqus_mapping, write_study
 from scipy.spatial.transform import Rotation
 
+from rbstudy.archive.variables import FEATURES, VARIABLES
 from rbstudy.errors import ConfigError, InputError
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import run_batch
@@ -20,7 +21,6 @@ from rbstudy.physics.scenes import Body, Scene
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.variables import FEATURES, VARIABLES
 from rbstudy.schemes import SCHEMES
 
 DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"

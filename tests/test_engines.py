@@ -208,11 +208,11 @@ def test_an_engines_forecast_is_its_calibrated_cost(tmp_path, monkeypatch):
     own time failed on a loaded machine: a timing is no test)."""
     from conftest import write_study
 
+    from rbstudy.archive.load import open_results
     from rbstudy.pipeline import calibration
     from rbstudy.pipeline.config import load_study
     from rbstudy.pipeline.estimate import estimate
     from rbstudy.pipeline.execute import run_study
-    from rbstudy.pipeline.store import open_results
     from rbstudy.schemes import get_scheme
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # nothing measured yet

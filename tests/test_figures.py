@@ -14,11 +14,11 @@ from matplotlib.colors import to_rgb
 
 from rbstudy.analysis.plots import all_figures, convergence
 from rbstudy.analysis.summary import ERROR_MEASURES, scheme_rows, table_columns
+from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.inputs.reader import MAX_NAME_BYTES
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import BUILTIN, SCHEMES
 
 SHIPPED = sorted(path.name for path in CONFIGS.glob("*.yaml"))

@@ -17,12 +17,13 @@ import pytest
 import xarray as xr
 from conftest import write_study
 
+from rbstudy.archive.chunks import ChunkedArchive
+from rbstudy.archive.files import write_dataset_atomic
+from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.pipeline import execute
-from rbstudy.pipeline.chunks import ChunkedArchive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results, write_dataset_atomic
 
 TIMINGS = ["run_time"]  # differ between runs; nothing else may
 PAGE = 4096  # tmpfs counts whole pages: a sidecar of 100 bytes takes one

@@ -15,8 +15,8 @@ import yaml
 from conftest import CONFIGS, copy_node_tables
 
 from rbstudy.analysis.findings import findings, recommendations
+from rbstudy.archive.reader import open_archive
 from rbstudy.cli import main
-from rbstudy.pipeline.archive import open_archive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 
@@ -366,7 +366,7 @@ def test_the_findings_read_their_time_series_reduced_slab_by_slab(tmp_path, monk
     import xarray as xr
 
     from rbstudy.analysis.findings import FINDINGS_REDUCED, energy_rates
-    from rbstudy.pipeline import store
+    from rbstudy.archive import load
 
     rng = np.random.default_rng(3)
     series = rng.random((7, 5, 11))
@@ -384,8 +384,8 @@ def test_the_findings_read_their_time_series_reduced_slab_by_slab(tmp_path, monk
     )
     path = tmp_path / "a.nc"
     whole.to_netcdf(path)
-    monkeypatch.setattr(store, "_REDUCTION_SLAB_BYTES", 2 * 5 * 11 * 8)  # two spins a slab: four slabs
-    reduced = store.open_results(path, ["momentum_error", "energy_error", "status"], FINDINGS_REDUCED)
+    monkeypatch.setattr(load, "_REDUCTION_SLAB_BYTES", 2 * 5 * 11 * 8)  # two spins a slab: four slabs
+    reduced = load.open_results(path, ["momentum_error", "energy_error", "status"], FINDINGS_REDUCED)
     assert reduced.momentum_error.dims == ("spin", "tilt") and "time" not in reduced.dims
     expected = series.max(axis=-1)
     assert np.isnan(reduced.momentum_error.values[2, 3]) and reduced.momentum_error.values[4, 0] == 10.0

@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.analysis.conformance import judge_figure
 from rbstudy.analysis.summary import TERMINAL_WIDTH
+from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.pipeline.golden import GOLDEN
-from rbstudy.pipeline.store import open_results
 
 CASES = {case.name: case for case in GOLDEN}
 _CARD_CASES = "radioss_rota,drake_free_body,drake_floating_body,abaqus_top"

@@ -11,13 +11,14 @@ import pytest
 import xarray as xr
 from conftest import write_study
 
+from rbstudy.archive import checksums
+from rbstudy.archive.checksums import GROUP
+from rbstudy.archive.load import open_results
+from rbstudy.archive.parts import SIDECAR_SUFFIX
 from rbstudy.cli import main
 from rbstudy.pipeline import config as config_module
-from rbstudy.pipeline import integrity
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.integrity import GROUP, SIDECAR_SUFFIX
-from rbstudy.pipeline.store import open_results
 
 TIMINGS = ["run_time"]
 VICTIM = "final_orientation_error"
@@ -197,21 +198,21 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     tells. The first two parts are written, the third meets a full disk."""
     import collections
 
-    from rbstudy.pipeline import store
+    from rbstudy.archive import hdf5, parts
 
     config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]})
     written = []
-    real_write = store._write_part_file
+    real_write = parts._write_part_file
     usage = collections.namedtuple("usage", "total used free")
 
     def write_until_full(nc, layout, batch, values):
         if len(written) == 2:
-            monkeypatch.setattr(store.shutil, "disk_usage", lambda folder: usage(1, 1, 0))
+            monkeypatch.setattr(hdf5.shutil, "disk_usage", lambda folder: usage(1, 1, 0))
             raise RuntimeError("NetCDF: HDF error")
         written.append(batch.id)
         return real_write(nc, layout, batch, values)
 
-    monkeypatch.setattr(store, "_write_part_file", write_until_full)
+    monkeypatch.setattr(parts, "_write_part_file", write_until_full)
     monkeypatch.setattr("rbstudy.pipeline.execute.os.cpu_count", lambda: 1)  # one at a time
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()
@@ -239,17 +240,17 @@ def test_the_seal_hashes_values_as_written_and_reads_back_only_the_rest(tmp_path
     )
     study = load_study(config)
     assert len(study.batches) == 3  # 4 + 4 + 1 cases: two start inside a row
-    read_back, read = [], integrity._update_values
+    read_back, read = [], checksums._update_values
 
     def reading(digest, variable):
         read_back.append(variable.name)
         read(digest, variable)
 
-    monkeypatch.setattr(integrity, "_update_values", reading)
+    monkeypatch.setattr(checksums, "_update_values", reading)
     run = run_study(study, tmp_path / "out", quiet=True)
     assert {"spin", "tilt"} <= set(read_back)  # the coordinates, written whole at the start
     assert not set(read_back) & set(study.variables)
-    assert integrity.verify_archive(run.path).problems == ()
+    assert checksums.verify_archive(run.path).problems == ()
 
 
 @pytest.mark.parametrize(
@@ -263,4 +264,4 @@ def test_the_seal_hashes_values_as_written_and_reads_back_only_the_rest(tmp_path
     ],
 )
 def test_a_slab_is_one_run_of_positions_only_when_consecutive(index, run):
-    assert integrity._run_of(index, (4, 10)) == run
+    assert checksums._run_of(index, (4, 10)) == run

@@ -1,10 +1,13 @@
 """The import contract of docs/architecture.md, per folder: imports point downwards only, each
 layer uses only the outside packages its job needs, and the analysis layer never loads numba.
 
-    cli.py -> analysis/ -> pipeline/ -> inputs/ -> physics/ -> engines/ -> schemes/ -> numerics/
+    cli.py -> analysis/ -> pipeline/ -> archive/ -> inputs/ -> physics/ -> engines/ -> schemes/ -> numerics/
 
 `inputs/` is the one layer that reads YAML or files (the reader, the YAML loader, the table
 files, the scene readers): it returns physics objects, and physics never imports it.
+`archive/` is the study folder on disk (its files, parts, archive, checksums, metadata table):
+it never imports the sweep, so that a worker writing a part, or a reader, loads the archive
+alone.
 `errors.py` at the top of the package holds the user-facing errors; every layer from the
 schemes up may use it, and it imports nothing of rbstudy, and of the outside nothing.
 
@@ -24,7 +27,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 PYPROJECT = PACKAGE.parent / "pyproject.toml"
 
 # Layers from the bottom up: a module may import its own layer and the layers below it.
-LAYERS = ("numerics", "schemes", "engines", "physics", "inputs", "pipeline", "analysis", "cli")
+LAYERS = ("numerics", "schemes", "engines", "physics", "inputs", "archive", "pipeline", "analysis", "cli")
 SHARED = ("errors",)  # rbstudy/<name>.py, below every layer but numerics
 RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 
@@ -35,19 +38,8 @@ OUTSIDE = {
     "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "inputs": {"numpy", "scipy", "yaml"},
-    "pipeline": {
-        "numpy",
-        "scipy",
-        "xarray",
-        "netCDF4",
-        "h5py",
-        "dask",
-        "distributed",
-        "dask_jobqueue",
-        "yaml",
-        "filelock",
-        "rich",
-    },
+    "archive": {"numpy", "xarray", "netCDF4", "h5py", "filelock"},
+    "pipeline": {"numpy", "scipy", "xarray", "dask", "distributed", "dask_jobqueue", "yaml", "rich"},
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),
     "shared": set(),
@@ -66,13 +58,10 @@ PLUGIN_LAYER = "engines"
 NUMBA_FREE = (
     *(
         f"rbstudy.{layer}.{path.stem}"
-        for layer in ("analysis", "inputs")
+        for layer in ("analysis", "archive", "inputs")
         for path in sorted((PACKAGE / layer).glob("*.py"))
         if path.stem != "__init__"
     ),
-    "rbstudy.pipeline.archive",
-    "rbstudy.pipeline.store",
-    "rbstudy.pipeline.variables",
     "rbstudy.pipeline.outputs",
     "rbstudy.pipeline.batches",
     "rbstudy.physics.analytic",
@@ -195,8 +184,7 @@ def test_an_upward_import_is_caught(tmp_path):
     """The check itself can fail: a physics module importing the pipeline is reported."""
     bad = tmp_path / "bad.py"
     bad.write_text(
-        "from rbstudy.pipeline.store import open_results\nimport matplotlib\n"
-        "from .metrics import node_error\n"
+        "from rbstudy.pipeline.execute import run_study\nimport matplotlib\nfrom .metrics import node_error\n"
     )
     found = violations_of(bad, ("physics", "bad"))
     assert len(found) == 3 and "physics -> pipeline" in found[0] and "matplotlib" in found[1]
@@ -254,3 +242,24 @@ def test_the_archive_readers_never_load_numba():
     )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_the_archive_loads_no_pipeline_module():
+    """Every module of the archive package imported in a fresh process loads nothing of the
+    sweep (so a worker writing its part, or a reader, needs the archive alone) and no numba."""
+    names = [f"rbstudy.archive.{path.stem}" for path in sorted((PACKAGE / "archive").glob("*.py"))]
+    script = (
+        "import sys\n"
+        + "".join(f"import {name}\n" for name in names)
+        + "loaded = [m for m in sys.modules if m.startswith('rbstudy.pipeline') or m == 'numba']\n"
+        "assert not loaded, loaded\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_an_archive_module_importing_the_sweep_is_caught(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text("from rbstudy.pipeline.batches import Batch\nimport dask\n")
+    found = violations_of(bad, ("archive", "bad"))
+    assert len(found) == 2 and "archive -> pipeline" in found[0] and "dask" in found[1], found

@@ -8,9 +8,10 @@ import pytest
 import yaml
 from conftest import write_study
 
+from rbstudy.archive.load import open_results
+from rbstudy.archive.owner import OWNER
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
-from rbstudy.pipeline.store import OWNER, open_results
 
 # A study of two schemes, one with the option `alpha` (hht) and one without (rk4), at two
 # time steps: four batches, two of which an override of alpha changes.

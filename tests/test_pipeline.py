@@ -23,6 +23,10 @@ from conftest import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, abaqu
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.summary import format_table, scheme_rows
+from rbstudy.archive import lock
+from rbstudy.archive.load import open_results
+from rbstudy.archive.lock import study_lock
+from rbstudy.archive.variables import LONG_NAME_MAX, VERDICTS
 from rbstudy.cli import main
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics.driver import HALT_FLAG
@@ -36,10 +40,7 @@ from rbstudy.pipeline.calibration import calibration_path, machine_key, step_cos
 from rbstudy.pipeline.cluster import Where
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
-from rbstudy.pipeline.execute import run_study, study_lock
-from rbstudy.pipeline.outputs import VERDICTS
-from rbstudy.pipeline.store import open_results
-from rbstudy.pipeline.variables import LONG_NAME_MAX
+from rbstudy.pipeline.execute import run_study
 from rbstudy.schemes import BUILTIN, SCHEMES, get_scheme
 
 # Timings differ between runs; everything else must not.
@@ -325,19 +326,19 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
         holder.wait()
         holder.stdout.close()
     with study_lock(folder):
-        assert (folder / execute.PID_FILE).read_text() == str(os.getpid())
+        assert (folder / lock.PID_FILE).read_text() == str(os.getpid())
 
 
 def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
     """The first part is copied into the archive before the last batch ends: the last batch
     waits for it (before the archive was written after every batch, and it waited in vain)."""
+    from rbstudy.archive import writer
     from rbstudy.pipeline import config as config_module
-    from rbstudy.pipeline import store
 
     monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 2)
     monkeypatch.setattr(execute, "default_threads", lambda: 2)
     study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
-    copied, copy, compute = threading.Event(), store._copy_part, execute.compute_batch
+    copied, copy, compute = threading.Event(), writer._copy_part, execute.compute_batch
     waited = []
 
     def copying(*args):
@@ -349,7 +350,7 @@ def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
             waited.append(copied.wait(timeout=20))
         return compute(job, *args)
 
-    monkeypatch.setattr(store, "_copy_part", copying)
+    monkeypatch.setattr(writer, "_copy_part", copying)
     monkeypatch.setattr(execute, "compute_batch", computing)
     run = run_study(study, tmp_path / "out", quiet=True)
     assert waited == [True]
@@ -707,18 +708,18 @@ def test_the_verdict_judges_the_largest_error_not_the_last(tmp_path):
 def test_every_file_is_synced_before_and_after_its_rename(tmp_path, monkeypatch):
     """A machine crash must not leave a renamed but empty part: the file is fsynced before
     the rename, its folder after."""
-    from rbstudy.pipeline import store
+    from rbstudy.archive import files
 
     calls = []
     real_replace = os.replace
     monkeypatch.setattr(
-        store.os, "fsync", lambda fd: calls.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        files.os, "fsync", lambda fd: calls.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
     )
     monkeypatch.setattr(
-        store.os, "replace", lambda a, b: (calls.append(("replace", str(b))), real_replace(a, b))
+        files.os, "replace", lambda a, b: (calls.append(("replace", str(b))), real_replace(a, b))
     )
     target = tmp_path / "x.txt"
-    store.write_text_atomic("data", target)
+    files.write_text_atomic("data", target)
     assert [kind for kind, _ in calls] == ["fsync", "replace", "fsync"]
     assert calls[0][1].endswith(".tmp") and calls[2][1] == str(tmp_path)
     assert target.read_text() == "data"
@@ -729,7 +730,7 @@ def test_every_run_of_consecutive_cases_is_written_as_few_slabs_in_order(shape):
     """A part whose cases are not one block of the grid is written slab by slab: every run
     of consecutive cases of every grid up to four dimensions is covered exactly, in order,
     by at most 2 ndim - 1 slabs."""
-    from rbstudy.pipeline.store import _slabs
+    from rbstudy.archive.writer import _slabs
 
     grid = np.arange(math.prod(shape)).reshape(shape)
     for first in range(grid.size + 1):

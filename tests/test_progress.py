@@ -15,12 +15,12 @@ import time
 import pytest
 from conftest import HOSTILE, HOSTILE_SHOWN, write_study
 
+from rbstudy.archive.load import open_results
 from rbstudy.pipeline import cluster, execute
 from rbstudy.pipeline.cluster import dashboard_line
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import _show_compiling, run_study
 from rbstudy.pipeline.progress import Progress, live_wanted
-from rbstudy.pipeline.store import open_results
 from rbstudy.schemes._ready import Compiling
 
 # The share of a first run's time within which its announcement must reach stderr (issue

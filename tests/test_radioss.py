@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from rbstudy.analysis.plots import stability_map
 from rbstudy.analysis.summary import format_table, scheme_rows
+from rbstudy.archive.load import open_results
 from rbstudy.errors import InputError, SceneError
 from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.numerics import state as S
@@ -20,7 +21,6 @@ from rbstudy.physics.references import reference_solution
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 from rbstudy.schemes import BUILTIN, SCHEMES
 
 # An asymmetric body of four nodes (a skewed tetrahedron) with a master of its own mass.

@@ -9,6 +9,7 @@ from conftest import write_study
 from extended_oracle import loaded_rotation
 
 from rbstudy.analysis.summary import UNCERTAINTY_FACTOR, fitted_order, scheme_rows
+from rbstudy.archive.load import open_results
 from rbstudy.inputs.scenes import scene_from_mapping, scene_table
 from rbstudy.physics.metrics import orientation_error
 from rbstudy.physics.references import (
@@ -19,7 +20,6 @@ from rbstudy.physics.references import (
 )
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 
 TUMBLING = {
     "body": {"inertia": [1.0, 2.0, 3.0]},

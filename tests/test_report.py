@@ -13,10 +13,10 @@ from test_figures import shrunk_config
 
 from rbstudy.analysis.conformance import Cell, Verdict, scorecard_html
 from rbstudy.analysis.findings import findings
+from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import open_results
 
 PNG_URI = "data:image/png;base64,"
 

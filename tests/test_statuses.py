@@ -9,9 +9,9 @@ import yaml
 
 from rbstudy.analysis.conformance import status_lines, tally_statuses
 from rbstudy.analysis.findings import findings
+from rbstudy.archive.reader import open_archive
 from rbstudy.cli import main
 from rbstudy.numerics.state import NOT_CONVERGED, STATUSES, UNSTABLE
-from rbstudy.pipeline.archive import open_archive
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 

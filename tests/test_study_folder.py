@@ -12,11 +12,13 @@ import pytest
 import xarray as xr
 from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 
+from rbstudy.archive.files import check_output_folder
+from rbstudy.archive.load import open_results
+from rbstudy.archive.owner import IDENTITY, OWNER
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.progress import Progress
-from rbstudy.pipeline.store import IDENTITY, OWNER, check_output_folder, open_results
 
 # The kernel's clock time: the one stored value that two runs of one case do not share.
 TIMINGS = ["run_time"]

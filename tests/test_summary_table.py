@@ -23,8 +23,8 @@ from rbstudy.analysis.summary import (
     table_columns,
     wrap_clauses,
 )
+from rbstudy.archive.reader import open_archive
 from rbstudy.cli import main
-from rbstudy.pipeline.archive import open_archive
 from rbstudy.pipeline.golden import GOLDEN
 
 CONFIG_FILES = sorted(CONFIGS.glob("*.yaml"))

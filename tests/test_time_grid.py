@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import write_study
 
+from rbstudy.archive.layout import grid_coordinates
 from rbstudy.physics.simulate import simulate
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.grid import Cases
-from rbstudy.pipeline.store import grid_coordinates
 
 
 def test_the_samples_are_taken_on_the_output_grid_of_the_references(asymmetric_scene):

@@ -75,7 +75,7 @@ __all__ = [
 # cost's uncertainty, within which two costs are a tie.
 FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertainty")
 # Of those, the time series the findings reduce along time, and how; read so
-# (`store.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
+# (`rbstudy.archive.load.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
 # The archive's accuracy verdict of a case that met the bound (pipeline/outputs.py VERDICTS).
 VERDICT_ACCURATE = 0

@@ -1,6 +1,6 @@
 """Figures from archived results: never the solver, only the dataset (`rbstudy plot`).
 
-Each figure function takes a dataset opened by `rbstudy.pipeline.store.open_results`, an
+Each figure function takes a dataset opened by `rbstudy.archive.load.open_results`, an
 output folder and the file formats (`FORMATS`: PNG; SVG on request), writes
 ``<study>_<name>.<format>`` and returns a `Figures`: the files it wrote (in the first
 format), and for each figure it could have drawn but did not, the reason (it would have
@@ -90,13 +90,13 @@ from rbstudy.analysis.summary import (  # noqa: E402
     uncertainty_of,
     verdicts,
 )
+from rbstudy.archive.files import inside, write_text_atomic
 from rbstudy.errors import counted  # noqa: E402
 from rbstudy.numerics.state import OK, RADIOSS_STEP_ANGLE, STATUSES  # noqa: E402
 from rbstudy.physics.analytic import REFERENCE_KINDS, symmetric_top  # noqa: E402
 from rbstudy.physics.metrics import node_positions  # noqa: E402
 from rbstudy.physics.quaternions import quat_to_matrix  # noqa: E402
 from rbstudy.pipeline.progress import SILENT  # noqa: E402
-from rbstudy.pipeline.store import inside, write_text_atomic  # noqa: E402
 
 __all__ = [
     "MAX_FACETS",

@@ -48,6 +48,7 @@ from rbstudy.analysis.summary import (
     step_load,
     verdicts,
 )
+from rbstudy.archive.files import write_text_atomic
 from rbstudy.errors import InputError
 from rbstudy.inputs.reader import MAX_TITLE_CHARACTERS, Reader
 from rbstudy.numerics.sources import SOURCE_DIGEST
@@ -58,7 +59,6 @@ from rbstudy.physics.metrics import (
     ORDER_SPREAD,
 )
 from rbstudy.pipeline.progress import SILENT
-from rbstudy.pipeline.store import write_text_atomic
 
 __all__ = ["write_report", "figures_digest", "captions", "MARKER", "REPORT_NAME"]
 

@@ -2,7 +2,7 @@
 the largest step that meets the accuracy bound, beside the grid's best.
 
 The search keeps its probes and answers in the archive, as its netCDF group ``search``
-(`rbstudy.pipeline.store.SEARCH_GROUP`, sealed with the archive's checksums); `read_search`
+(`rbstudy.archive.layout.SEARCH_GROUP`, sealed with the archive's checksums); `read_search`
 reads them back for the sweep that ran it and for ``summary`` and ``report``, here in the
 analysis layer, which never loads the kernels. Costs are those the findings rank the grid
 by (steps times the calibrated seconds a step, mean over the other axes' values), and costs
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.analysis.findings import study_wide
-from rbstudy.pipeline.store import SEARCH_GROUP, read_group
+from rbstudy.archive.layout import SEARCH_GROUP
+from rbstudy.archive.load import read_group
 
 __all__ = ["SearchRecord", "read_search", "search_lines", "search_document"]
 

@@ -118,7 +118,7 @@ def read_input_file(path, what, fix):
 # NTFS 255 UTF-16 units), and a study's name goes into file names: the longest, its figures'
 # (`<name>_convergence_momentum_magnitude.svg`, `rbstudy.analysis.plots.figure_name`, 35
 # bytes more), ahead of the temporary of the archive's checksum (`.<name>.nc.sha256.<8
-# random>.tmp`, `rbstudy.pipeline.store`, 24 more). Five bytes more leave room for a longer
+# random>.tmp`, `rbstudy.archive.files`, 24 more). Five bytes more leave room for a longer
 # figure name. The --out folder is not known when a config is validated, so its own limit
 # (`os.pathconf`) cannot be asked.
 _FILE_NAME_BYTES = 255

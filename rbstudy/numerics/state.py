@@ -157,7 +157,7 @@ class Status(NamedTuple):
 
 # Status codes of a body: the code is the index. Archives store the code (append only:
 # archived codes must keep their meaning); the messages are part of the archive's
-# description of `status` (`rbstudy.pipeline.variables`).
+# description of `status` (`rbstudy.archive.variables`).
 STATUSES = (
     Status("ok", "finished", ""),
     Status(

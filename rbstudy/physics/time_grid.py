@@ -49,7 +49,7 @@ def output_count(duration: float, output_interval: float) -> int:
 def output_times(n_times: int, output_interval: float) -> np.ndarray:
     """The sample times (T,) s, ``k * output_interval`` for k < ``n_times``: where the schemes
     are sampled and the references evaluated. (The archive labels them by the nearest decimal,
-    `rbstudy.pipeline.store.decimal_grid`.)"""
+    `rbstudy.archive.layout.decimal_grid`.)"""
     return np.arange(n_times) * output_interval
 
 

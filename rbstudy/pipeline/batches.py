@@ -8,51 +8,17 @@ the stored variables, `SCHEMA_VERSION` and the digest of rbstudy's sources: the 
 and code give the same ids, anything else new ids, never a silent mix.
 """
 
-import hashlib
-import json
 from dataclasses import dataclass
 
 import numpy as np
 
+from rbstudy.archive.ids import canonical_id
 from rbstudy.numerics.sources import SOURCE_DIGEST
 
 __all__ = [
     "Batch",
     "plan_batches",
-    "canonical_id",
-    "batches_digest",
-    "ids_digest",
-    "SCHEMA_VERSION",
-    "ID_LENGTH",
 ]
-
-# Bumped whenever what a part file holds changes, so that old parts are never reused.
-SCHEMA_VERSION = 2
-# Hex digits of a batch id's hash: 64 bits, no collision among any realistic set of batches.
-ID_LENGTH = 16
-
-
-def _normalised(value):
-    """JSON-ready copy with every number a float, so that 1 and 1.0 hash alike."""
-    if isinstance(value, dict):
-        return {str(k): _normalised(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_normalised(v) for v in value]
-    if isinstance(value, bool) or value is None or isinstance(value, str):
-        return value
-    try:
-        return float(value)
-    except (OverflowError, TypeError, ValueError):  # refused later, with its key, by the reader
-        return repr(value)
-
-
-def canonical_id(payload):
-    """A short stable hash of ``payload``: canonical JSON (sorted keys, numbers as floats) plus
-    `SCHEMA_VERSION`."""
-    text = json.dumps(
-        {"schema": SCHEMA_VERSION, "payload": _normalised(payload)}, sort_keys=True, separators=(",", ":")
-    )
-    return hashlib.sha256(text.encode()).hexdigest()[:ID_LENGTH]
 
 
 @dataclass(frozen=True)
@@ -70,16 +36,6 @@ class Batch:
     dt: float
     cases: tuple
     step_seconds: float | None = None
-
-
-def batches_digest(batches):
-    """One id for a whole study's batches: an archive built from exactly these is current."""
-    return ids_digest([batch.id for batch in batches])
-
-
-def ids_digest(ids):
-    """`batches_digest` of the batches of ids ``ids``, in order."""
-    return canonical_id(list(ids))
 
 
 def plan_batches(

@@ -33,10 +33,10 @@ from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from rbstudy.archive.parts import sealed
 from rbstudy.errors import ConfigError, RbstudyError, counted, did_you_mean, one_line
 from rbstudy.inputs.reader import Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
-from rbstudy.pipeline.integrity import sealed
 
 __all__ = [
     "ClusterFile",
@@ -413,7 +413,7 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     """Run the store ``tasks`` on ``client``'s cluster; ({key: digest}, number of parts this
     process wrote from values sent back).
 
-    ``targets`` gives each task's key its `rbstudy.pipeline.store.PartTarget`: a task returns
+    ``targets`` gives each task's key its `rbstudy.archive.parts.PartTarget`: a task returns
     (digest, None) when its worker wrote the part, (None, values) when this process must.
     Futures are released as they finish, so a worker holds no values once they are written.
     ``fixed_jobs``: the cluster's batch jobs were submitted once (a cluster file's ``jobs``),

@@ -15,7 +15,18 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import yaml
 
+from rbstudy.archive.variables import (
+    BOOKKEEPING,
+    COST_MODEL,
+    DEPRECATED,
+    SCHEME_COORDINATES,
+    UNCERTAINTIES,
+    VARIABLES,
+    scene_features,
+    selected,
+)
 from rbstudy.errors import ConfigError, InputError
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
@@ -35,16 +46,6 @@ from rbstudy.pipeline.grid import (
 )
 from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.overrides import apply_overrides
-from rbstudy.pipeline.variables import (
-    BOOKKEEPING,
-    COST_MODEL,
-    DEPRECATED,
-    SCHEME_COORDINATES,
-    UNCERTAINTIES,
-    VARIABLES,
-    scene_features,
-    selected,
-)
 from rbstudy.schemes import composition_reach, get_scheme
 
 __all__ = [
@@ -54,6 +55,7 @@ __all__ = [
     "BATCH_MAX_CASES",
     "BATCH_MAX_BYTES",
     "MAX_CASES",
+    "resolved_config",
 ]
 
 _TOP_KEYS = ("name", "title", "scene", "output", "run", "sweep")
@@ -77,14 +79,14 @@ class StudyConfig:
     """A validated study.
 
     text : the config file's text (its SHA-256 names the study folder's owner,
-    `rbstudy.pipeline.store.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
+    `rbstudy.archive.owner.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
     it (`rbstudy.pipeline.overrides`). archived_text : the config text the archive stores: the
     file's, or with the overrides applied. base : the ``scene`` and ``run`` mappings as
     written. dimensions : the swept `rbstudy.pipeline.grid.Dimension`s (empty for one case).
     cases : every case, in C order of the dimensions (`rbstudy.pipeline.grid.Cases`: its
     distinct scenes and runs). variables : the stored variable names. batches : the
     `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,
-    name -> {coordinate: value} (`rbstudy.pipeline.variables.SCHEME_COORDINATES`; the
+    name -> {coordinate: value} (`rbstudy.archive.variables.SCHEME_COORDINATES`; the
     nominal order a tuple along `order_dimension` where a composition is swept). n_times :
     output samples per case.
     """
@@ -114,7 +116,7 @@ class StudyConfig:
     @property
     def scene_dims(self):
         """Names of the dimensions along which the scene changes: those of the variables of
-        the scene alone (`rbstudy.pipeline.variables.PER_SCENE`)."""
+        the scene alone (`rbstudy.archive.variables.PER_SCENE`)."""
         return tuple(d.name for d in self.dimensions if any(map(touches_scene, d.axes)))
 
     @property
@@ -194,7 +196,7 @@ def _knot_warnings(cases, duration):
 
 def _variables(reader, requested, scenes):
     """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when
-    given (the per-case bookkeeping of `rbstudy.pipeline.variables.BOOKKEEPING`, the
+    given (the per-case bookkeeping of `rbstudy.archive.variables.BOOKKEEPING`, the
     `COST_MODEL` and the reference's `UNCERTAINTIES` are always kept,
     and a deprecated name brings its new name along)."""
     available = selected(scene_features(scenes))
@@ -370,3 +372,21 @@ def _validated(path, text, overridden):
         code_digests={name: get_scheme(name).code_digest for name in study.schemes},
     )
     return dataclasses.replace(study, batches=batches)
+
+
+def resolved_config(study):
+    """The study as YAML with every sweep expanded into explicit values (``study.yaml``)."""
+    resolved = {
+        "name": study.name,
+        "title": study.title,
+        **study.base,
+        "output": {
+            "interval": study.output_interval,
+            "variables": list(study.variables),
+            "accuracy_bound": study.accuracy_bound,
+        },
+        "sweep": {d.name: {axis.target: list(axis.values) for axis in d.axes} for d in study.dimensions},
+        "cases": len(study.cases),
+        "batches": [batch.id for batch in study.batches],
+    }
+    return yaml.safe_dump(resolved, sort_keys=False)

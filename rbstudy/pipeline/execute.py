@@ -28,8 +28,24 @@ from dataclasses import dataclass
 import dask
 import dask.threaded
 import numpy as np
-from filelock import FileLock, Timeout
 
+from rbstudy.archive.files import (
+    WRITE_REFUSALS,
+    UnwritableFolder,
+    make_folders,
+    remove_folders,
+    unwritable,
+    write_text_atomic,
+)
+from rbstudy.archive.folder import archive_state
+from rbstudy.archive.layout import Layout
+from rbstudy.archive.load import open_results
+from rbstudy.archive.lock import StudyBusy, study_lock
+from rbstudy.archive.owner import claim_folder, folder_claim
+from rbstudy.archive.parts import SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar, write_part
+from rbstudy.archive.provenance import global_attrs, utc_now
+from rbstudy.archive.rewrite import refresh_description
+from rbstudy.archive.writer import consolidate
 from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
@@ -40,50 +56,21 @@ from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.calibration import calibrate, compile_seconds, record_compile, step_cost
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
-from rbstudy.pipeline.config import StudyConfig
+from rbstudy.pipeline.config import StudyConfig, resolved_config
 from rbstudy.pipeline.estimate import check_disk, disk_needed
-from rbstudy.pipeline.integrity import SIDECAR_SUFFIX, sealed, sidecar
+from rbstudy.pipeline.formulas import evaluate
 from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.progress import Progress
-from rbstudy.pipeline.store import (
-    WRITE_REFUSALS,
-    Layout,
-    PartTarget,
-    UnwritableFolder,
-    archive_state,
-    claim_folder,
-    consolidate,
-    folder_claim,
-    global_attrs,
-    make_folders,
-    open_results,
-    part_complete,
-    refresh_description,
-    remove_folders,
-    resolved_config,
-    unwritable,
-    utc_now,
-    write_part,
-    write_text_atomic,
-)
-from rbstudy.pipeline.variables import evaluate
 from rbstudy.schemes import get_ready, get_scheme
 
-__all__ = ["run_study", "study_progress", "StudyRun", "StudyBusy", "compute_batch", "compute_references"]
+__all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
 # The folder, among the part files, where batch jobs write their output (else SLURM writes
 # slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
 # with them when it succeeds.
 _JOB_LOGS = "jobs"
-# Where the sweep that holds a study's lock writes its pid, for a second sweep to name it.
-PID_FILE = ".lock.pid"
 # How often the bar shows the archive's parts written while the last of them are copied.
 _REDRAW_SECONDS = 0.2
-
-
-class StudyBusy(RbstudyError):
-    """Another sweep holds the study's lock: the folder is that sweep's, even if this one
-    made it an instant before."""
 
 
 class _Abandoned(Exception):
@@ -286,51 +273,9 @@ def _compile_left(compiling, figures):
     return max(sum(remaining) / compiling.processes, max(remaining))
 
 
-def study_lock(folder):
-    """Take ``folder/.lock`` for the sweep and return it, a context manager whose exit
-    releases it; a second sweep of the same study refuses at once, naming the holder's pid,
-    and so does a folder that cannot be written (`rbstudy.pipeline.store.UnwritableFolder`,
-    or the full disk's error).
-
-    The lock is the system's (``flock``; ``msvcrt.locking`` on Windows) through `filelock`:
-    the system releases it when the process dies, so a killed sweep never leaves a stale
-    lock. The holder writes its pid beside it, in ``.lock.pid``: a locked file cannot be read
-    on Windows, and filelock 3 empties the lock file at each attempt to take it.
-    """
-    lock = FileLock(folder / ".lock", timeout=0)
-    try:
-        held = lock.acquire()
-    except Timeout:
-        raise StudyBusy(
-            f"{folder}: another rbstudy sweep is writing this study (pid "
-            f"{_holder(folder)}); wait for it to finish or use another "
-            "--out"
-        ) from None
-    except OSError as error:
-        raise unwritable(folder, error) from None
-    try:
-        pid_file = os.open(folder / PID_FILE, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        try:
-            os.write(pid_file, str(os.getpid()).encode())
-        finally:
-            os.close(pid_file)
-    except OSError as error:  # a full disk: the pid needs a block
-        lock.release()
-        raise unwritable(folder, error) from None
-    return held
-
-
-def _holder(folder):
-    """The pid of the sweep that holds ``folder``'s lock, as it wrote it (or "unknown")."""
-    try:
-        return (folder / PID_FILE).read_text().strip() or "unknown"
-    except OSError:
-        return "unknown"
-
-
 def _prepare(root, study):
     """The study's folder, made with its parents, and the folders this process made
-    (`rbstudy.pipeline.store.make_folders`)."""
+    (`rbstudy.archive.files.make_folders`)."""
     folder = pathlib.Path(root) / study.name
     try:
         return folder, make_folders(folder)

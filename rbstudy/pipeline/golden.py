@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
+from rbstudy.archive.files import write_text_atomic
 from rbstudy.errors import RbstudyError
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.physics.analytic import symmetric_top
@@ -54,7 +55,6 @@ from rbstudy.physics.quaternions import quat_to_matrix
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import duration_text, estimate
 from rbstudy.pipeline.execute import run_study
-from rbstudy.pipeline.store import write_text_atomic
 from rbstudy.schemes import BUILTIN, get_scheme
 
 __all__ = [

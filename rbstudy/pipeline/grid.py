@@ -36,12 +36,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rbstudy.archive.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.errors import InputError, did_you_mean
 from rbstudy.inputs.scenes import scene_table
 from rbstudy.physics.analytic import symmetry_axes
 from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.time_grid import steps_per
-from rbstudy.pipeline.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.schemes import SCHEMES, get_scheme, scheme_groups
 
 __all__ = [

@@ -3,7 +3,7 @@
 Each takes a `BatchData` (the batch's rows of the scene table, its `Simulation`, its
 references as columns and run time)
 and returns the variable's values with the case axis first: (B, T, 3) for vectors over time,
-(B, T, N, 3) for nodes, (B,) per case. `rbstudy.pipeline.variables` binds each to its name,
+(B, T, N, 3) for nodes, (B,) per case. `rbstudy.archive.variables` binds each to its name,
 units and needs. Quantities several variables share (node positions, the
 orientation error) are computed once per batch, on first use. Samples after a blow-up are NaN;
 every measure taken from them is NaN too.
@@ -13,6 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
+from rbstudy.archive.variables import ACCURATE, FAILED, INACCURATE, UNJUDGED
 from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.scenes import triangle_ok
@@ -21,17 +22,8 @@ __all__ = [
     "BatchData",
     "driver_result",
     "ACCURACY_BOUND",
-    "VERDICTS",
-    "ACCURATE",
-    "INACCURATE",
-    "FAILED",
-    "UNJUDGED",
 ]
 
-# Codes of the accuracy verdict (`accuracy`): a failed case has none, and a finished case
-# without a reference (its DOP853 reference passed its step budget) cannot be judged.
-VERDICTS = ("accurate", "inaccurate", "failed", "unjudged")
-ACCURATE, INACCURATE, FAILED, UNJUDGED = range(len(VERDICTS))
 # The default accuracy bound (`output.accuracy_bound`): an orientation error of 0.01 rad
 # or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
 # inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.

@@ -23,11 +23,11 @@ meet it again (an error that wraps round). The study-wide answer, the least foun
 scheme over the other axes' values, is run at every value before it is named.
 
 The finished search is kept in the archive, as its netCDF group ``search``
-(`rbstudy.pipeline.store.SEARCH_GROUP`, sealed with the archive's checksums: ``verify``
+(`rbstudy.archive.layout.SEARCH_GROUP`, sealed with the archive's checksums: ``verify``
 proves it): the probes (dimension ``probe``), each group's answer (``group``) and each
 scheme's study-wide one (``scheme_searched``), which `rbstudy.analysis.searched` tells in
 words. Until it is done, the probes are rewritten after every batch to the study folder's
-working file ``search/steps.nc`` (`rbstudy.pipeline.store.SEARCH_FILE`), removed once the
+working file ``search/steps.nc`` (`rbstudy.archive.folder.SEARCH_FILE`), removed once the
 archive holds them, as the parts are. A rerun of the same study and code (to any tolerance)
 reuses the probes of both, so an interrupted search resumes where it stopped; a rebuilt
 archive (``--force``, or found damaged) starts it again.
@@ -41,25 +41,21 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
+from rbstudy.archive.files import WRITE_REFUSALS, unwritable, write_dataset_atomic
+from rbstudy.archive.folder import search_path
+from rbstudy.archive.hdf5 import HDF5_LOCK
+from rbstudy.archive.ids import batches_digest, canonical_id
+from rbstudy.archive.layout import SEARCH_GROUP
+from rbstudy.archive.load import read_group
+from rbstudy.archive.lock import study_lock
+from rbstudy.archive.provenance import utc_now
+from rbstudy.archive.rewrite import put_group
+from rbstudy.archive.variables import ACCURATE, COORDINATES, cf_attrs, variable_attrs
 from rbstudy.errors import RbstudyError, one_line
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.time_grid import output_count, steps_per
-from rbstudy.pipeline.batches import batches_digest, canonical_id
 from rbstudy.pipeline.calibration import calibrate, step_cost
-from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references, study_lock
-from rbstudy.pipeline.integrity import HDF5_LOCK
-from rbstudy.pipeline.outputs import ACCURATE
-from rbstudy.pipeline.store import (
-    SEARCH_GROUP,
-    WRITE_REFUSALS,
-    put_group,
-    read_group,
-    search_path,
-    unwritable,
-    utc_now,
-    write_dataset_atomic,
-)
-from rbstudy.pipeline.variables import COORDINATES, cf_attrs, variable_attrs
+from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references
 from rbstudy.schemes import get_scheme
 
 __all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]

@@ -1,24 +1,23 @@
-"""The one table of output variables: each bound to the function that computes it, with its
-dimensions, units, CF names, flags, and the scene features it needs.
+"""The one table of output variables, pure metadata: each variable's dimensions, units, CF
+names, flags, storage type, and the scene features it needs.
 
-Every variable the archive can hold is an entry of `VARIABLES`; the store reads its
-attributes from here and nowhere else, and `evaluate` computes a batch's variables through
-the bound functions (`rbstudy.pipeline.outputs`). Adding a variable is one entry here plus
-its function. ``needs`` names the scene features (`FEATURES`) a variable requires, so that a
-variable a scene does not define is left out instead of filled with NaN. The flag tables come
-from where the codes are made: status from the driver (`rbstudy.numerics.state`), reference
-from the reference kinds (`rbstudy.physics.analytic`).
+Every variable an archive can hold is an entry of `VARIABLES`; the writer, the reader, the
+docs and the contract tests read its attributes from here and nowhere else. The sweep computes
+each variable with the `rbstudy.pipeline.outputs` function of the same name
+(`rbstudy.pipeline.formulas`): adding a variable is one entry here plus its function.
+``needs`` names the scene features (`FEATURES`) a variable requires, so that a variable a
+scene does not define is left out instead of filled with NaN. The flag tables come from where
+the codes are made: status from the driver (`rbstudy.numerics.state`), reference from the
+reference kinds (`rbstudy.physics.analytic`), the accuracy verdict (`VERDICTS`) from here.
 """
 
 import dataclasses
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from rbstudy.numerics.state import OK, RESULT_FIELDS, STATUS_NAMES, STATUSES
 from rbstudy.physics.analytic import INTEGRATED, REFERENCE_KINDS
-from rbstudy.pipeline import outputs
 
 __all__ = [
     "Variable",
@@ -35,12 +34,21 @@ __all__ = [
     "variable_attrs",
     "scene_features",
     "selected",
-    "evaluate",
+    "VERDICTS",
+    "ACCURATE",
+    "INACCURATE",
+    "FAILED",
+    "UNJUDGED",
     "BOOKKEEPING",
     "COST_MODEL",
     "UNCERTAINTIES",
     "PER_SCENE",
 ]
+
+# Codes of the accuracy verdict (`accuracy`): a failed case has none, and a finished case
+# without a reference (its DOP853 reference passed its step budget) cannot be judged.
+VERDICTS = ("accurate", "inaccurate", "failed", "unjudged")
+ACCURATE, INACCURATE, FAILED, UNJUDGED = range(len(VERDICTS))
 
 # The scene features a variable may need: name -> (predicate on a
 # `rbstudy.physics.scenes.SceneTable`, true or false per scene, meaning).
@@ -78,21 +86,20 @@ FEATURES = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Variable:
-    """An output variable: ``compute(batch) -> values`` (case axis first), ``dims`` beyond the
-    case dimensions, CF ``units``, a ``long_name`` short enough for a plot's axis label
-    (`LONG_NAME_MAX`) and the ``description`` that explains it, the scene features it
-    ``needs``, its netCDF storage type, for a flag the meaning of each code (``flags``), and
-    whether it is the same for every run of a scene (``per_scene``: stored along the scene's
-    dimensions only, not along scheme, dt or a scheme option)."""
+    """An output variable: ``dims`` beyond the case dimensions, CF ``units``, a ``long_name``
+    short enough for a plot's axis label (`LONG_NAME_MAX`) and the ``description`` that
+    explains it, the scene features it ``needs``, its netCDF storage type, for a flag the
+    meaning of each code (``flags``), and whether it is the same for every run of a scene
+    (``per_scene``: stored along the scene's dimensions only, not along scheme, dt or a
+    scheme option). Built by keyword."""
 
     name: str
     dims: tuple
     units: str
     long_name: str
     description: str
-    compute: Callable
     needs: frozenset = frozenset()
     dtype: str = "f8"
     flags: tuple = ()
@@ -104,18 +111,17 @@ LONG_NAME_MAX = 60
 
 
 def _v(name, dims, units, long_name, description, *needs, flags=(), dtype="f8", per_scene=False):
-    """A variable computed by `rbstudy.pipeline.outputs` function of the same name."""
+    """A variable computed per case (by the `rbstudy.pipeline.outputs` function of its name)."""
     return Variable(
-        name,
-        dims,
-        units,
-        long_name,
-        description,
-        getattr(outputs, name),
-        frozenset(needs),
-        dtype,
-        flags,
-        per_scene,
+        name=name,
+        dims=dims,
+        units=units,
+        long_name=long_name,
+        description=description,
+        needs=frozenset(needs),
+        dtype=dtype,
+        flags=flags,
+        per_scene=per_scene,
     )
 
 
@@ -126,17 +132,7 @@ def _scene(name, dims, units, long_name, description, *needs, flags=(), dtype="f
 
 def _result(name, units, long_name, description, *needs, flags=()):
     """A per-case result of the driver, stored as the driver's storage type."""
-    return Variable(
-        name,
-        (),
-        units,
-        long_name,
-        description,
-        outputs.driver_result(name),
-        frozenset(needs),
-        dict(RESULT_FIELDS)[name],
-        flags,
-    )
+    return _v(name, (), units, long_name, description, *needs, flags=flags, dtype=dict(RESULT_FIELDS)[name])
 
 
 _AS_UNCERTAINTY = "; NaN where reference_uncertainty is"
@@ -370,7 +366,7 @@ VARIABLES = {
             "case has no verdict; a finished case without a reference (reference = none) and no "
             "drift past the bound is unjudged",
             "reference",
-            flags=outputs.VERDICTS,
+            flags=VERDICTS,
             dtype="i1",
         ),
         _scene(
@@ -587,8 +583,3 @@ UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items() if "integrate
 def selected(features):
     """Names of the variables a scene with ``features`` defines, in table order."""
     return [name for name, v in VARIABLES.items() if v.needs <= set(features)]
-
-
-def evaluate(names, batch):
-    """The values of the variables ``names`` for an `rbstudy.pipeline.outputs.BatchData`."""
-    return {name: VARIABLES[name].compute(batch) for name in names}

@@ -30,9 +30,9 @@ __all__ = ["ChunkedArchive"]
 OPEN_BYTES = 2**28
 # Chunks handed to the compressing threads and not yet written, per thread: enough to keep
 # them busy while the archive's thread reads the next part, few enough to bound memory
-# (chunks are ~256 KiB: `store.CHUNK_BYTES`).
+# (chunks are ~256 KiB: `layout.CHUNK_BYTES`).
 IN_FLIGHT_PER_THREAD = 16
-# The filters every archive variable is created with (`store.COMPRESSION`), in HDF5's order.
+# The filters every archive variable is created with (`layout.COMPRESSION`), in HDF5's order.
 _FILTERS = (h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE)
 
 

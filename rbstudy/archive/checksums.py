@@ -1,147 +1,71 @@
-"""Checksums that prove a stored result is the one that was computed.
+"""Checksums that prove the archive holds what was computed.
 
-Two kinds of file, two kinds of proof:
-
-* **A part file** (``parts/<batch>.nc``) is an intermediate that only rbstudy reads. Its
-  whole byte content is hashed (SHA-256) when it is written, and the digest is kept beside it
-  in ``<batch>.nc.sha256``. A part is reused only when its bytes still hash to that digest:
-  a truncated, zeroed, overwritten, edited or swapped file never is, wherever the damage lies
-  (data, attributes, the HDF5 structure, or garbage after its end).
-* **The archive** (``<study>.nc``) travels alone, so it carries its own proof, in the netCDF
-  group `GROUP` (out of the global attributes a user reads: ``xr.open_dataset`` of the file
-  does not show it): its attribute ``checksums`` holds one SHA-256 per variable, of its type,
-  shape, attributes and stored values (fill values included, nothing decoded), and
-  ``part_checksums`` the digest of every part it was built from. `verify_archive`
-  recomputes the first and checks that the second names exactly the study's batches (its
-  ``batches`` attribute). Archives of rbstudy 0.3 hold the two as global attributes, and
-  are proven the same way. A group added to a sealed archive (the step search's ``search``)
-  is sealed with it: ``<group>/<variable>`` per variable and ``<group>/`` + `MEANING` for
-  its attributes, in the same ``checksums`` (`reseal_group`).
-
-The global attributes (title, history, config text) are not in the per-variable checksums:
-a changed title is redescribed in place without touching the data (`store.refresh_description`).
+The archive (``<study>.nc``) travels alone, so it carries its own proof, in the netCDF group
+`GROUP` (out of the global attributes a user reads: ``xr.open_dataset`` of the file does not
+show it): its attribute ``checksums`` holds one SHA-256 per variable, of its type, shape,
+attributes and stored values (fill values included, nothing decoded), and ``part_checksums``
+the digest of every part it was built from. `verify_archive` recomputes the first and checks
+that the second names exactly the study's batches (its ``batches`` attribute). Archives of
+rbstudy 0.3 hold the two as global attributes, and are proven the same way. A group added to
+a sealed archive (the step search's ``search``) is sealed with it: ``<group>/<variable>`` per
+variable and ``<group>/`` + `MEANING` for its attributes, in the same ``checksums``
+(`reseal_group`). The global attributes (title, history, config text) are not in the
+per-variable checksums: a changed title is redescribed in place without touching the data
+(`rbstudy.archive.rewrite.refresh_description`).
 """
 
-import contextlib
-import errno
 import hashlib
 import json
-import os
-import pathlib
-import shutil
-import threading
 from dataclasses import dataclass
 
-import h5py
 import netCDF4
 import numpy as np
 
+from rbstudy.archive.hdf5 import HDF5_LOCK, netcdf_writer
+from rbstudy.archive.ids import ids_digest
+from rbstudy.archive.layout import is_part
 from rbstudy.errors import one_line
-from rbstudy.inputs.reader import open_regular_file
-from rbstudy.pipeline.batches import ids_digest
 
 __all__ = [
-    "file_digest",
-    "is_part",
-    "sidecar",
-    "sidecar_text",
-    "sealed",
-    "part_digest",
+    "ALGORITHM",
+    "ArchiveCheck",
+    "GROUP",
+    "MEANING",
+    "MEANING_ATTRIBUTES",
+    "SEALS",
+    "StreamedChecksum",
     "archive_checksums",
     "group_checksums",
     "reseal_group",
     "seal_archive",
-    "ArchiveCheck",
     "verify_archive",
-    "SIDECAR_SUFFIX",
-    "ALGORITHM",
-    "hdf5_writer",
-    "netcdf_writer",
-    "GROUP",
-    "SEALS",
-    "HDF5_LOCK",
-    "StreamedChecksum",
-    "nearly_full",
 ]
 
-# The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
-# the process. Every netCDF access of this process goes through this lock (parts are written
-# by the tasks of the threaded scheduler, the archive by a thread of its own meanwhile).
-HDF5_LOCK = threading.RLock()
+
 ALGORITHM = "sha256"
-SIDECAR_SUFFIX = ".sha256"
-# Bytes read at once while hashing a file, and values per slab while hashing a variable:
-# bounded memory whatever the size of the study.
-_READ_BYTES = 1 << 20
-# The most of a digest file read: its one line (`sidecar_text`) is ~80 bytes and the part's
-# name; more is not one rbstudy wrote (a link to /dev/zero, which never ends).
-_SIDECAR_BYTES = 4096
+
+
 _SLAB_BYTES = 1 << 23
+
+
 # Slots of a variable's chunk cache while it is hashed (a prime, as HDF5 advises).
 _CACHE_SLOTS = 521
+
+
 # The global attributes in the archive's checksums (under the name `MEANING`): those that give
 # its values their meaning. The title, history and config text are left out: a changed title
 # is redescribed in place.
 MEANING_ATTRIBUTES = ("study", "batches", "accuracy_bound")
+
+
 MEANING = "(global attributes)"
+
+
 # The archive's group of checksums, and its two attributes.
 GROUP = "integrity"
+
+
 SEALS = ("checksums", "part_checksums")
-# Closes of an HDF5 file whose flush met a full disk, once its temporary is truncated
-# (`_close_or_truncate`): measured on a full tmpfs, the first fails and the second succeeds.
-_CLOSE_ATTEMPTS = 3
-# The files a full disk kept open even then (`_close_or_truncate`), closed at the next write.
-_UNCLOSED = []
-# Free bytes below which a failed write is put down to a full disk: HDF5 reports one as "HDF
-# error" (a RuntimeError), "Disable slist on flush dest failure failed" or even "Permission
-# denied", so the free space, not the error, tells.
-_FULL_BYTES = 2**20
-
-
-def file_digest(path):
-    """``sha256:<hex>`` of the bytes of the regular file at ``path`` (`open_regular_file`:
-    a FIFO or a device in a part's place is refused, never waited on or read forever)."""
-    digest = hashlib.sha256()
-    with open_regular_file(path) as handle:
-        while block := handle.read(_READ_BYTES):
-            digest.update(block)
-    return f"{ALGORITHM}:{digest.hexdigest()}"
-
-
-def sidecar(path):
-    """Where the digest of the part at ``path`` is kept."""
-    path = pathlib.Path(path)
-    return path.with_name(path.name + SIDECAR_SUFFIX)
-
-
-def sidecar_text(digest, path):
-    """The digest file's line, as ``sha256sum`` writes it (``sha256sum -c`` does not read the
-    ``sha256:`` prefix, but a reader sees which file and algorithm)."""
-    return f"{digest}  {pathlib.Path(path).name}\n"
-
-
-def is_part(attributes, dimensions):
-    """Whether a netCDF file with these global ``attributes`` and ``dimensions`` (names) is
-    one batch's part file rather than a study's archive."""
-    return "batch" in attributes and "case" in dimensions
-
-
-def sealed(path):
-    """True when the part at ``path`` exists with its digest beside it (so that a part which
-    fails `part_digest` then is damaged, not unfinished)."""
-    return pathlib.Path(path).exists() and sidecar(path).exists()
-
-
-def part_digest(path):
-    """The digest of the part at ``path`` when its bytes match the one stored beside it at
-    writing, else None (no part, no digest, no regular file for either, or any byte changed
-    since)."""
-    try:
-        with open_regular_file(sidecar(path)) as handle:
-            stored = handle.read(_SIDECAR_BYTES).decode().split()[0]
-        return stored if file_digest(path) == stored else None
-    except (OSError, IndexError, UnicodeDecodeError):
-        return None
 
 
 def _update_values(digest, variable):
@@ -285,111 +209,6 @@ def _read_checksum(variable):
     digest = hashlib.sha256(_header(variable).encode())
     _update_values(digest, variable)
     return f"{ALGORITHM}:{digest.hexdigest()}"
-
-
-@contextlib.contextmanager
-def netcdf_writer(temporary, mode="w"):
-    """``netCDF4.Dataset(temporary, mode)`` (NETCDF4) of a temporary file, closed on the way
-    out even when a full disk fails its close (`_closed_on_exit`). Opening and closing take
-    `HDF5_LOCK`; what the caller does in between takes it as it needs."""
-    with HDF5_LOCK:
-        _close_unclosed()
-        nc = netCDF4.Dataset(temporary, mode, format="NETCDF4")
-    with _closed_on_exit(nc, temporary, HDF5_LOCK):
-        yield nc
-
-
-@contextlib.contextmanager
-def hdf5_writer(temporary):
-    """``h5py.File(temporary, "r+")``, closed on the way out as `netcdf_writer` closes. h5py
-    carries its own HDF5 library and lock: `HDF5_LOCK`, netCDF4's, is not taken."""
-    _close_unclosed()
-    handle = h5py.File(temporary, "r+")
-    with _closed_on_exit(handle, temporary, contextlib.nullcontext()):
-        yield handle
-
-
-def nearly_full(path):
-    """Whether the file system of ``path`` (or of its nearest existing ancestor) has less
-    than `_FULL_BYTES` free; one of no blocks at all (/proc, /sys) never is, nor one that
-    cannot tell (it is asked while a write's error is handled: that error stays the one
-    raised)."""
-    place = pathlib.Path(path).absolute()
-    while not place.is_dir():
-        place = place.parent
-    try:
-        usage = shutil.disk_usage(place)
-    except OSError:
-        return False
-    return usage.free < _FULL_BYTES and usage.total > 0
-
-
-def _no_space(temporary):
-    """The `OSError` (ENOSPC) of a write to ``temporary`` that failed on a nearly full disk:
-    what the callers tell as the full disk, whatever HDF5 called the failure."""
-    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(temporary))
-
-
-@contextlib.contextmanager
-def _closed_on_exit(handle, temporary, lock):
-    """Close ``handle`` of ``temporary`` on the way out (`_close_or_truncate`). When what was
-    written failed, its error is the one raised, not the close's that follows it (HDF5 then
-    fails to flush too), and an HDF5 error on a nearly full disk becomes ENOSPC: measured
-    before the close truncates the temporary, which frees the space that told."""
-    try:
-        yield handle
-    except (OSError, RuntimeError) as error:
-        full = nearly_full(temporary)
-        with contextlib.suppress(OSError, RuntimeError):
-            _close_or_truncate(handle, temporary, lock)
-        if full:
-            raise _no_space(temporary) from error
-        raise
-    except BaseException:
-        with contextlib.suppress(OSError, RuntimeError):
-            _close_or_truncate(handle, temporary, lock)
-        raise
-    _close_or_truncate(handle, temporary, lock)
-
-
-def _is_open(handle):
-    """Whether a netCDF4 dataset or an h5py file is still open."""
-    return handle.isopen() if isinstance(handle, netCDF4.Dataset) else bool(handle)
-
-
-def _close_or_truncate(handle, temporary, lock):
-    """Close ``handle`` (netCDF4 or h5py) of the file ``temporary``. HDF5 keeps a file it could
-    not flush open, and every further close fails flushing it too: a long-lived process (a
-    cluster's worker, a test) would hold the removed temporary's space after the user freed
-    the disk. So the temporary, worthless by then, is truncated: its space lets HDF5 finish
-    the close. An archive abandoned early (written beside its batches) may hold more cached
-    chunks than truncating it frees: it is closed at the next write, once the user has freed
-    the disk. A close that failed on a nearly full disk raises ENOSPC (`_no_space`)."""
-    try:
-        with lock:
-            handle.close()
-    except (OSError, RuntimeError) as error:
-        full = nearly_full(temporary)  # before the truncation frees the space that tells
-        os.truncate(temporary, 0)
-        for _ in range(_CLOSE_ATTEMPTS):
-            with contextlib.suppress(OSError, RuntimeError), lock:
-                handle.close()
-            if not _is_open(handle):
-                break
-        else:
-            _UNCLOSED.append(handle)
-        if full:
-            raise _no_space(temporary) from error
-        raise
-
-
-def _close_unclosed():
-    """Close what a full disk kept open (`_close_or_truncate`) where the disk now has room."""
-    for handle in list(_UNCLOSED):
-        with contextlib.suppress(OSError, RuntimeError), HDF5_LOCK:  # h5py's need it not: harmless
-            handle.close()
-        if not _is_open(handle):
-            _UNCLOSED.remove(handle)
 
 
 def seal_archive(path, part_digests, streamed=None):

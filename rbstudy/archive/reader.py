@@ -6,7 +6,7 @@ by hand, a block zeroed), not rbstudy's (a YAML file, another tool's netCDF, one
 right names but other shapes), or crafted (a ``study`` attribute of ``../../escaped``, which
 names the figure files). `open_archive` checks, in this order, that the file is netCDF, that
 it has the layout the summary, the figures and the report read (`check_layout`), and unless
-told not to that every variable matches its checksum (`rbstudy.pipeline.integrity`). Each
+told not to that every variable matches its checksum (`rbstudy.archive.checksums`). Each
 failure is one `InputError` naming the file, the attribute or variable, and the fix; a
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
@@ -17,12 +17,14 @@ import pathlib
 import netCDF4
 import numpy as np
 
+from rbstudy.archive.checksums import verify_archive
+from rbstudy.archive.hdf5 import HDF5_LOCK
+from rbstudy.archive.layout import is_part
+from rbstudy.archive.load import open_results
+from rbstudy.archive.parts import part_digest, sidecar
+from rbstudy.archive.variables import BOOKKEEPING, VARIABLES
 from rbstudy.errors import InputError, one_line
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
-from rbstudy.pipeline.integrity import is_part, part_digest, sidecar, verify_archive
-from rbstudy.pipeline.progress import SILENT
-from rbstudy.pipeline.store import HDF5_LOCK, open_results
-from rbstudy.pipeline.variables import BOOKKEEPING, VARIABLES
 
 __all__ = ["open_archive", "check_layout", "verify_file", "NOT_AN_ARCHIVE", "GIVE_AN_ARCHIVE"]
 
@@ -219,18 +221,20 @@ def _verified(path, bypass=None):
     raise InputError(f"damaged: {shown}", fix, str(path))
 
 
-def open_archive(path, variables=None, verify=True, reduced=None, progress=SILENT):
-    """The archive at ``path`` as a loaded xarray dataset (`rbstudy.pipeline.store
-    .open_results`: ``variables`` only, when given, and the time series of ``reduced``
-    reduced along time), after `check_layout` and, when ``verify``, after proving every
-    variable intact by its checksum; each step a phase of ``progress``
-    (`rbstudy.pipeline.progress.Progress`) once the layout is known to be an archive's."""
+def open_archive(path, variables=None, verify=True, reduced=None, progress=None):
+    """The archive at ``path`` as a loaded xarray dataset (`rbstudy.archive.load.open_results`:
+    ``variables`` only, when given, and the time series of ``reduced`` reduced along time),
+    after `check_layout` and, when ``verify``, after proving every variable intact by its
+    checksum; each step a phase of ``progress`` (a `rbstudy.pipeline.progress.Progress`, or
+    None: nothing shown) once the layout is known to be an archive's."""
     cases = check_layout(path)
     name = pathlib.PurePath(path).name
     if verify:
-        progress.phase(f"{name}: checking its checksums")
+        if progress is not None:
+            progress.phase(f"{name}: checking its checksums")
         _verified(path, bypass="give --no-verify to read it as it is")
-    progress.phase(f"{name}: reading its {cases} case{'s' * (cases != 1)}")
+    if progress is not None:
+        progress.phase(f"{name}: reading its {cases} case{'s' * (cases != 1)}")
     try:
         return open_results(path, variables, reduced)
     except (OSError, RuntimeError, ValueError) as error:  # HDF5 reading a zeroed block

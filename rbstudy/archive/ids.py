@@ -1,0 +1,53 @@
+"""Canonical ids of what a study's results are made of.
+
+A batch's id (`rbstudy.pipeline.batches`) and the digests that bind an archive or a step
+search to its batches are SHA-256 hashes of canonical JSON (`canonical_id`: keys sorted,
+numbers normalised so that 0.1 and 1e-1 hash alike). `SCHEMA_VERSION` goes into every id:
+it is bumped whenever what a part file holds changes, so old parts are never reused.
+"""
+
+import hashlib
+import json
+
+__all__ = ["ID_LENGTH", "SCHEMA_VERSION", "batches_digest", "canonical_id", "ids_digest"]
+
+
+# Bumped whenever what a part file holds changes, so that old parts are never reused.
+SCHEMA_VERSION = 2
+
+
+# Hex digits of a batch id's hash: 64 bits, no collision among any realistic set of batches.
+ID_LENGTH = 16
+
+
+def _normalised(value):
+    """JSON-ready copy with every number a float, so that 1 and 1.0 hash alike."""
+    if isinstance(value, dict):
+        return {str(k): _normalised(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_normalised(v) for v in value]
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    try:
+        return float(value)
+    except (OverflowError, TypeError, ValueError):  # refused later, with its key, by the reader
+        return repr(value)
+
+
+def canonical_id(payload):
+    """A short stable hash of ``payload``: canonical JSON (sorted keys, numbers as floats) plus
+    `SCHEMA_VERSION`."""
+    text = json.dumps(
+        {"schema": SCHEMA_VERSION, "payload": _normalised(payload)}, sort_keys=True, separators=(",", ":")
+    )
+    return hashlib.sha256(text.encode()).hexdigest()[:ID_LENGTH]
+
+
+def batches_digest(batches):
+    """One id for a whole study's batches: an archive built from exactly these is current."""
+    return ids_digest([batch.id for batch in batches])
+
+
+def ids_digest(ids):
+    """`batches_digest` of the batches of ids ``ids``, in order."""
+    return canonical_id(list(ids))

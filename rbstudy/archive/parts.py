@@ -1,0 +1,183 @@
+"""Part files: one finished batch each, written by whichever process computed it.
+
+A part (``parts/<batch-id>.nc``, dimension ``case``) is an intermediate that only rbstudy
+reads. Its whole byte content is hashed (SHA-256) when it is written, and the digest is kept
+beside it in ``<batch>.nc.sha256`` (`sidecar`). A part is reused only when its bytes still
+hash to that digest (`part_complete`): a truncated, zeroed, overwritten, edited or swapped
+file never is, wherever the damage lies. `PartTarget` is what a task, local or on a cluster
+worker, is handed to write its batch.
+"""
+
+import hashlib
+import os
+import pathlib
+from typing import Any, NamedTuple
+
+import netCDF4
+import numpy as np
+
+from rbstudy.archive.checksums import ALGORITHM
+from rbstudy.archive.files import temporary_beside, write_text_atomic
+from rbstudy.archive.hdf5 import HDF5_LOCK, netcdf_writer
+from rbstudy.archive.layout import Layout, create_variable, fixed_coords
+from rbstudy.archive.owner import IDENTITY
+from rbstudy.archive.variables import VARIABLES, variable_attrs
+from rbstudy.errors import RbstudyError
+from rbstudy.inputs.reader import open_regular_file
+
+__all__ = [
+    "PartTarget",
+    "SIDECAR_SUFFIX",
+    "file_digest",
+    "part_complete",
+    "part_digest",
+    "read_part",
+    "sealed",
+    "sidecar",
+    "sidecar_text",
+    "write_part",
+]
+
+
+SIDECAR_SUFFIX = ".sha256"
+
+
+# Bytes read at once while hashing a file, and values per slab while hashing a variable:
+# bounded memory whatever the size of the study.
+_READ_BYTES = 1 << 20
+
+
+# The most of a digest file read: its one line (`sidecar_text`) is ~80 bytes and the part's
+# name; more is not one rbstudy wrote (a link to /dev/zero, which never ends).
+_SIDECAR_BYTES = 4096
+
+
+def file_digest(path):
+    """``sha256:<hex>`` of the bytes of the regular file at ``path`` (`open_regular_file`:
+    a FIFO or a device in a part's place is refused, never waited on or read forever)."""
+    digest = hashlib.sha256()
+    with open_regular_file(path) as handle:
+        while block := handle.read(_READ_BYTES):
+            digest.update(block)
+    return f"{ALGORITHM}:{digest.hexdigest()}"
+
+
+def sidecar(path):
+    """Where the digest of the part at ``path`` is kept."""
+    path = pathlib.Path(path)
+    return path.with_name(path.name + SIDECAR_SUFFIX)
+
+
+def sidecar_text(digest, path):
+    """The digest file's line, as ``sha256sum`` writes it (``sha256sum -c`` does not read the
+    ``sha256:`` prefix, but a reader sees which file and algorithm)."""
+    return f"{digest}  {pathlib.Path(path).name}\n"
+
+
+def sealed(path):
+    """True when the part at ``path`` exists with its digest beside it (so that a part which
+    fails `part_digest` then is damaged, not unfinished)."""
+    return pathlib.Path(path).exists() and sidecar(path).exists()
+
+
+def part_digest(path):
+    """The digest of the part at ``path`` when its bytes match the one stored beside it at
+    writing, else None (no part, no digest, no regular file for either, or any byte changed
+    since)."""
+    try:
+        with open_regular_file(sidecar(path)) as handle:
+            stored = handle.read(_SIDECAR_BYTES).decode().split()[0]
+        return stored if file_digest(path) == stored else None
+    except (OSError, IndexError, UnicodeDecodeError):
+        return None
+
+
+class PartTarget(NamedTuple):
+    """Where a store task puts its batch: the study's `Layout`, the batch (a
+    `rbstudy.pipeline.batches.Batch`: its ``id`` and ``cases`` are read) and the path of its
+    part file."""
+
+    layout: Layout
+    batch: Any
+    path: str
+
+    @property
+    def cases(self):
+        return len(self.batch.cases)
+
+    def write(self, values):
+        """`write_part` of this batch's ``values``; the part's digest."""
+        return write_part(self.layout, self.batch, values, self.path)
+
+
+def _write_part_file(nc, layout, batch, values):
+    """The part file of ``batch`` into the open netCDF ``nc``: its variables ``values``
+    (case first) along dim ``case``, whose coordinate is each case's position in the study
+    (C order of the grid), uncompressed (a part lives until the archive is written). Written
+    with netCDF4 directly: through xarray a part took 2-3 times as long, and the default
+    study writes one per batch (docs/performance.md)."""
+    nc.setncatts({"study": layout.study, "batch": batch.id, IDENTITY: "\n".join(layout.identity)})
+    cases = np.array(batch.cases)
+    nc.createDimension("case", len(cases))
+    create_variable(nc, "case", ("case",), cases, {"long_name": "case number in the study"})
+    for name, (coordinate, attrs) in fixed_coords(layout).items():
+        nc.createDimension(name, len(coordinate))
+        create_variable(
+            nc,
+            name,
+            (name,),
+            coordinate.astype(object) if coordinate.dtype.kind == "U" else coordinate,
+            attrs,
+        )
+    for name in layout.variables:
+        create_variable(
+            nc,
+            name,
+            ("case",) + VARIABLES[name].dims,
+            np.asarray(values[name], dtype=VARIABLES[name].dtype),
+            variable_attrs(name),
+        )
+
+
+def read_part(path, variables):
+    """The case numbers and ``variables`` of the part file at ``path``, name -> array."""
+    with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        return {name: nc[name][...] for name in ("case", *variables)}
+
+
+def part_complete(path, batch):
+    """The digest of ``path`` when it is an intact part of ``batch`` (its bytes match the
+    digest stored when it was written, its id and its cases match), else None.
+
+    A rename makes a part appear whole, but a crash of the machine (not of the process) can
+    leave an empty or truncated file, and a disk or a hand can change one: such a part is
+    recomputed, never trusted.
+    """
+    digest = part_digest(path)
+    if digest is None:
+        return None
+    try:
+        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+            same = nc.getncattr("batch") == batch.id and np.array_equal(
+                nc["case"][:], np.asarray(batch.cases)
+            )
+    except (OSError, KeyError, AttributeError, IndexError, RuntimeError):
+        return None
+    return digest if same else None
+
+
+def write_part(layout, batch, values, path):
+    """Write the part of ``batch`` (its variables ``values``) to ``path`` through a temporary
+    file and a rename, then its digest beside it; returns the digest."""
+    with temporary_beside(path) as temporary, HDF5_LOCK:
+        with netcdf_writer(temporary) as nc:
+            _write_part_file(nc, layout, batch, values)
+        digest = file_digest(temporary)
+    # after the rename: a kill between the two leaves a part without digest, recomputed
+    try:
+        write_text_atomic(sidecar_text(digest, path), sidecar(path))
+    except RbstudyError:  # a full disk: no part is left without its digest, half finished
+        os.remove(path)
+        raise
+    return digest

@@ -1,0 +1,177 @@
+"""The archive written from its parts: `consolidate`.
+
+The consolidated dataset is defined with netCDF4 and filled chunk by chunk, one part at a
+time, in the batches' order as the parts arrive, its chunks compressed on every core
+(`rbstudy.archive.chunks`), so memory stays bounded by the largest part whatever the size of
+the study. Its checksums are computed from the values streamed through it, sealed before the
+file is renamed into place.
+"""
+
+import itertools
+import math
+
+import numpy as np
+
+from rbstudy.archive.checksums import StreamedChecksum, seal_archive
+from rbstudy.archive.chunks import ChunkedArchive
+from rbstudy.archive.files import temporary_beside
+from rbstudy.archive.hdf5 import HDF5_LOCK, hdf5_writer, netcdf_writer
+from rbstudy.archive.layout import Layout, archive_dims, create_variable, fixed_coords, grid_coordinates
+from rbstudy.archive.parts import read_part
+from rbstudy.archive.variables import VARIABLES, variable_attrs
+
+__all__ = ["consolidate"]
+
+
+def consolidate(study, arriving, target, attrs, advance=lambda: None):
+    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest)
+    of the part of each batch of ``study.batches``, in their order, and may wait for a
+    part still being computed (the archive is written while later batches run). netCDF4
+    defines the archive; its chunks are then filled from the parts and compressed on every
+    core (`ChunkedArchive`, through h5py). ``advance()`` after each part; then the archive
+    is sealed with its checksums, hashed as the values are written, and the parts' digests."""
+    shape = study.shape
+    parts = zip(study.batches, arriving, strict=True)
+    # the archive is defined once the first part is there, so that a disk too small for one
+    # part fails on the part alone (the archive's metadata, written at once, takes its pages)
+    first = next(parts, None)
+    with temporary_beside(target) as temporary:
+        with netcdf_writer(temporary) as nc, HDF5_LOCK:
+            defined = _define_archive(nc, study, attrs)
+        with hdf5_writer(temporary) as h5file:
+            archive = ChunkedArchive(h5file)
+            try:
+                targets = {
+                    name: (archive.variable(name, grid_rank), along, stream)
+                    for name, (grid_rank, along, stream) in defined.items()
+                }
+                part_digests = []
+                for batch, (path, digest) in itertools.chain([first] if first else [], parts):
+                    _copy_part(targets, read_part(path, study.variables), shape)
+                    part_digests.append([batch.id, digest])
+                    advance()
+                archive.finish(variable for variable, _, _ in targets.values())
+            finally:
+                archive.close()
+        seal_archive(temporary, part_digests, {name: stream for name, (_, _, stream) in defined.items()})
+
+
+def _define_archive(nc, study, attrs):
+    """Create the archive's dimensions, coordinates and (empty) variables in the open ``nc``;
+    name -> (how many of its dimensions are the grid's, whether it lies along each grid
+    dimension, its `StreamedChecksum`) of the output variables."""
+    grid = grid_coordinates(study)
+    nc.setncatts(attrs)
+    for dim in study.dimensions:
+        nc.createDimension(dim.name, dim.size)
+    fixed = fixed_coords(Layout.of(study))
+    for name, (values, _) in fixed.items():
+        nc.createDimension(name, len(values))
+    for name, (dims, values, coord_attrs) in grid.items():
+        create_variable(nc, name, dims, values, coord_attrs)
+    for name, (values, coord_attrs) in fixed.items():
+        create_variable(
+            nc,
+            name,
+            (name,),
+            values.astype(object) if values.dtype.kind == "U" else values,
+            coord_attrs,
+        )
+    targets = {}
+    for name in study.variables:
+        along = archive_dims(study, name)
+        attrs_ = variable_attrs(name)
+        # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
+        # claims) that CF readers attach to it: those along its dimensions
+        auxiliary = [
+            coordinate
+            for coordinate, (dims, _, _) in grid.items()
+            if dims != (coordinate,) and set(dims) <= set(along)
+        ]
+        if auxiliary:
+            attrs_["coordinates"] = " ".join(auxiliary)
+        grid_rank = len(along) - len(VARIABLES[name].dims)
+        variable = create_variable(
+            nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank
+        )
+        targets[name] = (
+            grid_rank,
+            tuple(d.name in along[:grid_rank] for d in study.dimensions),
+            StreamedChecksum(variable, grid_rank),
+        )
+    return targets
+
+
+def _block(cases, shape):
+    """Orthogonal indices (one per dimension) when ``cases`` (flat, C order) fill the outer
+    product of their coordinates in order, else None. Batches usually do (a fixed scheme
+    and dt, every value of the other axes), and one slab write replaces a write per case."""
+    where = np.unravel_index(cases, shape)
+    axes = [np.unique(w) for w in where]
+    if math.prod(len(a) for a in axes) != len(cases):
+        return None
+    grid = np.ravel_multi_index(np.meshgrid(*axes, indexing="ij"), shape).ravel()
+    if not np.array_equal(grid, cases):
+        return None
+    return tuple(slice(a[0], a[-1] + 1) if len(a) == a[-1] - a[0] + 1 else a.tolist() for a in axes), tuple(
+        len(a) for a in axes
+    )
+
+
+def _copy_part(targets, part, shape):
+    """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
+    -> (its chunk writer, `ChunkedArchive.variable`; whether it lies along each grid
+    dimension; its `StreamedChecksum`, fed what is written). A part holds a value per
+    case; a variable of the scene alone takes its cases' values at the first position of the
+    dimensions it does not lie along (the same at every other)."""
+    cases = part["case"]
+    if not shape:  # a one-case study
+        for name, (variable, _, _) in targets.items():
+            variable.write((), part[name][0])
+        return
+    block = _block(cases, shape)
+    # else slabs of consecutive cases: a batch cut from a long grid (one scheme and dt, 510 of
+    # 100 x 1,000 spins and tilts) starts and ends inside a row; written case by case, such
+    # a part took 0.5 s (1e5 cases: 100 s of 178)
+    slabs = (
+        [block]
+        if block is not None
+        else [
+            (index, tuple(piece.stop - piece.start for piece in index))
+            for run in np.split(cases, np.flatnonzero(np.diff(cases) != 1) + 1)
+            for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)
+        ]
+    )
+    for name, (variable, along, stream) in targets.items():
+        values, start = part[name], 0
+        for index, sizes in slabs:
+            count = math.prod(sizes)
+            block = values[start : start + count].reshape(sizes + values.shape[1:])
+            kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
+            written = block[tuple(slice(None) if keep else 0 for keep in along)]
+            variable.write(kept, written)
+            stream.wrote(kept, written)
+            start += count
+
+
+def _slabs(first, stop, shape):
+    """The cases ``first`` to ``stop`` - 1 (flat, C order) of a grid of ``shape`` as at most
+    2 len(shape) - 1 slabs, in order, each a tuple of slices (one per dimension)."""
+    if first == stop:
+        return []
+    if len(shape) == 1:
+        return [(slice(first, stop),)]
+    inner = math.prod(shape[1:])
+    (row, offset), (last_row, last_offset) = divmod(first, inner), divmod(stop, inner)
+    whole_rows = tuple(slice(0, size) for size in shape[1:])
+    if row == last_row:
+        return [(slice(row, row + 1), *index) for index in _slabs(offset, last_offset, shape[1:])]
+    slabs = []
+    if offset:  # the end of a first row
+        slabs += [(slice(row, row + 1), *index) for index in _slabs(offset, inner, shape[1:])]
+        row += 1
+    if last_row > row:
+        slabs.append((slice(row, last_row), *whole_rows))
+    if last_offset:  # the start of a last row
+        slabs += [(slice(last_row, last_row + 1), *index) for index in _slabs(0, last_offset, shape[1:])]
+    return slabs
