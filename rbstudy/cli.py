@@ -260,7 +260,7 @@ def _sweep(args):
 
         start_forkserver()
     from rbstudy.analysis.findings import FINDINGS_REDUCED, FINDINGS_VARIABLES
-    from rbstudy.archive.owner import folder_claim
+    from rbstudy.archive.folder import StudyFolder
     from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.cluster import Where
@@ -288,7 +288,7 @@ def _sweep(args):
         worker_wait=args.worker_wait,
     )
     # a folder of another config of the same name is refused before any study runs
-    replaces = [folder_claim(args.out, study, args.force) for study in studies]
+    replaces = [StudyFolder.of(args.out, study).check_claim(args.force) for study in studies]
     lines = [_costed(study, args, disk=False) for study in studies]  # before any run
     for study, line, replaced in zip(studies, lines, replaces, strict=True):
         if not args.quiet and study.name not in read_only:  # nothing to forecast there

@@ -23,7 +23,7 @@ from conftest import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, abaqu
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.summary import format_table, scheme_rows
-from rbstudy.archive import lock
+from rbstudy.archive import lock, writer
 from rbstudy.archive.load import open_results
 from rbstudy.archive.lock import study_lock
 from rbstudy.archive.variables import LONG_NAME_MAX, VERDICTS
@@ -332,7 +332,6 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
 def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
     """The first part is copied into the archive before the last batch ends: the last batch
     waits for it (before the archive was written after every batch, and it waited in vain)."""
-    from rbstudy.archive import writer
     from rbstudy.pipeline import config as config_module
 
     monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 2)
@@ -379,7 +378,7 @@ def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_
 def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_abandoned():
     batches = [types.SimpleNamespace(id=name) for name in ("a", "b", "c")]
     parts = {"a": "a.nc", "b": "b.nc", "c": "c.nc"}
-    arrivals = execute._Arrivals(batches, parts, {"a": "sha256:a", "b": None})
+    arrivals = writer._Arrivals(batches, parts, {"a": "sha256:a", "b": None})
     taken = []
     reader = threading.Thread(target=lambda: taken.extend(arrivals))
     reader.start()
@@ -392,9 +391,9 @@ def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_aban
     arrivals.arrived("b", "sha256:b")
     reader.join(timeout=5)
     assert taken == [("a.nc", "sha256:a"), ("b.nc", "sha256:b"), ("c.nc", "sha256:c")]
-    waiting = execute._Arrivals(batches, {}, {})
+    waiting = writer._Arrivals(batches, {}, {})
     threading.Timer(0.05, waiting.abandon).start()
-    with pytest.raises(execute._Abandoned):
+    with pytest.raises(writer._Abandoned):
         list(waiting)
 
 

@@ -1,38 +1,308 @@
-"""The state of a study folder's archive and the step search's working file."""
+"""A study's folder on disk, as one object: `StudyFolder`.
 
+``<root>/<study>/`` holds ``<study>.nc`` (the archive), ``parts/<batch-id>.nc`` (one finished
+batch each, with its digest beside it), ``study.yaml`` (the resolved config), the owner
+record (`rbstudy.archive.owner.OWNER`), the lock and, while a step search runs, its working
+file ``search/steps.nc`` (`SEARCH_FILE`). The sweep and the step search reach every one of
+them through a `StudyFolder` alone: where a file lies, how it is named, checked, locked,
+claimed, written and removed is said here and in the modules below it, never by the sweep.
+
+The study object is read, not imported: a `rbstudy.pipeline.config.StudyConfig` (its
+``name``, ``batches``, each with ``id`` and ``cases``, and what `rbstudy.archive.owner` and
+`rbstudy.archive.writer` read of it).
+"""
+
+import contextlib
+import functools
 import pathlib
+import shutil
+from typing import Any, NamedTuple
 
 import netCDF4
 
 from rbstudy.archive.checksums import verify_archive
+from rbstudy.archive.files import (
+    WRITE_REFUSALS,
+    make_folders,
+    remove_folders,
+    unwritable,
+    write_dataset_atomic,
+    write_text_atomic,
+)
 from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.ids import batches_digest
+from rbstudy.archive.layout import SEARCH_GROUP, Layout
+from rbstudy.archive.load import open_results, read_group
+from rbstudy.archive.lock import study_lock
+from rbstudy.archive.owner import claim_folder, folder_claim
+from rbstudy.archive.parts import SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar
+from rbstudy.archive.rewrite import put_group, refresh_description
+from rbstudy.archive.writer import ArchiveWriter
+from rbstudy.errors import RbstudyError, one_line
 
-__all__ = ["SEARCH_FILE", "archive_state", "search_path"]
+__all__ = ["SEARCH_FILE", "ArchiveState", "StudyFolder"]
 
-
+# The step search's working file, in the study folder, until the archive holds the search.
 SEARCH_FILE = pathlib.Path("search") / "steps.nc"
 
 
-def search_path(archive):
-    """The step search's working file beside the archive at ``archive`` (`SEARCH_FILE`)."""
-    return pathlib.Path(archive).parent / SEARCH_FILE
+class ArchiveState(NamedTuple):
+    """What a folder's archive is to its study: ``kind`` "absent", "outdated" (another
+    config or code: its ``batches`` differ), "damaged" (``problems``: what no longer matches
+    its checksum, `rbstudy.archive.checksums`) or "current" (a rerun has nothing to do)."""
+
+    kind: str
+    problems: tuple = ()
+
+    @property
+    def current(self):
+        return self.kind == "current"
 
 
-def archive_state(path, study):
-    """What the archive at ``path`` is to ``study``: ``("absent", [])``, ``("outdated", [])``
-    (another config or code: its ``batches`` differ), ``("damaged", problems)`` (a variable
-    no longer matches its checksum, `rbstudy.archive.checksums`) or ``("current", [])``:
-    then a rerun has nothing to do."""
-    if not pathlib.Path(path).exists():
-        return "absent", []
-    try:
-        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            batches = nc.getncattr("batches")
-    except (OSError, AttributeError, RuntimeError):
-        return "damaged", ["it cannot be read as netCDF"]
-    if batches != batches_digest(study.batches):
-        return "outdated", []
-    with HDF5_LOCK:
-        problems = verify_archive(path).problems
-    return ("damaged", list(problems)) if problems else ("current", [])
+class StudyFolder:
+    """The folder ``path`` of ``study``: its archive ``<name>.nc`` (``name``: the study's),
+    parts, lock, owner record, config and step search. Making the object touches nothing on
+    disk."""
+
+    def __init__(self, path, study: Any, name=None):
+        self.study, self.path = study, pathlib.Path(path)
+        self.name = study.name if name is None else name
+        self.made = []  # the folders `make` made, outermost first
+
+    @classmethod
+    def of(cls, root, study):
+        """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``."""
+        return cls(pathlib.Path(root) / study.name, study)
+
+    @classmethod
+    def of_archive(cls, archive, study):
+        """The folder that holds the archive at ``archive``."""
+        archive = pathlib.Path(archive)
+        return cls(archive.parent, study, archive.stem)
+
+    @functools.cached_property
+    def layout(self):
+        """The netCDF `Layout` of the study's parts and archive."""
+        return Layout.of(self.study)
+
+    @property
+    def archive(self):
+        return self.path / f"{self.name}.nc"
+
+    @property
+    def parts(self):
+        return self.path / "parts"
+
+    @property
+    def search_file(self):
+        return self.path / SEARCH_FILE
+
+    def part_path(self, batch_id):
+        return self.parts / f"{batch_id}.nc"
+
+    # the folder's life ------------------------------------------------------------------
+
+    def make(self):
+        """Make the folder with its parents (`make_folders`); a refusal is one line."""
+        try:
+            self.made = make_folders(self.path)
+        except OSError as error:
+            raise unwritable(self.path, error) from None
+
+    def remove_made(self):
+        """After a failed run, remove the folders `make` made when the run left nothing worth
+        keeping: the study's folder whole (under its lock, or where none could be taken), its
+        parents only while empty (another study's sweep may write there)."""
+        if not self.made or any(self.path.glob("*.nc")) or any(self.parts.glob("*.nc")):
+            return
+        if self.path in self.made:
+            shutil.rmtree(self.path)
+        remove_folders([path for path in self.made if path != self.path])
+
+    @contextlib.contextmanager
+    def refusals(self):
+        """Under the study's lock: a write the folder refuses (an `OSError` naming a path in
+        it: an immutable folder under --force) becomes its one-line error, and a failed run
+        removes what it made (`remove_made`) before another sweep may take the lock."""
+        try:
+            try:
+                yield
+            except OSError as error:
+                if (
+                    error.errno not in WRITE_REFUSALS
+                    or error.filename is None
+                    or not pathlib.Path(error.filename).is_relative_to(self.path)
+                ):
+                    raise  # not a refusal of the study folder: a bug
+                raise unwritable(self.path, error) from None
+        except RbstudyError:
+            self.remove_made()
+            raise
+
+    def lock(self):
+        """The study's lock, taken (`rbstudy.archive.lock.study_lock`): a context manager."""
+        return study_lock(self.path)
+
+    def check_claim(self, force=False):
+        """Whether the folder may take the study's results (`folder_claim`); reads only."""
+        return folder_claim(self.path.parent, self.study, force)
+
+    def claim(self):
+        """Record the study's config as the folder's (`claim_folder`)."""
+        claim_folder(self.path, self.study)
+
+    def clear_stale(self):
+        """Remove the temporaries and probe files a killed sweep left (the lock is ours)."""
+        for stale in [*self.parts.glob(".*.tmp"), *self.path.glob(".*.tmp"), *self.parts.glob(".probe-*")]:
+            stale.unlink()
+
+    def write_config(self, text):
+        """``study.yaml``: the resolved config ``text``, written whole."""
+        write_text_atomic(text, self.path / "study.yaml")
+
+    # the archive ------------------------------------------------------------------------
+
+    def state(self):
+        """The `ArchiveState` of the folder's archive for its study."""
+        if not self.archive.exists():
+            return ArchiveState("absent")
+        try:
+            with HDF5_LOCK, netCDF4.Dataset(self.archive) as nc:
+                batches = nc.getncattr("batches")
+        except (OSError, AttributeError, RuntimeError):
+            return ArchiveState("damaged", ("it cannot be read as netCDF",))
+        if batches != batches_digest(self.study.batches):
+            return ArchiveState("outdated")
+        with HDF5_LOCK:
+            problems = verify_archive(self.archive).problems
+        return ArchiveState("damaged", tuple(problems)) if problems else ArchiveState("current")
+
+    def described_by(self):
+        """The config text the archive was written from."""
+        return open_results(self.archive, ()).attrs.get("config")
+
+    def answers_unchanged(self):
+        """Whether a rerun has nothing to write: the archive current and intact, and
+        described by the study's very text."""
+        return self.state().current and self.described_by() == self.study.archived_text
+
+    def redescribe(self, attrs, config_text):
+        """The same cases and code from another text (a title, a comment): the archive's
+        global ``attrs`` and ``study.yaml`` replaced, the data untouched."""
+        if self.described_by() != self.study.archived_text:
+            refresh_description(self.archive, attrs)
+            self.write_config(config_text)
+
+    def writer(self, digests, attrs):
+        """The `ArchiveWriter` of the archive from the parts, those of ``digests`` (batch id
+        -> digest, None: still to come) already stored; global attributes ``attrs``."""
+        parts = {batch.id: self.part_path(batch.id) for batch in self.study.batches}
+        return ArchiveWriter(self.study, parts, digests, self.archive, attrs)
+
+    # the parts --------------------------------------------------------------------------
+
+    def make_parts(self):
+        self.parts.mkdir(exist_ok=True)
+
+    def part(self, batch):
+        """The `PartTarget` a task writes ``batch``'s part to."""
+        return PartTarget(layout=self.layout, batch=batch, path=str(self.part_path(batch.id)))
+
+    def stored(self, batches):
+        """Those of ``batches`` whose part file is on disk."""
+        return [batch for batch in batches if self.part_path(batch.id).exists()]
+
+    def checked(self, batches):
+        """(batch, digest) of each of ``batches``, one at a time: the digest of its intact
+        part (`part_complete`), else None."""
+        for batch in batches:
+            yield batch, part_complete(self.part_path(batch.id), batch)
+
+    def damaged(self, batches):
+        """How many of ``batches`` have a part with its digest beside it: a part that failed
+        its check then is damaged, not unfinished (stopped between its rename and its digest)."""
+        return sum(sealed(self.part_path(batch.id)) for batch in batches)
+
+    @contextlib.contextmanager
+    def probe(self, token):
+        """A file in ``parts/`` holding ``token``, for the duration: a worker that reads it
+        sees the folder (`rbstudy.archive.parts.sees_folder`); yields (path, token)."""
+        path = self.parts / f".probe-{token}"
+        path.write_text(token)
+        try:
+            yield str(path), token
+        finally:
+            path.unlink()
+
+    def remove_parts(self):
+        """Remove the parts of the study's batches and their digests, left beside its current
+        archive by a sweep killed before it removed them; how many parts."""
+        removed = 0
+        for batch in self.study.batches:
+            path = self.part_path(batch.id)
+            removed += path.exists()
+            path.unlink(missing_ok=True)
+            sidecar(path).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            self.parts.rmdir()  # unless something else is there (job logs, another config's parts)
+        return removed
+
+    def finish_parts(self, keep):
+        """Once the archive holds them: ``parts/`` removed, or with ``keep`` only the parts
+        of earlier versions of the config removed."""
+        if not keep:
+            shutil.rmtree(self.parts)
+            return
+        current = {self.part_path(batch.id).name for batch in self.study.batches}
+        for old in self.parts.glob("*.nc*"):
+            if old.name.removesuffix(SIDECAR_SUFFIX) not in current:
+                old.unlink()
+
+    # the step search --------------------------------------------------------------------
+
+    def read_search(self, working=False):
+        """The step search the archive holds (its group `SEARCH_GROUP`), or with ``working``
+        the one under way (`SEARCH_FILE`); None where the archive has no search. Raises what
+        reading a missing or damaged file raises."""
+        if working:
+            import xarray as xr  # here: the sweep's other commands need no xarray at import
+
+            with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
+                return xr.load_dataset(self.search_file)
+        return read_group(self.archive, SEARCH_GROUP)
+
+    def write_search(self, dataset):
+        """The probes so far to the working file, which a rerun resumes from."""
+        path = self.search_file
+        try:
+            path.parent.mkdir(exist_ok=True)
+            write_dataset_atomic(dataset, path)
+        except OSError as error:
+            if error.errno in WRITE_REFUSALS:  # read-only, immutable, full: the folder's fault
+                raise unwritable(self.path, error) from None
+            # a folder in its place, a file in its folder's
+            raise RbstudyError(
+                f"{path}: cannot write the step search there ({error.strerror or one_line(error)}); "
+                "remove what is in its place, or sweep into another --out"
+            ) from None
+
+    def seal_search(self, dataset):
+        """The finished search ``dataset`` into the archive (its group `SEARCH_GROUP`, sealed
+        with it), then the working file removed, as the parts are once the archive holds
+        them; an archive that holds this very search already (but for when it was run, its
+        ``history``) is left as it is, byte for byte."""
+        if not self._holds_search(dataset):
+            put_group(self.archive, SEARCH_GROUP, dataset)
+        self.drop_working_search()
+
+    def _holds_search(self, dataset):
+        try:
+            kept = read_group(self.archive, SEARCH_GROUP)
+        except (OSError, ValueError):
+            return False
+        return kept is not None and kept.assign_attrs(history=dataset.attrs["history"]).identical(dataset)
+
+    def drop_working_search(self):
+        with contextlib.suppress(OSError):  # what is left is read with the archive's, no harm
+            self.search_file.unlink(missing_ok=True)
+            self.search_file.parent.rmdir()  # unless something else is there

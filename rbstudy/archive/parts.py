@@ -8,6 +8,7 @@ file never is, wherever the damage lies. `PartTarget` is what a task, local or o
 worker, is handed to write its batch.
 """
 
+import functools
 import hashlib
 import os
 import pathlib
@@ -181,3 +182,17 @@ def write_part(layout, batch, values, path):
         os.remove(path)
         raise
     return digest
+
+
+@functools.lru_cache(maxsize=16)
+def sees_folder(probe):
+    """Whether this process reads ``probe`` = (path, token) as the client wrote it
+    (`rbstudy.archive.folder.StudyFolder.probe`): a worker that does writes its parts itself.
+    None: the client's own process, which sees the folder."""
+    if probe is None:
+        return True
+    path, token = probe
+    try:
+        return pathlib.Path(path).read_text() == token
+    except OSError:
+        return False

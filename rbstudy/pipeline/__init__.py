@@ -1,7 +1,7 @@
-"""The pipeline layer: study configs, the sweep grid, batches, execution under dask, storage,
-and the table of output variables bound to the functions that compute them.
+"""The pipeline layer: study configs, the sweep grid, batches, execution under dask, the step
+search, and the output variables bound to the functions that compute them (`formulas`).
 
-`variables`, `outputs` and `store` are numba-free (the analysis layer reads archives through
-them); `config`, `grid`, `batches` and `execute` know the schemes. Importing this package
-loads nothing.
+`outputs` and `batches` are numba-free; `config`, `grid` and `execute` know the schemes. The
+study folder on disk is the archive layer's (`rbstudy.archive`). Importing this package loads
+nothing.
 """

@@ -17,11 +17,8 @@ import contextlib
 import functools
 import os
 import pathlib
-import shutil
-import threading
 import time
 import uuid
-from concurrent import futures
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -30,22 +27,12 @@ import dask.threaded
 import numpy as np
 
 from rbstudy.archive.files import (
-    WRITE_REFUSALS,
     UnwritableFolder,
-    make_folders,
-    remove_folders,
-    unwritable,
-    write_text_atomic,
 )
-from rbstudy.archive.folder import archive_state
-from rbstudy.archive.layout import Layout
-from rbstudy.archive.load import open_results
-from rbstudy.archive.lock import StudyBusy, study_lock
-from rbstudy.archive.owner import claim_folder, folder_claim
-from rbstudy.archive.parts import SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar, write_part
+from rbstudy.archive.folder import StudyFolder
+from rbstudy.archive.lock import StudyBusy
+from rbstudy.archive.parts import sees_folder, write_part
 from rbstudy.archive.provenance import global_attrs, utc_now
-from rbstudy.archive.rewrite import refresh_description
-from rbstudy.archive.writer import consolidate
 from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
@@ -71,50 +58,6 @@ __all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_
 _JOB_LOGS = "jobs"
 # How often the bar shows the archive's parts written while the last of them are copied.
 _REDRAW_SECONDS = 0.2
-
-
-class _Abandoned(Exception):
-    """The run stopped (Ctrl-C, a failed batch): the archive will not get its parts."""
-
-
-class _Arrivals:
-    """The parts of a study's batches, handed to `consolidate` in the batches' order as
-    they are written (iterate: (path, digest) per batch, waiting for each), from any thread.
-
-    ``digests`` holds those of the parts already stored (None: still to compute); a store
-    task reports each new one (`arrived`); `abandon` makes the waiting consolidation stop."""
-
-    def __init__(self, batches, parts, digests):
-        self._batches, self._parts = batches, parts
-        self._digests = dict(digests)
-        self._changed = threading.Condition()
-        self._abandoned = False
-        self.copied = 0  # parts copied into the archive so far
-
-    def arrived(self, batch_id, digest):
-        with self._changed:
-            self._digests[batch_id] = digest
-            self._changed.notify_all()
-
-    def abandon(self):
-        with self._changed:
-            self._abandoned = True
-            self._changed.notify_all()
-
-    def consolidated(self):
-        self.copied += 1
-
-    def _ready(self, batch_id):
-        return self._abandoned or self._digests.get(batch_id) is not None
-
-    def __iter__(self):
-        for batch in self._batches:
-            with self._changed:
-                self._changed.wait_for(functools.partial(self._ready, batch.id))
-                if self._abandoned:
-                    raise _Abandoned
-                digest = self._digests[batch.id]
-            yield self._parts[batch.id], digest
 
 
 @dataclass(frozen=True)
@@ -219,18 +162,6 @@ def deliver_part(values, layout, batch, path, writer, probe):
     return write_part(layout, batch, values, path), None
 
 
-@functools.lru_cache(maxsize=16)
-def sees_folder(probe):
-    """Whether this process reads ``probe`` = (path, token) as the client wrote it."""
-    if probe is None:
-        return True
-    path, token = probe
-    try:
-        return pathlib.Path(path).read_text() == token
-    except OSError:
-        return False
-
-
 def _show_compiling(progress, name, compiling):
     """`rbstudy.schemes.get_ready`'s watch: a first run said before anything is compiled, on
     any stream, then shown as it goes, with the time left by what each scheme took to compile
@@ -273,62 +204,6 @@ def _compile_left(compiling, figures):
     return max(sum(remaining) / compiling.processes, max(remaining))
 
 
-def _prepare(root, study):
-    """The study's folder, made with its parents, and the folders this process made
-    (`rbstudy.archive.files.make_folders`)."""
-    folder = pathlib.Path(root) / study.name
-    try:
-        return folder, make_folders(folder)
-    except OSError as error:
-        raise unwritable(folder, error) from None
-
-
-def _remove_made(folder, made):
-    """After a failed run, remove the folders it ``made`` when it left nothing worth keeping:
-    the study's folder whole (under its lock, or where none could be taken), its parents
-    only while empty (another study's sweep may write there)."""
-    if not made or any(folder.glob("*.nc")) or any(folder.glob("parts/*.nc")):
-        return
-    if folder in made:
-        shutil.rmtree(folder)
-    remove_folders([path for path in made if path != folder])
-
-
-@contextlib.contextmanager
-def _failures_cleaned(folder, made):
-    """Under the study's lock: a write the study folder refuses (an `OSError` naming a path
-    in it: an immutable folder under --force) becomes its one-line error, and a failed
-    run removes what it made (`_remove_made`) before another sweep may take the lock."""
-    try:
-        try:
-            yield
-        except OSError as error:
-            if (
-                error.errno not in WRITE_REFUSALS
-                or error.filename is None
-                or not pathlib.Path(error.filename).is_relative_to(folder)
-            ):
-                raise  # not a refusal of the study folder: a bug
-            raise unwritable(folder, error) from None
-    except RbstudyError:
-        _remove_made(folder, made)
-        raise
-
-
-def _remove_parts(parts_dir, study):
-    """Remove the parts of ``study``'s batches and their digests from ``parts_dir``, left
-    beside its current archive by a sweep killed before it removed them; how many parts."""
-    removed = 0
-    for batch in study.batches:
-        path = parts_dir / f"{batch.id}.nc"
-        removed += path.exists()
-        path.unlink(missing_ok=True)
-        sidecar(path).unlink(missing_ok=True)
-    with contextlib.suppress(OSError):
-        parts_dir.rmdir()  # unless something else is there (job logs, another config's parts)
-    return removed
-
-
 def _reference_chunks(study, pending):
     """The distinct scenes (rows of the scene table) of the ``pending`` batches in chunks of
     at most a batch's size, and where each case's scene sits: (n, 2) (chunk, position), a
@@ -352,7 +227,7 @@ def _reference_chunks(study, pending):
     return chunks, np.stack([ranks // size, ranks % size], axis=1)
 
 
-def _graph(study, pending, parts_dir, threads, token, writer, probe):
+def _graph(study, pending, folder, threads, token, writer, probe):
     """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
     distinct scenes (references do not depend on the scheme or dt, so batches share them);
     and the targets of the store tasks, key -> `PartTarget`.
@@ -362,7 +237,6 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
     argument (one copy per worker of a cluster), from which each task builds the scenes of
     its rows: the scenes of 1e5 cases built up front took 270 MiB and 5 s.
     """
-    layout = Layout.of(study)
     table = dask.delayed(study.cases.scenes, traverse=False)
     chunks, where = _reference_chunks(study, pending)
     reference_tasks = [
@@ -406,19 +280,19 @@ def _graph(study, pending, parts_dir, threads, token, writer, probe):
             threads,
             dask_key_name=f"batch-{token}-{number:06d}-{batch.id}",
         )
-        key, path = f"store-{token}-{number:06d}-{batch.id}", str(parts_dir / f"{batch.id}.nc")
+        key, target = f"store-{token}-{number:06d}-{batch.id}", folder.part(batch)
         tasks.append(
             dask.delayed(deliver_part)(
                 values,
-                dask.delayed(layout, traverse=False),
+                dask.delayed(target.layout, traverse=False),
                 dask.delayed(batch, traverse=False),
-                path,
+                target.path,
                 writer,
                 probe,
                 dask_key_name=key,
             )
         )
-        targets[key] = PartTarget(layout=layout, batch=batch, path=path)
+        targets[key] = target
     return tasks, targets
 
 
@@ -430,9 +304,10 @@ def _step_cost(study, batch):
     return cost.seconds, cost.uncertainty
 
 
-def _run_local(tasks, targets, progress, workers, arrivals):
+def _run_local(tasks, targets, progress, workers, writer):
     """Run the tasks on this process's threads; {key: digest} of the parts they wrote, each
-    handed to ``arrivals`` (`_Arrivals`) as soon as it is written. On
+    handed to the archive's ``writer`` (`rbstudy.archive.writer.ArchiveWriter`) as soon as
+    it is written. On
     Ctrl-C (or when a task fails) every running kernel and reference is halted
     (`rbstudy.numerics.driver.request_halt`) and the threads are joined before the exception
     goes on: the study stays locked until nothing of this run is left working, and the
@@ -443,7 +318,7 @@ def _run_local(tasks, targets, progress, workers, arrivals):
         def _posttask(self, key, result, dsk, state, worker_id):
             if key in targets:
                 progress.advance(targets[key].cases)
-                arrivals.arrived(targets[key].batch.id, result[0])
+                writer.arrived(targets[key].batch.id, result[0])
 
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
@@ -488,72 +363,52 @@ def run_study(
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    folder, made = _prepare(root, study)
+    folder = StudyFolder.of(root, study)
+    folder.make()
     with contextlib.ExitStack() as stack:
         own = progress is None
         if own:
             progress = stack.enter_context(study_progress(study, quiet))
-        run = _run_in(folder, made, study, where, force, progress, keep_parts, started, started_clock)
+        run = _run_in(folder, where, force, progress, keep_parts, started, started_clock)
         if own:
             progress.end = run.said
     return run
 
 
-def _run_in(folder, made, study, where, force, progress, keep_parts, started, started_clock):
-    """`run_study` inside its study folder, of which it ``made`` those folders
-    (`_prepare`), shown by ``progress``."""
-    parts_dir = folder / "parts"
-    target = folder / f"{study.name}.nc"
+def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
+    """`run_study` in its `StudyFolder` ``folder``, made, shown by ``progress``."""
+    study = folder.study
     try:
-        lock = study_lock(folder)
+        lock = folder.lock()
     except StudyBusy:
         raise  # the other sweep's folder: nothing of it is removed
     except RbstudyError as error:
         # A read-only folder can still answer a rerun of its study: every file in it is
         # replaced whole by a rename, so reading needs no lock. Only when there is nothing
         # to write: the archive current and intact, and described by this very text.
-        if (
-            isinstance(error, UnwritableFolder)
-            and not force
-            and archive_state(target, study)[0] == "current"
-            and _described_by(target) == study.archived_text
-        ):
-            return _up_to_date(target, study, started_clock)
-        _remove_made(folder, made)  # a full disk refused the lock's pid
+        if isinstance(error, UnwritableFolder) and not force and folder.answers_unchanged():
+            return _up_to_date(folder, started_clock)
+        folder.remove_made()  # a full disk refused the lock's pid
         raise
-    with lock, _failures_cleaned(folder, made):
+    with lock, folder.refusals():
         # again under the lock, before anything is written or deleted: the command line
         # checks every study before it runs any, but another sweep may claim the folder since
-        folder_claim(folder.parent, study, force)
-        claim_folder(folder, study)
-        for stale in [*parts_dir.glob(".*.tmp"), *folder.glob(".*.tmp"), *parts_dir.glob(".probe-*")]:
-            stale.unlink()  # left by a killed sweep; the lock is ours
-        state, archive_problems = archive_state(target, study)
-        if not force and state == "current":
-            if _described_by(target) != study.archived_text:
-                # the same cases and code, another text (a title, a comment): redescribe
-                refresh_description(target, global_attrs(study, started=started))
-                write_text_atomic(resolved_config(study), folder / "study.yaml")
-            removed = 0 if keep_parts else _remove_parts(parts_dir, study)
-            return _up_to_date(target, study, started_clock, removed)
-        parts_dir.mkdir(exist_ok=True)
-        parts = {batch.id: parts_dir / f"{batch.id}.nc" for batch in study.batches}
-        digests = {}
-        # only parts on disk are checked, and said to be: an empty folder has none
-        stored = [] if force else [batch for batch in study.batches if parts[batch.id].exists()]
-        if stored:
-            progress.phase(f"{study.name}: checking stored parts", len(stored), "parts")
-            for batch in stored:
-                digests[batch.id] = part_complete(parts[batch.id], batch)
-                progress.advance()
+        folder.check_claim(force)
+        folder.claim()
+        folder.clear_stale()  # left by a killed sweep; the lock is ours
+        state = folder.state()
+        if not force and state.current:
+            folder.redescribe(global_attrs(study, started=started), resolved_config(study))
+            removed = 0 if keep_parts else folder.remove_parts()
+            return _up_to_date(folder, started_clock, removed)
+        folder.make_parts()
+        digests = {} if force else _checked_parts(folder, progress)
         pending = [batch for batch in study.batches if digests.get(batch.id) is None]
-        # a part without its digest was stopped between its rename and its digest: unfinished
-        damaged = 0 if force else sum(sealed(parts[batch.id]) for batch in pending)
-        check_disk(study, disk_needed(study, pending), folder)
+        damaged = 0 if force else folder.damaged(pending)
+        check_disk(study, disk_needed(study, pending), folder.path)
         cores = default_threads()  # the cores this process may use (a SLURM share)
         threads = 1 if where.distributed else max(1, cores // max(1, len(pending)))
         token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
-        probe = parts_dir / f".probe-{token}"  # what a worker that sees this folder reads
         # the kernels take the time where the scenes have load tables, or loads only those
         # kernels carry (numerics/clock.py)
         timed = needs_time(study.cases.scenes.loads)
@@ -568,96 +423,82 @@ def _run_in(folder, made, study, where, force, progress, keep_parts, started, st
         )
         # then each scheme's cost per step, which the parts store (once per machine: cached)
         calibrate({batch.scheme for batch in pending}, progress)
-        tasks, targets = _graph(
-            study,
-            pending,
-            parts_dir,
-            threads,
-            token,
-            where.writer,
-            (str(probe), token) if where.distributed else None,
-        )
-        cases = sum(target.cases for target in targets.values())
         # the archive is written by a thread of its own as the parts arrive, in the batches'
         # order: its compression (one core at ~60 MiB/s) runs beside the batches
-        arrivals = _Arrivals(study.batches, parts, digests)
-        writing = ThreadPoolExecutor(max_workers=1, thread_name_prefix="archive")
-        archived = writing.submit(
-            consolidate,
-            study,
-            arrivals,
-            target,
-            global_attrs(study, started=started),
-            advance=arrivals.consolidated,
-        )
-        try:
-            written, returned = {}, 0  # the digest of each part, by its store task's key
-            if tasks and where.distributed:
-                probe.write_text(token)
-                try:
-                    progress.phase(f"{study.name}: {where.starting}")
-                    with connect(
-                        where.scheduler, where.workers, where.cluster, logs=parts_dir / _JOB_LOGS
-                    ) as client:
-                        progress.say(f"{study.name}: {dashboard_line(client)}")
-                        progress.phase(f"{study.name}: running batches", cases, "cases")
-                        written, returned = run_on_cluster(
-                            client,
-                            tasks,
-                            targets,
-                            progress,
-                            where.worker_wait,
-                            fixed_jobs=where.cluster is not None and where.cluster.jobs is not None,
-                        )
-                finally:
-                    probe.unlink()
-            elif tasks:
-                progress.phase(f"{study.name}: running batches", cases, "cases")
-                written = _run_local(tasks, targets, progress, cores, arrivals)
-            for key, batch_target in targets.items():
-                arrivals.arrived(batch_target.batch.id, written[key])
+        with folder.writer(digests, global_attrs(study, started=started)) as writer:
+            written, returned = _run_tasks(folder, pending, where, progress, cores, threads, token, writer)
             progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
-            while not futures.wait([archived], timeout=_REDRAW_SECONDS).done:
-                progress.update(done=arrivals.copied)
-            archived.result()
-        except BaseException:
-            arrivals.abandon()  # the archive's temporary is removed before the lock is let go
-            raise
-        finally:
-            writing.shutdown(wait=True)
-        write_text_atomic(resolved_config(study), folder / "study.yaml")
-        if keep_parts:
-            current = {path.name for path in parts.values()}
-            for old in parts_dir.glob("*.nc*"):
-                if old.name.removesuffix(SIDECAR_SUFFIX) not in current:
-                    old.unlink()  # from an earlier version of the config
-        else:
-            shutil.rmtree(parts_dir)
+            while not writer.wait(_REDRAW_SECONDS):
+                progress.update(done=writer.copied)
+        folder.write_config(resolved_config(study))
+        folder.finish_parts(keep_parts)
     return StudyRun(
-        path=target,
+        path=folder.archive,
         computed=len(pending),
         reused=len(study.batches) - len(pending),
         cases=len(study.cases),
         wall_seconds=time.perf_counter() - started_clock,
         damaged_parts=damaged,
-        archive_problems=tuple(archive_problems),
+        archive_problems=state.problems,
         returned=returned,
     )
 
 
-def _described_by(target):
-    """The config text the archive at ``target`` was written from."""
-    return open_results(target, ()).attrs.get("config")
+def _checked_parts(folder, progress):
+    """The digest of each of the study's batches whose part is on disk and intact (None:
+    damaged); only parts on disk are checked, and said to be: an empty folder has none."""
+    study = folder.study
+    stored = folder.stored(study.batches)
+    if stored:
+        progress.phase(f"{study.name}: checking stored parts", len(stored), "parts")
+    digests = {}
+    for batch, digest in folder.checked(stored):
+        digests[batch.id] = digest
+        progress.advance()
+    return digests
 
 
-def _up_to_date(target, study, started_clock, removed_parts=0):
+def _run_tasks(folder, pending, where, progress, cores, threads, token, writer):
+    """Run the ``pending`` batches here or on the cluster ``where`` names, each part handed
+    to the archive's ``writer`` once written; the number of parts the workers returned to be
+    written here."""
+    study = folder.study
+    distributed = where.distributed and bool(pending)
+    with folder.probe(token) if distributed else contextlib.nullcontext() as probe:
+        tasks, targets = _graph(study, pending, folder, threads, token, where.writer, probe)
+        written, returned = {}, 0  # the digest of each part, by its store task's key
+        cases = sum(target.cases for target in targets.values())
+        if distributed:
+            progress.phase(f"{study.name}: {where.starting}")
+            with connect(
+                where.scheduler, where.workers, where.cluster, logs=folder.parts / _JOB_LOGS
+            ) as client:
+                progress.say(f"{study.name}: {dashboard_line(client)}")
+                progress.phase(f"{study.name}: running batches", cases, "cases")
+                written, returned = run_on_cluster(
+                    client,
+                    tasks,
+                    targets,
+                    progress,
+                    where.worker_wait,
+                    fixed_jobs=where.cluster is not None and where.cluster.jobs is not None,
+                )
+        elif tasks:
+            progress.phase(f"{study.name}: running batches", cases, "cases")
+            written = _run_local(tasks, targets, progress, cores, writer)
+    for key, target in targets.items():
+        writer.arrived(target.batch.id, written[key])
+    return written, returned
+
+
+def _up_to_date(folder, started_clock, removed_parts=0):
     """The `StudyRun` of a sweep that found its archive current: nothing run (but
     ``removed_parts`` left beside it)."""
     return StudyRun(
-        path=target,
+        path=folder.archive,
         computed=0,
-        reused=len(study.batches),
-        cases=len(study.cases),
+        reused=len(folder.study.batches),
+        cases=len(folder.study.cases),
         up_to_date=True,
         wall_seconds=time.perf_counter() - started_clock,
         removed_parts=removed_parts,

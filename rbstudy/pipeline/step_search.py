@@ -33,7 +33,6 @@ reuses the probes of both, so an interrupted search resumes where it stopped; a 
 archive (``--force``, or found damaged) starts it again.
 """
 
-import contextlib
 import math
 import pathlib
 from dataclasses import dataclass
@@ -41,17 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from rbstudy.archive.files import WRITE_REFUSALS, unwritable, write_dataset_atomic
-from rbstudy.archive.folder import search_path
-from rbstudy.archive.hdf5 import HDF5_LOCK
+from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.ids import batches_digest, canonical_id
-from rbstudy.archive.layout import SEARCH_GROUP
-from rbstudy.archive.load import read_group
-from rbstudy.archive.lock import study_lock
 from rbstudy.archive.provenance import utc_now
-from rbstudy.archive.rewrite import put_group
 from rbstudy.archive.variables import ACCURATE, COORDINATES, cf_attrs, variable_attrs
-from rbstudy.errors import RbstudyError, one_line
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.time_grid import output_count, steps_per
 from rbstudy.pipeline.calibration import calibrate, step_cost
@@ -132,13 +124,16 @@ def _steps(study, dt):
 
 class _Probes:
     """The probes of a search: those kept from an earlier run of it, those run now, keyed by
-    (case, steps); written to ``path`` after every batch."""
+    (case, steps); written to the study folder's working file after every batch."""
 
     def __init__(self, study, archive, identity, force):
-        self.study, self.path, self.identity = study, search_path(archive), identity
+        self.study, self.identity = study, identity
+        self.folder = StudyFolder.of_archive(archive, study)
         self.rows, self.reused = {}, 0
         if not force:  # a finished search's, in the archive, and an interrupted one's since
-            self.rows = _kept_rows(archive, identity, SEARCH_GROUP) | _kept_rows(self.path, identity)
+            self.rows = _kept_rows(self.folder, identity, working=False) | _kept_rows(
+                self.folder, identity, working=True
+            )
         self.kept = set(self.rows)
 
     def verdicts(self, wanted, progress):
@@ -249,39 +244,23 @@ class _Probes:
         return written
 
     def write(self):
-        """The probes so far to the working file `path`, which a rerun resumes from."""
-        try:
-            self.path.parent.mkdir(exist_ok=True)
-            write_dataset_atomic(self.dataset(), self.path)
-        except OSError as error:
-            if error.errno in WRITE_REFUSALS:  # read-only, immutable, full: the folder's fault
-                raise unwritable(self.path.parent.parent, error) from None
-            # a folder in its place, a file in its folder's
-            raise RbstudyError(
-                f"{self.path}: cannot write the step search there ({error.strerror or one_line(error)}); "
-                "remove what is in its place, or sweep into another --out"
-            ) from None
+        """The probes so far to the working file, which a rerun resumes from."""
+        self.folder.write_search(self.dataset())
 
-    def seal(self, search, archive):
-        """The finished ``search`` into the archive at ``archive`` (its group `SEARCH_GROUP`,
-        sealed with it), then the working file removed, as the parts are once the archive
-        holds them; an archive that holds this very search already is left as it is."""
-        sealed = self.dataset(search)
-        if not _holds(archive, sealed):
-            put_group(archive, SEARCH_GROUP, sealed)
-        with contextlib.suppress(OSError):  # what is left is read with the archive's, no harm
-            self.path.unlink(missing_ok=True)
-            self.path.parent.rmdir()  # unless something else is there
+    def seal(self, search):
+        """The finished ``search`` into the archive, sealed with it, and the working file
+        removed (`rbstudy.archive.folder.StudyFolder.seal_search`)."""
+        self.folder.seal_search(self.dataset(search))
 
 
-def _kept_rows(path, identity, group=None):
-    """The probes kept in the file ``path`` (in its group ``group``) by a search of
-    ``identity``, keyed by (case, steps); none from a file of another search, or one that is
-    damaged (truncated, emptied, overwritten: run again, and the file rewritten)."""
+def _kept_rows(folder, identity, working):
+    """The probes kept by a search of ``identity`` in the archive of the `StudyFolder`
+    ``folder`` or, ``working``, in its working file, keyed by (case, steps); none from a
+    file of another search, or one that is damaged (truncated, emptied, overwritten: run
+    again, and the file rewritten)."""
     try:
-        with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
-            kept = xr.load_dataset(path, group=group)
-        if kept.attrs.get("search_identity") != identity:
+        kept = folder.read_search(working)
+        if kept is None or kept.attrs.get("search_identity") != identity:
             return {}
         columns = {name: kept[name].values for name in _PROBE_COLUMNS}
         rows = [
@@ -290,16 +269,6 @@ def _kept_rows(path, identity, group=None):
     except (OSError, ValueError, KeyError, IndexError, RuntimeError):
         return {}
     return {(row["case"], row["steps"]): row for row in rows}
-
-
-def _holds(archive, search):
-    """Whether the archive at ``archive`` holds the step search ``search`` (a dataset) as
-    its group, but for when it was run (its ``history``)."""
-    try:
-        kept = read_group(archive, SEARCH_GROUP)
-    except (OSError, ValueError):
-        return False
-    return kept is not None and kept.assign_attrs(history=search.attrs["history"]).identical(search)
 
 
 def _divides(study, steps):
@@ -364,9 +333,8 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    with study_lock(pathlib.Path(folder)):
-        archive = pathlib.Path(folder) / f"{study.name}.nc"
-        probes = _Probes(study, archive, _identity(study), force)
+    with StudyFolder(folder, study).lock():
+        probes = _Probes(study, pathlib.Path(folder) / f"{study.name}.nc", _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
@@ -386,7 +354,7 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
             reused=probes.reused,
             tolerance=tolerance,
         )
-        probes.seal(result, archive)  # under the lock, as every write of the folder
+        probes.seal(result)  # under the lock, as every write of the folder
     return result
 
 
