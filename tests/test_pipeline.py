@@ -375,6 +375,43 @@ def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_
     assert delivered == [batch.id for batch in study.batches]
 
 
+def test_a_local_run_hands_its_values_to_the_archive_without_reading_its_parts_back(tmp_path, monkeypatch):
+    """The archive of a local run takes each batch's values from memory: no part is read back,
+    and the archive holds exactly what one written from the part files holds (run_time, a
+    CPU time, aside); parts from an earlier run, never in memory, are read."""
+    from rbstudy.archive import parts as parts_module
+
+    config = write_study(tmp_path, name="held", sweep={"scheme": ["euler", "rk4"], "dt": [0.01, 0.005]})
+    read, read_part = [], parts_module.read_part
+
+    def reading(path, variables):
+        read.append(path)
+        return read_part(path, variables)
+
+    monkeypatch.setattr(writer, "read_part", reading)
+    from_memory = run_study(load_study(config), tmp_path / "memory", quiet=True)
+    assert read == []
+    monkeypatch.setattr(writer, "HELD_BYTES", 0)  # nothing held: every part read back
+    from_files = run_study(load_study(config), tmp_path / "files", quiet=True)
+    assert len(read) == len(load_study(config).batches) == 4
+    held, written = (open_results(run.path).drop_vars("run_time") for run in (from_memory, from_files))
+    held.attrs.pop("history"), written.attrs.pop("history")
+    assert held.identical(written)
+    assert main(["verify", str(from_memory.path)]) == 0
+
+
+def test_values_held_for_the_archive_are_bounded():
+    batches = [types.SimpleNamespace(id=name) for name in ("a", "b")]
+    values = {"case": np.arange(4), "x": np.zeros(4)}  # 64 bytes
+    arrivals = writer._Arrivals(batches, {"a": "a.nc", "b": "b.nc"}, {}, held_bytes=100)
+    arrivals.computed("a", values)
+    arrivals.computed("b", values)  # 128 bytes: over the bound, read from its part
+    arrivals.arrived("a", "sha256:a")
+    arrivals.arrived("b", "sha256:b")
+    (_, _, first), (_, _, second) = list(arrivals)
+    assert first is values and second is None
+
+
 def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_abandoned():
     batches = [types.SimpleNamespace(id=name) for name in ("a", "b", "c")]
     parts = {"a": "a.nc", "b": "b.nc", "c": "c.nc"}
@@ -387,10 +424,10 @@ def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_aban
     while not taken and time.monotonic() < deadline:
         time.sleep(0.01)
     time.sleep(0.05)  # time enough to take c, were it handed out of order
-    assert taken == [("a.nc", "sha256:a")]
+    assert taken == [("a.nc", "sha256:a", None)]
     arrivals.arrived("b", "sha256:b")
     reader.join(timeout=5)
-    assert taken == [("a.nc", "sha256:a"), ("b.nc", "sha256:b"), ("c.nc", "sha256:c")]
+    assert taken == [("a.nc", "sha256:a", None), ("b.nc", "sha256:b", None), ("c.nc", "sha256:c", None)]
     waiting = writer._Arrivals(batches, {}, {})
     threading.Timer(0.05, waiting.abandon).start()
     with pytest.raises(writer._Abandoned):

@@ -118,9 +118,9 @@ def _write_part_file(nc, layout, batch, values):
     with netCDF4 directly: through xarray a part took 2-3 times as long, and the default
     study writes one per batch (docs/performance.md)."""
     nc.setncatts({"study": layout.study, "batch": batch.id, IDENTITY: "\n".join(layout.identity)})
-    cases = np.array(batch.cases)
-    nc.createDimension("case", len(cases))
-    create_variable(nc, "case", ("case",), cases, {"long_name": "case number in the study"})
+    stored = part_values(batch, layout.variables, values)
+    nc.createDimension("case", len(batch.cases))
+    create_variable(nc, "case", ("case",), stored["case"], {"long_name": "case number in the study"})
     for name, (coordinate, attrs) in fixed_coords(layout).items():
         nc.createDimension(name, len(coordinate))
         create_variable(
@@ -131,13 +131,16 @@ def _write_part_file(nc, layout, batch, values):
             attrs,
         )
     for name in layout.variables:
-        create_variable(
-            nc,
-            name,
-            ("case",) + VARIABLES[name].dims,
-            np.asarray(values[name], dtype=VARIABLES[name].dtype),
-            variable_attrs(name),
-        )
+        create_variable(nc, name, ("case",) + VARIABLES[name].dims, stored[name], variable_attrs(name))
+
+
+def part_values(batch, variables, values):
+    """What the part of ``batch`` holds, and `read_part` returns, of its computed ``values``:
+    ``case`` (each case's position in the study) and each of ``variables`` in its storage
+    type, name -> array."""
+    return {"case": np.array(batch.cases)} | {
+        name: np.asarray(values[name], dtype=VARIABLES[name].dtype) for name in variables
+    }
 
 
 def read_part(path, variables):

@@ -23,7 +23,7 @@ from rbstudy.archive.chunks import ChunkedArchive
 from rbstudy.archive.files import temporary_beside
 from rbstudy.archive.hdf5 import HDF5_LOCK, hdf5_writer, netcdf_writer
 from rbstudy.archive.layout import Layout, archive_dims, create_variable, fixed_coords, grid_coordinates
-from rbstudy.archive.parts import read_part
+from rbstudy.archive.parts import part_values, read_part
 from rbstudy.archive.variables import VARIABLES, variable_attrs
 
 __all__ = ["ArchiveWriter", "consolidate"]
@@ -33,19 +33,38 @@ class _Abandoned(Exception):
     """The run stopped (Ctrl-C, a failed batch): the archive will not get its parts."""
 
 
+# The most bytes of computed values held for the archive beyond their part files: a part whose
+# values came while more were held is read back from its file instead.
+HELD_BYTES = 2**28
+
+
 class _Arrivals:
     """The parts of a study's batches, handed to `consolidate` in the batches' order as
-    they are written (iterate: (path, digest) per batch, waiting for each), from any thread.
+    they are written (iterate: (path, digest, values) per batch, waiting for each), from any
+    thread.
 
     ``digests`` holds those of the parts already stored (None: still to compute); a store
-    task reports each new one (`arrived`); `abandon` makes the waiting consolidation stop."""
+    task reports each new one (`arrived`); `abandon` makes the waiting consolidation stop.
+    A batch computed in this process may hand its values over too (`computed`, as its part
+    holds them: `rbstudy.archive.parts.part_values`), so the archive takes them without
+    reading the part back; at most `HELD_BYTES` are held, else values is None."""
 
-    def __init__(self, batches, parts, digests):
+    def __init__(self, batches, parts, digests, held_bytes=None):
         self._batches, self._parts = batches, parts
         self._digests = dict(digests)
+        self._values, self._held = {}, 0
+        self._held_bytes = HELD_BYTES if held_bytes is None else held_bytes
+        self._taken = set()  # the batches handed to the consolidation
         self._changed = threading.Condition()
         self._abandoned = False
         self.copied = 0  # parts copied into the archive so far
+
+    def computed(self, batch_id, values):
+        size = sum(array.nbytes for array in values.values())
+        with self._changed:
+            if batch_id not in self._taken and self._held + size <= self._held_bytes:
+                self._values[batch_id] = values
+                self._held += size
 
     def arrived(self, batch_id, digest):
         with self._changed:
@@ -70,7 +89,11 @@ class _Arrivals:
                 if self._abandoned:
                     raise _Abandoned
                 digest = self._digests[batch.id]
-            yield self._parts[batch.id], digest
+                self._taken.add(batch.id)
+                values = self._values.pop(batch.id, None)
+                if values is not None:
+                    self._held -= sum(array.nbytes for array in values.values())
+            yield self._parts[batch.id], digest, values
 
 
 class ArchiveWriter:
@@ -97,6 +120,12 @@ class ArchiveWriter:
         """The part of ``batch_id`` is written, with ``digest`` (from any thread)."""
         self._arrivals.arrived(batch_id, digest)
 
+    def computed(self, batch, values):
+        """``batch``'s ``values`` (name -> array, case first), computed in this process and
+        written to its part: the archive takes them from memory, not from the file (from any
+        thread, before `arrived`)."""
+        self._arrivals.computed(batch.id, part_values(batch, self._study.variables, values))
+
     @property
     def copied(self):
         """How many parts the archive holds so far."""
@@ -118,9 +147,10 @@ class ArchiveWriter:
 
 
 def consolidate(study, arriving, target, attrs, advance=lambda: None):
-    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest)
-    of the part of each batch of ``study.batches``, in their order, and may wait for a
-    part still being computed (the archive is written while later batches run). netCDF4
+    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest,
+    values) of the part of each batch of ``study.batches``, in their order (values: what the
+    part holds, when it was handed over in memory, else None and the part is read), and may
+    wait for a part still being computed (the archive is written while later batches run). netCDF4
     defines the archive; its chunks are then filled from the parts and compressed on every
     core (`ChunkedArchive`, through h5py). ``advance()`` after each part; then the archive
     is sealed with its checksums, hashed as the values are written, and the parts' digests."""
@@ -140,8 +170,9 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
                     for name, (grid_rank, along, stream) in defined.items()
                 }
                 part_digests = []
-                for batch, (path, digest) in itertools.chain([first] if first else [], parts):
-                    _copy_part(targets, read_part(path, study.variables), shape)
+                for batch, (path, digest, values) in itertools.chain([first] if first else [], parts):
+                    part = read_part(path, study.variables) if values is None else values
+                    _copy_part(targets, part, shape)
                     part_digests.append([batch.id, digest])
                     advance()
                 archive.finish(variable for variable, _, _ in targets.values())

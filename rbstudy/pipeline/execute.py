@@ -273,14 +273,15 @@ def _graph(study, pending, folder, threads, token, writer, probe):
             references=positions,
             step_cost=_step_cost(study, batch),
         )
+        key = f"store-{token}-{number:06d}-{batch.id}"  # the task that writes its part
         values = dask.delayed(compute_batch)(
             dask.delayed(job, traverse=False),
             table,
             [reference_tasks[k] for k in needed],
             threads,
-            dask_key_name=f"batch-{token}-{number:06d}-{batch.id}",
+            dask_key_name=_computing_key(key),
         )
-        key, target = f"store-{token}-{number:06d}-{batch.id}", folder.part(batch)
+        target = folder.part(batch)
         tasks.append(
             dask.delayed(deliver_part)(
                 values,
@@ -294,6 +295,11 @@ def _graph(study, pending, folder, threads, token, writer, probe):
         )
         targets[key] = target
     return tasks, targets
+
+
+def _computing_key(store_key):
+    """The key of the task that computes the batch whose part the task ``store_key`` writes."""
+    return "batch" + store_key.removeprefix("store")
 
 
 def _step_cost(study, batch):
@@ -314,9 +320,13 @@ def _run_local(tasks, targets, progress, workers, writer):
     process ends within a second."""
     from dask.callbacks import Callback
 
+    computing = {_computing_key(key): target.batch for key, target in targets.items()}
+
     class _Advance(Callback):
         def _posttask(self, key, result, dsk, state, worker_id):
-            if key in targets:
+            if key in computing:  # the values, which the archive takes without reading the part
+                writer.computed(computing[key], result)
+            elif key in targets:
                 progress.advance(targets[key].cases)
                 writer.arrived(targets[key].batch.id, result[0])
 
