@@ -22,8 +22,10 @@ the last line is a kernel-heavy study (1,000 cases of 2e5 rk4 steps).
 
 ``--scale`` sweeps the default scene over 100 spins x N/100 tilts (each case its own scene),
 200 leapfrog steps a case (dt 0.01 s, 2 s), 11 output times, and prints besides the
-archive's size and the seconds xarray takes to open it lazily (``open_dataset``, nothing
-loaded).
+archive's size, the bytes the sweep wrote (``wchar`` of /proc/self/io: parts, archive and all),
+the seconds xarray takes to open it lazily (``open_dataset``, nothing loaded) and the floor:
+the kernels' core-seconds shared by the cores plus the archive's bytes at the disk's write
+speed, measured first (1 GiB written and synced in the results' temporary folder).
 """
 
 import argparse
@@ -50,6 +52,7 @@ wall = time.perf_counter() - start
 from rbstudy.archive.load import open_results
 import pathlib
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the sweep's, not ours
+written = int(dict(line.split(": ") for line in open("/proc/self/io").read().splitlines())["wchar"])
 archive = next(pathlib.Path(sys.argv[2]).glob("*/*.nc"))
 import xarray
 start = time.perf_counter()
@@ -58,7 +61,7 @@ lazy = time.perf_counter() - start
 dataset = open_results(archive, ["run_time", "status"])
 print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.sum()),
                   "cases": int(dataset.status.size), "rss": rss, "lazy_open": lazy,
-                  "archive": archive.stat().st_size}))
+                  "archive": archive.stat().st_size, "written": written}))
 """
 
 
@@ -162,17 +165,37 @@ def main():
         print(line("rk4, dt 1e-5, 2 s", figures), flush=True)
 
 
+def disk_speed(size=2**30, block=2**24):
+    """Bytes a second this machine's temporary folder takes, written and synced."""
+    data = os.urandom(block)
+    with tempfile.TemporaryDirectory() as folder:
+        path = pathlib.Path(folder) / "speed"
+        start = time.perf_counter()
+        with open(path, "wb") as file:
+            for _ in range(size // block):
+                file.write(data)
+            file.flush()
+            os.fsync(file.fileno())
+        return size / (time.perf_counter() - start)
+
+
 def scale(sizes):
+    speed = disk_speed()
+    cores = os.cpu_count() or 1
+    print(f"disk write speed {speed / 1e9:.2f} GB/s, {cores} cores")
     print(
         f"{'200 leapfrog steps a case':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} "
-        f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'lazy open s':>12s}"
+        f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'written GiB':>12s} "
+        f"{'lazy open s':>12s} {'floor s':>8s} {'x floor':>8s}"
     )
     with tempfile.TemporaryDirectory() as configs:
         for cases in sizes:
             figures = measure(scale_config(configs, cases))
+            floor = figures["kernel"] / cores + figures["archive"] / speed
             print(
                 f"{line('spin x tilt', figures)} {figures['archive'] / 2**20:12.1f} "
-                f"{figures['lazy_open']:12.2f}",
+                f"{figures['written'] / 2**30:12.2f} {figures['lazy_open']:12.2f} {floor:8.2f} "
+                f"{figures['wall'] / floor:8.1f}",
                 flush=True,
             )
 

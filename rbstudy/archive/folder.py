@@ -36,6 +36,7 @@ from rbstudy.archive.load import open_results, read_group
 from rbstudy.archive.lock import study_lock
 from rbstudy.archive.owner import claim_folder, folder_claim
 from rbstudy.archive.parts import SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar
+from rbstudy.archive.provenance import global_attrs
 from rbstudy.archive.rewrite import put_group, refresh_description
 from rbstudy.archive.writer import ArchiveWriter
 from rbstudy.errors import RbstudyError, one_line
@@ -186,18 +187,22 @@ class StudyFolder:
         described by the study's very text."""
         return self.state().current and self.described_by() == self.study.archived_text
 
-    def redescribe(self, attrs, config_text):
+    def redescribe(self, started, config_text):
         """The same cases and code from another text (a title, a comment): the archive's
-        global ``attrs`` and ``study.yaml`` replaced, the data untouched."""
+        global attributes (`provenance.global_attrs`, a run ``started`` then) and
+        ``study.yaml`` (``config_text``) replaced, the data untouched."""
         if self.described_by() != self.study.archived_text:
-            refresh_description(self.archive, attrs)
+            refresh_description(self.archive, global_attrs(self.study, started=started))
             self.write_config(config_text)
 
-    def writer(self, digests, attrs):
+    def writer(self, digests, started):
         """The `ArchiveWriter` of the archive from the parts, those of ``digests`` (batch id
-        -> digest, None: still to come) already stored; global attributes ``attrs``."""
+        -> digest, None: still to come) already stored, of a run ``started`` then (its global
+        attributes, `provenance.global_attrs`)."""
         parts = {batch.id: self.part_path(batch.id) for batch in self.study.batches}
-        return ArchiveWriter(self.study, parts, digests, self.archive, attrs)
+        return ArchiveWriter(
+            self.study, parts, digests, self.archive, global_attrs(self.study, started=started)
+        )
 
     # the parts --------------------------------------------------------------------------
 

@@ -32,7 +32,7 @@ from rbstudy.archive.files import (
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.lock import StudyBusy
 from rbstudy.archive.parts import sees_folder, write_part
-from rbstudy.archive.provenance import global_attrs, utc_now
+from rbstudy.archive.provenance import utc_now
 from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
@@ -408,7 +408,7 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         folder.clear_stale()  # left by a killed sweep; the lock is ours
         state = folder.state()
         if not force and state.current:
-            folder.redescribe(global_attrs(study, started=started), resolved_config(study))
+            folder.redescribe(started, resolved_config(study))
             removed = 0 if keep_parts else folder.remove_parts()
             return _up_to_date(folder, started_clock, removed)
         folder.make_parts()
@@ -435,7 +435,7 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         calibrate({batch.scheme for batch in pending}, progress)
         # the archive is written by a thread of its own as the parts arrive, in the batches'
         # order: its compression (one core at ~60 MiB/s) runs beside the batches
-        with folder.writer(digests, global_attrs(study, started=started)) as writer:
+        with folder.writer(digests, started) as writer:
             written, returned = _run_tasks(folder, pending, where, progress, cores, threads, token, writer)
             progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
             while not writer.wait(_REDRAW_SECONDS):
