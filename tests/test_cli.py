@@ -30,7 +30,7 @@ def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     )  # the inaccurate cases: a wide column
     parts = tmp_path / "kept" / "small" / "parts"
     # one per scheme and dt, each with its digest, no temporaries
-    assert sorted(p.suffix for p in parts.iterdir()) == [".nc"] * 6 + [".sha256"] * 6
+    assert sorted(p.suffix for p in parts.iterdir()) == [".npz"] * 6 + [".sha256"] * 6
     resolved = yaml.safe_load((folder / "study.yaml").read_text())
     assert resolved["sweep"]["dt"] == {"dt": [0.0025, 0.005, 0.01]} and resolved["cases"] == 6
     out = capsys.readouterr().out

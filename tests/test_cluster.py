@@ -65,7 +65,7 @@ def _parts(folder):
     """The finished part files of a study folder (each with its digest beside it)."""
     return sorted(
         path.name
-        for path in (folder / "parts").glob("*.nc")
+        for path in (folder / "parts").glob("*.npz")
         if path.with_name(path.name + ".sha256").exists()
     )
 

@@ -361,7 +361,7 @@ def test_plot_and_report_name_what_a_file_is_or_lacks(tmp_path, capsys):
     done = run_study(
         load_study(shrunk_config("long_run.yaml", tmp_path)), tmp_path / "out", quiet=True, keep_parts=True
     )
-    part = next((done.path.parent / "parts").glob("*.nc"))
+    part = next((done.path.parent / "parts").glob("*.npz"))
     foreign = tmp_path / "foreign.nc"
     xr.Dataset({"status": ("x", np.zeros(3)), "omega_body": ("x", np.ones(3))}).to_netcdf(foreign)
     stripped = tmp_path / "stripped.nc"

@@ -228,7 +228,7 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
     and the archive holds the numbers of an uninterrupted run."""
     config = write_study(tmp_path, name="small", sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]})
     whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
-    part = max(path.stat().st_size for path in (whole.path.parent / "parts").glob("*.nc"))
+    part = max(path.stat().st_size for path in (whole.path.parent / "parts").glob("*.npz"))
     pages = -(-part // PAGE) + 1  # a part and its digest
     # the sweep's forecast would refuse the study on this disk: here another writer takes
     # the space once the forecast has passed
@@ -246,7 +246,7 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
             "and resumes)"
         )
         parts = disk / "out" / "small" / "parts"
-        kept = sorted(parts.glob("*.nc"))
+        kept = sorted(parts.glob("*.npz"))
         # the archive is written beside the batches, and takes its share of the disk too
         assert 1 <= len(kept) <= 2 and len(list(parts.glob("*.sha256"))) == len(kept)
         assert not list(parts.glob(".*"))  # no temporary
@@ -271,7 +271,7 @@ def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, c
     folders); now it goes too."""
     config = write_study(tmp_path, name="small")
     whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
-    part = next((whole.path.parent / "parts").glob("*.nc")).stat().st_size
+    part = next((whole.path.parent / "parts").glob("*.npz")).stat().st_size
     monkeypatch.setattr(execute, "check_disk", lambda *args: None)  # as above
     with _tmpfs(tmp_path / "disk", (1 + -(-part // PAGE)) * PAGE) as disk:  # the lock, a part
         assert main(["sweep", str(config), "--out", str(disk / "out"), "--quiet"]) == 1

@@ -51,8 +51,8 @@ def study(clean):
 
 def _data_offset(path, name):
     """Where the stored bytes of variable ``name`` begin in the (uncompressed) part file."""
-    with netCDF4.Dataset(path) as nc:
-        raw = np.ascontiguousarray(nc[name][...].filled(np.nan)).tobytes()
+    with np.load(path) as part:
+        raw = np.ascontiguousarray(part[name]).tobytes()
     blob = path.read_bytes()
     offset = blob.find(raw)
     assert offset > 0, "the part's data are not stored contiguously"
@@ -76,8 +76,19 @@ def _random_data(path, other):
 
 
 def _edit(path, change):
+    """The netCDF file at ``path`` changed in place by ``change(nc)``."""
     with netCDF4.Dataset(path, "a") as nc:
         change(nc)
+
+
+def _rewritten(part, change):
+    """The part file ``part`` (numpy's .npz) written again with its arrays changed by
+    ``change(arrays)``, as a hand or another program would."""
+    with np.load(part) as stored:
+        arrays = {name: stored[name].copy() for name in stored.files}
+    change(arrays)
+    with open(part, "wb") as file:
+        np.savez(file, **arrays)
 
 
 CORRUPTIONS = {
@@ -86,11 +97,13 @@ CORRUPTIONS = {
     "garbage at the tail": lambda path, other: path.write_bytes(path.read_bytes() + b"junk" * 99),
     "zeroed data": _zero_data,
     "random data": _random_data,
-    "an edited value": lambda path, other: _edit(path, lambda nc: nc[VICTIM].__setitem__(0, 0.5)),
-    "a wrong batch attribute": lambda path, other: _edit(path, lambda nc: nc.setncattr("batch", other.stem)),
+    "an edited value": lambda path, other: _rewritten(path, lambda part: part[VICTIM].__setitem__(0, 0.5)),
+    "a wrong batch attribute": lambda path, other: _rewritten(
+        path, lambda part: part.__setitem__("(batch)", np.array(other.stem))
+    ),
     "another batch's part copied in": lambda path, other: shutil.copyfile(other, path),
-    "changed units": lambda path, other: _edit(
-        path, lambda nc: nc["omega_body"].setncattr("units", "deg s-1")
+    "a renamed variable": lambda path, other: _rewritten(
+        path, lambda part: part.__setitem__("omega_b", part.pop("omega_body"))
     ),
     "an empty file": lambda path, other: path.write_bytes(b""),
     "a deleted part": lambda path, other: path.unlink(),
@@ -108,7 +121,7 @@ def test_a_damaged_part_is_recomputed_never_reused(study, kind):
     config, out, folder = study
     reference = folder.parent / "undamaged.nc"
     (folder / "small.nc").rename(reference)  # the sweep resumes from its parts
-    victim, other = sorted((folder / "parts").glob("*.nc"))[:2]
+    victim, other = sorted((folder / "parts").glob("*.npz"))[:2]
     CORRUPTIONS[kind](victim, other)
     again = run_study(load_study(config), out, quiet=True, keep_parts=True)
     assert (again.computed, again.reused) == (1, 3), kind
@@ -120,7 +133,7 @@ def test_a_damaged_part_is_recomputed_never_reused(study, kind):
 def test_another_parts_file_and_digest_copied_in_is_recomputed(study):
     config, out, folder = study
     (folder / "small.nc").unlink()
-    victim, other = sorted((folder / "parts").glob("*.nc"))[:2]
+    victim, other = sorted((folder / "parts").glob("*.npz"))[:2]
     for suffix in ("", SIDECAR_SUFFIX):  # the whole of another part, digest and all
         shutil.copyfile(f"{other}{suffix}", f"{victim}{suffix}")
     again = run_study(load_study(config), out, quiet=True, keep_parts=True)
@@ -158,7 +171,7 @@ def test_verify_checks_every_file_and_the_attributes_that_give_the_values_meanin
     _edit(edited, lambda nc: nc[f"/{GROUP}"].setncattr("checksums", "5"))
     assert main(["verify", str(edited)]) == 1
     assert "not what rbstudy writes" in capsys.readouterr().err
-    part = sorted((folder / "parts").glob("*.nc"))[0]
+    part = sorted((folder / "parts").glob("*.npz"))[0]
     pathlib.Path(f"{part}{SIDECAR_SUFFIX}").unlink()
     assert main(["verify", str(part)]) == 1
     assert f"{part}: is one batch's part file, not a study's archive" in capsys.readouterr().err
@@ -169,7 +182,7 @@ def test_a_part_without_its_digest_is_unfinished_not_damaged(study):
     counted as damage."""
     config, out, folder = study
     (folder / "small.nc").unlink()
-    part = sorted((folder / "parts").glob("*.nc"))[0]
+    part = sorted((folder / "parts").glob("*.npz"))[0]
     pathlib.Path(f"{part}{SIDECAR_SUFFIX}").unlink()
     again = run_study(load_study(config), out, quiet=True, keep_parts=True)
     assert (again.computed, again.reused, again.damaged_parts) == (1, 3, 0)
@@ -194,25 +207,23 @@ def test_verify_names_what_it_cannot_prove(study, tmp_path, capsys):
 
 
 def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, monkeypatch):
-    """HDF5 reports a full disk as "NetCDF: HDF error" (or "Permission denied"): the free space
-    tells. The first two parts are written, the third meets a full disk."""
-    import collections
+    """The first two parts are written, the third meets a full disk (ENOSPC): one line naming
+    the folder, the finished parts kept with their digests, and a rerun resumes from them."""
+    import errno
 
-    from rbstudy.archive import hdf5, parts
+    from rbstudy.archive import parts
 
     config = write_study(tmp_path, name="full", sweep={"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]})
     written = []
-    real_write = parts._write_part_file
-    usage = collections.namedtuple("usage", "total used free")
+    real_write = parts._write_arrays
 
-    def write_until_full(nc, layout, batch, values):
+    def write_until_full(path, arrays):
         if len(written) == 2:
-            monkeypatch.setattr(hdf5.shutil, "disk_usage", lambda folder: usage(1, 1, 0))
-            raise RuntimeError("NetCDF: HDF error")
-        written.append(batch.id)
-        return real_write(nc, layout, batch, values)
+            raise OSError(errno.ENOSPC, "No space left on device", path)
+        written.append(path)
+        return real_write(path, arrays)
 
-    monkeypatch.setattr(parts, "_write_part_file", write_until_full)
+    monkeypatch.setattr(parts, "_write_arrays", write_until_full)
     monkeypatch.setattr("rbstudy.pipeline.execute.os.cpu_count", lambda: 1)  # one at a time
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--quiet"]) == 1
     error = capsys.readouterr().err.strip()
@@ -220,8 +231,8 @@ def test_a_full_disk_is_one_line_and_keeps_the_finished_parts(tmp_path, capsys, 
     assert error.endswith(
         "free space and rerun the same command (a sweep keeps its finished parts and resumes)"
     )
-    parts = tmp_path / "out" / "full" / "parts"
-    assert len(list(parts.glob("*.nc.sha256"))) == 2 and not list(parts.glob(".*"))
+    folder = tmp_path / "out" / "full" / "parts"
+    assert len(list(folder.glob("*.npz.sha256"))) == 2 and not list(folder.glob(".*"))
     monkeypatch.undo()
     again = run_study(load_study(config), tmp_path / "out", quiet=True)
     assert (again.computed, again.reused) == (2, 2)

@@ -280,7 +280,7 @@ def test_a_damaged_part_is_recomputed_not_trusted(tmp_path):
     first = run_study(load_study(config), tmp_path / "out", quiet=True, keep_parts=True)
     reference = tmp_path / "first.nc"
     first.path.rename(reference)  # the run is to resume from its parts
-    victim = sorted((tmp_path / "out" / "small" / "parts").glob("*.nc"))[0]
+    victim = sorted((tmp_path / "out" / "small" / "parts").glob("*.npz"))[0]
     victim.write_bytes(victim.read_bytes()[:100])  # a crash of the machine after the rename
     again = run_study(load_study(config), tmp_path / "out", quiet=True)
     assert (again.computed, again.reused) == (1, 3)
@@ -309,7 +309,7 @@ def test_the_study_lock_names_its_holder_and_dies_with_it(tmp_path):
             sys.executable,
             "-c",
             "import sys, time\n"
-            "from rbstudy.pipeline.execute import study_lock\n"
+            "from rbstudy.archive.lock import study_lock\n"
             f"lock = study_lock(__import__('pathlib').Path({str(folder)!r}))\n"
             "print('held', flush=True)\ntime.sleep(600)",
         ],
@@ -447,16 +447,16 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     parts = out / "long" / "parts"
     deadline = time.monotonic() + 120
-    while not (parts.exists() and list(parts.glob("*.nc.sha256"))) and process.poll() is None:
+    while not (parts.exists() and list(parts.glob("*.npz.sha256"))) and process.poll() is None:
         assert time.monotonic() < deadline, "no part written in 120 s"
         time.sleep(0.01)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     # a part whose digest a kill prevented is recomputed, not reused
-    finished = len(list(parts.glob("*.nc.sha256")))
+    finished = len(list(parts.glob("*.npz.sha256")))
     assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
     assert not (out / "long" / "long.nc").exists()
-    (parts / ".planted.nc.x.tmp").write_text("half a part")  # as a kill mid-write leaves
+    (parts / ".planted.npz.x.tmp").write_text("half a part")  # as a kill mid-write leaves
     (out / "long" / ".long.nc.x.tmp").write_text("half a dataset")
     resumed = run_study(load_study(config), out, quiet=True)
     assert resumed.reused == finished and resumed.computed == 10 - finished
@@ -497,7 +497,7 @@ def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path
     ended = time.monotonic() - interrupted
     assert process.returncode == 130 and "interrupted" in error.decode()
     assert ended < 1.0, f"the process took {ended:.2f} s to end after Ctrl-C"
-    assert len(list(parts.glob("*.nc"))) == 1  # the halted batch left no part
+    assert len(list(parts.glob("*.npz"))) == 1  # the halted batch left no part
     resumed = run_study(load_study(config), out, quiet=True)
     assert (resumed.computed, resumed.reused) == (1, 1)
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)

@@ -61,7 +61,7 @@ BAD_STEPS = {
         "FAIL",
         textwrap.dedent("""
         deadline = time.monotonic() + 60
-        while not glob.glob("out/*/parts/*.nc") and time.monotonic() < deadline:
+        while not glob.glob("out/*/parts/*.npz") and time.monotonic() < deadline:
             time.sleep(0.05)
         raise ValueError("the step cannot go on")""").replace("\n", "\n    "),
     ),
@@ -202,7 +202,7 @@ def test_a_plugin_step_that_raises_ends_the_sweep_in_one_line_and_keeps_finished
         "raised ValueError: the step cannot go on; fix or report it in rbstudy-bad-steps, or "
         "leave the scheme out"
     ]
-    assert len(list((tmp_path / "out" / "faults" / "parts").glob("*.nc"))) == 1  # euler's
+    assert len(list((tmp_path / "out" / "faults" / "parts").glob("*.npz"))) == 1  # euler's
     resumed = _run(
         {**bad_steps, "STEP_MENDED": "1"}, "sweep", config, "--out", "out", "--quiet", cwd=tmp_path
     )

@@ -129,7 +129,7 @@ def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp
     assert main(["sweep", str(first), "--out", str(out), "--keep-parts", "--quiet"]) == 0
     folder = out / "top"
     kept = _folder_bytes(folder)
-    assert any(name.suffix == ".nc" and name.parent.name == "parts" for name in kept)
+    assert any(name.suffix == ".npz" and name.parent.name == "parts" for name in kept)
     capsys.readouterr()
     assert main(["sweep", str(second), "--out", str(out), "--keep-parts", "--quiet"]) == 1
     assert capsys.readouterr().err == _refusal(second, folder, first)

@@ -1,6 +1,6 @@
 """A study's folder on disk, as one object: `StudyFolder`.
 
-``<root>/<study>/`` holds ``<study>.nc`` (the archive), ``parts/<batch-id>.nc`` (one finished
+``<root>/<study>/`` holds ``<study>.nc`` (the archive), ``parts/<batch-id>.npz`` (one finished
 batch each, with its digest beside it), ``study.yaml`` (the resolved config), the owner
 record (`rbstudy.archive.owner.OWNER`), the lock and, while a step search runs, its working
 file ``search/steps.nc`` (`SEARCH_FILE`). The sweep and the step search reach every one of
@@ -35,13 +35,13 @@ from rbstudy.archive.layout import SEARCH_GROUP, Layout
 from rbstudy.archive.load import open_results, read_group
 from rbstudy.archive.lock import study_lock
 from rbstudy.archive.owner import claim_folder, folder_claim
-from rbstudy.archive.parts import SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar
+from rbstudy.archive.parts import PART_SUFFIX, SIDECAR_SUFFIX, PartTarget, part_complete, sealed, sidecar
 from rbstudy.archive.provenance import global_attrs
 from rbstudy.archive.rewrite import put_group, refresh_description
 from rbstudy.archive.writer import ArchiveWriter
 from rbstudy.errors import RbstudyError, one_line
 
-__all__ = ["SEARCH_FILE", "ArchiveState", "StudyFolder"]
+__all__ = ["ArchiveState", "SEARCH_FILE", "StudyFolder"]
 
 # The step search's working file, in the study folder, until the archive holds the search.
 SEARCH_FILE = pathlib.Path("search") / "steps.nc"
@@ -99,7 +99,7 @@ class StudyFolder:
         return self.path / SEARCH_FILE
 
     def part_path(self, batch_id):
-        return self.parts / f"{batch_id}.nc"
+        return self.parts / f"{batch_id}{PART_SUFFIX}"
 
     # the folder's life ------------------------------------------------------------------
 
@@ -114,7 +114,7 @@ class StudyFolder:
         """After a failed run, remove the folders `make` made when the run left nothing worth
         keeping: the study's folder whole (under its lock, or where none could be taken), its
         parents only while empty (another study's sweep may write there)."""
-        if not self.made or any(self.path.glob("*.nc")) or any(self.parts.glob("*.nc")):
+        if not self.made or any(self.path.glob("*.nc")) or any(self.parts.glob(f"*{PART_SUFFIX}")):
             return
         if self.path in self.made:
             shutil.rmtree(self.path)
@@ -259,7 +259,8 @@ class StudyFolder:
             shutil.rmtree(self.parts)
             return
         current = {self.part_path(batch.id).name for batch in self.study.batches}
-        for old in self.parts.glob("*.nc*"):
+        # from an earlier version of the config, or of rbstudy (whose parts were netCDF)
+        for old in [*self.parts.glob(f"*{PART_SUFFIX}*"), *self.parts.glob("*.nc*")]:
             if old.name.removesuffix(SIDECAR_SUFFIX) not in current:
                 old.unlink()
 

@@ -3,16 +3,30 @@
 A batch's id (`rbstudy.pipeline.batches`) and the digests that bind an archive or a step
 search to its batches are SHA-256 hashes of canonical JSON (`canonical_id`: keys sorted,
 numbers normalised so that 0.1 and 1e-1 hash alike). `SCHEMA_VERSION` goes into every id:
-it is bumped whenever what a part file holds changes, so old parts are never reused.
+it is bumped whenever what a part file holds changes, so old parts are never reused. A
+study's identity (`study_identity`: its config file and text) says whose results a folder
+holds.
 """
 
 import hashlib
 import json
+import pathlib
 
-__all__ = ["ID_LENGTH", "SCHEMA_VERSION", "batches_digest", "canonical_id", "ids_digest"]
+__all__ = [
+    "IDENTITY",
+    "ID_LENGTH",
+    "SCHEMA_VERSION",
+    "batches_digest",
+    "canonical_id",
+    "ids_digest",
+    "study_identity",
+]
 
 
-# Bumped whenever what a part file holds changes, so that old parts are never reused.
+# Bumped whenever what a part file holds changes, so that old parts are never reused. It is
+# hashed into every archive's `batches` attribute too, which verify recomputes: a bump makes
+# every archive written before it fail verify. The parts' move from netCDF to .npz needed
+# none: a part of another format has another name, and is never found.
 SCHEMA_VERSION = 2
 
 
@@ -51,3 +65,16 @@ def batches_digest(batches):
 def ids_digest(ids):
     """`batches_digest` of the batches of ids ``ids``, in order."""
     return canonical_id(list(ids))
+
+
+# The global attribute of the archive (and what each part says) that names the config of its
+# study, as the study folder's owner record does (`rbstudy.archive.owner.OWNER`, two lines):
+# the results identify their study without the record.
+IDENTITY = "config_identity"
+
+
+def study_identity(study):
+    """Who ``study`` is to its folder (`rbstudy.archive.owner.OWNER`, `IDENTITY`): its config
+    file's resolved path and the SHA-256 of the config's text. Two identities are one study
+    when either matches: the same file edited, or the same text moved to another file."""
+    return (str(pathlib.Path(study.path).resolve()), hashlib.sha256(study.text.encode()).hexdigest())

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.archive.owner import study_identity
+from rbstudy.archive.ids import study_identity
 from rbstudy.archive.variables import COORDINATES, SCHEME_COORDINATES, VARIABLES, cf_attrs
 from rbstudy.physics.time_grid import output_times
 

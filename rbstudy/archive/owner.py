@@ -10,15 +10,18 @@ import hashlib
 import os
 import pathlib
 import stat
+import zipfile
 
 import netCDF4
 
 from rbstudy.archive.files import write_text_atomic
 from rbstudy.archive.hdf5 import HDF5_LOCK
+from rbstudy.archive.ids import IDENTITY, study_identity
+from rbstudy.archive.parts import PART_SUFFIX, part_attributes
 from rbstudy.errors import ConfigError
 from rbstudy.inputs.reader import open_regular_file
 
-__all__ = ["IDENTITY", "OWNER", "claim_folder", "folder_claim", "study_identity"]
+__all__ = ["OWNER", "claim_folder", "folder_claim"]
 
 
 # The file of a study folder that names the config (its file's resolved path and its text's
@@ -27,20 +30,8 @@ __all__ = ["IDENTITY", "OWNER", "claim_folder", "folder_claim", "study_identity"
 OWNER = ".rbstudy-study"
 
 
-# The global attribute of the archive and of each part that names the config of its study,
-# as `OWNER` does (its two lines): the results identify their study without the record.
-IDENTITY = "config_identity"
-
-
 # Bytes of an owner record read at most: a resolved path and a digest.
 _OWNER_BYTES = 2**13
-
-
-def study_identity(study):
-    """Who ``study`` is to its folder (`OWNER`, `IDENTITY`): its config file's resolved path
-    and the SHA-256 of the config's text. Two identities are one study when either matches:
-    the same file edited, or the same text moved to another file."""
-    return (str(pathlib.Path(study.path).resolve()), hashlib.sha256(study.text.encode()).hexdigest())
 
 
 def _parsed_identity(text):
@@ -102,13 +93,31 @@ def _results_identity(path):
     return str(pathlib.Path(config_path).resolve()), hashlib.sha256(config.encode()).hexdigest()
 
 
+def _part_files(folder):
+    """The part files in ``folder``'s parts, of this version and of those that wrote netCDF."""
+    parts = pathlib.Path(folder) / "parts"
+    return sorted([*parts.glob(f"*{PART_SUFFIX}"), *parts.glob("*.nc")])
+
+
+def _part_identity(path):
+    """The identity the part at ``path`` names, or None (a damaged part names nobody)."""
+    if path.suffix != PART_SUFFIX:
+        return _results_identity(path)  # netCDF, as rbstudy 0.4 and before wrote parts
+    if not _regular_file(path):
+        return None
+    try:
+        return _parsed_identity(part_attributes(path)["identity"])
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+        return None
+
+
 def _results_owner(folder, study):
     """The identity of another config named by ``folder``'s archive or parts, or None when
     none names one, or one names ``study`` (parts of every age: the file edited since some
     of them were written is still the same study)."""
     mine, other = set(study_identity(study)), None
-    for path in [folder / f"{study.name}.nc", *sorted((folder / "parts").glob("*.nc"))]:
-        identity = _results_identity(path)
+    for path in [folder / f"{study.name}.nc", *_part_files(folder)]:
+        identity = _results_identity(path) if path.parent == folder else _part_identity(path)
         if identity is not None and set(identity) & mine:
             return None
         other = other or identity
@@ -137,7 +146,7 @@ def folder_claim(root, study, force=False):
             source=study.path,
             key="name",
         )
-    kept = len(list((folder / "parts").glob("*.nc")))
+    kept = len(_part_files(folder))
     archive = "its archive and " if (folder / f"{study.name}.nc").exists() else ""
     return (
         f"{study.name}: --force replaces the study of {owner[0]} in {folder} ({archive}"

@@ -13,8 +13,7 @@ import subprocess
 import sys
 from importlib import metadata
 
-from rbstudy.archive.ids import batches_digest
-from rbstudy.archive.owner import IDENTITY, study_identity
+from rbstudy.archive.ids import IDENTITY, batches_digest, study_identity
 
 __all__ = ["global_attrs", "source_text", "utc_now"]
 

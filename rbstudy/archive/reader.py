@@ -21,7 +21,7 @@ from rbstudy.archive.checksums import verify_archive
 from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.layout import is_part
 from rbstudy.archive.load import open_results
-from rbstudy.archive.parts import part_digest, sidecar
+from rbstudy.archive.parts import PART_SUFFIX, part_digest, sidecar
 from rbstudy.archive.variables import BOOKKEEPING, VARIABLES
 from rbstudy.errors import InputError, one_line
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
@@ -33,6 +33,10 @@ GIVE_AN_ARCHIVE = "give the <study>.nc written by rbstudy sweep"
 _REBUILD = "rerun its sweep (rbstudy sweep <config>): a damaged archive is rebuilt"
 # The first bytes of a netCDF file: classic, 64-bit offset, 64-bit data, netCDF-4 (HDF5).
 _SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
+# A part file's first bytes (a zip archive, numpy's .npz), and what is said of one.
+_PART_SIGNATURE = b"PK\x03\x04"
+_IS_A_PART = "is one batch's part file, not a study's archive"
+_GIVE_THE_ARCHIVE = "give the <study>.nc written beside parts/"
 # How much of a file is read to tell netCDF, text and other bytes apart.
 _HEAD_BYTES = 512
 # The coordinates every archive has, as a swept dimension or a single value, and the type of
@@ -73,6 +77,8 @@ def _check_netcdf(path):
     """Refuse what `_head` refuses, and a file that is not netCDF at all (text, YAML, an
     image), saying which it is: a non-archive, never a damaged archive."""
     head = _head(path)
+    if head.startswith(_PART_SIGNATURE) and pathlib.PurePath(path).suffix == PART_SUFFIX:
+        raise InputError(_IS_A_PART, _GIVE_THE_ARCHIVE, str(path))
     if not head.startswith(_SIGNATURES):
         raise _foreign(path, None, f"not a netCDF file{_kind_of_file(head)}")
 
@@ -91,12 +97,8 @@ def _layout_problem(path, nc):
     """The first way the open netCDF4 dataset ``nc`` differs from an archive's layout, as
     an `InputError`; None when it has it."""
     attributes = nc.ncattrs()
-    if is_part(attributes, nc.dimensions):
-        return InputError(
-            "is one batch's part file, not a study's archive",
-            "give the <study>.nc written beside parts/",
-            str(path),
-        )
+    if is_part(attributes, nc.dimensions):  # as rbstudy 0.4 and before wrote parts
+        return InputError(_IS_A_PART, _GIVE_THE_ARCHIVE, str(path))
     if "study" not in attributes:
         held = ", ".join(list(nc.variables)[:_SHOWN]) or "no variables"
         return _foreign(path, None, f"no study attribute; it holds {held}")

@@ -26,7 +26,7 @@ from rbstudy.archive.layout import Layout, archive_dims, create_variable, fixed_
 from rbstudy.archive.parts import part_values, read_part
 from rbstudy.archive.variables import VARIABLES, variable_attrs
 
-__all__ = ["ArchiveWriter", "consolidate"]
+__all__ = ["ArchiveWriter", "HELD_BYTES", "consolidate"]
 
 
 class _Abandoned(Exception):
