@@ -194,6 +194,16 @@ def test_a_path_that_is_no_readable_file_is_one_line(tmp_path, capsys, monkeypat
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("verb", ["verify", "summary", "plot", "report"])
+def test_an_empty_path_is_said_to_be_one(tmp_path, capsys, verb):
+    """`verify ''` (an unset shell variable) said "rbstudy: error: no such file", naming no path."""
+    out = ["--out", str(tmp_path / "out")] if verb in ("plot", "report") else []
+    assert main([verb, "", *out]) == 1
+    assert capsys.readouterr().err == (
+        "rbstudy: error: '': an empty path names no file; give the <study>.nc written by rbstudy sweep\n"
+    )
+
+
 def test_a_path_with_a_nul_character_is_one_line(tmp_path, capsys):
     """A NUL in a path (a node table's, given with --set) raised ValueError from os.stat:
     exit 70."""

@@ -63,6 +63,8 @@ def _head(path):
     """The first bytes of the file at ``path``, after refusing a missing or unreadable path
     and one that is no regular file (a folder, a FIFO, a device: never opened to wait or to
     read forever), saying which it is."""
+    if not str(path):  # an unset shell variable: the line must still show what was given
+        raise InputError("an empty path names no file", GIVE_AN_ARCHIVE, "''")
     try:
         with open_regular_file(path) as handle:
             return handle.read(_HEAD_BYTES)
