@@ -325,6 +325,14 @@ def test_a_sweep_with_workers_leaves_no_temporary_file(tmp_path):
             "options.no_such_option: no keyword argument of LocalCluster or its workers; "
             "see the keyword arguments of LocalCluster",
         ),
+        (
+            "kind: local\njobs: 1\noptions: {memory_limit: lots}\n",
+            "options.memory_limit: 'lots' is no amount of memory; give bytes with units",
+        ),
+        (
+            "kind: slurm\njobs: 1\noptions: {memory: 4 gigs}\n",
+            "options.memory: '4 gigs' is no amount of memory",
+        ),
     ],
 )
 def test_a_bad_cluster_file_is_one_line_naming_the_key(tmp_path, text, message):

@@ -212,6 +212,30 @@ def _check_options(reader, kind, options):
                 f"no keyword argument of {named} or its workers{did_you_mean(name, taken)}",
                 f"see the keyword arguments of {named}",
             )
+    _check_memory(reader, kind, options)
+
+
+# The option that gives each worker's (local) or job's memory; "auto": the machine's share.
+_MEMORY_OPTIONS = {"local": ("memory_limit", ("auto",)), "slurm": ("memory", ()), "pbs": ("memory", ())}
+
+
+def _check_memory(reader, kind, options):
+    """Refuse a memory option that is no amount (``memory_limit: lots``) before the forecast:
+    distributed would say so only as the cluster starts."""
+    from dask.utils import parse_bytes
+
+    name, words = _MEMORY_OPTIONS[kind]
+    value = options.get(name)
+    if not isinstance(value, str) or value in words:
+        return
+    try:
+        parse_bytes(value)
+    except ValueError:
+        reader.fail(
+            f"options.{name}",
+            f"{value!r} is no amount of memory",
+            'give bytes with units, e.g. "4GB"' + "".join(f", or {word}" for word in words),
+        )
 
 
 def check_scheduler(address):
