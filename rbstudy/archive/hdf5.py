@@ -21,8 +21,9 @@ __all__ = ["HDF5_LOCK", "hdf5_writer", "nearly_full", "netcdf_writer"]
 
 
 # The HDF5 library under netCDF4 is not thread-safe: two threads writing files at once crash
-# the process. Every netCDF access of this process goes through this lock (parts are written
-# by the tasks of the threaded scheduler, the archive by a thread of its own meanwhile).
+# the process. Every netCDF access of this process goes through this lock (the archive is
+# written by a thread of its own while the batches run; an archive or the step search's file
+# may be read or written meanwhile).
 HDF5_LOCK = threading.RLock()
 
 

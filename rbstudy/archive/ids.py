@@ -2,10 +2,9 @@
 
 A batch's id (`rbstudy.pipeline.batches`) and the digests that bind an archive or a step
 search to its batches are SHA-256 hashes of canonical JSON (`canonical_id`: keys sorted,
-numbers normalised so that 0.1 and 1e-1 hash alike). `SCHEMA_VERSION` goes into every id:
-it is bumped whenever what a part file holds changes, so old parts are never reused. A
-study's identity (`study_identity`: its config file and text) says whose results a folder
-holds.
+numbers normalised so that 0.1 and 1e-1 hash alike). `SCHEMA_VERSION` goes into every id,
+so a bump renews them all (see its comment for what that costs). A study's identity
+(`study_identity`: its config file and text) says whose results a folder holds.
 """
 
 import hashlib

@@ -1,4 +1,4 @@
-"""The netCDF layout shared by part files and the archive.
+"""The archive's netCDF layout.
 
 The archive's dimensions are the swept ones (named after their axes; ``dt`` ascending) then
 ``time``, ``node``, ``axis`` (x, y, z) and ``component`` (x, y, z, w); a variable of the
@@ -60,7 +60,8 @@ _MAX_DECIMALS = 15
 
 @dataclass(frozen=True)
 class Layout:
-    """What a part file needs to know of its study (small: it travels with every task)."""
+    """What a part file, and the archive's fixed coordinates, need to know of a study (small:
+    it travels with every task)."""
 
     study: str
     variables: tuple

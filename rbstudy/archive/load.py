@@ -1,4 +1,4 @@
-"""Loading an archive, or a part, as an xarray dataset.
+"""Loading an archive as an xarray dataset.
 
 `open_results` reads without decoding times (simulated time is plain seconds) and, for the
 time series a reader only reduces (the findings' maxima), reduces them along time slab by
@@ -16,7 +16,7 @@ __all__ = ["open_results", "read_group"]
 
 
 def open_results(path, variables=None, reduced=None):
-    """Load a results or part file, ``time`` in seconds from the start of the run.
+    """Load an archive (a netCDF file of results), ``time`` in seconds from the start of the run.
 
     ``variables`` (optional) loads only those data variables (and the coordinates): the
     summary of a large study needs its per-case scalars, not its trajectories. ``reduced``

@@ -10,14 +10,13 @@ import hashlib
 import os
 import pathlib
 import stat
-import zipfile
 
 import netCDF4
 
 from rbstudy.archive.files import write_text_atomic
 from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.ids import IDENTITY, study_identity
-from rbstudy.archive.parts import PART_SUFFIX, part_attributes
+from rbstudy.archive.parts import PART_SUFFIX, UNREADABLE_PART, part_attributes
 from rbstudy.errors import ConfigError
 from rbstudy.inputs.reader import open_regular_file
 
@@ -102,12 +101,12 @@ def _part_files(folder):
 def _part_identity(path):
     """The identity the part at ``path`` names, or None (a damaged part names nobody)."""
     if path.suffix != PART_SUFFIX:
-        return _results_identity(path)  # netCDF, as rbstudy 0.4 and before wrote parts
+        return _results_identity(path)  # netCDF, as earlier versions wrote parts
     if not _regular_file(path):
         return None
     try:
         return _parsed_identity(part_attributes(path)["identity"])
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+    except UNREADABLE_PART:
         return None
 
 

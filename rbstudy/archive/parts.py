@@ -56,6 +56,18 @@ SIDECAR_SUFFIX = ".sha256"
 # `rbstudy.archive.owner.IDENTITY`), which decides whose a study folder is where its record
 # is missing.
 PART_ATTRIBUTES = {"study": "(study)", "batch": "(batch)", "identity": "(identity)"}
+# What numpy raises reading a file that is no part it wrote (truncated, zeroed, another zip:
+# encrypted, of another compression, a header claiming a huge shape).
+UNREADABLE_PART = (
+    OSError,
+    KeyError,
+    ValueError,
+    EOFError,
+    zipfile.BadZipFile,
+    RuntimeError,
+    NotImplementedError,
+    MemoryError,
+)
 
 
 # Bytes read at once while hashing a file, and values per slab while hashing a variable:
@@ -169,7 +181,7 @@ def part_complete(path, batch):
             same = str(part[PART_ATTRIBUTES["batch"]]) == batch.id and np.array_equal(
                 part["case"], np.asarray(batch.cases)
             )
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):
+    except UNREADABLE_PART:
         return None
     return digest if same else None
 

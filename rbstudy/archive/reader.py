@@ -99,7 +99,7 @@ def _layout_problem(path, nc):
     """The first way the open netCDF4 dataset ``nc`` differs from an archive's layout, as
     an `InputError`; None when it has it."""
     attributes = nc.ncattrs()
-    if is_part(attributes, nc.dimensions):  # as rbstudy 0.4 and before wrote parts
+    if is_part(attributes, nc.dimensions):  # as earlier versions wrote parts
         return InputError(_IS_A_PART, _GIVE_THE_ARCHIVE, str(path))
     if "study" not in attributes:
         held = ", ".join(list(nc.variables)[:_SHOWN]) or "no variables"

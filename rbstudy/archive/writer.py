@@ -74,6 +74,7 @@ class _Arrivals:
     def abandon(self):
         with self._changed:
             self._abandoned = True
+            self._values, self._held = {}, 0  # a failed run's traceback may keep this alive
             self._changed.notify_all()
 
     def consolidated(self):
@@ -124,7 +125,12 @@ class ArchiveWriter:
         """``batch``'s ``values`` (name -> array, case first), computed in this process and
         written to its part: the archive takes them from memory, not from the file (from any
         thread, before `arrived`)."""
-        self._arrivals.computed(batch.id, part_values(batch, self._study.variables, values))
+        stored = part_values(batch, self._study.variables, values)
+        # each array on its own: a view (the last sample of a series) would hold its whole
+        # series in memory, uncounted by the bound
+        self._arrivals.computed(
+            batch.id, {name: np.require(a, requirements="O") for name, a in stored.items()}
+        )
 
     @property
     def copied(self):

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rbstudy.archive.folder import StudyFolder
 from rbstudy.errors import ConfigError, counted
 from rbstudy.numerics.block import FEWEST
 from rbstudy.numerics.machine import default_threads
@@ -337,5 +336,8 @@ def check_disk(study, needed, folder):
 def forecast_disk(study, out):
     """`disk_needed` for a sweep into the results root ``out``: the batches whose part is
     not there yet, and the archive."""
+    # here: the folder's module loads netCDF4 and h5py, which the forecast needs nowhere else
+    from rbstudy.archive.folder import StudyFolder
+
     folder = StudyFolder.of(out, study)
     return disk_needed(study, [batch for batch in study.batches if not folder.part_path(batch.id).exists()])

@@ -26,9 +26,7 @@ import dask
 import dask.threaded
 import numpy as np
 
-from rbstudy.archive.files import (
-    UnwritableFolder,
-)
+from rbstudy.archive.files import UnwritableFolder
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.lock import StudyBusy
 from rbstudy.archive.parts import sees_folder, write_part
@@ -313,8 +311,7 @@ def _step_cost(study, batch):
 def _run_local(tasks, targets, progress, workers, writer):
     """Run the tasks on this process's threads; {key: digest} of the parts they wrote, each
     handed to the archive's ``writer`` (`rbstudy.archive.writer.ArchiveWriter`) as soon as
-    it is written. On
-    Ctrl-C (or when a task fails) every running kernel and reference is halted
+    it is written. On Ctrl-C (or when a task fails) every running kernel and reference is halted
     (`rbstudy.numerics.driver.request_halt`) and the threads are joined before the exception
     goes on: the study stays locked until nothing of this run is left working, and the
     process ends within a second."""
