@@ -412,6 +412,19 @@ def test_values_held_for_the_archive_are_bounded():
     assert first is values and second is None
 
 
+def test_values_held_for_the_archive_own_their_data():
+    """A variable that is a view (the last sample of a series) is held as a copy of its own:
+    held as a view, it kept its whole series alive, uncounted by the bound."""
+    batch = types.SimpleNamespace(id="a", cases=[0, 1, 2, 3])
+    study = types.SimpleNamespace(batches=[batch], variables=("final_orientation_error",))
+    archive = writer.ArchiveWriter(study, {"a": "a.nc"}, {}, "study.nc", {})
+    series = np.zeros((4, 100_000))
+    archive.computed(batch, {"final_orientation_error": series[:, -1]})
+    archive.arrived("a", "sha256:a")
+    ((_, _, held),) = list(archive._arrivals)
+    assert held["final_orientation_error"].base is None and held["case"].base is None
+
+
 def test_the_archive_takes_the_parts_in_order_as_they_arrive_and_stops_when_abandoned():
     batches = [types.SimpleNamespace(id=name) for name in ("a", "b", "c")]
     parts = {"a": "a.nc", "b": "b.nc", "c": "c.nc"}
