@@ -392,6 +392,21 @@ def test_output_variables_narrow_trajectories_but_keep_the_bookkeeping(tmp_path)
     assert {"status", "run_time", "n_steps", "initial_spin", "step_seconds"} <= set(study.variables)
 
 
+def test_the_memory_forecast_counts_the_values_held_for_the_archive(tmp_path, monkeypatch):
+    """A local run hands the archive's writer its values (at most writer.HELD_BYTES): the
+    forecast counts them, up to the archive's uncompressed size."""
+    from rbstudy.archive import writer
+
+    study = load_study(write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}}))
+    monkeypatch.setattr(writer, "HELD_BYTES", 0)
+    without = estimate.estimate(study).peak_bytes
+    monkeypatch.setattr(writer, "HELD_BYTES", 2**40)  # more than the study holds: all of it
+    whole = estimate.estimate(study)
+    assert whole.peak_bytes - without == whole.archive_bytes > 0
+    monkeypatch.setattr(writer, "HELD_BYTES", 1000)
+    assert estimate.estimate(study).peak_bytes - without == 1000
+
+
 def test_a_sweep_too_large_for_memory_is_refused_with_its_size(tmp_path, monkeypatch):
     path = write_study(tmp_path, sweep={"dt": {"halving": 0.01, "count": 4}})
     study = load_study(path)

@@ -6,7 +6,8 @@ reference no closed form gives (the composed exact-flow splitting and DOP853) an
 cases would have neither within its step budget, the run time on this machine's cores (each scheme's
 seconds per body-step calibrated on this machine, `rbstudy.pipeline.calibration`, else its
 declared `rbstudy.schemes.Scheme.step_seconds`), the process's peak
-memory (a measured baseline plus the batches in flight) and the bytes the parts and the
+memory (a measured baseline plus the batches in flight and the values held for the
+archive's writer) and the bytes the parts and the
 archive need on disk. `check_limits` refuses a study past ``--max-body-steps``,
 ``--max-memory`` or the free space of the results folder, with the estimate and the fix.
 
@@ -228,6 +229,11 @@ def estimate(study, cores=None):
     largest = max(len(batch.cases) for batch in study.batches)
     running = min(len(study.batches), cores)
     in_flight = IN_FLIGHT_FACTOR * study.working_bytes_per_case() * largest * running
+    # here: the writer's module loads netCDF4 and h5py, which the forecast needs nowhere else
+    from rbstudy.archive.writer import HELD_BYTES
+
+    # the values a local run hands the archive's writer, held until it takes them
+    held = min(HELD_BYTES, study.bytes_per_case() * len(study.cases))
     return Estimate(
         body_steps=body_steps,
         references=len(rows),
@@ -237,7 +243,7 @@ def estimate(study, cores=None):
         core_seconds=seconds,
         longest_seconds=longest,
         cores=cores,
-        peak_bytes=PROCESS_BYTES + in_flight,
+        peak_bytes=PROCESS_BYTES + in_flight + held,
         archive_bytes=study.bytes_per_case() * len(study.cases),
     )
 
