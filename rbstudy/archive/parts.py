@@ -18,6 +18,7 @@ import functools
 import hashlib
 import os
 import pathlib
+import re
 import zipfile
 from typing import Any, NamedTuple
 
@@ -153,15 +154,56 @@ def _write_arrays(path, arrays):
         np.savez(file, **arrays)
 
 
+# The header numpy's savez writes before each array's bytes (format 1.0 or 2.0).
+_NPY_HEADER = re.compile(
+    r"\{'descr': '([<>|=][A-Za-z]\d*)', 'fortran_order': False, 'shape': \(([\d, ]*)\), \}"
+)
+
+
+class _Part:
+    """The arrays of the part file at ``path``, by name (``part[name]``), read without
+    ``numpy.load``: its header parser, ``ast.literal_eval``, is not thread-safe in CPython 3.11
+    (a part read by the archive's thread while distributed's threads ran raised "SystemError:
+    AST constructor recursion depth mismatch"). Only what `write_part` writes is read: any other
+    header is a ValueError, a part that is not one."""
+
+    def __init__(self, path):
+        self._file = open_regular_file(path)
+        try:
+            self._zip = zipfile.ZipFile(self._file)
+        except BaseException:
+            self._file.close()
+            raise
+
+    def __getitem__(self, name):
+        data = self._zip.read(f"{name}.npy")
+        if data[:6] != b"\x93NUMPY" or data[6] not in (1, 2):
+            raise ValueError(f"{name}: not an array numpy wrote")
+        width = 2 if data[6] == 1 else 4
+        start = 8 + width + int.from_bytes(data[8 : 8 + width], "little")
+        header = _NPY_HEADER.match(data[8 + width : start].decode("latin1").strip())
+        if header is None:
+            raise ValueError(f"{name}: not an array rbstudy wrote")
+        shape = tuple(int(size) for size in header[2].split(",") if size.strip())
+        return np.frombuffer(data, dtype=np.dtype(header[1]), offset=start).reshape(shape)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._zip.close()
+        self._file.close()
+
+
 def read_part(path, variables):
     """The case numbers and ``variables`` of the part file at ``path``, name -> array."""
-    with np.load(path, allow_pickle=False) as part:
+    with _Part(path) as part:
         return {name: part[name] for name in ("case", *variables)}
 
 
 def part_attributes(path):
     """What the part file at ``path`` says of itself (`PART_ATTRIBUTES`), name -> text."""
-    with np.load(path, allow_pickle=False) as part:
+    with _Part(path) as part:
         return {name: str(part[key]) for name, key in PART_ATTRIBUTES.items()}
 
 
@@ -177,7 +219,7 @@ def part_complete(path, batch):
     if digest is None:
         return None
     try:
-        with np.load(path, allow_pickle=False) as part:
+        with _Part(path) as part:
             same = str(part[PART_ATTRIBUTES["batch"]]) == batch.id and np.array_equal(
                 part["case"], np.asarray(batch.cases)
             )
