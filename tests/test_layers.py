@@ -233,29 +233,26 @@ def test_an_entry_point_into_another_layer_is_caught():
     assert len(found) == 1 and "odd" in found[0] and "the pipeline layer" in found[0]
 
 
-def test_the_archive_readers_never_load_numba():
-    script = (
-        "import sys\n"
-        + "".join(f"import {name}\n" for name in NUMBA_FREE)
-        + "loaded = [m for m in ('numba', 'rbstudy.schemes', 'rbstudy.numerics.driver') "
-        "if m in sys.modules]\nassert not loaded, loaded\n"
+def _loaded(names, unwanted):
+    """The modules among ``sys.modules`` for which ``unwanted`` (a Python expression of ``m``,
+    a module's name) holds, once ``names`` are imported in a fresh process."""
+    script = "".join(f"import {name}\n" for name in ("sys", *names)) + (
+        f"print([m for m in sorted(sys.modules) if {unwanted}])"
     )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def test_the_archive_readers_never_load_numba():
+    assert _loaded(NUMBA_FREE, "m in ('numba', 'rbstudy.schemes', 'rbstudy.numerics.driver')") == "[]"
 
 
 def test_the_archive_loads_no_pipeline_module():
     """Every module of the archive package imported in a fresh process loads nothing of the
     sweep (so a worker writing its part, or a reader, needs the archive alone) and no numba."""
     names = [f"rbstudy.archive.{path.stem}" for path in sorted((PACKAGE / "archive").glob("*.py"))]
-    script = (
-        "import sys\n"
-        + "".join(f"import {name}\n" for name in names)
-        + "loaded = [m for m in sys.modules if m.startswith('rbstudy.pipeline') or m == 'numba']\n"
-        "assert not loaded, loaded\n"
-    )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
+    assert _loaded(names, "m.startswith('rbstudy.pipeline') or m == 'numba'") == "[]"
 
 
 def test_an_archive_module_importing_the_sweep_is_caught(tmp_path):

@@ -18,6 +18,7 @@ import yaml
 from conftest import CONFIGS, abaqus_mapping, write_study
 
 from rbstudy.analysis.searched import _scheme_texts
+from rbstudy.archive.folder import StudyFolder
 from rbstudy.cli import main
 from rbstudy.pipeline.step_search import _next_steps, _Probes
 
@@ -249,7 +250,7 @@ def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
         path.write_bytes(b"")
     elif damage == "truncated":
         path.write_bytes(path.read_bytes()[:3000])
-    assert _Probes(None, tmp_path / "study.nc", "this search", force=False).rows == {}
+    assert _Probes(None, StudyFolder(tmp_path, None, "study"), "this search", force=False).rows == {}
 
 
 def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():

@@ -75,12 +75,6 @@ class StudyFolder:
         """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``."""
         return cls(pathlib.Path(root) / study.name, study)
 
-    @classmethod
-    def of_archive(cls, archive, study):
-        """The folder that holds the archive at ``archive``."""
-        archive = pathlib.Path(archive)
-        return cls(archive.parent, study, archive.stem)
-
     @functools.cached_property
     def layout(self):
         """The netCDF `Layout` of the study's parts and archive."""
@@ -93,6 +87,13 @@ class StudyFolder:
     @property
     def parts(self):
         return self.path / "parts"
+
+    @property
+    def job_logs(self):
+        """Where a cluster's batch jobs write their output (else SLURM writes slurm-<id>.out
+        where the sweep was started): among the parts, kept with them when a run fails and
+        removed with them when it succeeds."""
+        return self.parts / "jobs"
 
     @property
     def search_file(self):

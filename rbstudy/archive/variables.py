@@ -27,6 +27,7 @@ __all__ = [
     "LONG_NAME_MAX",
     "FEATURES",
     "COORDINATES",
+    "SEARCH_VARIABLES",
     "SCHEME_COORDINATES",
     "TIME_UNITS",
     "coordinate_units",
@@ -491,6 +492,24 @@ COORDINATES = {
     "inertia_ratio": ("1", "inertia ratio I3 / I1 of the symmetric body"),
     "spin": ("rad s-1", "initial angular speed |w|"),
     "tilt": ("degree", "initial angle between w and the body symmetry axis 3"),
+}
+
+# The step search's own variables (`sweep --find-step`, the archive's group `search`), beside
+# what a probe shares with a case: (units, long_name), as `COORDINATES`.
+SEARCH_VARIABLES = {
+    "case": (None, "grid case whose scene and scheme options the probe runs (C order of the sweep)"),
+    "steps": ("1", "time steps over the duration"),
+    "output_interval": ("s", "interval of the samples the verdict is taken at"),
+    "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
+    "group_case": (None, "a grid case of the group: its scene and scheme options"),
+    "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
+    "found_dt": ("s", "largest step found to meet the accuracy bound"),
+    "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
+    "found_seconds": ("s", "calibrated kernel seconds of the group's case at its found step"),
+    "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
+    "study_dt": ("s", "its least found step, met at every value of the other axes"),
+    "study_seconds": ("s", "mean calibrated kernel seconds a case at that step"),
+    "study_uncertainty": ("1", "relative uncertainty of those seconds (the calibration's)"),
 }
 
 # What the archive records of each scheme, beside the `scheme` coordinate, so that the

@@ -50,10 +50,6 @@ from rbstudy.schemes import get_ready, get_scheme
 
 __all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
-# The folder, among the part files, where batch jobs write their output (else SLURM writes
-# slurm-<id>.out where the sweep was started): kept with the parts when a run fails, removed
-# with them when it succeeds.
-_JOB_LOGS = "jobs"
 # How often the bar shows the archive's parts written while the last of them are copied.
 _REDRAW_SECONDS = 0.2
 
@@ -477,9 +473,7 @@ def _run_tasks(folder, pending, where, progress, cores, threads, token, writer):
         cases = sum(target.cases for target in targets.values())
         if distributed:
             progress.phase(f"{study.name}: {where.starting}")
-            with connect(
-                where.scheduler, where.workers, where.cluster, logs=folder.parts / _JOB_LOGS
-            ) as client:
+            with connect(where.scheduler, where.workers, where.cluster, logs=folder.job_logs) as client:
                 progress.say(f"{study.name}: {dashboard_line(client)}")
                 progress.phase(f"{study.name}: running batches", cases, "cases")
                 written, returned = run_on_cluster(

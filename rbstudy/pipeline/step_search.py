@@ -34,7 +34,6 @@ archive (``--force``, or found damaged) starts it again.
 """
 
 import math
-import pathlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +42,7 @@ import xarray as xr
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.ids import batches_digest, canonical_id
 from rbstudy.archive.provenance import utc_now
-from rbstudy.archive.variables import ACCURATE, COORDINATES, cf_attrs, variable_attrs
+from rbstudy.archive.variables import ACCURATE, COORDINATES, SEARCH_VARIABLES, cf_attrs, variable_attrs
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.time_grid import output_count, steps_per
 from rbstudy.pipeline.calibration import calibrate, step_cost
@@ -126,9 +125,9 @@ class _Probes:
     """The probes of a search: those kept from an earlier run of it, those run now, keyed by
     (case, steps); written to the study folder's working file after every batch."""
 
-    def __init__(self, study, archive, identity, force):
+    def __init__(self, study, folder, identity, force):
         self.study, self.identity = study, identity
-        self.folder = StudyFolder.of_archive(archive, study)
+        self.folder = folder  # the `StudyFolder` of the search
         self.rows, self.reused = {}, 0
         if not force:  # a finished search's, in the archive, and an interrupted one's since
             self.rows = _kept_rows(self.folder, identity, working=False) | _kept_rows(
@@ -278,28 +277,10 @@ def _divides(study, steps):
 
 def _attrs(name):
     """The CF attributes of the search's variable ``name``: the archive's own for what a probe
-    shares with a case (its scheme and step, `_PROBE_VARIABLES`), else `_ATTRS`'s."""
+    shares with a case (its scheme and step, `_PROBE_VARIABLES`), else the table's (`SEARCH_VARIABLES`)."""
     if name in _PROBE_VARIABLES:
         return variable_attrs(name)
-    return cf_attrs(*(COORDINATES[name] if name in COORDINATES else _ATTRS[name]))
-
-
-# What each variable of the search's own means: (units, long_name), `cf_attrs`'s.
-_ATTRS = {
-    "case": (None, "grid case whose scene and scheme options the probe runs (C order of the sweep)"),
-    "steps": ("1", "time steps over the duration"),
-    "output_interval": ("s", "interval of the samples the verdict is taken at"),
-    "group_scheme": (None, "scheme of the group (a scheme at one value of every other swept axis)"),
-    "group_case": (None, "a grid case of the group: its scene and scheme options"),
-    "grid_dt": ("s", "largest swept step meeting the accuracy bound"),
-    "found_dt": ("s", "largest step found to meet the accuracy bound"),
-    "failing_dt": ("s", "smallest step found above it that does not (NaN: none up to the duration)"),
-    "found_seconds": ("s", "calibrated kernel seconds of the group's case at its found step"),
-    "study_scheme": (None, "scheme met the bound at one step at every value of the other axes"),
-    "study_dt": ("s", "its least found step, met at every value of the other axes"),
-    "study_seconds": ("s", "mean calibrated kernel seconds a case at that step"),
-    "study_uncertainty": ("1", "relative uncertainty of those seconds (the calibration's)"),
-}
+    return cf_attrs(*(COORDINATES[name] if name in COORDINATES else SEARCH_VARIABLES[name]))
 
 
 def _next_steps(lo, hi, tolerance):
@@ -333,8 +314,9 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    with StudyFolder(folder, study).lock():
-        probes = _Probes(study, pathlib.Path(folder) / f"{study.name}.nc", _identity(study), force)
+    folder = StudyFolder(folder, study)
+    with folder.lock():
+        probes = _Probes(study, folder, _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
