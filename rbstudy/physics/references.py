@@ -57,11 +57,13 @@ __all__ = [
     "composed_steps",
     "moment_bound",
     "planned_steps",
+    "load_spin",
     "knot_steps",
     "dop853_reference",
 ]
 
-# Accepted DOP853 steps one reference may take: about a minute (65 us a step, measured). A free
+# Accepted DOP853 steps one reference may take: about two minutes (110-180 us a step measured on
+# the 2-core machine, `rbstudy.pipeline.calibration.reference_cost`). A free
 # asymmetric body takes ~6.5 steps per radian of |w| T at rtol 1e-13 (measured for I = 1, 2, 3
 # at |w| T = 18 to 1800), so the budget covers |w| T up to ~1.5e5 rad. A scene past it has no
 # reference ("none") rather than a run that never ends; `validate` tells beforehand.
@@ -308,6 +310,16 @@ def planned_steps(omega_body, inertia, loads, interval):
     (n, 3) angular velocities and inertias and their ``loads`` columns."""
     rate = np.linalg.norm(omega_body, axis=-1) + np.sqrt(moment_bound(loads) / np.min(inertia, axis=-1))
     return np.maximum(1, np.ceil(interval * rate / COMPOSED_STEP_ANGLE)).astype(np.int64)
+
+
+def load_spin(inertia, loads, duration):
+    """(n,) the most a load can add to each body's spin (rad/s) by ``duration`` (s): ``M T /
+    I_min`` (M: `moment_bound`), for (n, 3) inertias and their ``loads`` columns. A moment M
+    changes the energy E at ``w . M <= |w| M`` and ``|w| <= sqrt(2 E / I_min)``, so
+    ``sqrt(2 E / I_min)``, and with it the spin's bound, grows by at most ``M / I_min`` a
+    second. Reached when the load keeps pumping the spin (a moment fixed in space, about the
+    axis of least inertia); a moment that turns with a tumbling body reaches far less."""
+    return moment_bound(loads) * duration / np.min(inertia, axis=-1)
 
 
 def knot_steps(knots, duration, interval, least):

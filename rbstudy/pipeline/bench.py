@@ -50,10 +50,12 @@ REFERENCE_STEPS = 2_000
 _RATE = 12
 
 
-def abaqus_top_scene():
-    """The Abaqus force-free top of docs/theory.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi)."""
+def abaqus_top_scene(loads=None):
+    """The Abaqus force-free top of docs/theory.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi), or
+    under ``loads`` (a config's ``loads`` mapping)."""
     return scene_from_mapping(
         {
+            **({"loads": loads} if loads else {}),
             "body": {"mass": 1.0, "inertia": [1.0, 1.0, 2.0]},
             "initial": {
                 "angular_velocity": {"body": [0.25, 0.0, 2.0 * math.pi]},

@@ -22,6 +22,11 @@ gets an empty cache, so the kernels are measured again), under a key of the mach
 (`machine_key`) and, per scheme, its name, provider and code digest (a plug-in's sources, an
 engine's version). A scheme not measured yet, or adaptive (dop853, whose cost per step depends
 on its output grid), costs its declared `Scheme.step_seconds`, with an unknown uncertainty.
+
+DOP853 as the references run it (`reference_cost`: sampled at far fewer times than it steps)
+is measured alike, once its right-hand side is compiled: `dop853.integrate` on the Abaqus top
+under a space moment, sampled at its ends only, its CPU time per accepted step, and cached
+under its own key.
 """
 
 import contextlib
@@ -38,11 +43,12 @@ import numpy as np
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.jit import cache_dir
 from rbstudy.pipeline.bench import abaqus_top_scene
-from rbstudy.schemes import get_scheme
+from rbstudy.schemes import dop853, get_scheme
 
 __all__ = [
     "StepCost",
     "calibrate",
+    "reference_cost",
     "step_cost",
     "cached",
     "measure",
@@ -72,6 +78,9 @@ REPEATS = 5
 BETWEEN_CALIBRATIONS = 0.1
 # Output samples every this many steps, as a study at dt = interval / 8 samples.
 SAMPLE_EVERY = 8
+# The scene `reference_cost` integrates: the Abaqus top under this space moment (N m), so
+# that its right-hand side evaluates a load as a reference's does.
+REFERENCE_MOMENT = (0.0, 0.1, 0.0)
 _FILE = "calibration.json"
 _COMPILE_FILE = "compile_seconds.json"
 
@@ -269,3 +278,47 @@ def step_cost(scheme, options=None):
         return StepCost(declared, math.nan)
     # the options' factor first: exactly 1 without options that cost, so the figure as cached
     return StepCost(figure.seconds * (declared / scheme.step_seconds), figure.uncertainty)
+
+
+def _reference_seconds(y0, p, n_steps):
+    """(CPU seconds, accepted steps) of one `dop853.integrate` of ``n_steps`` steps of state row
+    ``y0`` with parameter row ``p``, sampled at its start only (as a reference samples: every
+    many steps)."""
+    started = time.process_time()
+    run = dop853.integrate(y0, p, np.array([0.0, 1e9]), max_steps=n_steps)
+    return time.process_time() - started, max(1, run.steps)
+
+
+def reference_cost():
+    """The `StepCost` of an accepted step of DOP853 as the integrated references run it: cached
+    for this machine, else measured now (`FIRST_STEPS` doubled until a run takes
+    `MIN_SECONDS`, then `REPEATS` runs) if its right-hand side is compiled already, else the
+    declared `Scheme.step_seconds` of `dop853`."""
+    scheme = get_scheme("dop853")
+    key = f"{_scheme_key(scheme)} reference"
+    figure = _read().get(key)
+    with contextlib.suppress(TypeError, KeyError, ValueError):
+        cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]))
+        if 0 < cost.seconds < math.inf and 0 <= cost.uncertainty < math.inf:
+            return cost
+    if not scheme.is_cached():  # compiling it here would cost the forecast seconds
+        return StepCost(scheme.step_seconds, math.nan)
+    clock = time.perf_counter()
+    scene = abaqus_top_scene({"moment_space": list(REFERENCE_MOMENT)})
+    y0, p = scene.state_row(), scene.param_row()
+    steps = FIRST_STEPS
+    while _reference_seconds(y0, p, steps)[0] < MIN_SECONDS and steps < MAX_STEPS:
+        steps *= 2
+    rates = [seconds / taken for seconds, taken in (_reference_seconds(y0, p, steps) for _ in range(REPEATS))]
+    median = float(np.median(rates))
+    cost = StepCost(median, max(float(np.ptp(rates)) / 2 / median, BETWEEN_CALIBRATIONS))
+    _write(
+        {
+            key: {
+                "seconds": cost.seconds,
+                "uncertainty": cost.uncertainty,
+                "measured_in_s": round(time.perf_counter() - clock, 3),
+            }
+        }
+    )
+    return cost

@@ -1,18 +1,21 @@
 """What a study will cost before it runs, and the limits past which it is refused.
 
 `estimate` forecasts, from the config alone: the body-steps of every case (`step_count`;
-for the adaptive dop853, its steps per radian turned), the two integrations of each
-reference no closed form gives (the composed exact-flow splitting and DOP853) and which
-cases would have neither within its step budget, the run time on this machine's cores (each scheme's
-seconds per body-step calibrated on this machine, `rbstudy.pipeline.calibration`, else its
-declared `rbstudy.schemes.Scheme.step_seconds`), the process's peak
+for the adaptive dop853, its steps per radian turned), the integrations of each reference no
+closed form gives (the composed exact-flow splitting, run again where a load may spin the body
+past its planned step, and DOP853; a run past its step budget is not taken, or stopped there)
+and which cases would have neither within its step budget, the run time on this machine's
+cores (each scheme's seconds per body-step calibrated on this machine,
+`rbstudy.pipeline.calibration`, else its declared `rbstudy.schemes.Scheme.step_seconds`;
+DOP853's as the references take it, `calibration.reference_cost`), the process's peak
 memory (a measured baseline plus the batches in flight and the values held for the
 archive's writer) and the bytes the parts and the
 archive need on disk. `check_limits` refuses a study past ``--max-body-steps``,
 ``--max-memory`` or the free space of the results folder, with the estimate and the fix.
 
-The forecasts are for the initial spin: a load that speeds a body up makes its DOP853 work
-larger than forecast (the step budget still bounds it).
+A loaded body's radians and fastest spin are forecast as if the load kept speeding it up all
+run (`rbstudy.physics.references.load_spin`): the most it can, so a load that does not (a
+moment turning with a tumbling body) makes the references' work smaller than forecast.
 """
 
 import os
@@ -28,15 +31,17 @@ from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
 from rbstudy.physics.loads import constant_acting, needs_time
 from rbstudy.physics.references import (
+    COMPOSED_STEP_ANGLE,
     REFERENCE_MAX_STEPS,
     REFERENCE_OPTIONS,
     REFERENCE_SCHEME,
     REFERENCE_STEPS_PER_RADIAN,
     knot_steps,
+    load_spin,
     planned_steps,
 )
 from rbstudy.physics.time_grid import output_count, step_count
-from rbstudy.pipeline.calibration import calibrate, step_cost
+from rbstudy.pipeline.calibration import calibrate, reference_cost, step_cost
 from rbstudy.schemes import get_scheme
 
 __all__ = [
@@ -92,25 +97,46 @@ def _inside_run(knots, duration):
     return (knots > 0.0) & (knots < duration)
 
 
-def _composed_steps(scenes, rows, interval):
-    """Forecast steps of the composed reference of each scene ``rows`` of a `SceneTable`
-    (the first run, as planned), 0 where it has none: planned at once, and the knot search
-    only for the scenes whose load tables have knots inside the run."""
+def _composed_runs(scenes, rows, interval):
+    """Forecast of the composed reference of each scene ``rows`` of a `SceneTable`: (steps
+    of the runs it takes, whether it is had), each (n,). Its first run is planned from the
+    initial spin (at once, and the knot search only for the scenes whose load tables have knots
+    inside the run); where a load may spin the body past twice the planned rate
+    (`load_spin`), it runs again at a step fitted to that spin, as
+    `rbstudy.physics.references` does. A run past `REFERENCE_MAX_STEPS` is not taken, and
+    costs nothing; no run, or a second one not taken, leaves the scene without it."""
     loads = {name: np.asarray(column)[rows] for name, column in scenes.loads.items()}
-    counts = planned_steps(scenes.omega_body[rows], scenes.inertia[rows], loads, interval)
+    omega, inertia = scenes.omega_body[rows], scenes.inertia[rows]
+    intervals = output_count(scenes.duration, interval) - 1
     knots = loads["knots"]
-    for k in np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1)):
-        counts[k] = knot_steps(knots[k], scenes.duration, interval, int(counts[k])) or 0
-    return counts * (output_count(scenes.duration, interval) - 1)  # per interval, over the run
+    inside = np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1))
+
+    def fitted(least):  # counts per interval with the knots on step boundaries, 0 where none
+        for k in inside:
+            least[k] = knot_steps(knots[k], scenes.duration, interval, int(least[k])) or 0
+        return least
+
+    first = fitted(planned_steps(omega, inertia, loads, interval))
+    first_runs = (first > 0) & (first * intervals <= REFERENCE_MAX_STEPS)
+    fastest = np.linalg.norm(omega, axis=-1) + load_spin(inertia, loads, scenes.duration)
+    angle = interval * fastest / np.maximum(first, 1)
+    again = first_runs & (angle > 2.0 * COMPOSED_STEP_ANGLE)
+    second = np.zeros_like(first)
+    second[again] = fitted(np.ceil(first * angle / COMPOSED_STEP_ANGLE).astype(np.int64))[again]
+    second_runs = again & (second > 0) & (second * intervals <= REFERENCE_MAX_STEPS)
+    steps = (first * first_runs + second * second_runs) * intervals
+    return steps, first_runs & (~again | second_runs)
 
 
 def _dop853_steps(scenes):
     """Forecast of accepted DOP853 steps at rtol 1e-13 for each scene of a
     `rbstudy.physics.scenes.SceneTable` (n,), as floats (a spin of 1e20 rad/s forecasts
-    steps past any integer): steps per radian of |w0| T, the radians the body turns at its
-    initial spin, plus the few a slow run still takes, plus one per knot of its load tables
-    inside the run (DOP853 restarts at each)."""
-    turned = np.linalg.norm(scenes.omega_body, axis=-1) * scenes.duration
+    steps past any integer): steps per radian of the radians the body turns, ``|w0| T`` at its
+    initial spin plus ``M T^2 / 2 I_min`` for the spin a load may add (`load_spin`), plus the
+    few a slow run still takes, plus one per knot of its load tables inside the run (DOP853
+    restarts at each)."""
+    loaded = load_spin(scenes.inertia, scenes.loads, scenes.duration)
+    turned = (np.linalg.norm(scenes.omega_body, axis=-1) + loaded / 2.0) * scenes.duration
     restarts = _inside_run(scenes.loads["knots"], scenes.duration).sum(axis=-1)
     return np.ceil(REFERENCE_STEPS_PER_RADIAN * turned) + 16 + restarts
 
@@ -120,9 +146,9 @@ class Estimate:
     """A study's forecast cost.
 
     body_steps : steps over every case (the schemes studied). references : distinct scenes
-    whose reference is integrated; reference_steps : the forecast steps of their two
-    integrations (each capped at the budget); over_budget : cases whose integrations would
-    both pass `REFERENCE_MAX_STEPS` (they get reference "none"). scheme_seconds : the
+    whose reference is integrated; reference_steps : the forecast steps of the integrations
+    they take (`_composed_runs`, and DOP853's capped at the budget); over_budget : cases
+    whose integrations would both pass `REFERENCE_MAX_STEPS` (they get reference "none"). scheme_seconds : the
     schemes' batches alone; core_seconds : schemes and references together;
     longest_seconds : the longest batch or reference on its own (a batch spreads over at
     most its bodies, a reference over one core), which no number of cores shortens; cores :
@@ -195,6 +221,11 @@ def estimate(study, cores=None):
     # has compiled and measured them
     names = {batch.scheme for batch in study.batches}
     calibrate({name for name in names if get_scheme(name).is_cached()})
+    # the scenes whose references are integrated (by DOP853, among others), one per distinct
+    # scene without a closed form
+    rows = np.flatnonzero(cases.scenes.reference_kinds == INTEGRATED)
+    # DOP853's step as the references take it, measured here once its kernel is compiled
+    peer_seconds = reference_cost().seconds if rows.size or "dop853" in names else 0.0
     body_steps, seconds, longest = 0, 0.0, 0.0
     for batch in study.batches:
         scheme = get_scheme(batch.scheme)
@@ -203,26 +234,25 @@ def estimate(study, cores=None):
         else:
             steps = len(batch.cases) * step_count(study.duration, study.output_interval, batch.dt)
         body_steps += steps
-        # a batch holds one cost per body-step (a composition's stages: `plan_batches`)
-        batch_seconds = steps * _batch_step_seconds(batch, scheme, cases, plain) * knot_factor
+        # a batch holds one cost per body-step (a composition's stages: `plan_batches`); dop853
+        # steps as the references do
+        dop853 = batch.scheme == "dop853"
+        per_step = peer_seconds if dop853 else _batch_step_seconds(batch, scheme, cases, plain)
+        batch_seconds = steps * per_step * knot_factor
         seconds += batch_seconds
         # a batch spreads its bodies over at most as many threads as it has bodies; dop853
         # is Python and holds the interpreter: one core
         spread = 1 if scheme.adaptive else min(cores, len(batch.cases))
         longest = max(longest, batch_seconds / spread)
     scheme_seconds = seconds
-    # the references integrated, twice each: one per distinct scene without a closed form
-    rows = np.flatnonzero(cases.scenes.reference_kinds == INTEGRATED)
     peer = dop853_steps[rows]
-    composed = _composed_steps(cases.scenes, rows, study.output_interval)
+    composed, had = _composed_runs(cases.scenes, rows, study.output_interval)
     neither = np.zeros(len(dop853_steps), dtype=bool)
-    neither[rows] = (peer > REFERENCE_MAX_STEPS) & (composed > REFERENCE_MAX_STEPS)
+    neither[rows] = (peer > REFERENCE_MAX_STEPS) & ~had
     over_budget = int(np.sum(neither[cases.scene_rows]))
-    peer, composed = (np.minimum(steps, REFERENCE_MAX_STEPS) for steps in (peer, composed))
+    peer = np.minimum(peer, REFERENCE_MAX_STEPS)  # DOP853 stops there
     per_composed = step_cost(get_scheme(REFERENCE_SCHEME), REFERENCE_OPTIONS).seconds
-    # dop853's declared figure: it is not calibrated (`calibration.calibrate`)
-    per_peer = get_scheme("dop853").step_seconds
-    each = peer * per_peer + composed * per_composed
+    each = peer * peer_seconds + composed * per_composed
     seconds += float(each.sum())
     longest = max(longest, float(each.max(initial=0.0)))
     reference_steps = int(peer.sum() + composed.sum())
