@@ -14,6 +14,7 @@ has gone (``| head -1``): the command stops there.
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import gc
 import logging
@@ -172,6 +173,7 @@ def _study_folders(studies, args):
     one line naming the folder). A folder that cannot be written is refused at once under
     --force, and where it holds no archive."""
     from rbstudy.archive.files import UnwritableFolder
+    from rbstudy.archive.folder import StudyFolder
 
     root = pathlib.Path(args.out)
     refused = _check_root(root)
@@ -181,7 +183,7 @@ def _study_folders(studies, args):
         try:
             _check_out(folder, given=False)
         except UnwritableFolder as error:
-            if args.force or not (folder / f"{study.name}.nc").is_file():
+            if args.force or not StudyFolder.of(root, study).archive.exists():
                 raise (refused or error) from None
             read_only.add(study.name)
     return read_only
@@ -269,6 +271,12 @@ def _sweep(args):
 
     # all configs checked before any run, each with every --set
     studies = [load_study(path, args.set) for path in args.files]
+    if args.format is not None:
+        studies = [dataclasses.replace(study, output_format=args.format) for study in studies]
+    if args.find_step and any(study.output_format == "zarr" for study in studies):
+        raise RbstudyError(
+            "--find-step keeps its search in a netCDF archive: drop it, or sweep with --format netcdf"
+        )
     return_free_memory()  # the reading's transients: 258 MiB of a study of 1e6 cases
     names = [study.name for study in studies]
     for study in studies:
@@ -834,6 +842,12 @@ def build_parser():
         "--wide",
         action="store_true",
         help="print every column of the summary table (default: the columns that fit 100 characters)",
+    )
+    sweep.add_argument(
+        "--format",
+        choices=("netcdf", "zarr"),
+        help="the archive's format, over the config's output.format: netcdf (<study>.nc, the "
+        "default) or zarr (the store <study>.zarr, for cluster-scale studies)",
     )
     sweep.add_argument(
         "--find-step",

@@ -38,7 +38,7 @@ OUTSIDE = {
     "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "inputs": {"numpy", "scipy", "yaml"},
-    "archive": {"numpy", "xarray", "netCDF4", "h5py", "filelock"},
+    "archive": {"numpy", "xarray", "netCDF4", "h5py", "filelock", "zarr"},
     "pipeline": {"numpy", "scipy", "xarray", "dask", "distributed", "dask_jobqueue", "yaml", "rich"},
     "analysis": {"numpy", "xarray", "matplotlib", "tabulate", "jinja2", "markupsafe"},
     "cli": set(),

@@ -30,14 +30,17 @@ __all__ = [
     "make_folders",
     "remove_folders",
     "temporary_beside",
+    "temporary_folder_beside",
     "unwritable",
     "write_dataset_atomic",
     "write_text_atomic",
 ]
 
 
-# mkstemp creates files readable by their owner only; results are meant to be shared.
+# mkstemp and mkdtemp create files and folders their owner alone may read; results are meant
+# to be shared.
 _FILE_MODE = 0o644
+_FOLDER_MODE = 0o755
 
 
 # Attempts of `check_output_folder` and `make_folders` to write in a folder that a failed
@@ -67,6 +70,37 @@ def temporary_beside(path):
     finally:
         if os.path.exists(temporary):
             os.remove(temporary)
+
+
+@contextmanager
+def temporary_folder_beside(path):
+    """A temporary folder in ``path``'s folder, to fill (its files synced by the caller),
+    then put in ``path``'s place on success, removed on failure. A folder cannot be renamed
+    over one that holds files: the old one is first renamed aside and removed after, so a
+    reader finds the old folder, the new one or, for an instant, none; never half of one."""
+    path = pathlib.Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise unwritable(path.parent, error) from None
+    old = None
+    try:
+        yield temporary
+        os.chmod(temporary, _FOLDER_MODE)
+        with ctrl_c_held():
+            if path.exists():
+                old = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old.tmp")
+                os.replace(path, old)
+            os.replace(temporary, path)
+            _sync(path.parent)
+    except (OSError, RuntimeError) as error:
+        _raise_if_full(path.parent, error)
+        raise
+    finally:
+        for left in (temporary, old):
+            if left is not None and os.path.exists(left):
+                shutil.rmtree(left)
 
 
 # What a file system answers a write it refuses: read-only, immutable, not ours, full.

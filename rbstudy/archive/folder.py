@@ -1,6 +1,7 @@
 """A study's folder on disk, as one object: `StudyFolder`.
 
-``<root>/<study>/`` holds ``<study>.nc`` (the archive), ``parts/<batch-id>.npz`` (one finished
+``<root>/<study>/`` holds ``<study>.nc`` (the archive; ``<study>.zarr``, a zarr store, when
+the study's ``output_format`` is "zarr": `FORMATS`), ``parts/<batch-id>.npz`` (one finished
 batch each, with its digest beside it), ``study.yaml`` (the resolved config), the owner
 record (`rbstudy.archive.owner.OWNER`), the lock and, while a step search runs, its working
 file ``search/steps.nc`` (`SEARCH_FILE`). The sweep and the step search reach every one of
@@ -8,8 +9,9 @@ them through a `StudyFolder` alone: where a file lies, how it is named, checked,
 claimed, written and removed is said here and in the modules below it, never by the sweep.
 
 The study object is read, not imported: a `rbstudy.pipeline.config.StudyConfig` (its
-``name``, ``batches``, each with ``id`` and ``cases``, and what `rbstudy.archive.owner` and
-`rbstudy.archive.writer` read of it).
+``name``, ``output_format``, ``batches``, each with ``id`` and ``cases``, and what
+`rbstudy.archive.owner` and `rbstudy.archive.writer` read of it). Which format the archive
+has is decided here, once: the sweep asks the folder for its ``archive`` and its ``writer``.
 """
 
 import contextlib
@@ -31,7 +33,7 @@ from rbstudy.archive.files import (
 )
 from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.ids import batches_digest
-from rbstudy.archive.layout import SEARCH_GROUP, Layout
+from rbstudy.archive.layout import FORMATS, SEARCH_GROUP, Layout
 from rbstudy.archive.load import open_results, read_group
 from rbstudy.archive.lock import study_lock
 from rbstudy.archive.owner import claim_folder, folder_claim
@@ -39,6 +41,8 @@ from rbstudy.archive.parts import PART_SUFFIX, SIDECAR_SUFFIX, PartTarget, part_
 from rbstudy.archive.provenance import global_attrs
 from rbstudy.archive.rewrite import put_group, refresh_description
 from rbstudy.archive.writer import ArchiveWriter
+from rbstudy.archive.zarr_integrity import verify_store
+from rbstudy.archive.zarr_store import consolidate_store, refresh_store_description, store_attribute
 from rbstudy.errors import RbstudyError, one_line
 
 __all__ = ["ArchiveState", "SEARCH_FILE", "StudyFolder"]
@@ -68,6 +72,7 @@ class StudyFolder:
     def __init__(self, path, study: Any, name=None):
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
+        self.format = study.output_format
         self.made = []  # the folders `make` made, outermost first
 
     @classmethod
@@ -82,7 +87,11 @@ class StudyFolder:
 
     @property
     def archive(self):
-        return self.path / f"{self.name}.nc"
+        return self.path / f"{self.name}{FORMATS[self.format]}"
+
+    @property
+    def zarr(self):
+        return self.format == "zarr"
 
     @property
     def parts(self):
@@ -115,7 +124,12 @@ class StudyFolder:
         """After a failed run, remove the folders `make` made when the run left nothing worth
         keeping: the study's folder whole (under its lock, or where none could be taken), its
         parents only while empty (another study's sweep may write there)."""
-        if not self.made or any(self.path.glob("*.nc")) or any(self.parts.glob(f"*{PART_SUFFIX}")):
+        if (
+            not self.made
+            or self.archive.exists()
+            or any(self.path.glob("*.nc"))
+            or any(self.parts.glob(f"*{PART_SUFFIX}"))
+        ):
             return
         if self.path in self.made:
             shutil.rmtree(self.path)
@@ -156,7 +170,10 @@ class StudyFolder:
     def clear_stale(self):
         """Remove the temporaries and probe files a killed sweep left (the lock is ours)."""
         for stale in [*self.parts.glob(".*.tmp"), *self.path.glob(".*.tmp"), *self.parts.glob(".probe-*")]:
-            stale.unlink()
+            if stale.is_dir() and not stale.is_symlink():  # a zarr store's temporary
+                shutil.rmtree(stale)
+            else:
+                stale.unlink()
 
     def write_config(self, text):
         """``study.yaml``: the resolved config ``text``, written whole."""
@@ -169,14 +186,22 @@ class StudyFolder:
         if not self.archive.exists():
             return ArchiveState("absent")
         try:
-            with HDF5_LOCK, netCDF4.Dataset(self.archive) as nc:
-                batches = nc.getncattr("batches")
-        except (OSError, AttributeError, RuntimeError):
-            return ArchiveState("damaged", ("it cannot be read as netCDF",))
+            if self.zarr:
+                batches = store_attribute(self.archive, "batches")
+            else:
+                with HDF5_LOCK, netCDF4.Dataset(self.archive) as nc:
+                    batches = nc.getncattr("batches")
+        except (OSError, AttributeError, RuntimeError, KeyError, ValueError):
+            return ArchiveState(
+                "damaged", (f"it cannot be read as {'a zarr store' if self.zarr else 'netCDF'}",)
+            )
         if batches != batches_digest(self.study.batches):
             return ArchiveState("outdated")
-        with HDF5_LOCK:
-            problems = verify_archive(self.archive).problems
+        if self.zarr:
+            problems = verify_store(self.archive).problems
+        else:
+            with HDF5_LOCK:
+                problems = verify_archive(self.archive).problems
         return ArchiveState("damaged", tuple(problems)) if problems else ArchiveState("current")
 
     def described_by(self):
@@ -193,7 +218,8 @@ class StudyFolder:
         global attributes (`provenance.global_attrs`, a run ``started`` then) and
         ``study.yaml`` (``config_text``) replaced, the data untouched."""
         if self.described_by() != self.study.archived_text:
-            refresh_description(self.archive, global_attrs(self.study, started=started))
+            refresh = refresh_store_description if self.zarr else refresh_description
+            refresh(self.archive, global_attrs(self.study, started=started))
             self.write_config(config_text)
 
     def writer(self, digests, started):
@@ -201,9 +227,9 @@ class StudyFolder:
         -> digest, None: still to come) already stored, of a run ``started`` then (its global
         attributes, `provenance.global_attrs`)."""
         parts = {batch.id: self.part_path(batch.id) for batch in self.study.batches}
-        return ArchiveWriter(
-            self.study, parts, digests, self.archive, global_attrs(self.study, started=started)
-        )
+        write = consolidate_store if self.zarr else None
+        attrs = global_attrs(self.study, started=started)
+        return ArchiveWriter(self.study, parts, digests, self.archive, attrs, write)
 
     # the parts --------------------------------------------------------------------------
 

@@ -16,22 +16,29 @@ from dataclasses import dataclass
 import numpy as np
 
 from rbstudy.archive.ids import study_identity
-from rbstudy.archive.variables import COORDINATES, SCHEME_COORDINATES, VARIABLES, cf_attrs
+from rbstudy.archive.variables import COORDINATES, SCHEME_COORDINATES, VARIABLES, cf_attrs, variable_attrs
 from rbstudy.physics.time_grid import output_times
 
 __all__ = [
     "CHUNK_BYTES",
     "COMPRESSION",
+    "FORMATS",
     "Layout",
     "SEARCH_GROUP",
     "archive_dims",
     "case_chunks",
     "create_variable",
+    "data_variables",
     "decimal_grid",
     "fixed_coords",
     "grid_coordinates",
     "is_part",
 ]
+
+
+# The archive's formats (``output.format``, ``sweep --format``) and the suffix of each: the
+# netCDF file, or the zarr store of a cluster-scale study (`rbstudy.archive.zarr_store`).
+FORMATS = {"netcdf": ".nc", "zarr": ".zarr"}
 
 
 _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
@@ -211,6 +218,28 @@ def create_variable(nc, name, dims, values=None, attrs=None, dtype=None, grid_ra
     if values is not None:
         variable[...] = values
     return variable
+
+
+def data_variables(study, grid):
+    """The archive's output variables: name -> (its dimensions, `archive_dims`; its
+    attributes, from `rbstudy.archive.variables`, with the auxiliary coordinates of ``grid``
+    (`grid_coordinates`) that CF readers attach to it; how many of its dimensions are the
+    grid's), whatever format stores them."""
+    found = {}
+    for name in study.variables:
+        along = archive_dims(study, name)
+        attrs = variable_attrs(name)
+        # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
+        # claims): those along its dimensions
+        auxiliary = [
+            coordinate
+            for coordinate, (dims, _, _) in grid.items()
+            if dims != (coordinate,) and set(dims) <= set(along)
+        ]
+        if auxiliary:
+            attrs["coordinates"] = " ".join(auxiliary)
+        found[name] = (along, attrs, len(along) - len(VARIABLES[name].dims))
+    return found
 
 
 def archive_dims(study, name):

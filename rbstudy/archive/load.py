@@ -6,17 +6,21 @@ slab, so a million cases' findings never hold their whole series. `read_group` r
 group stored beside the archive's dataset (the step search's).
 """
 
+import contextlib
+
 import netCDF4
 import numpy as np
 
 from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.variables import VARIABLES
+from rbstudy.archive.zarr_store import is_store
 
 __all__ = ["open_results", "read_group"]
 
 
 def open_results(path, variables=None, reduced=None):
-    """Load an archive (a netCDF file of results), ``time`` in seconds from the start of the run.
+    """Load an archive (a netCDF file of results, or a zarr store), ``time`` in seconds from the start of
+    the run.
 
     ``variables`` (optional) loads only those data variables (and the coordinates): the
     summary of a large study needs its per-case scalars, not its trajectories. ``reduced``
@@ -28,7 +32,14 @@ def open_results(path, variables=None, reduced=None):
     import xarray as xr  # here: a sweep's workers and its forecast never read a dataset (0.3 s)
 
     skip = None if variables is None else [name for name in VARIABLES if name not in variables]
-    with HDF5_LOCK, xr.open_dataset(path, decode_times=False, drop_variables=skip) as dataset:
+    # a zarr store (`rbstudy.archive.zarr_store`) needs no HDF5 lock, and has no consolidated
+    # metadata to look for
+    store = is_store(path)
+    how = {"engine": "zarr", "consolidated": False} if store else {}
+    with (
+        contextlib.nullcontext() if store else HDF5_LOCK,
+        xr.open_dataset(path, decode_times=False, drop_variables=skip, **how) as dataset,
+    ):
         series = {
             name: _reduced_along_time(dataset[name], how)
             for name, how in (reduced or {}).items()
@@ -66,9 +77,11 @@ def _reduced_along_time(variable, how):
 
 def read_group(path, group):
     """The netCDF group ``group`` of the file at ``path`` as a loaded xarray dataset; None
-    where the file has no such group (an archive without a step search)."""
+    where the file has no such group (an archive without a step search) or is a zarr store."""
     import xarray as xr  # here, as in `open_results`
 
+    if is_store(path):  # a zarr store holds no step search (`sweep --find-step` keeps netCDF)
+        return None
     with HDF5_LOCK:  # the library is not thread-safe: one file at a time in a process
         with netCDF4.Dataset(path) as nc:
             if group not in nc.groups:

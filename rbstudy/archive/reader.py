@@ -6,7 +6,10 @@ by hand, a block zeroed), not rbstudy's (a YAML file, another tool's netCDF, one
 right names but other shapes), or crafted (a ``study`` attribute of ``../../escaped``, which
 names the figure files). `open_archive` checks, in this order, that the file is netCDF, that
 it has the layout the summary, the figures and the report read (`check_layout`), and unless
-told not to that every variable matches its checksum (`rbstudy.archive.checksums`). Each
+told not to that every variable matches its checksum (`rbstudy.archive.checksums`). A zarr
+store (``<study>.zarr``, `rbstudy.archive.zarr_store`) is read through the same checks, its
+root group seen as a netCDF dataset (`open_header`) and its chunks proven by their checksums
+(`rbstudy.archive.zarr_integrity`). Each
 failure is one `InputError` naming the file, the attribute or variable, and the fix; a
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
@@ -23,13 +26,15 @@ from rbstudy.archive.layout import is_part
 from rbstudy.archive.load import open_results
 from rbstudy.archive.parts import PART_SUFFIX, part_digest, sidecar
 from rbstudy.archive.variables import BOOKKEEPING, VARIABLES
+from rbstudy.archive.zarr_integrity import verify_store
+from rbstudy.archive.zarr_store import is_store, open_header
 from rbstudy.errors import InputError, one_line
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
 
 __all__ = ["open_archive", "check_layout", "verify_file", "NOT_AN_ARCHIVE", "GIVE_AN_ARCHIVE"]
 
 NOT_AN_ARCHIVE = "not an rbstudy archive"
-GIVE_AN_ARCHIVE = "give the <study>.nc written by rbstudy sweep"
+GIVE_AN_ARCHIVE = "give the <study>.nc (or <study>.zarr) written by rbstudy sweep"
 _REBUILD = "rerun its sweep (rbstudy sweep <config>): a damaged archive is rebuilt"
 # The first bytes of a netCDF file: classic, 64-bit offset, 64-bit data, netCDF-4 (HDF5).
 _SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF\r\n\x1a\n")
@@ -194,7 +199,19 @@ def check_layout(path):
     scene alone: some of them) then its own, of its type; then that it holds cases and
     output times, an accuracy bound that is a number above 0, and only the codes of each
     flag (`_content_problem`). Reads the file's header and its flags; returns the number of
-    cases it holds."""
+    cases it holds. A zarr store is checked alike."""
+    if is_store(path):
+        try:
+            with open_header(path) as header:
+                problem = _layout_problem(path, header) or _content_problem(path, header)
+                cases = None if problem else int(header["status"].size)
+        except (OSError, RuntimeError, ValueError, KeyError, TypeError) as error:
+            raise InputError(
+                f"damaged: it cannot be read as a zarr store ({one_line(error)})", _REBUILD, str(path)
+            ) from None
+        if problem is not None:
+            raise problem
+        return cases
     _check_netcdf(path)
     try:
         with HDF5_LOCK, netCDF4.Dataset(path) as nc:
@@ -212,8 +229,11 @@ def check_layout(path):
 def _verified(path, bypass=None):
     """The `ArchiveCheck` of an intact archive at ``path``; an `InputError` naming the first
     problems (and ``bypass``, how a caller reads it anyway) when it is not."""
-    with HDF5_LOCK:
-        check = verify_archive(path)
+    if is_store(path):
+        check = verify_store(path)
+    else:
+        with HDF5_LOCK:
+            check = verify_archive(path)
     if not check.problems:
         return check
     problems = check.problems
@@ -247,7 +267,15 @@ def open_archive(path, variables=None, verify=True, reduced=None, progress=None)
 
 def verify_file(path):
     """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
-    its digest beside it); an `InputError` naming the first problems when it is not."""
+    its digest beside it, or a zarr store); an `InputError` naming the first problems when it
+    is not."""
+    if is_store(path):
+        check_layout(path)
+        check = _verified(path)
+        return (
+            f"intact ({check.variables} variables match their chunks' SHA-256 checksums; "
+            f"built from {check.parts} parts)"
+        )
     _head(path)  # a file, before its digest's name is made from its name ("." has none)
     digest = sidecar(path)
     if digest.exists():

@@ -22,11 +22,11 @@ from rbstudy.archive.checksums import StreamedChecksum, seal_archive
 from rbstudy.archive.chunks import ChunkedArchive
 from rbstudy.archive.files import temporary_beside
 from rbstudy.archive.hdf5 import HDF5_LOCK, hdf5_writer, netcdf_writer
-from rbstudy.archive.layout import Layout, archive_dims, create_variable, fixed_coords, grid_coordinates
+from rbstudy.archive.layout import Layout, create_variable, data_variables, fixed_coords, grid_coordinates
 from rbstudy.archive.parts import part_values, read_part
-from rbstudy.archive.variables import VARIABLES, variable_attrs
+from rbstudy.archive.variables import VARIABLES
 
-__all__ = ["ArchiveWriter", "HELD_BYTES", "consolidate"]
+__all__ = ["ArchiveWriter", "HELD_BYTES", "consolidate", "copy_part"]
 
 
 class _Abandoned(Exception):
@@ -102,10 +102,13 @@ class ArchiveWriter:
     as they arrive, in the batches' order, by a thread of its own from entering to `wait`'s
     true, so its compression (one core at ~60 MiB/s) runs beside the batches. ``digests``:
     those of the parts already stored (None: still to come). Leaving the block on an
-    exception abandons the archive (its temporary removed) before the thread is joined."""
+    exception abandons the archive (its temporary removed) before the thread is joined.
+    ``write``: what writes it, `consolidate` (netCDF) or a function of its arguments
+    (`rbstudy.archive.zarr_store.consolidate_store`)."""
 
-    def __init__(self, study, parts, digests, target, attrs):
+    def __init__(self, study, parts, digests, target, attrs, write=None):
         self._study, self._target, self._attrs = study, target, attrs
+        self._write = consolidate if write is None else write
         self._arrivals = _Arrivals(study.batches, parts, digests)
         self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="archive")
         self._written = None
@@ -113,7 +116,7 @@ class ArchiveWriter:
     def __enter__(self):
         arrivals = self._arrivals
         self._written = self._thread.submit(
-            consolidate, self._study, arrivals, self._target, self._attrs, advance=arrivals.consolidated
+            self._write, self._study, arrivals, self._target, self._attrs, advance=arrivals.consolidated
         )
         return self
 
@@ -178,7 +181,7 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
                 part_digests = []
                 for batch, (path, digest, values) in itertools.chain([first] if first else [], parts):
                     part = read_part(path, study.variables) if values is None else values
-                    _copy_part(targets, part, shape)
+                    copy_part(targets, part, shape)
                     part_digests.append([batch.id, digest])
                     advance()
                 archive.finish(variable for variable, _, _ in targets.values())
@@ -209,19 +212,7 @@ def _define_archive(nc, study, attrs):
             coord_attrs,
         )
     targets = {}
-    for name in study.variables:
-        along = archive_dims(study, name)
-        attrs_ = variable_attrs(name)
-        # the auxiliary coordinates (zipped axes, unswept scheme and dt, the schemes'
-        # claims) that CF readers attach to it: those along its dimensions
-        auxiliary = [
-            coordinate
-            for coordinate, (dims, _, _) in grid.items()
-            if dims != (coordinate,) and set(dims) <= set(along)
-        ]
-        if auxiliary:
-            attrs_["coordinates"] = " ".join(auxiliary)
-        grid_rank = len(along) - len(VARIABLES[name].dims)
+    for name, (along, attrs_, grid_rank) in data_variables(study, grid).items():
         variable = create_variable(
             nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank
         )
@@ -249,10 +240,11 @@ def _block(cases, shape):
     )
 
 
-def _copy_part(targets, part, shape):
+def copy_part(targets, part, shape):
     """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
-    -> (its chunk writer, `ChunkedArchive.variable`; whether it lies along each grid
-    dimension; its `StreamedChecksum`, fed what is written). A part holds a value per
+    -> (its chunk writer, `ChunkedArchive.variable` or anything with its ``write(index,
+    values)``; whether it lies along each grid dimension; its `StreamedChecksum`, fed what is
+    written, or None). A part holds a value per
     case; a variable of the scene alone takes its cases' values at the first position of the
     dimensions it does not lie along (the same at every other)."""
     cases = part["case"]
@@ -281,7 +273,8 @@ def _copy_part(targets, part, shape):
             kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
             written = block[tuple(slice(None) if keep else 0 for keep in along)]
             variable.write(kept, written)
-            stream.wrote(kept, written)
+            if stream is not None:
+                stream.wrote(kept, written)
             start += count
 
 

@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 import yaml
 
+from rbstudy.archive.layout import FORMATS
 from rbstudy.archive.variables import (
     BOOKKEEPING,
     COST_MODEL,
@@ -88,7 +89,8 @@ class StudyConfig:
     `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,
     name -> {coordinate: value} (`rbstudy.archive.variables.SCHEME_COORDINATES`; the
     nominal order a tuple along `order_dimension` where a composition is swept). n_times :
-    output samples per case.
+    output samples per case. output_format : the archive's format, a key of
+    `rbstudy.archive.layout.FORMATS` (``output.format``, or ``sweep --format``).
     """
 
     path: str
@@ -106,6 +108,7 @@ class StudyConfig:
     variables: tuple[str, ...]
     batches: tuple[Batch, ...]
     schemes: dict[str, dict]
+    output_format: str = "netcdf"
 
     @property
     def order_dimension(self):
@@ -326,7 +329,16 @@ def _validated(path, text, overridden):
             raise reader.locate(error, "run.scheme") from None
     if not isinstance(run.get("options") or {}, dict):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
-    output = reader.mapping(data.get("output"), "output", ("interval", "variables", "accuracy_bound"))
+    output = reader.mapping(
+        data.get("output"), "output", ("interval", "variables", "accuracy_bound", "format")
+    )
+    output_format = output.get("format", "netcdf")
+    if output_format not in FORMATS:
+        reader.fail(
+            "output.format",
+            f"unknown archive format {output_format!r}",
+            "valid: netcdf (one file, the default) or zarr (a store for cluster-scale studies)",
+        )
     interval = _output_interval(reader, output, dt, swept)
     accuracy_bound = reader.number(
         output.get("accuracy_bound", ACCURACY_BOUND), "output.accuracy_bound", positive=True
@@ -358,6 +370,7 @@ def _validated(path, text, overridden):
         variables=variables,
         batches=(),
         schemes=_scheme_claims(cases, dimensions),
+        output_format=output_format,
     )
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
     batches = plan_batches(
@@ -384,6 +397,7 @@ def resolved_config(study):
             "interval": study.output_interval,
             "variables": list(study.variables),
             "accuracy_bound": study.accuracy_bound,
+            "format": study.output_format,
         },
         "sweep": {d.name: {axis.target: list(axis.values) for axis in d.axes} for d in study.dimensions},
         "cases": len(study.cases),

@@ -1,0 +1,246 @@
+"""The archive as a zarr v3 store, ``<study>/<study>.zarr``: the second format (issue 42).
+
+The same dataset as the netCDF archive (`rbstudy.archive.writer`): the dimensions,
+coordinates and attributes of `rbstudy.archive.layout` and `rbstudy.archive.variables`, the
+global attributes of `rbstudy.archive.provenance`, the values copied from the same parts in
+the batches' order, each part's cases into their region (`rbstudy.archive.writer.copy_part`),
+so memory stays bounded by the largest part. It is laid out as xarray's zarr backend reads
+it (``dimension_names``, the ``_FillValue`` attribute of a variable that has one, the
+``coordinates`` attribute), so ``xarray.open_zarr`` gives the dataset ``open_dataset`` gives
+of the netCDF archive, apart from encoding. Chunks are the netCDF archive's
+(`layout.case_chunks`); where a variable has several, they are gathered into shards of
+about `SHARD_BYTES` (zarr v3 sharding: one file per shard, not per chunk). The store is
+written in a temporary folder beside its place, sealed with its checksums
+(`rbstudy.archive.zarr_integrity`) and renamed into place: a reader never sees half a store.
+"""
+
+import contextlib
+import itertools
+import math
+import pathlib
+
+import numpy as np
+
+from rbstudy.archive.files import temporary_folder_beside
+from rbstudy.archive.layout import (
+    FORMATS,
+    Layout,
+    case_chunks,
+    data_variables,
+    fixed_coords,
+    grid_coordinates,
+)
+from rbstudy.archive.parts import read_part
+from rbstudy.archive.variables import VARIABLES
+from rbstudy.archive.writer import copy_part
+from rbstudy.archive.zarr_integrity import GROUP, seal_store
+
+__all__ = [
+    "SHARD_BYTES",
+    "SUFFIX",
+    "consolidate_store",
+    "is_store",
+    "open_header",
+    "refresh_store_description",
+    "store_attribute",
+]
+
+
+SUFFIX = FORMATS["zarr"]
+
+
+# Target size of a shard (uncompressed): 128 of the archive's chunks (`CHUNK_BYTES`, 256 KiB).
+# A shard is one file: a million cases' 35 variables take ~1,600 files, not ~200,000. Writing
+# into part of a shard rewrites it, so it stays within a few parts' worth of a variable.
+SHARD_BYTES = 2**25
+
+
+# Blosc's zstd after byte shuffling: like the netCDF archive's zlib with shuffle, the slowly
+# varying high bytes of neighbouring floats grouped, at a fraction of zlib's time.
+_COMPRESSION_LEVEL = 4
+
+
+def is_store(path):
+    """Whether ``path`` is a zarr store (a folder with its root ``zarr.json``)."""
+    path = pathlib.Path(path)
+    return path.is_dir() and (path / "zarr.json").is_file()
+
+
+def _compressors():
+    from zarr.codecs import BloscCodec
+
+    return (BloscCodec(cname="zstd", clevel=_COMPRESSION_LEVEL, shuffle="shuffle"),)
+
+
+def _json(value):
+    """An attribute value as JSON holds it (numpy arrays and numbers as lists and numbers)."""
+    value = np.asarray(value) if isinstance(value, np.ndarray | np.generic) else value
+    return value.tolist() if isinstance(value, np.ndarray) else value
+
+
+def _shards(shape, chunks, grid_rank):
+    """The shard shape of a variable of ``shape`` in ``chunks``: whole chunks gathered along
+    its grid dimensions, from the last, up to about `SHARD_BYTES`; None (no sharding) where the
+    variable is one chunk."""
+    if math.prod(math.ceil(size / chunk) for size, chunk in zip(shape, chunks, strict=True)) <= 1:
+        return None
+    room = max(1, SHARD_BYTES // max(1, math.prod(chunks)))
+    shard = list(chunks)
+    for k in reversed(range(grid_rank)):
+        take = max(1, min(math.ceil(shape[k] / chunks[k]), room))
+        shard[k] = take * chunks[k]
+        room //= take
+    return tuple(shard)
+
+
+class _Region:
+    """One variable of the store, written region by region (`copy_part`'s ``write``)."""
+
+    def __init__(self, array):
+        self.array = array
+
+    def write(self, index, values):
+        self.array.oindex[index] = values
+
+
+def _define_store(folder, study, attrs):
+    """The store's group, coordinates and (empty) output variables in ``folder``; name -> its
+    zarr array, of the output variables."""
+    import zarr
+    from xarray.backends.zarr import FillValueCoder  # xarray's encoding of `_FillValue`
+
+    group = zarr.create_group(store=str(folder), zarr_format=3, attributes=attrs)
+    grid = grid_coordinates(study)
+    coordinates = dict(grid)
+    coordinates.update(
+        {name: ((name,), values, attrs_) for name, (values, attrs_) in fixed_coords(Layout.of(study)).items()}
+    )
+    for name, (dims, values, attrs_) in coordinates.items():
+        values = np.asarray(values)
+        text = values.dtype.kind in "OU"
+        array = group.create_array(
+            name,
+            shape=values.shape,
+            dtype=str if text else values.dtype,
+            dimension_names=dims,
+            attributes={key: _json(value) for key, value in attrs_.items()},
+            compressors=None,
+        )
+        array[...] = values.astype(object) if text else values
+    arrays = {}
+    sizes = {dim.name: dim.size for dim in study.dimensions} | {
+        name: len(values) for name, (_, values, _) in coordinates.items() if len(np.shape(values)) == 1
+    }
+    for name, (dims, attrs_, grid_rank) in data_variables(study, grid).items():
+        dtype = np.dtype(VARIABLES[name].dtype)
+        shape = tuple(sizes[dim] for dim in dims)
+        chunks = tuple(
+            max(1, chunk) for chunk in case_chunks(shape[:grid_rank], shape[grid_rank:], dtype.itemsize)
+        )
+        floating = dtype.kind == "f"
+        if floating:  # as the netCDF archive's NaN fill, which xarray masks
+            attrs_["_FillValue"] = FillValueCoder.encode(np.nan, dtype)
+        arrays[name] = group.create_array(
+            name,
+            shape=shape,
+            dtype=dtype,
+            chunks=chunks,
+            shards=_shards(shape, chunks, grid_rank),
+            compressors=_compressors(),
+            fill_value=np.nan if floating else 0,
+            dimension_names=dims,
+            attributes={key: _json(value) for key, value in attrs_.items()},
+        )
+    return arrays
+
+
+def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
+    """Write ``<study>.zarr`` from its parts as they arrive: the contract of
+    `rbstudy.archive.writer.consolidate` (``arriving`` yields (path, digest) of each batch's
+    part in the batches' order; ``advance()`` after each part), the store defined once the
+    first part is there, each part's cases written into their region, then the store sealed
+    with its checksums and the parts' digests (`seal_store`) and renamed into place."""
+    parts = zip(study.batches, arriving, strict=True)
+    first = next(parts, None)
+    with temporary_folder_beside(target) as temporary:
+        arrays = _define_store(temporary, study, attrs)
+        targets = {
+            name: (
+                _Region(array),
+                tuple(d.name in array.metadata.dimension_names for d in study.dimensions),
+                None,
+            )
+            for name, array in arrays.items()
+        }
+        part_digests = []
+        for batch, (path, digest) in itertools.chain([first] if first else [], parts):
+            copy_part(targets, read_part(path, study.variables), study.shape)
+            part_digests.append([batch.id, digest])
+            advance()
+        seal_store(temporary, part_digests)
+
+
+def _open_group(path, mode="r"):
+    import zarr
+
+    return zarr.open_group(str(path), mode=mode, zarr_format=3, use_consolidated=False)
+
+
+def store_attribute(path, name):
+    """The global attribute ``name`` of the store at ``path``; raises `KeyError` without it,
+    `OSError` or `ValueError` where the store cannot be read."""
+    return _open_group(path).attrs[name]
+
+
+def refresh_store_description(path, attrs):
+    """Replace the global attributes of the store at ``path`` (its title, config text and
+    provenance) without touching its data, as `rbstudy.archive.rewrite.refresh_description`
+    does for the netCDF archive: the root's ``zarr.json`` is written anew whole (zarr writes
+    it through a temporary name and a rename) and no checksum covers what changes."""
+    _open_group(path, "r+").attrs.update(attrs)
+
+
+class _Variable:
+    """A zarr array as `rbstudy.archive.reader` reads a netCDF4 variable: ``dimensions``,
+    ``dtype`` (``str`` for text), ``size``, its values by ``[...]``."""
+
+    def __init__(self, array):
+        self._array = array
+        self.dimensions = tuple(array.metadata.dimension_names or ())
+        self.dtype = str if array.dtype.kind in "OUT" else array.dtype
+        self.size = array.size
+
+    def __getitem__(self, index):
+        return self._array[index]
+
+
+class _Header:
+    """A zarr store's root group as `rbstudy.archive.reader` reads an open netCDF4 dataset:
+    its global attributes, variables and dimensions (name -> a ``range`` of its length)."""
+
+    def __init__(self, group):
+        self._attrs = dict(group.attrs)
+        self.variables = {name: _Variable(array) for name, array in group.arrays()}
+        self.dimensions = {}
+        for variable in self.variables.values():
+            for dim, size in zip(variable.dimensions, variable._array.shape, strict=True):
+                self.dimensions.setdefault(dim, range(size))
+        self.groups = [name for name, _ in group.groups() if name != GROUP]
+
+    def ncattrs(self):
+        return list(self._attrs)
+
+    def getncattr(self, name):
+        return self._attrs[name]
+
+    def set_auto_maskandscale(self, flag):
+        """Values are read as stored: zarr applies no mask or scale."""
+
+    def __getitem__(self, name):
+        return self.variables[name]
+
+
+@contextlib.contextmanager
+def open_header(path):
+    """The store at ``path`` opened for `rbstudy.archive.reader`'s checks (`_Header`)."""
+    yield _Header(_open_group(path))

@@ -1,0 +1,168 @@
+"""The archive as a zarr v3 store (``output.format: zarr``, ``sweep --format zarr``): the same
+dataset as the netCDF archive, proven per chunk by its checksums, rebuilt when damaged, left
+alone when current, resumed after a kill to the numbers of an uninterrupted run."""
+
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+from conftest import abaqus_mapping, write_study
+
+from rbstudy.cli import main
+from rbstudy.pipeline.config import load_study
+from rbstudy.pipeline.execute import run_study
+
+SWEEP = {"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]}
+
+
+def _zarr_config(folder, name="small", sweep=SWEEP, **kwargs):
+    """A study config whose output.format is zarr."""
+    path = write_study(folder, name=name, sweep=sweep, **kwargs)
+    data = yaml.safe_load(path.read_text())
+    data["output"]["format"] = "zarr"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _bare(dataset):
+    """``dataset`` without encoding, and without its ``history`` (when each run ran)."""
+    dataset = dataset.load()
+    for variable in dataset.variables.values():
+        variable.encoding = {}
+    dataset.encoding = {}
+    dataset.attrs.pop("history")
+    return dataset
+
+
+@pytest.mark.slow
+def test_the_store_holds_the_netcdf_archives_dataset(tmp_path):
+    """The netCDF archive of a study and the zarr store built from the very same parts: xarray
+    reads the same variables, values, coordinates and attributes from both (run_time too: the
+    parts are one run's), and the store is sharded where a variable has several chunks."""
+    config = write_study(tmp_path, name="small", sweep=SWEEP)
+    netcdf = run_study(load_study(config), tmp_path / "out", quiet=True, keep_parts=True)
+    assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--format", "zarr", "-q"]) == 0
+    store = tmp_path / "out" / "small" / "small.zarr"
+    assert store.is_dir() and netcdf.path.is_file()  # both, side by side
+    expected = _bare(xr.open_dataset(netcdf.path))
+    found = _bare(xr.open_zarr(store, consolidated=False))
+    xr.testing.assert_identical(found, expected)
+    assert found["status"].dtype == expected["status"].dtype
+    assert json.loads((store / "quaternion" / "zarr.json").read_text())["zarr_format"] == 3
+
+
+def test_shards_gather_chunks_only_where_a_variable_has_several():
+    from rbstudy.archive.zarr_store import SHARD_BYTES, _shards
+
+    assert _shards((2, 2, 51, 4), (2, 2, 51, 4), 2) is None  # one chunk: one file as it is
+    # 1,000 x 500 cases of 8-byte values in chunks of 1 x 500: 1,000 chunks of 4 kB, gathered
+    # into shards of SHARD_BYTES / 4 kB of them along the first dimension
+    shard = _shards((1000, 500), (1, 500), 2)
+    assert shard == (min(1000, SHARD_BYTES // 500), 500)
+
+
+@pytest.mark.slow
+def test_verify_names_a_damaged_chunk_and_a_rerun_rebuilds_the_store(tmp_path, capsys):
+    config = _zarr_config(tmp_path)
+    out = tmp_path / "out"
+    first = run_study(load_study(config), out, quiet=True)
+    store = first.path
+    assert store.name == "small.zarr"
+    assert main(["verify", str(store)]) == 0
+    assert "intact" in capsys.readouterr().out
+    chunk = store / "omega_error" / "c" / "0" / "0" / "0" / "0"
+    damaged = bytearray(chunk.read_bytes())
+    damaged[len(damaged) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(damaged))
+    assert main(["verify", str(store)]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("rbstudy: error: ")
+    assert "variable omega_error chunk (0, 0, 0, 0) differs from its checksum" in error
+    assert main(["summary", str(store)]) == 1  # every reader refuses it
+    capsys.readouterr()
+    rebuilt = run_study(load_study(config), out, quiet=True)
+    assert not rebuilt.up_to_date and "variable omega_error chunk (0, 0, 0, 0)" in rebuilt.archive_problems[0]
+    assert main(["verify", str(store)]) == 0
+    # and a chunk removed is named as missing
+    chunk.unlink()
+    assert main(["verify", str(store)]) == 1
+    assert "variable omega_error chunk (0, 0, 0, 0) is missing" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_rerun_of_a_current_store_writes_nothing(tmp_path, capsys):
+    config = _zarr_config(tmp_path)
+    out = tmp_path / "out"
+    first = run_study(load_study(config), out, quiet=True)
+    files = {path: path.stat().st_mtime_ns for path in first.path.rglob("*")}
+    again = run_study(load_study(config), out, quiet=True)
+    assert again.up_to_date and again.computed == 0
+    assert {path: path.stat().st_mtime_ns for path in first.path.rglob("*")} == files
+    assert not (out / "small" / "small.nc").exists()
+    # a changed title is redescribed in place: the values untouched, the store still intact
+    text = config.read_text().replace("name: small", "name: small\ntitle: Another title")
+    config.write_text(text)
+    third = run_study(load_study(config), out, quiet=True)
+    assert third.up_to_date
+    assert xr.open_zarr(first.path, consolidated=False).attrs["title"] == "Another title"
+    assert main(["verify", str(first.path)]) == 0
+
+
+@pytest.mark.slow
+def test_a_store_killed_mid_sweep_resumes_to_the_uninterrupted_result(tmp_path):
+    sweep = {
+        "scheme": ["rkmk4"],
+        "dt": [0.01 / k for k in range(1, 11)],
+        "inertia_ratio": {"linspace": [0.2, 2.0, 40]},
+    }
+    config = _zarr_config(tmp_path, name="long", sweep=sweep, scene={**abaqus_mapping(), "duration": 40.0})
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    parts = out / "long" / "parts"
+    deadline = time.monotonic() + 120
+    while not (parts.exists() and list(parts.glob("*.nc.sha256"))) and process.poll() is None:
+        assert time.monotonic() < deadline, "no part written in 120 s"
+        time.sleep(0.01)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    finished = len(list(parts.glob("*.nc.sha256")))
+    assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
+    assert not (out / "long" / "long.zarr").exists()  # a half store is never in its place
+    half = out / "long" / ".long.zarr.x.tmp"  # as a kill mid-consolidation leaves
+    (half / "status").mkdir(parents=True)
+    (half / "zarr.json").write_text("{}")
+    resumed = run_study(load_study(config), out, quiet=True)
+    assert resumed.reused == finished and resumed.computed == 10 - finished
+    assert not list((out / "long").glob(".*.tmp"))
+    clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
+    found = xr.open_zarr(resumed.path, consolidated=False).drop_vars("run_time").load()
+    expected = xr.open_zarr(clean.path, consolidated=False).drop_vars("run_time").load()
+    for name, variable in expected.data_vars.items():
+        np.testing.assert_array_equal(found[name].values, variable.values, err_msg=name)
+    assert main(["verify", str(resumed.path)]) == 0
+
+
+def test_an_unknown_format_is_one_line_naming_the_key_and_the_fix(tmp_path, capsys):
+    path = write_study(tmp_path, output={"interval": 0.01, "format": "zarr2"})
+    assert main(["validate", str(path)]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1
+    assert error.startswith(f"rbstudy: error: {path}: output.format: unknown archive format 'zarr2'")
+    assert "valid: netcdf" in error and "zarr" in error
+
+
+def test_the_folder_of_a_zarr_study_holds_its_store(tmp_path):
+    from rbstudy.archive.folder import StudyFolder
+
+    study = load_study(_zarr_config(tmp_path))
+    assert StudyFolder.of(tmp_path, study).archive == pathlib.Path(tmp_path) / "small" / "small.zarr"
+    assert StudyFolder.of(tmp_path, load_study(write_study(tmp_path))).archive.suffix == ".nc"
