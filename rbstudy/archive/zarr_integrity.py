@@ -51,9 +51,12 @@ def _file_checksum(path, sync=False):
 
 def _meaning(root):
     """The checksum of the global attributes (`MEANING_ATTRIBUTES`) in the store's root
-    ``zarr.json`` at ``root``."""
-    attributes = json.loads((root / _METADATA).read_text())["attributes"]
+    ``zarr.json`` at ``root``, and of the copy of every array's metadata kept there
+    (consolidated: what xarray reads in their place)."""
+    metadata = json.loads((root / _METADATA).read_text())
+    attributes = metadata["attributes"]
     meaning = {key: attributes[key] for key in MEANING_ATTRIBUTES if key in attributes}
+    meaning["consolidated_metadata"] = metadata.get("consolidated_metadata")
     return f"{ALGORITHM}:" + hashlib.sha256(json.dumps(meaning, sort_keys=True).encode()).hexdigest()
 
 
