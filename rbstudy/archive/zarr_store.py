@@ -19,6 +19,7 @@ import itertools
 import json
 import math
 import pathlib
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -198,8 +199,12 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
                 part_digests.append([batch.id, digest])
                 advance()
         # every array's metadata in the root's zarr.json too: xarray.open_zarr reads it in
-        # one file (and without a warning), as a cluster's file system prefers
-        zarr.consolidate_metadata(str(temporary), zarr_format=3)
+        # one file (and without a warning), as a cluster's file system prefers. zarr warns
+        # that the v3 spec does not define it yet: each array's own zarr.json stays, which
+        # other readers read (rbstudy reads those too)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
+            zarr.consolidate_metadata(str(temporary), zarr_format=3)
         seal_store(temporary, part_digests)
 
 
