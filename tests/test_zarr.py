@@ -169,3 +169,43 @@ def test_the_folder_of_a_zarr_study_holds_its_store(tmp_path):
     study = load_study(_zarr_config(tmp_path))
     assert StudyFolder.of(tmp_path, study).archive == pathlib.Path(tmp_path) / "small" / "small.zarr"
     assert StudyFolder.of(tmp_path, load_study(write_study(tmp_path))).archive.suffix == ".nc"
+
+
+def _positions(index, sizes):
+    """numpy's orthogonal index of ``index`` (a slice or a list per dimension)."""
+    return np.ix_(
+        *[
+            np.asarray(piece) if isinstance(piece, list) else np.arange(*piece.indices(size))
+            for piece, size in zip(index, sizes, strict=True)
+        ]
+    )
+
+
+@pytest.mark.parametrize("open_bytes", [2**28, 64])
+def test_units_hold_every_value_written_in_any_order_twice_or_spilled(tmp_path, monkeypatch, open_bytes):
+    """The store's buffers of whole shards, against numpy's assignment of the same writes:
+    slabs and lists of positions, out of order, some written twice (a variable of the scene
+    alone gets its values from every part), with room for every open unit or for one."""
+    import zarr
+
+    from rbstudy.archive import zarr_store
+
+    monkeypatch.setattr(zarr_store, "OPEN_BYTES", open_bytes)
+    group = zarr.create_group(store=str(tmp_path / "s.zarr"), zarr_format=3)
+    array = group.create_array(
+        "v", shape=(5, 7, 3), dtype="f8", chunks=(2, 3, 3), shards=(2, 6, 3), fill_value=np.nan
+    )
+    expected = np.full(array.shape, np.nan)
+    units = zarr_store._Units({"v": array})
+    rng = np.random.default_rng(3)
+    writes = [(slice(0, 2), slice(0, 7)), ([2, 4], [1, 5, 6]), (slice(2, 5), slice(0, 4)), ([0], [2, 3])]
+    writes += [(slice(3, 4), slice(4, 7)), ([2, 4], [4]), (slice(1, 3), slice(5, 7))]
+    with zarr_store.ThreadPoolExecutor(2) as pool:
+        for index in writes:
+            where = _positions(index, (5, 7))
+            values = rng.normal(size=expected[where].shape)
+            units.write("v", index, values)
+            expected[where] = values
+            units.flush(pool)
+        units.flush(pool, everything=True)
+    np.testing.assert_array_equal(array[...], expected)
