@@ -132,12 +132,12 @@ def test_a_store_killed_mid_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     parts = out / "long" / "parts"
     deadline = time.monotonic() + 120
-    while not (parts.exists() and list(parts.glob("*.nc.sha256"))) and process.poll() is None:
+    while not (parts.exists() and list(parts.glob("*.npz.sha256"))) and process.poll() is None:
         assert time.monotonic() < deadline, "no part written in 120 s"
         time.sleep(0.01)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    finished = len(list(parts.glob("*.nc.sha256")))
+    finished = len(list(parts.glob("*.npz.sha256")))
     assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} parts)"
     assert not (out / "long" / "long.zarr").exists()  # a half store is never in its place
     half = out / "long" / ".long.zarr.x.tmp"  # as a kill mid-consolidation leaves

@@ -275,8 +275,9 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
         }
         part_digests = []
         with ThreadPoolExecutor(_WRITERS, thread_name_prefix="zarr") as pool:
-            for batch, (path, digest) in itertools.chain([first] if first else [], parts):
-                copy_part(targets, read_part(path, study.variables), study.shape)
+            for batch, (path, digest, values) in itertools.chain([first] if first else [], parts):
+                part = read_part(path, study.variables) if values is None else values
+                copy_part(targets, part, study.shape)
                 units.flush(pool)
                 part_digests.append([batch.id, digest])
                 advance()
