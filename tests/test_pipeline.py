@@ -419,9 +419,9 @@ def test_the_batches_run_in_their_order_so_that_the_archive_never_waits_for_the_
     study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
     delivered, deliver = [], execute.deliver_part
 
-    def delivering(values, layout, batch, *args):
-        delivered.append(batch.id)
-        return deliver(values, layout, batch, *args)
+    def delivering(values, target, *args):
+        delivered.append(target.batch.id)
+        return deliver(values, target, *args)
 
     monkeypatch.setattr(execute, "deliver_part", delivering)
     run_study(study, tmp_path / "out", quiet=True)

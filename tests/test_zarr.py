@@ -2,6 +2,7 @@
 dataset as the netCDF archive, proven per chunk by its checksums, rebuilt when damaged, left
 alone when current, resumed after a kill to the numbers of an uninterrupted run."""
 
+import contextlib
 import json
 import os
 import pathlib
@@ -181,11 +182,17 @@ def _positions(index, sizes):
     )
 
 
+@pytest.mark.parametrize("flush_every", [1, 3])
 @pytest.mark.parametrize("open_bytes", [2**28, 64])
-def test_units_hold_every_value_written_in_any_order_twice_or_spilled(tmp_path, monkeypatch, open_bytes):
+def test_units_hold_every_value_written_in_any_order_twice_or_spilled(
+    tmp_path, monkeypatch, open_bytes, flush_every
+):
     """The store's buffers of whole shards, against numpy's assignment of the same writes:
     slabs and lists of positions, out of order, some written twice (a variable of the scene
-    alone gets its values from every part), with room for every open unit or for one."""
+    alone gets its values from every part), with room for every open unit or for one, flushed
+    after every write or every third (a unit spilled, then written again before it is
+    stored: a part of many variables spills the units of the first while it writes the
+    others; lost a row in two of a 12.8 MB shard before it was reopened)."""
     import zarr
 
     from rbstudy.archive import zarr_store
@@ -201,11 +208,119 @@ def test_units_hold_every_value_written_in_any_order_twice_or_spilled(tmp_path, 
     writes = [(slice(0, 2), slice(0, 7)), ([2, 4], [1, 5, 6]), (slice(2, 5), slice(0, 4)), ([0], [2, 3])]
     writes += [(slice(3, 4), slice(4, 7)), ([2, 4], [4]), (slice(1, 3), slice(5, 7))]
     with zarr_store.ThreadPoolExecutor(2) as pool:
-        for index in writes:
+        for k, index in enumerate(writes, start=1):
             where = _positions(index, (5, 7))
             values = rng.normal(size=expected[where].shape)
             units.write("v", index, values)
             expected[where] = values
-            units.flush(pool)
+            if k % flush_every == 0:
+                units.flush(pool)
         units.flush(pool, everything=True)
     np.testing.assert_array_equal(array[...], expected)
+
+
+def _file_checksums(store, but="run_time/"):
+    """The SHA-256 of each file of a sealed store (its integrity group's), but those of
+    ``but`` (run_time: CPU seconds, never twice the same)."""
+    import zarr
+
+    group = zarr.open_group(str(store), mode="r", zarr_format=3, use_consolidated=False)
+    return {k: v for k, v in group["integrity"].attrs["checksums"].items() if not k.startswith(but)}
+
+
+def _long_zarr_config(folder):
+    """Ten batches of a few seconds each: time for a kill while they run."""
+    sweep = {
+        "scheme": ["rkmk4"],
+        "dt": [0.01 / k for k in range(1, 11)],
+        "inertia_ratio": {"linspace": [0.2, 2.0, 40]},
+    }
+    return _zarr_config(folder, name="long", sweep=sweep, scene={**abaqus_mapping(), "duration": 40.0})
+
+
+@pytest.mark.slow
+def test_workers_write_their_regions_into_the_store_that_parts_would_make(tmp_path):
+    """With --workers, each worker writes its batches into the store (a mark per batch, no
+    part file, nothing sent back) and the store is, file for file, the one written from parts
+    by one process (run_time, CPU seconds, aside): same chunks, same shards, same bytes."""
+    from rbstudy.pipeline.cluster import Where
+
+    study = load_study(_zarr_config(tmp_path))
+    workers = run_study(study, tmp_path / "w", where=Where(workers=2), quiet=True, keep_parts=True)
+    parts = tmp_path / "w" / "small" / "parts"
+    assert workers.returned == 0 and workers.computed == len(study.batches) > 1
+    assert len(list(parts.glob("*.region"))) == len(study.batches) and not list(parts.glob("*.npz"))
+    assert not (parts / "small.zarr").exists()  # the working store, sealed and moved into place
+    local = run_study(study, tmp_path / "l", quiet=True)
+    assert _file_checksums(workers.path) == _file_checksums(local.path)
+    assert main(["verify", str(workers.path)]) == 0
+
+
+def _children(pid):
+    """Every process below ``pid``."""
+    import psutil
+
+    return psutil.Process(pid).children(recursive=True)
+
+
+def _sweep_on_workers_until_a_batch_is_in(config, out):
+    """``rbstudy sweep config --workers 2`` started, once its first batch is marked in the
+    working store: the process, and the study's parts folder."""
+    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "-q"]
+    process = subprocess.Popen(
+        [*command, "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    parts = out / "long" / "parts"
+    deadline = time.monotonic() + 180
+    while not (parts.exists() and list(parts.glob("*.region.sha256"))) and process.poll() is None:
+        assert time.monotonic() < deadline, "no batch written in 180 s"
+        time.sleep(0.01)
+    return process, parts
+
+
+@pytest.mark.slow
+def test_a_worker_killed_while_writing_loses_nothing_and_the_store_is_whole(tmp_path):
+    """A worker killed (SIGKILL) once the workers write the store: its batch runs again on a
+    worker the cluster starts in its place, each unit was written whole or not at all, and the
+    store equals an uninterrupted one's."""
+    config = _long_zarr_config(tmp_path)
+    out = tmp_path / "out"
+    process, parts = _sweep_on_workers_until_a_batch_is_in(config, out)
+    # the workers: forked by the cluster's fork server, itself a child of the sweep
+    workers = [
+        child for child in _children(process.pid) if "forkserver" in " ".join(child.parent().cmdline())
+    ]
+    assert process.poll() is None and workers, "the sweep ended before a worker could be killed"
+    marked = len(list(parts.glob("*.region.sha256")))
+    workers[-1].kill()
+    assert process.wait(timeout=600) == 0, process.stderr.read().decode()
+    assert marked < 10  # batches were still to write when the worker died
+    clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
+    assert _file_checksums(out / "long" / "long.zarr") == _file_checksums(clean.path)
+    assert main(["verify", str(out / "long" / "long.zarr")]) == 0
+
+
+@pytest.mark.slow
+def test_a_sweep_on_workers_killed_resumes_from_the_batches_in_the_store(tmp_path):
+    """The sweep killed (SIGKILL) while its workers write the store: the rerun keeps the
+    batches marked in the working store, runs the others and seals the store of an
+    uninterrupted run."""
+    config = _long_zarr_config(tmp_path)
+    out = tmp_path / "out"
+    process, parts = _sweep_on_workers_until_a_batch_is_in(config, out)
+    below = _children(process.pid)
+    process.kill()
+    process.wait()
+    for child in below:  # its workers, which would outlive it until their scheduler's timeout
+        with contextlib.suppress(Exception):
+            child.kill()
+    finished = len(list(parts.glob("*.region.sha256")))
+    assert 1 <= finished < 10, f"kill came too late to test resuming ({finished} batches)"
+    assert not (out / "long" / "long.zarr").exists()
+    from rbstudy.pipeline.cluster import Where
+
+    resumed = run_study(load_study(config), out, where=Where(workers=2), quiet=True)
+    assert resumed.reused == finished and resumed.computed == 10 - finished
+    clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
+    assert _file_checksums(resumed.path) == _file_checksums(clean.path)
+    assert main(["verify", str(resumed.path)]) == 0

@@ -29,6 +29,7 @@ __all__ = [
     "inside",
     "make_folders",
     "remove_folders",
+    "replace_folder",
     "temporary_beside",
     "temporary_folder_beside",
     "unwritable",
@@ -75,32 +76,42 @@ def temporary_beside(path):
 @contextmanager
 def temporary_folder_beside(path):
     """A temporary folder in ``path``'s folder, to fill (its files synced by the caller),
-    then put in ``path``'s place on success, removed on failure. A folder cannot be renamed
-    over one that holds files: the old one is first renamed aside and removed after, so a
-    reader finds the old folder, the new one or, for an instant, none; never half of one."""
+    then put in ``path``'s place on success (`replace_folder`), removed on failure."""
     path = pathlib.Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         temporary = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as error:
         raise unwritable(path.parent, error) from None
-    old = None
     try:
         yield temporary
-        os.chmod(temporary, _FOLDER_MODE)
-        with ctrl_c_held():
-            if path.exists():
-                old = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old.tmp")
-                os.replace(path, old)
-            os.replace(temporary, path)
-            _sync(path.parent)
+        replace_folder(temporary, path)
     except (OSError, RuntimeError) as error:
         _raise_if_full(path.parent, error)
         raise
     finally:
-        for left in (temporary, old):
-            if left is not None and os.path.exists(left):
-                shutil.rmtree(left)
+        if os.path.exists(temporary):
+            shutil.rmtree(temporary)
+
+
+def replace_folder(source, path):
+    """Put the folder ``source`` (its files synced) in ``path``'s place, in the same file
+    system. A folder cannot be renamed over one that holds files: the old one is first renamed
+    aside and removed after, so a reader finds the old folder, the new one or, for an instant,
+    none; never half of one."""
+    path = pathlib.Path(path)
+    os.chmod(source, _FOLDER_MODE)
+    old = None
+    try:
+        with ctrl_c_held():
+            if path.exists():
+                old = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old.tmp")
+                os.replace(path, old)
+            os.replace(source, path)
+            _sync(path.parent)
+    finally:
+        if old is not None and os.path.exists(old):
+            shutil.rmtree(old)
 
 
 # What a file system answers a write it refuses: read-only, immutable, not ours, full.

@@ -16,6 +16,8 @@ has is decided here, once: the sweep asks the folder for its ``archive`` and its
 
 import contextlib
 import functools
+import hashlib
+import os
 import pathlib
 import shutil
 from typing import Any, NamedTuple
@@ -42,6 +44,14 @@ from rbstudy.archive.provenance import global_attrs
 from rbstudy.archive.rewrite import put_group, refresh_description
 from rbstudy.archive.writer import ArchiveWriter
 from rbstudy.archive.zarr_integrity import verify_store
+from rbstudy.archive.zarr_regions import (
+    MARK_SUFFIX,
+    RegionTarget,
+    finish_regions,
+    open_working,
+    region_complete,
+    working_matches,
+)
 from rbstudy.archive.zarr_store import consolidate_store, refresh_store_description, store_attribute
 from rbstudy.errors import RbstudyError, one_line
 
@@ -69,16 +79,21 @@ class StudyFolder:
     parts, lock, owner record, config and step search. Making the object touches nothing on
     disk."""
 
-    def __init__(self, path, study: Any, name=None):
+    def __init__(self, path, study: Any, name=None, workers_write=False):
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
         self.format = study.output_format
+        # a zarr store is written by the workers that compute its batches, each its region
+        # (`rbstudy.archive.zarr_regions`): no part passes through one writer
+        self.regions = workers_write and self.zarr
         self.made = []  # the folders `make` made, outermost first
 
     @classmethod
-    def of(cls, root, study):
-        """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``."""
-        return cls(pathlib.Path(root) / study.name, study)
+    def of(cls, root, study, workers_write=False):
+        """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``;
+        ``workers_write``: the batches run on a cluster's workers (``--workers``,
+        ``--cluster``, ``--scheduler``), which write a zarr store's regions themselves."""
+        return cls(pathlib.Path(root) / study.name, study, workers_write=workers_write)
 
     @functools.cached_property
     def layout(self):
@@ -109,7 +124,13 @@ class StudyFolder:
         return self.path / SEARCH_FILE
 
     def part_path(self, batch_id):
-        return self.parts / f"{batch_id}{PART_SUFFIX}"
+        """Where a batch's part is, or its mark where the workers write the store's regions."""
+        return self.parts / f"{batch_id}{MARK_SUFFIX if self.regions else PART_SUFFIX}"
+
+    @property
+    def working_store(self):
+        """The zarr store the workers write their regions to, until it is sealed."""
+        return self.parts / self.archive.name
 
     # the folder's life ------------------------------------------------------------------
 
@@ -129,6 +150,7 @@ class StudyFolder:
             or self.archive.exists()
             or any(self.path.glob("*.nc"))
             or any(self.parts.glob(f"*{PART_SUFFIX}"))
+            or any(self.parts.glob(f"*{MARK_SUFFIX}"))
         ):
             return
         if self.path in self.made:
@@ -227,8 +249,13 @@ class StudyFolder:
         -> digest, None: still to come) already stored, of a run ``started`` then (its global
         attributes, `provenance.global_attrs`)."""
         parts = {batch.id: self.part_path(batch.id) for batch in self.study.batches}
-        write = consolidate_store if self.zarr else None
         attrs = global_attrs(self.study, started=started)
+        write = None
+        if self.regions:  # defined before any batch runs: the workers write into it
+            open_working(self.working_store, self.study, attrs)
+            write = functools.partial(finish_regions, working=self.working_store)
+        elif self.zarr:
+            write = consolidate_store
         return ArchiveWriter(self.study, parts, digests, self.archive, attrs, write)
 
     # the parts --------------------------------------------------------------------------
@@ -237,23 +264,42 @@ class StudyFolder:
         self.parts.mkdir(exist_ok=True)
 
     def part(self, batch):
-        """The `PartTarget` a task writes ``batch``'s part to."""
-        return PartTarget(layout=self.layout, batch=batch, path=str(self.part_path(batch.id)))
+        """The `PartTarget` a task writes ``batch``'s part to, or where the workers write the
+        store, its `RegionTarget` (the working store must exist: `writer`)."""
+        path = str(self.part_path(batch.id))
+        if not self.regions:
+            return PartTarget(layout=self.layout, batch=batch, path=path)
+        dims = tuple(dimension.name for dimension in self.study.dimensions)
+        return RegionTarget(
+            self.layout, batch, path, str(self.working_store), dims, self.study.shape, self._lock_prefix
+        )
+
+    @functools.cached_property
+    def _lock_prefix(self):
+        """Names the locks of this working store's units apart from any other's on a shared
+        scheduler."""
+        where = f"{os.uname().nodename}:{self.working_store.resolve()}"
+        return "rbstudy-" + hashlib.sha256(where.encode()).hexdigest()[:16]
 
     def stored(self, batches):
-        """Those of ``batches`` whose part file is on disk."""
+        """Those of ``batches`` whose part file, or mark, is on disk (a mark counts only
+        while its working store was defined for this study's batches)."""
+        if self.regions and not working_matches(self.working_store, batches_digest(self.study.batches)):
+            return []
         return [batch for batch in batches if self.part_path(batch.id).exists()]
 
     def checked(self, batches):
         """(batch, digest) of each of ``batches``, one at a time: the digest of its intact
-        part (`part_complete`), else None."""
+        part (`part_complete`) or mark (`region_complete`), else None."""
         for batch in batches:
-            yield batch, part_complete(self.part_path(batch.id), batch)
+            path = self.part_path(batch.id)
+            digest = region_complete(path, batch, self.layout) if self.regions else part_complete(path, batch)
+            yield batch, digest
 
     def damaged(self, batches):
         """How many of ``batches`` have a part with its digest beside it: a part that failed
         its check then is damaged, not unfinished (stopped between its rename and its digest)."""
-        return sum(sealed(self.part_path(batch.id)) for batch in batches)
+        return sum(sealed(self.part_path(batch.id)) for batch in self.stored(batches))
 
     @contextlib.contextmanager
     def probe(self, token):
@@ -275,6 +321,8 @@ class StudyFolder:
             removed += path.exists()
             path.unlink(missing_ok=True)
             sidecar(path).unlink(missing_ok=True)
+        if self.working_store.exists():
+            shutil.rmtree(self.working_store)
         with contextlib.suppress(OSError):
             self.parts.rmdir()  # unless something else is there (job logs, another config's parts)
         return removed

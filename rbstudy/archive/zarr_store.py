@@ -44,10 +44,14 @@ __all__ = [
     "SHARD_BYTES",
     "SUFFIX",
     "consolidate_store",
+    "define_store",
+    "finish_store",
     "is_store",
     "open_header",
     "refresh_store_description",
     "store_attribute",
+    "unit_bounds",
+    "unit_pieces",
 ]
 
 
@@ -98,6 +102,39 @@ def _shards(shape, chunks, grid_rank):
     return tuple(shard)
 
 
+def unit_bounds(array, unit):
+    """The region of zarr ``array`` (a slice per grid dimension) its unit ``unit`` covers: the
+    unit's index in the grid of its shards, or of its chunks where it has none."""
+    shape = array.shards or array.chunks
+    return tuple(
+        slice(k * size, min((k + 1) * size, whole))
+        for k, size, whole in zip(unit, shape, array.shape, strict=False)
+    )
+
+
+def unit_pieces(array, index, values):
+    """``values`` at ``index`` (a slice or a list of positions per grid dimension) of zarr
+    ``array``, split by the units they fall in (`unit_bounds`): (unit, the positions inside it
+    as a numpy index, the values there), one per unit."""
+    shape = array.shards or array.chunks
+    positions = [
+        np.arange(*piece.indices(size)) if isinstance(piece, slice) else np.asarray(piece)
+        for piece, size in zip(index, array.shape, strict=False)
+    ]
+    groups = [
+        [(int(key), np.flatnonzero(where // size == key)) for key in np.unique(where // size)]
+        for where, size in zip(positions, shape, strict=False)
+    ]
+    for pieces in itertools.product(*groups):
+        taken = [rows for _, rows in pieces]
+        inside = [
+            where[rows] - key * size
+            for (key, rows), where, size in zip(pieces, positions, shape[: len(positions)], strict=True)
+        ]
+        block = values[np.ix_(*taken)] if taken else values
+        yield tuple(key for key, _ in pieces), (np.ix_(*inside) if inside else ...), block
+
+
 class _Units:
     """The store's variables filled in memory a unit at a time (a shard, or a chunk where a
     variable is not sharded) and each unit written whole once all its values are there: a
@@ -112,22 +149,17 @@ class _Units:
         self.open = {}  # (name, unit) -> its buffer, oldest first
         self.filled = collections.Counter()  # (name, unit) -> values written into it so far
         self.stored = set()  # (name, unit) written to the store once: a new buffer reads it
-        self.ready = []  # (name, unit, buffer): to write
+        self.ready = {}  # (name, unit) -> its buffer: to write at the next `flush`
 
     def region(self, name):
         return _Region(self, name)
 
-    def _bounds(self, name, unit):
-        array = self.arrays[name]
-        shape = array.shards or array.chunks
-        return tuple(
-            slice(k * size, min((k + 1) * size, whole))
-            for k, size, whole in zip(unit, shape, array.shape, strict=False)
-        )
-
     def _buffer(self, name, unit):
+        if (name, unit) in self.ready:  # spilled or whole, not written yet: written to again
+            self.open[(name, unit)] = self.ready.pop((name, unit))
         if (name, unit) not in self.open:
-            array, bounds = self.arrays[name], self._bounds(name, unit)
+            array = self.arrays[name]
+            bounds = unit_bounds(array, unit)
             if (name, unit) in self.stored:
                 buffer = array[bounds]
             else:
@@ -139,51 +171,34 @@ class _Units:
     def write(self, name, index, values):
         """``values`` at ``index`` (a slice or a list of positions per grid dimension) of
         variable ``name``: into the buffers of the units they fall in."""
-        array = self.arrays[name]
-        shape = array.shards or array.chunks
-        positions = [
-            np.arange(*piece.indices(size)) if isinstance(piece, slice) else np.asarray(piece)
-            for piece, size in zip(index, array.shape, strict=False)
-        ]
-        groups = [
-            [(int(key), np.flatnonzero(where // size == key)) for key in np.unique(where // size)]
-            for where, size in zip(positions, shape, strict=False)
-        ]
-        for pieces in itertools.product(*groups):
-            unit = tuple(key for key, _ in pieces)
-            taken = [rows for _, rows in pieces]
-            block = values[np.ix_(*taken)] if taken else values
+        for unit, inside, block in unit_pieces(self.arrays[name], index, values):
             buffer = self._buffer(name, unit)
-            inside = [
-                where[rows] - key * size
-                for (key, rows), where, size in zip(pieces, positions, shape[: len(positions)], strict=True)
-            ]
-            buffer[np.ix_(*inside) if inside else ...] = block
+            buffer[inside] = block
             self.filled[(name, unit)] += block.size
             if self.filled[(name, unit)] >= buffer.size:  # whole (or written twice: read back later)
-                self.ready.append((name, unit, self.open.pop((name, unit))))
+                self.ready[(name, unit)] = self.open.pop((name, unit))
         while sum(buffer.nbytes for buffer in self.open.values()) > OPEN_BYTES and len(self.open) > 1:
-            (name, unit), buffer = next(iter(self.open.items()))
-            self.ready.append((name, unit, self.open.pop((name, unit))))
+            oldest = next(iter(self.open))
+            self.ready[oldest] = self.open.pop(oldest)
 
     def flush(self, pool, everything=False):
         """Write the units that are ready (with ``everything``, the open ones too), one thread
         per variable (zarr's event loop overlaps their encoding and files)."""
         if everything:
-            self.ready += [(name, unit, buffer) for (name, unit), buffer in self.open.items()]
+            self.ready.update(self.open)
             self.open.clear()
         by_variable = collections.defaultdict(list)
-        for name, unit, buffer in self.ready:
+        for (name, unit), buffer in self.ready.items():
             by_variable[name].append((unit, buffer))
             self.stored.add((name, unit))
-        self.ready = []
+        self.ready = {}
         for _ in pool.map(self._store, by_variable.items()):
             pass
 
     def _store(self, item):
         name, units = item
         for unit, buffer in units:
-            self.arrays[name][self._bounds(name, unit)] = buffer
+            self.arrays[name][unit_bounds(self.arrays[name], unit)] = buffer
 
 
 class _Region:
@@ -201,7 +216,7 @@ class _Region:
 _WRITERS = 8
 
 
-def _define_store(folder, study, attrs):
+def define_store(folder, study, attrs):
     """The store's group, coordinates and (empty) output variables in ``folder``; name -> its
     zarr array, of the output variables."""
     import zarr
@@ -254,16 +269,14 @@ def _define_store(folder, study, attrs):
 
 def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
     """Write ``<study>.zarr`` from its parts as they arrive: the contract of
-    `rbstudy.archive.writer.consolidate` (``arriving`` yields (path, digest) of each batch's
-    part in the batches' order; ``advance()`` after each part), the store defined once the
+    `rbstudy.archive.writer.consolidate` (``arriving`` yields (path, digest, values or None) of
+    each batch's part in the batches' order; ``advance()`` after each part), the store defined once the
     first part is there, each part's cases written into their region, then the store sealed
     with its checksums and the parts' digests (`seal_store`) and renamed into place."""
     parts = zip(study.batches, arriving, strict=True)
     first = next(parts, None)
-    import zarr  # here: the netCDF archive's sweeps and readers never load it
-
     with temporary_folder_beside(target) as temporary:
-        arrays = _define_store(temporary, study, attrs)
+        arrays = define_store(temporary, study, attrs)
         units = _Units(arrays)
         targets = {
             name: (
@@ -282,14 +295,22 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
                 part_digests.append([batch.id, digest])
                 advance()
             units.flush(pool, everything=True)
-        # every array's metadata in the root's zarr.json too: xarray.open_zarr reads it in
-        # one file (and without a warning), as a cluster's file system prefers. zarr warns
-        # that the v3 spec does not define it yet: each array's own zarr.json stays, which
-        # other readers read (rbstudy reads those too)
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
-            zarr.consolidate_metadata(str(temporary), zarr_format=3)
-        seal_store(temporary, part_digests)
+        finish_store(temporary, part_digests)
+
+
+def finish_store(path, part_digests):
+    """The store at ``path`` made whole: every array's metadata copied into the root's
+    ``zarr.json`` (consolidated: xarray.open_zarr reads it in one file, and without a warning,
+    as a cluster's file system prefers; each array's own ``zarr.json`` stays, which other
+    readers read, rbstudy too), then sealed with its checksums and ``part_digests``
+    (`seal_store`)."""
+    import zarr
+
+    # zarr warns that the v3 spec does not define consolidated metadata yet
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
+        zarr.consolidate_metadata(str(path), zarr_format=3)
+    seal_store(path, part_digests)
 
 
 def _open_group(path, mode="r"):

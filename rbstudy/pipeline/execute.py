@@ -29,7 +29,7 @@ import numpy as np
 from rbstudy.archive.files import UnwritableFolder
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.lock import StudyBusy
-from rbstudy.archive.parts import sees_folder, write_part
+from rbstudy.archive.parts import sees_folder
 from rbstudy.archive.provenance import utc_now
 from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
@@ -137,9 +137,11 @@ def compute_batch(
     )
 
 
-def deliver_part(values, layout, batch, path, writer, probe):
-    """Write one batch's part file atomically, its digest beside it, and return (digest,
-    None); or return (None, values) for the client to write it (a dask task).
+def deliver_part(values, target, writer, probe):
+    """Write one batch's part file atomically, its digest beside it (or its region of a zarr
+    store, and its mark), at its ``target`` (`rbstudy.archive.parts.PartTarget`,
+    `rbstudy.archive.zarr_regions.RegionTarget`) and return (digest, None); or return (None,
+    values) for the client to write it (a dask task).
 
     The worker writes when ``writer`` is "workers", or "auto" and it sees the results folder:
     it reads ``probe`` (path, token), the file this run left there (None: the client's own
@@ -149,11 +151,11 @@ def deliver_part(values, layout, batch, path, writer, probe):
         return None, values
     if not sees_folder(probe):
         raise RbstudyError(
-            f"{pathlib.Path(path).parent}: a worker on {os.uname().nodename} "
+            f"{pathlib.Path(target.path).parent}: a worker on {os.uname().nodename} "
             "does not see this results folder; use --writer auto or client "
             "(the workers send the values back)"
         )
-    return write_part(layout, batch, values, path), None
+    return target.write(values), None
 
 
 def _show_compiling(progress, name, compiling):
@@ -279,9 +281,7 @@ def _graph(study, pending, folder, threads, token, writer, probe):
         tasks.append(
             dask.delayed(deliver_part)(
                 values,
-                dask.delayed(target.layout, traverse=False),
-                dask.delayed(batch, traverse=False),
-                target.path,
+                dask.delayed(target, traverse=False),
                 writer,
                 probe,
                 dask_key_name=key,
@@ -366,7 +366,7 @@ def run_study(
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    folder = StudyFolder.of(root, study)
+    folder = StudyFolder.of(root, study, workers_write=where.distributed)
     folder.make()
     with contextlib.ExitStack() as stack:
         own = progress is None

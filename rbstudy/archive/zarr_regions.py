@@ -1,0 +1,209 @@
+"""A zarr store written where its values are computed: each batch's region by its worker.
+
+With ``--workers``, ``--cluster`` or ``--scheduler``, a study archived as a zarr store
+(`rbstudy.archive.zarr_store`) passes no part through one writer. Before any batch runs, the
+client defines the working store, ``parts/<study>.zarr`` (`open_working`): every variable,
+coordinate and attribute, no values. The worker that computes a batch writes its cases into
+the store (`RegionTarget.write`, compressed there), then a small mark beside it,
+``parts/<batch-id>.region``, with its digest beside that, as a part file has: the mark says
+the batch is in the store, so a rerun resumes from the batches not marked yet. At the end the
+client seals the store (`finish_regions`: consolidated metadata, each file's SHA-256, the
+marks' digests) and renames it into place as ``<study>.zarr``.
+
+Units (a shard, or a chunk where a variable has no shards: `zarr_store.unit_bounds`) do not
+follow batches: a batch cut from the grid shares its first and last units with its
+neighbours, and a variable of the scene alone has the same cells in every scheme's batch. A
+unit is therefore read, merged and written under a lock of the cluster's scheduler
+(`distributed.Lock`, one per unit), so two workers never write one file at once. Each file is
+written whole by zarr through a temporary and a rename: a worker killed mid-write leaves the
+unit as it was, and its batch, unmarked, runs again. The cells are the same whatever order the
+batches come in, so the store is the one `zarr_store.consolidate_store` writes from parts.
+
+A scheduler's lock expires when its holder stops renewing it (``distributed.scheduler.locks
+.lease-timeout``, 30 s by default): a worker stalled that long inside one unit's write could
+let another in. One unit's write takes milliseconds to a second.
+"""
+
+import collections
+import contextlib
+import hashlib
+import json
+import pathlib
+import shutil
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from rbstudy.archive.files import replace_folder, write_text_atomic
+from rbstudy.archive.layout import Layout
+from rbstudy.archive.parts import file_digest, part_digest, part_values, sidecar, sidecar_text
+from rbstudy.archive.writer import copy_part
+from rbstudy.archive.zarr_store import (
+    define_store,
+    finish_store,
+    refresh_store_description,
+    store_attribute,
+    unit_bounds,
+    unit_pieces,
+)
+
+__all__ = [
+    "MARK_SUFFIX",
+    "RegionTarget",
+    "finish_regions",
+    "open_working",
+    "region_complete",
+    "working_matches",
+]
+
+
+# A batch's mark: its cases are in the working store.
+MARK_SUFFIX = ".region"
+
+
+def working_matches(path, batches_digest):
+    """Whether the working store at ``path`` was defined for batches of ``batches_digest``
+    (`rbstudy.archive.ids.batches_digest`): the cells its marked batches wrote are theirs."""
+    with contextlib.suppress(OSError, KeyError, ValueError, TypeError):
+        return store_attribute(path, "batches") == batches_digest
+    return False
+
+
+def open_working(path, study, attrs):
+    """The working store at ``path`` for ``study`` (global attributes ``attrs``): kept when it
+    was defined for these very batches (a resumed run), else defined anew, empty."""
+    if working_matches(path, attrs["batches"]):
+        return
+    if path.exists():
+        shutil.rmtree(path)
+    define_store(path, study, attrs)
+
+
+class RegionTarget(NamedTuple):
+    """Where a store task puts its batch when workers write the store: the study's `Layout`,
+    the batch (a `rbstudy.pipeline.batches.Batch`: its ``id`` and ``cases``), the path of its
+    mark, the working store's path, the grid's dimension names and shape, and the prefix of
+    its units' lock names (None: no lock, one process writes). As a
+    `rbstudy.archive.parts.PartTarget` (small: it travels with its task)."""
+
+    layout: Layout
+    batch: Any
+    path: str
+    store: str
+    dims: tuple
+    shape: tuple
+    lock: str | None
+
+    @property
+    def cases(self):
+        return len(self.batch.cases)
+
+    def write(self, values):
+        """This batch's ``values`` (name -> array, case first) into the store, then its mark;
+        the mark's digest."""
+        part = part_values(self.batch, self.layout.variables, values)
+        _write_region(self, part)
+        return _mark(self, part)
+
+
+def _write_region(target, part):
+    """The cases of ``part`` (`part_values`) into their units of the store, each unit read,
+    merged and written whole under its lock."""
+    import zarr  # here: a netCDF study's workers never load it
+
+    group = zarr.open_group(target.store, mode="r+", zarr_format=3, use_consolidated=False)
+    writes = collections.defaultdict(list)  # (name, unit) -> [(positions inside, values)]
+    targets = {}
+    for name in target.layout.variables:
+        array = group[name]
+        along = tuple(dim in array.metadata.dimension_names for dim in target.dims)
+        targets[name] = (_Collected(array, name, writes), along, None)
+    copy_part(targets, part, target.shape)
+    for (name, unit), pieces in writes.items():
+        array = group[name]
+        with _unit_lock(target.lock, name, unit):
+            bounds = unit_bounds(array, unit)
+            buffer = np.array(array[bounds])  # what earlier batches put there, else the fill
+            for inside, block in pieces:
+                buffer[inside] = block
+            array[bounds] = buffer
+
+
+class _Collected:
+    """One variable as `copy_part` writes it (``write(index, values)``): its values gathered
+    by unit, to write each unit once."""
+
+    def __init__(self, array, name, writes):
+        self.array, self.name, self.writes = array, name, writes
+
+    def write(self, index, values):
+        for unit, inside, block in unit_pieces(self.array, index, np.asarray(values)):
+            self.writes[(self.name, unit)].append((inside, block))
+
+
+def _unit_lock(prefix, name, unit):
+    """The cluster-wide lock of one unit of the store (a context), or none without ``prefix``."""
+    if prefix is None:
+        return contextlib.nullcontext()
+    from distributed import Lock
+
+    return Lock(f"{prefix}:{name}:{'.'.join(map(str, unit))}")
+
+
+def _values_digest(part):
+    """SHA-256 of a batch's values as written (each array's name, type, shape and bytes)."""
+    digest = hashlib.sha256()
+    for name in sorted(part):
+        array = np.ascontiguousarray(part[name])
+        digest.update(f"{name} {array.dtype.str} {array.shape}\n".encode())
+        digest.update(array.data)
+    return f"sha256:{digest.hexdigest()}"
+
+
+def _mark(target, part):
+    """The mark of ``target``'s batch, written whole, then its digest beside it (as a part's:
+    a mark without one is a batch stopped between the two, run again); the digest."""
+    layout = target.layout
+    text = json.dumps(
+        {
+            "study": layout.study,
+            "batch": target.batch.id,
+            "identity": list(layout.identity),
+            "values": _values_digest(part),
+        },
+        indent=1,
+    )
+    write_text_atomic(text, target.path)
+    digest = file_digest(target.path)
+    write_text_atomic(sidecar_text(digest, target.path), sidecar(target.path))
+    return digest
+
+
+def region_complete(path, batch, layout):
+    """The digest of the mark at ``path`` when it is intact and marks ``batch`` of the study
+    of ``layout``, else None."""
+    digest = part_digest(path)
+    if digest is None:
+        return None
+    try:
+        said = json.loads(pathlib.Path(path).read_text())
+        if said["batch"] == batch.id and said["identity"] == list(layout.identity):
+            return digest
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
+
+
+def finish_regions(study, arriving, target, attrs, advance=lambda: None, working=None):
+    """``<study>.zarr`` from the ``working`` store once every batch is in it: the contract of
+    `rbstudy.archive.writer.consolidate` (``arriving`` yields (mark, digest, values) of each
+    batch in the batches' order, once written; ``advance()`` after each), the working store
+    given this run's global attributes ``attrs``, sealed with the marks' digests
+    (`finish_store`) and renamed into place."""
+    part_digests = []
+    for batch, (_, digest, _) in zip(study.batches, arriving, strict=True):
+        part_digests.append([batch.id, digest])
+        advance()
+    refresh_store_description(working, attrs)
+    finish_store(working, part_digests)
+    replace_folder(working, target)
