@@ -1,5 +1,6 @@
 """Sweeps on a real SLURM: the single-node one `.ci/start_slurm.sh` starts (partition
-`debug`). A study run in SLURM jobs gives the threaded run's archive; a worker job cancelled
+`debug`). A study run in SLURM jobs gives the threaded run's archive (a zarr store written by
+its workers too, with the threaded values); a worker job cancelled
 mid-run, a job killed at its walltime and a job that never starts (its partition down) each
 end the sweep with exit 1 and one line naming what SLURM says of the job, keep the finished
 parts, and the rerun resumes to the archive of an uninterrupted run.
@@ -103,8 +104,8 @@ def _cluster_file(folder, **options):
     return path, name
 
 
-def _sweep(config, out, cluster, capsys, worker_wait=ENDED_WAIT):
-    """Exit code and stderr of ``rbstudy sweep`` on ``cluster``."""
+def _sweep(config, out, cluster, capsys, worker_wait=ENDED_WAIT, more=()):
+    """Exit code and stderr of ``rbstudy sweep`` on ``cluster`` (with the options ``more``)."""
     code = main(
         [
             "sweep",
@@ -116,6 +117,7 @@ def _sweep(config, out, cluster, capsys, worker_wait=ENDED_WAIT):
             str(cluster),
             "--worker-wait",
             str(worker_wait),
+            *more,
         ]
     )
     return code, capsys.readouterr().err.strip()
@@ -159,6 +161,22 @@ def test_a_study_in_slurm_jobs_gives_the_threaded_archive(tmp_path, capsys, monk
     _assert_same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
     assert not list(started.iterdir())
     assert not (tmp_path / "out" / "small" / "parts").exists()
+
+
+@pytest.mark.slow
+def test_a_zarr_study_in_slurm_jobs_is_written_by_its_workers_with_the_threaded_values(tmp_path, capsys):
+    """``--format zarr`` on SLURM: the job's workers write their batches into the store (a
+    mark per batch, no part file), and the store holds the threaded netCDF archive's values."""
+    config = _small_study(tmp_path)
+    cluster, _ = _cluster_file(tmp_path)
+    out = tmp_path / "out"
+    assert _sweep(config, out, cluster, capsys, more=("--format", "zarr", "--keep-parts")) == (0, "")
+    study = load_study(config)
+    marks = list((out / "small" / "parts").glob("*.region"))
+    assert len(marks) == len(study.batches) and not _parts(out / "small")
+    threaded = run_study(study, tmp_path / "threaded", quiet=True)
+    _assert_same_numbers(threaded.path, out / "small" / "small.zarr")
+    assert main(["verify", str(out / "small" / "small.zarr")]) == 0
 
 
 @pytest.mark.slow
