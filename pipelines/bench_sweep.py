@@ -4,6 +4,7 @@ kernels and peak memory grow from 100 to 10,000 cases; with ``--scale``, studies
 steps a case up to a million cases.
 
 Usage: python pipelines/bench_sweep.py [--sizes 100 1000 10000] [--scale 10000 100000 1000000]
+       [--format netcdf zarr] [--workers N]
 
 Every measurement runs `rbstudy sweep` in a fresh process (so that compilation and peak
 memory are those a user sees) into a fresh results folder, with `--quiet`:
@@ -25,7 +26,10 @@ the last line is a kernel-heavy study (1,000 cases of 2e5 rk4 steps).
 archive's size, the bytes the sweep wrote (``wchar`` of /proc/self/io: parts, archive and all),
 the seconds xarray takes to open it lazily (``open_dataset``, nothing loaded) and the floor:
 the kernels' core-seconds shared by the cores plus the archive's bytes at the disk's write
-speed, measured first (1 GiB written and synced in the results' temporary folder).
+speed, measured first (1 GiB written and synced in the results' temporary folder). Each
+size runs once per ``--format`` (the netCDF archive, the zarr store), with ``--workers N``
+on a local cluster of N worker processes (which write a zarr store's regions themselves):
+peak memory and bytes written are then the whole process tree's, sampled every 0.1 s.
 """
 
 import argparse
@@ -44,16 +48,31 @@ DEFAULT = ROOT / "configs" / "abaqus_top.yaml"
 
 # The child process: run one sweep and report wall time, kernel core-seconds and peak RSS.
 _CHILD = """
-import json, resource, sys, time
+import json, os, pathlib, resource, sys, threading, time
+import psutil
+tree, peak, wrote = psutil.Process(), [0], {}
+def sample():  # the whole tree's resident memory and bytes written: workers are processes
+    while True:
+        total = 0
+        for process in [tree, *tree.children(recursive=True)]:
+            try:
+                total += process.memory_info().rss
+                wrote[process.pid] = process.io_counters().write_chars
+            except psutil.Error:
+                pass
+        peak[0] = max(peak[0], total)
+        time.sleep(0.1)
+threading.Thread(target=sample, daemon=True).start()
 start = time.perf_counter()
 from rbstudy.cli import main
-code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet"])
+code = main(["sweep", sys.argv[1], "--out", sys.argv[2], "--quiet", *sys.argv[3:]])
 wall = time.perf_counter() - start
 from rbstudy.archive.load import open_results
-import pathlib
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # the sweep's, not ours
-written = int(dict(line.split(": ") for line in open("/proc/self/io").read().splitlines())["wchar"])
-archive = next(pathlib.Path(sys.argv[2]).glob("*/*.nc"))
+rss = max(peak[0], resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+wrote[os.getpid()] = tree.io_counters().write_chars
+archive = next(path for path in pathlib.Path(sys.argv[2]).glob("*/*.*") if path.suffix in (".nc", ".zarr"))
+files = [f for f in archive.rglob("*") if f.is_file()] if archive.is_dir() else [archive]
+size = sum(f.stat().st_size for f in files)
 import xarray
 start = time.perf_counter()
 xarray.open_dataset(archive, decode_times=False).close()
@@ -61,7 +80,7 @@ lazy = time.perf_counter() - start
 dataset = open_results(archive, ["run_time", "status"])
 print(json.dumps({"code": code, "wall": wall, "kernel": float(dataset.run_time.sum()),
                   "cases": int(dataset.status.size), "rss": rss, "lazy_open": lazy,
-                  "archive": archive.stat().st_size, "written": written}))
+                  "archive": size, "written": sum(wrote.values())}))
 """
 
 
@@ -83,10 +102,11 @@ def ready(env):
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def measure(config, env=None):
+def measure(config, env=None, options=()):
+    """The figures of one fresh ``rbstudy sweep config`` with the sweep ``options``."""
     with tempfile.TemporaryDirectory() as out:
         done = subprocess.run(
-            [sys.executable, "-c", _CHILD, str(config), out],
+            [sys.executable, "-c", _CHILD, str(config), out, *options],
             capture_output=True,
             text=True,
             env=env,
@@ -140,9 +160,17 @@ def main():
         metavar="CASES",
         help="only the 200-step studies of these sizes (multiples of 100)",
     )
+    parser.add_argument(
+        "--format",
+        nargs="+",
+        default=["netcdf"],
+        choices=("netcdf", "zarr"),
+        help="--scale's archive formats",
+    )
+    parser.add_argument("--workers", type=int, help="--scale's studies on a local cluster of N workers")
     args = parser.parse_args()
     if args.scale:
-        scale(args.scale)
+        scale(args.scale, args.format, args.workers)
         return
     print(f"rbstudy sweep figures, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}")
     with tempfile.TemporaryDirectory() as cache:
@@ -179,10 +207,11 @@ def disk_speed(size=2**30, block=2**24):
         return size / (time.perf_counter() - start)
 
 
-def scale(sizes):
+def scale(sizes, formats, workers):
     speed = disk_speed()
     cores = os.cpu_count() or 1
     print(f"disk write speed {speed / 1e9:.2f} GB/s, {cores} cores")
+    on = ("--workers", str(workers)) if workers else ()
     print(
         f"{'200 leapfrog steps a case':28s} {'cases':>7s} {'wall s':>9s} {'kernel cs':>11s} "
         f"{'outside':>9s} {'peak MiB':>9s} {'archive MiB':>12s} {'written GiB':>12s} "
@@ -190,14 +219,16 @@ def scale(sizes):
     )
     with tempfile.TemporaryDirectory() as configs:
         for cases in sizes:
-            figures = measure(scale_config(configs, cases))
-            floor = figures["kernel"] / cores + figures["archive"] / speed
-            print(
-                f"{line('spin x tilt', figures)} {figures['archive'] / 2**20:12.1f} "
-                f"{figures['written'] / 2**30:12.2f} {figures['lazy_open']:12.2f} {floor:8.2f} "
-                f"{figures['wall'] / floor:8.1f}",
-                flush=True,
-            )
+            for archive in formats:
+                figures = measure(scale_config(configs, cases), options=("--format", archive, *on))
+                floor = figures["kernel"] / cores + figures["archive"] / speed
+                label = f"spin x tilt, {archive}" + (f", {workers} workers" if workers else "")
+                print(
+                    f"{line(label, figures)} {figures['archive'] / 2**20:12.1f} "
+                    f"{figures['written'] / 2**30:12.2f} {figures['lazy_open']:12.2f} {floor:8.2f} "
+                    f"{figures['wall'] / floor:8.1f}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

@@ -200,7 +200,8 @@ def test_an_empty_path_is_said_to_be_one(tmp_path, capsys, verb):
     out = ["--out", str(tmp_path / "out")] if verb in ("plot", "report") else []
     assert main([verb, "", *out]) == 1
     assert capsys.readouterr().err == (
-        "rbstudy: error: '': an empty path names no file; give the <study>.nc written by rbstudy sweep\n"
+        "rbstudy: error: '': an empty path names no file; "
+        "give the <study>.nc (or <study>.zarr) written by rbstudy sweep\n"
     )
 
 

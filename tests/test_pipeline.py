@@ -390,7 +390,7 @@ def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
     monkeypatch.setattr(config_module, "BATCH_MAX_CASES", 2)
     monkeypatch.setattr(execute, "default_threads", lambda: 2)
     study = load_study(write_study(tmp_path, name="rows", sweep={"inertia_ratio": [0.5, 0.8, 1.1, 1.4, 1.7]}))
-    copied, copy, compute = threading.Event(), writer._copy_part, execute.compute_batch
+    copied, copy, compute = threading.Event(), writer.copy_part, execute.compute_batch
     waited = []
 
     def copying(*args):
@@ -402,7 +402,7 @@ def test_the_archive_is_written_while_later_batches_run(tmp_path, monkeypatch):
             waited.append(copied.wait(timeout=20))
         return compute(job, *args)
 
-    monkeypatch.setattr(writer, "_copy_part", copying)
+    monkeypatch.setattr(writer, "copy_part", copying)
     monkeypatch.setattr(execute, "compute_batch", computing)
     run = run_study(study, tmp_path / "out", quiet=True)
     assert waited == [True]

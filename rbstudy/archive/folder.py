@@ -79,21 +79,24 @@ class StudyFolder:
     parts, lock, owner record, config and step search. Making the object touches nothing on
     disk."""
 
-    def __init__(self, path, study: Any, name=None, workers_write=False):
+    def __init__(self, path, study: Any, name=None, unit_lock=None):
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
         self.format = study.output_format
         # a zarr store is written by the workers that compute its batches, each its region
-        # (`rbstudy.archive.zarr_regions`): no part passes through one writer
-        self.regions = workers_write and self.zarr
+        # (`rbstudy.archive.zarr_regions`), a unit at a time under ``unit_lock``: no part
+        # passes through one writer
+        self.unit_lock = unit_lock
+        self.regions = unit_lock is not None and self.zarr
         self.made = []  # the folders `make` made, outermost first
 
     @classmethod
-    def of(cls, root, study, workers_write=False):
+    def of(cls, root, study, unit_lock=None):
         """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``;
-        ``workers_write``: the batches run on a cluster's workers (``--workers``,
-        ``--cluster``, ``--scheduler``), which write a zarr store's regions themselves."""
-        return cls(pathlib.Path(root) / study.name, study, workers_write=workers_write)
+        ``unit_lock``: where the batches run on a cluster's workers (``--workers``,
+        ``--cluster``, ``--scheduler``), which write a zarr store's regions themselves, the
+        lock of one of its units across the cluster, a function of the lock's name."""
+        return cls(pathlib.Path(root) / study.name, study, unit_lock=unit_lock)
 
     @functools.cached_property
     def layout(self):
@@ -271,7 +274,14 @@ class StudyFolder:
             return PartTarget(layout=self.layout, batch=batch, path=path)
         dims = tuple(dimension.name for dimension in self.study.dimensions)
         return RegionTarget(
-            self.layout, batch, path, str(self.working_store), dims, self.study.shape, self._lock_prefix
+            self.layout,
+            batch,
+            path,
+            str(self.working_store),
+            dims,
+            self.study.shape,
+            self.unit_lock,
+            self._lock_prefix,
         )
 
     @functools.cached_property

@@ -13,8 +13,9 @@ marks' digests) and renames it into place as ``<study>.zarr``.
 Units (a shard, or a chunk where a variable has no shards: `zarr_store.unit_bounds`) do not
 follow batches: a batch cut from the grid shares its first and last units with its
 neighbours, and a variable of the scene alone has the same cells in every scheme's batch. A
-unit is therefore read, merged and written under a lock of the cluster's scheduler
-(`distributed.Lock`, one per unit), so two workers never write one file at once. Each file is
+unit is therefore read, merged and written under a lock of its own, held across the cluster
+(the sweep's: `rbstudy.pipeline.cluster.scheduler_lock`, a lock of the scheduler), so two
+workers never write one file at once. Each file is
 written whole by zarr through a temporary and a rename: a worker killed mid-write leaves the
 unit as it was, and its batch, unmarked, runs again. The cells are the same whatever order the
 batches come in, so the store is the one `zarr_store.consolidate_store` writes from parts.
@@ -30,6 +31,8 @@ import hashlib
 import json
 import pathlib
 import shutil
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -82,9 +85,10 @@ def open_working(path, study, attrs):
 class RegionTarget(NamedTuple):
     """Where a store task puts its batch when workers write the store: the study's `Layout`,
     the batch (a `rbstudy.pipeline.batches.Batch`: its ``id`` and ``cases``), the path of its
-    mark, the working store's path, the grid's dimension names and shape, and the prefix of
-    its units' lock names (None: no lock, one process writes). As a
-    `rbstudy.archive.parts.PartTarget` (small: it travels with its task)."""
+    mark, the working store's path, the grid's dimension names and shape, the lock of a unit
+    (a function of its name, held across the cluster: a module-level function, so that it
+    travels with the task; None: one process writes) and the prefix of its units' lock names.
+    As a `rbstudy.archive.parts.PartTarget` (small: it travels with its task)."""
 
     layout: Layout
     batch: Any
@@ -92,7 +96,8 @@ class RegionTarget(NamedTuple):
     store: str
     dims: tuple
     shape: tuple
-    lock: str | None
+    lock: Callable[[str], AbstractContextManager] | None
+    lock_prefix: str
 
     @property
     def cases(self):
@@ -121,7 +126,8 @@ def _write_region(target, part):
     copy_part(targets, part, target.shape)
     for (name, unit), pieces in writes.items():
         array = group[name]
-        with _unit_lock(target.lock, name, unit):
+        held = target.lock(f"{target.lock_prefix}:{name}:{'.'.join(map(str, unit))}") if target.lock else None
+        with held or contextlib.nullcontext():
             bounds = unit_bounds(array, unit)
             buffer = np.array(array[bounds])  # what earlier batches put there, else the fill
             for inside, block in pieces:
@@ -139,15 +145,6 @@ class _Collected:
     def write(self, index, values):
         for unit, inside, block in unit_pieces(self.array, index, np.asarray(values)):
             self.writes[(self.name, unit)].append((inside, block))
-
-
-def _unit_lock(prefix, name, unit):
-    """The cluster-wide lock of one unit of the store (a context), or none without ``prefix``."""
-    if prefix is None:
-        return contextlib.nullcontext()
-    from distributed import Lock
-
-    return Lock(f"{prefix}:{name}:{'.'.join(map(str, unit))}")
 
 
 def _values_digest(part):

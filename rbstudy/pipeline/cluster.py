@@ -46,6 +46,7 @@ __all__ = [
     "check_scheduler",
     "connect",
     "run_on_cluster",
+    "scheduler_lock",
     "dashboard_line",
     "WRITERS",
     "WORKER_WAIT",
@@ -388,6 +389,17 @@ def _start(spec, logs=None):
     elif spec.kind != "local":
         cluster.scale(jobs=spec.jobs)
     return cluster
+
+
+def scheduler_lock(name):
+    """The lock ``name`` held across the cluster, by its scheduler (`distributed.Lock`): what a
+    worker holds while it writes a unit of a zarr store (`rbstudy.archive.zarr_regions`), from
+    the worker's or this process's connection to the scheduler. A lock whose holder stops
+    renewing it (a worker killed) is freed after ``distributed.scheduler.locks.lease-timeout``
+    (30 s by default)."""
+    from distributed import Lock
+
+    return Lock(name)
 
 
 @contextlib.contextmanager

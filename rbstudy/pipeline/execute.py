@@ -40,7 +40,7 @@ from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
 from rbstudy.pipeline.calibration import calibrate, compile_seconds, record_compile, step_cost
-from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster
+from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster, scheduler_lock
 from rbstudy.pipeline.config import StudyConfig, resolved_config
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.formulas import evaluate
@@ -366,7 +366,7 @@ def run_study(
     """
     started_clock = time.perf_counter()
     started = utc_now()
-    folder = StudyFolder.of(root, study, workers_write=where.distributed)
+    folder = StudyFolder.of(root, study, unit_lock=scheduler_lock if where.distributed else None)
     folder.make()
     with contextlib.ExitStack() as stack:
         own = progress is None
