@@ -67,11 +67,12 @@ def test_the_store_holds_the_netcdf_archives_dataset(tmp_path):
 def test_shards_gather_chunks_only_where_a_variable_has_several():
     from rbstudy.archive.zarr_store import SHARD_BYTES, _shards
 
-    assert _shards((2, 2, 51, 4), (2, 2, 51, 4), 2) is None  # one chunk: one file as it is
-    # 1,000 x 500 cases of 8-byte values in chunks of 1 x 500: 1,000 chunks of 4 kB, gathered
-    # into shards of SHARD_BYTES / 4 kB of them along the first dimension
-    shard = _shards((1000, 500), (1, 500), 2)
-    assert shard == (min(1000, SHARD_BYTES // 500), 500)
+    assert _shards((2, 2, 51, 4), (2, 2, 51, 4), 2, 8) is None  # one chunk: one file as it is
+    # 100,000 x 500 cases of 8-byte values in chunks of 1 x 500: 100,000 chunks of 4 kB,
+    # gathered into shards of SHARD_BYTES / 4 kB of them along the first dimension (it took
+    # SHARD_BYTES / 500 chunks, shards of 8 x SHARD_BYTES, before its bytes were counted)
+    shard = _shards((100_000, 500), (1, 500), 2, 8)
+    assert shard == (SHARD_BYTES // (500 * 8), 500) and shard[0] * 500 * 8 <= SHARD_BYTES
 
 
 @pytest.mark.slow

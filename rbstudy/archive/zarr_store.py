@@ -87,13 +87,13 @@ def _json(value):
     return value.tolist() if isinstance(value, np.ndarray) else value
 
 
-def _shards(shape, chunks, grid_rank):
-    """The shard shape of a variable of ``shape`` in ``chunks``: whole chunks gathered along
-    its grid dimensions, from the last, up to about `SHARD_BYTES`; None (no sharding) where the
-    variable is one chunk."""
+def _shards(shape, chunks, grid_rank, itemsize):
+    """The shard shape of a variable of ``shape`` in ``chunks`` of values of ``itemsize``
+    bytes: whole chunks gathered along its grid dimensions, from the last, up to
+    `SHARD_BYTES`; None (no sharding) where the variable is one chunk."""
     if math.prod(math.ceil(size / chunk) for size, chunk in zip(shape, chunks, strict=True)) <= 1:
         return None
-    room = max(1, SHARD_BYTES // max(1, math.prod(chunks)))
+    room = max(1, SHARD_BYTES // max(1, math.prod(chunks) * itemsize))
     shard = list(chunks)
     for k in reversed(range(grid_rank)):
         take = max(1, min(math.ceil(shape[k] / chunks[k]), room))
@@ -258,7 +258,7 @@ def define_store(folder, study, attrs):
             shape=shape,
             dtype=dtype,
             chunks=chunks,
-            shards=_shards(shape, chunks, grid_rank),
+            shards=_shards(shape, chunks, grid_rank, dtype.itemsize),
             compressors=_compressors(),
             fill_value=np.nan if floating else 0,
             dimension_names=dims,
