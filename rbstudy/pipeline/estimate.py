@@ -80,10 +80,11 @@ _GIB = 2**30
 # Past this many bytes of values (uncompressed, `Estimate.archive_bytes`), `validate` and
 # `sweep` advise the zarr store (`zarr_advice`). The netCDF archive is one file that one
 # process writes, its zlib taking ~60 MiB/s of values a core (docs/performance.md, "A million
-# cases: the archive written beside the batches"): 4 GiB is over a minute of a core, about
-# three times the largest study timed on one machine (1e6 cases of 11 samples, 1.4 GiB). A
-# study past it is one for a cluster, where a folder of shard files of ~32 MiB (zarr) is read
-# by many processes at once, not one file that every value passes through.
+# cases: the archive written beside the batches"): 4 GiB is over a minute of a core. The
+# largest study timed on one machine, 1e6 cases of 11 samples (3.1 GiB of values), spent half
+# its 74 core-seconds compressing them ("A million cases in 45 s"). Past it a study is one for
+# a cluster, where a folder of shard files (zarr) that many processes open at once serves
+# better than one file every value passes through.
 ZARR_ADVISED_BYTES = 4 * _GIB
 # Each load evaluation of a scene with tables in time bisects the study's K knots
 # (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
