@@ -121,6 +121,7 @@ def _costed(study, args, disk):
         describe,
         estimate,
         forecast_disk,
+        zarr_advice,
     )
 
     for option, value in (("--max-body-steps", args.max_body_steps), ("--max-memory", args.max_memory)):
@@ -132,7 +133,9 @@ def _costed(study, args, disk):
     if disk:
         check_disk(study, forecast_disk(study, args.out), args.out)
     notes = [f"{study.path}: note: {note}" for note in study.notes]
-    return "\n".join([describe(study, cost), *notes, *_warning_lines(study)])
+    advice = zarr_advice(study, cost)
+    lines = [describe(study, cost), *([advice] if advice else []), *notes, *_warning_lines(study)]
+    return "\n".join(lines)
 
 
 def _warning_lines(study):

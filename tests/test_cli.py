@@ -64,6 +64,38 @@ def test_validate_reports_cases_batches_and_memory(capsys):
     assert "4.5e+05 body-steps" in out  # 216 cases of 2 s at dt 0.01 .. 0.0003125
 
 
+@pytest.mark.slow  # 1.8 s at a load of 5 on 2 cores: three studies of ~1,900 cases validated
+def test_validate_advises_zarr_only_past_its_threshold(tmp_path, capsys, monkeypatch):
+    """A netCDF study whose forecast archive passes `ZARR_ADVISED_BYTES` by one case gets one
+    line naming the fix; one case fewer, the same study stored as zarr and the default get none."""
+    from rbstudy.pipeline import estimate
+    from rbstudy.pipeline.config import load_study
+
+    monkeypatch.setattr(estimate, "_free_bytes", lambda folder: 2**50)  # their parts and archive
+
+    def study(name, cases, **output):  # 8,001 samples a case: ~1,900 cases past 4 GiB
+        return write_study(
+            tmp_path,
+            name=name,
+            scene={**abaqus_mapping(), "duration": 4.0},
+            output={"interval": 0.0005, **output},
+            run={"scheme": "leapfrog", "dt": 0.0005},
+            sweep={"tilt": {"linspace": [1, 60, cases]}},
+        )
+
+    past = estimate.ZARR_ADVISED_BYTES // load_study(study("probe", 2), []).bytes_per_case() + 1
+    files = [study("past", past), study("within", past - 1), study("zarr", past, format="zarr")]
+    assert main(["validate", *map(str, files), "configs/abaqus_top.yaml", "--max-memory", "1e7"]) == 0
+    out = capsys.readouterr().out
+    assert max(map(len, out.splitlines())) <= 100
+    text = " ".join(out.split())
+    assert text.count("advice:") == 1, text
+    assert (
+        f"{files[0]}: advice: over 4 GiB of values: output.format: zarr in the config, or sweep "
+        "--format zarr" in text
+    )
+
+
 def test_the_default_step_limit_is_the_estimates(capsys):
     from rbstudy.pipeline import estimate
 

@@ -55,6 +55,8 @@ __all__ = [
     "forecast_disk",
     "MAX_BODY_STEPS",
     "MEMORY_FRACTION",
+    "ZARR_ADVISED_BYTES",
+    "zarr_advice",
     "PROCESS_BYTES",
     "physical_memory",
 ]
@@ -74,6 +76,16 @@ IN_FLIGHT_FACTOR = 3
 # part's digest beside it: 32-34 KiB measured for a part, rounded up.
 _FILE_OVERHEAD = 40 * 2**10
 _MIB = 2**20
+_GIB = 2**30
+# Past this many bytes of values (uncompressed, `Estimate.archive_bytes`), `validate` and
+# `sweep` advise the zarr store (`zarr_advice`). The netCDF archive is one file that one
+# process writes, its zlib taking ~60 MiB/s of values a core (docs/performance.md, "A million
+# cases: the archive written beside the batches"): 4 GiB is over a minute of a core. The
+# largest study timed on one machine, 1e6 cases of 11 samples (3.1 GiB of values), spent half
+# its 74 core-seconds compressing them ("A million cases in 45 s"). Past it a study is one for
+# a cluster, where a folder of shard files (zarr) that many processes open at once serves
+# better than one file every value passes through.
+ZARR_ADVISED_BYTES = 4 * _GIB
 # Each load evaluation of a scene with tables in time bisects the study's K knots
 # (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
 # log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike:
@@ -319,6 +331,17 @@ def describe(study, cost):
             f"{counted(cost.over_budget, 'case')} (too many turns): reference = none there"
         )
     return text
+
+
+def zarr_advice(study, cost, advised_bytes=ZARR_ADVISED_BYTES):
+    """The line advising the zarr store for ``study`` (its `Estimate` ``cost``), or None: only
+    for a netCDF archive of more than ``advised_bytes`` of values."""
+    if study.output_format != "netcdf" or cost.archive_bytes <= advised_bytes:
+        return None
+    return (
+        f"{study.path}: advice: over {advised_bytes / _GIB:.3g} GiB of values: "
+        "output.format: zarr in the config, or sweep --format zarr"
+    )
 
 
 def _free_bytes(folder):
