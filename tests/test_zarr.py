@@ -67,12 +67,15 @@ def test_the_store_holds_the_netcdf_archives_dataset(tmp_path):
 def test_shards_gather_chunks_only_where_a_variable_has_several():
     from rbstudy.archive.zarr_store import SHARD_BYTES, _shards
 
-    assert _shards((2, 2, 51, 4), (2, 2, 51, 4), 2, 8) is None  # one chunk: one file as it is
+    assert _shards((2, 2, 51, 4), (2, 2, 51, 4), 2, 8, 4096) is None  # one chunk: one file
     # 100,000 x 500 cases of 8-byte values in chunks of 1 x 500: 100,000 chunks of 4 kB,
     # gathered into shards of SHARD_BYTES / 4 kB of them along the first dimension (it took
     # SHARD_BYTES / 500 chunks, shards of 8 x SHARD_BYTES, before its bytes were counted)
-    shard = _shards((100_000, 500), (1, 500), 2, 8)
+    shard = _shards((100_000, 500), (1, 500), 2, 8, 10**8)
     assert shard == (SHARD_BYTES // (500 * 8), 500) and shard[0] * 500 * 8 <= SHARD_BYTES
+    # and no more cases than a batch's (4,096: 8 chunks of 500 cases), which then writes it
+    # once, not once per batch of the many a shard would span
+    assert _shards((100_000, 500), (1, 500), 2, 8, 4096) == (8, 500)
 
 
 @pytest.mark.slow
