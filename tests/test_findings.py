@@ -320,7 +320,7 @@ def test_summary_refuses_a_file_that_is_no_archive_in_one_line(tmp_path, capsys)
     assert captured.out == ""
     assert captured.err == (
         f"rbstudy: error: {text}: not an rbstudy archive: not a netCDF "
-        "file (a text file); give the <study>.nc written by rbstudy sweep\n"
+        "file (a text file); give the <study>.nc (or <study>.zarr) written by rbstudy sweep\n"
     )
 
 

@@ -250,7 +250,8 @@ def test_a_damaged_probes_file_is_not_reused(tmp_path, damage):
         path.write_bytes(b"")
     elif damage == "truncated":
         path.write_bytes(path.read_bytes()[:3000])
-    assert _Probes(None, StudyFolder(tmp_path, None, "study"), "this search", force=False).rows == {}
+    folder = StudyFolder(tmp_path, SimpleNamespace(output_format="netcdf"), "study")
+    assert _Probes(None, folder, "this search", force=False).rows == {}
 
 
 def test_a_scheme_searched_at_some_values_of_the_other_axes_only_says_so():

@@ -82,12 +82,7 @@ class StudyFolder:
     def __init__(self, path, study: Any, name=None, unit_lock=None):
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
-        self.format = study.output_format
-        # a zarr store is written by the workers that compute its batches, each its region
-        # (`rbstudy.archive.zarr_regions`), a unit at a time under ``unit_lock``: no part
-        # passes through one writer
         self.unit_lock = unit_lock
-        self.regions = unit_lock is not None and self.zarr
         self.made = []  # the folders `make` made, outermost first
 
     @classmethod
@@ -108,8 +103,21 @@ class StudyFolder:
         return self.path / f"{self.name}{FORMATS[self.format]}"
 
     @property
+    def format(self):
+        """The archive's format, a key of `FORMATS` (the study's; read when it is asked: the
+        step search's folder of its working file alone has no study)."""
+        return self.study.output_format
+
+    @property
     def zarr(self):
         return self.format == "zarr"
+
+    @property
+    def regions(self):
+        """Whether the workers that compute the batches write a zarr store, each its region
+        (`rbstudy.archive.zarr_regions`), a unit at a time under ``unit_lock``: no part passes
+        through one writer."""
+        return self.unit_lock is not None and self.zarr
 
     @property
     def parts(self):
