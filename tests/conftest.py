@@ -4,6 +4,9 @@ import math
 import pathlib
 import re
 import shutil
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -157,3 +160,18 @@ def write_study(folder, name="study", sweep=None, run=None, scene=None, output=N
     path = pathlib.Path(folder) / f"{name}.yaml"
     path.write_text(yaml.safe_dump(study, sort_keys=False))
     return path
+
+
+def sweep_until_a_batch_is_kept(config, out, kept="*.npz.sha256", options=(), wait=120):
+    """``rbstudy sweep config --out out --quiet options`` started in a process of its own,
+    returned once its study's first batch is kept (a file of ``kept`` in ``parts/``, its part's
+    digest by default) or it has ended: the process, and the study's parts folder. For the
+    tests that kill a sweep and resume it."""
+    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"]
+    process = subprocess.Popen([*command, *options], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    parts = pathlib.Path(out) / pathlib.Path(config).stem / "parts"
+    deadline = time.monotonic() + wait
+    while not (parts.exists() and list(parts.glob(kept))) and process.poll() is None:
+        assert time.monotonic() < deadline, f"no batch kept in {wait} s"
+        time.sleep(0.01)
+    return process, parts

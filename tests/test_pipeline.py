@@ -19,7 +19,14 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, abaqus_mapping, write_study
+from conftest import (
+    CONFIGS,
+    EXACT_FLOW_TOLERANCE,
+    EXACT_FOR_FREE_BODIES,
+    abaqus_mapping,
+    sweep_until_a_batch_is_kept,
+    write_study,
+)
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.summary import format_table, scheme_rows
@@ -509,13 +516,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     }
     config = write_study(tmp_path, name="long", sweep=sweep, scene={**abaqus_mapping(), "duration": 40.0})
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    parts = out / "long" / "parts"
-    deadline = time.monotonic() + 120
-    while not (parts.exists() and list(parts.glob("*.npz.sha256"))) and process.poll() is None:
-        assert time.monotonic() < deadline, "no part written in 120 s"
-        time.sleep(0.01)
+    process, parts = sweep_until_a_batch_is_kept(config, out)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     # a part whose digest a kill prevented is recomputed, not reused

@@ -7,9 +7,6 @@ import json
 import os
 import pathlib
 import signal
-import subprocess
-import sys
-import time
 import warnings
 from dataclasses import replace
 
@@ -17,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import abaqus_mapping, write_study
+from conftest import abaqus_mapping, sweep_until_a_batch_is_kept, write_study
 
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
@@ -134,13 +131,7 @@ def test_a_store_killed_mid_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     }
     config = _zarr_config(tmp_path, name="long", sweep=sweep, scene={**abaqus_mapping(), "duration": 40.0})
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "--quiet"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    parts = out / "long" / "parts"
-    deadline = time.monotonic() + 120
-    while not (parts.exists() and list(parts.glob("*.npz.sha256"))) and process.poll() is None:
-        assert time.monotonic() < deadline, "no part written in 120 s"
-        time.sleep(0.01)
+    process, parts = sweep_until_a_batch_is_kept(config, out)
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
     finished = len(list(parts.glob("*.npz.sha256")))
@@ -272,16 +263,7 @@ def _children(pid):
 def _sweep_on_workers_until_a_batch_is_in(config, out):
     """``rbstudy sweep config --workers 2`` started, once its first batch is marked in the
     working store: the process, and the study's parts folder."""
-    command = [sys.executable, "-m", "rbstudy", "sweep", str(config), "--out", str(out), "-q"]
-    process = subprocess.Popen(
-        [*command, "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-    parts = out / "long" / "parts"
-    deadline = time.monotonic() + 180
-    while not (parts.exists() and list(parts.glob("*.region.sha256"))) and process.poll() is None:
-        assert time.monotonic() < deadline, "no batch written in 180 s"
-        time.sleep(0.01)
-    return process, parts
+    return sweep_until_a_batch_is_kept(config, out, "*.region.sha256", ("--workers", "2"), wait=180)
 
 
 @pytest.mark.slow

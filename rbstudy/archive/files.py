@@ -29,6 +29,7 @@ __all__ = [
     "inside",
     "make_folders",
     "remove_folders",
+    "fsync_path",
     "replace_folder",
     "temporary_beside",
     "temporary_folder_beside",
@@ -62,9 +63,9 @@ def temporary_beside(path):
     try:
         yield temporary
         os.chmod(temporary, _FILE_MODE)
-        _sync(temporary)  # the data on disk before the name points at it
+        fsync_path(temporary)  # the data on disk before the name points at it
         os.replace(temporary, path)
-        _sync(path.parent)  # and the rename itself, so that a crash keeps one or the other
+        fsync_path(path.parent)  # and the rename itself, so that a crash keeps one or the other
     except (OSError, RuntimeError) as error:
         _raise_if_full(path.parent, error)
         raise
@@ -108,7 +109,7 @@ def replace_folder(source, path):
                 old = tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old.tmp")
                 os.replace(path, old)
             os.replace(source, path)
-            _sync(path.parent)
+            fsync_path(path.parent)
     finally:
         if old is not None and os.path.exists(old):
             shutil.rmtree(old)
@@ -236,7 +237,7 @@ def _raise_if_full(folder, error=None):
     ) from None
 
 
-def _sync(path):
+def fsync_path(path):
     """fsync a file or a folder: a machine crash after a rename must not leave the new name
     on an empty or partial file (the rename can reach the disk before the data)."""
     handle = os.open(path, os.O_RDONLY)

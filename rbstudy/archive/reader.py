@@ -14,6 +14,7 @@ failure is one `InputError` naming the file, the attribute or variable, and the 
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
 
+import contextlib
 import errno
 import pathlib
 
@@ -200,30 +201,33 @@ def check_layout(path):
     output times, an accuracy bound that is a number above 0, and only the codes of each
     flag (`_content_problem`). Reads the file's header and its flags; returns the number of
     cases it holds. A zarr store is checked alike."""
-    if is_store(path):
-        try:
-            with open_header(path) as header:
-                problem = _layout_problem(path, header) or _content_problem(path, header)
-                cases = None if problem else int(header["status"].size)
-        except (OSError, RuntimeError, ValueError, KeyError, TypeError) as error:
-            raise InputError(
-                f"damaged: it cannot be read as a zarr store ({one_line(error)})", _REBUILD, str(path)
-            ) from None
-        if problem is not None:
-            raise problem
-        return cases
-    _check_netcdf(path)
+    if is_store(path):  # zarr raises what a damaged store's JSON or chunks make it raise
+        opened, kind, failures = (
+            open_header(path),
+            "a zarr store",
+            (OSError, RuntimeError, ValueError, KeyError, TypeError),
+        )
+    else:
+        _check_netcdf(path)
+        opened, kind, failures = _netcdf_header(path), "netCDF", (OSError, RuntimeError)
     try:
-        with HDF5_LOCK, netCDF4.Dataset(path) as nc:
-            problem = _layout_problem(path, nc) or _content_problem(path, nc)
-            cases = None if problem else int(nc["status"].size)
-    except (OSError, RuntimeError) as error:
+        with opened as header:
+            problem = _layout_problem(path, header) or _content_problem(path, header)
+            cases = None if problem else int(header["status"].size)
+    except failures as error:
         raise InputError(
-            f"damaged: it cannot be read as netCDF ({one_line(error)})", _REBUILD, str(path)
+            f"damaged: it cannot be read as {kind} ({one_line(error)})", _REBUILD, str(path)
         ) from None
     if problem is not None:
         raise problem
     return cases
+
+
+@contextlib.contextmanager
+def _netcdf_header(path):
+    """The netCDF file at ``path`` open for reading, under the HDF5 lock."""
+    with HDF5_LOCK, netCDF4.Dataset(path) as nc:
+        yield nc
 
 
 def _verified(path, bypass=None):

@@ -21,6 +21,7 @@ import os
 import pathlib
 
 from rbstudy.archive.checksums import ALGORITHM, MEANING, MEANING_ATTRIBUTES, ArchiveCheck
+from rbstudy.archive.files import fsync_path
 from rbstudy.archive.ids import ids_digest
 from rbstudy.errors import one_line
 
@@ -75,16 +76,8 @@ def store_checksums(path, sync=False):
             if key != _METADATA:
                 found[key] = _file_checksum(pathlib.Path(folder) / name, sync)
         if sync:
-            _sync_folder(folder)
+            fsync_path(folder)
     return found
-
-
-def _sync_folder(folder):
-    handle = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(handle)
-    finally:
-        os.close(handle)
 
 
 def seal_store(path, part_digests):
@@ -99,7 +92,7 @@ def seal_store(path, part_digests):
         zarr_format=3,
         attributes={"checksums": checksums, "part_checksums": part_digests},
     )
-    _sync_folder(pathlib.Path(path) / GROUP)
+    fsync_path(pathlib.Path(path) / GROUP)
 
 
 def _named(key):
