@@ -2,11 +2,14 @@
 dataset as the netCDF archive, proven per chunk by its checksums, rebuilt when damaged, left
 alone when current, resumed after a kill to the numbers of an uninterrupted run."""
 
+import collections
 import contextlib
 import json
 import os
 import pathlib
+import shutil
 import signal
+import threading
 import warnings
 from dataclasses import replace
 
@@ -16,6 +19,10 @@ import xarray as xr
 import yaml
 from conftest import abaqus_mapping, sweep_until_a_batch_is_kept, write_study
 
+from rbstudy.archive.folder import StudyFolder
+from rbstudy.archive.parts import read_part, sidecar
+from rbstudy.archive.provenance import global_attrs
+from rbstudy.archive.zarr_regions import GENERATION, StoreReplaced, finish_regions
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
@@ -216,8 +223,8 @@ def test_units_hold_every_value_written_in_any_order_twice_or_spilled(
     np.testing.assert_array_equal(array[...], expected)
 
 
-def _file_checksums(store, but="run_time/"):
-    """The SHA-256 of each file of a sealed store (its integrity group's), but those of
+def _file_checksums(store, but=("run_time/",)):
+    """The SHA-256 of each file of a sealed store (its integrity group's), but those under
     ``but`` (run_time: CPU seconds, never twice the same)."""
     import zarr
 
@@ -246,7 +253,7 @@ def test_workers_write_their_regions_into_the_store_that_parts_would_make(tmp_pa
     workers = run_study(study, tmp_path / "w", where=Where(workers=2), quiet=True, keep_parts=True)
     parts = tmp_path / "w" / "small" / "parts"
     assert workers.returned == 0 and workers.computed == len(study.batches) > 1
-    assert len(list(parts.glob("*.region"))) == len(study.batches) and not list(parts.glob("*.npz"))
+    assert not list(parts.glob("*.npz")) and not list(parts.glob("*.region"))  # marks gone with the store
     assert not (parts / "small.zarr").exists()  # the working store, sealed and moved into place
     local = run_study(study, tmp_path / "l", quiet=True)
     assert _file_checksums(workers.path) == _file_checksums(local.path)
@@ -312,3 +319,129 @@ def test_a_sweep_on_workers_killed_resumes_from_the_batches_in_the_store(tmp_pat
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
     assert _file_checksums(resumed.path) == _file_checksums(clean.path)
     assert main(["verify", str(resumed.path)]) == 0
+
+
+# The working store the workers write: what a rerun may trust of it. The workers' writes are
+# made here, in this process, under a lock of this process (the cluster's takes a name too).
+_UNIT_LOCKS = collections.defaultdict(threading.Lock)
+
+
+def _unit_lock(name):
+    return _UNIT_LOCKS[name]
+
+
+@pytest.fixture(scope="module")
+def computed(tmp_path_factory):
+    """A zarr study, its store written from parts by one process, and the values of each of
+    its batches (read from the parts kept)."""
+    folder = tmp_path_factory.mktemp("regions")
+    study = load_study(_zarr_config(folder))
+    run = run_study(study, folder / "local", quiet=True, keep_parts=True)
+    parts = run.path.parent / "parts"
+    values = {batch.id: read_part(parts / f"{batch.id}.npz", study.variables) for batch in study.batches}
+    return study, run.path, values
+
+
+def _working_folder(study, out):
+    """The study's folder under ``out`` as a sweep on workers holds it, its working store
+    defined (as the sweep does before any batch runs)."""
+    folder = StudyFolder.of(out, study, unit_lock=_unit_lock)
+    folder.make()
+    folder.make_parts()
+    folder.writer({}, started=None)  # not entered: it only defines the working store
+    return folder
+
+
+def _trusted(study, out):
+    """The batches a rerun would take as written: batch id -> digest (None: run again)."""
+    folder = StudyFolder.of(out, study, unit_lock=_unit_lock)
+    return dict((batch.id, digest) for batch, digest in folder.checked(folder.stored(study.batches)))
+
+
+def test_marks_of_a_store_defined_anew_count_for_nothing(computed, tmp_path):
+    """A batch marked in a working store that is since lost and defined anew (a sweep killed,
+    the store removed, a rerun killed after it defined its store): its mark, even if it
+    survived, is not taken as written, and defining the store removes the marks there."""
+    study, _, values = computed
+    first = study.batches[0]
+    folder = _working_folder(study, tmp_path)
+    folder.part(first).write(values[first.id])
+    assert _trusted(study, tmp_path)[first.id] is not None
+    mark = folder.part_path(first.id)
+    kept = {path: path.read_bytes() for path in (mark, sidecar(mark))}
+    shutil.rmtree(folder.working_store)
+    assert _trusted(study, tmp_path) == {}  # no store: no batch in it
+    again = _working_folder(study, tmp_path)
+    assert again.generation != folder.generation
+    assert not mark.exists() and not sidecar(mark).exists()
+    for path, data in kept.items():  # a mark that outlived its store, as a copy would bring back
+        path.write_bytes(data)
+    assert _trusted(study, tmp_path) == {first.id: None}
+
+
+def test_a_sweep_killed_while_it_defines_the_store_leaves_none(computed, tmp_path, monkeypatch):
+    """The store is defined in a temporary folder and renamed into place: a sweep killed
+    while it writes the arrays leaves no store a rerun would keep, and the rerun's clearing
+    removes the temporary."""
+    import rbstudy.archive.zarr_store as zarr_store
+
+    study, _, _ = computed
+    real = zarr_store.Layout.of
+
+    def killed(*args):  # after the root group (with its batches attribute) is written
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(zarr_store.Layout, "of", killed)
+    with pytest.raises(KeyboardInterrupt):
+        _working_folder(study, tmp_path)
+    monkeypatch.setattr(zarr_store.Layout, "of", real)
+    folder = StudyFolder.of(tmp_path, study, unit_lock=_unit_lock)
+    assert not folder.working_store.exists() and _trusted(study, tmp_path) == {}
+    folder.clear_stale()
+    assert list(folder.parts.iterdir()) == []
+
+
+def test_a_worker_of_a_replaced_store_writes_nothing_into_it(computed, tmp_path):
+    """A worker left running by a stopped sweep, whose store was since defined anew (another
+    config, or a rerun after the store was lost), finds under its unit's lock that the store
+    is not its own: it writes no cell and no mark."""
+    study, _, values = computed
+    first = study.batches[0]
+    orphan = _working_folder(study, tmp_path).part(first)
+    shutil.rmtree(tmp_path / study.name / "parts" / f"{study.name}.zarr")
+    _working_folder(study, tmp_path)
+    with pytest.raises(StoreReplaced):
+        orphan.write(values[first.id])
+    store = xr.open_zarr(tmp_path / study.name / "parts" / f"{study.name}.zarr", consolidated=False)
+    assert int(store["energy_error"].notnull().sum()) == 0
+    assert not pathlib.Path(orphan.path).exists()
+
+
+def test_the_sealed_store_from_regions_is_the_one_from_parts(computed, tmp_path):
+    """Every batch written into its region here (a file a killed zarr write leaves among
+    them), then the store finished as the sweep does: it is the store written from parts,
+    file for file, with no working generation in its attributes and no mark left; the folder
+    holds the archive and nothing of the working store."""
+    study, from_parts, values = computed
+    folder = _working_folder(study, tmp_path)
+    marks = [folder.part(batch).write(values[batch.id]) for batch in study.batches]
+    shard = next(folder.working_store.glob("energy_error/c/*"))
+    (shard.parent / f"{shard.name}.0123abcd.partial").write_bytes(b"half a shard")
+    arriving = [(None, digest, None) for digest in marks]
+    finish_regions(study, arriving, folder.archive, global_attrs(study), working=folder.working_store)
+    assert _file_checksums(folder.archive, but=()) == _file_checksums(from_parts, but=())
+    assert GENERATION not in xr.open_zarr(folder.archive).attrs
+    assert not list(folder.parts.glob("*.region*"))
+    assert main(["verify", str(folder.archive)]) == 0
+
+
+def test_removing_the_parts_removes_the_marks_and_the_working_store(computed, tmp_path):
+    """A sweep killed after the store was sealed leaves marks and, on a local rerun after a
+    run on workers, a working store: beside a current archive, removing the parts removes
+    them all."""
+    study, _, values = computed
+    folder = _working_folder(study, tmp_path)
+    for batch in study.batches:
+        folder.part(batch).write(values[batch.id])
+    assert folder.remove_parts() == len(study.batches)
+    assert not folder.parts.exists()

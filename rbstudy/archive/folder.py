@@ -2,11 +2,13 @@
 
 ``<root>/<study>/`` holds ``<study>.nc`` (the archive; ``<study>.zarr``, a zarr store, when
 the study's ``output_format`` is "zarr": `FORMATS`), ``parts/<batch-id>.npz`` (one finished
-batch each, with its digest beside it), ``study.yaml`` (the resolved config), the owner
-record (`rbstudy.archive.owner.OWNER`), the lock and, while a step search runs, its working
-file ``search/steps.nc`` (`SEARCH_FILE`). The sweep and the step search reach every one of
-them through a `StudyFolder` alone: where a file lies, how it is named, checked, locked,
-claimed, written and removed is said here and in the modules below it, never by the sweep.
+batch each, with its digest beside it; where workers write a zarr store's regions, the
+working store ``parts/<study>.zarr`` and a mark ``parts/<batch-id>.region`` a batch),
+``study.yaml`` (the resolved config), the owner record (`rbstudy.archive.owner.OWNER`), the
+lock and, while a step search runs, its working file ``search/steps.nc`` (`SEARCH_FILE`).
+The sweep and the step search reach every one of them through a `StudyFolder` alone: where a
+file lies, how it is named, checked, locked, claimed, written and removed is said here and in
+the modules below it, never by the sweep.
 
 The study object is read, not imported: a `rbstudy.pipeline.config.StudyConfig` (its
 ``name``, ``output_format``, ``batches``, each with ``id`` and ``cases``, and what
@@ -16,8 +18,6 @@ has is decided here, once: the sweep asks the folder for its ``archive`` and its
 
 import contextlib
 import functools
-import hashlib
-import os
 import pathlib
 import shutil
 from typing import Any, NamedTuple
@@ -50,7 +50,8 @@ from rbstudy.archive.zarr_regions import (
     finish_regions,
     open_working,
     region_complete,
-    working_matches,
+    remove_marks,
+    working_generation,
 )
 from rbstudy.archive.zarr_store import consolidate_store, refresh_store_description, store_attribute
 from rbstudy.errors import RbstudyError, one_line
@@ -75,15 +76,16 @@ class ArchiveState(NamedTuple):
 
 
 class StudyFolder:
-    """The folder ``path`` of ``study``: its archive ``<name>.nc`` (``name``: the study's),
-    parts, lock, owner record, config and step search. Making the object touches nothing on
-    disk."""
+    """The folder ``path`` of ``study``: its archive ``<name>.nc`` or ``<name>.zarr``
+    (``name``: the study's; `archive`), parts or marks and the working store, lock, owner
+    record, config and step search. Making the object touches nothing on disk."""
 
     def __init__(self, path, study: Any, name=None, unit_lock=None):
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
         self.unit_lock = unit_lock
         self.made = []  # the folders `make` made, outermost first
+        self.generation = None  # of the working store the workers write (`writer`), once open
 
     @classmethod
     def of(cls, root, study, unit_lock=None):
@@ -141,7 +143,7 @@ class StudyFolder:
     @property
     def working_store(self):
         """The zarr store the workers write their regions to, until it is sealed."""
-        return self.parts / self.archive.name
+        return self.parts / f"{self.name}{FORMATS['zarr']}"
 
     # the folder's life ------------------------------------------------------------------
 
@@ -263,7 +265,7 @@ class StudyFolder:
         attrs = global_attrs(self.study, started=started)
         write = None
         if self.regions:  # defined before any batch runs: the workers write into it
-            open_working(self.working_store, self.study, attrs)
+            self.generation = open_working(self.working_store, self.study, attrs)
             write = functools.partial(finish_regions, working=self.working_store)
         elif self.zarr:
             write = consolidate_store
@@ -289,29 +291,32 @@ class StudyFolder:
             dims,
             self.study.shape,
             self.unit_lock,
-            self._lock_prefix,
+            self.generation,
         )
 
-    @functools.cached_property
-    def _lock_prefix(self):
-        """Names the locks of this working store's units apart from any other's on a shared
-        scheduler."""
-        where = f"{os.uname().nodename}:{self.working_store.resolve()}"
-        return "rbstudy-" + hashlib.sha256(where.encode()).hexdigest()[:16]
+    def _found_generation(self):
+        """The generation of the working store on disk, defined whole for this study's
+        batches, else None."""
+        return working_generation(self.working_store, batches_digest(self.study.batches))
 
     def stored(self, batches):
         """Those of ``batches`` whose part file, or mark, is on disk (a mark counts only
         while its working store was defined for this study's batches)."""
-        if self.regions and not working_matches(self.working_store, batches_digest(self.study.batches)):
+        if self.regions and self._found_generation() is None:
             return []
         return [batch for batch in batches if self.part_path(batch.id).exists()]
 
     def checked(self, batches):
         """(batch, digest) of each of ``batches``, one at a time: the digest of its intact
-        part (`part_complete`) or mark (`region_complete`), else None."""
+        part (`part_complete`) or mark (`region_complete`: of the working store on disk),
+        else None."""
+        generation = self._found_generation() if self.regions else None
         for batch in batches:
             path = self.part_path(batch.id)
-            digest = region_complete(path, batch, self.layout) if self.regions else part_complete(path, batch)
+            if self.regions:
+                digest = region_complete(path, batch, self.layout, generation)
+            else:
+                digest = part_complete(path, batch)
             yield batch, digest
 
     def damaged(self, batches):
@@ -331,16 +336,16 @@ class StudyFolder:
             path.unlink()
 
     def remove_parts(self):
-        """Remove the parts of the study's batches and their digests, left beside its current
-        archive by a sweep killed before it removed them; how many parts."""
+        """Remove the parts of the study's batches and their digests, the marks and the
+        working store, left beside its current archive by a sweep killed before it removed
+        them (by workers or not); how many parts or marks."""
         removed = 0
         for batch in self.study.batches:
-            path = self.part_path(batch.id)
-            removed += path.exists()
-            path.unlink(missing_ok=True)
-            sidecar(path).unlink(missing_ok=True)
-        if self.working_store.exists():
-            shutil.rmtree(self.working_store)
+            for path in (self.parts / f"{batch.id}{PART_SUFFIX}", self.parts / f"{batch.id}{MARK_SUFFIX}"):
+                removed += path.exists()
+                path.unlink(missing_ok=True)
+                sidecar(path).unlink(missing_ok=True)
+        self._remove_working()
         with contextlib.suppress(OSError):
             self.parts.rmdir()  # unless something else is there (job logs, another config's parts)
         return removed
@@ -356,6 +361,14 @@ class StudyFolder:
         for old in [*self.parts.glob(f"*{PART_SUFFIX}*"), *self.parts.glob("*.nc*")]:
             if old.name.removesuffix(SIDECAR_SUFFIX) not in current:
                 old.unlink()
+        self._remove_working()  # a store sealed, or left by workers before a run without
+
+    def _remove_working(self):
+        """Remove the working store and its marks: they mean nothing beside the archive."""
+        if self.parts.is_dir():
+            remove_marks(self.parts)
+        if self.working_store.exists():
+            shutil.rmtree(self.working_store)
 
     # the step search --------------------------------------------------------------------
 

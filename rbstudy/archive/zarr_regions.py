@@ -6,19 +6,26 @@ client defines the working store, ``parts/<study>.zarr`` (`open_working`): every
 coordinate and attribute, no values. The worker that computes a batch writes its cases into
 the store (`RegionTarget.write`, compressed there), then a small mark beside it,
 ``parts/<batch-id>.region``, with its digest beside that, as a part file has: the mark says
-the batch is in the store, so a rerun resumes from the batches not marked yet. At the end the
-client seals the store (`finish_regions`: consolidated metadata, each file's SHA-256, the
-marks' digests) and renames it into place as ``<study>.zarr``.
+the batch is in the store of its generation, so a rerun resumes from the batches marked in
+the store it finds (a mark of a store since removed and defined anew counts for nothing). At
+the end the client seals the store (`finish_regions`: consolidated metadata, each file's
+SHA-256, the marks' digests) and renames it into place as ``<study>.zarr``, its generation
+dropped from its attributes.
 
 Units (a shard, or a chunk where a variable has no shards: `zarr_store.unit_bounds`) do not
 follow batches: a batch cut from the grid shares its first and last units with its
 neighbours, and a variable of the scene alone has the same cells in every scheme's batch. A
 unit is therefore read, merged and written under a lock of its own, held across the cluster
-(the sweep's: `rbstudy.pipeline.cluster.scheduler_lock`, a lock of the scheduler), so two
-workers never write one file at once. Each file is
-written whole by zarr through a temporary and a rename: a worker killed mid-write leaves the
-unit as it was, and its batch, unmarked, runs again. The cells are the same whatever order the
-batches come in, so the store is the one `zarr_store.consolidate_store` writes from parts.
+(the sweep's: `rbstudy.pipeline.cluster.scheduler_lock`, a lock of the scheduler, named
+after the store's generation), so two workers never write one file at once, even a worker
+left running by a stopped sweep and one of its rerun. Under the lock a worker first checks
+that the store is still of its generation: a worker left running by a sweep whose store was
+since defined anew (another config) writes nothing into it, but in the instant between that
+check and its write (the client takes no unit's lock to define a store). Each file is written whole by
+zarr through a temporary and a rename: a worker killed mid-write leaves the unit as it was
+(and a ``*.partial`` file, removed before the seal), and its batch, unmarked, runs again.
+The cells are the same whatever order the batches come in, so the store is the one
+`zarr_store.consolidate_store` writes from parts.
 
 A scheduler's lock expires when its holder stops renewing it (``distributed.scheduler.locks
 .lease-timeout``, 30 s by default): a worker stalled that long inside one unit's write could
@@ -30,16 +37,16 @@ import contextlib
 import hashlib
 import json
 import pathlib
-import shutil
+import uuid
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from rbstudy.archive.files import replace_folder, write_text_atomic
+from rbstudy.archive.files import replace_folder, temporary_folder_beside, write_text_atomic
 from rbstudy.archive.layout import Layout
-from rbstudy.archive.parts import file_digest, part_digest, part_values, sidecar, sidecar_text
+from rbstudy.archive.parts import SIDECAR_SUFFIX, file_digest, part_digest, part_values, sidecar, sidecar_text
 from rbstudy.archive.writer import copy_part
 from rbstudy.archive.zarr_store import (
     define_store,
@@ -56,7 +63,8 @@ __all__ = [
     "finish_regions",
     "open_working",
     "region_complete",
-    "working_matches",
+    "remove_marks",
+    "working_generation",
 ]
 
 
@@ -64,22 +72,40 @@ __all__ = [
 MARK_SUFFIX = ".region"
 
 
-def working_matches(path, batches_digest):
-    """Whether the working store at ``path`` was defined for batches of ``batches_digest``
-    (`rbstudy.archive.ids.batches_digest`): the cells its marked batches wrote are theirs."""
+# The working store's attribute naming its generation: set when the store is defined, written
+# in each mark and in the name of each unit's lock; the sealed store has none.
+GENERATION = "rbstudy_working_generation"
+
+
+def working_generation(path, batches_digest):
+    """The generation of the working store at ``path`` when it was defined whole for batches
+    of ``batches_digest`` (`rbstudy.archive.ids.batches_digest`), else None: the cells its
+    marked batches wrote are theirs."""
     with contextlib.suppress(OSError, KeyError, ValueError, TypeError):
-        return store_attribute(path, "batches") == batches_digest
-    return False
+        if store_attribute(path, "batches") == batches_digest:
+            return store_attribute(path, GENERATION)
+    return None
 
 
 def open_working(path, study, attrs):
-    """The working store at ``path`` for ``study`` (global attributes ``attrs``): kept when it
-    was defined for these very batches (a resumed run), else defined anew, empty."""
-    if working_matches(path, attrs["batches"]):
-        return
-    if path.exists():
-        shutil.rmtree(path)
-    define_store(path, study, attrs)
+    """The generation of the working store at ``path`` for ``study`` (global attributes
+    ``attrs``): kept when it was defined for these very batches (a resumed run), else defined
+    anew, empty, in a temporary folder renamed into place (a sweep killed while it defines the
+    store leaves none), the marks of the store it replaces removed first."""
+    generation = working_generation(path, attrs["batches"])
+    if generation is not None:
+        return generation
+    remove_marks(path.parent)
+    generation = uuid.uuid4().hex
+    with temporary_folder_beside(path) as temporary:
+        define_store(temporary, study, {**attrs, GENERATION: generation})
+    return generation
+
+
+def remove_marks(folder):
+    """Remove the marks (and their digests) in ``folder``: of a working store gone, or sealed."""
+    for mark in [*folder.glob(f"*{MARK_SUFFIX}"), *folder.glob(f"*{MARK_SUFFIX}{SIDECAR_SUFFIX}")]:
+        mark.unlink(missing_ok=True)
 
 
 class RegionTarget(NamedTuple):
@@ -87,7 +113,7 @@ class RegionTarget(NamedTuple):
     the batch (a `rbstudy.pipeline.batches.Batch`: its ``id`` and ``cases``), the path of its
     mark, the working store's path, the grid's dimension names and shape, the lock of a unit
     (a function of its name, held across the cluster: a module-level function, so that it
-    travels with the task; None: one process writes) and the prefix of its units' lock names.
+    travels with the task; None: one process writes) and the store's generation (`GENERATION`).
     As a `rbstudy.archive.parts.PartTarget` (small: it travels with its task)."""
 
     layout: Layout
@@ -97,7 +123,7 @@ class RegionTarget(NamedTuple):
     dims: tuple
     shape: tuple
     lock: Callable[[str], AbstractContextManager] | None
-    lock_prefix: str
+    generation: str
 
     @property
     def cases(self):
@@ -111,9 +137,15 @@ class RegionTarget(NamedTuple):
         return _mark(self, part)
 
 
+class StoreReplaced(RuntimeError):
+    """The working store a batch was to be written to was defined anew since (another config
+    or a rerun after it was lost): this batch's values belong to no store."""
+
+
 def _write_region(target, part):
     """The cases of ``part`` (`part_values`) into their units of the store, each unit read,
-    merged and written whole under its lock."""
+    merged and written whole under its lock, once the store is found still of the target's
+    generation (`StoreReplaced` if not)."""
     import zarr  # here: a netCDF study's workers never load it
 
     group = zarr.open_group(target.store, mode="r+", zarr_format=3, use_consolidated=False)
@@ -126,13 +158,21 @@ def _write_region(target, part):
     copy_part(targets, part, target.shape)
     for (name, unit), pieces in writes.items():
         array = group[name]
-        held = target.lock(f"{target.lock_prefix}:{name}:{'.'.join(map(str, unit))}") if target.lock else None
-        with held or contextlib.nullcontext():
+        named = f"rbstudy-{target.generation}:{name}:{'.'.join(map(str, unit))}"
+        with target.lock(named) if target.lock else contextlib.nullcontext():
+            _check_generation(target)
             bounds = unit_bounds(array, unit)
             buffer = np.array(array[bounds])  # what earlier batches put there, else the fill
             for inside, block in pieces:
                 buffer[inside] = block
             array[bounds] = buffer
+
+
+def _check_generation(target):
+    """Raise `StoreReplaced` unless the store is the one of the target's generation."""
+    root = json.loads((pathlib.Path(target.store) / "zarr.json").read_text())
+    if root.get("attributes", {}).get(GENERATION) != target.generation:
+        raise StoreReplaced(f"{target.store}: defined anew since batch {target.batch.id} began; not written")
 
 
 class _Collected:
@@ -166,6 +206,7 @@ def _mark(target, part):
             "study": layout.study,
             "batch": target.batch.id,
             "identity": list(layout.identity),
+            "generation": target.generation,
             "values": _values_digest(part),
         },
         indent=1,
@@ -176,15 +217,19 @@ def _mark(target, part):
     return digest
 
 
-def region_complete(path, batch, layout):
+def region_complete(path, batch, layout, generation):
     """The digest of the mark at ``path`` when it is intact and marks ``batch`` of the study
-    of ``layout``, else None."""
+    of ``layout`` in the working store of ``generation`` (None: there is none), else None."""
     digest = part_digest(path)
-    if digest is None:
+    if digest is None or generation is None:
         return None
     try:
         said = json.loads(pathlib.Path(path).read_text())
-        if said["batch"] == batch.id and said["identity"] == list(layout.identity):
+        if (
+            said["batch"] == batch.id
+            and said["identity"] == list(layout.identity)
+            and said["generation"] == generation
+        ):
             return digest
     except (OSError, ValueError, KeyError, TypeError):
         pass
@@ -195,8 +240,8 @@ def finish_regions(study, arriving, target, attrs, advance=lambda: None, working
     """``<study>.zarr`` from the ``working`` store once every batch is in it: the contract of
     `rbstudy.archive.writer.consolidate` (``arriving`` yields (mark, digest, values) of each
     batch in the batches' order, once written; ``advance()`` after each), the working store
-    given this run's global attributes ``attrs``, sealed with the marks' digests
-    (`finish_store`) and renamed into place."""
+    given this run's global attributes ``attrs`` (its generation dropped), sealed with the
+    marks' digests (`finish_store`) and renamed into place, then the marks removed."""
     part_digests = []
     for batch, (_, digest, _) in zip(study.batches, arriving, strict=True):
         part_digests.append([batch.id, digest])
@@ -204,3 +249,4 @@ def finish_regions(study, arriving, target, attrs, advance=lambda: None, working
     refresh_store_description(working, attrs)
     finish_store(working, part_digests)
     replace_folder(working, target)
+    remove_marks(pathlib.Path(working).parent)

@@ -309,13 +309,16 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
 
 
 def finish_store(path, part_digests):
-    """The store at ``path`` made whole: every array's metadata copied into the root's
-    ``zarr.json`` (consolidated: xarray.open_zarr reads it in one file, and without a warning,
-    as a cluster's file system prefers; each array's own ``zarr.json`` stays, which other
-    readers read, rbstudy too), then sealed with its checksums and ``part_digests``
-    (`seal_store`)."""
+    """The store at ``path`` made whole: the files of writes killed inside zarr removed, every
+    array's metadata copied into the root's ``zarr.json`` (consolidated: xarray.open_zarr reads
+    it in one file, and without a warning, as a cluster's file system prefers; each array's
+    own ``zarr.json`` stays, which other readers read, rbstudy too), then sealed with its
+    checksums and ``part_digests`` (`seal_store`)."""
     import zarr
 
+    # what a write killed inside zarr left (it writes a file as <key>.<id>.partial, renamed)
+    for partial in pathlib.Path(path).rglob("*.partial"):
+        partial.unlink()
     # zarr warns that the v3 spec does not define consolidated metadata yet
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
@@ -340,10 +343,10 @@ def refresh_store_description(path, attrs):
     provenance) without touching its data, as `rbstudy.archive.rewrite.refresh_description`
     does for the netCDF archive: the root's ``zarr.json`` is written anew whole, through a
     temporary file and a rename, its consolidated metadata kept (zarr's own update of the
-    attributes drops it); no checksum covers what changes."""
+    attributes drops it), holding ``attrs`` alone; no checksum covers what changes."""
     root = pathlib.Path(path) / "zarr.json"
     metadata = json.loads(root.read_text())
-    metadata["attributes"].update({key: _json(value) for key, value in attrs.items()})
+    metadata["attributes"] = {key: _json(value) for key, value in attrs.items()}
     write_text_atomic(json.dumps(metadata, indent=2), root)
 
 
