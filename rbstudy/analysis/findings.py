@@ -24,6 +24,7 @@ import dataclasses
 import math
 import textwrap
 import typing
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -263,19 +264,72 @@ def _text(value):
     return f"{float(_g(value)):.0f}" if 1e3 <= abs(value) < 1e6 else _g(value)
 
 
+class _CaseLabels(Sequence):
+    """The `_Place` of each value of the other swept axes, in C order (as `_cases` yields
+    them), each made when it is read: a finding names a few of a million cases, whose
+    mappings took 10 s to make."""
+
+    def __init__(self, ds):
+        self.dims = _other_dims(ds)
+        self.shape = tuple(ds.sizes[d] for d in self.dims)
+        self._labels_of = [_label_values(ds, dim) for dim in self.dims]
+        self.axes = dict(zip(self.dims, self._labels_of, strict=True))
+
+    def __len__(self):
+        return math.prod(self.shape)
+
+    def __getitem__(self, k):
+        return self.at(tuple(int(i) for i in np.unravel_index(k, self.shape)))
+
+    def at(self, index):
+        """The `_Place` at ``index`` (a position along each of the other swept axes)."""
+        labels = _Place()
+        for values, k in zip(self._labels_of, index, strict=True):
+            labels.update({name: column[k] for name, column in values.items()})
+        labels.positions = dict(zip(self.dims, index, strict=True))
+        labels.axes = self.axes
+        return labels
+
+    def where(self, members):
+        """`_where` of the cases ``members`` (their indices, ascending), from their positions
+        alone."""
+        if not self.dims:
+            return _where([self[k] for k in members])
+        positions = np.column_stack(np.unravel_index(members, self.shape)).tolist()
+        return _held(list(map(tuple, positions)), list(self.axes.items()))
+
+
+class _Members(Sequence):
+    """A finding's cases (`Finding.cases`): those of ``members`` (indices) among ``labels``
+    (`_CaseLabels`), each mapping made when it is read, the ``fixed`` names (a scheme and a
+    step) before its labels."""
+
+    def __init__(self, labels, members, fixed=None):
+        self._labels, self._members, self._fixed = labels, members, fixed
+
+    def __len__(self):
+        return len(self._members)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return tuple(self[i] for i in range(*k.indices(len(self))))
+        labels = self._labels[int(self._members[k])]
+        return labels if self._fixed is None else {**self._fixed, **labels}
+
+    def __eq__(self, other):
+        return isinstance(other, Sequence) and tuple(self) == tuple(other)
+
+    def __repr__(self):
+        return f"_Members({len(self)} cases)"
+
+
 def _cases(ds):
     """The cases of every value of the other swept axes, in C order: (labels, isel indexer)
     pairs, the labels a `_Place`."""
-    dims = _other_dims(ds)
-    labels_of = [_label_values(ds, dim) for dim in dims]
-    axes = dict(zip(dims, labels_of, strict=True))
-    for index in np.ndindex(*[ds.sizes[d] for d in dims]):
-        labels = _Place()
-        for values, k in zip(labels_of, index, strict=True):
-            labels.update({name: column[k] for name, column in values.items()})
-        labels.positions = dict(zip(dims, index, strict=True))
-        labels.axes = axes
-        yield labels, dict(labels.positions)
+    labels = _CaseLabels(ds)
+    for index in np.ndindex(*labels.shape):
+        place = labels.at(index)
+        yield place, dict(place.positions)
 
 
 def calibrated(ds):
@@ -570,7 +624,7 @@ def _recommendation_findings(ds):
         # grouped by answer (and its candidates of equal cost) as arrays; a dict per case
         # only for the finding's own cases (a million cases' Recommendation objects and
         # labels took ~600 MiB)
-        labels = [labels for labels, _ in _cases(ds)]
+        labels = _CaseLabels(ds)
         order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
         # grouped by the candidates of equal cost, not by the one that represents them at each
         # value: "euler or leapfrog" at one ratio and "leapfrog or euler" at the next are one
@@ -581,13 +635,13 @@ def _recommendation_findings(ds):
         group = group.reshape(-1)
         for first in np.sort(first_of):
             members = np.flatnonzero(group == group[first])
-            where = _where([labels[k] for k in members])
+            where = labels.where(members)
             if not picks.met[first]:
                 result.append(
                     Finding(
                         kind="no_recommendation",
                         numbers={"accuracy_bound": bound},
-                        cases=tuple(labels[k] for k in members),
+                        cases=_Members(labels, members),
                         text=f"no scheme and step meet the bound {_g(bound)} at {where}",
                     )
                 )
@@ -609,7 +663,7 @@ def _recommendation_findings(ds):
             result.append(
                 Finding(
                     kind="recommendation",
-                    cases=tuple({"scheme": answer[0], "dt": answer[1], **labels[k]} for k in members),
+                    cases=_Members(labels, members, {"scheme": answer[0], "dt": answer[1]}),
                     numbers=_recommendation_numbers(ds, answer[1], seconds, error, bound, tied_others),
                     text=text,
                 )
@@ -881,7 +935,7 @@ def _json_value(value):
     numpy scalars as Python's."""
     if isinstance(value, dict):
         return {str(k): _json_value(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
+    if isinstance(value, Sequence) and not isinstance(value, str):  # tuples, a finding's cases
         return [_json_value(v) for v in value]
     value = _plain(value)
     if isinstance(value, float) and not math.isfinite(value):
@@ -927,7 +981,10 @@ def summary_document(ds):
     return _json_value(
         {
             "study": str(ds.attrs["study"]),
-            "findings": [dataclasses.asdict(finding) for finding in findings(ds, rows)],
+            "findings": [
+                {field.name: getattr(finding, field.name) for field in dataclasses.fields(finding)}
+                for finding in findings(ds, rows)
+            ],
             "recommended": recommended,
             "schemes": table_records(rows),
         }
