@@ -34,6 +34,7 @@ let another in. One unit's write takes milliseconds to a second.
 
 import collections
 import contextlib
+import functools
 import hashlib
 import json
 import pathlib
@@ -146,18 +147,15 @@ def _write_region(target, part):
     """The cases of ``part`` (`part_values`) into their units of the store, each unit read,
     merged and written whole under its lock, once the store is found still of the target's
     generation (`StoreReplaced` if not)."""
-    import zarr  # here: a netCDF study's workers never load it
-
-    group = zarr.open_group(target.store, mode="r+", zarr_format=3, use_consolidated=False)
+    arrays = _opened(target.store, target.generation, tuple(target.layout.variables))
     writes = collections.defaultdict(list)  # (name, unit) -> [(positions inside, values)]
     targets = {}
-    for name in target.layout.variables:
-        array = group[name]
+    for name, array in arrays.items():
         along = tuple(dim in array.metadata.dimension_names for dim in target.dims)
         targets[name] = (_Collected(array, name, writes), along, None)
     copy_part(targets, part, target.shape)
     for (name, unit), pieces in writes.items():
-        array = group[name]
+        array = arrays[name]
         named = f"rbstudy-{target.generation}:{name}:{'.'.join(map(str, unit))}"
         with target.lock(named) if target.lock else contextlib.nullcontext():
             _check_generation(target)
@@ -166,6 +164,17 @@ def _write_region(target, part):
             for inside, block in pieces:
                 buffer[inside] = block
             array[bounds] = buffer
+
+
+@functools.lru_cache(maxsize=8)
+def _opened(store, generation, names):
+    """The arrays ``names`` of the working ``store`` of ``generation``, name -> zarr array,
+    opened once in a process for all the batches it writes there (each opening reads and
+    parses the array's metadata: 1.4 s of a 1e5-case study's 8 s in zarr)."""
+    import zarr  # here: a netCDF study's workers never load it
+
+    group = zarr.open_group(store, mode="r+", zarr_format=3, use_consolidated=False)
+    return {name: group[name] for name in names}
 
 
 def _check_generation(target):
