@@ -265,6 +265,41 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         assert not _open_in(disk)
 
 
+def test_a_disk_filled_while_a_zarr_store_is_written_keeps_its_parts_and_the_rerun_resumes(
+    tmp_path, capsys, monkeypatch
+):
+    """A zarr study on a real file system that fills while its parts and its store are
+    written: one line, the finished parts kept and sealed, no store and no temporary left;
+    on a larger disk the rerun reuses the parts and the store holds the numbers of an
+    uninterrupted run."""
+    output = {"interval": 0.01, "format": "zarr"}
+    sweep = {"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]}
+    config = write_study(tmp_path, name="small", sweep=sweep, output=output)
+    whole = run_study(load_study(config), tmp_path / "whole", quiet=True, keep_parts=True)
+    part = max(path.stat().st_size for path in (whole.path.parent / "parts").glob("*.npz"))
+    monkeypatch.setattr(execute, "check_disk", lambda *args: None)  # as above
+    monkeypatch.setattr(execute, "default_threads", lambda: 1)
+    with _tmpfs(tmp_path / "disk", (1 + 2 * (-(-part // PAGE) + 1)) * PAGE + part // 2) as disk:
+        sweep = ["sweep", str(config), "--out", str(disk / "out")]
+        assert main([*sweep, "--quiet"]) == 1
+        assert _one_line_only(capsys).endswith(
+            f": no space left on the file system at {disk}; free space and rerun the same "
+            "command (a sweep keeps its finished parts and resumes)"
+        )
+        folder = disk / "out" / "small"
+        kept = sorted((folder / "parts").glob("*.npz"))
+        assert 1 <= len(kept) < 4 and len(list((folder / "parts").glob("*.sha256"))) == len(kept)
+        assert not (folder / "small.zarr").exists() and not list(folder.rglob(".*.tmp"))
+        assert all(main(["verify", str(path)]) == 0 for path in kept)
+        capsys.readouterr()
+        subprocess.run(["mount", "-o", "remount,size=8m", disk], check=True)
+        assert main(sweep) == 0
+        run = 4 - len(kept)
+        assert f"small: {run} batch{'es' * (run != 1)} run, {len(kept)} reused" in capsys.readouterr().out
+        _same_numbers(whole.path, folder / "small.zarr")
+        assert main(["verify", str(folder / "small.zarr")]) == 0
+
+
 def test_a_part_whose_digest_finds_no_room_is_not_left_half_finished(tmp_path, capsys, monkeypatch):
     """The disk holds the first part but not its digest: before, the part stayed without its
     digest (a rerun recomputes it, but it was left behind half finished, and with it the

@@ -117,6 +117,26 @@ def _folder_bytes(folder):
     }
 
 
+def test_a_second_zarr_study_of_the_same_name_is_refused_and_the_store_kept(tmp_path, capsys):
+    """Two zarr configs of one name into one --out: the second is refused in one line, and
+    the first's store, every file of it, is as it was."""
+    output = {"interval": 0.01, "format": "zarr"}
+    (tmp_path / "first").mkdir()
+    (tmp_path / "second").mkdir()
+    first = write_study(tmp_path / "first", name="top", output=output)
+    leapfrog = {"scheme": "leapfrog", "dt": 0.01}
+    second = write_study(tmp_path / "second", name="top", run=leapfrog, output=output)
+    out = tmp_path / "out"
+    assert main(["sweep", str(first), "--out", str(out), "--quiet"]) == 0
+    folder = out / "top"
+    kept = _folder_bytes(folder)
+    assert any(path.parts[0] == "top.zarr" for path in kept)
+    capsys.readouterr()
+    assert main(["sweep", str(second), "--out", str(out), "--quiet"]) == 1
+    assert capsys.readouterr().err == _refusal(second, folder, first)
+    assert _folder_bytes(folder) == kept
+
+
 def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp_path, capsys):
     """Two config files of one name into one --out: the second is refused in one line naming
     both files and the fix, the first's archive and kept parts untouched; with --force it

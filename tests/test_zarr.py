@@ -28,6 +28,9 @@ from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 
 SWEEP = {"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005], "inertia_ratio": [0.5, 2.0]}
+# No scene axis swept: a variable of the scene alone is a scalar, which zarr gives no
+# dimension names and reads back as a number.
+ONE_SCENE = {"scheme": ["euler", "midpoint"], "dt": [0.01, 0.005]}
 
 
 def _zarr_config(folder, name="small", sweep=SWEEP, **kwargs):
@@ -50,11 +53,12 @@ def _bare(dataset):
 
 
 @pytest.mark.slow
-def test_the_store_holds_the_netcdf_archives_dataset(tmp_path):
+@pytest.mark.parametrize("sweep", [SWEEP, ONE_SCENE], ids=["scenes", "one_scene"])
+def test_the_store_holds_the_netcdf_archives_dataset(tmp_path, sweep):
     """The netCDF archive of a study and the zarr store built from the very same parts: xarray
     reads the same variables, values, coordinates and attributes from both (run_time too: the
     parts are one run's), and the store is sharded where a variable has several chunks."""
-    config = write_study(tmp_path, name="small", sweep=SWEEP)
+    config = write_study(tmp_path, name="small", sweep=sweep)
     netcdf = run_study(load_study(config), tmp_path / "out", quiet=True, keep_parts=True)
     assert main(["sweep", str(config), "--out", str(tmp_path / "out"), "--format", "zarr", "-q"]) == 0
     store = tmp_path / "out" / "small" / "small.zarr"
@@ -330,12 +334,12 @@ def _unit_lock(name):
     return _UNIT_LOCKS[name]
 
 
-@pytest.fixture(scope="module")
-def computed(tmp_path_factory):
+@pytest.fixture(scope="module", params=[SWEEP, ONE_SCENE], ids=["scenes", "one_scene"])
+def computed(tmp_path_factory, request):
     """A zarr study, its store written from parts by one process, and the values of each of
     its batches (read from the parts kept)."""
     folder = tmp_path_factory.mktemp("regions")
-    study = load_study(_zarr_config(folder))
+    study = load_study(_zarr_config(folder, sweep=request.param))
     run = run_study(study, folder / "local", quiet=True, keep_parts=True)
     parts = run.path.parent / "parts"
     values = {batch.id: read_part(parts / f"{batch.id}.npz", study.variables) for batch in study.batches}

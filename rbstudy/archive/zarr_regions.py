@@ -51,6 +51,7 @@ from rbstudy.archive.parts import SIDECAR_SUFFIX, file_digest, part_digest, part
 from rbstudy.archive.writer import copy_part
 from rbstudy.archive.zarr_store import (
     define_store,
+    dimensions_of,
     finish_store,
     refresh_store_description,
     store_attribute,
@@ -151,7 +152,7 @@ def _write_region(target, part):
     writes = collections.defaultdict(list)  # (name, unit) -> [(positions inside, values)]
     targets = {}
     for name, array in arrays.items():
-        along = tuple(dim in array.metadata.dimension_names for dim in target.dims)
+        along = tuple(dim in dimensions_of(array) for dim in target.dims)
         targets[name] = (_Collected(array, name, writes), along, None)
     copy_part(targets, part, target.shape)
     for (name, unit), pieces in writes.items():

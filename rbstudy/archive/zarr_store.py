@@ -45,6 +45,7 @@ __all__ = [
     "SUFFIX",
     "consolidate_store",
     "define_store",
+    "dimensions_of",
     "finish_store",
     "is_store",
     "open_header",
@@ -113,6 +114,12 @@ def _shards(shape, chunks, grid_rank, itemsize, batch_cases):
     return tuple(shard)
 
 
+def dimensions_of(array):
+    """The dimension names of zarr ``array``, a tuple (zarr gives None for a scalar's: a
+    variable of the scene alone where no scene axis is swept)."""
+    return tuple(array.metadata.dimension_names or ())
+
+
 def unit_bounds(array, unit):
     """The region of zarr ``array`` (a slice per grid dimension) its unit ``unit`` covers: the
     unit's index in the grid of its shards, or of its chunks where it has none."""
@@ -171,8 +178,8 @@ class _Units:
         if (name, unit) not in self.open:
             array = self.arrays[name]
             bounds = unit_bounds(array, unit)
-            if (name, unit) in self.stored:
-                buffer = array[bounds]
+            if (name, unit) in self.stored:  # an array (zarr gives a scalar's value as a number)
+                buffer = np.asarray(array[bounds])
             else:
                 shape = tuple(piece.stop - piece.start for piece in bounds) + array.shape[len(bounds) :]
                 buffer = np.full(shape, array.fill_value, dtype=array.dtype)
@@ -293,7 +300,7 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
         targets = {
             name: (
                 units.region(name),
-                tuple(d.name in array.metadata.dimension_names for d in study.dimensions),
+                tuple(d.name in dimensions_of(array) for d in study.dimensions),
                 None,
             )
             for name, array in arrays.items()
@@ -358,7 +365,7 @@ class _Variable:
 
     def __init__(self, array):
         self._array = array
-        self.dimensions = tuple(array.metadata.dimension_names or ())
+        self.dimensions = dimensions_of(array)
         self.dtype = str if array.dtype.kind in "OUT" else array.dtype
         self.size = array.size
 
