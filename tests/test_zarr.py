@@ -381,6 +381,7 @@ def test_marks_of_a_store_defined_anew_count_for_nothing(computed, tmp_path):
     for path, data in kept.items():  # a mark that outlived its store, as a copy would bring back
         path.write_bytes(data)
     assert _trusted(study, tmp_path) == {first.id: None}
+    assert again.damaged(study.batches) == 0  # of no use, but not a damaged batch
 
 
 def test_a_sweep_killed_while_it_defines_the_store_leaves_none(computed, tmp_path, monkeypatch):
@@ -437,6 +438,32 @@ def test_the_sealed_store_from_regions_is_the_one_from_parts(computed, tmp_path)
     assert GENERATION not in xr.open_zarr(folder.archive).attrs
     assert not list(folder.parts.glob("*.region*"))
     assert main(["verify", str(folder.archive)]) == 0
+
+
+def test_a_sweep_killed_while_it_seals_the_store_resumes_from_every_mark(computed, tmp_path, monkeypatch):
+    """Killed once the working store is sealed, before it is renamed into place: the rerun
+    trusts every mark (the store keeps its generation till then; without it the rerun ran
+    every batch again), and sealing it then gives the store from parts."""
+    import rbstudy.archive.zarr_regions as zarr_regions
+
+    study, from_parts, values = computed
+    folder = _working_folder(study, tmp_path)
+    marks = [folder.part(batch).write(values[batch.id]) for batch in study.batches]
+    arriving = [(None, digest, None) for digest in marks]
+    sealing = zarr_regions.finish_store
+
+    def killed(*args):
+        sealing(*args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(zarr_regions, "finish_store", killed)
+    with pytest.raises(KeyboardInterrupt):
+        finish_regions(study, arriving, folder.archive, global_attrs(study), working=folder.working_store)
+    assert _trusted(study, tmp_path) == dict(zip([batch.id for batch in study.batches], marks, strict=True))
+    monkeypatch.setattr(zarr_regions, "finish_store", sealing)
+    finish_regions(study, arriving, folder.archive, global_attrs(study), working=folder.working_store)
+    assert _file_checksums(folder.archive, but=()) == _file_checksums(from_parts, but=())
+    assert GENERATION not in xr.open_zarr(folder.archive).attrs
 
 
 def test_removing_the_parts_removes_the_marks_and_the_working_store(computed, tmp_path):

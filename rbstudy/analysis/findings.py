@@ -279,7 +279,9 @@ class _CaseLabels(Sequence):
         return math.prod(self.shape)
 
     def __getitem__(self, k):
-        return self.at(tuple(int(i) for i in np.unravel_index(k, self.shape)))
+        if not -len(self) <= k < len(self):
+            raise IndexError(k)
+        return self.at(tuple(int(i) for i in np.unravel_index(k % len(self), self.shape)))
 
     def at(self, index):
         """The `_Place` at ``index`` (a position along each of the other swept axes)."""
@@ -316,8 +318,8 @@ class _Members(Sequence):
         labels = self._labels[int(self._members[k])]
         return labels if self._fixed is None else {**self._fixed, **labels}
 
-    def __eq__(self, other):
-        return isinstance(other, Sequence) and tuple(self) == tuple(other)
+    def __eq__(self, other):  # as the tuple of cases it stands for
+        return isinstance(other, tuple | _Members) and tuple(self) == tuple(other)
 
     def __repr__(self):
         return f"_Members({len(self)} cases)"
@@ -935,7 +937,7 @@ def _json_value(value):
     numpy scalars as Python's."""
     if isinstance(value, dict):
         return {str(k): _json_value(v) for k, v in value.items()}
-    if isinstance(value, Sequence) and not isinstance(value, str):  # tuples, a finding's cases
+    if isinstance(value, Sequence) and not isinstance(value, str | bytes):  # tuples, a finding's cases
         return [_json_value(v) for v in value]
     value = _plain(value)
     if isinstance(value, float) and not math.isfinite(value):

@@ -48,6 +48,7 @@ from rbstudy.archive.zarr_regions import (
     MARK_SUFFIX,
     RegionTarget,
     finish_regions,
+    mark_generation,
     open_working,
     region_complete,
     remove_marks,
@@ -321,8 +322,14 @@ class StudyFolder:
 
     def damaged(self, batches):
         """How many of ``batches`` have a part with its digest beside it: a part that failed
-        its check then is damaged, not unfinished (stopped between its rename and its digest)."""
-        return sum(sealed(self.part_path(batch.id)) for batch in self.stored(batches))
+        its check then is damaged, not unfinished (stopped between its rename and its digest);
+        a mark only when it names the working store's generation (one of another store is
+        not damaged, but of no use)."""
+        stored = self.stored(batches)
+        if self.regions:
+            generation = self._found_generation()
+            stored = [batch for batch in stored if mark_generation(self.part_path(batch.id)) == generation]
+        return sum(sealed(self.part_path(batch.id)) for batch in stored)
 
     @contextlib.contextmanager
     def probe(self, token):

@@ -20,6 +20,7 @@ import itertools
 import json
 import math
 import pathlib
+import shutil
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
@@ -318,16 +319,18 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
 
 
 def finish_store(path, part_digests):
-    """The store at ``path`` made whole: the files of writes killed inside zarr removed, every
-    array's metadata copied into the root's ``zarr.json`` (consolidated: xarray.open_zarr reads
-    it in one file, and without a warning, as a cluster's file system prefers; each array's
-    own ``zarr.json`` stays, which other readers read, rbstudy too), then sealed with its
-    checksums and ``part_digests`` (`seal_store`)."""
+    """The store at ``path`` made whole: the files of writes killed inside zarr and an earlier
+    seal removed, every array's metadata copied into the root's ``zarr.json`` (consolidated:
+    xarray.open_zarr reads it in one file, and without a warning, as a cluster's file system
+    prefers; each array's own ``zarr.json`` stays, which other readers read, rbstudy too), then
+    sealed with its checksums and ``part_digests`` (`seal_store`)."""
     import zarr
 
     # what a write killed inside zarr left (it writes a file as <key>.<id>.partial, renamed)
     for partial in pathlib.Path(path).rglob("*.partial"):
         partial.unlink()
+    # the seal of a sweep killed before it renamed the store: sealed again, whole
+    shutil.rmtree(pathlib.Path(path) / GROUP, ignore_errors=True)
     # zarr warns that the v3 spec does not define consolidated metadata yet
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "Consolidated metadata", UserWarning)
