@@ -165,15 +165,17 @@ def test_a_study_in_slurm_jobs_gives_the_threaded_archive(tmp_path, capsys, monk
 
 @pytest.mark.slow
 def test_a_zarr_study_in_slurm_jobs_is_written_by_its_workers_with_the_threaded_values(tmp_path, capsys):
-    """``--format zarr`` on SLURM: the job's workers write their batches into the store (a
-    mark per batch, no part file), and the store holds the threaded netCDF archive's values."""
+    """``--format zarr`` on SLURM: the job's workers write their batches into the store
+    (``--writer workers``: none sends its values back; no part file, which --keep-parts would
+    keep; their marks gone with the sealed store), and the store holds the threaded netCDF
+    archive's values."""
     config = _small_study(tmp_path)
     cluster, _ = _cluster_file(tmp_path)
     out = tmp_path / "out"
-    assert _sweep(config, out, cluster, capsys, more=("--format", "zarr", "--keep-parts")) == (0, "")
+    more = ("--format", "zarr", "--keep-parts", "--writer", "workers")
+    assert _sweep(config, out, cluster, capsys, more=more) == (0, "")
     study = load_study(config)
-    marks = list((out / "small" / "parts").glob("*.region"))
-    assert len(marks) == len(study.batches) and not _parts(out / "small")
+    assert not _parts(out / "small") and not list((out / "small" / "parts").glob("*.region"))
     threaded = run_study(study, tmp_path / "threaded", quiet=True)
     _assert_same_numbers(threaded.path, out / "small" / "small.zarr")
     assert main(["verify", str(out / "small" / "small.zarr")]) == 0
