@@ -388,18 +388,21 @@ def test_a_sweep_killed_while_it_defines_the_store_leaves_none(computed, tmp_pat
     """The store is defined in a temporary folder and renamed into place: a sweep killed
     while it writes the arrays leaves no store a rerun would keep, and the rerun's clearing
     removes the temporary."""
+    import rbstudy.archive.files as files
     import rbstudy.archive.zarr_store as zarr_store
 
     study, _, _ = computed
-    real = zarr_store.Layout.of
 
     def killed(*args):  # after the root group (with its batches attribute) is written
         raise KeyboardInterrupt
 
     monkeypatch.setattr(zarr_store.Layout, "of", killed)
+    # as SIGKILL would: the temporary's removal on the way out does not run either
+    monkeypatch.setattr(files.shutil, "rmtree", lambda *args, **kwargs: None)
     with pytest.raises(KeyboardInterrupt):
         _working_folder(study, tmp_path)
-    monkeypatch.setattr(zarr_store.Layout, "of", real)
+    monkeypatch.undo()
+    assert list((tmp_path / study.name / "parts").glob(".*.tmp"))  # half defined, aside
     folder = StudyFolder.of(tmp_path, study, unit_lock=_unit_lock)
     assert not folder.working_store.exists() and _trusted(study, tmp_path) == {}
     folder.clear_stale()

@@ -326,7 +326,7 @@ class StudyFolder:
         a mark only when it names the working store's generation (one of another store is
         not damaged, but of no use)."""
         stored = self.stored(batches)
-        if self.regions:
+        if self.regions and stored:
             generation = self._found_generation()
             stored = [batch for batch in stored if mark_generation(self.part_path(batch.id)) == generation]
         return sum(sealed(self.part_path(batch.id)) for batch in stored)

@@ -55,6 +55,7 @@ from rbstudy.archive.zarr_store import (
     finish_store,
     refresh_store_description,
     store_attribute,
+    store_attributes,
     unit_bounds,
     unit_pieces,
 )
@@ -85,8 +86,9 @@ def working_generation(path, batches_digest):
     of ``batches_digest`` (`rbstudy.archive.ids.batches_digest`), else None: the cells its
     marked batches wrote are theirs."""
     with contextlib.suppress(OSError, KeyError, ValueError, TypeError):
-        if store_attribute(path, "batches") == batches_digest:
-            return store_attribute(path, GENERATION)
+        attributes = store_attributes(path)
+        if attributes["batches"] == batches_digest:
+            return attributes[GENERATION]
     return None
 
 
@@ -181,9 +183,10 @@ def _opened(store, generation, names):
 
 def _check_generation(target):
     """Raise `StoreReplaced` unless the store is the one of the target's generation."""
-    root = json.loads((pathlib.Path(target.store) / "zarr.json").read_text())
-    if root.get("attributes", {}).get(GENERATION) != target.generation:
-        raise StoreReplaced(f"{target.store}: defined anew since batch {target.batch.id} began; not written")
+    with contextlib.suppress(OSError, KeyError, ValueError):
+        if store_attribute(target.store, GENERATION) == target.generation:
+            return
+    raise StoreReplaced(f"{target.store}: defined anew since batch {target.batch.id} began; not written")
 
 
 class _Collected:

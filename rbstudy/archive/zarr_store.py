@@ -52,6 +52,7 @@ __all__ = [
     "open_header",
     "refresh_store_description",
     "store_attribute",
+    "store_attributes",
     "unit_bounds",
     "unit_pieces",
 ]
@@ -344,10 +345,17 @@ def _open_group(path, mode="r"):
     return zarr.open_group(str(path), mode=mode, zarr_format=3, use_consolidated=False)
 
 
+def store_attributes(path):
+    """The global attributes of the store at ``path``, read from its root ``zarr.json`` alone
+    (opening the group through zarr reads more, and a worker reads them under each unit's
+    lock); raises `OSError`, `ValueError` or `KeyError` where the store cannot be read."""
+    return json.loads((pathlib.Path(path) / "zarr.json").read_text())["attributes"]
+
+
 def store_attribute(path, name):
     """The global attribute ``name`` of the store at ``path``; raises `KeyError` without it,
     `OSError` or `ValueError` where the store cannot be read."""
-    return _open_group(path).attrs[name]
+    return store_attributes(path)[name]
 
 
 def refresh_store_description(path, attrs):
