@@ -26,7 +26,8 @@ This module is the contract: what it names keeps its meaning between releases.
 from rbstudy.numerics import algebra, dynamics, rotation, state
 from rbstudy.numerics.batch_driver import batch_loads, make_batch_entry
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.schemes import Option, Scheme, SchemeUnavailable, Style, option_slots

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 import numpy as np
-from conftest import LOADED, abaqus_mapping, write_study
+from helpers import LOADED, abaqus_mapping, write_study
 
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics import state as S

@@ -11,7 +11,7 @@ import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, abaqus_mapping, write_study
+from helpers import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, abaqus_mapping, write_study
 
 from rbstudy.analysis.plots import all_figures
 from rbstudy.analysis.report import write_report

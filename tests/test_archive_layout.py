@@ -13,7 +13,7 @@ import subprocess
 import netCDF4
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, write_study
+from helpers import abaqus_mapping, write_study
 
 from rbstudy.analysis.findings import summary_document
 from rbstudy.archive import layout

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import write_study
+from helpers import write_study
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation

@@ -4,8 +4,9 @@ import math
 
 import numpy as np
 import pytest
-from conftest import FIXED_STEP
+from helpers import FIXED_STEP
 
+from rbstudy.numerics.loads import LOAD_KINDS
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 from rbstudy.physics.scenes import Body, Scene
 from rbstudy.physics.simulate import simulate
@@ -193,6 +194,49 @@ def test_every_fixed_step_scheme_but_exact_split_steps_blocks():
     assert without == ["exact_split"]
 
 
+# A value of each load kind on every body of a batch, and a scale for its values.
+LOAD_SCALES = {"gravity": 9.81, "lever": 0.3, "damping_moment": 0.05}
+
+
+@pytest.mark.parametrize("kind", [kind.name for kind in LOAD_KINDS])
+def test_every_load_kind_is_carried_by_the_blocks_or_kept_out_of_them(kind):
+    """The load catalogue says which kinds the block path carries (`LoadKind.in_blocks`): a
+    body with a kind it does not carry runs the single-body loop (`plain_loads` is False), and
+    a block of bodies under a kind it carries gives each body the bits of its solo run, in
+    every scheme's block step. A kind added to the catalogue as carried, and not read by the
+    block steps, fails here; one not carried is kept out of the blocks by the catalogue."""
+    from rbstudy.numerics import state as S
+    from rbstudy.numerics.block import BLOCK, plain_loads
+    from rbstudy.numerics.driver import run_batch
+    from rbstudy.numerics.loads import KIND, needs_time
+    from rbstudy.pipeline.bench import abaqus_top_scene
+
+    load = KIND[kind]
+    rng = np.random.default_rng(len(kind))
+    scene = abaqus_top_scene()
+    state0 = np.repeat(scene.state_row()[None], BLOCK, axis=0)
+    state0[:, S.OMEGA : S.OMEGA + 3] += rng.normal(size=(BLOCK, 3))  # off the symmetry axis
+    params = np.repeat(scene.param_row()[None], BLOCK, axis=0)
+    params[:, load.offset : load.offset + load.width] = LOAD_SCALES.get(kind, 0.5) * rng.normal(
+        size=(BLOCK, load.width)
+    )
+    assert bool(plain_loads(params[0])) == load.in_blocks
+    if load.in_blocks:  # the block path runs: kernels without the time, a full block
+        assert not needs_time(params).any()
+    names = [name for name in FIXED_STEP if get_scheme(name).run_bodies_inplace.has_block]
+    for name in names if load.in_blocks else ["rk4"]:
+        scheme, h, n_steps, every = get_scheme(name), 0.01, 20, 4
+        options = np.repeat(scheme.option_row()[None], BLOCK, axis=0)
+        batch = run_batch(scheme, state0, params, options, h, n_steps, every, threads=1)
+        assert np.all(batch.results["status"] == OK), name
+        for b in range(BLOCK):
+            one = slice(b, b + 1)
+            alone = run_batch(scheme, state0[one], params[one], options[one], h, n_steps, every)
+            assert np.array_equal(batch.samples[b], alone.samples[0]), (name, b)
+            for field, result in batch.results.items():
+                assert np.array_equal(result[b], alone.results[field][0], equal_nan=True), (name, b, field)
+
+
 # Options that a block step reads (a composition's stages, splitting's axis order), each set on
 # every body of a batch, and then on every other body, so that no block holds one option row.
 BLOCK_OPTIONS = [
@@ -233,7 +277,8 @@ def test_the_blocks_compile_only_for_a_batch_that_can_fill_one():
     the time, and never for a smaller batch or one whose kernels take the time."""
     from rbstudy.numerics import state as S
     from rbstudy.numerics.block import FEWEST
-    from rbstudy.numerics.driver import HALT_FLAG, init_nothing, make_entry, n_samples
+    from rbstudy.numerics.driver import HALT_FLAG, init_nothing, n_samples
+    from rbstudy.numerics.entry import make_entry
     from rbstudy.schemes import euler
 
     def arguments(n_bodies, clock):

@@ -4,8 +4,8 @@ their energy over a long run, and the bounds Bullet puts on a step's turn."""
 
 import numpy as np
 import pytest
-from conftest import final_orientation_errors
 from engine_cases import compared_scenes, difference, example_scheme, make_scene, run
+from helpers import final_orientation_errors
 from scipy.spatial.transform import Rotation
 
 pytest.importorskip("pybullet")

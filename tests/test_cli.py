@@ -4,7 +4,7 @@ import re
 
 import pytest
 import yaml
-from conftest import CONFIGS, abaqus_mapping, listed_schemes, write_study
+from helpers import CONFIGS, abaqus_mapping, listed_schemes, write_study
 
 from rbstudy.archive.load import open_results
 from rbstudy.cli import build_parser, main

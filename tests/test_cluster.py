@@ -13,20 +13,15 @@ import time
 
 import dask
 import pytest
-import xarray as xr
 import yaml
-from conftest import abaqus_mapping, write_study
 from distributed import Client, LocalCluster
+from helpers import abaqus_mapping, same_numbers, write_study
 
-from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.errors import ConfigError, RbstudyError
 from rbstudy.pipeline.cluster import Where, read_cluster_file
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
-
-# Timings differ between runs; everything else must not.
-TIMINGS = ["run_time"]
 
 
 def _small_study(folder):
@@ -54,11 +49,6 @@ def _slow_study(folder):
             "inertia_ratio": [0.5, 0.8, 1.5, 2.0],
         },
     )
-
-
-def _assert_same_numbers(path_a, path_b):
-    a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 def _parts(folder):
@@ -152,12 +142,12 @@ def test_workers_that_do_not_see_the_results_folder_send_their_values_back(tmp_p
             _stop(workers)
     assert remote.returned == remote.computed == 4
     assert remote.path == pathlib.Path("results/small/small.nc")
-    _assert_same_numbers(threaded.path, client_side / remote.path)
+    same_numbers(threaded.path, client_side / remote.path)
     assert not (elsewhere / "results").exists()  # the workers wrote nothing where they run
     remote.path.unlink()
     again = run_study(load_study(config), "results", quiet=True)
     assert (again.computed, again.reused) == (0, 4)  # same parts, same identity
-    _assert_same_numbers(threaded.path, again.path)
+    same_numbers(threaded.path, again.path)
 
 
 @pytest.mark.slow
@@ -178,8 +168,8 @@ def test_client_writer_on_a_shared_folder_gives_the_same_parts(tmp_path):
             quiet=True,
         )
     assert (shared.returned, sent.returned) == (0, 4)
-    _assert_same_numbers(threaded.path, shared.path)
-    _assert_same_numbers(threaded.path, sent.path)
+    same_numbers(threaded.path, shared.path)
+    same_numbers(threaded.path, sent.path)
 
 
 @pytest.mark.slow
@@ -207,7 +197,7 @@ def test_a_killed_worker_keeps_the_finished_parts_and_a_rerun_resumes(tmp_path):
     resumed = run_study(load_study(config), out, quiet=True)
     assert (resumed.computed, resumed.reused) == (8 - len(kept), len(kept))
     uninterrupted = run_study(load_study(config), tmp_path / "whole", quiet=True)
-    _assert_same_numbers(uninterrupted.path, resumed.path)
+    same_numbers(uninterrupted.path, resumed.path)
 
 
 @pytest.mark.slow
@@ -274,7 +264,7 @@ def test_a_local_cluster_file_runs_the_study(tmp_path, capsys):
         == 0
     )
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
-    _assert_same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
+    same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
 
 
 @pytest.mark.slow

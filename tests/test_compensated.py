@@ -9,7 +9,7 @@ import math
 import mpmath as mp
 import numpy as np
 import pytest
-from conftest import ROUND_OFF_FLOOR, final_orientation_errors
+from helpers import ROUND_OFF_FLOOR, final_orientation_errors
 
 from rbstudy.errors import SchemeError
 from rbstudy.inputs.scenes import scene_from_mapping

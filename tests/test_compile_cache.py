@@ -93,7 +93,8 @@ IN_CHILDREN = textwrap.dedent("""
     variants = [("leapfrog", False), ("rk4", False), ("rk4", True)]
     before = [SCHEMES[name].is_cached(timed) for name, timed in variants]
     seen = []
-    in_children = get_ready(variants, processes=2, watch=seen.append)
+    wanted = [(SCHEMES[name], timed) for name, timed in variants]
+    in_children = get_ready(wanted, processes=2, watch=seen.append)
     stats = {name: SCHEMES[name].run_bodies_inplace.dispatcher.stats for name in ("leapfrog", "rk4")}
     print(json.dumps({"before": before, "in_children": in_children,
                       "hits": {name: sum(s.cache_hits.values()) for name, s in stats.items()},

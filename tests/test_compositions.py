@@ -4,8 +4,8 @@ archive and the summary say of a swept composition."""
 
 import numpy as np
 import pytest
-from conftest import LOADED, write_study
 from free_body_mp import angle_between, exact_state
+from helpers import LOADED, write_study
 
 from rbstudy.analysis.summary import scheme_rows
 from rbstudy.archive.load import open_results

@@ -8,7 +8,7 @@ import re
 import netCDF4
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, write_study
+from helpers import abaqus_mapping, write_study
 from scipy.spatial.transform import Rotation
 
 from rbstudy.archive.variables import FEATURES, VARIABLES

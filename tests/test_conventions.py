@@ -6,7 +6,7 @@ verb, and a slip is offered what was meant."""
 import argparse
 
 import pytest
-from conftest import abaqus_mapping, write_study
+from helpers import abaqus_mapping, write_study
 
 from rbstudy.cli import build_parser, main
 from rbstudy.pipeline.config import load_study

@@ -4,7 +4,7 @@ stores and refuses."""
 
 import numpy as np
 import pytest
-from conftest import ROUND_OFF_FLOOR, write_study
+from helpers import ROUND_OFF_FLOOR, write_study
 
 from rbstudy.errors import InputError, SchemeError
 from rbstudy.inputs.scenes import scene_from_mapping

@@ -5,8 +5,8 @@ engines, and the discrete solvers' agreement on a free body."""
 
 import numpy as np
 import pytest
-from conftest import final_orientation_errors
 from engine_cases import compared_scenes, difference, make_scene, run, swept_errors
+from helpers import final_orientation_errors
 from scipy.spatial.transform import Rotation
 
 from rbstudy.physics.simulate import simulate

@@ -9,8 +9,8 @@ from importlib.metadata import requires
 
 import numpy as np
 import pytest
-from conftest import abaqus_mapping, final_orientation_errors
 from engine_cases import compared_scenes, difference, example_scheme, make_scene, run, swept_errors
+from helpers import abaqus_mapping, final_orientation_errors
 from packaging.requirements import Requirement
 from scipy.spatial.transform import Rotation
 
@@ -206,7 +206,7 @@ def test_an_engines_forecast_is_its_calibrated_cost(tmp_path, monkeypatch):
     forecast is then the study's body-steps at the figures measured, and the archive stores
     the same figures: one calibration for both (a bound on the forecast against the run's
     own time failed on a loaded machine: a timing is no test)."""
-    from conftest import write_study
+    from helpers import write_study
 
     from rbstudy.archive.load import open_results
     from rbstudy.pipeline import calibration

@@ -5,8 +5,8 @@ prints nothing."""
 
 import numpy as np
 import pytest
-from conftest import LOADED, abaqus_mapping, final_orientation_errors
 from engine_cases import compared_scenes, difference, make_scene, swept_errors
+from helpers import LOADED, abaqus_mapping, final_orientation_errors
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SchemeError

@@ -9,7 +9,7 @@ import re
 
 import pytest
 import yaml
-from conftest import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, copy_node_tables
+from helpers import CONFIGS, EXACT_FLOW_TOLERANCE, EXACT_FOR_FREE_BODIES, copy_node_tables
 from matplotlib.colors import to_rgb
 
 from rbstudy.analysis.plots import all_figures, convergence

@@ -15,17 +15,15 @@ import subprocess
 import h5py
 import pytest
 import xarray as xr
-from conftest import write_study
+from helpers import same_numbers, write_study
 
 from rbstudy.archive.chunks import ChunkedArchive
 from rbstudy.archive.files import write_dataset_atomic
-from rbstudy.archive.load import open_results
 from rbstudy.cli import main
 from rbstudy.pipeline import execute
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 
-TIMINGS = ["run_time"]  # differ between runs; nothing else may
 PAGE = 4096  # tmpfs counts whole pages: a sidecar of 100 bytes takes one
 # /proc takes no new files, even from root
 PROC_FOLDER = "/proc/rbstudy-results"
@@ -89,11 +87,6 @@ def _open_in(folder):
         with contextlib.suppress(OSError):  # closed since listed
             found.append(os.readlink(f"/proc/self/fd/{fd}"))
     return [name for name in found if name.startswith(f"{folder}/")]
-
-
-def _same_numbers(path_a, path_b):
-    a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
 
 
 def _verbs(tmp_path, out):
@@ -261,7 +254,7 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         run = 4 - len(kept)
         assert f"small: {run} batch{'es' * (run != 1)} run, {len(kept)} reused" in capsys.readouterr().out
         assert [path.stat().st_mtime_ns for path in kept] == kept_times  # reused, not rewritten
-        _same_numbers(whole.path, disk / "out" / "small" / "small.nc")
+        same_numbers(whole.path, disk / "out" / "small" / "small.nc")
         assert not _open_in(disk)
 
 
@@ -296,7 +289,7 @@ def test_a_disk_filled_while_a_zarr_store_is_written_keeps_its_parts_and_the_rer
         assert main(sweep) == 0
         run = 4 - len(kept)
         assert f"small: {run} batch{'es' * (run != 1)} run, {len(kept)} reused" in capsys.readouterr().out
-        _same_numbers(whole.path, folder / "small.zarr")
+        same_numbers(whole.path, folder / "small.zarr")
         assert main(["verify", str(folder / "small.zarr")]) == 0
 
 

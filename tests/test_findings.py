@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 import yaml
-from conftest import CONFIGS, copy_node_tables
+from helpers import CONFIGS, copy_node_tables
 
 from rbstudy.analysis.findings import findings, recommendations
 from rbstudy.archive.reader import open_archive

@@ -6,8 +6,8 @@ than with plain sums."""
 
 import numpy as np
 import pytest
-from conftest import LOADED
 from extended_oracle import loaded_rotation
+from helpers import LOADED
 
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.numerics.dynamics import to_momentum

@@ -9,7 +9,7 @@ import io
 
 import pytest
 import yaml
-from conftest import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, copy_node_tables, write_study
+from helpers import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, copy_node_tables, write_study
 
 from rbstudy.cli import main
 

@@ -9,18 +9,16 @@ import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import write_study
+from helpers import same_numbers, write_study
 
 from rbstudy.archive import checksums
 from rbstudy.archive.checksums import GROUP
-from rbstudy.archive.load import open_results
 from rbstudy.archive.parts import SIDECAR_SUFFIX
 from rbstudy.cli import main
 from rbstudy.pipeline import config as config_module
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 
-TIMINGS = ["run_time"]
 VICTIM = "final_orientation_error"
 
 
@@ -110,11 +108,6 @@ CORRUPTIONS = {
 }
 
 
-def _same_numbers(path_a, path_b):
-    a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", CORRUPTIONS)
 def test_a_damaged_part_is_recomputed_never_reused(study, kind):
@@ -126,7 +119,7 @@ def test_a_damaged_part_is_recomputed_never_reused(study, kind):
     again = run_study(load_study(config), out, quiet=True, keep_parts=True)
     assert (again.computed, again.reused) == (1, 3), kind
     assert again.damaged_parts == (0 if kind == "a deleted part" else 1)
-    _same_numbers(reference, again.path)
+    same_numbers(reference, again.path)
     assert main(["verify", str(victim)]) == 0  # the recomputed part is sealed again
 
 
@@ -155,7 +148,7 @@ def test_a_tampered_archive_is_refused_by_verify_and_rebuilt_by_the_sweep(study,
     again = run_study(load_study(config), out, quiet=True, keep_parts=True)
     assert not again.up_to_date and again.archive_problems
     assert (again.computed, again.reused) == (0, 4)  # rebuilt from its intact parts
-    _same_numbers(reference, again.path)
+    same_numbers(reference, again.path)
     assert main(["verify", str(archive)]) == 0
 
 

@@ -156,6 +156,81 @@ def entry_point_violations(entry_points):
     return found
 
 
+def module_name(parts):
+    """The dotted name of the module at ``parts`` (a package by its ``__init__``)."""
+    return ".".join(("rbstudy", *parts[:-1], *([] if parts[-1] == "__init__" else [parts[-1]])))
+
+
+def edges(path, known):
+    """The modules of ``known`` (dotted names) that ``path`` imports, anywhere in it (inside a
+    function too): ``from rbstudy.numerics import state`` names ``rbstudy.numerics.state``."""
+    found = set()
+    for name in imports(path):
+        found.add(name)
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return {name for name in found if name in known}
+
+
+def circles(graph):
+    """The import circles of ``graph`` (module -> the modules it imports): each a list of
+    modules, each importing the next and the last the first (Tarjan's strongly connected
+    components of more than one module, or of one importing itself)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(module):
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        on_stack.add(module)
+        for target in sorted(graph.get(module, ())):
+            if target not in index:
+                visit(target)
+                low[module] = min(low[module], low[target])
+            elif target in on_stack:
+                low[module] = min(low[module], index[target])
+        if low[module] == index[module]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == module:
+                    break
+            if len(component) > 1 or module in graph.get(module, ()):
+                found.append(sorted(component))
+
+    for module in sorted(graph):
+        if module not in index:
+            visit(module)
+    return found
+
+
+def import_graph():
+    found = {module_name(parts): path for path, parts in modules()}
+    return {name: edges(path, found.keys() - {name}) for name, path in found.items()}
+
+
+def test_the_import_graph_has_no_circle():
+    """No module imports, through any chain, one that imports it: an import made inside a
+    function counts (it hides a circle, it does not break it). The floor of the numerics
+    had one (driver -> entry -> block -> driver), and the scheme registry another."""
+    assert circles(import_graph()) == []
+
+
+def test_an_import_circle_is_caught():
+    """The check itself can fail: the numerics' old circle, rebuilt, is found, and an import
+    that only points down is not."""
+    graph = import_graph()
+    assert "rbstudy.numerics.block" in graph["rbstudy.numerics.entry"]
+    planted = {
+        **graph,
+        "rbstudy.numerics.block": graph["rbstudy.numerics.block"] | {"rbstudy.numerics.entry"},
+    }
+    assert circles(planted) == [["rbstudy.numerics.block", "rbstudy.numerics.entry"]]
+    assert circles({"a": {"b"}, "b": set(), "c": {"c"}}) == [["c"]]
+
+
 def test_every_module_sits_in_a_layer_and_imports_downwards_only():
     violations = {
         "/".join(parts): found for path, parts in modules() if (found := violations_of(path, parts))

@@ -34,6 +34,26 @@ def test_every_kind_has_its_field_and_its_slot_in_the_row():
         assert needs_time(row[None, :])[0] == kind.timed_kernels, kind.name
 
 
+def test_loads_is_checked_against_the_catalogue(monkeypatch):
+    """`Loads` is declared field by field; a kind the catalogue gains and `Loads` lacks (or
+    one of another width) stops the import with what each holds."""
+    import dataclasses
+
+    import pytest
+
+    from rbstudy.physics import loads
+
+    loads._check_against_catalogue()  # as the import did
+    wider = tuple(
+        dataclasses.replace(kind, width=4) if kind.name == "gravity" else kind for kind in LOAD_KINDS
+    )
+    extra = (*LOAD_KINDS, dataclasses.replace(LOAD_KINDS[0], name="magnetic_moment"))
+    for catalogue in (wider, extra):
+        monkeypatch.setattr(loads, "LOAD_KINDS", catalogue)
+        with pytest.raises(ImportError, match="the load catalogue wants"):
+            loads._check_against_catalogue()
+
+
 def test_config_md_names_every_key_with_its_units():
     text = CONFIG_MD.read_text()
     for kind in LOAD_KINDS:

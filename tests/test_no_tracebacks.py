@@ -12,7 +12,7 @@ import time
 
 import pytest
 import yaml
-from conftest import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
+from helpers import CONFIGS, HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
 from test_cluster import _parts, _slow_study
 
 from rbstudy import cli

@@ -6,7 +6,7 @@ import re
 
 import pytest
 import yaml
-from conftest import write_study
+from helpers import write_study
 
 from rbstudy.archive.load import open_results
 from rbstudy.archive.owner import OWNER

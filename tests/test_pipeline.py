@@ -19,11 +19,12 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import (
+from helpers import (
     CONFIGS,
     EXACT_FLOW_TOLERANCE,
     EXACT_FOR_FREE_BODIES,
     abaqus_mapping,
+    same_numbers,
     sweep_until_a_batch_is_kept,
     write_study,
 )
@@ -50,9 +51,6 @@ from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import estimate
 from rbstudy.pipeline.execute import run_study
 from rbstudy.schemes import BUILTIN, SCHEMES, dop853, get_scheme
-
-# Timings differ between runs; everything else must not.
-TIMINGS = ["run_time"]
 
 
 @pytest.fixture(scope="module")
@@ -299,11 +297,6 @@ def _small_study(folder, **changes):
     )
 
 
-def _assert_same_numbers(path_a, path_b):
-    a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
-
-
 @pytest.mark.slow
 def test_rerun_reuses_parts_force_recomputes_and_a_changed_config_never_mixes(tmp_path):
     config = _small_study(tmp_path)
@@ -344,7 +337,7 @@ def test_a_damaged_part_is_recomputed_not_trusted(tmp_path):
     victim.write_bytes(victim.read_bytes()[:100])  # a crash of the machine after the rename
     again = run_study(load_study(config), tmp_path / "out", quiet=True)
     assert (again.computed, again.reused) == (1, 3)
-    _assert_same_numbers(reference, again.path)
+    same_numbers(reference, again.path)
 
 
 def test_a_second_sweep_of_the_same_study_refuses_clearly(tmp_path, capsys):
@@ -529,7 +522,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path):
     assert resumed.reused == finished and resumed.computed == 10 - finished
     assert not list(parts.glob(".*.tmp")) and not list((out / "long").glob(".*.tmp"))
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
-    _assert_same_numbers(resumed.path, clean.path)
+    same_numbers(resumed.path, clean.path)
 
 
 @pytest.mark.slow
@@ -568,7 +561,7 @@ def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path
     resumed = run_study(load_study(config), out, quiet=True)
     assert (resumed.computed, resumed.reused) == (1, 1)
     clean = run_study(load_study(config), tmp_path / "clean", quiet=True)
-    _assert_same_numbers(resumed.path, clean.path)
+    same_numbers(resumed.path, clean.path)
 
 
 def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, monkeypatch):
@@ -646,7 +639,7 @@ def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(
     config = _small_study(tmp_path)
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
     cluster = run_study(load_study(config), tmp_path / "cluster", where=Where(workers=2), quiet=True)
-    _assert_same_numbers(threaded.path, cluster.path)
+    same_numbers(threaded.path, cluster.path)
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as running:
         remote = run_study(
             load_study(config),
@@ -654,7 +647,7 @@ def test_two_worker_local_cluster_and_a_running_scheduler_give_the_same_numbers(
             where=Where(scheduler=running.scheduler_address),
             quiet=True,
         )
-    _assert_same_numbers(threaded.path, remote.path)
+    same_numbers(threaded.path, remote.path)
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):

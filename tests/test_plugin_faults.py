@@ -14,7 +14,7 @@ import textwrap
 import numpy as np
 import pytest
 import yaml
-from conftest import abaqus_mapping, listed_schemes
+from helpers import abaqus_mapping, listed_schemes
 
 from rbstudy.errors import RbstudyError
 from rbstudy.numerics import state as S

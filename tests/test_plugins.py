@@ -14,7 +14,7 @@ import textwrap
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import (
+from helpers import (
     CONFIGS,
     HOSTILE,
     HOSTILE_SHOWN,

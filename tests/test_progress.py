@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from conftest import HOSTILE, HOSTILE_SHOWN, write_study
+from helpers import HOSTILE, HOSTILE_SHOWN, write_study
 
 from rbstudy.archive.load import open_results
 from rbstudy.pipeline import cluster, execute

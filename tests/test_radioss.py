@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import FIXED_STEP, ROUND_OFF_FLOOR, independent_reference, write_study
+from helpers import FIXED_STEP, ROUND_OFF_FLOOR, independent_reference, write_study
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 

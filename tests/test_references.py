@@ -5,8 +5,8 @@ against an extended-precision solution that shares no code with rbstudy's kernel
 
 import numpy as np
 import pytest
-from conftest import write_study
 from extended_oracle import loaded_rotation
+from helpers import write_study
 
 from rbstudy.analysis.summary import UNCERTAINTY_FACTOR, fitted_order, scheme_rows
 from rbstudy.archive.load import open_results

@@ -68,6 +68,27 @@ def test_an_option_outside_the_row_or_wider_than_declared_is_refused():
         _register(_option("a", width=2), _option("b"), _option("c", width=3))
 
 
+def test_block_scratch_rows_are_laid_out_in_order_and_bounded_by_the_block():
+    """A block step's scratch rows (`scratch_rows`): each field at the next free row from
+    `TEMP`, as hht's block step reads them; fields past the block's `N_TEMP` rows (which would
+    overwrite its carried rows) or of no rows are refused in one line."""
+    from rbstudy.numerics.block import N_TEMP, TEMP, WORK
+    from rbstudy.schemes import hht
+    from rbstudy.schemes._registry import scratch_rows
+
+    assert scratch_rows("twin", a=3, b=1, c=4) == (TEMP, TEMP + 3, TEMP + 4)
+    assert (hht._R_OLD, hht._SCALE, hht._W_NEW) == (TEMP, TEMP + 3, TEMP + 21)
+    assert scratch_rows("twin", whole=N_TEMP) == (TEMP,) and TEMP + N_TEMP == WORK
+    with pytest.raises(ValueError) as caught:
+        scratch_rows("twin", stages=N_TEMP - 2, exp=4)
+    assert str(caught.value) == (
+        f"scheme 'twin': block scratch stages ({N_TEMP - 2}), exp (4) takes {N_TEMP + 2} rows of the "
+        f"{N_TEMP} a block has; reuse rows in a second layout, or raise rbstudy.numerics.block.N_TEMP"
+    )
+    with pytest.raises(ValueError, match="block scratch 'exp' takes 0 rows; give 1 or more"):
+        scratch_rows("twin", exp=0)
+
+
 def test_rbstudy_s_engine_schemes_are_its_own_entry_points():
     """Read from the source tree's pyproject.toml, which the test layer checks too, in the
     order of their names, as an installed rbstudy's metadata lists them."""

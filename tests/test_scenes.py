@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import abaqus_mapping
+from helpers import abaqus_mapping
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
@@ -114,7 +114,7 @@ def test_space_angular_velocity_is_turned_into_the_body():
 def test_a_symmetric_body_given_as_a_rotated_tensor_is_symmetric(tmp_path):
     """diag(1, 1, 2) turned by a rotation diagonalises to (1.0, 1.0000000000000004, 2.0): it is
     still the symmetric top, with its closed-form reference and precession variables."""
-    from conftest import write_study
+    from helpers import write_study
 
     from rbstudy.inputs.scenes import scene_table
     from rbstudy.physics.analytic import precession_frequency_exact

@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import (
+from helpers import (
     EXACT_FLOW_TOLERANCE,
     EXACT_FOR_FREE_BODIES,
     FIXED_STEP,

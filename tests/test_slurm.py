@@ -18,8 +18,8 @@ import uuid
 
 import pytest
 import yaml
-from conftest import write_study
-from test_cluster import _assert_same_numbers, _parts, _slow_study, _small_study, _when_parts_appear
+from helpers import same_numbers, write_study
+from test_cluster import _parts, _slow_study, _small_study, _when_parts_appear
 
 from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
@@ -138,7 +138,7 @@ def _resumes(config, out, uninterrupted, kept):
     study = load_study(config)
     resumed = run_study(study, out, quiet=True)
     assert (resumed.computed, resumed.reused) == (len(study.batches) - len(kept), len(kept))
-    _assert_same_numbers(uninterrupted, resumed.path)
+    same_numbers(uninterrupted, resumed.path)
 
 
 @pytest.mark.slow
@@ -158,7 +158,7 @@ def test_a_study_in_slurm_jobs_gives_the_threaded_archive(tmp_path, capsys, monk
             taken.listen()
         assert _sweep(config, tmp_path / "out", cluster, capsys) == (0, "")
     threaded = run_study(load_study(config), tmp_path / "threaded", quiet=True)
-    _assert_same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
+    same_numbers(threaded.path, tmp_path / "out" / "small" / "small.nc")
     assert not list(started.iterdir())
     assert not (tmp_path / "out" / "small" / "parts").exists()
 
@@ -177,7 +177,7 @@ def test_a_zarr_study_in_slurm_jobs_is_written_by_its_workers_with_the_threaded_
     study = load_study(config)
     assert not _parts(out / "small") and not list((out / "small" / "parts").glob("*.region"))
     threaded = run_study(study, tmp_path / "threaded", quiet=True)
-    _assert_same_numbers(threaded.path, out / "small" / "small.zarr")
+    same_numbers(threaded.path, out / "small" / "small.zarr")
     assert main(["verify", str(out / "small" / "small.zarr")]) == 0
 
 
@@ -261,4 +261,4 @@ def test_a_job_that_never_starts_says_why_and_the_rerun_runs_on_slurm(tmp_path, 
     )
     assert not left.stdout.strip()  # the pending job was cancelled with the sweep
     assert _sweep(config, out, cluster, capsys) == (0, "")
-    _assert_same_numbers(uninterrupted, out / "slow" / "slow.nc")
+    same_numbers(uninterrupted, out / "slow" / "slow.nc")

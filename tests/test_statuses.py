@@ -84,3 +84,46 @@ def test_the_scorecard_sums_them_over_its_cases(failing):
     lines = status_lines(tally)
     assert lines[0].startswith(f"unstable: {2 * euler} cases (euler {2 * euler}): ")
     assert lines[1].endswith(STATUSES[NOT_CONVERGED].fix)
+
+
+# The codes that have one table each: a status (`rbstudy.numerics.state.STATUSES`) and an
+# accuracy verdict (`rbstudy.archive.variables.VERDICTS`), under the names code reads them by.
+CODED = {"status", "accuracy", "verdict"}
+
+
+def _coded_literals(source):
+    """Where ``source`` compares a status or a verdict with a number written out: (line, text)."""
+    import ast
+
+    def coded(node):
+        names = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)}
+        keys = {n.value for n in ast.walk(node) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+        return bool((names | keys) & CODED)
+
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            numbers = [s for s in sides if isinstance(s, ast.Constant) and type(s.value) is int]
+            if numbers and any(coded(s) for s in sides if s not in numbers):
+                found.append((node.lineno, ast.unparse(node)))
+    return found
+
+
+def test_statuses_and_verdicts_are_read_by_name_above_the_kernels():
+    """Above the compiled kernels, no module compares a status or a verdict with a number
+    written out (``ds["status"] == 0``): each code comes from its one table (`OK`, `ACCURATE`)."""
+    import pathlib
+
+    package = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
+    found = {
+        str(path.relative_to(package)): hits
+        for layer in ("physics", "inputs", "archive", "pipeline", "analysis")
+        for path in sorted((package / layer).rglob("*.py"))
+        if (hits := _coded_literals(path.read_text()))
+    }
+    found.update({"cli.py": hits} if (hits := _coded_literals((package / "cli.py").read_text())) else {})
+    assert not found, found
+    # the check itself can fail
+    planted = 'bad = ds["status"] != 0\nworse = verdict == 3\nfine = len(x) == 1\n'
+    assert [line for line, _ in _coded_literals(planted)] == [1, 2]

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import CONFIGS, abaqus_mapping, write_study
+from helpers import CONFIGS, abaqus_mapping, write_study
 
 from rbstudy.analysis.searched import _scheme_texts
 from rbstudy.archive.folder import StudyFolder

@@ -9,8 +9,7 @@ import pathlib
 
 import netCDF4
 import pytest
-import xarray as xr
-from conftest import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, write_study
+from helpers import HOSTILE, HOSTILE_SHOWN, TERMINAL_CONTROLS, same_numbers, write_study
 
 from rbstudy.archive.files import check_output_folder
 from rbstudy.archive.load import open_results
@@ -19,9 +18,6 @@ from rbstudy.cli import main
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
 from rbstudy.pipeline.progress import Progress
-
-# The kernel's clock time: the one stored value that two runs of one case do not share.
-TIMINGS = ["run_time"]
 
 NODE_TABLE = "id, x, y, z, mass\n1, 1.0, 0.2, 0.0, 2.0\n2, -0.8, 0.5, 0.1, 1.0\n3, 0.1, -1.2, 0.3, {}\n"
 # Two tables of the same node ids that make different bodies, and two load tables of
@@ -67,11 +63,6 @@ def _table_study(folder, kind, swapped=False):
     )
 
 
-def _same_numbers(path_a, path_b):
-    a, b = open_results(path_a), open_results(path_b)
-    xr.testing.assert_identical(a.drop_vars(TIMINGS).drop_attrs(), b.drop_vars(TIMINGS).drop_attrs())
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(TABLES))
 @pytest.mark.parametrize("keep_parts", [False, True], ids=["archive", "kept-parts"])
@@ -90,9 +81,9 @@ def test_swapped_table_contents_are_recomputed(tmp_path, kind, keep_parts):
     fresh = run_study(
         load_study(_table_study(tmp_path / "fresh", kind, swapped=True)), tmp_path / "fresh_out", quiet=True
     )
-    _same_numbers(again.path, fresh.path)
+    same_numbers(again.path, fresh.path)
     with pytest.raises(AssertionError):  # the swap changed the numbers: the check can fail
-        _same_numbers(
+        same_numbers(
             again.path,
             run_study(
                 load_study(_table_study(tmp_path / "old", kind)), tmp_path / "old_out", quiet=True

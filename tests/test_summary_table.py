@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 import yaml
-from conftest import CONFIGS, copy_node_tables
+from helpers import CONFIGS, copy_node_tables
 
 from rbstudy.analysis.conformance import HELD_LOAD_NOTE, Cell, Verdict, format_scorecard
 from rbstudy.analysis.summary import (

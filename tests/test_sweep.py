@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import write_study
+from helpers import write_study
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import ConfigError

@@ -4,7 +4,7 @@ a case (and its scene) built to read one float."""
 
 import numpy as np
 import pytest
-from conftest import write_study
+from helpers import write_study
 
 from rbstudy.archive.layout import grid_coordinates
 from rbstudy.physics.simulate import simulate

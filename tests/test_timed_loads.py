@@ -3,7 +3,7 @@ kernels at the time of every stage, every scheme at its order, the references th
 
 import numpy as np
 import pytest
-from conftest import FIXED_STEP, ROUND_OFF_FLOOR, independent_reference, write_study
+from helpers import FIXED_STEP, ROUND_OFF_FLOOR, independent_reference, write_study
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 

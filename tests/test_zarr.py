@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import abaqus_mapping, sweep_until_a_batch_is_kept, write_study
+from helpers import abaqus_mapping, sweep_until_a_batch_is_kept, write_study
 
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.parts import read_part, sidecar

@@ -59,7 +59,7 @@ from rbstudy.analysis.summary import (
     wrap_clauses,
 )
 from rbstudy.errors import counted
-from rbstudy.numerics.state import INVARIANTS
+from rbstudy.numerics.state import INVARIANTS, OK
 
 __all__ = [
     "RULES",
@@ -159,7 +159,7 @@ class Cell:
 
 def _order(ds, scheme, row):
     errors = per_scheme(error_measure(ds, "orientation"), scheme)
-    finished = per_scheme(ds["status"], scheme) == 0
+    finished = per_scheme(ds["status"], scheme) == OK
     values = errors.where(finished).sortby("dt")  # finest first
     nominal = row["nominal"]
     series = values.values
@@ -192,7 +192,7 @@ def _invariants(ds, scheme, row):
     claimed = [name for name in claimed if name != "none"]
     if not claimed:
         return Verdict(None, np.nan, "claims no invariant")
-    if not bool((per_scheme(ds["status"], scheme) == 0).any()):
+    if not bool((per_scheme(ds["status"], scheme) == OK).any()):
         return Verdict(None, np.nan, "no case finished")
     labels = [INVARIANTS[name] for name in claimed]
     lost = [label for label in labels if label not in row["kept"]]
@@ -204,7 +204,7 @@ def _invariants(ds, scheme, row):
 
 
 def _energy(ds, scheme, row):
-    change = per_scheme(ds["energy_error"], scheme).where(per_scheme(ds["status"], scheme) == 0)
+    change = per_scheme(ds["energy_error"], scheme).where(per_scheme(ds["status"], scheme) == OK)
     if not bool(change.notnull().any()):
         return Verdict(None, np.nan, "no finished case")
     gain, loss = float(change.max()), float(-change.min())
@@ -217,7 +217,7 @@ def _energy(ds, scheme, row):
 
 def _flip(ds, scheme, row):
     errors = per_scheme(ds["flip_interval_error"], scheme)
-    finished = (per_scheme(ds["status"], scheme) == 0).values
+    finished = (per_scheme(ds["status"], scheme) == OK).values
     if not finished.any():
         return Verdict(None, np.nan, "no case finished")
     dts = errors["dt"].values[finished]
@@ -236,7 +236,7 @@ def _flip(ds, scheme, row):
 
 def _failure(ds, scheme, row):
     status = ds["status"]
-    failed = (per_scheme(status, scheme) != 0).values
+    failed = (per_scheme(status, scheme) != OK).values
     if not failed.any():
         return Verdict(True, 0.0, "no case failed")
     nominal = row["nominal"]
@@ -254,7 +254,7 @@ def _failure(ds, scheme, row):
             f"{_cases(failed.sum())} failed; no other rbstudy scheme of order {nominal} to compare with",
         )
     for peer in peers:
-        survived = (per_scheme(status, peer) == 0).values
+        survived = (per_scheme(status, peer) == OK).values
         if np.any(failed & survived):
             # the largest such step: dt ascends in the archive
             dt = float(ds["dt"].values[np.flatnonzero(failed & survived)[-1]])
@@ -306,7 +306,7 @@ def judge_figure(ds, scheme, figure):
     largest deviation as a share of its allowance (1 at the edge)."""
     dt = float(ds["dt"].max())
     run = per_scheme(ds, scheme).sel(dt=dt)
-    if int(run["status"]) != 0:
+    if int(run["status"]) != OK:
         return Verdict(False, np.nan, f"failed at dt = {dt:g} s")
     worst, said = 0.0, []
     for check in figure.checks:

@@ -7,6 +7,7 @@ Kept apart from plots.py, which draws the figures, so that each stays a small mo
 """
 
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 from matplotlib.lines import Line2D
@@ -14,6 +15,7 @@ from matplotlib.lines import Line2D
 from rbstudy.analysis.findings import findings
 
 __all__ = [
+    "Band",
     "EXACT_ZERO_LABEL",
     "EXACT_ZERO_GID",
     "band",
@@ -49,15 +51,24 @@ _PLACES = [
 _SAMPLES = 64
 
 
+class Band(NamedTuple):
+    """A line's values over the reduced dims (`band`): the largest (``worst``) and smallest
+    (``best``) over the cases that gave a value, and how many gave none (``missing``)."""
+
+    worst: Any
+    best: Any
+    missing: Any
+
+
 def band(da, reduced):
-    """A line's values over the ``reduced`` dims as (worst, best, failed): the largest and
+    """A line's values over the ``reduced`` dims as a `Band` (worst, best, missing): the largest and
     smallest over the cases that gave a value (a case that failed at some values of them
     still shows where it did not: the worst case with NaN kept hid six schemes of nine in
     the stiff_inertia study), and how many of those cases gave none (failed, or without a
     reference). NaN where no case gave a value."""
     if not reduced:
-        return da, da, da.isnull().astype(int)
-    return da.max(reduced, skipna=True), da.min(reduced, skipna=True), da.isnull().sum(reduced)
+        return Band(da, da, da.isnull().astype(int))
+    return Band(da.max(reduced, skipna=True), da.min(reduced, skipna=True), da.isnull().sum(reduced))
 
 
 def zero_marks(ax, x, zeros, floor, style, every=1):

@@ -48,7 +48,8 @@ from rbstudy.analysis.summary import (
     status_text,
     verdicts,
 )
-from rbstudy.numerics.state import INVARIANTS, STATUS_NAMES
+from rbstudy.archive.variables import ACCURATE
+from rbstudy.numerics.state import INVARIANTS, OK, STATUS_NAMES
 
 __all__ = [
     "Finding",
@@ -56,7 +57,6 @@ __all__ = [
     "findings",
     "recommendations",
     "table_records",
-    "VERDICT_ACCURATE",
     "MAX_FINDING_LINES",
     "summary_document",
     "finding_lines",
@@ -78,8 +78,6 @@ FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertai
 # Of those, the time series the findings reduce along time, and how; read so
 # (`rbstudy.archive.load.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
-# The archive's accuracy verdict of a case that met the bound (pipeline/outputs.py VERDICTS).
-VERDICT_ACCURATE = 0
 # A recommended error within this share of the bound is at its edge, and said so: a step a
 # little larger, or another body, may pass it (euler was recommended at 0.00995 rad against
 # the default bound 0.01).
@@ -412,7 +410,7 @@ def _picks(ds):
         values = value.broadcast_like(ds["status"]).transpose(*dims).values
         return values.reshape(-1, math.prod(ds.sizes[d] for d in order))
 
-    good = flat((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0))
+    good = flat((ds["accuracy"] == ACCURATE) & (ds["status"] == OK))
     seconds = np.where(good, flat(case_seconds(ds)), np.inf)
     error = error_measure(ds, "orientation")
     errors = flat(error) if error is not None else np.full(seconds.shape, math.nan)
@@ -487,7 +485,7 @@ def study_wide(ds):
     represents: a `_Uniform`, or None."""
     order = [d for d in _SWEPT_BY_SUMMARY if d in ds["status"].dims]
     others = _other_dims(ds)
-    meets = ((ds["accuracy"] == VERDICT_ACCURATE) & (ds["status"] == 0)).all(others)
+    meets = ((ds["accuracy"] == ACCURATE) & (ds["status"] == OK)).all(others)
     cost = case_seconds(ds).mean(others)
     seconds = np.where(meets.transpose(*order).values, cost.transpose(*order).values, np.inf).reshape(1, -1)
     if not np.isfinite(seconds).any():
@@ -771,7 +769,7 @@ def _verdict(ds, row, rates):
     scheme = _row_scheme(row)
     if rates is not None and INVARIANTS["energy"] not in row["kept"]:
         status = per_scheme(ds["status"], scheme).values
-        rate, text = _energy_text(per_scheme(rates, scheme), status == 0)
+        rate, text = _energy_text(per_scheme(rates, scheme), status == OK)
         if text:
             numbers["energy_rate_per_s"] = rate
             parts.append(text)
@@ -861,7 +859,7 @@ def _questions(ds, rates):
                     along = per_scheme(rates, scheme)
                     status = per_scheme(ds["status"], scheme)
                     changes = [
-                        _energy_text(along.isel({dim: k}), status.isel({dim: k}).values == 0)[0]
+                        _energy_text(along.isel({dim: k}), status.isel({dim: k}).values == OK)[0]
                         for k in range(size)
                     ]
                     if any(c is not None for c in changes):

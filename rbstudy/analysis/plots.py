@@ -53,6 +53,7 @@ import multiprocessing
 import pathlib
 import shutil
 from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import matplotlib
 
@@ -228,13 +229,46 @@ def _panel_title(dim, value, reduced, lines="line: worst, thin dots: best"):
     return "; ".join(parts)
 
 
+class _Line(NamedTuple):
+    """One line of a panel: its legend ``label``, the key of its style (a scheme, or the
+    line's index) and its ``data``."""
+
+    label: str
+    key: Any
+    data: Any
+
+
+class _FittedLine(NamedTuple):
+    """A line of a convergence panel: its `_Line` label and style key, its ``errors`` (one per
+    dt), the order ``fit`` through them (`fitted_order`), whether a case ``failed`` on it, and
+    per dt the reference's uncertainty (``limits``) and the round-off floor (``floors``)."""
+
+    label: str
+    key: Any
+    errors: np.ndarray
+    fit: Any
+    failed: bool
+    limits: np.ndarray
+    floors: np.ndarray
+
+
+class _CostLine(NamedTuple):
+    """A line of a work-precision panel: its `_Line` label and style key, and per dt its worst
+    ``errors`` and dearest ``times`` over the reduced axes."""
+
+    label: str
+    key: Any
+    errors: np.ndarray
+    times: np.ndarray
+
+
 def _lines(da, line):
-    """(label, style key, data) per line of a panel."""
+    """The `_Line` of each line of a panel."""
     if line is None:
-        return [("", 0, da)]
+        return [_Line("", 0, da)]
     if line == "scheme":
-        return [(scheme, scheme, per_scheme(da, scheme)) for scheme in schemes_of(da)]
-    return [(_value_text(line, v), k, da.sel({line: v})) for k, v in enumerate(da[line].values)]
+        return [_Line(scheme, scheme, per_scheme(da, scheme)) for scheme in schemes_of(da)]
+    return [_Line(_value_text(line, v), k, da.sel({line: v})) for k, v in enumerate(da[line].values)]
 
 
 def line_styles(schemes, styles=None):
@@ -620,7 +654,7 @@ def _missing_text(bands, line_dim, index, behind):
     where some of them failed or had no reference; else nothing."""
     if behind == 1:
         return ""
-    counts = [_lines(missing, line_dim)[index][2].values for _, _, missing in bands]
+    counts = [_lines(panel.missing, line_dim)[index].data.values for panel in bands]
     missing, cases = sum(int(c.sum()) for c in counts), sum(c.size for c in counts) * behind
     return f"no value in {missing} of {cases} cases" if missing else ""
 
@@ -636,7 +670,7 @@ def _value_fits(dts, measure, uncertainty, round_off, facet, value, line_dim, re
         limits = uncertainty.sel({facet: value}) if facet else uncertainty
 
     def rows(da, k):  # line k's cases, a row per value of the reduced axes
-        return _lines(da, line_dim)[k][2].stack(value=reduced).transpose("value", "dt").values
+        return _lines(da, line_dim)[k].data.stack(value=reduced).transpose("value", "dt").values
 
     result = []
     for k in range(len(_lines(measure, line_dim))):
@@ -765,7 +799,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             continue  # not stored: not a figure this study could have
         bands = [band(measure.sel({facet: value}) if facet else measure, reduced) for value in values]
         behind = int(np.prod([ds.sizes[d] for d in reduced]))  # cases behind each point
-        panels = [worst for worst, _, _ in bands]
+        panels = [panel.worst for panel in bands]
         uncertainty = uncertainty_of(ds, key, measure)
         limits = [
             _uncertainty_limit(uncertainty, facet, value, reduced, panel)
@@ -774,10 +808,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         # the round-off floor of the worst case is the largest of the panel's (`round_off_of`)
         round_off = round_off_of(ds, key, measure)
         round_offs = [
-            band(round_off.sel({facet: value}) if facet else round_off, reduced)[0] for value in values
+            band(round_off.sel({facet: value}) if facet else round_off, reduced).worst for value in values
         ]
         failures = [
-            band((ds["status"] != 0).sel({facet: value}) if facet else ds["status"] != 0, reduced)[0]
+            band((ds["status"] != OK).sel({facet: value}) if facet else ds["status"] != OK, reduced).worst
             for value in values
         ]
         # a panel whose every case finished without a reference has nothing to show
@@ -792,16 +826,16 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         )
         fits = [
             [
-                (
-                    line_name,
-                    style,
-                    data.values,
-                    fitted_order(dts, data.values, key, limit.values, floor.values),
-                    bool(failed.values.any()),
-                    limit.values,
-                    floor.values,
+                _FittedLine(
+                    line.label,
+                    line.key,
+                    line.data.values,
+                    fitted_order(dts, line.data.values, key, limit.data.values, floor.data.values),
+                    bool(failed.data.values.any()),
+                    limit.data.values,
+                    floor.data.values,
                 )
-                for (line_name, style, data), (*_, failed), (*_, limit), (*_, floor) in zip(
+                for line, failed, limit, floor in zip(
                     _lines(panel, line_dim),
                     _lines(failures_of_panel, line_dim),
                     _lines(panel_limits, line_dim),
@@ -831,7 +865,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         ]
         if not any(
             np.isfinite(fit.order)
-            for panel in (value_fits if reduced else [[[(f, None)] for *_, f, _, _, _ in p] for p in fits])
+            for panel in (value_fits if reduced else [[[(line.fit, None)] for line in p] for p in fits])
             for line in panel
             for fit, _ in line
         ):
@@ -845,18 +879,18 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
         # the lines are the same in every panel: those that coincide in every case (as
         # `coinciding_lines` tells the caption) are drawn on top of each other in turn and
         # named together
-        rows = [data.values.ravel() for *_, data in _lines(measure, line_dim)]
+        rows = [line.data.values.ravel() for line in _lines(measure, line_dim)]
         # coinciding below the measure's constant floor, as `coinciding_lines` tells the caption
         groups = coincident(rows, spec.floor)
         group_names = {
-            group[0]: together([fits[0][j][0] for j in group], [rows[j] for j in group], spec.floor)
+            group[0]: together([fits[0][j].label for j in group], [rows[j] for j in group], spec.floor)
             for group in groups
         }
         drawn = {
             j: (
-                _coincident_style(_style(fits[0][j][1], schemes), rank, len(group))
+                _coincident_style(_style(fits[0][j].key, schemes), rank, len(group))
                 if len(group) > 1
-                else _style(fits[0][j][1], schemes)
+                else _style(fits[0][j].key, schemes)
             )
             for group in groups
             for rank, j in enumerate(group)
@@ -865,20 +899,18 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             fig, axes = _grid(len(facet_values), width=5.0, legend_width=LEGEND_WIDTH)
             reserved = LEGEND_WIDTH
             floors, handles, labels = [], {}, []
-            for ax, value, panel, lines, limit, (_, best, _) in zip(
+            for ax, value, panel, lines, limit, panel_band in zip(
                 axes, facet_values, panels, fits, limits, bands, strict=True
             ):
                 ax.set_xscale("log")
                 ax.set_yscale("log")
                 floor = zero_floor(panel.values)
                 floors.append(floor)
-                for j, ((_, _, errors, fit, *_), (*_, least)) in enumerate(
-                    zip(lines, _lines(best, line_dim), strict=True)
-                ):
-                    style = drawn[j]
+                for j, (line, least) in enumerate(zip(lines, _lines(panel_band.best, line_dim), strict=True)):
+                    errors, fit, style = line.errors, line.fit, drawn[j]
                     handles.setdefault(j, plot_with_zeros(ax, dts, errors, floor, None, style))
                     if reduced:
-                        _draw_band(ax, dts, least.values, errors, floor, style)
+                        _draw_band(ax, dts, least.data.values, errors, floor, style)
                     ax.plot(
                         dts[fit.used],
                         errors[fit.used],
@@ -891,7 +923,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                         zorder=1,
                     )
                 labels += _reference_slopes(
-                    ax, dts, np.array([errors for _, _, errors, *_ in lines]), _guide_orders(ds, facet, value)
+                    ax, dts, np.array([line.errors for line in lines]), _guide_orders(ds, facet, value)
                 )
                 _mark_uncertainty(ax, limit.values)
                 _mark_floor(ax, floor)
@@ -899,12 +931,12 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                 ax.set_ylabel(f"{label} ({units})")
                 # lines that coincide in this panel only: the legend cannot name them
                 here = panel_overlaps(
-                    [fits[0][j][0] for j in range(len(lines))],
-                    [errors for _, _, errors, *_ in lines],
+                    [fits[0][j].label for j in range(len(lines))],
+                    [line.errors for line in lines],
                     groups,
                     spec.floor,
                     ax,
-                    [(dts, _on_floor(errors, floor)) for _, _, errors, *_ in lines],
+                    [(dts, _on_floor(line.errors, floor)) for line in lines],
                 )
                 ax.set_title(_overlap_title(ax, fig, _panel_title(facet, value, reduced), here))
                 ax.grid(True, which="major", alpha=0.3)
@@ -916,12 +948,10 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
                         _fit_label(
                             group_names[group[0]],
                             [
-                                _fit_text(errors, fit, failed, line_limits, line_floors)
-                                for _, _, errors, fit, failed, line_limits, line_floors in (
-                                    lines[group[0]] for lines in fits
-                                )
+                                _fit_text(line.errors, line.fit, line.failed, line.limits, line.floors)
+                                for line in (lines[group[0]] for lines in fits)
                             ],
-                            [lines[group[0]][3] for lines in fits],
+                            [lines[group[0]].fit for lines in fits],
                         )
                         if not reduced
                         else _values_label(
@@ -936,9 +966,7 @@ def convergence(ds, folder, formats=FORMATS, measures=None, styles=None):
             )
             zeros = f"; on the dotted floor: {ZERO_LABEL}" if any(f is not None for f in floors) else ""
             unjudged_gap = any(
-                not failed and not np.isfinite(errors).all()
-                for panel in fits
-                for _, _, errors, _, failed, *_ in panel
+                not line.failed and not np.isfinite(line.errors).all() for panel in fits for line in panel
             )
             gaps = (
                 "failed cases, or cases without a reference"
@@ -986,10 +1014,10 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
     behind = int(np.prod([ds.sizes[d] for d in reduced]))  # cases behind each point
     panels = [
         [
-            (name, key, errors.values, times.values)
-            for (name, key, errors), (*_, times) in zip(
-                _lines(errors_band[0], line_dim),
-                _lines(band(cost.sel(pick), reduced)[0], line_dim),
+            _CostLine(line.label, line.key, line.data.values, times.data.values)
+            for line, times in zip(
+                _lines(errors_band.worst, line_dim),
+                _lines(band(cost.sel(pick), reduced).worst, line_dim),
                 strict=True,
             )
         ]
@@ -997,12 +1025,12 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
     ]
     # lines drawn on top of each other (error and time alike at every point) named together
     groups = coincident(
-        [np.concatenate([np.r_[p[j][2], p[j][3]] for p in panels]) for j in range(len(panels[0]))]
+        [np.concatenate([np.r_[p[j].errors, p[j].times] for p in panels]) for j in range(len(panels[0]))]
     )
     drawn = {
-        j: _coincident_style(_style(panels[0][j][1], schemes), rank, len(group))
+        j: _coincident_style(_style(panels[0][j].key, schemes), rank, len(group))
         if len(group) > 1
-        else _style(panels[0][j][1], schemes)
+        else _style(panels[0][j].key, schemes)
         for group in groups
         for rank, j in enumerate(group)
     }
@@ -1031,11 +1059,11 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("cost per case (core-seconds)")
             here = panel_overlaps(
-                [name for name, *_ in lines],
-                [np.r_[errors, times] for _, _, errors, times in lines],
+                [line.label for line in lines],
+                [np.r_[line.errors, line.times] for line in lines],
                 groups,
                 ax=ax,
-                curves=[(errors, times) for _, _, errors, times in lines],  # zeros not drawn
+                curves=[(line.errors, line.times) for line in lines],  # zeros not drawn
             )
             title = _panel_title(facet, pick.get(facet), reduced, "the worst error and cost")
             ax.set_title(_overlap_title(ax, fig, title, here))
@@ -1044,7 +1072,7 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
             [
                 (
                     [handles[j] for j in group],
-                    together([panels[0][j][0] for j in group])
+                    together([panels[0][j].label for j in group])
                     + _aside(_missing_text(bands, line_dim, group[0], behind), " ({})"),
                 )
                 for group in groups
@@ -1254,7 +1282,7 @@ def _drift_case(ds, scheme):
         case = case.isel({dim: 0})
     if "dt" not in case.dims:
         return case, float(case["dt"]) if "dt" in case.coords else None
-    stable = case["dt"].values[case["status"].values == 0]
+    stable = case["dt"].values[case["status"].values == OK]
     if stable.size == 0:
         return None, None
     return case.sel(dt=stable.max()), float(stable.max())
@@ -1383,7 +1411,7 @@ def benchmark(ds, folder, formats=FORMATS, styles=None):
         return figures
     case, what = benchmark_case(ds)
     color = _style(str(case["scheme"].values), line_styles(schemes_of(ds), styles))["color"]
-    if int(case["status"]) != 0:
+    if int(case["status"]) != OK:
         figures.absent["benchmark"] = f"the benchmark case ({what}) failed"
         return figures
     times = ds["time"].values

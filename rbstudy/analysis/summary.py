@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from tabulate import tabulate
 
+from rbstudy.archive.variables import ACCURATE, INACCURATE, UNJUDGED
 from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS, OK, STATUSES
 from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS, asymptotic_order
@@ -414,11 +415,16 @@ def verdicts(ds, scheme):
     the archive's accuracy verdict, and its status where the archive has no verdict (all
     finished cases then count as accurate). Unjudged: finished, but without a reference."""
     status = per_scheme(ds["status"], scheme).values
-    failed = status != 0
+    failed = status != OK
     if "accuracy" not in ds:
         return ~failed, np.zeros_like(failed), failed, np.zeros_like(failed)
     verdict = per_scheme(ds["accuracy"], scheme).values
-    return ((verdict == 0) & ~failed, (verdict == 1) & ~failed, failed, (verdict == 3) & ~failed)
+    return (
+        (verdict == ACCURATE) & ~failed,
+        (verdict == INACCURATE) & ~failed,
+        failed,
+        (verdict == UNJUDGED) & ~failed,
+    )
 
 
 def _smallest(values):
@@ -557,7 +563,7 @@ def _worst(errors, status):
     """The largest of ``errors``: NaN when a case failed (a failure is never hidden behind the
     stable cases), None when the errors are missing only because a case had no reference."""
     worst = float(errors.max(skipna=False))
-    return None if np.isnan(worst) and not (status != 0).any() else worst
+    return None if np.isnan(worst) and not (status != OK).any() else worst
 
 
 def span(values):

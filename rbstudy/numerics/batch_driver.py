@@ -28,9 +28,10 @@ import numpy as np
 from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import step_time
-from rbstudy.numerics.driver import HALT_CHECK_STEPS, check_statuses
+from rbstudy.numerics.driver import check_statuses
 from rbstudy.numerics.dynamics import body_moment, is_moment_free, space_force
 from rbstudy.numerics.jit import jit
+from rbstudy.numerics.lanes import HALT_CHECK_STEPS
 from rbstudy.numerics.rotation import read3, read4, write3
 from rbstudy.numerics.state import OK, UNSTABLE, Result
 

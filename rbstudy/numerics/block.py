@@ -28,16 +28,17 @@ What the block path covers, and what it hands back
 --------------------------------------------------
 `run_blocks` steps the bodies of a batch without loads tabulated in time (the kernels without
 the time, `rbstudy.numerics.clock`) whose loads are constant and act at the centre of mass or
-as moments: no lever (`rbstudy.numerics.dynamics.has_lever`) and no body-fixed force, whose
-branches would keep the loop over lanes from vectorising, in blocks of at least `FEWEST`
-bodies. Other blocks run through the single-body loop (`driver.run_rows`), which gives the
-same bits.
+as moments, of the kinds the load catalogue says the blocks carry
+(`rbstudy.numerics.loads.LoadKind.in_blocks`, read by `loads_at`): no lever and no body-fixed
+force, whose branches would keep the loop over lanes from vectorising; in blocks of at least
+`FEWEST` bodies. Other blocks run through the single-body loop
+(`rbstudy.numerics.driver.run_rows`), which gives the same bits.
 
 Every lane is stepped every step; a body that has failed stops being booked (its status
 is no longer OK), so its state may go on to NaN without effect: nothing passes between lanes,
 and no lane's arithmetic traps. The lanes past the last body of the batch are copies of the
 block's first body that are never booked. The bookkeeping follows
-`driver._lane_after_step` step for step (`_book`: the same tests in the same order, written
+`rbstudy.numerics.lanes.lane_after_step` step for step (`_book`: the same tests in the same order, written
 with selects in a loop over lanes that vectorises); only the samples are stored lane by lane.
 """
 
@@ -45,12 +46,12 @@ import math
 
 import numpy as np
 
-from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
-from rbstudy.numerics.driver import _HALT_MASK, _lane_end, _lane_start
-from rbstudy.numerics.dynamics import force_from, has_lever, moment_from, momentum_squared, rotational_energy
+from rbstudy.numerics.dynamics import force_from, moment_from, momentum_squared, rotational_energy
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes import HALT_MASK, IDLE, lane_end, lane_start, relative_drift
 from rbstudy.numerics.lanes_math import REDUCED, sin_cos_reduced
+from rbstudy.numerics.loads import BLOCKLESS_SLOTS
 from rbstudy.numerics.rotation import dot, norm, quat_exp_of, quat_mul, quat_normalize
 from rbstudy.numerics.state import NOT_CONVERGED, OK, UNSTABLE
 
@@ -106,9 +107,6 @@ ITERATIONS = VERDICT + 1
 LIVE = ITERATIONS + 1
 N_ROWS = LIVE + 1
 
-_relative_drift = jit(algebra.relative_drift)
-# The status of a lane past the batch's last body: never OK, never stored.
-_IDLE = -1
 # Rows of a block's tallies, the fields of the driver's lane tuple (`_book`): status, steps
 # taken, Newton iterations, largest energy and |L| drifts, largest |w|^2, next sample (floats,
 # so that one loop over lanes handles them all).
@@ -375,8 +373,10 @@ def loads_at(block, q, w, lane):
 
 @jit
 def plain_loads(p):
-    """Whether the block path covers a body: no lever and no body-fixed force (the module
-    docstring).
+    """Whether the block path covers a body: no load of a kind it does not carry
+    (`rbstudy.numerics.loads.BLOCKLESS_SLOTS`: the lever and the body-fixed force, whose
+    branches would keep the loop over lanes from vectorising, and the kinds of the timed
+    kernels alone).
 
     Parameters
     ----------
@@ -387,8 +387,11 @@ def plain_loads(p):
     -------
     bool
     """
-    no_body_force = p[S.FORCE_BODY] == 0.0 and p[S.FORCE_BODY + 1] == 0.0 and p[S.FORCE_BODY + 2] == 0.0
-    return no_body_force and not has_lever(p)
+    for start, width in BLOCKLESS_SLOTS:
+        for k in range(width):
+            if p[start + k] != 0.0:
+                return False
+    return True
 
 
 @jit
@@ -430,7 +433,7 @@ def _load_lane(block, lane, y, work):
 
 @jit
 def _book(block, lanes, fixed, drift_bound):
-    """Book the step every lane has just taken, as `rbstudy.numerics.driver._lane_after_step`
+    """Book the step every lane has just taken, as `rbstudy.numerics.lanes.lane_after_step`
     books one body's: the same tests in the same order, written with selects so that the loop
     over lanes vectorises; row `LIVE` then says which lanes are still booked, and rows
     `VERDICT` and `ITERATIONS` are OK and 0 again for the next step. Returns how many bodies
@@ -454,8 +457,8 @@ def _book(block, lanes, fixed, drift_bound):
             total += block[(STATE + k) * BLOCK + lane]
         w = column3(block, STATE + S.OMEGA, lane)
         inertia_ = column3(block, PARAM + S.INERTIA, lane)
-        d_energy = _relative_drift(rotational_energy(w, inertia_), fixed[0 * BLOCK + lane])
-        d_momentum = _relative_drift(math.sqrt(momentum_squared(w, inertia_)), fixed[1 * BLOCK + lane])
+        d_energy = relative_drift(rotational_energy(w, inertia_), fixed[0 * BLOCK + lane])
+        d_momentum = relative_drift(math.sqrt(momentum_squared(w, inertia_)), fixed[1 * BLOCK + lane])
         spin = dot(w, w)
         running = lanes[_STATUS * BLOCK + lane] == OK
         verdict = block[VERDICT * BLOCK + lane]
@@ -519,7 +522,7 @@ def run_blocks(
     block_step : compiled kernel ``(block, opt, h)``
         The scheme's (module docstring).
     init : compiled kernel ``(y, p, opt, t, h, work) -> status``
-        The scheme's start of a body (`rbstudy.numerics.driver.make_entry`), run on each lane.
+        The scheme's start of a body (`rbstudy.numerics.entry.make_entry`), run on each lane.
     n_work : int
         Floats of work per body.
     a, stop : int
@@ -547,7 +550,7 @@ def run_blocks(
     """
     block = np.empty(N_ROWS * BLOCK)
     lanes = np.zeros(_N_TALLY * BLOCK)
-    lanes[_STATUS * BLOCK : (_STATUS + 1) * BLOCK] = _IDLE
+    lanes[_STATUS * BLOCK : (_STATUS + 1) * BLOCK] = IDLE
     fixed = np.zeros(3 * BLOCK)
     _load_block(a, stop, state0, params, block)
     running = 0
@@ -555,7 +558,7 @@ def run_blocks(
     for lane in range(BLOCK):
         row = a + lane if a + lane < stop else a
         if lane < stop - a:
-            start, lane_tuple = _lane_start(row, state0[row], params[row], samples)
+            start, lane_tuple = lane_start(row, state0[row], params[row], samples)
             fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] = (
                 start[0],
                 start[1],
@@ -576,7 +579,7 @@ def run_blocks(
     for step in range(n_steps):
         if running == 0:
             break
-        if (step & _HALT_MASK) == 0 and halt[0] != 0:
+        if (step & HALT_MASK) == 0 and halt[0] != 0:
             break
         countdown -= 1
         block_step(block, opt, h)
@@ -597,7 +600,7 @@ def run_blocks(
             lanes[_SPIN * BLOCK + lane],
             int(lanes[_SAMPLE * BLOCK + lane]),
         )
-        _lane_end(
+        lane_end(
             tallies,
             (fixed[0 * BLOCK + lane], fixed[1 * BLOCK + lane], fixed[2 * BLOCK + lane] != 0.0),
             a + lane,

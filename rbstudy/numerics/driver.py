@@ -18,21 +18,21 @@ iterations, energy and |L| drift, the largest step angle and the Radioss flag) a
 here, by name.
 
 `integrate_rows_inplace` below runs one body, or two side by side (a scheme's ``lanes``),
-through all their steps and `run_rows` a range of batch rows; `make_entry` gives a scheme its
-entry point, a cached function that calls `run_rows` with the scheme's kernels
-(`rbstudy.numerics.entry`); `run_batch` spreads chunks of rows over threads (the kernels
-release the GIL). numba inlines `run_rows` and `integrate_rows_inplace` into each entry point
-(`inline_jit`): the kernels are then never passed as values, which numba could not cache.
-The loop writes element by element and allocates nothing; `integrate_rows_inplace`
-allocates its bodies' state and work arrays before it.
-Threads rather than numba's `prange` keep the kernels safe to call from several dask worker
-threads at once and let the caller choose the number of cores.
+through all their steps, booking each step as `rbstudy.numerics.lanes` does, and `run_rows` a
+range of batch rows; `rbstudy.numerics.entry.make_entry` gives a scheme its entry point, a
+cached function that calls `run_rows` with the scheme's kernels; `run_batch` spreads chunks
+of rows over threads (the kernels release the GIL). numba inlines `run_rows` and
+`integrate_rows_inplace` into each entry point (`inline_jit`): the kernels are then never
+passed as values, which numba could not cache. The loop writes element by element and
+allocates nothing; `integrate_rows_inplace` allocates its bodies' state and work arrays
+before it. Threads rather than numba's `prange` keep the kernels safe to call from several
+dask worker threads at once and let the caller choose the number of cores.
 
 A run can be halted from outside: `request_halt` sets a flag that every body's loop reads
-every `HALT_CHECK_STEPS` steps (a few milliseconds of work at most), so that Ctrl-C ends even
-a batch of 1e12 steps at once; `run_batch` then raises `Halted` instead of returning partial
-numbers. The flag is an array the compiled loops read from memory, not a constant they could
-keep in a register.
+every `rbstudy.numerics.lanes.HALT_CHECK_STEPS` steps (a few milliseconds of work at most),
+so that Ctrl-C ends even a batch of 1e12 steps at once; `run_batch` then raises `Halted`
+instead of returning partial numbers. The flag is an array the compiled loops read from
+memory, not a constant they could keep in a register.
 
 Failure is data, never an exception: a body whose state turns non-finite, or whose energy or
 angular momentum drifts past ``drift_bound`` while no moment acts, stops with status
@@ -41,7 +41,6 @@ stops with ``NOT_CONVERGED``. Its later samples are NaN. Other bodies are unaffe
 body's numbers do not depend on which batch it ran in (no cross-body operations).
 """
 
-import math
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -50,16 +49,24 @@ from typing import Protocol
 
 import numpy as np
 
-from rbstudy.numerics import algebra
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import step_time
-from rbstudy.numerics.dynamics import is_moment_free, momentum_squared, rotational_energy
-from rbstudy.numerics.entry import CachedEntry
 from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.lanes import (
+    HALT_MASK,
+    IDLE,
+    SAMPLE,
+    lane_after_step,
+    lane_end,
+    lane_start,
+    state_sum,
+    store_sample,
+    with_status,
+)
 from rbstudy.numerics.loads import needs_time
 from rbstudy.numerics.machine import default_threads
-from rbstudy.numerics.rotation import dot, read3
-from rbstudy.numerics.state import OK, UNSTABLE, Result
+from rbstudy.numerics.rotation import read3
+from rbstudy.numerics.state import OK, Result
 
 __all__ = [
     "DRIFT_BOUND",
@@ -68,13 +75,11 @@ __all__ = [
     "idle_step",
     "integrate_rows_inplace",
     "run_rows",
-    "make_entry",
     "run_batch",
     "n_samples",
     "Halted",
     "request_halt",
     "clear_halt",
-    "HALT_CHECK_STEPS",
     "HALT_FLAG",
     "StatusError",
     "check_statuses",
@@ -88,9 +93,6 @@ DRIFT_BOUND = 0.5
 # Chunks of rows handed to each thread of `run_batch`.
 _CHUNKS_PER_THREAD = 4
 
-# Steps between two reads of the halt flag (a power of two: the test is a mask).
-HALT_CHECK_STEPS = 1024
-_HALT_MASK = HALT_CHECK_STEPS - 1
 # The halt flag of this process: nonzero once `request_halt` is called.
 HALT_FLAG = np.zeros(1, dtype=np.int64)
 
@@ -188,106 +190,6 @@ def init_nothing(y, p, opt, t, h, work):
     return OK
 
 
-_relative_drift = jit(algebra.relative_drift)
-
-
-# The status of the second lane when it has no body (a scheme of one lane, or the last row
-# of an odd range): never OK, so that lane never steps, and never stored.
-_IDLE = -1
-# Where a lane's tuple keeps its next sample's index (`_lane_start`).
-_SAMPLE = 6
-
-
-@jit
-def _state_sum(y):
-    """The sum of a state row (N_STATE,): finite exactly when every entry is."""
-    total = 0.0
-    for k in range(S.N_STATE):
-        total += y[k]
-    return total
-
-
-@jit
-def _store_sample(samples, b, sample, y):
-    """Write the state row ``y`` (N_STATE,) as sample ``sample`` of body ``b``."""
-    for k in range(S.N_STATE):
-        samples[b, sample, k] = y[k]
-
-
-@jit
-def _lane_start(b, y, p, samples):
-    """Start body ``b`` (its state ``y`` and parameter row ``p``) before its scheme's
-    ``init``: store its first sample. Returns the body's invariants at t = 0 and whether they
-    must hold, ``(energy0, momentum0, check_invariants)``, and its lane, the tuple
-    ``(status, steps_done, iterations, max_energy, max_momentum, largest_spin, sample)`` that
-    `_lane_after_step` carries (``largest_spin`` the largest ``|w|^2``, for the Radioss check;
-    ``sample`` the next sample's index)."""
-    inertia_ = read3(p, S.INERTIA)
-    w0 = read3(y, S.OMEGA)
-    fixed = (rotational_energy(w0, inertia_), math.sqrt(momentum_squared(w0, inertia_)), is_moment_free(p))
-    _store_sample(samples, b, 0, y)
-    return fixed, (OK, 0, 0, 0.0, 0.0, dot(w0, w0), 1)
-
-
-@jit
-def _with_status(lane, status):
-    """The lane with its status replaced (by that of the scheme's ``init``)."""
-    return (status,) + lane[1:]
-
-
-@jit
-def _lane_after_step(lane, fixed, status, iters, total, w, inertia_, drift_bound, due):
-    """Book a step that a lane's body has just taken: ``status`` and Newton ``iters`` as its
-    kernel returned them, ``total`` the sum of its new state (`_state_sum`), ``w`` its new
-    spin; ``due`` when a sample falls on this step. Returns the lane; when its status is
-    still OK and the step was ``due``, the caller stores the sample before the lane's index.
-
-    Scalars only, and a compiled function rather than an inlined one: numba gives each
-    array that enters an inlined function a reference count, whose atomic updates on every
-    step kept the two lanes of `integrate_rows_inplace` from overlapping (leapfrog 1.5e7
-    instead of 2.5e7 steps a second), and every function it inlines costs compile time."""
-    steps_done, iterations, max_energy, max_momentum, largest_spin, sample = lane[1:]
-    energy0, momentum0, check_invariants = fixed
-    iterations += iters
-    steps_done += 1
-    if status == OK and not math.isfinite(total):
-        status = UNSTABLE
-    if status == OK and check_invariants:
-        d_energy = _relative_drift(rotational_energy(w, inertia_), energy0)
-        d_momentum = _relative_drift(math.sqrt(momentum_squared(w, inertia_)), momentum0)
-        max_energy = max(max_energy, d_energy)
-        max_momentum = max(max_momentum, d_momentum)
-        # written so that NaN drifts also fail the test
-        if not (d_energy <= drift_bound and d_momentum <= drift_bound):
-            status = UNSTABLE
-    if status == OK:  # the spin of accepted states only: a blow-up flags nothing
-        spin = dot(w, w)
-        if spin > largest_spin:
-            largest_spin = spin
-        if due:
-            sample += 1
-    return (status, steps_done, iterations, max_energy, max_momentum, largest_spin, sample)
-
-
-@jit
-def _lane_end(lane, fixed, b, h, samples, results):
-    """Fill body ``b``'s samples after its last one with NaN and write its results."""
-    status, steps_done, iterations, max_energy, max_momentum, largest_spin, sample = lane
-    check_invariants = fixed[2]
-    for t in range(sample, samples.shape[1]):
-        for k in range(S.N_STATE):
-            samples[b, t, k] = math.nan
-    results[b, Result.status] = status
-    results[b, Result.failure_time] = steps_done * h if status != OK else math.nan
-    results[b, Result.n_steps] = steps_done
-    results[b, Result.iterations] = iterations
-    results[b, Result.max_energy_error] = max_energy if check_invariants else math.nan
-    results[b, Result.max_momentum_magnitude_error] = max_momentum if check_invariants else math.nan
-    step_angle = h * math.sqrt(largest_spin)
-    results[b, Result.max_step_angle] = step_angle
-    results[b, Result.radioss_dt_limit] = step_angle > S.RADIOSS_STEP_ANGLE
-
-
 @jit
 def idle_step(y, p, opt, t, h, work):
     """The step of a second lane that never runs (`run_rows` of a scheme of one lane).
@@ -314,7 +216,7 @@ def idle_step(y, p, opt, t, h, work):
     iterations : int
         0.
     """
-    return _IDLE, 0
+    return IDLE, 0
 
 
 @inline_jit
@@ -341,10 +243,10 @@ def integrate_rows_inplace(
     """Integrate body ``a`` of a batch, and body ``b`` beside it step for step unless ``b`` is
     -1; write their samples and results.
 
-    Why two at once (a scheme's ``lanes``, `make_entry`): the step of a cheap scheme is a
-    chain of dependent operations (the moment needs the orientation, the spin the moment,
-    the rotation the spin: divisions, square roots, a sine), and one body's chain leaves the
-    core idle while each result waits on the last. Two independent chains in one loop let
+    Why two at once (a scheme's ``lanes``, `rbstudy.numerics.entry.make_entry`): the step of
+    a cheap scheme is a chain of dependent operations (the moment needs the orientation, the
+    spin the moment, the rotation the spin: divisions, square roots, a sine), and one body's
+    chain leaves the core idle while each result waits on the last. Two independent chains in one loop let
     the core overlap them (leapfrog 1.96e7 -> 2.5e7 body-steps/s on one core,
     docs/performance.md). Each body keeps its own state, work and tallies; nothing passes
     between the lanes, so a body's numbers are the same in any pair, or alone.
@@ -393,17 +295,17 @@ def integrate_rows_inplace(
     yb, work_b = (state0[b].copy(), np.zeros(n_work)) if paired else (ya, work_a)
     pa, pb = params[a], params[b if paired else a]
     oa, ob = options[a], options[b if paired else a]
-    fixed_a, lane_a = _lane_start(a, ya, pa, samples)
-    lane_a = _with_status(lane_a, init(ya, pa, oa, step_time(0, h, clock), h, work_a))
-    fixed_b, lane_b = fixed_a, _with_status(lane_a, _IDLE)
+    fixed_a, lane_a = lane_start(a, ya, pa, samples)
+    lane_a = with_status(lane_a, init(ya, pa, oa, step_time(0, h, clock), h, work_a))
+    fixed_b, lane_b = fixed_a, with_status(lane_a, IDLE)
     if paired:
-        fixed_b, lane_b = _lane_start(b, yb, pb, samples)
-        lane_b = _with_status(lane_b, second_init(yb, pb, ob, step_time(0, h, clock), h, work_b))
+        fixed_b, lane_b = lane_start(b, yb, pb, samples)
+        lane_b = with_status(lane_b, second_init(yb, pb, ob, step_time(0, h, clock), h, work_b))
     countdown = every  # steps to the next sample
     for steps_done in range(n_steps):
         if lane_a[0] != OK and lane_b[0] != OK:
             break
-        if (steps_done & _HALT_MASK) == 0 and halt[0] != 0:
+        if (steps_done & HALT_MASK) == 0 and halt[0] != 0:
             break
         countdown -= 1
         due = countdown == 0
@@ -411,40 +313,40 @@ def integrate_rows_inplace(
             countdown = every
         # the two lanes written out, not a helper called twice: a helper would take the
         # kernel and the arrays, so numba would inline it, and arrays passed to an inlined
-        # function are reference counted on every step (see `_lane_after_step`)
+        # function are reference counted on every step (see `lane_after_step`)
         if lane_a[0] == OK:
             status, iters = step(ya, pa, oa, step_time(steps_done, h, clock), h, work_a)
-            lane_a = _lane_after_step(
+            lane_a = lane_after_step(
                 lane_a,
                 fixed_a,
                 status,
                 iters,
-                _state_sum(ya),
+                state_sum(ya),
                 read3(ya, S.OMEGA),
                 read3(pa, S.INERTIA),
                 drift_bound,
                 due,
             )
             if due and lane_a[0] == OK:
-                _store_sample(samples, a, lane_a[_SAMPLE] - 1, ya)
+                store_sample(samples, a, lane_a[SAMPLE] - 1, ya)
         if lane_b[0] == OK:
             status, iters = second_step(yb, pb, ob, step_time(steps_done, h, clock), h, work_b)
-            lane_b = _lane_after_step(
+            lane_b = lane_after_step(
                 lane_b,
                 fixed_b,
                 status,
                 iters,
-                _state_sum(yb),
+                state_sum(yb),
                 read3(yb, S.OMEGA),
                 read3(pb, S.INERTIA),
                 drift_bound,
                 due,
             )
             if due and lane_b[0] == OK:
-                _store_sample(samples, b, lane_b[_SAMPLE] - 1, yb)
-    _lane_end(lane_a, fixed_a, a, h, samples, results)
+                store_sample(samples, b, lane_b[SAMPLE] - 1, yb)
+    lane_end(lane_a, fixed_a, a, h, samples, results)
     if paired:
-        _lane_end(lane_b, fixed_b, b, h, samples, results)
+        lane_end(lane_b, fixed_b, b, h, samples, results)
 
 
 @inline_jit
@@ -539,45 +441,6 @@ def run_rows(
             halt,
             clock,
         )
-
-
-def make_entry(step, init, n_work, wrapper=None, lanes=1, switch=None, block=None):
-    """The entry point of a scheme: ``run_bodies_inplace(start, stop, state0, params, options,
-    h, n_steps, every, drift_bound, samples, results, halt, clock)`` integrates rows [start,
-    stop) (`run_rows`); numba compiles it, or loads it from its cache, for each type of
-    ``clock`` (None or a float) when first called with it (`rbstudy.numerics.entry`).
-
-    Parameters
-    ----------
-    step : compiled kernel ``(y, p, opt, t, h, work) -> (status, iterations)``
-        The scheme's step (module docstring).
-    init : compiled kernel ``(y, p, opt, t, h, work) -> status``
-        Its start.
-    n_work : int
-        Floats of work per body.
-    wrapper : tuple ``(kernel, slot)``, optional
-        An inlined kernel that takes the step and the slot of its option in the option row
-        first (a composition): the scheme steps with ``kernel(step, slot, y, p, opt, t, h,
-        work)``.
-    lanes : int
-        Bodies side by side (`integrate_rows_inplace`): 2 pays for cheap explicit steps, whose
-        time is latency; a costlier step loses 5-12% to it, and compiles its step twice.
-    switch : tuple ``(slot, step, init)``, optional
-        Other kernels for the rows whose option at ``slot`` is nonzero (a variant of the
-        scheme chosen per body, such as its compensated step): the entry runs each run of
-        such rows with them, so that the plain step stays as fast as without the variant.
-    block : compiled kernel ``(block, opt, h)``, optional
-        The scheme's block step (`rbstudy.numerics.block`): the entry then steps blocks of
-        bodies with it where the kernels do not take the time, and ``step`` elsewhere; each
-        body gets the same bits either way.
-
-    Returns
-    -------
-    rbstudy.numerics.entry.CachedEntry
-    """
-    if lanes not in (1, 2):
-        raise ValueError(f"a scheme runs 1 or 2 lanes, not {lanes!r}")
-    return CachedEntry(step, init, n_work, wrapper, lanes, switch, block)
 
 
 @dataclass(frozen=True)
@@ -728,7 +591,7 @@ def run_batch(
         HALT_FLAG,
         clock,
     )
-    # kernels chosen by an option (`make_entry`'s switch) compile before the clock too
+    # kernels chosen by an option (`rbstudy.numerics.entry.make_entry`'s switch) compile before the clock too
     prepare = getattr(scheme.run_bodies_inplace, "prepare", None)
     if prepare is not None:
         prepare(arguments)

@@ -25,6 +25,7 @@ __all__ = [
     "RECORD_WIDTH",
     "TURNING_SLOTS",
     "TURNING_RECORD_SLOTS",
+    "BLOCKLESS_SLOTS",
     "FRAMES",
     "needs_time",
 ]
@@ -57,6 +58,9 @@ class LoadKind:
         a check for a rare load in every evaluation of the moment costs the free body as a
         check for tabulated loads did, so the lean kernels leave it out (`needs_time`).
     meaning : one line for the docs and error messages.
+    in_blocks : the block path (`rbstudy.numerics.block.loads_at`) carries it as a constant; a
+        body with a kind it does not carry runs the single-body loop (`BLOCKLESS_SLOTS`). Never
+        true of a kind of the timed kernels alone: the blocks run only without the time.
     offset : where its values start in a parameter row (set by the layout below).
     """
 
@@ -67,6 +71,7 @@ class LoadKind:
     turns_body: bool
     moves_centre: bool
     meaning: str
+    in_blocks: bool
     dissipates: bool = False
     given: bool = True
     at_nodes: bool = False
@@ -82,6 +87,8 @@ def _laid_out(kinds):
     for kind in sorted(kinds, key=lambda kind: not kind.tabulated):  # stable
         if kind.frame not in FRAMES:
             raise ValueError(f"load kind {kind.name!r}: frame {kind.frame!r} is none of {FRAMES}")
+        if kind.in_blocks and kind.timed_kernels:
+            raise ValueError(f"load kind {kind.name!r}: the blocks run without the time, so never carry it")
         placed.append(replace(kind, offset=at))
         at += kind.width
     return tuple(placed)
@@ -97,6 +104,7 @@ LOAD_KINDS = _laid_out(
             turns_body=False,
             moves_centre=True,
             at_nodes=True,
+            in_blocks=True,
             meaning="force at the centre of mass, fixed in space",
         ),
         LoadKind(
@@ -107,6 +115,7 @@ LOAD_KINDS = _laid_out(
             turns_body=False,
             moves_centre=True,
             at_nodes=True,
+            in_blocks=False,
             meaning="force at the centre of mass, turning with the body",
         ),
         LoadKind(
@@ -117,6 +126,7 @@ LOAD_KINDS = _laid_out(
             turns_body=True,
             moves_centre=False,
             at_nodes=True,
+            in_blocks=True,
             meaning="moment fixed in space",
         ),
         LoadKind(
@@ -127,6 +137,7 @@ LOAD_KINDS = _laid_out(
             turns_body=True,
             moves_centre=False,
             at_nodes=True,
+            in_blocks=True,
             meaning="moment turning with the body",
         ),
         LoadKind(
@@ -136,6 +147,7 @@ LOAD_KINDS = _laid_out(
             3,
             turns_body=False,
             moves_centre=True,
+            in_blocks=True,
             meaning="acceleration of gravity (the weight acts at the centre of mass)",
         ),
         LoadKind(
@@ -146,6 +158,7 @@ LOAD_KINDS = _laid_out(
             turns_body=True,
             moves_centre=False,
             given=False,
+            in_blocks=False,
             meaning="space forces at body-fixed points off the centre of mass, as the rows "
             "k_b = sum_i d_i[b] F_i whose moment turns with the body",
         ),
@@ -159,6 +172,7 @@ LOAD_KINDS = _laid_out(
             dissipates=True,
             tabulated=False,
             timed_kernels=True,
+            in_blocks=False,
             meaning="linear damping moment M = -C w in body axes, C per principal axis",
         ),
     )
@@ -176,6 +190,10 @@ TURNING_SLOTS = tuple((kind.offset, kind.width) for kind in LOAD_KINDS if kind.t
 TURNING_RECORD_SLOTS = tuple(
     (kind.offset - FIRST_SLOT, kind.width) for kind in LOAD_KINDS if kind.turns_body and kind.tabulated
 )
+
+# The slots (start, width) of the kinds the block path does not carry (`LoadKind.in_blocks`):
+# a body with any of them non-zero runs the single-body loop (`rbstudy.numerics.block.plain_loads`).
+BLOCKLESS_SLOTS = tuple((kind.offset, kind.width) for kind in LOAD_KINDS if not kind.in_blocks)
 
 
 def needs_time(params):

@@ -20,6 +20,7 @@ __all__ = [
     "TURNING",
     "MOVING",
     "TABULATED",
+    "BLOCKLESS",
     "acting",
     "constant_acting",
     "turning",
@@ -35,6 +36,8 @@ GIVEN = tuple(kind.name for kind in LOAD_KINDS if kind.given)
 TURNING = tuple(kind.name for kind in LOAD_KINDS if kind.turns_body)
 MOVING = tuple(kind.name for kind in LOAD_KINDS if kind.moves_centre)
 TABULATED = tuple(kind.name for kind in LOAD_KINDS if kind.tabulated)
+# The kinds whose bodies the block path does not step (`rbstudy.numerics.loads.LoadKind.in_blocks`).
+BLOCKLESS = tuple(kind.name for kind in LOAD_KINDS if not kind.in_blocks)
 # The `Loads` fields of the loads tabulated in time.
 TABLES = ("knots", "tabulated")
 
@@ -99,34 +102,51 @@ def needs_time(loads):
     return bool(np.shape(loads["knots"])[-1] > 0 or np.any(constant_acting(loads, rare)))
 
 
-def _moment_free(self):
-    return not turning(vars(self))
+@dataclasses.dataclass(frozen=True)
+class Loads:
+    """A scene's loads: a field per kind of the catalogue `rbstudy.numerics.loads`, in its
+    order (its frame, units and width there; checked against it when this module is imported),
+    in the principal frame; ``lever`` (9,) N m holds the space forces that act at body-fixed
+    points off the centre of mass, as `rbstudy.numerics.state` lays out ``LEVER`` (their sum is
+    in ``force_space``). These are constant; loads tabulated in time add to them: their
+    ``knots`` (K,) s and, at each knot, a record ``tabulated`` (K, LOAD_RECORD) of the
+    tabulated kinds in the parameter row's layout (`rbstudy.numerics.state.KNOTS`); arrays,
+    views of the `SceneTable`'s (a long table is held once, not once per scene), left out of
+    comparisons as `Scene.nodes` is."""
+
+    force_space: tuple = (0.0,) * 3
+    force_body: tuple = (0.0,) * 3
+    moment_space: tuple = (0.0,) * 3
+    moment_body: tuple = (0.0,) * 3
+    gravity: tuple = (0.0,) * 3
+    lever: tuple = (0.0,) * 9
+    damping_moment: tuple = (0.0,) * 3
+    knots: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0), compare=False)
+    tabulated: np.ndarray = dataclasses.field(
+        default_factory=lambda: np.zeros((0, S.LOAD_RECORD)), compare=False
+    )
+
+    @property
+    def moment_free(self):
+        """True when no load turns the body."""
+        return not turning(vars(self))
+
+    @property
+    def timed(self):
+        """True when a load varies in time."""
+        return bool(timed(vars(self)))
 
 
-def _timed(self):
-    """True when a load varies in time."""
-    return bool(timed(vars(self)))
+def _check_against_catalogue():
+    """`Loads` has a field per kind of the catalogue, in its order and of its width, then the
+    tables in time: a kind added to the catalogue must be added here."""
+    fields = [(field.name, field.default) for field in dataclasses.fields(Loads)]
+    wanted = [(kind.name, (0.0,) * kind.width) for kind in LOAD_KINDS]
+    if fields[: len(wanted)] != wanted or [name for name, _ in fields[len(wanted) :]] != list(TABLES):
+        raise ImportError(
+            f"rbstudy.physics.loads.Loads has the fields {[name for name, _ in fields]}; the load "
+            f"catalogue wants {[name for name, _ in wanted]} (each of its width), then {list(TABLES)}"
+        )
 
 
-Loads = dataclasses.make_dataclass(
-    "Loads",
-    [(kind.name, tuple, dataclasses.field(default=(0.0,) * kind.width)) for kind in LOAD_KINDS]
-    + [
-        ("knots", np.ndarray, dataclasses.field(default_factory=lambda: np.zeros(0), compare=False)),
-        (
-            "tabulated",
-            np.ndarray,
-            dataclasses.field(default_factory=lambda: np.zeros((0, S.LOAD_RECORD)), compare=False),
-        ),
-    ],
-    frozen=True,
-    namespace={"moment_free": property(_moment_free), "timed": property(_timed), "__module__": __name__},
-)
-Loads.__doc__ = """A scene's loads: a field per kind of the catalogue `rbstudy.numerics.loads`
-(its frame, units and width there), in the principal frame; ``lever`` (9,) N m holds the space
-forces that act at body-fixed points off the centre of mass, as `rbstudy.numerics.state` lays
-out ``LEVER`` (their sum is in ``force_space``). These are constant; loads tabulated in time
-add to them: their ``knots`` (K,) s and, at each knot, a record ``tabulated`` (K, LOAD_RECORD)
-of the tabulated kinds in the parameter row's layout (`rbstudy.numerics.state.KNOTS`); arrays,
-views of the `SceneTable`'s (a long table is held once, not once per scene), left out of
-comparisons as `Scene.nodes` is."""
+_check_against_catalogue()

@@ -29,7 +29,7 @@ from rbstudy.errors import ConfigError, counted
 from rbstudy.numerics.block import FEWEST
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.analytic import INTEGRATED
-from rbstudy.physics.loads import constant_acting, needs_time
+from rbstudy.physics.loads import BLOCKLESS, constant_acting, needs_time
 from rbstudy.physics.references import (
     COMPOSED_STEP_ANGLE,
     REFERENCE_MAX_STEPS,
@@ -195,11 +195,12 @@ def _knot_factor(scenes):
 
 def _block_shares(scenes):
     """(scenes,) True where a scene's body can step in a block of bodies
-    (`rbstudy.numerics.block.plain_loads`: no lever, no force turning with the body), or None
-    when no scene can: loads tabulated in time compile kernels of their own, without blocks."""
+    (`rbstudy.numerics.block.plain_loads`: no load of a kind the blocks do not carry), or
+    None when no scene can: loads tabulated in time compile kernels of their own, without
+    blocks."""
     if needs_time(scenes.loads):
         return None
-    return ~np.asarray(constant_acting(scenes.loads, ("force_body", "lever")), dtype=bool)
+    return ~np.asarray(constant_acting(scenes.loads, BLOCKLESS), dtype=bool)
 
 
 def _batch_step_seconds(batch, scheme, cases, plain):

@@ -44,6 +44,7 @@ from rbstudy.archive.ids import batches_digest, canonical_id
 from rbstudy.archive.provenance import utc_now
 from rbstudy.archive.variables import ACCURATE, COORDINATES, SEARCH_VARIABLES, cf_attrs, variable_attrs
 from rbstudy.numerics.machine import default_threads
+from rbstudy.numerics.state import OK
 from rbstudy.physics.time_grid import output_count, steps_per
 from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references
@@ -102,7 +103,7 @@ def _grid(study, dataset):
     names = [d.name for d in study.dimensions]
     cases = np.arange(len(study.cases)).reshape(study.shape)
     accurate = (dataset["accuracy"].transpose(*names).values == ACCURATE) & (
-        dataset["status"].transpose(*names).values == 0
+        dataset["status"].transpose(*names).values == OK
     )
     if "dt" in names:
         k = names.index("dt")
@@ -148,7 +149,7 @@ class _Probes:
             self.write()
             if progress is not None:
                 progress.advance(len(cases))
-        return [self.rows[key]["accuracy"] == ACCURATE and self.rows[key]["status"] == 0 for key in wanted]
+        return [self.rows[key]["accuracy"] == ACCURATE and self.rows[key]["status"] == OK for key in wanted]
 
     def _scheme(self, case):
         cases = self.study.cases

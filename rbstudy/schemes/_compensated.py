@@ -4,7 +4,7 @@ Each scheme that offers it writes its step a second time in increment form and a
 increments with `rbstudy.numerics.compensated` (docs/theory.md s8); the plain step is left as
 it was, so that a run without the option gives the same bits as before it existed. The entry
 point runs the rows with the option set with the compensated kernels (`switch`, passed to
-`rbstudy.numerics.driver.make_entry`): the choice is made per body, not per step, so the
+`rbstudy.numerics.entry.make_entry`): the choice is made per body, not per step, so the
 plain step keeps its speed. The carry sits in the scheme's work array from the offset the
 scheme passes (`CARRY_WIDTH` floats).
 """
@@ -41,7 +41,7 @@ COMPENSATED = Option(
 
 
 def switch(step, init, slots):
-    """The ``switch`` of `rbstudy.numerics.driver.make_entry` that runs the bodies whose
+    """The ``switch`` of `rbstudy.numerics.entry.make_entry` that runs the bodies whose
     option ``compensated`` is set with the compensated kernels ``step`` and ``init``; ``slots``
     is the scheme's layout of its option row (`rbstudy.schemes.option_slots`)."""
     return (slots[COMPENSATED.name], step, init)

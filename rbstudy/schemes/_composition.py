@@ -26,7 +26,7 @@ of the other two stay inside the step.
 import numpy as np
 
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.driver import make_entry
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Option
@@ -164,7 +164,7 @@ def composed_block_step(step, slot, block, opt, h):
 
 
 def composed_entry(symmetric_step, init, n_work, slot, switch=None, block=None):
-    """The entry point (`rbstudy.numerics.driver.make_entry`) of a scheme whose step is its
+    """The entry point (`rbstudy.numerics.entry.make_entry`) of a scheme whose step is its
     ``symmetric_step`` composed as option ``composition``, at ``slot`` of the scheme's option
     row (`rbstudy.schemes.option_slots`), asks (`composed_step`); a ``switch``'s step is
     composed alike; a ``block`` step composes itself (`composed_block_step`)."""

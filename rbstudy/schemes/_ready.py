@@ -70,8 +70,8 @@ class Compiling(NamedTuple):
 
 
 def get_ready(variants, processes=1, watch=None):
-    """Compile (or load from numba's cache) the schemes of ``variants``, pairs (name, timed):
-    ``timed`` asks for the variant that takes the time (loads tabulated in time,
+    """Compile (or load from numba's cache) the schemes of ``variants``, pairs (`Scheme`,
+    timed): ``timed`` asks for the variant that takes the time (loads tabulated in time,
     `rbstudy.numerics.clock`). When the cache lacks more than one scheme, up to
     ``processes`` child processes compile them first. Returns the number of variants the
     children put into the cache.
@@ -83,12 +83,11 @@ def get_ready(variants, processes=1, watch=None):
     A child that fails (no memory, a broken interpreter) costs nothing but time: what it
     did not put into the cache, this process compiles itself. Ctrl-C ends the children.
     """
-    from rbstudy.schemes import get_scheme
-
-    variants = sorted(set(variants))
+    schemes = {scheme.name: scheme for scheme, _ in variants}
+    variants = sorted({(scheme.name, timed) for scheme, timed in variants})
     cold = {}
     for name, timed in variants:
-        if not get_scheme(name).is_cached(timed):
+        if not schemes[name].is_cached(timed):
             cold.setdefault(name, []).append(timed)
     processes = max(1, min(processes, len(cold)))
     tell = watch or (lambda compiling: None)
@@ -118,14 +117,12 @@ def get_ready(variants, processes=1, watch=None):
                 for child in children:
                     child.kill()
                 raise
-        compiled = sum(
-            get_scheme(name).is_cached(timed) for name, timings in cold.items() for timed in timings
-        )
+        compiled = sum(schemes[name].is_cached(timed) for name, timings in cold.items() for timed in timings)
     # what no child compiled, here
     here = [
         name
         for name, timings in cold.items()
-        if processes == 1 or not all(get_scheme(name).is_cached(timed) for timed in timings)
+        if processes == 1 or not all(schemes[name].is_cached(timed) for timed in timings)
     ]
     for count, name in enumerate(here):
         tell(
@@ -133,10 +130,10 @@ def get_ready(variants, processes=1, watch=None):
         )
         started = time.perf_counter()
         for timed in cold[name]:
-            get_scheme(name).ensure_compiled(timed=timed)
+            schemes[name].ensure_compiled(timed=timed)
         took[name] = time.perf_counter() - started
     for name, timed in variants:  # loaded from the cache, in milliseconds
-        get_scheme(name).ensure_compiled(timed=timed)
+        schemes[name].ensure_compiled(timed=timed)
     if cold:
         tell(Compiling(len(cold), len(cold), (), processes, cache, names, tuple(took.items())))
     return compiled

@@ -13,8 +13,9 @@ from numba import types
 
 from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
+from rbstudy.numerics.block import N_TEMP, TEMP
 
-__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "KINDS", "option_slots"]
+__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "KINDS", "option_slots", "scratch_rows"]
 
 INVARIANTS = S.INVARIANTS
 # What a scheme's step solves, as `rbstudy schemes` lists it: kind -> what it means.
@@ -321,3 +322,46 @@ def option_slots(options, scheme="this scheme"):
             )
         claim(option, start)
     return MappingProxyType(slots)
+
+
+def scratch_rows(scheme, **widths):
+    """Lay out a block step's scratch rows (`rbstudy.numerics.block`: ``N_TEMP`` rows from
+    ``TEMP``): each of ``widths`` (name=rows, in the order given) takes the next free rows.
+    As `option_slots` does for the option row, the layout depends on the widths alone, so a
+    scheme file unpacks it once into module constants, which its block step reads as
+    compile-time constants. A step that reuses rows for another purpose later in the step
+    lays that purpose out in a second call.
+
+    Parameters
+    ----------
+    scheme : str
+        The scheme's name, for the error.
+    **widths : int
+        Rows of each field, each at least 1.
+
+    Returns
+    -------
+    tuple of int
+        The first row of each field, in the order given.
+
+    Raises
+    ------
+    ValueError
+        In one line: a width below 1, or fields that need more than the ``N_TEMP`` rows of a
+        block (a field would overwrite the carried rows that follow them).
+    """
+    starts, at = [], TEMP
+    for name, width in widths.items():
+        if not isinstance(width, numbers.Integral) or width < 1:
+            raise ValueError(
+                f"scheme {scheme!r}: block scratch {name!r} takes {width!r} rows; give 1 or more"
+            )
+        starts.append(at)
+        at += width
+    if at - TEMP > N_TEMP:
+        raise ValueError(
+            f"scheme {scheme!r}: block scratch {', '.join(f'{n} ({w})' for n, w in widths.items())} "
+            f"takes {at - TEMP} rows of the {N_TEMP} a block has; reuse rows in a second layout, "
+            "or raise rbstudy.numerics.block.N_TEMP"
+        )
+    return tuple(starts)

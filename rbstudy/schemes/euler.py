@@ -19,7 +19,6 @@ from rbstudy.numerics.block import (
     BLOCK,
     PARAM,
     STATE,
-    TEMP,
     column3,
     column4,
     loads_at,
@@ -27,7 +26,7 @@ from rbstudy.numerics.block import (
     turn_columns,
 )
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import (
     body_moment,
     euler_rates,
@@ -37,6 +36,7 @@ from rbstudy.numerics.dynamics import (
     to_momentum,
     to_omega,
 )
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
@@ -52,7 +52,7 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -93,7 +93,7 @@ def step_inplace(y, p, opt, t, h, work):
 
 
 # block scratch: the rotation vector h w, then its quaternion (`turn_columns`)
-_TURN = TEMP
+(_TURN,) = scratch_rows("euler", turn=7)
 
 
 @jit

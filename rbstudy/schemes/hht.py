@@ -42,7 +42,6 @@ from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
-from rbstudy.numerics.driver import make_entry
 from rbstudy.numerics.dynamics import (
     body_moment,
     euler_rates,
@@ -51,6 +50,7 @@ from rbstudy.numerics.dynamics import (
     spin_damping,
     to_momentum,
 )
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
@@ -73,7 +73,7 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
-from rbstudy.schemes._registry import Option, Scheme, Style, option_slots
+from rbstudy.schemes._registry import Option, Scheme, Style, option_slots, scratch_rows
 
 # work: body angular acceleration A_n (3), translational acceleration a_n (3), then the carry
 # of the compensated sums
@@ -220,10 +220,19 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 # each lane's r_n and residual scale, its A_n+1, whether it iterates and whether it converged,
 # its iterations, the rotation vector Theta and its exponential, q_n+1 and W_n+1
 _ANGULAR_ROWS, _LINEAR_ROWS = B.WORK + _ANGULAR, B.WORK + _LINEAR
-_R_OLD, _SCALE, _A_NEW = B.TEMP, B.TEMP + 3, B.TEMP + 4
-_ACTIVE, _CONVERGED, _STEP_ITERATIONS = B.TEMP + 7, B.TEMP + 8, B.TEMP + 9
-_THETA, _EXP = B.TEMP + 10, B.TEMP + 13
-_Q_NEW, _W_NEW = B.TEMP + 17, B.TEMP + 21
+_R_OLD, _SCALE, _A_NEW, _ACTIVE, _CONVERGED, _STEP_ITERATIONS, _THETA, _EXP, _Q_NEW, _W_NEW = scratch_rows(
+    "hht",
+    r_old=3,
+    scale=1,
+    a_new=3,
+    active=1,
+    converged=1,
+    step_iterations=1,
+    theta=3,
+    exp=4,
+    q_new=4,
+    w_new=3,
+)
 # a block step runs only without loads in time, and so without a damping moment
 _NO_DAMPING = (0.0, 0.0, 0.0)
 

@@ -25,7 +25,6 @@ from rbstudy.numerics.block import (
     BLOCK,
     PARAM,
     STATE,
-    TEMP,
     column3,
     column4,
     loads_at,
@@ -33,8 +32,9 @@ from rbstudy.numerics.block import (
     turn_columns,
 )
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import jit
 from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
@@ -50,7 +50,7 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -85,7 +85,7 @@ def step_inplace(y, p, opt, t, h, work):
 
 
 # block scratch: the rotation vector h w(n+1/2), then its quaternion (`turn_columns`)
-_TURN = TEMP
+(_TURN,) = scratch_rows("leapfrog", turn=7)
 
 
 @jit

@@ -61,7 +61,7 @@ from rbstudy.schemes._kicks import (
     kick_inplace,
 )
 from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -158,9 +158,9 @@ def symmetric_step(y, p, opt, t, h, work):
 # block scratch: each lane's momentum after the first kick, its Newton iterate, whether it
 # iterates and whether it converged, its iterations in this stage, then Newton's next iterate
 # and the size of its correction
-_MOMENTUM, _ITERATE = B.TEMP, B.TEMP + 3
-_ACTIVE, _CONVERGED, _STAGE_ITERATIONS = B.TEMP + 6, B.TEMP + 7, B.TEMP + 8
-_NEXT, _SIZE = B.TEMP + 9, B.TEMP + 12
+_MOMENTUM, _ITERATE, _ACTIVE, _CONVERGED, _STAGE_ITERATIONS, _NEXT, _SIZE = scratch_rows(
+    "midpoint", momentum=3, iterate=3, active=1, converged=1, stage_iterations=1, next=3, size=1
+)
 
 
 @jit

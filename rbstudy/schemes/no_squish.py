@@ -52,7 +52,7 @@ from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_block_step, composed_entry
 from rbstudy.schemes._kicks import compensated_drift_inplace, drift_block, drift_inplace
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
 # work: conjugate momentum P (4), then the carries of the compensated sums: the state's
@@ -171,7 +171,9 @@ def symmetric_step(y, p, opt, t, h, work):
 # block rows: P, carried from step to step (its work's first four floats); scratch: a flow's
 # angle and its sine and cosine
 _P = B.WORK
-_ANGLE = B.TEMP
+# (its sine and cosine in the two rows after it, as `rbstudy.numerics.block.sin_cos_columns`
+# writes them)
+(_ANGLE,) = scratch_rows("no_squish", angle=3)
 
 
 @jit

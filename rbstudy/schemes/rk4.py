@@ -17,7 +17,6 @@ from rbstudy.numerics.block import (
     BLOCK,
     PARAM,
     STATE,
-    TEMP,
     column3,
     column4,
     loads_at,
@@ -26,8 +25,9 @@ from rbstudy.numerics.block import (
 )
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, add4_inplace, normalize_inplace
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import (
     axpy,
@@ -42,7 +42,7 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
 
 # work: the carry of the compensated sums
@@ -114,8 +114,7 @@ def step_inplace(y, p, opt, t, h, work):
 
 # block scratch: the last stage's rates (dx, dq, dv, dw) laid out as a state, then their
 # weighted sum so far
-_RATES = TEMP
-_SUM = TEMP + S.N_STATE
+_RATES, _SUM = scratch_rows("rk4", rates=S.N_STATE, sum=S.N_STATE)
 
 
 @jit

@@ -20,7 +20,7 @@ from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
-from rbstudy.numerics.driver import init_nothing, make_entry
+from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import (
     body_moment,
     inertia,
@@ -29,6 +29,7 @@ from rbstudy.numerics.dynamics import (
     to_momentum,
     to_omega,
 )
+from rbstudy.numerics.entry import make_entry
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import quat_exp_poly
 from rbstudy.numerics.rotation import (
@@ -46,7 +47,7 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 from rbstudy.schemes._rk import rk4_sum3
 
 # work: the carry of the compensated sums
@@ -133,14 +134,12 @@ def step_inplace(y, p, opt, t, h, work):
     return OK, 0
 
 
-# block scratch, 25 of the `N_TEMP` rows: the last stage's (dv, du, dm), whose du rows hold the
+# block scratch (`scratch_rows`): the last stage's (dv, du, dm), whose du rows hold the
 # next stage's ``u`` once `_block_frame` has scaled them (its dx, ``v``, is summed already); the
 # weighted sum so far of the stages' (dx, dv, du, dm); ``exp(u)``. The step's ``u_n+1`` and its
 # quaternion (`rbstudy.numerics.block.turn_columns`) reuse the first rows.
-_DV, _DU, _DM = B.TEMP, B.TEMP + 3, B.TEMP + 6
-_SUM = B.TEMP + 9
-_EXP = _SUM + 12
-_TURN = B.TEMP
+_DV, _DU, _DM, _SUM, _EXP = scratch_rows("rkmk4", dv=3, du=3, dm=3, sum=12, exp=4)
+(_TURN,) = scratch_rows("rkmk4", turn=7)  # once the stages are summed: the vector, its quaternion
 
 
 @jit

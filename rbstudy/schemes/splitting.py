@@ -54,7 +54,7 @@ from rbstudy.schemes._kicks import (
     kick_block,
     kick_inplace,
 )
-from rbstudy.schemes._registry import Scheme, Style, option_slots
+from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
 # work: the carry of the compensated sums
@@ -143,9 +143,10 @@ def symmetric_step(y, p, opt, t, h, work):
 
 
 # block scratch: each lane's momentum m = I w between the sub-flows, then a sub-flow's half
-# angle and its sine and cosine
-_MOMENTUM = B.TEMP
-_HALF, _SINE, _COSINE = B.TEMP + 3, B.TEMP + 4, B.TEMP + 5
+# angle and its sine and cosine (the rows after it, as `rbstudy.numerics.block.sin_cos_columns`
+# writes them)
+_MOMENTUM, _HALF = scratch_rows("splitting", momentum=3, half=3)
+_SINE, _COSINE = _HALF + 1, _HALF + 2
 
 
 @jit
