@@ -107,6 +107,7 @@ def test_a_cube_of_eight_nodes_and_the_centre_options():
     assert np.allclose(assembled(nodes, master=heavy, centre_of_mass="secondaries").position, 0.0)
 
 
+@pytest.mark.slow
 def test_a_node_cloud_in_a_solid_ellipsoid_tends_to_the_continuous_body():
     """Lattice nodes inside a solid ellipsoid of semi-axes (3, 2, 1) and mass 1: the principal
     inertias approach (b^2 + c^2, a^2 + c^2, a^2 + b^2) / 5 as the lattice is refined."""
@@ -139,6 +140,7 @@ clouds = st.integers(3, 9).flatmap(
 turns = st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(clouds, turns, st.tuples(*[st.floats(-100.0, 100.0)] * 3))
 def test_moving_the_input_moves_the_body_and_nothing_else(cloud, turn, shift):

@@ -61,12 +61,14 @@ def test_the_multibody_is_semi_implicit_euler_with_the_explicit_gyroscopic_term(
     assert np.all(difference("bullet_multibody", "mujoco_euler", scenes, 0.01) < 1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", BULLET)
 def test_each_is_of_order_one_on_an_asymmetric_body(scheme):
     errors = final_orientation_errors(_asymmetric(4.0), scheme, [0.01, 0.005, 0.0025], 0.04)
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), 1.0, atol=0.05)
 
 
+@pytest.mark.slow
 def test_the_explicit_term_gains_energy_and_the_implicit_one_loses_it():
     """Over 20 s at dt = 0.01 s the multibody's energy grows (the failure of Bullet PR 346's
     explicit gyroscopic force) and the rigid body's decays, each by percents."""

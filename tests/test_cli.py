@@ -10,6 +10,7 @@ from rbstudy.archive.load import open_results
 from rbstudy.cli import build_parser, main
 
 
+@pytest.mark.slow
 def test_sweep_writes_the_study_layout_and_prints_the_summary(tmp_path, capsys):
     config = write_study(
         tmp_path, name="small", sweep={"scheme": ["rk4", "hht"], "dt": [0.01, 0.005, 0.0025]}
@@ -395,6 +396,7 @@ def test_bad_usage_is_exit_two(capsys):
     assert done.value.code == 2
 
 
+@pytest.mark.slow
 def test_a_closed_output_ends_the_command_quietly():
     """`rbstudy ... | head -1`: the reader is gone; no traceback, exit 141 (not a success:
     what was not yet done is not done)."""

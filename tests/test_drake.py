@@ -97,6 +97,7 @@ def test_energy_over_a_long_run():
     assert abs(drift["drake_rk3"]) < 1e-4
 
 
+@pytest.mark.slow
 def test_the_discrete_plant_is_semi_implicit_euler_but_for_its_turn():
     """The discrete plant takes the velocity by the forces at the step's start, then turns
     with the new velocity, as MuJoCo's Euler and Bullet's multibody do (loads included); it
@@ -123,6 +124,7 @@ def test_tamsi_and_sap_step_a_free_body_alike(monkeypatch):
     np.testing.assert_allclose(tamsi, sap, rtol=0, atol=1e-13)
 
 
+@pytest.mark.slow
 def test_drake_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme, on the asymmetric top: statuses, Drake's version
     in the archive, and the orders from the archived errors."""

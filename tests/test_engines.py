@@ -188,6 +188,7 @@ def test_each_shows_its_order_against_the_exact_solution(scheme, order):
     assert abs(np.log2(errors[-2] / errors[-1]) - order) < 0.15
 
 
+@pytest.mark.slow
 def test_mujoco_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: statuses, the engine's version in the archive,
     and orders from the archived errors."""

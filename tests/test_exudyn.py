@@ -84,6 +84,7 @@ def test_exudyns_own_test_of_its_lie_group_rk44_is_reproduced():
 @pytest.mark.parametrize(
     "scheme, order", [("exudyn_genalpha", 2), ("exudyn_rk44", 4), ("exudyn_midpoint", 2)]
 )
+@pytest.mark.slow
 def test_each_shows_its_order_on_an_asymmetric_body(scheme, order):
     errors = final_orientation_errors(_asymmetric(4.0), scheme, [0.01, 0.005, 0.0025], 0.04)
     np.testing.assert_allclose(np.log2(errors[:-1] / errors[1:]), order, atol=0.1)
@@ -149,6 +150,7 @@ def test_generalized_alpha_on_euler_parameters_misses_a_steady_spin_by_h_squared
     assert misses["exudyn_midpoint", 0.01] < 1e-12
 
 
+@pytest.mark.slow
 def test_the_spectral_radius_sets_the_damping():
     """Over 20 s at dt = 0.01 s, generalized alpha at spectral radius 0 (the most numerical
     damping) loses ten times the energy it loses at Exudyn's default 0.9; near 1 the index-3
@@ -197,6 +199,7 @@ def test_a_failed_newton_stops_that_body_and_nothing_is_written_or_printed(tmp_p
     assert capfd.readouterr() == ("", "")
 
 
+@pytest.mark.slow
 def test_exudyn_schemes_sweep_into_the_archive(tmp_path):
     """Through the pipeline like any scheme: the engine's version in the archive, the
     spectral radius swept as an option, and orders from the archived errors."""

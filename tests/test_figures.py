@@ -314,6 +314,7 @@ def drawn_figures(monkeypatch):
     plt.close("all")
 
 
+@pytest.mark.slow
 def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_path, drawn_figures):
     import matplotlib.colors as colors
 
@@ -477,6 +478,7 @@ def test_slope_guides_cross_no_line_and_log_ticks_read_powers_of_ten(top_with_tw
         assert labels and all(label.startswith("$") and "10^{" in label for label in labels)
 
 
+@pytest.mark.slow
 def test_the_drift_figure_names_its_case_once_in_its_title(top_with_twins, tmp_path, drawn_figures):
     from rbstudy.analysis.figure_marks import EXACT_ZERO_LABEL
 

@@ -215,6 +215,7 @@ def test_a_full_disk_before_the_first_write_is_one_line_and_leaves_nothing(tmp_p
         assert sorted(path.name for path in disk.iterdir()) == ["filler"]
 
 
+@pytest.mark.slow
 def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, capsys, monkeypatch):
     """A real file system fills at the third of four parts: one line, the two finished
     parts kept and sealed, no temporary left; once the disk is larger the rerun reuses them,
@@ -258,6 +259,7 @@ def test_a_disk_filled_partway_keeps_its_parts_and_the_rerun_resumes(tmp_path, c
         assert not _open_in(disk)
 
 
+@pytest.mark.slow
 def test_a_disk_filled_while_a_zarr_store_is_written_keeps_its_parts_and_the_rerun_resumes(
     tmp_path, capsys, monkeypatch
 ):

@@ -297,6 +297,7 @@ def test_summary_json_keeps_its_contract(archives, capsys):
     assert {"error_rad", "ns_per_body_step", "accurate_up_to_dt_w0"} <= set(document["schemes"][0])
 
 
+@pytest.mark.slow
 def test_no_recommendation_when_no_case_meets_the_bound(tmp_path, capsys):
     config = _reduced(yaml.safe_load((CONFIGS / "abaqus_top.yaml").read_text()))
     config["sweep"]["inertia_ratio"] = [2.0]
@@ -619,6 +620,7 @@ def _worst_error(ds, scheme, dt):
     return float(np.max(np.abs(ds["final_orientation_error"].sel(scheme=scheme, dt=dt).values)))
 
 
+@pytest.mark.slow
 def test_costs_within_the_calibrations_uncertainty_are_one_answer_said_as_one(cost_archives):
     """rk4 and rkmk4 at 1% apart with 2% uncertainty: a tie, named as one, represented by
     the smaller worst error; at 5% apart the cheaper alone. Recomputed from the archive."""

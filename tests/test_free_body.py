@@ -62,6 +62,7 @@ def test_the_near_separatrix_body_is_where_it_says():
 # --- the special functions -------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_carlson_integrals_agree_with_mpmath():
     with mp.workdps(30):
         for x, y, z, p in RNG.uniform(0.0, 4.0, (200, 4)):

@@ -88,6 +88,7 @@ def test_compensated_exact_split_converges_at_its_order_under_loads(order, large
     assert used.sum() >= 3 and abs(fitted - order) <= 0.25, errors
 
 
+@pytest.mark.slow
 def test_over_a_long_free_run_compensated_exact_split_ends_far_closer(asymmetric_scene):
     """2e4 steps of the order-8 composition (3.4e5 exact stages) of a free asymmetric body,
     against its exact motion: each stage of the plain one rounds to an ulp of the state."""

@@ -230,6 +230,7 @@ def peak_growth_bounded():
     assert _peak_bytes() - before < PEAK_GROWTH_BYTES
 
 
+@pytest.mark.slow
 def test_validate_survives_fuzzed_config_text(tmp_path):
     with peak_growth_bounded():
         fuzz(150)(tmp_path)

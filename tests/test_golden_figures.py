@@ -200,6 +200,7 @@ def test_drakes_floating_body_asks_each_element_as_compare_matrices_does():
             assert check.tolerance == pytest.approx(1e-5 * max(1.0, abs(value)), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_the_floating_body_passes_for_rbstudys_schemes_and_only_rk4_meets_drakes_1e5(card):
     """At the card's 1/80 s, rk4 reproduces Drake's figure; midpoint passes every rule but
     misses 1e-5 (its orientation error is 7e-4 rad at 10 s); euler does neither."""
@@ -216,6 +217,7 @@ def test_the_floating_body_passes_for_rbstudys_schemes_and_only_rk4_meets_drakes
     assert said.startswith("at dt = 0.0125 s: orientation_error") and "position_z -490.5" in said
 
 
+@pytest.mark.slow
 def test_a_component_past_drakes_relative_allowance_is_not_the_figure(card):
     """p_z = -490.5 m is allowed 4.9e-3 m, w_x = 1.41 rad/s 1.41e-5 rad/s: a miss just
     inside passes, just outside fails (an absolute 1e-5 would fail the first)."""
@@ -231,6 +233,7 @@ def test_a_component_past_drakes_relative_allowance_is_not_the_figure(card):
     assert judged("omega_space", "x", 1.3e-5) and not judged("omega_space", "x", 1.5e-5)
 
 
+@pytest.mark.slow
 def test_drakes_rk3_reproduces_its_floating_body_figure_and_its_rk2_does_not(tmp_path):
     """The figure is of the motion, asked of every scheme: fixed-step RK3 at 1/80 s is
     within it (orientation 6.9e-6 rad); RK2 misses w_WB by up to 1.8e-5 rad/s."""
@@ -264,6 +267,7 @@ def test_only_the_heavy_top_carries_a_moment():
     assert [case.name for case in GOLDEN if not case.moment_free] == ["exudyn_heavy_top"]
 
 
+@pytest.mark.slow
 def test_the_card_marks_the_heavy_top_cells_that_judge_an_adapters_held_load(tmp_path, capsys):
     """MuJoCo's RK4 shows no order 4 under the heavy top's moment, which its adapter holds
     over each step: the card says so beside the cell and in a footnote, not on rk4's cell nor

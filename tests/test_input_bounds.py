@@ -166,6 +166,7 @@ def test_a_table_of_many_knots_is_forecast_within_twice_its_peak(tmp_path):
     assert forecast / 2 < peak < 2 * forecast
 
 
+@pytest.mark.slow
 def test_a_table_past_max_memory_is_refused_before_anything_is_built(tmp_path):
     write_knots(tmp_path / "load.csv", 100_000)
     code, _, err, peak = rbstudy("validate", table_study(tmp_path), "--max-memory", 420)
@@ -173,17 +174,20 @@ def test_a_table_past_max_memory_is_refused_before_anything_is_built(tmp_path):
     assert peak < REFUSED_PEAK_BYTES
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("steps", ["1000000000000000000", "1e30"])
 def test_bench_refuses_more_body_steps_than_it_can_hold(steps):
     code, _, err, _ = rbstudy("bench", "--body-steps", steps, "euler")
     assert "--body-steps: need 1 to 1e+09, got 1e+" in one_error_line(code, err)
 
 
+@pytest.mark.slow
 def test_dop853_at_an_extreme_spin_is_forecast_and_refused(tmp_path):
     code, _, err, _ = rbstudy("validate", study(tmp_path, spin=(1e20, 1.0, 0.2), scheme="dop853"))
     assert "run.dt: needs 3.2e+20 body-steps" in one_error_line(code, err)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scheme", ["dop853", "rk4"])
 def test_a_spin_past_the_float_range_of_its_square_warns_nothing(tmp_path, scheme):
     code, out, err, _ = rbstudy(

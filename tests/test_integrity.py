@@ -133,6 +133,7 @@ def test_another_parts_file_and_digest_copied_in_is_recomputed(study):
     assert (again.computed, again.reused) == (1, 3)
 
 
+@pytest.mark.slow
 def test_a_tampered_archive_is_refused_by_verify_and_rebuilt_by_the_sweep(study, capsys):
     config, out, folder = study
     archive = folder / "small.nc"

@@ -92,6 +92,7 @@ def _block_rotations(vectors):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("odd_lanes", [False, True])
 def test_a_block_s_rotations_are_quat_exp_poly_s_lane_for_lane(odd_lanes):
     """The rotations of a block's lanes (`block.quat_exp_columns`) have the bits of

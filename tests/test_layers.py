@@ -21,6 +21,7 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
 import tomllib
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
@@ -211,6 +212,7 @@ def import_graph():
     return {name: edges(path, found.keys() - {name}) for name, path in found.items()}
 
 
+@pytest.mark.slow
 def test_the_import_graph_has_no_circle():
     """No module imports, through any chain, one that imports it: an import made inside a
     function counts (it hides a circle, it does not break it). The floor of the numerics
@@ -218,6 +220,7 @@ def test_the_import_graph_has_no_circle():
     assert circles(import_graph()) == []
 
 
+@pytest.mark.slow
 def test_an_import_circle_is_caught():
     """The check itself can fail: the numerics' old circle, rebuilt, is found, and an import
     that only points down is not."""
@@ -231,6 +234,7 @@ def test_an_import_circle_is_caught():
     assert circles({"a": {"b"}, "b": set(), "c": {"c"}}) == [["c"]]
 
 
+@pytest.mark.slow
 def test_every_module_sits_in_a_layer_and_imports_downwards_only():
     violations = {
         "/".join(parts): found for path, parts in modules() if (found := violations_of(path, parts))
@@ -319,6 +323,7 @@ def _loaded(names, unwanted):
     return done.stdout.strip()
 
 
+@pytest.mark.slow
 def test_the_archive_readers_never_load_numba():
     assert _loaded(NUMBA_FREE, "m in ('numba', 'rbstudy.schemes', 'rbstudy.numerics.driver')") == "[]"
 

@@ -27,6 +27,7 @@ def _said(capsys):
     return " ".join(capsys.readouterr().out.split())  # status lines break at 100 columns
 
 
+@pytest.mark.slow
 def test_an_override_is_applied_and_recorded_in_the_archive(tmp_path, capsys):
     config = write_study(tmp_path, name="top", sweep=SWEEP)
     _sweep(

@@ -124,6 +124,7 @@ def test_default_study_follows_the_dataset_contract(abaqus_results):
     assert np.allclose(ds.precession_frequency_exact, 2 * math.pi * (ds.inertia_ratio - 1.0))
 
 
+@pytest.mark.slow
 def test_the_estimate_matches_the_archive_and_its_steps(abaqus_results):
     study = load_study(CONFIGS / "abaqus_top.yaml")
     cost = estimate(study)
@@ -259,6 +260,7 @@ def test_default_study_is_cf_compliant_at_strict_criteria(abaqus_results, tmp_pa
     assert findings <= {TIME_RULE}, findings
 
 
+@pytest.mark.slow
 def test_plain_xarray_opens_time_as_seconds_on_the_decimal_grid(abaqus_results):
     """A user's first line: no decode_times=False, no rounding of the time they ask for."""
     with xr.open_dataset(abaqus_results) as ds:
@@ -564,6 +566,7 @@ def test_ctrl_c_ends_a_long_batch_within_a_second_and_resumes_bit_equal(tmp_path
     same_numbers(resumed.path, clean.path)
 
 
+@pytest.mark.slow
 def test_a_reference_past_its_step_budget_is_no_reference_not_a_hang(tmp_path, monkeypatch):
     """DOP853 stops at its budget: the case is stored, reference "none", its errors NaN and its
     verdict "unjudged" (not accurate, not failed), and the summary reads it. (A body-fixed
@@ -730,6 +733,7 @@ def test_node_velocity_is_the_rate_of_the_stored_node_positions(tmp_path):
     assert np.max(np.abs(rate - velocity)) < 6e-5
 
 
+@pytest.mark.slow
 def test_a_finished_study_keeps_a_compressed_archive_and_no_parts(tmp_path):
     config = _small_study(tmp_path)
     out = tmp_path / "out"

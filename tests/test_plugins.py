@@ -400,6 +400,7 @@ def test_a_namespace_package_plugin_loads_with_a_digest(fake_plugins):
     assert get_scheme("spread_rk4").code_digest == package_digest("spread.part.mod")
 
 
+@pytest.mark.slow
 def test_threads_reading_the_registry_first_wait_for_the_plugins(fake_plugins):
     """A second thread that reads the registry while the first is loading a slow plug-in
     finds the plug-in, not a registry of rbstudy's own schemes only."""

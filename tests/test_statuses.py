@@ -62,6 +62,7 @@ def test_each_status_of_failed_cases_is_a_finding_with_its_message_and_fix(faili
     assert all(f"{name}: {message}" in description for name, message, _ in STATUSES[1:])
 
 
+@pytest.mark.slow
 def test_the_command_line_and_the_report_print_them(failing, tmp_path, capsys):
     assert main(["summary", str(failing)]) == 0
     printed = capsys.readouterr().out

@@ -128,6 +128,7 @@ def test_a_second_zarr_study_of_the_same_name_is_refused_and_the_store_kept(tmp_
     assert _folder_bytes(folder) == kept
 
 
+@pytest.mark.slow
 def test_a_second_config_of_the_same_name_is_refused_before_anything_changes(tmp_path, capsys):
     """Two config files of one name into one --out: the second is refused in one line naming
     both files and the fix, the first's archive and kept parts untouched; with --force it

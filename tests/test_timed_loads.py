@@ -105,6 +105,7 @@ def test_the_kernels_interpolate_the_tables_at_any_time_and_orientation():
         assert np.allclose(space_force(turn.as_quat(), p, t), force, rtol=1e-13, atol=1e-13), t
 
 
+@pytest.mark.slow
 def test_the_motion_under_tabulated_loads_is_euler_s_equations():
     """rk4 at a fine step, the reference and its DOP853 cross-check against an independent
     integration whose loads are interpolated and summed in numpy: the tables reach the

@@ -425,6 +425,7 @@ def test_a_worker_of_a_replaced_store_writes_nothing_into_it(computed, tmp_path)
     assert not pathlib.Path(orphan.path).exists()
 
 
+@pytest.mark.slow
 def test_the_sealed_store_from_regions_is_the_one_from_parts(computed, tmp_path):
     """Every batch written into its region here (a file a killed zarr write leaves among
     them), then the store finished as the sweep does: it is the store written from parts,
@@ -443,6 +444,7 @@ def test_the_sealed_store_from_regions_is_the_one_from_parts(computed, tmp_path)
     assert main(["verify", str(folder.archive)]) == 0
 
 
+@pytest.mark.slow
 def test_a_sweep_killed_while_it_seals_the_store_resumes_from_every_mark(computed, tmp_path, monkeypatch):
     """Killed once the working store is sealed, before it is renamed into place: the rerun
     trusts every mark (the store keeps its generation till then; without it the rerun ran
@@ -469,6 +471,7 @@ def test_a_sweep_killed_while_it_seals_the_store_resumes_from_every_mark(compute
     assert GENERATION not in xr.open_zarr(folder.archive).attrs
 
 
+@pytest.mark.slow
 def test_removing_the_parts_removes_the_marks_and_the_working_store(computed, tmp_path):
     """A sweep killed after the store was sealed leaves marks and, on a local rerun after a
     run on workers, a working store: beside a current archive, removing the parts removes
