@@ -17,6 +17,7 @@ registry loads (rbstudy's engine adapters), which must name modules of the engin
 """
 
 import ast
+import functools
 import pathlib
 import subprocess
 import sys
@@ -90,11 +91,17 @@ def _called(node):
     return function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", None)
 
 
+@functools.cache
+def _tree(path):
+    """The parsed source of ``path``, once a session: every check here walks the same files."""
+    return ast.parse(path.read_text())
+
+
 def imports(path):
     """The absolute module names ``path`` imports, by statement or by a string given to
     `IMPORT_CALLS`; a relative import is named ``.relative`` (refused: the contract is checked
     on absolute names)."""
-    tree = ast.parse(path.read_text())
+    tree = _tree(path)
     for node in ast.walk(tree):
         if (
             isinstance(node, ast.Call)
@@ -165,13 +172,11 @@ def module_name(parts):
 def edges(path, known):
     """The modules of ``known`` (dotted names) that ``path`` imports, anywhere in it (inside a
     function too): ``from rbstudy.numerics import state`` names ``rbstudy.numerics.state``."""
-    found = set()
-    for name in imports(path):
-        found.add(name)
-    for node in ast.walk(ast.parse(path.read_text())):
+    found = set(imports(path))
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             found.update(f"{node.module}.{alias.name}" for alias in node.names)
-    return {name for name in found if name in known}
+    return found & known
 
 
 def circles(graph):
@@ -207,6 +212,7 @@ def circles(graph):
     return found
 
 
+@functools.lru_cache(maxsize=1)
 def import_graph():
     found = {module_name(parts): path for path, parts in modules()}
     return {name: edges(path, found.keys() - {name}) for name, path in found.items()}

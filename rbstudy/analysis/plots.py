@@ -1041,20 +1041,20 @@ def work_precision(ds, folder, formats=FORMATS, styles=None):
         fig, axes = _grid(len(values), width=5.0, legend_width=reserved)
         handles, extras = {}, {}
         for ax, pick, lines in zip(axes, picks, panels, strict=True):
-            for j, (_, _, errors, times) in enumerate(lines):
-                shown = errors > 0  # an exact zero has no place on a log axis: said in the title
-                (line,) = ax.loglog(np.where(shown, errors, np.nan), times, **drawn[j])
+            for j, cost_line in enumerate(lines):
+                shown = cost_line.errors > 0  # an exact zero has no place on a log axis: said in the title
+                (line,) = ax.loglog(np.where(shown, cost_line.errors, np.nan), cost_line.times, **drawn[j])
                 handles.setdefault(j, line)
             if bound is not None:
                 extras.setdefault("bound", (ax.axvline(bound, **BOUND_STYLE), bound_label(bound)))
-            for j, (name, _, errors, times) in enumerate(lines if point is not None else []):
+            for j, cost_line in enumerate(lines if point is not None else []):
                 # the line the answer lies on: its scheme's, or in a one-scheme study the
                 # line of each value of the answer's cases
                 at = pick if line_dim in (None, "scheme") else {**pick, line_dim: ds[line_dim].values[j]}
-                if (line_dim == "scheme" and name != point.scheme) or not point.covers(at):
+                if (line_dim == "scheme" and cost_line.label != point.scheme) or not point.covers(at):
                     continue
                 k = int(np.flatnonzero(ds["dt"].values == point.dt)[0])
-                (star,) = ax.plot(errors[k], times[k], **RECOMMENDED_STYLE)
+                (star,) = ax.plot(cost_line.errors[k], cost_line.times[k], **RECOMMENDED_STYLE)
                 extras.setdefault("point", (star, point.label))
             ax.set_xlabel("final orientation error (rad)")
             ax.set_ylabel("cost per case (core-seconds)")

@@ -126,33 +126,15 @@ def _v(*, name, dims, units, long_name, description, needs=(), flags=(), dtype="
     )
 
 
-def _scene(*, name, dims, units, long_name, description, needs=(), flags=(), dtype="f8"):
-    """A variable of the scene alone, the same for every scheme, dt and option."""
-    return _v(
-        name=name,
-        dims=dims,
-        units=units,
-        long_name=long_name,
-        description=description,
-        needs=needs,
-        flags=flags,
-        dtype=dtype,
-        per_scene=True,
-    )
+def _scene(**fields):
+    """A variable of the scene alone, the same for every scheme, dt and option (`_v`'s fields)."""
+    return _v(**fields, per_scene=True)
 
 
-def _result(*, name, units, long_name, description, needs=(), flags=()):
-    """A per-case result of the driver, stored as the driver's storage type."""
-    return _v(
-        name=name,
-        dims=(),
-        units=units,
-        long_name=long_name,
-        description=description,
-        needs=needs,
-        flags=flags,
-        dtype=dict(RESULT_FIELDS)[name],
-    )
+def _result(*, name, **fields):
+    """A per-case result of the driver, one value a case, stored as the driver's storage type
+    (`_v`'s other fields)."""
+    return _v(name=name, dims=(), dtype=dict(RESULT_FIELDS)[name], **fields)
 
 
 _AS_UNCERTAINTY = "; NaN where reference_uncertainty is"

@@ -38,8 +38,9 @@ Every lane is stepped every step; a body that has failed stops being booked (its
 is no longer OK), so its state may go on to NaN without effect: nothing passes between lanes,
 and no lane's arithmetic traps. The lanes past the last body of the batch are copies of the
 block's first body that are never booked. The bookkeeping follows
-`rbstudy.numerics.lanes.lane_after_step` step for step (`_book`: the same tests in the same order, written
-with selects in a loop over lanes that vectorises); only the samples are stored lane by lane.
+`rbstudy.numerics.lanes.lane_after_step` step for step (`_book`: the same tests in the same
+order, written with selects in a loop over lanes that vectorises); only the samples are stored
+lane by lane.
 """
 
 import math
@@ -61,6 +62,8 @@ __all__ = [
     "PARAM",
     "TEMP",
     "N_TEMP",
+    "SIN_COS_ROWS",
+    "TURN_ROWS",
     "CARRIED",
     "WORK",
     "VERDICT",
@@ -92,6 +95,10 @@ BLOCK = 64
 FEWEST = BLOCK // 4
 # Scratch rows of a block step: rk4's last stage and its running sum, each laid out as a state.
 N_TEMP = 2 * S.N_STATE
+# The rows the helpers below take from their first: `sin_cos_columns` an angle, then its sine and
+# cosine; `turn_columns` a rotation vector, then its quaternion.
+SIN_COS_ROWS = 3
+TURN_ROWS = 3 + 4
 # The floats of a body's work that a block step carries from one step to the next (rows
 # `WORK..`), as the scheme's ``init`` leaves them: no_squish's conjugate momentum (4), hht's
 # accelerations (6).
@@ -266,7 +273,7 @@ def sin_cos_columns(block, angle):
     block : ndarray, shape (N_ROWS * BLOCK,)
         A block's rows.
     angle : int
-        The row of the angles (rad), then 2 rows of scratch.
+        The row of the angles (rad), then 2 rows of scratch (`SIN_COS_ROWS` in all).
     """
     for lane in range(BLOCK):
         sine, cosine = sin_cos_reduced(at(block, angle, lane))
@@ -330,7 +337,8 @@ def turn_columns(block, vector):
     block : ndarray, shape (N_ROWS * BLOCK,)
         A block's rows.
     vector : int
-        The first of the rotation vectors' rows (rad), 3 rows, then 4 rows of scratch.
+        The first of the rotation vectors' rows (rad), 3 rows, then 4 rows of scratch
+        (`TURN_ROWS` in all).
     """
     quat_exp_columns(block, vector, vector + 3)
     for lane in range(BLOCK):

@@ -420,7 +420,7 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         # the cache what this process put there (a worker whose processor differs compiles
         # at its first batch), and a first run is announced here, not in a worker's log.
         get_ready(
-            {(get_scheme(batch.scheme), timed) for batch in pending},
+            [(get_scheme(name), timed) for name in {batch.scheme for batch in pending}],
             cores,
             watch=functools.partial(_show_compiling, progress, study.name),
         )

@@ -19,6 +19,7 @@ from rbstudy.numerics.block import (
     BLOCK,
     PARAM,
     STATE,
+    TURN_ROWS,
     column3,
     column4,
     loads_at,
@@ -93,7 +94,7 @@ def step_inplace(y, p, opt, t, h, work):
 
 
 # block scratch: the rotation vector h w, then its quaternion (`turn_columns`)
-(_TURN,) = scratch_rows("euler", turn=7)
+(_TURN,) = scratch_rows("euler", turn=TURN_ROWS)
 
 
 @jit

@@ -25,6 +25,7 @@ from rbstudy.numerics.block import (
     BLOCK,
     PARAM,
     STATE,
+    TURN_ROWS,
     column3,
     column4,
     loads_at,
@@ -85,7 +86,7 @@ def step_inplace(y, p, opt, t, h, work):
 
 
 # block scratch: the rotation vector h w(n+1/2), then its quaternion (`turn_columns`)
-(_TURN,) = scratch_rows("leapfrog", turn=7)
+(_TURN,) = scratch_rows("leapfrog", turn=TURN_ROWS)
 
 
 @jit

@@ -173,7 +173,7 @@ def symmetric_step(y, p, opt, t, h, work):
 _P = B.WORK
 # (its sine and cosine in the two rows after it, as `rbstudy.numerics.block.sin_cos_columns`
 # writes them)
-(_ANGLE,) = scratch_rows("no_squish", angle=3)
+(_ANGLE,) = scratch_rows("no_squish", angle=B.SIN_COS_ROWS)
 
 
 @jit

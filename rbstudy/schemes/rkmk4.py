@@ -139,7 +139,7 @@ def step_inplace(y, p, opt, t, h, work):
 # weighted sum so far of the stages' (dx, dv, du, dm); ``exp(u)``. The step's ``u_n+1`` and its
 # quaternion (`rbstudy.numerics.block.turn_columns`) reuse the first rows.
 _DV, _DU, _DM, _SUM, _EXP = scratch_rows("rkmk4", dv=3, du=3, dm=3, sum=12, exp=4)
-(_TURN,) = scratch_rows("rkmk4", turn=7)  # once the stages are summed: the vector, its quaternion
+(_TURN,) = scratch_rows("rkmk4", turn=B.TURN_ROWS)  # once the stages are summed
 
 
 @jit

@@ -145,7 +145,7 @@ def symmetric_step(y, p, opt, t, h, work):
 # block scratch: each lane's momentum m = I w between the sub-flows, then a sub-flow's half
 # angle and its sine and cosine (the rows after it, as `rbstudy.numerics.block.sin_cos_columns`
 # writes them)
-_MOMENTUM, _HALF = scratch_rows("splitting", momentum=3, half=3)
+_MOMENTUM, _HALF = scratch_rows("splitting", momentum=3, half=B.SIN_COS_ROWS)
 _SINE, _COSINE = _HALF + 1, _HALF + 2
 
 
