@@ -206,7 +206,8 @@ def test_every_load_kind_is_carried_by_the_blocks_or_kept_out_of_them(kind):
     every scheme's block step. A kind added to the catalogue as carried, and not read by the
     block steps, fails here; one not carried is kept out of the blocks by the catalogue."""
     from rbstudy.numerics import state as S
-    from rbstudy.numerics.block import BLOCK, plain_loads
+    from rbstudy.numerics.block import BLOCK
+    from rbstudy.numerics.block_run import plain_loads
     from rbstudy.numerics.driver import run_batch
     from rbstudy.numerics.loads import KIND, needs_time
     from rbstudy.pipeline.bench import abaqus_top_scene

@@ -1,8 +1,8 @@
 """Sizes a reader can hold in mind: no module of rbstudy over 600 lines and no function over 80,
 except where the code says why.
 
-A longer module says so in a comment among its first lines, a longer function in a comment on
-the line above its ``def`` (above its decorators, if it has any), both in the form
+A longer module says so in a comment among its first lines, a longer function in the comment
+right above its ``def`` (above its decorators, if it has any), both in the form
 
     # longer than the limit: <the reason, in words>
 
@@ -28,6 +28,16 @@ def _says_why(line):
     return len(line.split(MARK, 1)[1].split()) >= REASON_WORDS
 
 
+def _comments_above(lines, first):
+    """The comment lines right above line ``first`` (1-based), the nearest first."""
+    above = []
+    for line in reversed(lines[: first - 1]):
+        if not line.strip().startswith("#"):
+            break
+        above.append(line)
+    return above
+
+
 def oversized(path, label=None):
     """The module's and its functions' excesses without a reason: a list of strings, each
     naming the file by ``label`` (its name if not given)."""
@@ -42,8 +52,7 @@ def oversized(path, label=None):
             continue
         length = node.end_lineno - node.lineno + 1
         first = min([node.lineno] + [decorator.lineno for decorator in node.decorator_list])
-        above = lines[first - 2] if first >= 2 else ""
-        if length > FUNCTION_LINES and not _says_why(above):
+        if length > FUNCTION_LINES and not any(_says_why(line) for line in _comments_above(lines, first)):
             found.append(f"{label}:{node.lineno} {node.name}: {length} lines")
     return found
 
@@ -64,6 +73,12 @@ def test_an_oversized_function_or_module_is_caught(tmp_path):
     assert oversized(long_function) == [f"long_function.py:1 f: {FUNCTION_LINES + 1} lines"]
     long_function.write_text(f"# longer than the limit: one table, read row by row\ndef f():\n{body}\n")
     assert oversized(long_function) == []
+    long_function.write_text(
+        f"# longer than the limit: one table of rows, read\n# row by row\ndef f():\n{body}\n"
+    )
+    assert oversized(long_function) == []
+    long_function.write_text(f"# longer than the limit: one table, read row by row\n\ndef f():\n{body}\n")
+    assert len(oversized(long_function)) == 1, "a comment apart from the function is not its reason"
     long_function.write_text(f"# longer than the limit: because\ndef f():\n{body}\n")
     assert len(oversized(long_function)) == 1, "a reason of one word is not a reason"
 

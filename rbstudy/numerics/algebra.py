@@ -12,8 +12,16 @@ The last two, the relabelling of a free body's axes (docs/theory.md s3), branch 
 three floats: the exact flow compiles them (`free_flow`) and the numba-free flip interval
 (`rbstudy.physics.analytic`) calls them as Python.
 
-This module imports nothing: importing it compiles nothing.
+This module imports nothing but the standard library's `typing`: importing it compiles
+nothing. A component (`Component`) is a float in a kernel, an array over bodies and times
+elsewhere.
 """
+
+from collections.abc import Sequence
+from typing import Any
+
+# A float inside a kernel, a numpy array of any shape in the numpy code.
+Component = Any
 
 __all__ = [
     "hamilton_product",
@@ -26,7 +34,9 @@ __all__ = [
 ]
 
 
-def hamilton_product(a, b):
+def hamilton_product(
+    a: Sequence[Component], b: Sequence[Component]
+) -> tuple[Component, Component, Component, Component]:
     """Hamilton product ``a * b`` of scalar-last quaternions.
 
     Parameters
@@ -49,7 +59,7 @@ def hamilton_product(a, b):
     )
 
 
-def rotation_columns(q):
+def rotation_columns(q: Sequence[Component]) -> tuple[tuple[Component, ...], ...]:
     """The columns ``R e_1, R e_2, R e_3`` of the rotation of a unit quaternion.
 
     Parameters
@@ -70,7 +80,7 @@ def rotation_columns(q):
     )
 
 
-def rotational_energy(w, inertia):
+def rotational_energy(w: Sequence[Component], inertia: Sequence[Component]) -> Component:
     """Kinetic energy of rotation ``1/2 w . (I w)`` for principal inertias.
 
     Parameters
@@ -88,7 +98,7 @@ def rotational_energy(w, inertia):
     return 0.5 * (inertia[0] * w[0] * w[0] + inertia[1] * w[1] * w[1] + inertia[2] * w[2] * w[2])
 
 
-def momentum_squared(w, inertia):
+def momentum_squared(w: Sequence[Component], inertia: Sequence[Component]) -> Component:
     """``|I w|^2``, equal to ``|L|^2`` in space (a rotation keeps lengths).
 
     Parameters
@@ -107,7 +117,7 @@ def momentum_squared(w, inertia):
     return m0 * m0 + m1 * m1 + m2 * m2
 
 
-def relative_drift(value, initial):
+def relative_drift(value: Component, initial: Component) -> Component:
     """``|value - initial| / initial``, or the absolute change when ``initial`` is zero: a body
     at rest has nothing to be relative to.
 
@@ -127,7 +137,7 @@ def relative_drift(value, initial):
     return abs(value - initial)
 
 
-def momentum_excess(inertia, m, j):
+def momentum_excess(inertia: Sequence[float], m: Sequence[float], j: int) -> float:
     """``G^2 - 2 E I_j`` of a body, summed term by term (``sum_{n != j} m_n^2 (I_n - I_j) /
     I_n``): free of the cancellation of ``|m|^2 - I_j m . w`` when two moments nearly agree.
 
@@ -152,7 +162,7 @@ def momentum_excess(inertia, m, j):
     return total
 
 
-def circulation_axes(inertia, excess):
+def circulation_axes(inertia: Sequence[float], excess: Sequence[float]) -> tuple[int, int, int, float]:
     """The relabelling of a free body's principal axes (docs/theory.md s3).
 
     Parameters

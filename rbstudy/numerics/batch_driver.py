@@ -23,6 +23,9 @@ A body's numbers are what the compiled driver would give for the same step arith
 other bodies of its batch: a stopped body leaves the arrays handed to the step.
 """
 
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
 import numpy as np
 
 from rbstudy.numerics import algebra
@@ -80,10 +83,12 @@ class BatchStepEntry:
 
     whole_batch = True
 
-    def __init__(self, step, init=None, n_work=0):
+    def __init__(
+        self, step: Callable[..., Any], init: Callable[..., Any] | None = None, n_work: int = 0
+    ) -> None:
         self.step, self.init, self.n_work = step, init, int(n_work)
 
-    def is_cached(self, timed=False):
+    def is_cached(self, timed: bool = False) -> bool:
         """Nothing to compile: always ready (`rbstudy.schemes.Scheme.is_cached`).
 
         Parameters
@@ -103,20 +108,20 @@ class BatchStepEntry:
     @np.errstate(over="ignore", invalid="ignore")
     def __call__(
         self,
-        start,
-        stop,
-        state0,
-        params,
-        options,
-        h,
-        n_steps,
-        every,
-        drift_bound,
-        samples,
-        results,
-        halt,
-        clock=None,
-    ):
+        start: int,
+        stop: int,
+        state0: np.ndarray,
+        params: np.ndarray,
+        options: np.ndarray,
+        h: float,
+        n_steps: int,
+        every: int,
+        drift_bound: float,
+        samples: np.ndarray,
+        results: np.ndarray,
+        halt: np.ndarray,
+        clock: float | None = None,
+    ) -> None:
         rows = slice(start, stop)
         y = state0[rows].copy()
         p, opt = params[rows], options[rows]
@@ -169,20 +174,42 @@ class BatchStepEntry:
             status[running] = code
         for body in range(n):  # NaN after each body's last sample
             samples[start + body, next_sample[body] :] = np.nan
-        failed = status != OK
-        step_angle = h * np.sqrt(largest_spin)
-        columns = {
-            "status": status,
-            "failure_time": np.where(failed, steps_done * h, np.nan),
-            "n_steps": steps_done,
-            "iterations": iterations,
-            "max_energy_error": np.where(checked, max_energy, np.nan),
-            "max_momentum_magnitude_error": np.where(checked, max_momentum, np.nan),
-            "max_step_angle": step_angle,
-            "radioss_dt_limit": step_angle > S.RADIOSS_STEP_ANGLE,
-        }
-        for name, _ in S.RESULT_FIELDS:  # a result added there must be computed here
-            results[rows, Result[name]] = columns[name]
+        tallies = _Tallies(status, steps_done, iterations, checked, max_energy, max_momentum, largest_spin)
+        for name, column in _result_columns(tallies, h).items():
+            results[rows, Result[name]] = column
+
+
+class _Tallies(NamedTuple):
+    """What the loop of `BatchStepEntry` books per body (n,): its status, steps taken, Newton
+    iterations, whether its invariants are watched, its largest energy and |L| drifts, and its
+    largest |w|^2."""
+
+    status: np.ndarray
+    steps_done: np.ndarray
+    iterations: np.ndarray
+    checked: np.ndarray
+    max_energy: np.ndarray
+    max_momentum: np.ndarray
+    largest_spin: np.ndarray
+
+
+def _result_columns(tallies, h):
+    """The results of the bodies by name (`rbstudy.numerics.state.RESULT_FIELDS`), each (n,),
+    as the compiled driver fills them."""
+    failed = tallies.status != OK
+    step_angle = h * np.sqrt(tallies.largest_spin)
+    columns = {
+        "status": tallies.status,
+        "failure_time": np.where(failed, tallies.steps_done * h, np.nan),
+        "n_steps": tallies.steps_done,
+        "iterations": tallies.iterations,
+        "max_energy_error": np.where(tallies.checked, tallies.max_energy, np.nan),
+        "max_momentum_magnitude_error": np.where(tallies.checked, tallies.max_momentum, np.nan),
+        "max_step_angle": step_angle,
+        "radioss_dt_limit": step_angle > S.RADIOSS_STEP_ANGLE,
+    }
+    # a result added there must be computed here
+    return {name: columns[name] for name, _ in S.RESULT_FIELDS}
 
 
 @jit
@@ -193,7 +220,7 @@ def _loads_of_rows(y, p, t, force, moment):
         write3(moment[b], 0, body_moment(q, read3(y[b], S.OMEGA), p[b], t))
 
 
-def batch_loads(y, p, t):
+def batch_loads(y: np.ndarray, p: np.ndarray, t: float | None) -> tuple[np.ndarray, np.ndarray]:
     """The loads on a batch's bodies, by the compiled kernels of the built-in schemes, so that a
     vectorised scheme meets every load a scene can carry.
 
@@ -218,7 +245,9 @@ def batch_loads(y, p, t):
     return force, moment
 
 
-def make_batch_entry(step, init=None, n_work=0):
+def make_batch_entry(
+    step: Callable[..., Any], init: Callable[..., Any] | None = None, n_work: int = 0
+) -> BatchStepEntry:
     """The entry point of a vectorised scheme (module docstring).
 
     Parameters

@@ -2,9 +2,8 @@
 
 Loads tabulated in time need the time of every evaluation; constant loads do not. A branch
 "are there tabulated loads?" inside the moment and the force that every stage evaluates cost
-the free body 18-35% of its steps per second even though it was never taken (numba 0.68,
-measured with `pipelines/bench_loads.py`: rk4 1.45e7 -> 0.93-1.19e7, leapfrog 3.0e7 ->
-2.2-2.4e7, the lower figures with the force function not inlined). So the decision is
+the free body a fifth to a third of its steps per second even though it was never taken
+(`pipelines/bench_loads.py` measures it). So the decision is
 made by type, once per batch: the driver passes the time ``t`` as a float when some body of
 the batch has tabulated loads, and as None otherwise (`rbstudy.numerics.driver.run_batch`).
 numba compiles each kernel once per type of ``t``; under None the functions below resolve,
@@ -18,13 +17,16 @@ Kernels therefore write a stage's time as ``later(t, d)``, never ``t + d``, and 
 function of the time through `without_time`.
 """
 
+from collections.abc import Callable
+from typing import Any
+
 from numba import types
 from numba.extending import overload
 
 __all__ = ["later", "step_time", "without_time"]
 
 
-def later(t, d):
+def later(t: float | None, d: float) -> float | None:
     """The time ``d`` after ``t``, or no time.
 
     Parameters
@@ -42,7 +44,7 @@ def later(t, d):
     return None if t is None else t + d
 
 
-def step_time(steps, h, clock):
+def step_time(steps: int, h: float, clock: float | None) -> float | None:
     """The time after ``steps`` steps of ``h``: a product, so that no running sum drifts over
     1e9 steps.
 
@@ -76,7 +78,7 @@ def _step_time(steps, h, clock):
     return lambda steps, h, clock: steps * h
 
 
-def without_time(of_time):
+def without_time(of_time: Callable[..., Any]) -> Callable[..., Any]:
     """A compiled function ``of_time(x, p, t)`` that gives a 3-vector (of the time, or of a
     load only the kernels with the time carry), as one that compiled code may also call with
     ``t`` None, and that gives zero then.

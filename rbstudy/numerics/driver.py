@@ -17,16 +17,12 @@ The per-body results (`rbstudy.numerics.state.RESULT_FIELDS`: status, failure ti
 iterations, energy and |L| drift, the largest step angle and the Radioss flag) are filled
 here, by name.
 
-`integrate_rows_inplace` below runs one body, or two side by side (a scheme's ``lanes``),
-through all their steps, booking each step as `rbstudy.numerics.lanes` does, and `run_rows` a
-range of batch rows; `rbstudy.numerics.entry.make_entry` gives a scheme its entry point, a
-cached function that calls `run_rows` with the scheme's kernels; `run_batch` spreads chunks
-of rows over threads (the kernels release the GIL). numba inlines `run_rows` and
-`integrate_rows_inplace` into each entry point (`inline_jit`): the kernels are then never
-passed as values, which numba could not cache. The loop writes element by element and
-allocates nothing; `integrate_rows_inplace` allocates its bodies' state and work arrays
-before it. Threads rather than numba's `prange` keep the kernels safe to call from several
-dask worker threads at once and let the caller choose the number of cores.
+`rbstudy.numerics.rows` steps the bodies of a range of batch rows through all their steps
+with a scheme's kernels; `rbstudy.numerics.entry.make_entry` gives a scheme its entry point, a
+cached function that calls it with the scheme's kernels; `run_batch` spreads chunks of rows
+over threads (the kernels release the GIL). Threads rather than numba's `prange` keep the
+kernels safe to call from several dask worker threads at once and let the caller choose the
+number of cores.
 
 A run can be halted from outside: `request_halt` sets a flag that every body's loop reads
 every `rbstudy.numerics.lanes.HALT_CHECK_STEPS` steps (a few milliseconds of work at most),
@@ -50,31 +46,16 @@ from typing import Protocol
 import numpy as np
 
 from rbstudy.numerics import state as S
-from rbstudy.numerics.clock import step_time
-from rbstudy.numerics.jit import inline_jit, jit
-from rbstudy.numerics.lanes import (
-    HALT_MASK,
-    IDLE,
-    SAMPLE,
-    lane_after_step,
-    lane_end,
-    lane_start,
-    state_sum,
-    store_sample,
-    with_status,
-)
+from rbstudy.numerics.block import BLOCK
+from rbstudy.numerics.jit import jit
 from rbstudy.numerics.loads import needs_time
 from rbstudy.numerics.machine import default_threads
-from rbstudy.numerics.rotation import read3
 from rbstudy.numerics.state import OK, Result
 
 __all__ = [
     "DRIFT_BOUND",
     "BatchOutput",
     "init_nothing",
-    "idle_step",
-    "integrate_rows_inplace",
-    "run_rows",
     "run_batch",
     "n_samples",
     "Halted",
@@ -105,7 +86,7 @@ class StatusError(ValueError):
     """A scheme gave a body a status that is none of the codes of `state.STATUS_NAMES`."""
 
 
-def check_statuses(codes):
+def check_statuses(codes: object) -> None:
     """Refuse codes that are not status codes: cast to an integer, NaN and codes past the table
     would be read as another status (NaN to ``int8`` is 0, "ok").
 
@@ -120,8 +101,8 @@ def check_statuses(codes):
         Naming the first code that is none of `rbstudy.numerics.state.STATUS_NAMES`.
     """
     codes = np.asarray(codes)
-    # integers, the usual answer, in two reductions: 1.5 us a step of a vectorised scheme
-    # where np.isin takes 12 us (of a step's ~140 us for one body)
+    # integers, the usual answer, in two reductions: np.isin is several times slower, and a
+    # vectorised scheme checks every step
     if codes.dtype.kind in "iu" and (
         codes.size == 0 or (codes.min() >= 0 and codes.max() < len(S.STATUS_NAMES))
     ):
@@ -134,18 +115,18 @@ def check_statuses(codes):
         )
 
 
-def request_halt():
+def request_halt() -> None:
     """Make every running and later batch of this process stop within `HALT_CHECK_STEPS`
     steps and raise `Halted` (Ctrl-C)."""
     HALT_FLAG[0] = 1
 
 
-def clear_halt():
+def clear_halt() -> None:
     """Let batches run again (a new sweep in the same process)."""
     HALT_FLAG[0] = 0
 
 
-def n_samples(n_steps, every):
+def n_samples(n_steps: int, every: int) -> int:
     """Number of output samples, t = 0 included, of a run sampled every ``every`` steps.
 
     Parameters
@@ -188,259 +169,6 @@ def init_nothing(y, p, opt, t, h, work):
         OK.
     """
     return OK
-
-
-@jit
-def idle_step(y, p, opt, t, h, work):
-    """The step of a second lane that never runs (`run_rows` of a scheme of one lane).
-
-    Parameters
-    ----------
-    y : ndarray, shape (N_STATE,)
-        The body's state row.
-    p : ndarray, shape (W,)
-        Its parameter row, W >= N_PARAM.
-    opt : ndarray, shape (N_OPTION,)
-        Its scheme options.
-    t : float or None
-        Time at the start of the step (s); None without loads tabulated in time.
-    h : float
-        Time step (s).
-    work : ndarray, shape (n_work,)
-        The body's scratch and carry.
-
-    Returns
-    -------
-    status : int
-        -1, the idle lane's status (never OK, never stored).
-    iterations : int
-        0.
-    """
-    return IDLE, 0
-
-
-@inline_jit
-def integrate_rows_inplace(
-    step,
-    init,
-    second_step,
-    second_init,
-    n_work,
-    a,
-    b,
-    state0,
-    params,
-    options,
-    h,
-    n_steps,
-    every,
-    drift_bound,
-    samples,
-    results,
-    halt,
-    clock,
-):
-    """Integrate body ``a`` of a batch, and body ``b`` beside it step for step unless ``b`` is
-    -1; write their samples and results.
-
-    Why two at once (a scheme's ``lanes``, `rbstudy.numerics.entry.make_entry`): the step of
-    a cheap scheme is a chain of dependent operations (the moment needs the orientation, the
-    spin the moment, the rotation the spin: divisions, square roots, a sine), and one body's
-    chain leaves the core idle while each result waits on the last. Two independent chains in one loop let
-    the core overlap them (leapfrog 1.96e7 -> 2.5e7 body-steps/s on one core,
-    docs/performance.md). Each body keeps its own state, work and tallies; nothing passes
-    between the lanes, so a body's numbers are the same in any pair, or alone.
-
-    Parameters
-    ----------
-    step, init : compiled kernels
-        One scheme's (module docstring), for body ``a``.
-    second_step, second_init : compiled kernels
-        The kernels for body ``b`` (`run_rows`).
-    n_work : int
-        Floats of work per body.
-    a, b : int
-        The bodies' rows in the batch arrays (``b`` -1 for none); only these rows of
-        ``samples`` and ``results`` are written.
-    state0 : ndarray, shape (B, N_STATE)
-        Initial states (read only).
-    params : ndarray, shape (B, W)
-        Parameter rows, W >= N_PARAM (`rbstudy.numerics.state.row_width`).
-    options : ndarray, shape (B, N_OPTION)
-        Scheme options (read only).
-    h : float
-        Time step (s).
-    n_steps : int
-        Steps of every body.
-    every : int
-        Steps between two samples.
-    drift_bound : float
-        Relative energy or |L| drift that flags a moment-free body unstable.
-    samples : ndarray, shape (B, T, N_STATE)
-        Output, T = n_steps // every + 1 (`n_samples`); NaN after a body's failure.
-    results : ndarray, shape (B, N_RESULT)
-        Output, by name (`rbstudy.numerics.state.Result`): the drifts NaN under moments, the
-        failure time NaN for a body that finished; the largest step angle dt |w| and the
-        Radioss flag cover every step taken.
-    halt : ndarray of int64, shape (1,)
-        The halt flag: the bodies stop early when it is nonzero (their numbers are then
-        discarded by `run_batch`).
-    clock : float or None
-        0.0 to give the kernels the time, None to compile them without it
-        (`rbstudy.numerics.clock`).
-    """
-    paired = b >= 0
-    ya, work_a = state0[a].copy(), np.zeros(n_work)
-    # an idle second lane never steps: it may name the first lane's arrays
-    yb, work_b = (state0[b].copy(), np.zeros(n_work)) if paired else (ya, work_a)
-    pa, pb = params[a], params[b if paired else a]
-    oa, ob = options[a], options[b if paired else a]
-    fixed_a, lane_a = lane_start(a, ya, pa, samples)
-    lane_a = with_status(lane_a, init(ya, pa, oa, step_time(0, h, clock), h, work_a))
-    fixed_b, lane_b = fixed_a, with_status(lane_a, IDLE)
-    if paired:
-        fixed_b, lane_b = lane_start(b, yb, pb, samples)
-        lane_b = with_status(lane_b, second_init(yb, pb, ob, step_time(0, h, clock), h, work_b))
-    countdown = every  # steps to the next sample
-    for steps_done in range(n_steps):
-        if lane_a[0] != OK and lane_b[0] != OK:
-            break
-        if (steps_done & HALT_MASK) == 0 and halt[0] != 0:
-            break
-        countdown -= 1
-        due = countdown == 0
-        if due:
-            countdown = every
-        # the two lanes written out, not a helper called twice: a helper would take the
-        # kernel and the arrays, so numba would inline it, and arrays passed to an inlined
-        # function are reference counted on every step (see `lane_after_step`)
-        if lane_a[0] == OK:
-            status, iters = step(ya, pa, oa, step_time(steps_done, h, clock), h, work_a)
-            lane_a = lane_after_step(
-                lane_a,
-                fixed_a,
-                status,
-                iters,
-                state_sum(ya),
-                read3(ya, S.OMEGA),
-                read3(pa, S.INERTIA),
-                drift_bound,
-                due,
-            )
-            if due and lane_a[0] == OK:
-                store_sample(samples, a, lane_a[SAMPLE] - 1, ya)
-        if lane_b[0] == OK:
-            status, iters = second_step(yb, pb, ob, step_time(steps_done, h, clock), h, work_b)
-            lane_b = lane_after_step(
-                lane_b,
-                fixed_b,
-                status,
-                iters,
-                state_sum(yb),
-                read3(yb, S.OMEGA),
-                read3(pb, S.INERTIA),
-                drift_bound,
-                due,
-            )
-            if due and lane_b[0] == OK:
-                store_sample(samples, b, lane_b[SAMPLE] - 1, yb)
-    lane_end(lane_a, fixed_a, a, h, samples, results)
-    if paired:
-        lane_end(lane_b, fixed_b, b, h, samples, results)
-
-
-@inline_jit
-def run_rows(
-    step,
-    init,
-    second_step,
-    second_init,
-    n_work,
-    lanes,
-    start,
-    stop,
-    state0,
-    params,
-    options,
-    h,
-    n_steps,
-    every,
-    drift_bound,
-    samples,
-    results,
-    halt,
-    clock,
-):
-    """Integrate the rows [start, stop) of a batch with a scheme's kernels, ``lanes`` rows at a
-    time (`integrate_rows_inplace`).
-
-    The second lane runs ``second_step`` and ``second_init``: the scheme's own kernels for two
-    lanes; for one, `idle_step` and `init_nothing`, which it never calls, so that a scheme of
-    one lane compiles its step once, not twice (+40% of its compile time, measured).
-
-    Parameters
-    ----------
-    step, init : compiled kernels
-        The scheme's (module docstring).
-    second_step, second_init : compiled kernels
-        The second lane's.
-    n_work : int
-        Floats of work per body.
-    lanes : int
-        1 or 2.
-    start, stop : int
-        The rows to integrate; only these rows of ``samples`` and ``results`` are written.
-    state0 : ndarray, shape (B, N_STATE)
-        Initial states (read only).
-    params : ndarray, shape (B, W)
-        Parameter rows, W >= N_PARAM (`rbstudy.numerics.state.row_width`).
-    options : ndarray, shape (B, N_OPTION)
-        Scheme options (read only).
-    h : float
-        Time step (s).
-    n_steps : int
-        Steps of every body.
-    every : int
-        Steps between two samples.
-    drift_bound : float
-        Relative energy or |L| drift that flags a moment-free body unstable.
-    samples : ndarray, shape (B, T, N_STATE)
-        Output, T = n_steps // every + 1 (`n_samples`); NaN after a body's failure.
-    results : ndarray, shape (B, N_RESULT)
-        Output, by name (`rbstudy.numerics.state.Result`): the drifts NaN under moments, the
-        failure time NaN for a body that finished; the largest step angle dt |w| and the
-        Radioss flag cover every step taken.
-    halt : ndarray of int64, shape (1,)
-        The halt flag: the bodies stop early when it is nonzero (their numbers are then
-        discarded by `run_batch`).
-    clock : float or None
-        0.0 to give the kernels the time, None to compile them without it
-        (`rbstudy.numerics.clock`).
-    """
-    for a in range(start, stop, lanes):
-        if halt[0] != 0:
-            return
-        b = a + 1 if lanes == 2 and a + 1 < stop else -1
-        integrate_rows_inplace(
-            step,
-            init,
-            second_step,
-            second_init,
-            n_work,
-            a,
-            b,
-            state0,
-            params,
-            options,
-            h,
-            n_steps,
-            every,
-            drift_bound,
-            samples,
-            results,
-            halt,
-            clock,
-        )
 
 
 @dataclass(frozen=True)
@@ -502,6 +230,62 @@ def _check_knots(params):
         )
 
 
+def _checked_batch(state0, params, options, n_steps, every):
+    """The batch's initial states, parameter rows and option rows as C-ordered float rows of
+    their widths, checked to be as many, and its steps and steps per sample as checked ints."""
+    state0 = _as_rows(state0, S.N_STATE, "state0")
+    params = _as_rows(params, S.N_PARAM, "params", wider=True)
+    _check_knots(params)
+    options = _as_rows(options, S.N_OPTION, "options")
+    if not (state0.shape[0] == params.shape[0] == options.shape[0]):
+        raise ValueError("`state0`, `params` and `options` must have the same number of rows")
+    n_steps, every = int(n_steps), int(every)
+    if n_steps < 0 or every < 1:
+        raise ValueError(f"need n_steps >= 0 and every >= 1, got {n_steps}, {every}")
+    return state0, params, options, n_steps, every
+
+
+def _named_results(scheme_name, results):
+    """The results (B, N_RESULT) by name, each (B,) of its storage type."""
+    named = {}
+    for name, dtype in S.RESULT_FIELDS:
+        column = results[:, Result[name]]
+        if np.dtype(dtype).kind == "i" and np.isnan(column).any():
+            # NaN cast to an integer is garbage (to int8 it is 0, "ok"): a scheme that does
+            # not fill a result is a bug, never a number
+            raise RuntimeError(f"scheme {scheme_name!r} left the result {name!r} unset")
+        named[name] = column.astype(dtype)
+    return named
+
+
+def _chunks_for(entry, n_bodies, threads):
+    """The chunks of rows a scheme's entry point is called with: the whole batch for a
+    vectorised scheme (`rbstudy.numerics.batch_driver`), else a few per thread, whole blocks
+    for a scheme that steps blocks."""
+    if getattr(entry, "whole_batch", False):
+        return [(0, n_bodies)]
+    return _chunks(n_bodies, threads, BLOCK if getattr(entry, "has_block", False) else 2)
+
+
+def _run_chunks(entry, chunks, arguments, threads):
+    """Run a scheme's entry point over the chunks of rows, on ``threads`` threads (all cores if
+    None); returns the wall time (s) and the CPU time of the threads inside the calls, summed."""
+
+    def run_chunk(rows):
+        # CPU time of this thread: compute only, whatever the wait for the GIL around the call.
+        begin = time.thread_time()
+        entry(*rows, *arguments)
+        return time.thread_time() - begin
+
+    start = time.perf_counter()
+    if len(chunks) == 1:
+        cpu = run_chunk(chunks[0])
+    else:
+        with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
+            cpu = sum(pool.map(run_chunk, chunks))
+    return time.perf_counter() - start, cpu
+
+
 def _chunks(n_bodies, threads, align=2):
     """Contiguous row ranges: a few per thread, so that early blow-ups do not idle a core;
     each a multiple of ``align`` long but the last: 2, so that a scheme of two lanes leaves no
@@ -561,15 +345,7 @@ def run_batch(
     Halted
         When `request_halt` was called before the batch ended.
     """
-    state0 = _as_rows(state0, S.N_STATE, "state0")
-    params = _as_rows(params, S.N_PARAM, "params", wider=True)
-    _check_knots(params)
-    options = _as_rows(options, S.N_OPTION, "options")
-    if not (state0.shape[0] == params.shape[0] == options.shape[0]):
-        raise ValueError("`state0`, `params` and `options` must have the same number of rows")
-    n_steps, every = int(n_steps), int(every)
-    if n_steps < 0 or every < 1:
-        raise ValueError(f"need n_steps >= 0 and every >= 1, got {n_steps}, {every}")
+    state0, params, options, n_steps, every = _checked_batch(state0, params, options, n_steps, every)
     n_bodies = state0.shape[0]
     samples = np.empty((n_bodies, n_samples(n_steps, every), S.N_STATE))
     results = np.full((n_bodies, S.N_RESULT), np.nan)
@@ -595,35 +371,9 @@ def run_batch(
     prepare = getattr(scheme.run_bodies_inplace, "prepare", None)
     if prepare is not None:
         prepare(arguments)
-    # a vectorised scheme (`rbstudy.numerics.batch_driver`) takes the batch in one call
-    whole = getattr(scheme.run_bodies_inplace, "whole_batch", False)
-    # imported here: the block path is built on this module's lanes
-    from rbstudy.numerics.block import BLOCK
-
-    align = BLOCK if getattr(scheme.run_bodies_inplace, "has_block", False) else 2
-    chunks = [(0, n_bodies)] if whole else _chunks(n_bodies, threads or default_threads(), align)
-
-    def run_chunk(rows):
-        # CPU time of this thread: compute only, whatever the wait for the GIL around the call.
-        begin = time.thread_time()
-        scheme.run_bodies_inplace(*rows, *arguments)
-        return time.thread_time() - begin
-
-    start = time.perf_counter()
-    if len(chunks) == 1:
-        cpu = run_chunk(chunks[0])
-    else:
-        with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
-            cpu = sum(pool.map(run_chunk, chunks))
-    seconds = time.perf_counter() - start
+    chunks = _chunks_for(scheme.run_bodies_inplace, n_bodies, threads or default_threads())
+    seconds, cpu = _run_chunks(scheme.run_bodies_inplace, chunks, arguments, threads)
     if HALT_FLAG[0]:
         raise Halted(f"a batch of {scheme.name} was halted")
-    named = {}
-    for name, dtype in S.RESULT_FIELDS:
-        column = results[:, Result[name]]
-        if np.dtype(dtype).kind == "i" and np.isnan(column).any():
-            # NaN cast to an integer is garbage (to int8 it is 0, "ok"): a scheme that does
-            # not fill a result is a bug, never a number
-            raise RuntimeError(f"scheme {scheme.name!r} left the result {name!r} unset")
-        named[name] = column.astype(dtype)
+    named = _named_results(scheme.name, results)
     return BatchOutput(samples=samples, results=named, kernel_seconds=seconds, kernel_cpu_seconds=cpu)

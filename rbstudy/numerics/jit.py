@@ -22,6 +22,7 @@ package's digest. ``NUMBA_CACHE_DIR``, when set, is respected as it is.
 
 import os
 import threading
+from typing import Any
 
 import numba
 
@@ -30,7 +31,7 @@ from rbstudy.numerics.sources import SOURCE_DIGEST, package_digest
 __all__ = ["jit", "inline_jit", "cache_dir"]
 
 
-def cache_dir():
+def cache_dir() -> str:
     """Numba's cache folder for this source tree.
 
     Returns
@@ -42,13 +43,14 @@ def cache_dir():
     return os.path.join(base, "rbstudy", f"numba-{SOURCE_DIGEST}")
 
 
+# numba.config's attributes are set at run time, from the environment: its types do not list them
 if not os.environ.get("NUMBA_CACHE_DIR"):
-    numba.config.CACHE_DIR = cache_dir()
+    numba.config.CACHE_DIR = cache_dir()  # type: ignore[attr-defined]
 
-_COMMON = dict(error_model="numpy", nogil=True)
+_COMMON: dict[str, Any] = dict(error_model="numpy", nogil=True)
 # numba reads its cache folder when a function is decorated: `_cached` changes it meanwhile.
 _FOLDER_LOCK = threading.Lock()
-_digests = {}  # a plug-in package's digest, read once per process
+_digests: dict[str, str] = {}  # a plug-in package's digest, read once per process
 
 
 def _cached(decorator):
@@ -83,6 +85,6 @@ jit = _cached(numba.njit(cache=True, **_COMMON))
 # For a kernel on every scheme's hot path that has a rarely taken branch: numba inlines it
 # into its callers before LLVM sees them. Left to LLVM, the loads' `body_moment` with its
 # lever branch grew past LLVM's inlining threshold and was called instead, which cost the
-# free body 20-35% of its steps per second (rk4 1.45e7 -> 9.5e6, measured); inlined, the
-# free body is within 5-10% of its speed without loads at nodes (docs/performance.md).
+# free body a fifth to a third of its steps per second; inlined, it runs nearly at its speed
+# without loads at nodes (`pipelines/bench_loads.py` measures it).
 inline_jit = _cached(numba.njit(cache=True, inline="always", **_COMMON))

@@ -142,9 +142,8 @@ def lane_after_step(lane, fixed, status, iters, total, w, inertia_, drift_bound,
 
     Scalars only, and a compiled function rather than an inlined one: numba gives each
     array that enters an inlined function a reference count, whose atomic updates on every
-    step kept the two lanes of `rbstudy.numerics.driver.integrate_rows_inplace` from
-    overlapping (leapfrog 1.5e7 instead of 2.5e7 steps a second), and every function it
-    inlines costs compile time.
+    step kept the two lanes of `rbstudy.numerics.rows.integrate_rows_inplace` from
+    overlapping, and every function it inlines costs compile time.
 
     Parameters
     ----------

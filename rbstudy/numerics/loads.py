@@ -14,7 +14,13 @@ so that a knot's record of tabulated loads is one slice of the row's layout
 (`rbstudy.numerics.state.LOAD_RECORD`), then the kinds that are constant only.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the module imports no numpy: its arrays come from the caller
+    import numpy as np
 
 __all__ = [
     "LoadKind",
@@ -192,11 +198,11 @@ TURNING_RECORD_SLOTS = tuple(
 )
 
 # The slots (start, width) of the kinds the block path does not carry (`LoadKind.in_blocks`):
-# a body with any of them non-zero runs the single-body loop (`rbstudy.numerics.block.plain_loads`).
+# a body with any of them non-zero runs the single-body loop (`rbstudy.numerics.block_run.plain_loads`).
 BLOCKLESS_SLOTS = tuple((kind.offset, kind.width) for kind in LOAD_KINDS if not kind.in_blocks)
 
 
-def needs_time(params):
+def needs_time(params: np.ndarray) -> np.ndarray:
     """(B,) True for the parameter rows ``params`` (B, W) that need the kernels compiled with
     the time (`rbstudy.numerics.clock`): loads tabulated in time (a count of knots, KNOTS,
     right after the last slot), or a kind of load only those kernels carry

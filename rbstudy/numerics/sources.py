@@ -30,7 +30,7 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def package_digest(module_name):
+def package_digest(module_name: str) -> str:
     """A digest of the Python sources of the top-level package of ``module_name`` (every module
     of it, helpers included; each folder of a namespace package), or of the module alone when it
     is in no package: what names a plug-in's code in its batch ids, its generated entry modules

@@ -20,7 +20,7 @@ Parameter row:
     LEVER 9 (N m): space-fixed forces ``F_i`` at body-fixed points ``d_i`` (principal axes,
     from the centre of mass), as the rows ``k_b = sum_i d_i[b] F_i`` of ``sum_i d_i F_i^T``;
     their moment ``sum_i (R d_i) x F_i = sum_b (R e_b) x k_b`` in space turns with the body
-    (`rbstudy.numerics.dynamics.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
+    (`rbstudy.numerics.space_loads.lever_moment`). Their sum ``F`` is part of FORCE_SPACE.
     Then the kinds that are never tabulated: the damping coefficients 3 (N m s, principal
     axes; `rbstudy.numerics.dynamics.spin_damping`).
     KNOTS 1: the number K of knots of the loads tabulated in time (0: all loads constant).
@@ -28,15 +28,20 @@ Parameter row:
     a record of the tabulated loads laid out as the constant ones from FIRST_SLOT
     (`LOAD_RECORD` values, principal body axes). Between knots the record is interpolated
     linearly, before the first and after the last it is held; it adds to the constant loads
-    (`rbstudy.numerics.dynamics.tabulated_moment`). Rows of one batch may hold different K:
+    (`rbstudy.numerics.space_loads.tabulated_moment`). Rows of one batch may hold different K:
     the batch is as wide as its widest row (`row_width`).
 
 Results row: `RESULT_FIELDS`, by name; kernels index it with ``Result.<name>``. Numba-free:
 the layers above read this layout and the status codes without compiling anything.
 """
 
+from __future__ import annotations
+
 import enum
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
+
+if TYPE_CHECKING:  # the module imports no numpy: its arrays come from the caller
+    import numpy as np
 
 from rbstudy.numerics.loads import END_SLOT, KIND, RECORD_WIDTH
 
@@ -103,7 +108,7 @@ N_PARAM = KNOTS + 1
 LOAD_RECORD = RECORD_WIDTH
 
 
-def row_width(knots):
+def row_width(knots: int | np.ndarray) -> int | np.ndarray:
     """Width of a parameter row whose loads are tabulated at ``knots`` times.
 
     Parameters
@@ -141,7 +146,8 @@ RESULT_FIELDS = (
 # OpenRadioss aborts a rigid body as unstable when (dt |w|)^2 > 1: past this step angle (rad)
 # a case is flagged `radioss_dt_limit`, and runs on (the study shows what happens past it).
 RADIOSS_STEP_ANGLE = 1.0
-Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])
+# built from the table above, so that the two cannot differ; mypy reads only literal members
+Result = enum.IntEnum("Result", [(name, k) for k, (name, _) in enumerate(RESULT_FIELDS)])  # type: ignore[misc]
 N_RESULT = len(RESULT_FIELDS)
 
 
