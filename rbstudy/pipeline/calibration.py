@@ -12,9 +12,19 @@ A scheme is measured through `rbstudy.numerics.driver.run_batch`, the path a stu
 takes (an engine's adapter included): `CALIBRATION_BODIES` Abaqus tops (docs/theory.md s2)
 at `CALIBRATION_DT`, one thread, its CPU time per step actually taken. The steps double from
 `FIRST_STEPS` until a run takes `MIN_SECONDS`, so that the process timer's tick is a small
-share; then `REPEATS` runs at those steps give the median and the uncertainty: half the
-spread of the runs relative to the median, at least `BETWEEN_CALIBRATIONS`. The schemes
-of a calibration are measured in rounds, a run of each per round.
+share. The schemes of a calibration are then measured in rounds, a run of each per round.
+
+Other programs change the figures, and not alike: on the 2-core machine, with the other core
+busy, rk4's step cost half as much again and hht's barely more, which reordered the
+recommendation. So each round notes how many cores other programs kept busy meanwhile
+(`others_cores`, from the system's CPU counters), and a round past `QUIET_CORES` does not
+count: the rounds go on, a short pause between them, until `REPEATS` quiet ones, or
+`MAX_ROUNDS`. A scheme's figure is the least of its quiet runs (noise only adds time), its
+uncertainty half their spread relative to it, at least `BETWEEN_CALIBRATIONS`. Where the
+machine stayed busy, the figure is the least of every run, its uncertainty
+`LOADED_UNCERTAINTY`, so that the findings count as ties the costs a busy machine cannot
+tell apart; it is cached as measured under load, and the next process that calibrates
+measures it again.
 
 The figures are cached in ``calibration.json`` in numba's cache folder
 (`rbstudy.numerics.jit.cache_dir`, named after the source digest: an edit of the sources
@@ -76,6 +86,18 @@ REPEATS = 5
 # 2-core machine at load 4 (docs/performance.md) gave rk4 1.7-2.4e-7 s, euler 0.9-1.1e-7 s,
 # midpoint 1.9-2.2e-7 s, rkmk4 3.0-3.7e-7 s: 8-18% about their middle.
 BETWEEN_CALIBRATIONS = 0.1
+# Cores other programs may keep busy during a round that counts: a quarter of one.
+QUIET_CORES = 0.25
+# Rounds at most (a busy machine's measurement ends there), and the pause after a busy one (s).
+MAX_ROUNDS = 4 * REPEATS
+BUSY_PAUSE = 0.2
+# The least time over which a round's load is counted (s): the system counts busy time in
+# ticks of 1-10 ms per core, so a window of a few ticks could not tell a busy core from an
+# idle one. A shorter round is followed by a wait that fills the window.
+LOAD_WINDOW = 0.2
+# The relative uncertainty of a figure measured while the machine stayed busy: other programs
+# changed a scheme's cost by up to half (rk4, the other core busy).
+LOADED_UNCERTAINTY = 0.5
 # Output samples every this many steps, as a study at dt = interval / 8 samples.
 SAMPLE_EVERY = 8
 # The scene `reference_cost` integrates: the Abaqus top under this space moment (N m), so
@@ -88,10 +110,12 @@ _COMPILE_FILE = "compile_seconds.json"
 @dataclass(frozen=True)
 class StepCost:
     """A scheme's core-seconds per body-step (``seconds``) and its relative uncertainty
-    (``uncertainty``; NaN for a declared figure, never measured here)."""
+    (``uncertainty``; NaN for a declared figure, never measured here); ``loaded`` where it was
+    measured while other programs kept the machine busy."""
 
     seconds: float
     uncertainty: float
+    loaded: bool = False
 
     @property
     def calibrated(self):
@@ -180,15 +204,118 @@ def _write(figures, path=None):
                 os.unlink(temporary)
 
 
+def _busy_seconds():
+    """The seconds the cores this process may run on have been busy since boot (Linux's
+    /proc/stat: every state but idle and waiting on I/O, the time the hypervisor gave the
+    core to others included), or None where the system does not say."""
+    cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    try:
+        with open("/proc/stat", encoding="ascii") as file:
+            lines = [line.split() for line in file if line.startswith("cpu")]
+        rows = [row for row in lines if row[0] != "cpu" and (cores is None or int(row[0][3:]) in cores)]
+        ticks = [[int(value) for value in row[1:9]] for row in rows]
+        busy = sum(sum(row) - row[3] - row[4] for row in ticks)
+        return busy / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
+def load_mark():
+    """A mark to count other programs' load from (`others_cores`): the cores' busy seconds
+    (None where the system does not count them), this process's CPU seconds, the wall clock."""
+    return _busy_seconds(), time.process_time(), time.perf_counter()
+
+
+def others_cores(mark):
+    """How many cores programs other than this process kept busy, on average, since ``mark``
+    (`load_mark`); 0.0 where the system does not say."""
+    busy, own, wall = load_mark()
+    if busy is None or mark[0] is None or wall <= mark[2]:
+        return 0.0
+    return max(0.0, (busy - mark[0]) - (own - mark[1])) / (wall - mark[2])
+
+
+def _quiet_round(run_round):
+    """Run ``run_round()`` and return its value and whether the machine was quiet meanwhile:
+    other programs kept at most `QUIET_CORES` busy over at least `LOAD_WINDOW`; after a busy
+    round, a pause of `BUSY_PAUSE`."""
+    mark = load_mark()
+    value = run_round()
+    waited = LOAD_WINDOW - (time.perf_counter() - mark[2])
+    if waited > 0:
+        time.sleep(waited)
+    quiet = others_cores(mark) <= QUIET_CORES
+    if not quiet:
+        time.sleep(BUSY_PAUSE)
+    return value, quiet
+
+
+def _rate(seconds, taken):
+    return seconds / taken
+
+
+def _rates_in_rounds(runs):
+    """Each run's seconds per step, in rounds of one run each (``runs``: name -> a function
+    that runs once and returns (seconds, steps taken)) until `REPEATS` quiet rounds
+    (`_quiet_round`) or `MAX_ROUNDS`; name -> `StepCost` (module docstring)."""
+
+    def run_round():
+        return {name: _rate(*run()) for name, run in runs.items()}
+
+    quiet, every = [], []
+    for _ in range(MAX_ROUNDS):
+        rates, was_quiet = _quiet_round(run_round)
+        every.append(rates)
+        if was_quiet:
+            quiet.append(rates)
+            if len(quiet) == REPEATS:
+                break
+    loaded = len(quiet) < REPEATS
+    costs = {}
+    for name in runs:
+        figures = [rates[name] for rates in (every if loaded else quiet)]
+        least = min(figures)
+        spread = (max(figures) - least) / 2 / least
+        costs[name] = StepCost(
+            least, LOADED_UNCERTAINTY if loaded else max(spread, BETWEEN_CALIBRATIONS), loaded
+        )
+    return costs
+
+
 def cached(scheme):
     """The `StepCost` of ``scheme`` (a `rbstudy.schemes.Scheme`) cached for this machine, or
     None."""
-    figure = _read().get(_scheme_key(scheme))
+    return _figure(_scheme_key(scheme))
+
+
+def _figure(key):
+    """The `StepCost` cached for this machine under ``key``, or None."""
+    figure = _read().get(key)
     try:  # a cache edited by hand, or by another version: measured again
-        cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]))
-    except (TypeError, KeyError, ValueError):
+        cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]), figure.get("loaded") is True)
+    except (TypeError, KeyError, ValueError, AttributeError):
         return None
     return cost if 0 < cost.seconds < math.inf and 0 <= cost.uncertainty < math.inf else None
+
+
+# The keys this process has measured: a figure measured under load is measured again by the
+# next process that calibrates, not by this one (the forecast and the sweep cost alike).
+_measured_here = set()
+
+
+def _stale(key, cost):
+    """Whether the figure ``cost`` cached under ``key`` is to be measured (again) now."""
+    return cost is None or (cost.loaded and key not in _measured_here)
+
+
+def _stored(cost, seconds):
+    """What the cache file keeps of a `StepCost` measured in ``seconds``."""
+    return {
+        "seconds": cost.seconds,
+        "uncertainty": cost.uncertainty,
+        "loaded": cost.loaded,
+        "measured_in_s": round(seconds, 3),
+    }
 
 
 def _run_seconds(scheme, rows, n_steps):
@@ -226,20 +353,20 @@ def measure(schemes):
         except Exception:  # noqa: BLE001 - a plug-in's failing kernel fails in its batch, which says why
             continue
         took[scheme.name] = time.perf_counter() - started
-    schemes = [scheme for scheme in schemes if scheme.name in prepared]
-    rates = {scheme.name: [] for scheme in schemes}
-    for _ in range(REPEATS):
-        for scheme in schemes:
+
+    def timed_run(scheme):
+        def run():
             clock = time.perf_counter()
-            seconds, taken = _run_seconds(scheme, *prepared[scheme.name])
-            rates[scheme.name].append(seconds / taken)
+            result = _run_seconds(scheme, *prepared[scheme.name])
             took[scheme.name] += time.perf_counter() - clock
-    result = {}
-    for name, runs in rates.items():
-        median = float(np.median(runs))
-        spread = float(np.max(runs) - np.min(runs)) / 2 / median
-        result[name] = (StepCost(median, max(spread, BETWEEN_CALIBRATIONS)), took[name])
-    return result
+            return result
+
+        return run
+
+    costs = _rates_in_rounds(
+        {scheme.name: timed_run(scheme) for scheme in schemes if scheme.name in prepared}
+    )
+    return {name: (cost, took[name]) for name, cost in costs.items()}
 
 
 def calibrate(names, progress=None):
@@ -248,19 +375,24 @@ def calibrate(names, progress=None):
     # an adaptive scheme's (dop853's) cost per step taken depends on how densely it samples:
     # at the calibration's output, every 8 steps of 1e-4 s, ~4x a study's; its declared figure
     costs = {name: cached(get_scheme(name)) for name in sorted(names) if not get_scheme(name).adaptive}
-    missing = [get_scheme(name) for name, cost in costs.items() if cost is None]
+    missing = [
+        get_scheme(name) for name, cost in costs.items() if _stale(_scheme_key(get_scheme(name)), cost)
+    ]
     if not missing:
         return costs
     if progress is not None:
         progress.phase(f"calibrating the cost of a step of {len(missing)} schemes (once per machine)")
     measured = measure(missing)
+    _measured_here.update(_scheme_key(scheme) for scheme in missing)
+    busy = sorted(name for name, (cost, _) in measured.items() if cost.loaded)
+    if busy and progress is not None:
+        progress.say(
+            f"other programs kept this machine busy while {', '.join(busy)} were measured: their costs "
+            f"are uncertain to {LOADED_UNCERTAINTY:.0%}, and the next sweep measures them again"
+        )
     _write(
         {
-            _scheme_key(scheme): {
-                "seconds": measured[scheme.name][0].seconds,
-                "uncertainty": measured[scheme.name][0].uncertainty,
-                "measured_in_s": round(measured[scheme.name][1], 3),
-            }
+            _scheme_key(scheme): _stored(*measured[scheme.name])
             for scheme in missing
             if scheme.name in measured
         }
@@ -296,29 +428,18 @@ def reference_cost():
     declared `Scheme.step_seconds` of `dop853`."""
     scheme = get_scheme("dop853")
     key = f"{_scheme_key(scheme)} reference"
-    figure = _read().get(key)
-    with contextlib.suppress(TypeError, KeyError, ValueError):
-        cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]))
-        if 0 < cost.seconds < math.inf and 0 <= cost.uncertainty < math.inf:
-            return cost
+    cached_cost = _figure(key)
+    if not _stale(key, cached_cost):
+        return cached_cost
     if not scheme.is_cached():  # compiling it here would cost the forecast seconds
-        return StepCost(scheme.step_seconds, math.nan)
+        return cached_cost or StepCost(scheme.step_seconds, math.nan)
     clock = time.perf_counter()
     scene = abaqus_top_scene({"moment_space": list(REFERENCE_MOMENT)})
     y0, p = scene.state_row(), scene.param_row()
     steps = FIRST_STEPS
     while _reference_seconds(y0, p, steps)[0] < MIN_SECONDS and steps < MAX_STEPS:
         steps *= 2
-    rates = [seconds / taken for seconds, taken in (_reference_seconds(y0, p, steps) for _ in range(REPEATS))]
-    median = float(np.median(rates))
-    cost = StepCost(median, max(float(np.ptp(rates)) / 2 / median, BETWEEN_CALIBRATIONS))
-    _write(
-        {
-            key: {
-                "seconds": cost.seconds,
-                "uncertainty": cost.uncertainty,
-                "measured_in_s": round(time.perf_counter() - clock, 3),
-            }
-        }
-    )
+    cost = _rates_in_rounds({key: lambda: _reference_seconds(y0, p, steps)})[key]
+    _measured_here.add(key)
+    _write({key: _stored(cost, time.perf_counter() - clock)})
     return cost
