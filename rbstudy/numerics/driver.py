@@ -194,8 +194,12 @@ class BatchKernel(Protocol):
     """What `run_batch` needs of a scheme (a `rbstudy.schemes.Scheme`, which this layer does
     not import): its name, its entry point over a range of rows, and a way to compile it."""
 
-    name: str
-    run_bodies_inplace: Callable
+    # read-only, as a `rbstudy.schemes.Scheme` (frozen) has them
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def run_bodies_inplace(self) -> Callable: ...
 
     def ensure_compiled(self, timed: bool = False) -> None:
         """Compile (or load from the cache) the kernels before the clock starts.

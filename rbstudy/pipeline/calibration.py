@@ -300,7 +300,7 @@ def _figure(key):
 
 # The keys this process has measured: a figure measured under load is measured again by the
 # next process that calibrates, not by this one (the forecast and the sweep cost alike).
-_measured_here = set()
+_measured_here: set[str] = set()
 
 
 def _stale(key, cost):
