@@ -25,6 +25,7 @@ __all__ = [
     "MAX_LINES",
     "Line",
     "LineStyle",
+    "Layout",
     "case_dims",
     "figure_layout",
     "lines_of",
@@ -74,13 +75,23 @@ class Line(NamedTuple):
     data: xr.DataArray
 
 
+class Layout(NamedTuple):
+    """What a figure along dt draws: a ``line`` per value of that dimension (None: one
+    line), a panel per value of the ``facet`` (None: one panel), and a band over the
+    ``reduced`` dimensions."""
+
+    line: str | None
+    facet: str | None
+    reduced: list[str]
+
+
 def case_dims(ds: xr.Dataset) -> list[str]:
     """The dimensions of ``ds`` that tell its cases apart (not time, nodes or axes)."""
     return [str(d) for d in ds["status"].dims if d not in _CASE_DIMS_EXCLUDED]
 
 
-def figure_layout(ds: xr.Dataset) -> tuple[str | None, str | None, list[str]]:
-    """(line dim, facet dim, reduced dims) of a figure along dt.
+def figure_layout(ds: xr.Dataset) -> Layout:
+    """The `Layout` (line dim, facet dim, reduced dims) of a figure along dt.
 
     Lines are the schemes; a one-scheme study draws one line per value of its first other
     axis instead (if short enough). Then panels, then worst cases.
@@ -93,7 +104,7 @@ def figure_layout(ds: xr.Dataset) -> tuple[str | None, str | None, list[str]]:
         line = next((d for d in others if ds.sizes[d] <= MAX_LINES), None)
     others = [d for d in others if d != line]
     facet = next((d for d in others if ds.sizes[d] <= MAX_FACETS), None)
-    return line, facet, [d for d in others if d != facet]
+    return Layout(line, facet, [d for d in others if d != facet])
 
 
 def lines_of(da: xr.DataArray, line: str | None) -> list[Line]:
@@ -193,8 +204,9 @@ def group_styles(
 def draw_band(
     ax: Axes, x: np.ndarray, best: np.ndarray, worst: np.ndarray, floor: float | None, style: dict[str, Any]
 ) -> None:
-    """The band from a line's best to its worst value (`band`), faint, its best edge a
-    thin dotted line in the line's colour, zeros on the floor."""
+    """The band from a line's ``best`` to its ``worst`` value
+    (`rbstudy.analysis.figure_marks.band`), faint, its best edge a thin dotted line in the
+    line's colour, zeros on the ``floor``."""
     low = np.where(best > 0, best, floor if floor is not None else np.nan)
     ax.fill_between(x, low, worst, color=style["color"], alpha=0.05, linewidth=0, zorder=1)
     ax.plot(x, low, color=style["color"], linestyle=(0, (1, 2)), linewidth=0.9, zorder=1)

@@ -41,10 +41,10 @@ marks the findings' recommendation.
 
 Large sweeps stay readable: lines are the schemes (or, in a one-scheme study, the values of
 a swept axis with at most `MAX_LINES` values); a further axis with at most `MAX_FACETS`
-values becomes one panel per value; any other axis is reduced to a band (`band`): the line
-is its worst case over the cases that gave a value, a thin dotted line its best, the legend
-counts the cases that gave none (failed or unjudged) and gives the orders fitted value by
-value; the panel title says so.
+values becomes one panel per value; any other axis is reduced to a band
+(`rbstudy.analysis.figure_marks.band`): the line is its worst case over the cases that gave
+a value, a thin dotted line its best, the legend counts the cases that gave none (failed or
+unjudged) and gives the orders fitted value by value; the panel title says so.
 
 This module draws them all (`all_figures`) and names them for the report (`CAPTIONS`); each
 kind of figure is drawn in a module of its own (`rbstudy.analysis.convergence_figure`,

@@ -151,7 +151,7 @@ def _convergence_caption(ds, rows, key, first):
     label, units = ERROR_MEASURES[key].label, ERROR_MEASURES[key].units
     errors = error_measure(ds, key)
     dts = ds["dt"].values
-    line = figure_layout(ds)[0]
+    line = figure_layout(ds).line
     text = (
         f"The {label}{'' if units == '1' else f' ({units})'} against dt from {dts.min():g} "
         f"to {dts.max():g} s, {_lines_and_panels(ds, first)}."
