@@ -42,7 +42,7 @@ cases in it are its time steps. `score_case` returns the cells;
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -351,7 +351,7 @@ def judge_figure(ds: xr.Dataset, scheme: str, figure: Figure) -> Verdict:
 
 def score_case(
     ds: xr.Dataset,
-    rules: Iterable[str],
+    rules: Collection[str],
     schemes: Sequence[str] | None = None,
     figure: Figure | None = None,
     loads_held: Collection[str] = (),
