@@ -300,16 +300,16 @@ def drawn_figures(monkeypatch):
     """The matplotlib figures the plot functions draw, kept open instead of saved."""
     import matplotlib.pyplot as plt
 
-    from rbstudy.analysis import plots
+    from rbstudy.analysis import figure_frame
 
     kept = {}
 
     def keep(fig, folder, ds, name, formats):
-        plots._log_labels(fig)  # what `_save` does before it writes
+        figure_frame.log_labels(fig)  # what `save` does before it writes
         kept[name] = fig
         return pathlib.Path(folder) / f"{name}.png"
 
-    monkeypatch.setattr(plots, "_save", keep)
+    monkeypatch.setattr(figure_frame, "save", keep)
     yield kept
     plt.close("all")
 
@@ -546,12 +546,12 @@ def test_every_log_tick_reads_as_its_value(span):
     labels rounded to "2x10^-2" twice: a tick must read as its own value (to 3 digits)."""
     import matplotlib.pyplot as plt
 
-    from rbstudy.analysis.plots import _log_labels
+    from rbstudy.analysis.figure_frame import log_labels
 
     fig, ax = plt.subplots()
     ax.set_xscale("log")
     ax.set_xlim(*span)
-    _log_labels(fig)
+    log_labels(fig)
     fig.canvas.draw()
     shown = [(tick.get_loc(), tick.label1.get_text()) for tick in ax.xaxis.get_major_ticks()]
     shown = [(at, text) for at, text in shown if span[0] <= at <= span[1]]
@@ -572,16 +572,16 @@ def test_a_long_title_from_an_archive_heads_a_figure_in_two_lines_cut_with_an_el
     import matplotlib.pyplot as plt
     import xarray as xr
 
-    from rbstudy.analysis.plots import TITLE_LINES, _title
+    from rbstudy.analysis import figure_text
 
     fig = plt.figure(figsize=(5.4, 4.2))
     started = time.perf_counter()
-    _title(fig, xr.Dataset(attrs={"title": title}), "what it shows")
+    figure_text.title(fig, xr.Dataset(attrs={"title": title}), "what it shows")
     drawn = fig._suptitle.get_text().split("\n")
     fig.canvas.draw()
     plt.close(fig)
     assert time.perf_counter() - started < 1.0
-    assert drawn[-1] == "what it shows" and len(drawn) == TITLE_LINES + 1
+    assert drawn[-1] == "what it shows" and len(drawn) == figure_text.TITLE_LINES + 1
     assert drawn[-2].endswith("\u2026") and all(len(line) < 120 for line in drawn)
 
 
@@ -591,10 +591,10 @@ def test_a_title_with_a_long_run_of_spaces_is_drawn_whole():
     import matplotlib.pyplot as plt
     import xarray as xr
 
-    from rbstudy.analysis.plots import _title
+    from rbstudy.analysis.figure_text import title
 
     fig = plt.figure(figsize=(5.4, 4.2))
-    _title(fig, xr.Dataset(attrs={"title": "a" + " " * 600 + "b"}), "what it shows")
+    title(fig, xr.Dataset(attrs={"title": "a" + " " * 600 + "b"}), "what it shows")
     drawn = fig._suptitle.get_text().split("\n")
     plt.close(fig)
     assert drawn == ["a b", "what it shows"]
@@ -625,9 +625,9 @@ def test_every_scheme_keeps_a_line_where_an_axis_is_too_long_for_panels(
     fitted value by value."""
     import numpy as np
 
-    from rbstudy.analysis import plots
+    from rbstudy.analysis import figure_lines
 
-    monkeypatch.setattr(plots, "MAX_FACETS", 1)  # the three ratios become one reduced axis
+    monkeypatch.setattr(figure_lines, "MAX_FACETS", 1)  # the three ratios become one reduced axis
     from rbstudy.cli import _styles_of
 
     ds = _with_a_failed_value(top_with_twins, "hht")

@@ -40,7 +40,11 @@ cases in it are its time steps. `score_case` returns the cells;
 (``passed`` and ``value`` per scheme and case, and per rule); `scorecard_html` the page.
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tabulate import tabulate
@@ -60,6 +64,11 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS, OK
+
+if TYPE_CHECKING:
+    import xarray as xr
+
+    from rbstudy.pipeline.golden import Figure
 
 __all__ = [
     "RULES",
@@ -133,11 +142,11 @@ class Cell:
 
     passed: bool
     value: float
-    verdicts: dict
+    verdicts: dict[str, Verdict]
     figure: Verdict | None = None
     load_held: bool = False
 
-    def short(self):
+    def short(self) -> str:
         """What the cell shows: the observed order of a scheme that passed (``order 4.00``),
         ``exact`` for one exact on the body, ``pass`` where no order is judged, or the rules
         it failed (``FAIL energy, failure``); then ``figure yes`` or ``figure no`` where the
@@ -282,9 +291,14 @@ def _rotational_energy(run):
     return 0.5 * (run["inertia"] * run["omega_body"] ** 2).sum("axis")
 
 
+def _component(variable: str, axis: str) -> Callable[[xr.Dataset], xr.DataArray]:
+    """The measure of the ``axis`` component of a run's ``variable``."""
+    return lambda run: run[variable].sel(axis=axis)
+
+
 # What a source's figure can be checked on, from one scheme's run at one step: name ->
 # function of that run (an xarray dataset) giving a number, or one per saved time.
-FIGURE_MEASURES = {
+FIGURE_MEASURES: dict[str, Callable[[xr.Dataset], xr.DataArray]] = {
     # a cycle is a step and the start: Radioss counts cycles 0 to N
     "cycles": lambda run: run["n_steps"] + 1,
     "rotational_energy": _rotational_energy,  # J, in the principal axes
@@ -293,14 +307,14 @@ FIGURE_MEASURES = {
     "omega_error_magnitude": lambda run: run["omega_error"] * run["initial_spin"],
     # a component of the angular velocity in space (rad/s) or of the centre's position (m)
     **{
-        f"{variable}_{axis}": (lambda run, variable=variable, axis=axis: run[variable].sel(axis=axis))
+        f"{variable}_{axis}": _component(variable, axis)
         for variable in ("omega_space", "position")
         for axis in "xyz"
     },
 }
 
 
-def judge_figure(ds, scheme, figure):
+def judge_figure(ds: xr.Dataset, scheme: str, figure: Figure) -> Verdict:
     """Whether ``scheme`` reproduces ``figure`` (`rbstudy.pipeline.golden.Figure`) in the
     golden study ``ds``, at its largest step (the source's): a `Verdict` whose value is the
     largest deviation as a share of its allowance (1 at the edge)."""
@@ -335,7 +349,13 @@ def judge_figure(ds, scheme, figure):
     return Verdict(worst <= 1.0, worst, f"at dt = {dt:g} s: {'; '.join(said)}")
 
 
-def score_case(ds, rules, schemes=None, figure=None, loads_held=()):
+def score_case(
+    ds: xr.Dataset,
+    rules: Collection[str],
+    schemes: Sequence[str] | None = None,
+    figure: Figure | None = None,
+    loads_held: Collection[str] = (),
+) -> dict[str, Cell]:
     """The `Cell` of each of ``schemes`` (default: every scheme) of the golden study ``ds``
     under ``rules`` (names of `RULES`), checked against the source's ``figure`` where there
     is one and it is asked of the scheme (`Figure.scheme`); ``loads_held``: the schemes
@@ -357,7 +377,9 @@ def score_case(ds, rules, schemes=None, figure=None, loads_held=()):
     return cells
 
 
-def tally_statuses(tally, ds, schemes):
+def tally_statuses(
+    tally: dict[int, dict[str, int]], ds: xr.Dataset, schemes: Sequence[str]
+) -> dict[int, dict[str, int]]:
     """Add the failed cases of ``schemes`` in the golden study ``ds`` to ``tally`` (status
     code -> scheme -> cases, summed over the golden cases); returns it."""
     for code, cases in status_counts(ds, schemes).items():
@@ -367,13 +389,13 @@ def tally_statuses(tally, ds, schemes):
     return tally
 
 
-def status_lines(tally):
+def status_lines(tally: Mapping[int, Mapping[str, int]]) -> list[str]:
     """A line per status of failed cases in ``tally`` (`tally_statuses`): the cases per
     scheme, what the status means and what to try, as the findings of a study say it."""
     return [status_text(code, cases) for code, cases in sorted(tally.items())]
 
 
-def format_scorecard(cells, cases):
+def format_scorecard(cells: Mapping[str, Mapping[str, Cell]], cases: Sequence[str]) -> str:
     """The printed table: a row per scheme, a column per case (``cells``: case -> scheme ->
     `Cell`), and the count of cases passed; the cases in as many blocks under each other as
     keep every line within `TERMINAL_WIDTH`; then `HELD_LOAD_NOTE` if a cell is so marked."""
@@ -386,7 +408,8 @@ def format_scorecard(cells, cases):
         return max(map(len, column)) + len(_GAP)
 
     start = sum(map(width, fixed)) - len(_GAP)  # no gap before the first column
-    blocks, used = [[]], start
+    blocks: list[list[str]] = [[]]
+    used = start
     for case in cases:
         if blocks[-1] and used + width(columns[case]) > TERMINAL_WIDTH:
             blocks.append([])
@@ -412,7 +435,97 @@ def _held(cells, cases):
     return any(cell.load_held for case in cases for cell in cells[case].values())
 
 
-def scorecard_dataset(cells, cases, attrs):
+@dataclass(frozen=True)
+class _CardArrays:
+    """The scorecard's values over (scheme, case), and over (scheme, case, rule) for the
+    ``rule_`` ones, as `scorecard_dataset` stores them (-1, NaN and "" where not run, not
+    applicable or not asserted)."""
+
+    passed: np.ndarray
+    value: np.ndarray
+    rule_passed: np.ndarray
+    rule_value: np.ndarray
+    rule_text: np.ndarray
+    figure: np.ndarray
+    figure_value: np.ndarray
+    figure_text: np.ndarray
+
+
+def _card_arrays(cells, cases, schemes, rules):
+    """The `_CardArrays` of ``cells`` (case -> scheme -> `Cell`) over ``schemes``, ``cases``
+    and ``rules``."""
+    cards, judged = (len(schemes), len(cases)), (len(schemes), len(cases), len(rules))
+    arrays = _CardArrays(
+        passed=np.full(cards, -1, dtype=np.int8),
+        value=np.full(cards, np.nan),
+        rule_passed=np.full(judged, -1, dtype=np.int8),
+        rule_value=np.full(judged, np.nan),
+        rule_text=np.full(judged, "", dtype=object),
+        figure=np.full(cards, -1, dtype=np.int8),
+        figure_value=np.full(cards, np.nan),
+        figure_text=np.full(cards, "", dtype=object),
+    )
+    for i, s in enumerate(schemes):
+        for j, c in enumerate(cases):
+            cell = cells[c].get(s)
+            if cell is None:
+                continue
+            arrays.passed[i, j], arrays.value[i, j] = cell.passed, cell.value
+            if cell.figure is not None:
+                arrays.figure[i, j], arrays.figure_value[i, j] = cell.figure.passed, cell.figure.value
+                arrays.figure_text[i, j] = cell.figure.text
+            for k, rule in enumerate(rules):
+                verdict = cell.verdicts.get(rule)
+                if verdict is not None:
+                    arrays.rule_passed[i, j, k] = -1 if verdict.passed is None else verdict.passed
+                    arrays.rule_value[i, j, k], arrays.rule_text[i, j, k] = verdict.value, verdict.text
+    return arrays
+
+
+def _flags(meanings):
+    """The attributes of a flag variable of -1, 0 and 1, named by ``meanings``."""
+    return {"flag_values": np.array([-1, 0, 1], dtype=np.int8), "flag_meanings": meanings}
+
+
+# The scorecard archive's variables, in order: name -> (dimensions, attributes); the values
+# are the `_CardArrays` field of the same name.
+_CARD_VARIABLES = {
+    "passed": (
+        ("scheme", "case"),
+        {"long_name": "the scheme passed every rule of the case", **_flags("not_run fail pass")},
+    ),
+    "value": (("scheme", "case"), {"long_name": "observed order of the final orientation error"}),
+    "rule_passed": (
+        ("scheme", "case", "rule"),
+        {"long_name": "the scheme passed the rule", **_flags("not_applicable fail pass")},
+    ),
+    "rule_value": (
+        ("scheme", "case", "rule"),
+        {
+            "long_name": "the rule's measured number: the observed order, the "
+            "largest relative energy gain, the largest flip "
+            "interval error in time steps, the failed cases"
+        },
+    ),
+    "rule_text": (("scheme", "case", "rule"), {"long_name": "what was measured"}),
+    "figure": (
+        ("scheme", "case"),
+        {
+            "long_name": "the scheme reproduces the figure the source asserts",
+            **_flags("not_asserted no yes"),
+        },
+    ),
+    "figure_value": (
+        ("scheme", "case"),
+        {"long_name": "largest deviation from the figure, share of allowed"},
+    ),
+    "figure_text": (("scheme", "case"), {"long_name": "what was measured against the figure"}),
+}
+
+
+def scorecard_dataset(
+    cells: Mapping[str, Mapping[str, Cell]], cases: Sequence[str], attrs: Mapping[str, Any]
+) -> xr.Dataset:
     """The scorecard as an xarray dataset over (scheme, case) and (scheme, case, rule):
     ``passed`` (1 pass, 0 fail; -1 where a rule does not apply), ``value`` and the rules'
     texts, with ``attrs`` (provenance) and each rule's meaning."""
@@ -420,82 +533,11 @@ def scorecard_dataset(cells, cases, attrs):
 
     schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
     rules = list(RULES)
-    passed = np.full((len(schemes), len(cases)), -1, dtype=np.int8)
-    value = np.full((len(schemes), len(cases)), np.nan)
-    rule_passed = np.full((len(schemes), len(cases), len(rules)), -1, dtype=np.int8)
-    rule_value = np.full((len(schemes), len(cases), len(rules)), np.nan)
-    text = np.full((len(schemes), len(cases), len(rules)), "", dtype=object)
-    figure = np.full((len(schemes), len(cases)), -1, dtype=np.int8)
-    figure_value = np.full((len(schemes), len(cases)), np.nan)
-    figure_text = np.full((len(schemes), len(cases)), "", dtype=object)
-    for i, s in enumerate(schemes):
-        for j, c in enumerate(cases):
-            cell = cells[c].get(s)
-            if cell is None:
-                continue
-            passed[i, j], value[i, j] = cell.passed, cell.value
-            if cell.figure is not None:
-                figure[i, j], figure_value[i, j] = cell.figure.passed, cell.figure.value
-                figure_text[i, j] = cell.figure.text
-            for k, rule in enumerate(rules):
-                verdict = cell.verdicts.get(rule)
-                if verdict is not None:
-                    rule_passed[i, j, k] = -1 if verdict.passed is None else verdict.passed
-                    rule_value[i, j, k], text[i, j, k] = verdict.value, verdict.text
+    arrays = _card_arrays(cells, cases, schemes, rules)
     return xr.Dataset(
         {
-            "passed": (
-                ("scheme", "case"),
-                passed,
-                {
-                    "long_name": "the scheme passed every rule of the case",
-                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                    "flag_meanings": "not_run fail pass",
-                },
-            ),
-            "value": (
-                ("scheme", "case"),
-                value,
-                {"long_name": "observed order of the final orientation error"},
-            ),
-            "rule_passed": (
-                ("scheme", "case", "rule"),
-                rule_passed,
-                {
-                    "long_name": "the scheme passed the rule",
-                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                    "flag_meanings": "not_applicable fail pass",
-                },
-            ),
-            "rule_value": (
-                ("scheme", "case", "rule"),
-                rule_value,
-                {
-                    "long_name": "the rule's measured number: the observed order, the "
-                    "largest relative energy gain, the largest flip "
-                    "interval error in time steps, the failed cases"
-                },
-            ),
-            "rule_text": (("scheme", "case", "rule"), text, {"long_name": "what was measured"}),
-            "figure": (
-                ("scheme", "case"),
-                figure,
-                {
-                    "long_name": "the scheme reproduces the figure the source asserts",
-                    "flag_values": np.array([-1, 0, 1], dtype=np.int8),
-                    "flag_meanings": "not_asserted no yes",
-                },
-            ),
-            "figure_value": (
-                ("scheme", "case"),
-                figure_value,
-                {"long_name": "largest deviation from the figure, share of allowed"},
-            ),
-            "figure_text": (
-                ("scheme", "case"),
-                figure_text,
-                {"long_name": "what was measured against the figure"},
-            ),
+            name: (dims, getattr(arrays, name), dict(attributes))
+            for name, (dims, attributes) in _CARD_VARIABLES.items()
         },
         coords={
             "scheme": np.array(schemes, dtype=object),
@@ -507,7 +549,13 @@ def scorecard_dataset(cells, cases, attrs):
     )
 
 
-def scorecard_html(cells, cases, titles, header, figures=None):
+def scorecard_html(
+    cells: Mapping[str, Mapping[str, Cell]],
+    cases: Sequence[str],
+    titles: Mapping[str, str],
+    header: Sequence[str],
+    figures: Mapping[str, Figure] | None = None,
+) -> str:
     """The scorecard as one HTML page (`rbstudy.analysis.pages`, the report's base page): a
     cell per scheme and case, green or red, with every rule's measurement in it and the
     figure's check; ``titles`` (case -> title), ``header`` (lines said above the table) and

@@ -15,7 +15,15 @@ Two tests, one for the data and one for the eye:
   (``euler ≈ leapfrog (within 1.4%)``).
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, cast
+
 import numpy as np
+import xarray as xr
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
@@ -33,7 +41,7 @@ __all__ = ["NEAR_POINTS", "coincident", "together", "coinciding_lines", "panel_o
 NEAR_POINTS = 2.0
 
 
-def together(names, rows=None, floor=0.0):
+def together(names: Sequence[str], rows: Sequence[Any] | None = None, floor: float = 0.0) -> str:
     """The name of lines drawn on top of each other (`coincident` of their ``rows`` of
     values with the round-off ``floor``): ``euler = leapfrog to 3 digits``, ``... to 3
     digits above round-off (1e-13)`` where they agree only once values at the floor count as
@@ -53,7 +61,7 @@ def together(names, rows=None, floor=0.0):
     return f"{joined} to {COINCIDENT_DIGITS} digits"
 
 
-def coinciding_lines(ds, key):
+def coinciding_lines(ds: xr.Dataset, key: str) -> list[tuple[str, str]]:
     """The (first, second) schemes whose lines the convergence figure of measure ``key``
     draws on top of each other and names together (`coincident` over every case, the
     measure's round-off floor aside): the figure's caption names the same pairs."""
@@ -67,7 +75,7 @@ def coinciding_lines(ds, key):
     return [(names[group[0]], names[other]) for group in groups for other in group[1:]]
 
 
-def coincident(errors, floor=0.0):
+def coincident(errors: Sequence[Any], floor: float = 0.0) -> list[list[int]]:
     """Groups of line indices (first line first) whose ``errors`` (lines x points) agree to
     `COINCIDENT_DIGITS` significant digits at every point (`agree`, the findings' test),
     gaps at the same points, points where both lie at or below the measure's round-off
@@ -95,7 +103,14 @@ def _grouped(count, same, rows):
     return groups
 
 
-def panel_overlaps(names, values, groups, floor=0.0, ax=None, curves=None):
+def panel_overlaps(
+    names: Sequence[str],
+    values: Sequence[Any],
+    groups: list[list[int]],
+    floor: float = 0.0,
+    ax: Axes | None = None,
+    curves: Sequence[tuple[Any, Any]] | None = None,
+) -> list[str]:
     """The lines a panel draws on top of each other that its figure's legend does not name
     together: ``values`` (lines x points) as the panel draws them, ``groups`` the figure's
     (`coincident` over every case, named in the legend). The same test, `coincident`,
@@ -112,18 +127,20 @@ def panel_overlaps(names, values, groups, floor=0.0, ax=None, curves=None):
         if len(firsts) > 1:
             notes.append(together([names[k] for k in firsts], [values[k] for k in firsts], floor))
     if ax is not None:
+        assert curves is not None, "a panel's curves come with its axes"
         notes += near_lines(ax, [names[k] for k in shown], [curves[k] for k in shown])
     return notes
 
 
-def near_lines(ax, names, curves):
+def near_lines(ax: Axes, names: Sequence[str], curves: Sequence[tuple[Any, Any]]) -> list[str]:
     """``a ≈ b (within 1.4%)`` for each group of the lines ``curves`` ((x, y) of each, as
     drawn on ``ax``, whose limits are set: exact zeros at the floor they are drawn on,
     failures NaN) whose every point lies within `NEAR_POINTS` of the first's, gaps at the
     same points; the share is their largest relative difference in x or y."""
     ax.get_xlim(), ax.get_ylim()  # the limits autoscaled now: the transform reads them as they stand
     box = ax.get_position()
-    size = np.array([box.width * ax.figure.get_figwidth(), box.height * ax.figure.get_figheight()]) * 72
+    figure = cast(Figure, ax.figure)  # the figures draw no subfigures
+    size = np.array([box.width * figure.get_figwidth(), box.height * figure.get_figheight()]) * 72
     to_axes = ax.transScale + ax.transLimits  # data -> the panel's unit square, log axes too
     placed = []
     for x, y in curves:

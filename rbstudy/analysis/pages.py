@@ -6,6 +6,7 @@ read from beside this module, so an installed rbstudy finds them as a checkout d
 """
 
 import pathlib
+from typing import Any
 
 import jinja2
 
@@ -22,6 +23,6 @@ _ENVIRONMENT = jinja2.Environment(
 )
 
 
-def render(template, **context):
+def render(template: str, **context: Any) -> str:
     """The page of ``template`` (a file name in `TEMPLATES`) filled from ``context``."""
     return _ENVIRONMENT.get_template(template).render(**context)

@@ -13,25 +13,27 @@ another study's report there is refused. The page is the template ``report.html.
 (`rbstudy.analysis.pages`).
 """
 
+from __future__ import annotations
+
 import base64
 import hashlib
 import importlib.metadata
+import os
 import pathlib
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import markupsafe
 import numpy as np
+import xarray as xr
 
+from rbstudy.analysis.benchmark_figure import BENCHMARK_NODE, benchmark_case
+from rbstudy.analysis.figure_frame import FORMATS
+from rbstudy.analysis.figure_lines import figure_layout
 from rbstudy.analysis.findings import calibrated, findings
 from rbstudy.analysis.overlaps import coinciding_lines
 from rbstudy.analysis.pages import render
-from rbstudy.analysis.plots import (
-    BENCHMARK_NODE,
-    CAPTIONS,
-    FORMATS,
-    all_figures,
-    benchmark_case,
-    figure_layout,
-)
+from rbstudy.analysis.plots import CAPTIONS, all_figures
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
     ERROR_MEASURES,
@@ -58,7 +60,7 @@ from rbstudy.physics.metrics import (
     MIN_CONVERGENCE_ORDER,
     ORDER_SPREAD,
 )
-from rbstudy.pipeline.progress import SILENT
+from rbstudy.pipeline.progress import SILENT, Progress
 
 __all__ = ["write_report", "figures_digest", "captions", "MARKER", "REPORT_NAME"]
 
@@ -85,14 +87,14 @@ def _claim(out, study):
     write_text_atomic(study + "\n", marker)
 
 
-def figures_digest(ds, styles=None):
+def figures_digest(ds: xr.Dataset, styles: Mapping[str, Sequence[str]] | None = None) -> str:
     """What the figures of ``ds`` are drawn from, as one SHA-256: every variable's and
     coordinate's name, dimensions, type and values, the global attributes, the schemes'
     registered ``styles`` (a plug-in's, or an engine's that is installed here or not, are
     not in rbstudy's sources), and the sources that draw (the analysis layer and what
     computes, `SOURCE_DIGEST`) with matplotlib's version. The values themselves, not the
-    archive's checksums attribute: with --no-verify an edited value must redraw too (hashing
-    the default study's 12 MB takes 11 ms)."""
+    archive's checksums attribute: with --no-verify an edited value must redraw too (and
+    hashing the values is quick beside drawing)."""
     digest = hashlib.sha256()
     digest.update(f"{SOURCE_DIGEST} matplotlib {importlib.metadata.version('matplotlib')}".encode())
     for path in sorted(_ANALYSIS.rglob("*")):
@@ -149,7 +151,7 @@ def _convergence_caption(ds, rows, key, first):
     label, units = ERROR_MEASURES[key].label, ERROR_MEASURES[key].units
     errors = error_measure(ds, key)
     dts = ds["dt"].values
-    line = figure_layout(ds)[0]
+    line = figure_layout(ds).line
     text = (
         f"The {label}{'' if units == '1' else f' ({units})'} against dt from {dts.min():g} "
         f"to {dts.max():g} s, {_lines_and_panels(ds, first)}."
@@ -273,7 +275,9 @@ _BENCHMARK_LEADS = {
 }
 
 
-def captions(ds, names, rows, found):
+def captions(
+    ds: xr.Dataset, names: Iterable[str], rows: list[dict[str, Any]], found: list[Any]
+) -> dict[str, tuple[str, str | None]]:
     """Figure name (without the study) -> (caption from this study's numbers, ``rows`` (its
     `scheme_rows`) and ``found`` (its `findings`), how to read the kind of figure or None):
     the reading is given with the first figure of each kind, the lines and panels of the
@@ -293,7 +297,7 @@ def captions(ds, names, rows, found):
             text = f"{_BENCHMARK_LEADS.get(name, name)}, for {benchmark_case(ds)[1]}."
         if kind in ("convergence", "work_precision") and along_dt is None:
             along_dt = name
-        result[name] = (text, None if kind in read else CAPTIONS.get(kind))
+        result[name] = (text, None if kind is None or kind in read else CAPTIONS[kind])
         read.add(kind)
     return result
 
@@ -331,7 +335,16 @@ def _table_intro(ds):
     )
 
 
-def write_report(ds, out, processes=1, svg=False, progress=SILENT, styles=None, drawn=(), searched=()):
+def write_report(
+    ds: xr.Dataset,
+    out: str | os.PathLike[str],
+    processes: int = 1,
+    svg: bool = False,
+    progress: Progress = SILENT,
+    styles: Mapping[str, Sequence[str]] | None = None,
+    drawn: Iterable[str | os.PathLike[str]] = (),
+    searched: Sequence[str] = (),
+) -> pathlib.Path:
     """Write ``out/report.html`` for dataset ``ds`` (its figures drawn, or reused, in
     ``out/figures/`` in ``processes`` processes, its schemes in their registered ``styles``
     (`rbstudy.analysis.plots.all_figures`), with SVG files linked when ``svg``; shown by

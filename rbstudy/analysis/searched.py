@@ -9,16 +9,30 @@ by (steps times the calibrated seconds a step, mean over the other axes' values)
 within their calibration's uncertainty are one answer.
 """
 
+from __future__ import annotations
+
 import math
+import os
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
+import xarray as xr
 
 from rbstudy.analysis.findings import study_wide
 from rbstudy.archive.layout import SEARCH_GROUP
 from rbstudy.archive.load import read_group
 
-__all__ = ["SearchRecord", "read_search", "search_lines", "search_document"]
+__all__ = ["SearchRecord", "CommonStep", "read_search", "search_lines", "search_document"]
+
+
+class CommonStep(NamedTuple):
+    """A scheme's step met at every value of the other axes: ``dt`` (s), the mean
+    ``seconds`` a case at it, and their relative ``uncertainty``."""
+
+    dt: float
+    seconds: float
+    uncertainty: float
 
 
 @dataclass(frozen=True)
@@ -26,21 +40,21 @@ class SearchRecord:
     """A step search as its file keeps it, per group (g,) (a scheme at one value of the
     other axes): ``scheme``, ``found_dt`` (s; NaN: not searched) and ``failing_dt`` (s; NaN:
     none up to the duration); ``axes`` the other swept axes' names; ``common`` scheme ->
-    (dt s, mean seconds a case, relative uncertainty) of its step met at every value;
+    its `CommonStep`, the step met at every value;
     ``tolerance``; ``probes``, how many it ran; ``adaptive``, the schemes not searched
     because they choose their own steps."""
 
     scheme: np.ndarray
     found_dt: np.ndarray
     failing_dt: np.ndarray
-    axes: tuple
-    common: dict
+    axes: tuple[str, ...]
+    common: dict[str, CommonStep]
     tolerance: float
     probes: int
-    adaptive: tuple = ()
+    adaptive: tuple[str, ...] = ()
 
 
-def read_search(path, ds):
+def read_search(path: str | os.PathLike[str], ds: xr.Dataset) -> SearchRecord | str | None:
     """The `SearchRecord` kept in the archive at ``path`` (read as ``ds``); None where it
     holds none, or a line saying why it cannot be told (another version of its study)."""
     try:
@@ -58,7 +72,7 @@ def read_search(path, ds):
         failing_dt=kept["failing_dt"].values,
         axes=tuple(kept.attrs.get("other_axes", "").split()),
         common={
-            name: (float(dt), float(seconds), float(spread))
+            name: CommonStep(float(dt), float(seconds), float(spread))
             for name, dt, seconds, spread in zip(
                 names,
                 kept["study_dt"].values,
@@ -90,13 +104,13 @@ def _axes_text(search):
 
 
 def _cheapest(common):
-    """The cheapest scheme of ``common`` (name -> (dt, seconds, uncertainty)) and the others
-    whose costs' ranges overlap its own, cheapest first."""
-    ranked = sorted(common, key=lambda name: (common[name][1], name))
-    least, spread = common[ranked[0]][1], common[ranked[0]][2]
+    """The cheapest scheme of ``common`` (name -> `CommonStep`) and the others whose costs'
+    ranges overlap its own, cheapest first."""
+    ranked = sorted(common, key=lambda name: (common[name].seconds, name))
+    least, spread = common[ranked[0]].seconds, common[ranked[0]].uncertainty
     spread = 0.0 if math.isnan(spread) else spread
     reach = least * (1.0 + spread)
-    tied = [name for name in ranked[1:] if common[name][1] * (1.0 - common[name][2]) <= reach]
+    tied = [name for name in ranked[1:] if common[name].seconds * (1.0 - common[name].uncertainty) <= reach]
     return ranked[0], tied
 
 
@@ -106,9 +120,9 @@ def _answer_line(search, ds, bound, axes):
     if not search.common:
         return f"step search ({scope}): no scheme meets the bound {_g(bound)} at one step in every case"
     best, tied = _cheapest(search.common)
-    dt, seconds, _ = search.common[best]
+    dt, seconds = search.common[best].dt, search.common[best].seconds
     named = best if not tied else ", ".join([best, *tied[:-1]]) + f" or {tied[-1]}, equal cost,"
-    steps = {search.common[name][0] for name in (best, *tied)}
+    steps = {search.common[name].dt for name in (best, *tied)}
     at = f"at dt={_g(dt)} s" if len(steps) == 1 else "each at its step"
     text = f"largest step meeting the bound {_g(bound)} ({scope}): {named} {at}, {_g(seconds, 2)} s a case"
     grid = study_wide(ds)
@@ -128,7 +142,9 @@ def _scheme_texts(search):
     where a step within the tolerance above does not fail (`_bracket_note`); then the schemes
     that met the bound nowhere on the grid (adaptive ones aside: they are not searched)."""
     texts, nowhere = [], []
-    names = sorted(set(search.scheme), key=lambda n: (search.common.get(n, (0, math.inf))[1], n))
+    names = sorted(
+        set(search.scheme), key=lambda n: (search.common[n].seconds if n in search.common else math.inf, n)
+    )
     for name in names:
         mine = search.scheme == name
         found = search.found_dt[mine]
@@ -158,7 +174,7 @@ def _bracket_note(found, failing, tolerance):
     return f"next larger step +{widest:.0%}" if widest > tolerance * (1 + 1e-9) else ""
 
 
-def search_lines(search, ds):
+def search_lines(search: SearchRecord, ds: xr.Dataset) -> list[str]:
     """The lines that tell a `SearchRecord` ``search`` of the study of archive ``ds``."""
     bound = ds.attrs.get("accuracy_bound")
     axes = _axes_text(search)
@@ -175,12 +191,12 @@ def search_lines(search, ds):
     return lines
 
 
-def search_document(search, ds):
+def search_document(search: SearchRecord, ds: xr.Dataset) -> dict[str, Any]:
     """The JSON form of a `SearchRecord` (``summary --format json``'s ``step_search``):
     the tolerance, each scheme's step met at every value of the other axes with its cost
     (cheapest first), each scheme's least and most found step over those values, and the
     lines `search_lines` tells."""
-    names = sorted(search.common, key=lambda name: (search.common[name][1], name))
+    names = sorted(search.common, key=lambda name: (search.common[name].seconds, name))
     found = {}
     for name in sorted(set(search.scheme)):
         steps = search.found_dt[search.scheme == name]
@@ -193,7 +209,7 @@ def search_document(search, ds):
         "tolerance": search.tolerance,
         "probes": search.probes,
         "every_value": [
-            {"scheme": name, "dt_s": search.common[name][0], "seconds_per_case": search.common[name][1]}
+            {"scheme": name, "dt_s": search.common[name].dt, "seconds_per_case": search.common[name].seconds}
             for name in names
         ],
         "found": found,
