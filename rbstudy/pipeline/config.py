@@ -33,6 +33,7 @@ from rbstudy.inputs.reader import FOLDER_NAME_RULE, MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.time_grid import output_count
+from rbstudy.pipeline.batch_data import ACCURACY_BOUND
 from rbstudy.pipeline.batches import Batch, plan_batches
 from rbstudy.pipeline.grid import (
     MAX_CASES,
@@ -45,7 +46,6 @@ from rbstudy.pipeline.grid import (
     read_dt,
     touches_scene,
 )
-from rbstudy.pipeline.outputs import ACCURACY_BOUND
 from rbstudy.pipeline.overrides import apply_overrides
 from rbstudy.schemes import composition_reach, get_scheme
 

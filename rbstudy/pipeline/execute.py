@@ -39,12 +39,12 @@ from rbstudy.physics.references import References, table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
+from rbstudy.pipeline.batch_data import BatchData
 from rbstudy.pipeline.calibration import calibrate, compile_seconds, record_compile, step_cost
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster, scheduler_lock
 from rbstudy.pipeline.config import StudyConfig, resolved_config
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.formulas import evaluate
-from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import get_ready, get_scheme
 
