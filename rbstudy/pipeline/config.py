@@ -1,10 +1,11 @@
 """Study configs: YAML -> a validated, frozen `StudyConfig`, or a one-line `ConfigError`.
 
 A study holds a name, a title, a scene (`rbstudy.inputs.scenes`), the output spec, the run
-(scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.grid`). Loading expands the sweep,
-builds every case's scene and plans the batches (`rbstudy.pipeline.batches`), so every error
-surfaces before any work starts, through one `rbstudy.inputs.reader.Reader` naming the file, the key
-path, the value and the fix. docs/config.md documents every key.
+(scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.axes`). Loading expands the sweep
+(`rbstudy.pipeline.grid`), builds every case's scene and plans the batches
+(`rbstudy.pipeline.batches`), so every error surfaces before any work starts, through one
+`rbstudy.inputs.reader.Reader` naming the file, the key path, the value and the fix.
+docs/config.md documents every key.
 """
 
 import dataclasses
@@ -33,19 +34,10 @@ from rbstudy.inputs.reader import FOLDER_NAME_RULE, MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
 from rbstudy.physics.time_grid import output_count
+from rbstudy.pipeline.axes import MAX_CASES, Dimension, label_options, parse_sweep, touches_scene
 from rbstudy.pipeline.batch_data import ACCURACY_BOUND
 from rbstudy.pipeline.batches import Batch, plan_batches
-from rbstudy.pipeline.grid import (
-    MAX_CASES,
-    Cases,
-    Dimension,
-    expand,
-    label_options,
-    option_notes,
-    parse_sweep,
-    read_dt,
-    touches_scene,
-)
+from rbstudy.pipeline.grid import Cases, expand, option_notes, read_dt
 from rbstudy.pipeline.overrides import apply_overrides
 from rbstudy.schemes import composition_reach, get_scheme
 
@@ -83,7 +75,7 @@ class StudyConfig:
     `rbstudy.archive.owner.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
     it (`rbstudy.pipeline.overrides`). archived_text : the config text the archive stores: the
     file's, or with the overrides applied. base : the ``scene`` and ``run`` mappings as
-    written. dimensions : the swept `rbstudy.pipeline.grid.Dimension`s (empty for one case).
+    written. dimensions : the swept `rbstudy.pipeline.axes.Dimension`s (empty for one case).
     cases : every case, in C order of the dimensions (`rbstudy.pipeline.grid.Cases`: its
     distinct scenes and runs). variables : the stored variable names. batches : the
     `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,

@@ -23,7 +23,7 @@ __all__ = ["Override", "Overridden", "apply_overrides"]
 
 # How a KEY=VALUE that is not one can be written.
 _FORM = "write it as KEY=VALUE, for example --set sweep.dt.count=3"
-# The first part of a sweep axis given by its dotted path (`rbstudy.pipeline.grid`): a new
+# The first part of a sweep axis given by its dotted path (`rbstudy.pipeline.axes`): a new
 # key with this head under `sweep` (or a zipped group) is that whole path, not nested mappings.
 _AXIS_PATH_HEADS = ("scene", "run")
 
