@@ -133,9 +133,8 @@ def _composed_runs(scenes: SceneTable, rows: np.ndarray, interval: float) -> tup
     knots = loads["knots"]
     inside = np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1))
 
-    def fitted(
-        least: np.ndarray,
-    ) -> np.ndarray:  # counts per interval with the knots on step boundaries, 0 where none
+    # counts per interval with the knots on step boundaries, 0 where none
+    def fitted(least: np.ndarray) -> np.ndarray:
         for k in inside:
             least[k] = knot_steps(knots[k], scenes.duration, interval, int(least[k])) or 0
         return least
