@@ -21,15 +21,20 @@ value fails with the axis and value named, through the study's
 `rbstudy.pipeline.grid`'s.
 """
 
+from __future__ import annotations
+
 import collections
 import dataclasses
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rbstudy.archive.variables import COORDINATES, VARIABLES, coordinate_units
 from rbstudy.errors import InputError, did_you_mean
-from rbstudy.schemes import get_scheme, scheme_groups
+from rbstudy.inputs.reader import Reader
+from rbstudy.schemes import Option, get_scheme, scheme_groups
 
 __all__ = [
     "Axis",
@@ -60,7 +65,7 @@ SHORT_NAMES = {
 _NOT_SWEEPABLE = {"scene.duration": "all cases share one output grid"}
 
 
-def _list_fix(key):
+def _list_fix(key: str) -> str:
     """How to sweep what is a list rather than one value: a load's table by its file, a
     vector entry by entry."""
     if ".loads." in key and key.endswith(".table"):
@@ -89,7 +94,7 @@ class Axis:
     dataset (``coordinate``), the units of its values and its ``long_name`` there."""
 
     target: str
-    values: tuple
+    values: tuple[Any, ...]
     coordinate: str
     units: str | None
     long_name: str
@@ -100,14 +105,14 @@ class Dimension:
     """A dimension of the study: one axis (product) or several of equal length (zip)."""
 
     name: str
-    axes: tuple
+    axes: tuple[Axis, ...]
 
     @property
-    def size(self):
+    def size(self) -> int:
         return len(self.axes[0].values)
 
 
-def _scalar_values(reader, key, values):
+def _scalar_values(reader: Reader, key: str, values: Sequence[Any]) -> tuple[Any, ...]:
     """``values`` if each is a number, a name or a flag and none repeats."""
     for i, value in enumerate(values):
         if not isinstance(value, (int, float, str)):  # a bool is an int
@@ -128,7 +133,7 @@ def _scalar_values(reader, key, values):
     return tuple(values)
 
 
-def _scheme_names(reader, key, spec):
+def _scheme_names(reader: Reader, key: str, spec: list[Any]) -> list[Any]:
     """A list of scheme names with each group (`rbstudy.schemes.scheme_groups`; ``all`` is
     ``builtin``) replaced by every scheme it stands for, installed here or not, each name once:
     a config means the same study wherever it runs, and a scheme not installed is refused
@@ -153,7 +158,7 @@ def _scheme_names(reader, key, spec):
     return list(dict.fromkeys(names))
 
 
-def _values(reader, key, spec):
+def _values(reader: Reader, key: str, spec: Any) -> tuple[Any, ...]:
     """The tuple of values of one axis from its YAML spec."""
     # a group alone (``all``, ``engines``, ``mujoco``) stands for its schemes as a list would
     group = isinstance(spec, str) and (spec == ALL_SCHEMES or spec in scheme_groups())
@@ -193,7 +198,7 @@ def _values(reader, key, spec):
     )
 
 
-def _coordinate(target):
+def _coordinate(target: str) -> str:
     """The dataset name of an axis: short names as they are, ``run.options.alpha`` -> ``alpha``,
     ``scene.body.mass`` -> ``body_mass``."""
     if target in SHORT_NAMES:
@@ -204,7 +209,7 @@ def _coordinate(target):
     return "_".join(parts[1:])
 
 
-def _axis(reader, key, target, spec):
+def _axis(reader: Reader, key: str, target: str, spec: Any) -> Axis:
     if target in ("run.scheme", "run.dt"):
         target = target[4:]
     if target not in SHORT_NAMES:
@@ -238,17 +243,17 @@ def _axis(reader, key, target, spec):
     )
 
 
-def label_options(dimensions, schemes):
+def label_options(dimensions: Iterable[Dimension], schemes: Iterable[str]) -> tuple[Dimension, ...]:
     """``dimensions`` with each swept scheme option (``run.options.<name>``) labelled by the
     option itself: its ``long_name`` and ``units`` (`rbstudy.schemes.Option`), from the first
     of the study's ``schemes`` (names) that has it; an option without a long_name keeps its
     path."""
-    options = {}
+    options: dict[str, Option] = {}
     for name in schemes:
         for option in get_scheme(name).options:
             options.setdefault(option.name, option)
 
-    def labelled(axis):
+    def labelled(axis: Axis) -> Axis:
         option = options.get(axis.target.removeprefix("run.options."))
         if not axis.target.startswith("run.options.") or option is None:
             return axis
@@ -257,7 +262,7 @@ def label_options(dimensions, schemes):
     return tuple(Dimension(d.name, tuple(map(labelled, d.axes))) for d in dimensions)
 
 
-def _zipped(reader, name, group):
+def _zipped(reader: Reader, name: Any, group: Any) -> Dimension:
     """The dimension ``name`` of the zipped axes ``group``."""
     key = f"sweep.zip.{name}"
     if not isinstance(name, str) or not name.isidentifier():
@@ -278,7 +283,7 @@ def _zipped(reader, name, group):
     return Dimension(name, axes)
 
 
-def parse_sweep(reader, spec):
+def parse_sweep(reader: Reader, spec: Any) -> tuple[Dimension, ...]:
     """The dimensions of a ``sweep:`` mapping (empty for a one-case study)."""
     if spec is None:
         return ()
@@ -304,7 +309,7 @@ def parse_sweep(reader, spec):
     return tuple(dimensions)
 
 
-def touches_scene(axis):
+def touches_scene(axis: Axis) -> bool:
     """Whether ``axis`` changes the scene (the body, its start, its loads), not the run."""
     return axis.target in _SCENE_SHORT_NAMES or axis.target.startswith("scene.")
 

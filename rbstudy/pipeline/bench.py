@@ -75,9 +75,16 @@ def _rate(
 ) -> tuple[float, BatchOutput]:
     state0 = np.repeat(scene.state_row()[None, :], n_bodies, axis=0)
     params = np.repeat(scene.param_row()[None, :], n_bodies, axis=0)
-    options = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
+    option_rows = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
     out = run_batch(
-        scheme, state0, params, options, BENCH_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=threads
+        scheme,  # type: ignore[arg-type]  # numerics.driver.BatchKernel declares settable members; a Scheme is frozen
+        state0,
+        params,
+        option_rows,
+        BENCH_DT,
+        n_steps,
+        min(SAMPLE_EVERY, n_steps),
+        threads=threads,
     )
     taken = n_steps * n_bodies if scheme.adaptive else out.results["n_steps"].sum()
     return taken / out.kernel_seconds, out

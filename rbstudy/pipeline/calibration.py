@@ -187,7 +187,7 @@ def _write(figures: Mapping[str, Any], path: str | None = None) -> None:
 def cached(scheme: Scheme) -> StepCost | None:
     """The `StepCost` of ``scheme`` (a `rbstudy.schemes.Scheme`) cached for this machine, or
     None."""
-    figure = _read().get(_scheme_key(scheme))
+    figure: Any = _read().get(_scheme_key(scheme))
     try:  # a cache edited by hand, or by another version: measured again
         cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]))
     except (TypeError, KeyError, ValueError):
@@ -195,16 +195,24 @@ def cached(scheme: Scheme) -> StepCost | None:
     return cost if 0 < cost.seconds < math.inf and 0 <= cost.uncertainty < math.inf else None
 
 
-def _run_seconds(
-    scheme: Scheme, rows: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int
-) -> tuple[float, int]:
+def _run_seconds(scheme: Scheme, rows: tuple[np.ndarray, ...], n_steps: int) -> tuple[float, int]:
     """(CPU seconds, body-steps taken) of one run of ``n_steps`` steps of ``rows`` (state0,
     params, options)."""
-    out = run_batch(scheme, *rows, CALIBRATION_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=1)
+    state0, params, options = rows
+    out = run_batch(
+        scheme,  # type: ignore[arg-type]  # numerics.driver.BatchKernel declares settable members; a Scheme is frozen
+        state0,
+        params,
+        options,
+        CALIBRATION_DT,
+        n_steps,
+        min(SAMPLE_EVERY, n_steps),
+        threads=1,
+    )
     return out.kernel_cpu_seconds, max(1, int(out.results["n_steps"].sum()))
 
 
-def _prepared(scheme: Scheme) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
+def _prepared(scheme: Scheme) -> tuple[tuple[np.ndarray, ...], int]:
     """(rows, steps): the calibration batch of ``scheme`` and the steps a run of it takes to
     last `MIN_SECONDS` (its kernels compiled or loaded first, outside the clock)."""
     scheme.ensure_compiled()
@@ -233,7 +241,7 @@ def measure(schemes: Sequence[Scheme]) -> dict[str, tuple[StepCost, float]]:
             continue
         took[scheme.name] = time.perf_counter() - started
     schemes = [scheme for scheme in schemes if scheme.name in prepared]
-    rates = {scheme.name: [] for scheme in schemes}
+    rates: dict[str, list[float]] = {scheme.name: [] for scheme in schemes}
     for _ in range(REPEATS):
         for scheme in schemes:
             clock = time.perf_counter()
@@ -302,7 +310,7 @@ def reference_cost() -> StepCost:
     declared `Scheme.step_seconds` of `dop853`."""
     scheme = get_scheme("dop853")
     key = f"{_scheme_key(scheme)} reference"
-    figure = _read().get(key)
+    figure: Any = _read().get(key)
     with contextlib.suppress(TypeError, KeyError, ValueError):
         cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]))
         if 0 < cost.seconds < math.inf and 0 <= cost.uncertainty < math.inf:

@@ -34,7 +34,7 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from rbstudy.archive.parts import PartTarget, sealed
 from rbstudy.errors import ConfigError, RbstudyError, counted, did_you_mean, one_line
@@ -173,7 +173,7 @@ def read_cluster_file(path: str | os.PathLike[str]) -> ClusterFile:
     return ClusterFile(path, kind, jobs, adaptive, options)
 
 
-def _keywords(*classes: type) -> set[str]:
+def _keywords(*classes: Any) -> set[str]:
     """The names of the keyword arguments the ``__init__`` of ``classes`` take."""
     return {
         name
@@ -574,6 +574,7 @@ class _Watch:
         its values were gathered. An `RbstudyError` when its workers died too often."""
         from distributed import KilledWorker
 
+        key = cast(str, future.key)  # the store tasks are named by strings (execute._graph)
         try:
             digest, values = future.result(timeout=GATHER_SECONDS)
         except TimeoutError:
@@ -581,13 +582,13 @@ class _Watch:
         except KilledWorker as error:
             allowed = error.args[2] if len(error.args) > 2 else "?"
             raise RbstudyError(
-                f"batch {self.targets[future.key].batch.id}: its workers died while running "
+                f"batch {self.targets[key].batch.id}: its workers died while running "
                 f"it, more often than {self.where} allows (KilledWorker, allowed-failures "
                 f"= {allowed}: killed at their walltime or memory limit?); {self.kept()}, "
                 "with a longer walltime or more memory per worker"
             ) from None
         self.seen_workers = True  # a batch that came back had a worker (see `look`)
-        target = self.targets[future.key]
+        target = self.targets[key]
         wrote = values is not None
         if wrote:
             digest = target.write(values)

@@ -549,7 +549,8 @@ def _run_tasks(sweep: _Sweep, pending: Sequence[Batch], share: _Share, writer: A
     distributed = where.distributed and bool(pending)
     with folder.probe(share.token) if distributed else contextlib.nullcontext() as probe:
         tasks, targets = _graph(folder, pending, share, where.writer, probe)
-        written, returned = {}, 0  # the digest of each part, by its store task's key
+        written: dict[str, str] = {}  # the digest of each part, by its store task's key
+        returned = 0
         cases = sum(target.cases for target in targets.values())
         if distributed:
             progress.phase(f"{study.name}: {where.starting}")

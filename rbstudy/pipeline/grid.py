@@ -9,19 +9,24 @@ scene or run fails naming the swept values of its case; every failure goes throu
 study's `rbstudy.inputs.reader.Reader`.
 """
 
+from __future__ import annotations
+
 import collections.abc
 import itertools
 import math
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rbstudy.errors import InputError, did_you_mean
+from rbstudy.inputs.reader import Reader
 from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.time_grid import steps_per
-from rbstudy.pipeline.axes import touches_scene
+from rbstudy.pipeline.axes import Dimension, touches_scene
 from rbstudy.pipeline.scene_columns import distinct_scenes, set_path
-from rbstudy.schemes import SCHEMES, get_scheme
+from rbstudy.schemes import SCHEMES, Scheme, get_scheme
 
 __all__ = ["Case", "Cases", "Run", "expand", "option_notes", "read_dt"]
 
@@ -34,11 +39,11 @@ class Run:
     """How a case is integrated: a scheme, the options it has, a time step (s)."""
 
     scheme: str
-    options: dict
+    options: dict[str, Any]
     dt: float
 
 
-def read_dt(reader, value, output_interval=None):
+def read_dt(reader: Reader, value: Any, output_interval: float | None = None) -> float:
     """The time step ``value`` of ``run.dt`` (as written, or swept) in s: a positive number
     that divides ``output_interval`` (s; None when the step itself is the output interval);
     else a `ConfigError` at ``run.dt``."""
@@ -51,7 +56,13 @@ def read_dt(reader, value, output_interval=None):
     return dt
 
 
-def _run(reader, base, dimensions, index, output_interval):
+def _run(
+    reader: Reader,
+    base: Mapping[str, Any],
+    dimensions: Sequence[Dimension],
+    index: Sequence[int],
+    output_interval: float,
+) -> Run:
     """The run at ``index`` of the run ``dimensions``; an `InputError` keyed within it."""
     run = base["run"]
     scheme_name, dt = run.get("scheme"), run.get("dt")
@@ -88,10 +99,10 @@ class Case:
     its run.
     """
 
-    index: tuple
+    index: tuple[int, ...]
     scene: Scene
     scheme: str
-    options: dict
+    options: dict[str, Any]
     dt: float
 
 
@@ -104,16 +115,16 @@ class Cases(collections.abc.Sequence):
     that a study of 1e5 cases holds no 1e5 Python objects.
     """
 
-    shape: tuple
+    shape: tuple[int, ...]
     scenes: SceneTable
-    runs: tuple
+    runs: tuple[Run, ...]
     scene_rows: np.ndarray
     run_rows: np.ndarray
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.scene_rows)
 
-    def __getitem__(self, number):
+    def __getitem__(self, number: int) -> Case:  # type: ignore[override]  # cases are numbered, never sliced
         if not isinstance(number, (int, np.integer)):
             raise TypeError("cases are numbered: index them with an integer")
         number = range(len(self))[number]  # negative numbers, and IndexError past the end
@@ -126,11 +137,11 @@ class Cases(collections.abc.Sequence):
             dt=run.dt,
         )
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Case]:
         return (self[number] for number in range(len(self)))
 
 
-def _where(dimensions, index):
+def _where(dimensions: Sequence[Dimension], index: Sequence[int]) -> str:
     """``sweep (dt[2] = 0.0025, scheme[0] = 'euler')``: names a case in an error."""
     return (
         "sweep ("
@@ -143,7 +154,7 @@ def _where(dimensions, index):
     )
 
 
-def _rows_of(dimensions, chosen, shape):
+def _rows_of(dimensions: Sequence[Dimension], chosen: Sequence[int], shape: tuple[int, ...]) -> np.ndarray:
     """For each case of the grid ``shape``, its row in the product of the ``chosen``
     dimensions (positions among ``dimensions``)."""
     size = math.prod(shape)
@@ -153,7 +164,7 @@ def _rows_of(dimensions, chosen, shape):
     return np.ravel_multi_index([index[k] for k in chosen], [shape[k] for k in chosen])
 
 
-def _given_options(base, dimensions):
+def _given_options(base: Mapping[str, Any], dimensions: Iterable[Dimension]) -> dict[str, str]:
     """Each scheme option the study gives -> the key it is given under: ``run.options.alpha``,
     or the sweep's ``sweep.run.options.alpha`` (``sweep.zip.<dimension>.run.options.alpha``)."""
     given = {name: f"run.options.{name}" for name in base["run"].get("options") or {}}
@@ -167,12 +178,14 @@ def _given_options(base, dimensions):
     return given
 
 
-def _takers(option, schemes):
+def _takers(option: str, schemes: Iterable[Scheme]) -> list[str]:
     """The names of the `Scheme`s of ``schemes`` that take the option named ``option``."""
     return [scheme.name for scheme in schemes if any(o.name == option for o in scheme.options)]
 
 
-def option_notes(base, dimensions, runs):
+def option_notes(
+    base: Mapping[str, Any], dimensions: Iterable[Dimension], runs: Iterable[Run]
+) -> tuple[str, ...]:
     """A line for each scheme option the study gives that only some of its schemes take
     (``runs``: its `Run`s): the others run without it, and a study of several schemes
     (an engine beside hht) needs no option written for each."""
@@ -187,7 +200,9 @@ def option_notes(base, dimensions, runs):
     return tuple(notes)
 
 
-def expand(reader, base, dimensions, output_interval):
+def expand(
+    reader: Reader, base: Mapping[str, Any], dimensions: Sequence[Dimension], output_interval: float
+) -> Cases:
     """Every case of the grid as `Cases`, every distinct scene and run built and checked.
 
     ``base`` is the study mapping (``scene``, ``run``); a bad scene or run fails through

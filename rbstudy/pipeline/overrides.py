@@ -152,7 +152,11 @@ def _write(root: dict[Any, Any], override: Override, source: str) -> str:
     def fail(message: str, fix: str) -> NoReturn:
         raise ConfigError(message, fix, source, f"--set {override.key}")
 
-    node, rest, above, spelled, written = root, list(override.parts), [], "", None
+    node: Any = root  # a mapping or list of the YAML read, then one of its values
+    rest = list(override.parts)
+    above: list[str] = []  # the keys of the path so far
+    spelled = ""
+    written: str | None = None
     while rest:
         if isinstance(node, list):
             part = rest[0]

@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from types import TracebackType
-from typing import TextIO
+from typing import Literal, TextIO
 
 from rich.console import Console
 from rich.progress import BarColumn, ProgressColumn, SpinnerColumn, Task, TaskID, TextColumn
@@ -123,7 +123,7 @@ class Progress:
         self.end = "done"
         self._display: LiveDisplay | None = None
         self._task: TaskID | None = None
-        self._began: float | None = None
+        self._began = 0.0  # the clock as the work began: set on entering
         self._started = False
 
     @property
@@ -170,7 +170,7 @@ class Progress:
 
     def __exit__(
         self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
-    ) -> bool:
+    ) -> Literal[False]:
         if self._display is not None:
             with _LIVE_LOCK:
                 _LIVE.remove(self._display)
@@ -188,20 +188,21 @@ class Progress:
         schemes that child processes compile, whose rate so far forecast many times the
         wait), where the count is the honest news."""
         self._begin()
-        if self._display is not None:  # a task of its own: rich keeps a total once set
+        # a task of its own: rich keeps a total once set
+        if self._display is not None and self._task is not None:
             self._display.remove_task(self._task)
             self._task = self._display.add_task(printable(what), total=total, unit=unit, eta=eta)
 
     def update(self, what: str | None = None, done: float | None = None) -> None:
         """The phase's words and how much of it is done, as they change."""
-        if self._display is not None:
+        if self._display is not None and self._task is not None:
             self._display.update(
                 self._task, description=None if what is None else printable(what), completed=done
             )
 
     def advance(self, amount: float = 1) -> None:
         """``amount`` more of the phase's total done."""
-        if self._display is not None:
+        if self._display is not None and self._task is not None:
             self._display.advance(self._task, amount)
 
     def say(self, text: str) -> None:

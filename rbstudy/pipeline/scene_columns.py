@@ -6,15 +6,21 @@ once (`rbstudy.inputs.scenes.scene_table`), so that validating a study costs mic
 per case. A bad value fails with the row of the first scene it spoils.
 """
 
+from __future__ import annotations
+
 import copy
 import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from rbstudy.errors import InputError
+from rbstudy.inputs.reader import Reader
 from rbstudy.inputs.scenes import scene_table
 from rbstudy.physics.analytic import symmetry_axes
-from rbstudy.pipeline.axes import SHORT_NAMES, touches_scene
+from rbstudy.physics.scenes import SceneTable
+from rbstudy.pipeline.axes import SHORT_NAMES, Dimension, touches_scene
 
 __all__ = ["set_path", "distinct_scenes"]
 
@@ -23,7 +29,7 @@ __all__ = ["set_path", "distinct_scenes"]
 _SHORT_ORDER = ("scheme", "dt", "inertia_ratio", "tilt", "spin")
 
 
-def set_path(spec, dotted, value):
+def set_path(spec: Any, dotted: str, value: Any) -> None:
     """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
     *parents, leaf = dotted.split(".")
     node = spec
@@ -56,7 +62,7 @@ def set_path(spec, dotted, value):
         )
 
 
-def _list_index(dotted, node, part):
+def _list_index(dotted: str, node: list[Any], part: str) -> int:
     if not part.isdigit() or int(part) >= len(node):
         raise InputError(
             f"{part!r} is not an entry of a list of {len(node)}", f"use 0..{len(node) - 1}", key=dotted
@@ -64,7 +70,7 @@ def _list_index(dotted, node, part):
     return int(part)
 
 
-def _column(values):
+def _column(values: Sequence[Any]) -> np.ndarray:
     """Axis values as a column: flags when all are true or false, objects when names are
     among them, else floats."""
     if all(isinstance(v, bool) for v in values):
@@ -74,14 +80,16 @@ def _column(values):
     return np.array(values, dtype=float)
 
 
-def _fail_at(bad, message, fix=None, key=None):
+def _fail_at(
+    bad: np.ndarray, message: Callable[[int], str], fix: str | None = None, key: str | None = None
+) -> None:
     """Raise an `InputError` at the first row where ``bad`` (n,) holds."""
     if bad.any():
         row = int(np.argmax(bad))
         raise InputError(message(row), fix, key=key, row=row)
 
 
-def _entry(value, row):
+def _entry(value: Any, row: int) -> Any:
     """The value of a leaf (a number, or a column) in scene ``row``, as a Python value."""
     if not isinstance(value, np.ndarray):
         return value
@@ -89,7 +97,7 @@ def _entry(value, row):
     return entry.item() if isinstance(entry, np.generic) else entry
 
 
-def _as_floats(value, size):
+def _as_floats(value: Any, size: int) -> np.ndarray:
     """A leaf as (size,) floats, NaN where it is not a number."""
     if isinstance(value, np.ndarray) and value.dtype.kind == "f":
         return value
@@ -97,7 +105,7 @@ def _as_floats(value, size):
     return np.array([_float_or_nan(entry) for entry in entries])
 
 
-def _float_or_nan(value):
+def _float_or_nan(value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return math.nan
     try:
@@ -106,7 +114,7 @@ def _float_or_nan(value):
         return math.nan
 
 
-def _vector_rows(values, size, key):
+def _vector_rows(values: Any, size: int, key: str) -> np.ndarray:
     """A vector of 3 numbers or swept columns as (size, 3) floats; an `InputError` at ``key``
     otherwise, on the first bad row."""
     if not isinstance(values, list) or len(values) != 3:
@@ -126,7 +134,7 @@ def _vector_rows(values, size, key):
 _OMEGA_KEY = "scene.initial.angular_velocity"
 
 
-def _body_omega(scene, name, size):
+def _body_omega(scene: dict[str, Any], name: str, size: int) -> tuple[dict[str, Any], str, np.ndarray]:
     """The initial angular velocity mapping, its frame and its vectors (size, 3)."""
     omega = _inside(scene, "initial", "angular_velocity")
     if not isinstance(omega, dict) or not any(key in omega for key in ("body", "space")):
@@ -145,14 +153,14 @@ def _body_omega(scene, name, size):
     return omega, frame, _vector_rows(omega[frame], size, f"{_OMEGA_KEY}.{frame}")
 
 
-def _inside(mapping, *keys):
+def _inside(mapping: Any, *keys: str) -> Any:
     """The value at ``keys`` in nested mappings, None where one is missing or not a mapping."""
     for key in keys:
         mapping = mapping.get(key) if isinstance(mapping, dict) else None
     return mapping
 
 
-def _short_numbers(name, column):
+def _short_numbers(name: str, column: np.ndarray) -> np.ndarray:
     """A short name's column (n,) as floats: every value a finite number (spin > 0)."""
     if column.dtype.kind in "bO":
         _fail_at(
@@ -169,7 +177,7 @@ def _short_numbers(name, column):
     return numbers
 
 
-def _apply_short(scene, name, column):
+def _apply_short(scene: dict[str, Any], name: str, column: np.ndarray) -> None:
     """Write a short name's values (a column of n) into the columnar scene mapping."""
     values = _short_numbers(name, column)
     size = len(values)
@@ -217,7 +225,7 @@ def _apply_short(scene, name, column):
     ]
 
 
-def distinct_scenes(reader, base, dimensions):
+def distinct_scenes(reader: Reader, base: Mapping[str, Any], dimensions: Sequence[Dimension]) -> SceneTable:
     """The distinct scenes of the grid, a `SceneTable` in C order of ``dimensions`` (the
     dimensions with a scene axis; one scene when there is none)."""
     shape = tuple(d.size for d in dimensions)

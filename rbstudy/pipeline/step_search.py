@@ -161,7 +161,7 @@ class _Probes:
         missing = sorted({key for key in wanted if key not in self.rows})
         self.reused += len({key for key in wanted if key in self.kept})
         self.kept -= set(wanted)
-        by_run = {}
+        by_run: dict[tuple[str, int], list[int]] = {}
         for case, steps in missing:
             by_run.setdefault((self._scheme(case), steps), []).append(case)
         for (scheme, steps), cases in sorted(by_run.items()):
@@ -259,7 +259,7 @@ class _Probes:
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
-        for name in written.data_vars:
+        for name in map(str, written.data_vars):
             written[name].attrs.update(_attrs(name))
         return written
 
@@ -342,20 +342,20 @@ def search_steps(
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    folder = StudyFolder(folder, study)
-    with folder.lock():
-        probes = _Probes(study, folder, _identity(study), force)
+    study_folder = StudyFolder(folder, study)
+    with study_folder.lock():
+        probes = _Probes(study, study_folder, _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
             if not wanted:
                 break
             keys = [(int(cases[g, 0]), steps) for g, steps in wanted.items()]
-            for (g, steps), good in zip(wanted.items(), probes.verdicts(keys, progress), strict=True):
+            for (group, steps), good in zip(wanted.items(), probes.verdicts(keys, progress), strict=True):
                 if good:
-                    lo[g] = steps
+                    lo[group] = steps
                 else:
-                    hi[g] = steps
+                    hi[group] = steps
         common = _common_steps(study, schemes, cases, lo, searched, probes, progress)
         result = Search(
             **_answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common),
@@ -453,7 +453,11 @@ def _group_labels(dataset: xr.Dataset, group_dims: list[str]) -> list[dict[str, 
     value, in C order of ``group_dims``."""
     shape = [dataset.sizes[d] for d in group_dims]
     named = {
-        d: [name for name, coord in dataset.coords.items() if coord.dims == (d,) and name != d or name == d]
+        d: [
+            str(name)
+            for name, coord in dataset.coords.items()
+            if coord.dims == (d,) and name != d or name == d
+        ]
         for d in group_dims
         if d != "scheme"
     }
