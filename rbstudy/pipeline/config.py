@@ -266,7 +266,7 @@ def _scheme_claims(cases: Cases, dimensions: Sequence[Dimension]) -> dict[str, d
 def _output_interval(reader: Reader, output: dict[str, Any], dt: float | None, swept: set[str]) -> float:
     """``output.interval`` (s), else the unswept ``run.dt`` (``dt``, already read)."""
     if "interval" in output:
-        return reader.number(output["interval"], "output.interval", positive=True)
+        return float(reader.number(output["interval"], "output.interval", positive=True))
     if "dt" not in swept and dt is not None:
         return dt
     reader.fail("output.interval", "missing", "with dt swept, give the output interval (s)")
@@ -395,9 +395,8 @@ def _output(reader: Reader, given: Any, dt: float | None, swept: set[str]) -> _O
             "valid: netcdf (one file, the default) or zarr (a store for cluster-scale studies)",
         )
     interval = _output_interval(reader, output, dt, swept)
-    accuracy_bound = reader.number(
-        output.get("accuracy_bound", ACCURACY_BOUND), "output.accuracy_bound", positive=True
-    )
+    bound = output.get("accuracy_bound", ACCURACY_BOUND)
+    accuracy_bound = float(reader.number(bound, "output.accuracy_bound", positive=True))
     return _Output(interval, output.get("variables"), accuracy_bound, output_format)
 
 

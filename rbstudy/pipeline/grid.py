@@ -47,7 +47,7 @@ def read_dt(reader: Reader, value: Any, output_interval: float | None = None) ->
     """The time step ``value`` of ``run.dt`` (as written, or swept) in s: a positive number
     that divides ``output_interval`` (s; None when the step itself is the output interval);
     else a `ConfigError` at ``run.dt``."""
-    dt = reader.number(value, "run.dt", positive=True)
+    dt = float(reader.number(value, "run.dt", positive=True))  # one value, never a column
     if output_interval is not None:
         try:
             steps_per(output_interval, dt, "dt", "output interval")
