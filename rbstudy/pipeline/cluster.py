@@ -475,7 +475,7 @@ def run_on_cluster(
     watch = _Watch(client, targets, progress, worker_wait, fixed_jobs)
     pending = set(futures)
     finishing = as_completed(futures)  # bound to this client's loop, unlike distributed.wait
-    digests, returned = {}, 0
+    digests = {}
     try:
         while pending:
             watch.look(time.monotonic())
@@ -483,12 +483,11 @@ def run_on_cluster(
             if not finished:
                 time.sleep(_IDLE_SECONDS)
             for future in finished:
-                taken = watch.take(future)
-                if taken is None:  # its worker died before it was gathered: run again
+                digest = watch.take(future)
+                if digest is None:  # its worker died before it was gathered: run again
                     finishing.add(future)
                     continue
-                digests[future.key], wrote = taken
-                returned += wrote
+                digests[future.key] = digest
                 pending.discard(future)
                 future.release()
     except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
@@ -500,13 +499,14 @@ def run_on_cluster(
     finally:
         with contextlib.suppress(Exception):  # nothing to tell a scheduler that has gone
             client.cancel(list(pending))  # a shared cluster stops working for this run
-    return digests, returned
+    return digests, watch.returned
 
 
 class _Watch:
     """What `run_on_cluster` keeps an eye on: whether the cluster has workers (one look a
     `POLL_SECONDS`), how long it has had none, what its batch system says of its jobs, and
-    the batches that come back."""
+    the batches that come back (``returned``: how many parts it wrote from values sent
+    back)."""
 
     def __init__(
         self,
@@ -521,6 +521,7 @@ class _Watch:
         self.where = client.scheduler.address
         self.waiting_since: float | None = None
         self.seen_workers = False
+        self.returned = 0
         self.looked = self.asked = -math.inf
         # parts already sealed (a --force run, a damaged part) prove nothing about this run
         self.sealed_before = {target.path for target in targets.values() if sealed(target.path)}
@@ -568,10 +569,10 @@ class _Watch:
             said, fix, _ = word or jobs_said(self.client) or UNASKED
             raise RbstudyError(f"{what} {self.where} {when} ({said}); {self.kept()}{fix}")
 
-    def take(self, future: Future) -> tuple[str, int] | None:
+    def take(self, future: Future) -> str | None:
         """The digest of the part of a finished batch's ``future``, written here when its
-        worker sent the values back, and 1 if so (else 0); None when its worker died before
-        its values were gathered. An `RbstudyError` when its workers died too often."""
+        worker sent the values back; None when its worker died before its values were
+        gathered. An `RbstudyError` when its workers died too often."""
         from distributed import KilledWorker
 
         key = cast(str, future.key)  # the store tasks are named by strings (execute._graph)
@@ -589,8 +590,8 @@ class _Watch:
             ) from None
         self.seen_workers = True  # a batch that came back had a worker (see `look`)
         target = self.targets[key]
-        wrote = values is not None
-        if wrote:
+        if values is not None:
             digest = target.write(values)
+            self.returned += 1
         self.progress.advance(target.cases)
-        return digest, int(wrote)
+        return digest
