@@ -1,8 +1,9 @@
 """The numerical functions say what they take and give, shapes included (issue 32): every
-public function and method of `rbstudy/numerics/` and `rbstudy/pipeline/outputs.py` has a
-numpydoc ``Parameters`` section naming each of its parameters and, where it returns a value,
-a ``Returns`` section; an array there gives its shape with axis letters (``shape (B, T, 4)``).
-Read from the source (ast), so compiled functions count as written."""
+public function and method of `rbstudy/numerics/`, `rbstudy/pipeline/outputs.py` and
+`rbstudy/pipeline/batch_data.py` has a numpydoc ``Parameters`` section naming each of its
+parameters and, where it returns a value, a ``Returns`` section; an array there gives its
+shape with axis letters (``shape (B, T, 4)``). Read from the source (ast), so compiled
+functions count as written."""
 
 import ast
 import pathlib
@@ -11,7 +12,9 @@ import re
 import pytest
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
-DOCUMENTED = sorted(PACKAGE.glob("numerics/*.py")) + [PACKAGE / "pipeline" / "outputs.py"]
+DOCUMENTED = sorted(PACKAGE.glob("numerics/*.py")) + [
+    PACKAGE / "pipeline" / name for name in ("batch_data.py", "outputs.py")
+]
 
 # A numpydoc section: its title, then a line of dashes as long.
 SECTION = re.compile(r"^\s*(\w+)\n\s*(-+)\n", re.MULTILINE)

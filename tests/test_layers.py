@@ -65,6 +65,7 @@ NUMBA_FREE = (
         if path.stem != "__init__"
     ),
     "rbstudy.pipeline.outputs",
+    "rbstudy.pipeline.batch_data",
     "rbstudy.pipeline.batches",
     "rbstudy.physics.analytic",
 )

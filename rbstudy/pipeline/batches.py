@@ -8,12 +8,20 @@ the stored variables, `SCHEMA_VERSION` and the digest of rbstudy's sources: the 
 and code give the same ids, anything else new ids, never a silent mix.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from rbstudy.archive.ids import canonical_id
 from rbstudy.numerics.sources import SOURCE_DIGEST
+
+if TYPE_CHECKING:  # the types alone: this module stays numba-free
+    from rbstudy.pipeline.axes import Dimension
+    from rbstudy.pipeline.grid import Cases
 
 __all__ = [
     "Batch",
@@ -34,21 +42,21 @@ class Batch:
     id: str
     scheme: str
     dt: float
-    cases: tuple
+    cases: tuple[int, ...]
     step_seconds: float | None = None
 
 
 def plan_batches(
-    cases,
-    scene,
-    dimensions,
-    output_interval,
-    variables,
-    max_cases,
-    verdict=None,
-    run_costs=None,
-    code_digests=None,
-):
+    cases: Cases,
+    scene: Mapping[str, Any],
+    dimensions: Sequence[Dimension],
+    output_interval: float,
+    variables: Sequence[str],
+    max_cases: int,
+    verdict: Mapping[str, Any] | None = None,
+    run_costs: Sequence[float] | None = None,
+    code_digests: Mapping[str, str | None] | None = None,
+) -> tuple[Batch, ...]:
     """Group `rbstudy.pipeline.grid.Cases` ``cases`` by (scheme, dt) and, where the runs
     differ in it, by their cost per step (``run_costs``, one number per run of ``cases.runs``:
     a composition of order 8 takes 17 steps a step), in case order, into batches of at most
@@ -80,8 +88,9 @@ def plan_batches(
             "source": SOURCE_DIGEST,
         }
     )
-    costs = run_costs if run_costs is not None else [None] * len(cases.runs)
-    keys = {}  # (scheme, dt, cost) -> group, in order of first use
+    costs: Sequence[float | None] = run_costs if run_costs is not None else [None] * len(cases.runs)
+    # (scheme, dt, cost) -> group, in order of first use
+    keys: dict[tuple[str, float, float | None], int] = {}
     group_of_run = np.array(
         [
             keys.setdefault((run.scheme, run.dt, cost), len(keys))

@@ -16,16 +16,19 @@ below the blow-up bound over the long single-body run; output is sampled every
 
 import math
 import time
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from rbstudy.errors import RbstudyError, SchemeError, counted
 from rbstudy.inputs.scenes import scene_from_mapping
 from rbstudy.inputs.yaml_file import parse_yaml
-from rbstudy.numerics.driver import run_batch
+from rbstudy.numerics.driver import BatchOutput, run_batch
 from rbstudy.numerics.machine import default_threads
+from rbstudy.physics.scenes import Scene
 from rbstudy.pipeline.progress import Progress
-from rbstudy.schemes import SCHEMES, get_scheme
+from rbstudy.schemes import SCHEMES, Scheme, get_scheme
 
 __all__ = [
     "run_bench",
@@ -38,9 +41,9 @@ __all__ = [
 
 BATCH_SIZES = (1, 100, 10_000)
 BODY_STEPS = 10_000_000
-# The most --body-steps may ask for: a figure of 1e9 body-steps takes ~40 s for the fastest
-# scheme (six figures a scheme), and its single body keeps 1e6 samples (~100 MiB); 1e18 asked
-# for 92 PiB of samples.
+# The most --body-steps may ask for: a figure of 1e9 body-steps is long to wait for even with
+# the fastest scheme (six figures a scheme), and its single body keeps 1e6 samples (~100 MiB);
+# 1e18 asked for 92 PiB of samples.
 MAX_BODY_STEPS = 1_000_000_000
 BENCH_DT = 1e-4
 SAMPLE_EVERY = 1_000
@@ -50,7 +53,7 @@ REFERENCE_STEPS = 2_000
 _RATE = 12
 
 
-def abaqus_top_scene(loads=None):
+def abaqus_top_scene(loads: Mapping[str, Any] | None = None) -> Scene:
     """The Abaqus force-free top of docs/theory.md s2 (I = 1, 1, 2; A = 0.25; w3 = 2 pi), or
     under ``loads`` (a config's ``loads`` mapping)."""
     return scene_from_mapping(
@@ -67,18 +70,27 @@ def abaqus_top_scene(loads=None):
     )
 
 
-def _rate(scheme, scene, n_bodies, n_steps, threads, options):
+def _rate(
+    scheme: Scheme, scene: Scene, n_bodies: int, n_steps: int, threads: int, options: Mapping[str, Any]
+) -> tuple[float, BatchOutput]:
     state0 = np.repeat(scene.state_row()[None, :], n_bodies, axis=0)
     params = np.repeat(scene.param_row()[None, :], n_bodies, axis=0)
-    options = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
+    option_rows = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
     out = run_batch(
-        scheme, state0, params, options, BENCH_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=threads
+        scheme,  # type: ignore[arg-type]  # numerics.driver.BatchKernel declares settable members; a Scheme is frozen
+        state0,
+        params,
+        option_rows,
+        BENCH_DT,
+        n_steps,
+        min(SAMPLE_EVERY, n_steps),
+        threads=threads,
     )
     taken = n_steps * n_bodies if scheme.adaptive else out.results["n_steps"].sum()
     return taken / out.kernel_seconds, out
 
 
-def option_settings(texts):
+def option_settings(texts: Iterable[str]) -> dict[str, Any]:
     """The options of ``bench --option NAME=VALUE`` (each value read as YAML reads it in a
     config: ``1``, ``true``, ``-0.1``, ``'123'``) as a dict; a text without ``=`` raises
     `RbstudyError` in one line."""
@@ -91,7 +103,9 @@ def option_settings(texts):
     return options
 
 
-def scheme_options(chosen, options):
+def scheme_options(
+    chosen: Sequence[Scheme], options: Mapping[str, Any]
+) -> list[tuple[Scheme, dict[str, Any]]]:
     """Each scheme of ``chosen`` with the ``options`` (name -> value) it offers, validated
     (`rbstudy.schemes.Scheme.option_row`), as (scheme, its options) pairs; an option that no
     chosen scheme offers raises `SchemeError` naming the options they have."""
@@ -111,13 +125,19 @@ def scheme_options(chosen, options):
     return pairs
 
 
-def _label(scheme, options):
+def _label(scheme: Scheme, options: Mapping[str, Any]) -> str:
     """A row's name: the scheme's, marked ``*`` when it runs with options (a footnote under
     the table names them: the rows keep to 100 columns)."""
     return f"{scheme.name}*" if options else scheme.name
 
 
-def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, progress=True, options=None):
+def run_bench(
+    schemes: Iterable[str] | None = None,
+    batch_sizes: Sequence[int] = BATCH_SIZES,
+    body_steps: int = BODY_STEPS,
+    progress: bool = True,
+    options: Mapping[str, Any] | None = None,
+) -> list[dict[str, Any]]:
     """Measure the figures and print them as a table on stdout, each scheme's compilation
     and measurements shown meanwhile (`rbstudy.pipeline.progress.Progress`) unless
     ``progress`` is False; returns them as a list of dicts. ``options`` (name -> value) go to
@@ -153,7 +173,16 @@ def run_bench(schemes=None, batch_sizes=BATCH_SIZES, body_steps=BODY_STEPS, prog
     return rows
 
 
-def _measure(scheme, options, scene, batch_sizes, body_steps, cores, width, progress):
+def _measure(
+    scheme: Scheme,
+    options: dict[str, Any],
+    scene: Scene,
+    batch_sizes: Sequence[int],
+    body_steps: int,
+    cores: int,
+    width: int,
+    progress: Progress,
+) -> dict[str, Any]:
     """One scheme's row of figures with its ``options``, printed as a line of the table by
     ``progress``. The compile column counts the scheme's plain kernels; options that pick
     kernels of their own (``compensated``) compile them before the first figure's clock

@@ -46,14 +46,17 @@ import os
 import platform
 import tempfile
 import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.jit import cache_dir
 from rbstudy.pipeline.bench import abaqus_top_scene
-from rbstudy.schemes import dop853, get_scheme
+from rbstudy.pipeline.progress import Progress
+from rbstudy.schemes import Scheme, dop853, get_scheme
 
 __all__ = [
     "StepCost",
@@ -118,16 +121,16 @@ class StepCost:
     loaded: bool = False
 
     @property
-    def calibrated(self):
+    def calibrated(self) -> bool:
         return math.isfinite(self.uncertainty)
 
 
-def calibration_path():
+def calibration_path() -> str:
     """The cache file: ``calibration.json`` beside the compiled kernels."""
     return os.path.join(cache_dir(), _FILE)
 
 
-def machine_key():
+def machine_key() -> str:
     """This machine, as the cache knows it: host, processor and the cores the process may
     use (a home folder shared by a cluster's nodes holds one figure per kind of node)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
@@ -135,31 +138,32 @@ def machine_key():
     return " ".join(part for part in parts if part)
 
 
-def _scheme_key(scheme):
+def _scheme_key(scheme: Scheme) -> str:
     return " ".join(filter(None, (scheme.name, scheme.origin, scheme.code_digest)))
 
 
-def compile_path():
+def compile_path() -> str:
     """The file of the seconds each scheme took to compile, beside numba's caches of every
     source tree (`compile_seconds`: an edit of the sources compiles them all again, in about
     the time they took before)."""
     return os.path.join(os.path.dirname(cache_dir()), _COMPILE_FILE)
 
 
-def compile_seconds():
+def compile_seconds() -> dict[str, float]:
     """The seconds each scheme took to compile on this machine the last time, name -> s."""
     return {name: float(s) for name, s in _read(compile_path()).items() if isinstance(s, (int, float))}
 
 
-def record_compile(took):
+def record_compile(took: Mapping[str, float]) -> None:
     """Keep the seconds each scheme of ``took`` (name -> s) took to compile."""
     _write({name: seconds for name, seconds in took.items() if math.isfinite(seconds)}, compile_path())
 
 
-_read_memo = {}  # (path, modification time) -> figures: the forecast asks once a batch
+# (path, modification time) -> figures: the forecast asks once a batch
+_read_memo: dict[tuple[str, int], dict[str, Any]] = {}
 
 
-def _read(path=None):
+def _read(path: str | None = None) -> dict[str, Any]:
     """The figures of this machine in the cache file ``path`` (the calibration's by
     default): scheme key -> its figures."""
     path = path or calibration_path()
@@ -177,7 +181,7 @@ def _read(path=None):
         return {}
 
 
-def _write(figures, path=None):
+def _write(figures: Mapping[str, Any], path: str | None = None) -> None:
     """Merge ``figures`` (scheme key -> its figures) into the cache file ``path`` (the
     calibration's by default), replaced whole by a rename; a cache that cannot be written
     costs a measurement next time, nothing else."""
@@ -204,7 +208,7 @@ def _write(figures, path=None):
                 os.unlink(temporary)
 
 
-def _busy_seconds():
+def _busy_seconds() -> float | None:
     """The seconds the cores this process may run on have been busy since boot (Linux's
     /proc/stat: every state but idle and waiting on I/O, the time the hypervisor gave the
     core to others included), or None where the system does not say."""
@@ -220,13 +224,13 @@ def _busy_seconds():
         return None
 
 
-def load_mark():
+def load_mark() -> tuple[float | None, float, float]:
     """A mark to count other programs' load from (`others_cores`): the cores' busy seconds
     (None where the system does not count them), this process's CPU seconds, the wall clock."""
     return _busy_seconds(), time.process_time(), time.perf_counter()
 
 
-def others_cores(mark):
+def others_cores(mark: tuple[float | None, float, float]) -> float:
     """How many cores programs other than this process kept busy, on average, since ``mark``
     (`load_mark`); 0.0 where the system does not say."""
     busy, own, wall = load_mark()
@@ -235,7 +239,7 @@ def others_cores(mark):
     return max(0.0, (busy - mark[0]) - (own - mark[1])) / (wall - mark[2])
 
 
-def _quiet_round(run_round):
+def _quiet_round(run_round: Callable[[], dict[str, float]]) -> tuple[dict[str, float], bool]:
     """Run ``run_round()`` and return its value and whether the machine was quiet meanwhile:
     other programs kept at most `QUIET_CORES` busy over at least `LOAD_WINDOW`; after a busy
     round, a pause of `BUSY_PAUSE`."""
@@ -250,11 +254,11 @@ def _quiet_round(run_round):
     return value, quiet
 
 
-def _rate(seconds, taken):
+def _rate(seconds: float, taken: int) -> float:
     return seconds / taken
 
 
-def _rates_in_rounds(runs):
+def _rates_in_rounds(runs: Mapping[str, Callable[[], tuple[float, int]]]) -> dict[str, StepCost]:
     """Each run's seconds per step, in rounds of one run each (``runs``: name -> a function
     that runs once and returns (seconds, steps taken)) until `REPEATS` quiet rounds
     (`_quiet_round`) or `MAX_ROUNDS`; name -> `StepCost` (module docstring)."""
@@ -282,15 +286,15 @@ def _rates_in_rounds(runs):
     return costs
 
 
-def cached(scheme):
+def cached(scheme: Scheme) -> StepCost | None:
     """The `StepCost` of ``scheme`` (a `rbstudy.schemes.Scheme`) cached for this machine, or
     None."""
     return _figure(_scheme_key(scheme))
 
 
-def _figure(key):
+def _figure(key: str) -> StepCost | None:
     """The `StepCost` cached for this machine under ``key``, or None."""
-    figure = _read().get(key)
+    figure: Any = _read().get(key)
     try:  # a cache edited by hand, or by another version: measured again
         cost = StepCost(float(figure["seconds"]), float(figure["uncertainty"]), figure.get("loaded") is True)
     except (TypeError, KeyError, ValueError, AttributeError):
@@ -303,12 +307,12 @@ def _figure(key):
 _measured_here: set[str] = set()
 
 
-def _stale(key, cost):
+def _stale(key: str, cost: StepCost | None) -> bool:
     """Whether the figure ``cost`` cached under ``key`` is to be measured (again) now."""
     return cost is None or (cost.loaded and key not in _measured_here)
 
 
-def _stored(cost, seconds):
+def _stored(cost: StepCost, seconds: float) -> dict[str, Any]:
     """What the cache file keeps of a `StepCost` measured in ``seconds``."""
     return {
         "seconds": cost.seconds,
@@ -318,14 +322,17 @@ def _stored(cost, seconds):
     }
 
 
-def _run_seconds(scheme, rows, n_steps):
+def _run_seconds(scheme: Scheme, rows: tuple[np.ndarray, ...], n_steps: int) -> tuple[float, int]:
     """(CPU seconds, body-steps taken) of one run of ``n_steps`` steps of ``rows`` (state0,
     params, options)."""
-    out = run_batch(scheme, *rows, CALIBRATION_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=1)
+    state0, params, options = rows
+    out = run_batch(
+        scheme, state0, params, options, CALIBRATION_DT, n_steps, min(SAMPLE_EVERY, n_steps), threads=1
+    )
     return out.kernel_cpu_seconds, max(1, int(out.results["n_steps"].sum()))
 
 
-def _prepared(scheme):
+def _prepared(scheme: Scheme) -> tuple[tuple[np.ndarray, ...], int]:
     """(rows, steps): the calibration batch of ``scheme`` and the steps a run of it takes to
     last `MIN_SECONDS` (its kernels compiled or loaded first, outside the clock)."""
     scheme.ensure_compiled()
@@ -340,7 +347,7 @@ def _prepared(scheme):
     return rows, steps
 
 
-def measure(schemes):
+def measure(schemes: Sequence[Scheme]) -> dict[str, tuple[StepCost, float]]:
     """Measure the `StepCost` of each of ``schemes`` (`rbstudy.schemes.Scheme`) on this
     machine, in rounds of one run each: a change of load meanwhile falls on every scheme
     alike, and shows in each one's spread. Returns name -> (`StepCost`, seconds it took); a
@@ -369,7 +376,7 @@ def measure(schemes):
     return {name: (cost, took[name]) for name, cost in costs.items()}
 
 
-def calibrate(names, progress=None):
+def calibrate(names: Iterable[str], progress: Progress | None = None) -> dict[str, StepCost | None]:
     """The `StepCost` of each fixed-step scheme of ``names``: cached, else measured now and
     cached (said on ``progress``, a `rbstudy.pipeline.progress.Progress`); name -> `StepCost`."""
     # an adaptive scheme's (dop853's) cost per step taken depends on how densely it samples:
@@ -400,7 +407,7 @@ def calibrate(names, progress=None):
     return costs | {name: cost for name, (cost, _) in measured.items()}
 
 
-def step_cost(scheme, options=None):
+def step_cost(scheme: Scheme, options: Mapping[str, Any] | None = None) -> StepCost:
     """The `StepCost` of a body-step of ``scheme`` with ``options`` (name -> value): its
     calibrated figure (`cached`) times what the options cost (a composition's stages,
     `rbstudy.schemes.Scheme.seconds_per_step`), else its declared one."""
@@ -412,7 +419,7 @@ def step_cost(scheme, options=None):
     return StepCost(figure.seconds * (declared / scheme.step_seconds), figure.uncertainty)
 
 
-def _reference_seconds(y0, p, n_steps):
+def _reference_seconds(y0: np.ndarray, p: np.ndarray, n_steps: int) -> tuple[float, int]:
     """(CPU seconds, accepted steps) of one `dop853.integrate` of ``n_steps`` steps of state row
     ``y0`` with parameter row ``p``, sampled at its start only (as a reference samples: every
     many steps)."""
@@ -421,7 +428,7 @@ def _reference_seconds(y0, p, n_steps):
     return time.process_time() - started, max(1, run.steps)
 
 
-def reference_cost():
+def reference_cost() -> StepCost:
     """The `StepCost` of an accepted step of DOP853 as the integrated references run it: cached
     for this machine, else measured now (`FIRST_STEPS` doubled until a run takes
     `MIN_SECONDS`, then `REPEATS` runs) if its right-hand side is compiled already, else the

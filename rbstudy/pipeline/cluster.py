@@ -19,24 +19,35 @@ line says what squeue says of the jobs (pending and why, past their walltime, ca
 a fixed number of jobs that have all ended ends the run at once.
 """
 
+from __future__ import annotations
+
 import contextlib
 import importlib.util
 import inspect
 import logging
 import math
+import os
 import pathlib
 import signal
 import socket
-import subprocess
 import time
+from collections.abc import Iterator
 from concurrent.futures import CancelledError
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, cast
 
-from rbstudy.archive.parts import sealed
+from rbstudy.archive.parts import PartTarget, sealed
 from rbstudy.errors import ConfigError, RbstudyError, counted, did_you_mean, one_line
 from rbstudy.inputs.reader import Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
+from rbstudy.pipeline.batch_jobs import UNASKED, jobs_said
+from rbstudy.pipeline.progress import Progress
+
+if TYPE_CHECKING:  # the types alone: distributed is imported where a cluster is used
+    from dask.delayed import Delayed
+    from distributed import Client, Future, Lock, Worker
+
+    from rbstudy.archive.zarr_regions import RegionTarget
 
 __all__ = [
     "ClusterFile",
@@ -69,20 +80,10 @@ GATHER_SECONDS = 60.0
 # The dask-jobqueue class of each batch system a cluster file may name.
 JOB_CLUSTERS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
 _KEYS = ("kind", "jobs", "adaptive", "options")
-# Seconds to wait for the batch system to describe a cluster's jobs: a slow controller must
-# not hold back the run's last line for long.
-JOB_QUERY_SECONDS = 10
-# Job ids named per state in that line (an adaptive cluster may have hundreds of jobs).
-_JOBS_NAMED = 3
 # Seconds between two questions to the batch system while a cluster of fixed jobs has no
 # worker: each is a call to the controller, which a busy cluster's admins ask not to be made
 # often.
 JOBS_LOOK_SECONDS = 5.0
-# The SLURM states of a job that has ended for good (a preempted or requeued job may run
-# again; a completing one may still be requeued).
-_SLURM_ENDED = frozenset(
-    {"BOOT_FAIL", "CANCELLED", "COMPLETED", "DEADLINE", "FAILED", "NODE_FAIL", "OUT_OF_MEMORY", "TIMEOUT"}
-)
 # How to get dask's dashboard, which bokeh draws (distributed's optional dependency).
 DASHBOARD_FIX = "pip install 'rbstudy[dashboard]'"
 # The module of a study's tasks, which the forkserver of local workers imports.
@@ -98,8 +99,8 @@ class ClusterFile:
     path: str
     kind: str
     jobs: int | None
-    adaptive: tuple | None
-    options: dict
+    adaptive: tuple[int, int] | None
+    options: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -122,11 +123,11 @@ class Where:
     worker_wait: float = WORKER_WAIT
 
     @property
-    def distributed(self):
+    def distributed(self) -> bool:
         return (self.scheduler, self.workers, self.cluster) != (None, None, None)
 
     @property
-    def starting(self):
+    def starting(self) -> str:
         """What a run does while it reaches its cluster."""
         return (
             f"connecting to {self.scheduler}"
@@ -141,7 +142,7 @@ class Where:
 LOCAL = Where()
 
 
-def read_cluster_file(path):
+def read_cluster_file(path: str | os.PathLike[str]) -> ClusterFile:
     """The `ClusterFile` at ``path``, or a one-line `ConfigError` naming the key and the fix."""
     path = str(path)
     _, data = read_yaml_file(path)
@@ -172,7 +173,7 @@ def read_cluster_file(path):
     return ClusterFile(path, kind, jobs, adaptive, options)
 
 
-def _keywords(*classes):
+def _keywords(*classes: Any) -> set[str]:
     """The names of the keyword arguments the ``__init__`` of ``classes`` take."""
     return {
         name
@@ -182,7 +183,7 @@ def _keywords(*classes):
     } - {"self"}
 
 
-def _check_options(reader, kind, options):
+def _check_options(reader: Reader, kind: str, options: dict[str, Any]) -> None:
     """Refuse, before a sweep prints anything, the ``options`` of a cluster of ``kind`` that
     no class they reach takes (a local cluster passes those it does not take to each worker:
     Nanny, Worker, Server; a job cluster to each job), and a local cluster's counts of
@@ -220,7 +221,7 @@ def _check_options(reader, kind, options):
 _MEMORY_OPTIONS = {"local": ("memory_limit", ("auto",)), "slurm": ("memory", ()), "pbs": ("memory", ())}
 
 
-def _check_memory(reader, kind, options):
+def _check_memory(reader: Reader, kind: str, options: dict[str, Any]) -> None:
     """Refuse a memory option that is no amount (``memory_limit: lots``) before the forecast:
     distributed would say so only as the cluster starts."""
     from dask.utils import parse_bytes
@@ -239,7 +240,7 @@ def _check_memory(reader, kind, options):
         )
 
 
-def check_scheduler(address):
+def check_scheduler(address: str) -> None:
     """Refuse ``address`` (--scheduler) in one line, before a sweep prints anything, when it
     is no scheduler address (``tcp://host:port``) or nothing listens there: a TCP connection
     tried for at most `CONNECT_SECONDS` (the protocols other than tcp and tls are left to
@@ -264,7 +265,7 @@ def check_scheduler(address):
         ) from None
 
 
-def start_forkserver():
+def start_forkserver() -> str:
     """Start the process from which a local cluster's workers are forked, importing
     distributed and rbstudy's task module (`TASKS_MODULE`) once, where the system has one
     (Linux, macOS), and return the start method of local workers: "forkserver", else
@@ -280,7 +281,7 @@ def start_forkserver():
     return "forkserver"
 
 
-def _forked_local_cluster(**options):
+def _forked_local_cluster(**options: Any) -> Any:
     """A `LocalCluster` whose workers are forked from the forkserver (`start_forkserver`),
     which holds distributed and rbstudy imported, rather than spawned: a spawned worker
     starts Python and imports both itself. A forkserver is one thread with no file of the
@@ -301,7 +302,7 @@ def _forked_local_cluster(**options):
         return LocalCluster(**options)
 
 
-def dask_setup(worker):
+def dask_setup(worker: Worker) -> None:
     """Run by each local worker process as it starts (dask's preload hook): it ignores
     Ctrl-C. A Ctrl-C at the terminal reaches the sweep's whole process group, its workers
     too, which printed their tracebacks (4, 63 lines for two workers); the sweep process,
@@ -309,12 +310,12 @@ def dask_setup(worker):
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _bokeh():
+def _bokeh() -> bool:
     """Whether bokeh, which draws dask's dashboard, is installed."""
     return importlib.util.find_spec("bokeh") is not None
 
 
-def dashboard_line(client):
+def dashboard_line(client: Client) -> str:
     """Where the dask dashboard of ``client``'s scheduler is, or why there is none and how to
     get one, in one line. Without bokeh here there is none: the scheduler serves its
     dashboard's address all the same, with nothing on its pages (a remote scheduler with
@@ -327,7 +328,7 @@ def dashboard_line(client):
     return "no dask dashboard: the scheduler runs none"
 
 
-def _start(spec, logs=None):
+def _start(spec: ClusterFile, logs: str | os.PathLike[str] | None = None) -> Any:
     """The cluster ``spec`` describes, started and scaled (not yet connected); a job
     cluster's jobs write their output into ``logs`` unless the cluster file or dask's
     configuration names a ``log_directory``."""
@@ -391,7 +392,7 @@ def _start(spec, logs=None):
     return cluster
 
 
-def scheduler_lock(name):
+def scheduler_lock(name: str) -> Lock:
     """The lock ``name`` held across the cluster, by its scheduler (`distributed.Lock`): what a
     worker holds while it writes a unit of a zarr store (`rbstudy.archive.zarr_regions`), from
     the worker's or this process's connection to the scheduler. A lock whose holder stops
@@ -403,7 +404,12 @@ def scheduler_lock(name):
 
 
 @contextlib.contextmanager
-def connect(scheduler=None, workers=None, cluster=None, logs=None):
+def connect(
+    scheduler: str | None = None,
+    workers: int | None = None,
+    cluster: ClusterFile | None = None,
+    logs: str | os.PathLike[str] | None = None,
+) -> Iterator[Client]:
     """A `distributed.Client` of the running ``scheduler``, of a `LocalCluster` of
     ``workers`` processes, or of the cluster a `ClusterFile` describes, whose batch jobs
     write their output into the folder ``logs`` (unless the file names another); the
@@ -445,7 +451,14 @@ def connect(scheduler=None, workers=None, cluster=None, logs=None):
             logger.setLevel(level)
 
 
-def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fixed_jobs=False):
+def run_on_cluster(
+    client: Client,
+    tasks: list[Delayed],
+    targets: dict[str, PartTarget | RegionTarget],
+    progress: Progress,
+    worker_wait: float = WORKER_WAIT,
+    fixed_jobs: bool = False,
+) -> tuple[dict[str, str], int]:
     """Run the store ``tasks`` on ``client``'s cluster; ({key: digest}, number of parts this
     process wrote from values sent back).
 
@@ -456,159 +469,129 @@ def run_on_cluster(client, tasks, targets, progress, worker_wait=WORKER_WAIT, fi
     so when the batch system says every one has ended while no worker is there, none can
     come back and the run ends at once rather than after ``worker_wait``.
     """
-    from distributed import KilledWorker, as_completed
+    from distributed import as_completed
 
-    where = client.scheduler.address
     futures = client.compute(tasks)
+    watch = _Watch(client, targets, progress, worker_wait, fixed_jobs)
     pending = set(futures)
     finishing = as_completed(futures)  # bound to this client's loop, unlike distributed.wait
-    digests, returned = {}, 0
-    waiting_since, seen_workers, looked, asked = None, False, -math.inf, -math.inf
-    # parts already sealed (a --force run, a damaged part) prove nothing about this run
-    sealed_before = {target.path for target in targets.values() if sealed(target.path)}
+    digests = {}
+    try:
+        while pending:
+            watch.look(time.monotonic())
+            finished = finishing.next_batch(block=False)
+            if not finished:
+                time.sleep(_IDLE_SECONDS)
+            for future in finished:
+                digest = watch.take(future)
+                if digest is None:  # its worker died before it was gathered: run again
+                    finishing.add(future)
+                    continue
+                digests[future.key] = digest
+                pending.discard(future)
+                future.release()
+    except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
+        if client.status == "running" and not isinstance(error, CancelledError):
+            raise  # this machine's own trouble (a full disk writing a part)
+        raise RbstudyError(
+            f"the scheduler {watch.where} went away (or cancelled this run); {watch.kept()}"
+        ) from None
+    finally:
+        with contextlib.suppress(Exception):  # nothing to tell a scheduler that has gone
+            client.cancel(list(pending))  # a shared cluster stops working for this run
+    return digests, watch.returned
 
-    def kept():  # counted on disk: a worker may have written a part whose news was lost
-        paths = [target.path for target in targets.values()]
+
+class _Watch:
+    """What `run_on_cluster` keeps an eye on: whether the cluster has workers (one look a
+    `POLL_SECONDS`), how long it has had none, what its batch system says of its jobs, and
+    the batches that come back (``returned``: how many parts it wrote from values sent
+    back)."""
+
+    def __init__(
+        self,
+        client: Client,
+        targets: dict[str, PartTarget | RegionTarget],
+        progress: Progress,
+        worker_wait: float,
+        fixed_jobs: bool,
+    ):
+        self.client, self.targets, self.progress = client, targets, progress
+        self.worker_wait, self.fixed_jobs = worker_wait, fixed_jobs
+        self.where = client.scheduler.address
+        self.waiting_since: float | None = None
+        self.seen_workers = False
+        self.returned = 0
+        self.looked = self.asked = -math.inf
+        # parts already sealed (a --force run, a damaged part) prove nothing about this run
+        self.sealed_before = {target.path for target in targets.values() if sealed(target.path)}
+
+    def kept(self) -> str:
+        """What is kept for a rerun, counted on disk: a worker may have written a part whose
+        news was lost."""
+        paths = [target.path for target in self.targets.values()]
         return (
             f"{sum(map(sealed, paths))} of {counted(len(paths), 'batch', 'batches')} are kept in "
             f"{pathlib.Path(paths[0]).parent}: rerun the same command to resume"
         )
 
-    try:
-        while pending:
-            now = time.monotonic()
-            if now - looked >= POLL_SECONDS:  # a look at the workers, once a second
-                looked = now
-                if client.nthreads():
-                    waiting_since, seen_workers = None, True
-                elif waiting_since is None:
-                    waiting_since = now
-                    if not seen_workers:
-                        progress.say(
-                            f"{progress.label}: waiting up to {worker_wait:g} s for a worker to join {where}"
-                        )
-                else:
-                    word = None
-                    if fixed_jobs and now - asked >= JOBS_LOOK_SECONDS:
-                        asked, word = now, _jobs_said(client)
-                    waited = now - waiting_since > worker_wait
-                    if waited or (word and word.ended):
-                        # a part this run wrote proves a worker, even one that came and went
-                        # between two looks
-                        seen_workers = seen_workers or any(
-                            sealed(target.path)
-                            for target in targets.values()
-                            if target.path not in sealed_before
-                        )
-                        what = "every worker left" if seen_workers else "no worker joined"
-                        when = f"for {worker_wait:g} s" if waited else "and every job ended"
-                        said, fix, _ = word or _jobs_said(client) or _UNASKED
-                        raise RbstudyError(f"{what} {where} {when} ({said}); {kept()}{fix}")
-            finished = finishing.next_batch(block=False)
-            if not finished:
-                time.sleep(_IDLE_SECONDS)
-            for future in finished:
-                try:
-                    digest, values = future.result(timeout=GATHER_SECONDS)
-                except TimeoutError:  # its worker died before it was gathered: run again
-                    finishing.add(future)
-                    continue
-                except KilledWorker as error:
-                    allowed = error.args[2] if len(error.args) > 2 else "?"
-                    raise RbstudyError(
-                        f"batch {targets[future.key].batch.id}: its workers died while running "
-                        f"it, more often than {where} allows (KilledWorker, allowed-failures "
-                        f"= {allowed}: killed at their walltime or memory limit?); {kept()}, "
-                        "with a longer walltime or more memory per worker"
-                    ) from None
-                seen_workers = True  # a batch that came back had a worker (see above)
-                target = targets[future.key]
-                if values is not None:
-                    digest = target.write(values)
-                    returned += 1
-                digests[future.key] = digest
-                pending.discard(future)
-                future.release()
-                progress.advance(target.cases)
-    except (CancelledError, OSError) as error:  # distributed's CommClosedError is an OSError
-        if client.status == "running" and not isinstance(error, CancelledError):
-            raise  # this machine's own trouble (a full disk writing a part)
-        raise RbstudyError(f"the scheduler {where} went away (or cancelled this run); {kept()}") from None
-    finally:
-        with contextlib.suppress(Exception):  # nothing to tell a scheduler that has gone
-            client.cancel(list(pending))  # a shared cluster stops working for this run
-    return digests, returned
+    def look(self, now: float) -> None:
+        """A look at the workers, once a `POLL_SECONDS`: an `RbstudyError` when none has been
+        there for ``worker_wait`` s, or the batch system says every fixed job has ended."""
+        if now - self.looked < POLL_SECONDS:
+            return
+        self.looked = now
+        if self.client.nthreads():
+            self.waiting_since, self.seen_workers = None, True
+            return
+        if self.waiting_since is None:
+            self.waiting_since = now
+            if not self.seen_workers:
+                self.progress.say(
+                    f"{self.progress.label}: waiting up to {self.worker_wait:g} s for a worker "
+                    f"to join {self.where}"
+                )
+            return
+        word = None
+        if self.fixed_jobs and now - self.asked >= JOBS_LOOK_SECONDS:
+            self.asked, word = now, jobs_said(self.client)
+        waited = now - self.waiting_since > self.worker_wait
+        if waited or (word and word.ended):
+            # a part this run wrote proves a worker, even one that came and went between
+            # two looks
+            self.seen_workers = self.seen_workers or any(
+                sealed(target.path)
+                for target in self.targets.values()
+                if target.path not in self.sealed_before
+            )
+            what = "every worker left" if self.seen_workers else "no worker joined"
+            when = f"for {self.worker_wait:g} s" if waited else "and every job ended"
+            said, fix, _ = word or jobs_said(self.client) or UNASKED
+            raise RbstudyError(f"{what} {self.where} {when} ({said}); {self.kept()}{fix}")
 
+    def take(self, future: Future) -> str | None:
+        """The digest of the part of a finished batch's ``future``, written here when its
+        worker sent the values back; None when its worker died before its values were
+        gathered. An `RbstudyError` when its workers died too often."""
+        from distributed import KilledWorker
 
-class JobsWord(NamedTuple):
-    """What a batch system says of a cluster's jobs: the words for the line, the fix that
-    follows its count of the parts kept, and whether every job has ended for good."""
-
-    said: str
-    fix: str
-    ended: bool
-
-
-# What the worker-wait line says when the batch system was not asked (a --scheduler or a local
-# cluster, PBS) or did not answer.
-_UNASKED = JobsWord(
-    "are the workers' jobs queued or ended? squeue, qstat", ", or wait longer with --worker-wait", False
-)
-
-
-def _slurm_jobs(ids):
-    """SLURM's word on the jobs ``ids`` (squeue, every state: a finished job is known for
-    the controller's MinJobAge, 300 s by default), a `JobsWord`, or None when squeue does
-    not answer.
-
-    Jobs alike are named together: ``SLURM: job 7 PENDING (PartitionDown)``, ``SLURM: job 8
-    TIMEOUT (walltime 1:00)``, ``SLURM: job 9 CANCELLED``."""
-    answer = subprocess.run(
-        ["squeue", "--noheader", "--states=all", f"--jobs={','.join(ids)}", "--format=%i %T %r %l"],
-        capture_output=True,
-        text=True,
-        timeout=JOB_QUERY_SECONDS,
-        check=False,
-    )
-    rows = [line.split() for line in answer.stdout.splitlines()]
-    if answer.returncode or not rows or any(len(row) != 4 for row in rows):
-        return None
-    alike, timed_out = {}, False
-    for job, state, reason, limit in rows:
-        # a pending job's reason is why it waits; an ended job keeps its last one (a job
-        # cancelled while pending still says Resources), so only a passed walltime is told
-        # (TIMEOUT, or TimeLimit while its processes are being ended)
-        passed = state == "TIMEOUT" or reason == "TimeLimit"
-        timed_out |= passed
-        why = reason if state == "PENDING" else f"walltime {limit}" if passed else ""
-        alike.setdefault((state, why), []).append(job)
-    said = []
-    for (state, why), jobs in alike.items():
-        named = ", ".join(jobs[:_JOBS_NAMED]) + (", ..." if len(jobs) > _JOBS_NAMED else "")
-        said.append(f"job{'s' * (len(jobs) > 1)} {named} {state}" + (f" ({why})" if why else ""))
-    fix = (
-        ", with a longer walltime in the cluster file"
-        if timed_out
-        else ", or wait longer with --worker-wait"
-        if any(state == "PENDING" for state, _ in alike)
-        else ""
-    )
-    return JobsWord("SLURM: " + ", ".join(said), fix, all(state in _SLURM_ENDED for state, _ in alike))
-
-
-# How to ask each batch system about its jobs, by dask-jobqueue class.
-_ASK_JOBS = {"SLURMCluster": _slurm_jobs}
-
-
-def _jobs_said(client):
-    """What the batch system says of the jobs of ``client``'s cluster (a `JobsWord`), or None
-    when rbstudy did not start that cluster, cannot ask its batch system, or got no answer."""
-    cluster = getattr(client, "cluster", None)
-    ask = _ASK_JOBS.get(type(cluster).__name__)
-    ids = [job.job_id for job in getattr(cluster, "workers", {}).values() if getattr(job, "job_id", None)]
-    if ask is None or not ids:
-        return None
-    try:
-        return ask(ids)
-    except (OSError, subprocess.SubprocessError):  # squeue missing here, or too slow
-        return None
+        key = cast(str, future.key)  # the store tasks are named by strings (execute._graph)
+        try:
+            digest, values = future.result(timeout=GATHER_SECONDS)
+        except TimeoutError:
+            return None
+        except KilledWorker as error:
+            allowed = error.args[2] if len(error.args) > 2 else "?"
+            raise RbstudyError(
+                f"batch {self.targets[key].batch.id}: its workers died while running "
+                f"it, more often than {self.where} allows (KilledWorker, allowed-failures "
+                f"= {allowed}: killed at their walltime or memory limit?); {self.kept()}, "
+                "with a longer walltime or more memory per worker"
+            ) from None
+        self.seen_workers = True  # a batch that came back had a worker (see `look`)
+        target = self.targets[key]
+        if values is not None:
+            digest = target.write(values)
+            self.returned += 1
+        self.progress.advance(target.cases)
+        return digest

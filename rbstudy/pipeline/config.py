@@ -1,18 +1,21 @@
 """Study configs: YAML -> a validated, frozen `StudyConfig`, or a one-line `ConfigError`.
 
 A study holds a name, a title, a scene (`rbstudy.inputs.scenes`), the output spec, the run
-(scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.grid`). Loading expands the sweep,
-builds every case's scene and plans the batches (`rbstudy.pipeline.batches`), so every error
-surfaces before any work starts, through one `rbstudy.inputs.reader.Reader` naming the file, the key
-path, the value and the fix. docs/config.md documents every key.
+(scheme, scheme options, dt) and a sweep (`rbstudy.pipeline.axes`). Loading expands the sweep
+(`rbstudy.pipeline.grid`), builds every case's scene and plans the batches
+(`rbstudy.pipeline.batches`), so every error surfaces before any work starts, through one
+`rbstudy.inputs.reader.Reader` naming the file, the key path, the value and the fix.
+docs/config.md documents every key.
 """
+
+from __future__ import annotations
 
 import dataclasses
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -32,21 +35,13 @@ from rbstudy.errors import ConfigError, InputError
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, MAX_TITLE_CHARACTERS, Reader
 from rbstudy.inputs.yaml_file import read_yaml_file
 from rbstudy.numerics.state import N_STATE, row_width
+from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.time_grid import output_count
+from rbstudy.pipeline.axes import MAX_CASES, Dimension, label_options, parse_sweep, touches_scene
+from rbstudy.pipeline.batch_data import ACCURACY_BOUND
 from rbstudy.pipeline.batches import Batch, plan_batches
-from rbstudy.pipeline.grid import (
-    MAX_CASES,
-    Cases,
-    Dimension,
-    expand,
-    label_options,
-    option_notes,
-    parse_sweep,
-    read_dt,
-    touches_scene,
-)
-from rbstudy.pipeline.outputs import ACCURACY_BOUND
-from rbstudy.pipeline.overrides import apply_overrides
+from rbstudy.pipeline.grid import Cases, expand, option_notes, read_dt
+from rbstudy.pipeline.overrides import Overridden, apply_overrides
 from rbstudy.schemes import composition_reach, get_scheme
 
 __all__ = [
@@ -68,9 +63,9 @@ _REQUIRED_KEYS = {
 }
 
 # A batch holds at most this many cases, and at most this many bytes of sampled states: enough
-# bodies to amortise a task's and its part file's fixed cost (a part of 512 cases cost ~120 us
-# a case to write, most of it creating 35 variables and 4 fsyncs; 1e5 cases: 34 -> 24 s),
-# few enough that several batches run at once and a kill loses little work.
+# bodies to amortise a task's and its part file's fixed cost (a part's writing time goes mostly to
+# a fixed cost: creating its variables and its fsyncs), few enough that
+# several batches run at once and a kill loses little work.
 BATCH_MAX_CASES = 4096
 BATCH_MAX_BYTES = 256 * 2**20
 
@@ -83,7 +78,7 @@ class StudyConfig:
     `rbstudy.archive.owner.folder_claim`). overrides : the ``--set KEY=VALUE`` texts applied to
     it (`rbstudy.pipeline.overrides`). archived_text : the config text the archive stores: the
     file's, or with the overrides applied. base : the ``scene`` and ``run`` mappings as
-    written. dimensions : the swept `rbstudy.pipeline.grid.Dimension`s (empty for one case).
+    written. dimensions : the swept `rbstudy.pipeline.axes.Dimension`s (empty for one case).
     cases : every case, in C order of the dimensions (`rbstudy.pipeline.grid.Cases`: its
     distinct scenes and runs). variables : the stored variable names. batches : the
     `rbstudy.pipeline.batches.Batch`es. schemes : what the archive records of each scheme,
@@ -95,7 +90,7 @@ class StudyConfig:
 
     path: str
     text: str
-    overrides: tuple
+    overrides: tuple[str, ...]
     archived_text: str
     name: str
     title: str
@@ -111,30 +106,30 @@ class StudyConfig:
     output_format: str = "netcdf"
 
     @property
-    def order_dimension(self):
+    def order_dimension(self) -> OrderDimension | None:
         """The `OrderDimension` of a swept option that sets the nominal order (a
         composition), or None."""
         return order_dimension(self.dimensions, self.schemes)
 
     @property
-    def scene_dims(self):
+    def scene_dims(self) -> tuple[str, ...]:
         """Names of the dimensions along which the scene changes: those of the variables of
         the scene alone (`rbstudy.archive.variables.PER_SCENE`)."""
         return tuple(d.name for d in self.dimensions if any(map(touches_scene, d.axes)))
 
     @property
-    def n_times(self):
+    def n_times(self) -> int:
         return output_count(self.duration, self.output_interval)
 
     @property
-    def shape(self):
+    def shape(self) -> tuple[int, ...]:
         return tuple(d.size for d in self.dimensions)
 
     @property
-    def node_names(self):
+    def node_names(self) -> tuple[str, ...]:
         return self.cases.scenes.node_names
 
-    def bytes_per_case(self):
+    def bytes_per_case(self) -> int:
         """Bytes one case occupies in the archive."""
         sizes = {"time": self.n_times, "axis": 3, "component": 4, "node": len(self.node_names)}
         return sum(
@@ -142,26 +137,26 @@ class StudyConfig:
             for name in self.variables
         )
 
-    def working_bytes_per_case(self):
+    def working_bytes_per_case(self) -> int:
         """Bytes a case holds while its batch runs: sampled states, outputs, and its
         parameter row (long with long load tables)."""
         knots = self.cases.scenes.loads["knots"].shape[-1]
         return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times + row_width(knots))
 
     @property
-    def notes(self):
+    def notes(self) -> tuple[str, ...]:
         """What a user should know of how the study runs, one line each: a scheme option
         that only some of its schemes take (`rbstudy.pipeline.grid.option_notes`)."""
         return option_notes(self.base, self.dimensions, self.cases.runs)
 
     @property
-    def warnings(self):
+    def warnings(self) -> tuple[str, ...]:
         """What reading the study noticed but accepted, one line each: its scenes' (a
         regularised body) and knots of load tables inside the steps of a high-order scheme."""
         return self.cases.scenes.warnings + _knot_warnings(self.cases, self.duration)
 
 
-def _knot_warnings(cases, duration):
+def _knot_warnings(cases: Cases, duration: float) -> tuple[str, ...]:
     """A warning when a knot of the loads tabulated in time falls inside a step of a fixed-step
     scheme of order above 2: the kink of the load there costs that scheme its order (rk4
     converges at order 2 only, measured), while knots on multiples of dt keep it. A
@@ -197,7 +192,7 @@ def _knot_warnings(cases, duration):
     return ()
 
 
-def _variables(reader, requested, scenes):
+def _variables(reader: Reader, requested: Any, scenes: SceneTable) -> tuple[str, ...]:
     """The variables every scene of ``scenes`` defines, narrowed to ``output.variables`` when
     given (the per-case bookkeeping of `rbstudy.archive.variables.BOOKKEEPING`, the
     `COST_MODEL` and the reference's `UNCERTAINTIES` are always kept,
@@ -233,7 +228,7 @@ class OrderDimension(NamedTuple):
     values: tuple
 
 
-def order_dimension(dimensions, schemes):
+def order_dimension(dimensions: Iterable[Dimension], schemes: Iterable[str]) -> OrderDimension | None:
     """The `OrderDimension` of a swept option that sets the nominal order of one of
     ``schemes`` (the study's), or None."""
     setting = {option.name for name in schemes for option in get_scheme(name).options if option.sets_order}
@@ -245,7 +240,7 @@ def order_dimension(dimensions, schemes):
     return None
 
 
-def _scheme_claims(cases, dimensions):
+def _scheme_claims(cases: Cases, dimensions: Sequence[Dimension]) -> dict[str, dict[str, Any]]:
     """What the archive records of each scheme of the study: name -> {coordinate: value}.
     The nominal order is that of the scheme's options (a composition sets it); where such an
     option is swept, it is the tuple of orders along that option's dimension
@@ -268,16 +263,16 @@ def _scheme_claims(cases, dimensions):
     return claims
 
 
-def _output_interval(reader, output, dt, swept):
+def _output_interval(reader: Reader, output: dict[str, Any], dt: float | None, swept: set[str]) -> float:
     """``output.interval`` (s), else the unswept ``run.dt`` (``dt``, already read)."""
     if "interval" in output:
-        return reader.number(output["interval"], "output.interval", positive=True)
+        return float(reader.number(output["interval"], "output.interval", positive=True))
     if "dt" not in swept and dt is not None:
         return dt
     reader.fail("output.interval", "missing", "with dt swept, give the output interval (s)")
 
 
-def load_study(path: str | os.PathLike, overrides: Sequence[str] = ()) -> StudyConfig:
+def load_study(path: str | os.PathLike[str], overrides: Sequence[str] = ()) -> StudyConfig:
     """Read the study config at ``path``, apply the ``--set`` texts ``overrides``
     (``KEY=VALUE``, `rbstudy.pipeline.overrides`) and validate it; nothing is run or written.
     An error in what an override wrote names its key as ``--set <key>``."""
@@ -290,13 +285,52 @@ def load_study(path: str | os.PathLike, overrides: Sequence[str] = ()) -> StudyC
         raise overridden.blame(error) from None
 
 
-def _validated(path, text, overridden):
+def _validated(path: str, text: str, overridden: Overridden) -> StudyConfig:
     """The `StudyConfig` of the `Overridden` mapping of the file ``path`` of text ``text``."""
     reader = Reader(path, ConfigError)
     data = reader.mapping(overridden.data, "", _TOP_KEYS)  # an empty file reads as empty: name missing
     for key, fix in _REQUIRED_KEYS.items():
         if key not in data:
             reader.fail(key, "missing", fix)
+    name, title = _names(reader, data)
+    run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
+    dimensions = parse_sweep(reader, data.get("sweep"))
+    swept, dt = _checked_run(reader, run, dimensions)
+    output = _output(reader, data.get("output"), dt, swept)
+    if not isinstance(data["scene"], dict):
+        reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
+    base = {"scene": data["scene"], "run": dict(run)}
+    cases = expand(reader, base, dimensions, output.interval)
+    duration = cases.scenes.duration
+    try:
+        output_count(duration, output.interval)
+    except InputError as error:
+        raise reader.locate(error, "output.interval") from None
+    variables = _variables(reader, output.variables, cases.scenes)
+    dimensions = label_options(dimensions, sorted({run.scheme for run in cases.runs}))
+    study = StudyConfig(
+        path=path,
+        text=text,
+        overrides=overridden.assignments,
+        archived_text=overridden.text(text),
+        name=name,
+        title=title,
+        base=base,
+        output_interval=output.interval,
+        accuracy_bound=output.accuracy_bound,
+        duration=duration,
+        dimensions=dimensions,
+        cases=cases,
+        variables=variables,
+        batches=(),
+        schemes=_scheme_claims(cases, dimensions),
+        output_format=output.format,
+    )
+    return dataclasses.replace(study, batches=_batches(study))
+
+
+def _names(reader: Reader, data: dict[str, Any]) -> tuple[str, str]:
+    """The study's ``name`` (its folder's) and ``title`` (the name unless given)."""
     name = reader.folder_name(data["name"], "name")
     title = reader.line(data.get("title", name), "title")
     if "title" in data and len(title) > MAX_TITLE_CHARACTERS:  # the default, the name, is bounded
@@ -305,8 +339,15 @@ def _validated(path, text, overridden):
             f"{len(title):,} characters long, at most {MAX_TITLE_CHARACTERS}: it heads every figure",
             "shorten it, and put the longer description in a comment of the config",
         )
-    run = reader.mapping(data["run"], "run", ("scheme", "options", "dt"))
-    dimensions = parse_sweep(reader, data.get("sweep"))
+    return name, title
+
+
+def _checked_run(
+    reader: Reader, run: dict[str, Any], dimensions: tuple[Dimension, ...]
+) -> tuple[set[str], float | None]:
+    """The targets the sweep's ``dimensions`` sweep and the ``run.dt`` written (s; None if
+    not), once the study is checked to have at most `MAX_CASES` cases, and a scheme and dt
+    written in ``run`` or swept."""
     count = math.prod(d.size for d in dimensions)
     if count > MAX_CASES:
         reader.fail(
@@ -329,9 +370,23 @@ def _validated(path, text, overridden):
             raise reader.locate(error, "run.scheme") from None
     if not isinstance(run.get("options") or {}, dict):
         reader.fail("run.options", f"expected a mapping of option: value, got {run['options']!r}")
-    output = reader.mapping(
-        data.get("output"), "output", ("interval", "variables", "accuracy_bound", "format")
-    )
+    return swept, dt
+
+
+class _Output(NamedTuple):
+    """The ``output:`` block read: the sampling interval (s), the variables asked for (None:
+    every one), the accuracy bound and the archive's format."""
+
+    interval: float
+    variables: list | None
+    accuracy_bound: float
+    format: str
+
+
+def _output(reader: Reader, given: Any, dt: float | None, swept: set[str]) -> _Output:
+    """The ``output:`` block ``given``, read and checked; ``dt``, ``swept`` as
+    `_output_interval` takes them."""
+    output = reader.mapping(given, "output", ("interval", "variables", "accuracy_bound", "format"))
     output_format = output.get("format", "netcdf")
     if output_format not in FORMATS:
         reader.fail(
@@ -340,54 +395,30 @@ def _validated(path, text, overridden):
             "valid: netcdf (one file, the default) or zarr (a store for cluster-scale studies)",
         )
     interval = _output_interval(reader, output, dt, swept)
-    accuracy_bound = reader.number(
-        output.get("accuracy_bound", ACCURACY_BOUND), "output.accuracy_bound", positive=True
-    )
-    if not isinstance(data["scene"], dict):
-        reader.fail("scene", f"expected a mapping, got {data['scene']!r}")
-    base = {"scene": data["scene"], "run": dict(run)}
-    cases = expand(reader, base, dimensions, interval)
-    duration = cases.scenes.duration
-    try:
-        output_count(duration, interval)
-    except InputError as error:
-        raise reader.locate(error, "output.interval") from None
-    variables = _variables(reader, output.get("variables"), cases.scenes)
-    dimensions = label_options(dimensions, sorted({run.scheme for run in cases.runs}))
-    study = StudyConfig(
-        path=path,
-        text=text,
-        overrides=overridden.assignments,
-        archived_text=overridden.text(text),
-        name=name,
-        title=title,
-        base=base,
-        output_interval=interval,
-        accuracy_bound=accuracy_bound,
-        duration=duration,
-        dimensions=dimensions,
-        cases=cases,
-        variables=variables,
-        batches=(),
-        schemes=_scheme_claims(cases, dimensions),
-        output_format=output_format,
-    )
+    bound = output.get("accuracy_bound", ACCURACY_BOUND)
+    accuracy_bound = float(reader.number(bound, "output.accuracy_bound", positive=True))
+    return _Output(interval, output.get("variables"), accuracy_bound, output_format)
+
+
+def _batches(study: StudyConfig) -> tuple[Batch, ...]:
+    """The batches of ``study`` (`plan_batches`), each at most `BATCH_MAX_CASES` cases and
+    `BATCH_MAX_BYTES` of working memory."""
     max_cases = max(1, min(BATCH_MAX_CASES, BATCH_MAX_BYTES // study.working_bytes_per_case()))
-    batches = plan_batches(
-        cases,
-        base["scene"],
-        dimensions,
-        interval,
-        variables,
+    runs = study.cases.runs
+    return plan_batches(
+        study.cases,
+        study.base["scene"],
+        study.dimensions,
+        study.output_interval,
+        study.variables,
         max_cases,
-        verdict={"accuracy_bound": accuracy_bound},
-        run_costs=[get_scheme(run.scheme).seconds_per_step(run.options) for run in cases.runs],
+        verdict={"accuracy_bound": study.accuracy_bound},
+        run_costs=[get_scheme(run.scheme).seconds_per_step(run.options) for run in runs],
         code_digests={name: get_scheme(name).code_digest for name in study.schemes},
     )
-    return dataclasses.replace(study, batches=batches)
 
 
-def resolved_config(study):
+def resolved_config(study: StudyConfig) -> str:
     """The study as YAML with every sweep expanded into explicit values (``study.yaml``)."""
     resolved = {
         "name": study.name,

@@ -18,10 +18,14 @@ run (`rbstudy.physics.references.load_spin`): the most it can, so a load that do
 moment turning with a tumbling body) makes the references' work smaller than forecast.
 """
 
+from __future__ import annotations
+
 import os
 import pathlib
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -42,7 +46,13 @@ from rbstudy.physics.references import (
 )
 from rbstudy.physics.time_grid import output_count, step_count
 from rbstudy.pipeline.calibration import calibrate, reference_cost, step_cost
-from rbstudy.schemes import get_scheme
+from rbstudy.schemes import Scheme, get_scheme
+
+if TYPE_CHECKING:  # the types alone: the config imports the sweep's every module
+    from rbstudy.physics.scenes import SceneTable
+    from rbstudy.pipeline.batches import Batch
+    from rbstudy.pipeline.config import StudyConfig
+    from rbstudy.pipeline.grid import Cases
 
 __all__ = [
     "Estimate",
@@ -61,8 +71,8 @@ __all__ = [
     "physical_memory",
 ]
 
-# Default of --max-body-steps: about three hours of one core for the fastest schemes; a study
-# past it is far more likely a slip of dt or duration than an intent.
+# Default of --max-body-steps: hours of one core even for the fastest schemes; a study past it
+# is far more likely a slip of dt or duration than an intent.
 MAX_BODY_STEPS = 1e11
 # Default of --max-memory: this share of the machine's memory.
 MEMORY_FRACTION = 0.5
@@ -79,37 +89,37 @@ _MIB = 2**20
 _GIB = 2**30
 # Past this many bytes of values (uncompressed, `Estimate.archive_bytes`), `validate` and
 # `sweep` advise the zarr store (`zarr_advice`). The netCDF archive is one file that one
-# process writes, its zlib taking ~60 MiB/s of values a core (docs/performance.md, "A million
-# cases: the archive written beside the batches"): 4 GiB is over a minute of a core. The
-# largest study timed on one machine, 1e6 cases of 11 samples (3.1 GiB of values), spent half
-# its 74 core-seconds compressing them ("A million cases in 45 s"). Past it a study is one for
-# a cluster, where a folder of shard files (zarr) that many processes open at once serves
-# better than one file every value passes through.
+# process writes, every value through one core's zlib (docs/performance.md, "A million cases:
+# the archive written beside the batches"): the largest study timed on one machine, 1e6 cases
+# of 11 samples (3.1 GiB of values), spent half its core-time compressing them. Past it a
+# study is one for a cluster, where a folder of shard files (zarr) that many processes open
+# at once serves better than one file every value passes through.
 ZARR_ADVISED_BYTES = 4 * _GIB
 # Each load evaluation of a scene with tables in time bisects the study's K knots
 # (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
-# log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike:
-# 1.06-1.12x the 2-knot cost at K = 100 and 1.33-1.45x at K = 1e5 (0.02-0.027 a level).
+# log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike,
+# from K = 100 to 1e5 knots against 2 (docs/performance.md).
 KNOT_LEVEL_SHARE = 0.025
 
 
-def _mib(size):
+def _mib(size: float) -> str:
     """Bytes as MiB, with a decimal below 10 MiB."""
     return f"{size / _MIB:,.1f}" if size < 10 * _MIB else f"{size / _MIB:,.0f}"
 
 
-def physical_memory():
+def physical_memory() -> int:
+    """This machine's memory, in bytes."""
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def _inside_run(knots, duration):
+def _inside_run(knots: np.ndarray, duration: float) -> np.ndarray:
     """Which of ``knots`` (..., K) fall inside the run (0, ``duration``): those a reference
     restarts at, or puts on a step boundary."""
     knots = np.asarray(knots)
     return (knots > 0.0) & (knots < duration)
 
 
-def _composed_runs(scenes, rows, interval):
+def _composed_runs(scenes: SceneTable, rows: np.ndarray, interval: float) -> tuple[np.ndarray, np.ndarray]:
     """Forecast of the composed reference of each scene ``rows`` of a `SceneTable`: (steps
     of the runs it takes, whether it is had), each (n,). Its first run is planned from the
     initial spin (at once, and the knot search only for the scenes whose load tables have knots
@@ -123,7 +133,8 @@ def _composed_runs(scenes, rows, interval):
     knots = loads["knots"]
     inside = np.flatnonzero(_inside_run(knots, scenes.duration).any(axis=-1))
 
-    def fitted(least):  # counts per interval with the knots on step boundaries, 0 where none
+    # counts per interval with the knots on step boundaries, 0 where none
+    def fitted(least: np.ndarray) -> np.ndarray:
         for k in inside:
             least[k] = knot_steps(knots[k], scenes.duration, interval, int(least[k])) or 0
         return least
@@ -140,7 +151,7 @@ def _composed_runs(scenes, rows, interval):
     return steps, first_runs & (~again | second_runs)
 
 
-def _dop853_steps(scenes):
+def _dop853_steps(scenes: SceneTable) -> np.ndarray:
     """Forecast of accepted DOP853 steps at rtol 1e-13 for each scene of a
     `rbstudy.physics.scenes.SceneTable` (n,), as floats (a spin of 1e20 rad/s forecasts
     steps past any integer): steps per radian of the radians the body turns, ``|w0| T`` at its
@@ -180,20 +191,20 @@ class Estimate:
     archive_bytes: int
 
     @property
-    def wall_seconds(self):
+    def wall_seconds(self) -> float:
         """Kernel time on ``cores`` cores: the work spread over them, unless one batch or
         reference takes longer on its own (start-up, compilation and writing not included)."""
         return max(self.core_seconds / self.cores, self.longest_seconds)
 
 
-def _knot_factor(scenes):
+def _knot_factor(scenes: SceneTable) -> float:
     """How much dearer a kernel step is for the bisection of the knots of ``scenes``' load
     tables in time (1 without; `KNOT_LEVEL_SHARE`)."""
     knots = scenes.loads["knots"].shape[-1]
     return 1.0 + KNOT_LEVEL_SHARE * float(np.log2(knots)) if knots > 1 else 1.0
 
 
-def _block_shares(scenes):
+def _block_shares(scenes: SceneTable) -> np.ndarray | None:
     """(scenes,) True where a scene's body can step in a block of bodies
     (`rbstudy.numerics.block.plain_loads`: no load of a kind the blocks do not carry), or
     None when no scene can: loads tabulated in time compile kernels of their own, without
@@ -203,7 +214,7 @@ def _block_shares(scenes):
     return ~np.asarray(constant_acting(scenes.loads, BLOCKLESS), dtype=bool)
 
 
-def _batch_step_seconds(batch, scheme, cases, plain):
+def _batch_step_seconds(batch: Batch, scheme: Scheme, cases: Cases, plain: np.ndarray | None) -> float:
     """Core-seconds a body-step of ``batch`` takes: one body after another at its scheme's
     calibrated cost (`rbstudy.pipeline.calibration.step_cost`; the declared
     `rbstudy.schemes.Scheme.step_seconds` where it is not calibrated yet), and in blocks
@@ -222,7 +233,7 @@ def _batch_step_seconds(batch, scheme, cases, plain):
     return share * block * single / scheme.seconds_per_step(options) + (1.0 - share) * single
 
 
-def estimate(study, cores=None):
+def estimate(study: StudyConfig, cores: int | None = None) -> Estimate:
     """The `Estimate` of ``study`` on ``cores`` cores (default: this machine's)."""
     cores = cores or default_threads()
     cases = study.cases
@@ -291,14 +302,14 @@ def estimate(study, cores=None):
     )
 
 
-def disk_needed(study, pending):
+def disk_needed(study: StudyConfig, pending: Sequence[Batch]) -> int:
     """Bytes on disk for the parts of the batches ``pending`` and the archive, which coexist
     until the parts are removed (both uncompressed, with each file's overhead)."""
     cases = sum(len(batch.cases) for batch in pending)
     return (cases + len(study.cases)) * study.bytes_per_case() + (len(pending) + 1) * _FILE_OVERHEAD
 
 
-def duration_text(seconds):
+def duration_text(seconds: float) -> str:
     """``~17 h`` (``~3.2e+12 h``), ``~3 min``, ``~2.5 s`` or ``under 0.1 s``."""
     for unit, size in (("h", 3600.0), ("min", 60.0)):
         if seconds >= 2 * size:  # digits past a million hours say nothing more
@@ -309,7 +320,7 @@ def duration_text(seconds):
     return f"~{seconds:.1f} s" if seconds < 10 else f"~{seconds:,.0f} s"
 
 
-def describe(study, cost):
+def describe(study: StudyConfig, cost: Estimate) -> str:
     """One line: cases, batches, output times and the `Estimate`."""
     axes = " x ".join(f"{d.name} {d.size}" for d in study.dimensions) or "one case"
     text = (
@@ -334,7 +345,7 @@ def describe(study, cost):
     return text
 
 
-def zarr_advice(study, cost, advised_bytes=ZARR_ADVISED_BYTES):
+def zarr_advice(study: StudyConfig, cost: Estimate, advised_bytes: float = ZARR_ADVISED_BYTES) -> str | None:
     """The line advising the zarr store for ``study`` (its `Estimate` ``cost``), or None: only
     for a netCDF archive of more than ``advised_bytes`` of values."""
     if study.output_format != "netcdf" or cost.archive_bytes <= advised_bytes:
@@ -345,7 +356,7 @@ def zarr_advice(study, cost, advised_bytes=ZARR_ADVISED_BYTES):
     )
 
 
-def _free_bytes(folder):
+def _free_bytes(folder: str | os.PathLike[str]) -> int:
     """Free bytes on the file system that holds ``folder`` (or would: its nearest existing
     ancestor)."""
     path = pathlib.Path(folder).absolute()
@@ -354,7 +365,12 @@ def _free_bytes(folder):
     return shutil.disk_usage(path).free
 
 
-def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
+def check_limits(
+    study: StudyConfig,
+    cost: Estimate,
+    max_body_steps: float = MAX_BODY_STEPS,
+    max_memory: float | None = None,
+) -> None:
     """Refuse ``study`` (a `ConfigError` naming the file and the limit) when its `Estimate`
     ``cost`` passes ``max_body_steps`` or ``max_memory`` (bytes; default half this machine's
     memory). The disk is checked against what is left to write (`check_disk`)."""
@@ -378,7 +394,7 @@ def check_limits(study, cost, max_body_steps=MAX_BODY_STEPS, max_memory=None):
         )
 
 
-def check_disk(study, needed, folder):
+def check_disk(study: StudyConfig, needed: int, folder: str | os.PathLike[str]) -> None:
     """Refuse ``study`` when ``needed`` bytes exceed the free space where ``folder`` is (or
     would be)."""
     free = _free_bytes(folder)
@@ -393,7 +409,7 @@ def check_disk(study, needed, folder):
         )
 
 
-def forecast_disk(study, out):
+def forecast_disk(study: StudyConfig, out: str | os.PathLike[str]) -> int:
     """`disk_needed` for a sweep into the results root ``out``: the batches whose part is
     not there yet, and the archive."""
     # here: the folder's module loads netCDF4 and h5py, which the forecast needs nowhere else

@@ -13,14 +13,18 @@ A study folder is locked while a sweep writes it; a rerun skips the batches whos
 so a killed sweep resumes where it stopped.
 """
 
+from __future__ import annotations
+
 import contextlib
 import functools
 import os
 import pathlib
 import time
 import uuid
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, NamedTuple
 
 import dask
 import dask.threaded
@@ -39,14 +43,23 @@ from rbstudy.physics.references import References, table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times
+from rbstudy.pipeline.batch_data import BatchData
 from rbstudy.pipeline.calibration import calibrate, compile_seconds, record_compile, step_cost
 from rbstudy.pipeline.cluster import LOCAL, Where, connect, dashboard_line, run_on_cluster, scheduler_lock
 from rbstudy.pipeline.config import StudyConfig, resolved_config
 from rbstudy.pipeline.estimate import check_disk, disk_needed
 from rbstudy.pipeline.formulas import evaluate
-from rbstudy.pipeline.outputs import BatchData
 from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import get_ready, get_scheme
+
+if TYPE_CHECKING:  # the types alone
+    from dask.delayed import Delayed
+
+    from rbstudy.archive.parts import PartTarget
+    from rbstudy.archive.writer import ArchiveWriter
+    from rbstudy.archive.zarr_regions import RegionTarget
+    from rbstudy.pipeline.batches import Batch
+    from rbstudy.schemes._ready import Compiling
 
 __all__ = ["run_study", "study_progress", "StudyRun", "compute_batch", "compute_references"]
 
@@ -66,7 +79,7 @@ class BatchJob:
     variables: tuple[str, ...]
     accuracy_bound: float  # rad for the orientation, relative for energy and |L|
     references: np.ndarray  # (n, 2) per case: (chunk, position) in the chunks it is given
-    step_cost: tuple = (np.nan, np.nan)  # calibrated (s, relative uncertainty) of a body-step
+    step_cost: tuple[float, float] = (np.nan, np.nan)  # calibrated (s, relative uncertainty) of a body-step
 
 
 @dataclass(frozen=True)
@@ -84,12 +97,12 @@ class StudyRun:
     wall_seconds: float
     up_to_date: bool = False
     damaged_parts: int = 0
-    archive_problems: tuple = ()
+    archive_problems: tuple[str, ...] = ()
     returned: int = 0
     removed_parts: int = 0
 
     @property
-    def said(self):
+    def said(self) -> str:
         """What the run did, in the words of its progress's end line."""
         return (
             "up to date"
@@ -98,7 +111,7 @@ class StudyRun:
         )
 
 
-def study_progress(study, quiet=False):
+def study_progress(study: StudyConfig, quiet: bool = False) -> Progress:
     """The `rbstudy.pipeline.progress.Progress` of a sweep of ``study`` (its start line
     counts the cases and batches), to enter and hand to `run_study`."""
     return Progress(
@@ -137,28 +150,41 @@ def compute_batch(
     )
 
 
-def deliver_part(values, target, writer, probe):
+class Delivered(NamedTuple):
+    """What a store task returns: the ``digest`` of the part its worker wrote, or the
+    ``values`` for this process to write (the other None)."""
+
+    digest: str | None
+    values: dict[str, np.ndarray] | None
+
+
+def deliver_part(
+    values: dict[str, np.ndarray],
+    target: PartTarget | RegionTarget,
+    writer: str,
+    probe: tuple[str, str] | None,
+) -> Delivered:
     """Write one batch's part file atomically, its digest beside it (or its region of a zarr
     store, and its mark), at its ``target`` (`rbstudy.archive.parts.PartTarget`,
-    `rbstudy.archive.zarr_regions.RegionTarget`) and return (digest, None); or return (None,
-    values) for the client to write it (a dask task).
+    `rbstudy.archive.zarr_regions.RegionTarget`) and return its digest; or return the
+    ``values`` for the client to write it (a dask task).
 
     The worker writes when ``writer`` is "workers", or "auto" and it sees the results folder:
     it reads ``probe`` (path, token), the file this run left there (None: the client's own
     process, which sees it).
     """
     if writer == "client" or (writer == "auto" and not sees_folder(probe)):
-        return None, values
+        return Delivered(digest=None, values=values)
     if not sees_folder(probe):
         raise RbstudyError(
             f"{pathlib.Path(target.path).parent}: a worker on {os.uname().nodename} "
             "does not see this results folder; use --writer auto or client "
             "(the workers send the values back)"
         )
-    return target.write(values), None
+    return Delivered(digest=target.write(values), values=None)
 
 
-def _show_compiling(progress, name, compiling):
+def _show_compiling(progress: Progress, name: str, compiling: Compiling) -> None:
     """`rbstudy.schemes.get_ready`'s watch: a first run said before anything is compiled, on
     any stream, then shown as it goes, with the time left by what each scheme took to compile
     the last time (`_compile_left`); the seconds they took now kept for the next."""
@@ -171,8 +197,8 @@ def _show_compiling(progress, name, compiling):
             "at a time, once per machine\n  and rbstudy version, into numba's cache "
             f"{compiling.cache}"
         )
-        # no rate: the schemes take 1-30 s each and end in bunches, so the rate so far
-        # forecast ten times the wait; the count done, and what they took the last time
+        # no rate: the schemes take very different times and end in bunches, so the rate so
+        # far forecast many times the wait; the count done, and what they took the last time
         progress.phase(f"{name}: {wait}compiling {counted(total, 'scheme')}", total, "schemes", eta=False)
     elif done < total:
         words = f"{wait}compiling {', '.join(running)}" if running else "loading the compiled schemes"
@@ -182,7 +208,7 @@ def _show_compiling(progress, name, compiling):
         progress.update(f"{name}: loading the compiled schemes", done)
 
 
-def _compile_left(compiling, figures):
+def _compile_left(compiling: Compiling, figures: Mapping[str, float]) -> float | None:
     """Seconds left of a `rbstudy.schemes.Compiling` by ``figures`` (name -> the seconds
     each took the last time; a scheme without one is taken at their mean): the schemes not
     done shared by its processes, or the longest of them, which no process shares. None
@@ -200,7 +226,7 @@ def _compile_left(compiling, figures):
     return max(sum(remaining) / compiling.processes, max(remaining))
 
 
-def _reference_chunks(study, pending):
+def _reference_chunks(study: StudyConfig, pending: Sequence[Batch]) -> tuple[list[np.ndarray], np.ndarray]:
     """The distinct scenes (rows of the scene table) of the ``pending`` batches in chunks of
     at most a batch's size, and where each case's scene sits: (n, 2) (chunk, position), a
     row per case of the pending batches in their order.
@@ -223,16 +249,24 @@ def _reference_chunks(study, pending):
     return chunks, np.stack([ranks // size, ranks % size], axis=1)
 
 
-def _graph(study, pending, folder, threads, token, writer, probe):
-    """Delayed store tasks of the ``pending`` batches, and one reference task per chunk of
-    distinct scenes (references do not depend on the scheme or dt, so batches share them);
-    and the targets of the store tasks, key -> `PartTarget`.
+def _graph(
+    folder: StudyFolder,
+    pending: Sequence[Batch],
+    share: _Share,
+    writer: str,
+    probe: tuple[str, str] | None,
+) -> tuple[list[Delayed], dict[str, PartTarget | RegionTarget]]:
+    """Delayed store tasks of the ``pending`` batches of ``folder``'s study, and one reference
+    task per chunk of distinct scenes (references do not depend on the scheme or dt, so
+    batches share them); and the targets of the store tasks, key -> `PartTarget`. ``writer``
+    and ``probe``: as `deliver_part` takes them.
 
     Arguments are wrapped as opaque leaves (``traverse=False``): dask would otherwise walk
     every number of every job looking for collections. The scene table is one shared
     argument (one copy per worker of a cluster), from which each task builds the scenes of
-    its rows: the scenes of 1e5 cases built up front took 270 MiB and 5 s.
+    its rows: the scenes of 1e5 cases built up front took 270 MiB, and long to build.
     """
+    study, token = folder.study, share.token
     table = dask.delayed(study.cases.scenes, traverse=False)
     chunks, where = _reference_chunks(study, pending)
     reference_tasks = [
@@ -245,7 +279,7 @@ def _graph(study, pending, folder, threads, token, writer, probe):
         )
         for k, rows in enumerate(chunks)
     ]
-    # each distinct run's options packed once: a million cases' dicts took seconds to pack
+    # each distinct run's options packed once: a million cases' dicts were slow to pack
     option_rows = np.array([get_scheme(run.scheme).option_row(run.options) for run in study.cases.runs])
     tasks, targets = [], {}
     start = 0
@@ -274,7 +308,7 @@ def _graph(study, pending, folder, threads, token, writer, probe):
             dask.delayed(job, traverse=False),
             table,
             [reference_tasks[k] for k in needed],
-            threads,
+            share.threads,
             dask_key_name=_computing_key(key),
         )
         target = folder.part(batch)
@@ -291,12 +325,12 @@ def _graph(study, pending, folder, threads, token, writer, probe):
     return tasks, targets
 
 
-def _computing_key(store_key):
+def _computing_key(store_key: str) -> str:
     """The key of the task that computes the batch whose part the task ``store_key`` writes."""
     return "batch" + store_key.removeprefix("store")
 
 
-def _step_cost(study, batch):
+def _step_cost(study: StudyConfig, batch: Batch) -> tuple[float, float]:
     """The calibrated (s, relative uncertainty) of a body-step of ``batch``: a batch never
     mixes costs (`plan_batches`), so its first case's run stands for all."""
     run = study.cases.runs[study.cases.run_rows[batch.cases[0]]]
@@ -304,7 +338,13 @@ def _step_cost(study, batch):
     return cost.seconds, cost.uncertainty
 
 
-def _run_local(tasks, targets, progress, workers, writer):
+def _run_local(
+    tasks: list[Delayed],
+    targets: dict[str, PartTarget | RegionTarget],
+    progress: Progress,
+    workers: int,
+    writer: ArchiveWriter,
+) -> dict[str, str]:
     """Run the tasks on this process's threads; {key: digest} of the parts they wrote, each
     handed to the archive's ``writer`` (`rbstudy.archive.writer.ArchiveWriter`) as soon as
     it is written. On Ctrl-C (or when a task fails) every running kernel and reference is halted
@@ -321,15 +361,15 @@ def _run_local(tasks, targets, progress, workers, writer):
                 writer.computed(computing[key], result)
             elif key in targets:
                 progress.advance(targets[key].cases)
-                writer.arrived(targets[key].batch.id, result[0])
+                writer.arrived(targets[key].batch.id, result.digest)
 
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
         with _Advance():
             # the threaded scheduler itself: by its name, dask would first import
-            # distributed (0.3 s) to look for a client
+            # distributed, which is slow to import, to look for a client
             written = dask.compute(*tasks, scheduler=dask.threaded.get, num_workers=workers, pool=pool)
-        return {key: digest for key, (digest, _) in zip(targets, written, strict=True)}
+        return {key: delivered.digest for key, delivered in zip(targets, written, strict=True)}
     except BaseException:  # Ctrl-C, or a failed task (a full disk): stop the others too
         request_halt()
         raise
@@ -370,16 +410,52 @@ def run_study(
     folder.make()
     with contextlib.ExitStack() as stack:
         own = progress is None
+        shown = stack.enter_context(study_progress(study, quiet)) if progress is None else progress
+        sweep = _Sweep(
+            folder=folder,
+            where=where,
+            force=force,
+            progress=shown,
+            keep_parts=keep_parts,
+            started=started,
+            started_clock=started_clock,
+        )
+        run = _run_in(sweep)
         if own:
-            progress = stack.enter_context(study_progress(study, quiet))
-        run = _run_in(folder, where, force, progress, keep_parts, started, started_clock)
-        if own:
-            progress.end = run.said
+            shown.end = run.said
     return run
 
 
-def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
-    """`run_study` in its `StudyFolder` ``folder``, made, shown by ``progress``."""
+@dataclass(frozen=True)
+class _Sweep:
+    """A sweep under way, as `run_study` was asked for it: its `StudyFolder` (made), where its
+    tasks run, whether it recomputes every batch, the `Progress` that shows it, whether it
+    keeps the parts, and when it started (UTC, which the archive records, and the
+    performance counter, for its wall time)."""
+
+    folder: StudyFolder
+    where: Where
+    force: bool
+    progress: Progress
+    keep_parts: bool
+    started: str
+    started_clock: float
+
+
+@dataclass(frozen=True)
+class _Share:
+    """How a sweep shares out its batches: the cores this process may use, the kernel
+    threads each batch gets, and the token that names its tasks (unique to the run on a
+    shared cluster)."""
+
+    cores: int
+    threads: int
+    token: str
+
+
+def _run_in(sweep: _Sweep) -> StudyRun:
+    """`run_study` as the `_Sweep` ``sweep`` says."""
+    folder, force, progress = sweep.folder, sweep.force, sweep.progress
     study = folder.study
     try:
         lock = folder.lock()
@@ -390,7 +466,7 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         # replaced whole by a rename, so reading needs no lock. Only when there is nothing
         # to write: the archive current and intact, and described by this very text.
         if isinstance(error, UnwritableFolder) and not force and folder.answers_unchanged():
-            return _up_to_date(folder, started_clock)
+            return _up_to_date(sweep)
         folder.remove_made()  # a full disk refused the lock's pid
         raise
     with lock, folder.refusals():
@@ -401,17 +477,20 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         folder.clear_stale()  # left by a killed sweep; the lock is ours
         state = folder.state()
         if not force and state.current:
-            folder.redescribe(started, resolved_config(study))
-            removed = 0 if keep_parts else folder.remove_parts()
-            return _up_to_date(folder, started_clock, removed)
+            folder.redescribe(sweep.started, resolved_config(study))
+            removed = 0 if sweep.keep_parts else folder.remove_parts()
+            return _up_to_date(sweep, removed)
         folder.make_parts()
         digests = {} if force else _checked_parts(folder, progress)
         pending = [batch for batch in study.batches if digests.get(batch.id) is None]
         damaged = 0 if force else folder.damaged(pending)
         check_disk(study, disk_needed(study, pending), folder.path)
         cores = default_threads()  # the cores this process may use (a SLURM share)
-        threads = 1 if where.distributed else max(1, cores // max(1, len(pending)))
-        token = uuid.uuid4().hex[:8]  # task names unique to this run on a shared cluster
+        share = _Share(
+            cores=cores,
+            threads=1 if sweep.where.distributed else max(1, cores // max(1, len(pending))),
+            token=uuid.uuid4().hex[:8],
+        )
         # the kernels take the time where the scenes have load tables, or loads only those
         # kernels carry (numerics/clock.py)
         timed = needs_time(study.cases.scenes.loads)
@@ -427,27 +506,27 @@ def _run_in(folder, where, force, progress, keep_parts, started, started_clock):
         # then each scheme's cost per step, which the parts store (once per machine: cached)
         calibrate({batch.scheme for batch in pending}, progress)
         # the archive is written by a thread of its own as the parts arrive, in the batches'
-        # order: its compression (one core at ~60 MiB/s) runs beside the batches
-        with folder.writer(digests, started) as writer:
-            written, returned = _run_tasks(folder, pending, where, progress, cores, threads, token, writer)
+        # order: its compression, on one core, runs beside the batches
+        with folder.writer(digests, sweep.started) as writer:
+            returned = _run_tasks(sweep, pending, share, writer)
             progress.phase(f"{study.name}: writing the archive", len(study.batches), "parts")
             while not writer.wait(_REDRAW_SECONDS):
                 progress.update(done=writer.copied)
         folder.write_config(resolved_config(study))
-        folder.finish_parts(keep_parts)
+        folder.finish_parts(sweep.keep_parts)
     return StudyRun(
         path=folder.archive,
         computed=len(pending),
         reused=len(study.batches) - len(pending),
         cases=len(study.cases),
-        wall_seconds=time.perf_counter() - started_clock,
+        wall_seconds=time.perf_counter() - sweep.started_clock,
         damaged_parts=damaged,
         archive_problems=state.problems,
         returned=returned,
     )
 
 
-def _checked_parts(folder, progress):
+def _checked_parts(folder: StudyFolder, progress: Progress) -> dict[str, str | None]:
     """The digest of each of the study's batches whose part is on disk and intact (None:
     damaged); only parts on disk are checked, and said to be: an empty folder has none."""
     study = folder.study
@@ -461,15 +540,17 @@ def _checked_parts(folder, progress):
     return digests
 
 
-def _run_tasks(folder, pending, where, progress, cores, threads, token, writer):
-    """Run the ``pending`` batches here or on the cluster ``where`` names, each part handed
-    to the archive's ``writer`` once written; the number of parts the workers returned to be
-    written here."""
+def _run_tasks(sweep: _Sweep, pending: Sequence[Batch], share: _Share, writer: ArchiveWriter) -> int:
+    """Run the ``pending`` batches here or on the cluster the sweep's ``where`` names, each
+    part handed to the archive's ``writer`` once written; the number of parts the workers
+    returned to be written here."""
+    folder, where, progress = sweep.folder, sweep.where, sweep.progress
     study = folder.study
     distributed = where.distributed and bool(pending)
-    with folder.probe(token) if distributed else contextlib.nullcontext() as probe:
-        tasks, targets = _graph(study, pending, folder, threads, token, where.writer, probe)
-        written, returned = {}, 0  # the digest of each part, by its store task's key
+    with folder.probe(share.token) if distributed else contextlib.nullcontext() as probe:
+        tasks, targets = _graph(folder, pending, share, where.writer, probe)
+        written: dict[str, str] = {}  # the digest of each part, by its store task's key
+        returned = 0
         cases = sum(target.cases for target in targets.values())
         if distributed:
             progress.phase(f"{study.name}: {where.starting}")
@@ -486,15 +567,16 @@ def _run_tasks(folder, pending, where, progress, cores, threads, token, writer):
                 )
         elif tasks:
             progress.phase(f"{study.name}: running batches", cases, "cases")
-            written = _run_local(tasks, targets, progress, cores, writer)
+            written = _run_local(tasks, targets, progress, share.cores, writer)
     for key, target in targets.items():
         writer.arrived(target.batch.id, written[key])
-    return written, returned
+    return returned
 
 
-def _up_to_date(folder, started_clock, removed_parts=0):
+def _up_to_date(sweep: _Sweep, removed_parts: int = 0) -> StudyRun:
     """The `StudyRun` of a sweep that found its archive current: nothing run (but
     ``removed_parts`` left beside it)."""
+    folder, started_clock = sweep.folder, sweep.started_clock
     return StudyRun(
         path=folder.archive,
         computed=0,

@@ -7,16 +7,21 @@ computes as the name that replaced it. `FORMULAS` is bound at import, so a varia
 its function fails at once, not in the middle of a sweep.
 """
 
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
 from rbstudy.archive.variables import DEPRECATED, VARIABLES
 from rbstudy.numerics.state import RESULT_FIELDS
 from rbstudy.pipeline import outputs
+from rbstudy.pipeline.batch_data import BatchData
 
 __all__ = ["FORMULAS", "evaluate"]
 
 _DRIVER_RESULTS = dict(RESULT_FIELDS)
 
 
-def _formula(name):
+def _formula(name: str) -> Callable[[BatchData], np.ndarray]:
     """The function ``(batch) -> values`` (case axis first) of output variable ``name``."""
     name = DEPRECATED.get(name, name)
     return outputs.driver_result(name) if name in _DRIVER_RESULTS else getattr(outputs, name)
@@ -25,6 +30,6 @@ def _formula(name):
 FORMULAS = {name: _formula(name) for name in VARIABLES}
 
 
-def evaluate(names, batch):
-    """The values of the variables ``names`` for an `rbstudy.pipeline.outputs.BatchData`."""
+def evaluate(names: Iterable[str], batch: BatchData) -> dict[str, np.ndarray]:
+    """The values of the variables ``names`` for an `rbstudy.pipeline.batch_data.BatchData`."""
     return {name: FORMULAS[name](batch) for name in names}

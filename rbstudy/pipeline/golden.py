@@ -41,8 +41,11 @@ share of the sweep (docs/architecture.md gives the figures).
 """
 
 import math
+import os
 import pathlib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import yaml
@@ -55,6 +58,7 @@ from rbstudy.physics.quaternions import quat_to_matrix
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.estimate import duration_text, estimate
 from rbstudy.pipeline.execute import run_study
+from rbstudy.pipeline.progress import Progress
 from rbstudy.schemes import BUILTIN, get_scheme
 
 __all__ = [
@@ -95,7 +99,7 @@ class Figure:
 
     claim: str
     url: str
-    checks: tuple
+    checks: tuple[Check, ...]
     scheme: str | None = None
 
 
@@ -110,25 +114,31 @@ class GoldenCase:
 
     name: str
     title: str
-    scene: dict
+    scene: dict[str, Any]
     dt: float
     interval: float
-    rules: tuple = ("order", "invariants", "energy", "failure")
+    rules: tuple[str, ...] = ("order", "invariants", "energy", "failure")
     figure: Figure | None = None
     steps: int | None = None
 
     @property
-    def moment_free(self):
+    def moment_free(self) -> bool:
         """No moment acts on the body: a load held over a step, as an engine's caller holds
         it (`rbstudy.schemes.Scheme.loads_held`), then turns it exactly."""
         return scene_from_mapping(self.scene, source=self.name).loads.moment_free
 
 
-def _body(inertia, omega, duration, unphysical=False, momentum_axis=None):
-    body = {"mass": 1.0, "inertia": list(inertia)}
+def _body(
+    inertia: Sequence[float],
+    omega: Sequence[float],
+    duration: float,
+    unphysical: bool = False,
+    momentum_axis: Sequence[float] | None = None,
+) -> dict[str, Any]:
+    body: dict[str, Any] = {"mass": 1.0, "inertia": list(inertia)}
     if unphysical:
         body["allow_unphysical"] = True
-    initial = {"angular_velocity": {"body": list(omega)}}
+    initial: dict[str, Any] = {"angular_velocity": {"body": list(omega)}}
     if momentum_axis is not None:
         initial["orientation"] = {"momentum_axis": list(momentum_axis)}
     return {"body": body, "initial": initial, "duration": duration}
@@ -192,13 +202,13 @@ _FLOATING_DURATION, _FLOATING_TOLERANCE = 10.0, 1e-5
 _FLOATING_DT = 0.1 / 8
 
 
-def _drake_compared(measure, expected):
+def _drake_compared(measure: str, expected: float) -> Check:
     """A `Check` of ``measure`` at 10 s as Drake's CompareMatrices(..., 1e-5, relative) asks
     each element: within 1e-5 max(1, |expected|)."""
     return Check(measure, expected, _FLOATING_TOLERANCE * max(1.0, abs(expected)), at=_FLOATING_DURATION)
 
 
-def _floating_checks():
+def _floating_checks() -> tuple[Check, ...]:
     """The checks of Drake's floating-body test: the orientation, then w_WB and p_WBcm
     component by component, against the closed forms at 10 s."""
     quaternion, omega = symmetric_top(
@@ -391,7 +401,7 @@ GOLDEN = (
 )
 
 
-def _study(case, schemes, count):
+def _study(case: GoldenCase, schemes: Sequence[str], count: int) -> dict[str, Any]:
     return {
         "name": f"{GOLDEN_PREFIX}{case.name}",
         "title": f"conformance: {case.title}",
@@ -402,14 +412,19 @@ def _study(case, schemes, count):
     }
 
 
-def baseline(schemes):
+def baseline(schemes: Iterable[str]) -> list[str]:
     """The schemes that the failure rule compares ``schemes`` (names) with: rbstudy's own
     fixed-step schemes of their nominal orders, in the registry's order."""
     orders = {get_scheme(name).order for name in schemes}
     return [name for name, scheme in BUILTIN.items() if not scheme.adaptive and scheme.order in orders]
 
 
-def write_golden(folder, schemes, cases=GOLDEN, steps=4):
+def write_golden(
+    folder: str | os.PathLike[str],
+    schemes: Sequence[str],
+    cases: Iterable[GoldenCase] = GOLDEN,
+    steps: int = 4,
+) -> list[pathlib.Path]:
     """Write the study config of each of ``cases`` for ``schemes`` and their `baseline` into
     ``folder``, over ``steps`` time steps; returns their paths."""
     folder = pathlib.Path(folder)
@@ -431,7 +446,9 @@ def write_golden(folder, schemes, cases=GOLDEN, steps=4):
     return paths
 
 
-def run_golden(paths, out, progress):
+def run_golden(
+    paths: Iterable[str | os.PathLike[str]], out: str | os.PathLike[str], progress: Progress
+) -> list[pathlib.Path]:
     """Sweep the golden studies at ``paths`` into ``out``, shown by the one ``progress``
     (`rbstudy.pipeline.progress.Progress`) of them all; returns their archives' paths.
 

@@ -1,15 +1,14 @@
 """The functions that compute the output variables of a batch, one per variable.
 
-Each takes a `BatchData` (the batch's rows of the scene table, its `Simulation`, its
-references as columns and run time)
-and returns the variable's values with the case axis first: (B, T, 3) for vectors over time,
-(B, T, N, 3) for nodes, (B,) per case. `rbstudy.archive.variables` binds each to its name,
-units and needs. Quantities several variables share (node positions, the
-orientation error) are computed once per batch, on first use. Samples after a blow-up are NaN;
+`rbstudy.archive.variables` binds each to its name, units and needs. Every one takes
+``batch : BatchData``, the B cases of a batch sampled at T times (N nodes), as columns
+(`rbstudy.pipeline.batch_data`), and returns the variable's values with the case axis
+first: (B, T, 3) for vectors over time, (B, T, N, 3) for nodes, (B,) per case; its
+docstring's Returns gives the shape and units. Samples after a blow-up (a failure) are NaN;
 every measure taken from them is NaN too.
 """
 
-from functools import cached_property
+from collections.abc import Callable
 
 import numpy as np
 
@@ -17,136 +16,12 @@ from rbstudy.archive.variables import ACCURATE, FAILED, INACCURATE, UNJUDGED
 from rbstudy.numerics.state import OK, RESULT_FIELDS
 from rbstudy.physics import analytic, metrics
 from rbstudy.physics.scenes import triangle_ok
+from rbstudy.pipeline.batch_data import BatchData, compiled_measures
 
-__all__ = [
-    "BatchData",
-    "driver_result",
-    "ACCURACY_BOUND",
-]
-
-# The default accuracy bound (`output.accuracy_bound`): an orientation error of 0.01 rad
-# or a 1% drift of energy or |L| is far outside any run worth reporting as accurate, yet well
-# inside the blow-up bound (50%), so "finite but meaningless" gets its own verdict.
-ACCURACY_BOUND = 1e-2
+__all__ = ["driver_result"]
 
 
-def _compiled():
-    """`rbstudy.numerics.measures`, imported at the first batch: the archive readers import
-    this module, and must not load numba."""
-    from rbstudy.numerics import measures
-
-    return measures
-
-
-_UNCOSTED = (np.nan, np.nan)
-
-
-class BatchData:
-    """What the variables of a batch of B cases are computed from, as columns (no object
-    per case).
-
-    table : the study's `rbstudy.physics.scenes.SceneTable`; rows : (B,) each case's row
-    of it; run : their `Simulation` (T samples); references :
-    `rbstudy.physics.references.References` (B cases on the same T times); run_time : (B,) s,
-    kernel time per case; accuracy_bound : the study's bound on the orientation error (rad)
-    and the relative energy and |L| drift of a case judged accurate; step_cost : the
-    calibrated (s, relative uncertainty) of a body-step of the batch's run
-    (`rbstudy.pipeline.calibration.StepCost`; NaN where not given).
-    """
-
-    def __init__(
-        self, table, rows, run, references, run_time, accuracy_bound=ACCURACY_BOUND, step_cost=_UNCOSTED
-    ):
-        self.table, self.rows, self.run, self.references = table, np.asarray(rows), run, references
-        self.run_time = np.broadcast_to(np.asarray(run_time, dtype=float), self.rows.shape)
-        self.accuracy_bound = accuracy_bound
-        self.step_cost = step_cost
-
-    @cached_property
-    def principal_inertia(self):
-        """(B, 3) principal inertias, symmetrised as each `Body` does."""
-        return analytic.symmetrised(self.table.inertia[self.rows])
-
-    @cached_property
-    def free(self):
-        """(B,) True where no moment acts."""
-        return self.table.moment_free[self.rows]
-
-    @cached_property
-    def inertia(self):
-        """(B, 1, 3) principal inertias, broadcastable against (B, T, 3)."""
-        return self.principal_inertia[:, None, :]
-
-    @cached_property
-    def node_offsets(self):
-        """(B, N, 3) node offsets from the centre of mass, principal axes."""
-        return np.asarray(self.table.nodes[self.rows], dtype=float)
-
-    @cached_property
-    def node_positions(self):
-        """(B, T, N, 3) node positions in space, NaN after a failure."""
-        return _compiled().node_positions(self.run.quaternion, self.run.position, self.node_offsets)
-
-    def reference(self, name):
-        """One field of every case's reference.
-
-        Parameters
-        ----------
-        name : str
-            ``quaternion``, ``omega_body``, ``position`` or ``velocity``.
-
-        Returns
-        -------
-        ndarray, shape (B, T, k)
-            k = 4 for the quaternion, 3 for the others.
-        """
-        return getattr(self.references, name)
-
-    @cached_property
-    def orientation_error(self):
-        """(B, T) rad: `rbstudy.physics.metrics.orientation_error` of the samples."""
-        vector, scalar = _compiled().orientation_parts(self.run.quaternion, self.reference("quaternion"))
-        return 2.0 * np.arctan2(vector, scalar)
-
-    @cached_property
-    def measured_precession(self):
-        """(B,) rad/s: the phase rate of the transverse body rates of symmetric bodies."""
-        axes = self.table.symmetry_axes[self.rows][:, None, None]
-        omega = self.run.omega_body
-        first = np.take_along_axis(omega, (axes + 1) % 3, axis=2)[..., 0]
-        second = np.take_along_axis(omega, (axes + 2) % 3, axis=2)[..., 0]
-        return metrics.phase_rate(first, second, self.run.time)
-
-    @cached_property
-    def exact_precession(self):
-        """(B,) rad/s: NaN where the body is not free and symmetric."""
-        exact = analytic.precession_frequencies(self.principal_inertia, self.table.omega_body[self.rows])
-        return np.where(self.free, exact, np.nan)
-
-    @cached_property
-    def measured_flip(self):
-        """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
-        middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
-        omega, time = self.run.omega_body, self.run.time
-        return np.array(
-            [metrics.sign_change_interval(omega[b, :, axis], time) for b, axis in enumerate(middle)]
-        )
-
-    @cached_property
-    def exact_flip(self):
-        """(B,) s: NaN where the body is not free and asymmetric (one case at a time: only
-        studies of free asymmetric bodies store it)."""
-        free = self.free & (self.table.symmetry_axes[self.rows] < 0)
-        omega = self.table.omega_body[self.rows]
-        return np.array(
-            [
-                analytic.flip_interval(inertia, spin) if chosen else np.nan
-                for inertia, spin, chosen in zip(self.principal_inertia, omega, free, strict=True)
-            ]
-        )
-
-
-def driver_result(name):
+def driver_result(name: str) -> Callable[[BatchData], np.ndarray]:
     """The compute function of one of the driver's per-body results.
 
     Parameters
@@ -167,20 +42,19 @@ def driver_result(name):
     if name not in dict(RESULT_FIELDS):
         raise ValueError(f"the driver reports no {name!r}")
 
-    def compute(batch):
+    def compute(batch: BatchData) -> np.ndarray:
         return batch.run.results[name]
 
     compute.__name__ = name
     return compute
 
 
-def omega_body(batch):
+def omega_body(batch: BatchData) -> np.ndarray:
     """Angular velocity in the body's principal axes.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -190,29 +64,27 @@ def omega_body(batch):
     return batch.run.omega_body
 
 
-def omega_space(batch):
+def omega_space(batch: BatchData) -> np.ndarray:
     """Angular velocity in space.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
     ndarray, shape (B, T, 3)
         rad/s; NaN after a failure.
     """
-    return _compiled().space_vectors(batch.run.quaternion, batch.run.omega_body)
+    return compiled_measures().space_vectors(batch.run.quaternion, batch.run.omega_body)
 
 
-def quaternion(batch):
+def quaternion(batch: BatchData) -> np.ndarray:
     """Orientation, scalar last, body to space.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -222,13 +94,12 @@ def quaternion(batch):
     return batch.run.quaternion
 
 
-def position(batch):
+def position(batch: BatchData) -> np.ndarray:
     """Centre-of-mass position in space.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -238,13 +109,12 @@ def position(batch):
     return batch.run.position
 
 
-def node_displacement(batch):
+def node_displacement(batch: BatchData) -> np.ndarray:
     """Displacement of every node from its place at t = 0.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -254,13 +124,12 @@ def node_displacement(batch):
     return batch.node_positions - batch.node_positions[:, :1]
 
 
-def node_velocity(batch):
+def node_velocity(batch: BatchData) -> np.ndarray:
     """Space velocity of every node, ``v_i = v + R (w x s_i)`` (s_i its body offset).
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -268,16 +137,17 @@ def node_velocity(batch):
         m/s; NaN after a failure.
     """
     run = batch.run
-    return _compiled().node_velocities(run.quaternion, run.omega_body, run.velocity, batch.node_offsets)
+    return compiled_measures().node_velocities(
+        run.quaternion, run.omega_body, run.velocity, batch.node_offsets
+    )
 
 
-def energy_error(batch):
+def energy_error(batch: BatchData) -> np.ndarray:
     """Relative rotational energy error ``(T - T0) / T0``, signed.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -287,29 +157,29 @@ def energy_error(batch):
     return metrics.energy_error(batch.run.omega_body, batch.inertia)
 
 
-def momentum_error(batch):
+def momentum_error(batch: BatchData) -> np.ndarray:
     """Relative angular momentum error ``|L - L0| / |L0|`` of L in space.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
     ndarray, shape (B, T)
         NaN after a failure.
     """
-    return _compiled().momentum_errors(batch.run.quaternion, batch.run.omega_body, batch.principal_inertia)
+    return compiled_measures().momentum_errors(
+        batch.run.quaternion, batch.run.omega_body, batch.principal_inertia
+    )
 
 
-def orientation_error(batch):
+def orientation_error(batch: BatchData) -> np.ndarray:
     """Angle of the rotation between the orientation and the reference's.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -319,48 +189,45 @@ def orientation_error(batch):
     return batch.orientation_error
 
 
-def omega_error(batch):
+def omega_error(batch: BatchData) -> np.ndarray:
     """Relative angular velocity error ``|w - w_ref| / |w_ref|`` in body axes.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
     ndarray, shape (B, T)
         NaN after a failure.
     """
-    return _compiled().relative_differences(batch.run.omega_body, batch.reference("omega_body"))
+    return compiled_measures().relative_differences(batch.run.omega_body, batch.reference("omega_body"))
 
 
-def node_error(batch):
+def node_error(batch: BatchData) -> np.ndarray:
     """Distance of every node from its place in the reference motion.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
     ndarray, shape (B, T, N)
         m; NaN after a failure.
     """
-    return _compiled().node_distances(
+    return compiled_measures().node_distances(
         batch.node_positions, batch.reference("quaternion"), batch.reference("position"), batch.node_offsets
     )
 
 
-def precession_frequency(batch):
+def precession_frequency(batch: BatchData) -> np.ndarray:
     """Measured precession rate of a symmetric body (the phase rate of its transverse body
     rates).
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -370,13 +237,12 @@ def precession_frequency(batch):
     return batch.measured_precession
 
 
-def precession_frequency_exact(batch):
+def precession_frequency_exact(batch: BatchData) -> np.ndarray:
     """Exact precession rate of a free symmetric body.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -386,13 +252,12 @@ def precession_frequency_exact(batch):
     return batch.exact_precession
 
 
-def precession_frequency_error(batch):
+def precession_frequency_error(batch: BatchData) -> np.ndarray:
     """Measured minus exact precession rate.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -402,13 +267,12 @@ def precession_frequency_error(batch):
     return batch.measured_precession - batch.exact_precession
 
 
-def flip_interval(batch):
+def flip_interval(batch: BatchData) -> np.ndarray:
     """Measured mean time between sign changes of the intermediate-axis rate.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -418,13 +282,12 @@ def flip_interval(batch):
     return batch.measured_flip
 
 
-def flip_interval_exact(batch):
+def flip_interval_exact(batch: BatchData) -> np.ndarray:
     """Exact time between sign changes of the intermediate-axis rate.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -434,13 +297,12 @@ def flip_interval_exact(batch):
     return batch.exact_flip
 
 
-def flip_interval_error(batch):
+def flip_interval_error(batch: BatchData) -> np.ndarray:
     """Measured minus exact flip interval.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -450,13 +312,12 @@ def flip_interval_error(batch):
     return batch.measured_flip - batch.exact_flip
 
 
-def run_time(batch):
+def run_time(batch: BatchData) -> np.ndarray:
     """Kernel time of each case.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -466,13 +327,12 @@ def run_time(batch):
     return batch.run_time
 
 
-def step_seconds(batch):
+def step_seconds(batch: BatchData) -> np.ndarray:
     """Calibrated kernel time of a body-step of each case's run.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -482,13 +342,12 @@ def step_seconds(batch):
     return np.full(batch.rows.shape, float(batch.step_cost[0]))
 
 
-def step_seconds_uncertainty(batch):
+def step_seconds_uncertainty(batch: BatchData) -> np.ndarray:
     """Relative uncertainty of `step_seconds`.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -498,13 +357,12 @@ def step_seconds_uncertainty(batch):
     return np.full(batch.rows.shape, float(batch.step_cost[1]))
 
 
-def final_orientation_error(batch):
+def final_orientation_error(batch: BatchData) -> np.ndarray:
     """Orientation error at the last output time.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -514,7 +372,7 @@ def final_orientation_error(batch):
     return batch.orientation_error[:, -1]
 
 
-def accuracy(batch):
+def accuracy(batch: BatchData) -> np.ndarray:
     """The accuracy verdict of each case (`VERDICTS`).
 
     A finished case is inaccurate when its orientation error at any sample (rad), or its
@@ -526,7 +384,6 @@ def accuracy(batch):
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -543,13 +400,12 @@ def accuracy(batch):
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
 
 
-def reference(batch):
+def reference(batch: BatchData) -> np.ndarray:
     """The code of each case's reference in `rbstudy.physics.analytic.REFERENCE_KINDS`.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -559,18 +415,17 @@ def reference(batch):
     return batch.references.code.astype(np.int8)
 
 
-def _uncertainty(batch, measure):
+def _uncertainty(batch: BatchData, measure: str) -> np.ndarray:
     """(B,) the reference's uncertainty in ``measure``: NaN where nothing checked it."""
     return batch.references.uncertainty[:, metrics.UNCERTAIN_MEASURES.index(measure)]
 
 
-def reference_uncertainty(batch):
+def reference_uncertainty(batch: BatchData) -> np.ndarray:
     """The reference's uncertainty in orientation.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -580,13 +435,12 @@ def reference_uncertainty(batch):
     return _uncertainty(batch, "orientation")
 
 
-def reference_omega_uncertainty(batch):
+def reference_omega_uncertainty(batch: BatchData) -> np.ndarray:
     """The reference's relative uncertainty in body angular velocity.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -596,13 +450,12 @@ def reference_omega_uncertainty(batch):
     return _uncertainty(batch, "omega")
 
 
-def reference_node_uncertainty(batch):
+def reference_node_uncertainty(batch: BatchData) -> np.ndarray:
     """The reference's uncertainty in node positions.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -612,13 +465,12 @@ def reference_node_uncertainty(batch):
     return _uncertainty(batch, "nodes")
 
 
-def inertia(batch):
+def inertia(batch: BatchData) -> np.ndarray:
     """Principal inertias.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -628,13 +480,12 @@ def inertia(batch):
     return batch.inertia[:, 0, :]
 
 
-def initial_spin(batch):
+def initial_spin(batch: BatchData) -> np.ndarray:
     """``|w|`` at t = 0.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -644,13 +495,12 @@ def initial_spin(batch):
     return np.linalg.norm(batch.run.omega_body[:, 0], axis=-1)
 
 
-def node_offset(batch):
+def node_offset(batch: BatchData) -> np.ndarray:
     """Node offsets from the centre of mass, principal axes.
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -660,13 +510,12 @@ def node_offset(batch):
     return batch.node_offsets
 
 
-def regularised_inertia(batch):
+def regularised_inertia(batch: BatchData) -> np.ndarray:
     """Whether a principal inertia was raised (an assembled body).
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------
@@ -679,13 +528,12 @@ def regularised_inertia(batch):
     return np.asarray(regularised[batch.rows], dtype=np.int8)
 
 
-def physical_body(batch):
+def physical_body(batch: BatchData) -> np.ndarray:
     """Whether the body is physical (0: an ``allow_unphysical`` stress body).
 
     Parameters
     ----------
     batch : BatchData
-        B cases sampled at T times (N nodes).
 
     Returns
     -------

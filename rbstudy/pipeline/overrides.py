@@ -12,18 +12,20 @@ overrides may have caused, names the file "with" them.
 """
 
 import copy
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any, NoReturn
 
 import yaml
 
-from rbstudy.errors import ConfigError
+from rbstudy.errors import ConfigError, InputError
 from rbstudy.inputs.yaml_file import MAX_DEPTH, parse_yaml
 
 __all__ = ["Override", "Overridden", "apply_overrides"]
 
 # How a KEY=VALUE that is not one can be written.
 _FORM = "write it as KEY=VALUE, for example --set sweep.dt.count=3"
-# The first part of a sweep axis given by its dotted path (`rbstudy.pipeline.grid`): a new
+# The first part of a sweep axis given by its dotted path (`rbstudy.pipeline.axes`): a new
 # key with this head under `sweep` (or a zipped group) is that whole path, not nested mappings.
 _AXIS_PATH_HEADS = ("scene", "run")
 
@@ -34,11 +36,11 @@ class Override:
     at the dots, ``value`` its YAML value."""
 
     assignment: str
-    parts: tuple
+    parts: tuple[str, ...]
     value: object
 
     @property
-    def key(self):
+    def key(self) -> str:
         return ".".join(self.parts)
 
 
@@ -54,15 +56,15 @@ class Overridden:
     """
 
     source: str
-    data: object
-    overrides: tuple
-    written: tuple
+    data: Any
+    overrides: tuple[Override, ...]
+    written: tuple[str, ...]
 
     @property
-    def assignments(self):
+    def assignments(self) -> tuple[str, ...]:
         return tuple(override.assignment for override in self.overrides)
 
-    def blame(self, error):
+    def blame(self, error: InputError) -> InputError:
         """``error`` (an `InputError` from validating ``data``, a file's or study's) with its
         key's part that an override wrote named ``--set <key>``; with none, its source (when it
         is the config) named with the overrides, which may have made the mistake."""
@@ -77,15 +79,15 @@ class Overridden:
         with_ = " ".join(self._given())
         return type(error)(error.message, error.fix, f"{error.source} (with {with_})", error.key, error.row)
 
-    def _wrote(self, key):
+    def _wrote(self, key: str) -> bool:
         """Whether the key path ``key`` is at or below what an override wrote."""
         return any(key == path or key.startswith((f"{path}.", f"{path}[")) for path in self.written)
 
-    def _given(self):
+    def _given(self) -> list[str]:
         """``--set a=1`` per override, each on one line (a newline shown as ``\\n``)."""
         return [f"--set {text}".replace("\r", "\\r").replace("\n", "\\n") for text in self.assignments]
 
-    def text(self, file_text):
+    def text(self, file_text: str) -> str:
         """The config text an archive stores: ``file_text`` itself without overrides, else the
         overridden mapping as YAML under a comment naming the overrides (the file's comments
         are not kept)."""
@@ -101,7 +103,7 @@ class Overridden:
         )
 
 
-def _parse(assignment, source):
+def _parse(assignment: str, source: str) -> Override:
     """The `Override` of one ``KEY=VALUE``; a `ConfigError` at ``source`` says what is wrong."""
     key, equals, value = assignment.partition("=")
     key = key.strip()
@@ -126,7 +128,7 @@ def _parse(assignment, source):
     return Override(assignment, parts, parsed)
 
 
-def _child_key(node, rest, above):
+def _child_key(node: dict[Any, Any], rest: list[str], above: list[str]) -> tuple[Any, int]:
     """(key, how many parts of ``rest`` it takes) in the mapping ``node`` at the key path
     ``above`` (a list of keys): the longest dotted key ``node`` holds that ``rest`` spells (the
     sweep's ``run.options.alpha``), else the first part; a new sweep axis given by its path is
@@ -142,15 +144,19 @@ def _child_key(node, rest, above):
     return rest[0], 1
 
 
-def _write(root, override, source):
+def _write(root: dict[Any, Any], override: Override, source: str) -> str:
     """Write ``override`` into the mapping ``root`` in place, each mapping and list on its path
     copied first (an alias of the file shares them with another key, which must keep its
     value); returns the path it wrote in the reader's spelling, up to the first new key."""
 
-    def fail(message, fix):
+    def fail(message: str, fix: str) -> NoReturn:
         raise ConfigError(message, fix, source, f"--set {override.key}")
 
-    node, rest, above, spelled, written = root, list(override.parts), [], "", None
+    node: Any = root  # a mapping or list of the YAML read, then one of its values
+    rest = list(override.parts)
+    above: list[str] = []  # the keys of the path so far
+    spelled = ""
+    written: str | None = None
     while rest:
         if isinstance(node, list):
             part = rest[0]
@@ -184,7 +190,7 @@ def _write(root, override, source):
     return written or spelled
 
 
-def apply_overrides(data, assignments, source):
+def apply_overrides(data: Any, assignments: Iterable[str], source: str) -> Overridden:
     """The `Overridden` config of the mapping ``data`` read from ``source`` and the
     ``--set`` texts ``assignments`` (``KEY=VALUE``), applied in order; a `ConfigError` for a
     malformed one, a value YAML cannot read, or a path through a value that is no mapping.

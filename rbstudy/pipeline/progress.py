@@ -18,14 +18,19 @@ when it is updated, so a ticking timer would be a thread of ours), has a spinner
 of unknown length, and prints lines above the bar without tearing it.
 """
 
+from __future__ import annotations
+
 import os
 import shutil
 import sys
 import threading
 import time
+from collections.abc import Callable
+from types import TracebackType
+from typing import Literal, TextIO
 
 from rich.console import Console
-from rich.progress import BarColumn, ProgressColumn, SpinnerColumn, TextColumn
+from rich.progress import BarColumn, ProgressColumn, SpinnerColumn, Task, TaskID, TextColumn
 from rich.progress import Progress as LiveDisplay
 from rich.table import Column
 from rich.text import Text
@@ -47,11 +52,11 @@ _REDRAWS = 10
 # The columns of the phase's words; longer words end in an ellipsis.
 _WORDS = 50
 # The displays drawing now, whose redrawing a fork waits for (`_hold_for_fork`).
-_LIVE = []
+_LIVE: list[LiveDisplay] = []
 _LIVE_LOCK = threading.Lock()
 
 
-def live_wanted(quiet, stream=None):
+def live_wanted(quiet: bool, stream: TextIO | None = None) -> bool:
     """Whether ``stream`` (stderr) gets a live bar: a terminal, not in CI, not ``quiet``."""
     stream = stream or sys.stderr
     return not quiet and stream.isatty() and not os.environ.get("CI")
@@ -63,7 +68,7 @@ class _Counts(ProgressColumn):
     slow batch runs, rather than rich's estimate from its last updates, which stands still
     between them."""
 
-    def render(self, task):
+    def render(self, task: Task) -> Text:
         elapsed = task.elapsed or 0.0
         if task.total is None:
             return Text(f"{elapsed:5.1f} s")
@@ -76,7 +81,7 @@ class _Counts(ProgressColumn):
         return Text(text)
 
 
-def _hold_for_fork():
+def _hold_for_fork() -> None:
     """Before a fork: wait for any redraw under way and hold off the next, so that the
     child never inherits a lock the drawing thread held (the figures fork their drawers)."""
     _LIVE_LOCK.acquire()
@@ -84,7 +89,7 @@ def _hold_for_fork():
         display.live._lock.acquire()
 
 
-def _release_after_fork():
+def _release_after_fork() -> None:
     for display in _LIVE:
         display.live._lock.release()
     _LIVE_LOCK.release()
@@ -103,20 +108,30 @@ class Progress:
     ``label: <end> in <s> s`` on a clean exit after it (`end`, "done" unless set); nothing
     when ``quiet``. ``clock`` (seconds) is rich's and the end line's clock."""
 
-    def __init__(self, label, start, quiet=False, stream=None, clock=time.monotonic, opening=None):
+    def __init__(
+        self,
+        label: str,
+        start: str,
+        quiet: bool = False,
+        stream: TextIO | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        opening: str | None = None,
+    ):
         self.label, self.start, self.quiet, self.opening = label, start, quiet, opening
         self.stream = stream or sys.stderr
         self.clock = clock
         self.end = "done"
-        self._display = self._task = self._began = None
+        self._display: LiveDisplay | None = None
+        self._task: TaskID | None = None
+        self._began = 0.0  # the clock as the work began: set on entering
         self._started = False
 
     @property
-    def live(self):
+    def live(self) -> bool:
         """Whether the bar is being drawn (a terminal)."""
         return self._display is not None
 
-    def __enter__(self):
+    def __enter__(self) -> Progress:
         self._began = self.clock()
         if live_wanted(self.quiet, self.stream):
             columns = shutil.get_terminal_size((WIDTH, 24)).columns
@@ -153,7 +168,9 @@ class Progress:
                 _LIVE.append(self._display)
         return self
 
-    def __exit__(self, kind, error, trace):
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> Literal[False]:
         if self._display is not None:
             with _LIVE_LOCK:
                 _LIVE.remove(self._display)
@@ -163,31 +180,32 @@ class Progress:
             self._line(f"{self.label}: {self.end} in {self.clock() - self._began:.1f} s")
         return False
 
-    def phase(self, what, total=None, unit="", eta=True):
+    def phase(self, what: str, total: float | None = None, unit: str = "", eta: bool = True) -> None:
         """A new phase of the work, ``what`` (``abaqus_top: running batches``): the bar counts
         to ``total`` (None: a spinner) in ``unit``, from 0 and with its own timer. ``eta``:
         show the rate and the time left it gives, for units that each take about as long
         (the cases of a sweep); not for units that end in bunches after long silences (the
-        schemes that child processes compile: "~599 s left" with 60 s to go), where the count
-        is the honest news."""
+        schemes that child processes compile, whose rate so far forecast many times the
+        wait), where the count is the honest news."""
         self._begin()
-        if self._display is not None:  # a task of its own: rich keeps a total once set
+        # a task of its own: rich keeps a total once set
+        if self._display is not None and self._task is not None:
             self._display.remove_task(self._task)
             self._task = self._display.add_task(printable(what), total=total, unit=unit, eta=eta)
 
-    def update(self, what=None, done=None):
+    def update(self, what: str | None = None, done: float | None = None) -> None:
         """The phase's words and how much of it is done, as they change."""
-        if self._display is not None:
+        if self._display is not None and self._task is not None:
             self._display.update(
                 self._task, description=None if what is None else printable(what), completed=done
             )
 
-    def advance(self, amount=1):
+    def advance(self, amount: float = 1) -> None:
         """``amount`` more of the phase's total done."""
-        if self._display is not None:
+        if self._display is not None and self._task is not None:
             self._display.advance(self._task, amount)
 
-    def say(self, text):
+    def say(self, text: str) -> None:
         """A line to read whatever the stream is (above the bar on a terminal), unless quiet;
         off a terminal after the start line."""
         self._begin()
@@ -196,7 +214,7 @@ class Progress:
         elif not self.quiet:
             self._line(text)
 
-    def echo(self, text):
+    def echo(self, text: str) -> None:
         """A line of the verb's result (stdout), above the bar where both are on a terminal."""
         text = printable(text)
         if self._display is not None and sys.stdout.isatty():
@@ -204,13 +222,13 @@ class Progress:
         else:
             print(text, flush=True)
 
-    def _begin(self):
+    def _begin(self) -> None:
         """The start line, off a terminal, before anything else this work prints."""
         if not self._started and self._display is None and not self.quiet:
             self._line(f"{self.label}: {self.start}")
         self._started = True
 
-    def _line(self, text):
+    def _line(self, text: str) -> None:
         self.stream.write(printable(text) + "\n")
         self.stream.flush()
 

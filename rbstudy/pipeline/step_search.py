@@ -33,8 +33,13 @@ reuses the probes of both, so an interrupted search resumes where it stopped; a 
 archive (``--force``, or found damaged) starts it again.
 """
 
+from __future__ import annotations
+
 import math
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import xarray as xr
@@ -50,7 +55,12 @@ from rbstudy.pipeline.calibration import calibrate, step_cost
 from rbstudy.pipeline.execute import BatchJob, compute_batch, compute_references
 from rbstudy.schemes import get_scheme
 
-__all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]
+if TYPE_CHECKING:  # the types alone
+    from rbstudy.pipeline.config import StudyConfig
+    from rbstudy.pipeline.grid import Run
+    from rbstudy.pipeline.progress import Progress
+
+__all__ = ["SEARCH_TOLERANCE", "Search", "CommonStep", "search_steps"]
 
 # Default relative width of the final bracket: the answer and a step at most 5% larger that
 # fails, so that 1.1 times the answer fails too where the error grows with the step.
@@ -59,6 +69,16 @@ SEARCH_TOLERANCE = 0.05
 _PROBE_VARIABLES = ("status", "accuracy", "n_steps", "step_seconds")
 # What the probes file keeps of each probe, along ``probe``.
 _PROBE_COLUMNS = ("case", "steps", "scheme", "dt", "output_interval", *_PROBE_VARIABLES)
+
+
+class CommonStep(NamedTuple):
+    """A scheme's study-wide answer: its least found step ``dt`` (s), met at every value of
+    the other axes, the mean calibrated kernel ``seconds`` a case takes at it, and their
+    relative ``uncertainty``."""
+
+    dt: float
+    seconds: float
+    uncertainty: float
 
 
 @dataclass(frozen=True)
@@ -70,8 +90,8 @@ class Search:
     (g,) the smallest step above it that does not (NaN: the whole duration meets it);
     ``found_seconds`` (g,) a case's calibrated kernel seconds at ``found_dt``;
     ``labels`` the other axes' values of each group (coordinate -> value); ``common``
-    scheme -> (dt, mean seconds a case, their relative uncertainty) of its least found
-    step, met at every value of the other axes (a scheme is missing where it was not);
+    scheme -> its `CommonStep` (a scheme is missing where no step met the bound at every
+    value of the other axes);
     ``adaptive`` the names of the study's adaptive schemes (not searched); ``probes`` the
     probes run or reused,
     a dataset along ``probe``; ``reused`` how many were reused; ``tolerance`` the relative
@@ -83,21 +103,21 @@ class Search:
     found_dt: np.ndarray
     failing_dt: np.ndarray
     found_seconds: np.ndarray
-    labels: list
-    common: dict
-    adaptive: tuple
+    labels: list[dict[str, Any]]
+    common: dict[str, CommonStep]
+    adaptive: tuple[str, ...]
     probes: xr.Dataset
     reused: int
     tolerance: float
 
 
-def _identity(study):
+def _identity(study: StudyConfig) -> str:
     """What a probe's verdict depends on: the study's batches (config, grid, code); not the
     tolerance, which only says which probes to run."""
     return canonical_id({"batches": batches_digest(study.batches)})
 
 
-def _grid(study, dataset):
+def _grid(study: StudyConfig, dataset: xr.Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """The study's grid verdicts as (groups, dt) arrays: accurate (bool), case numbers, and
     the swept steps (dt,) ascending; with the dimension names of the groups."""
     names = [d.name for d in study.dimensions]
@@ -117,7 +137,7 @@ def _grid(study, dataset):
     return accurate.reshape(-1, len(dts)), cases.reshape(-1, len(dts)), dts, group_dims
 
 
-def _steps(study, dt):
+def _steps(study: StudyConfig, dt: float) -> int:
     """The whole number of steps ``dt`` takes over the study's duration."""
     return steps_per(study.duration, dt, "dt", "duration")
 
@@ -126,7 +146,7 @@ class _Probes:
     """The probes of a search: those kept from an earlier run of it, those run now, keyed by
     (case, steps); written to the study folder's working file after every batch."""
 
-    def __init__(self, study, folder, identity, force):
+    def __init__(self, study: StudyConfig, folder: StudyFolder, identity: str, force: bool):
         self.study, self.identity = study, identity
         self.folder = folder  # the `StudyFolder` of the search
         self.rows, self.reused = {}, 0
@@ -136,12 +156,12 @@ class _Probes:
             )
         self.kept = set(self.rows)
 
-    def verdicts(self, wanted, progress):
+    def verdicts(self, wanted: Sequence[tuple[int, int]], progress: Progress | None) -> list[bool]:
         """Whether each (case, steps) of ``wanted`` meets the bound, running those not kept."""
         missing = sorted({key for key in wanted if key not in self.rows})
         self.reused += len({key for key in wanted if key in self.kept})
         self.kept -= set(wanted)
-        by_run = {}
+        by_run: dict[tuple[str, int], list[int]] = {}
         for case, steps in missing:
             by_run.setdefault((self._scheme(case), steps), []).append(case)
         for (scheme, steps), cases in sorted(by_run.items()):
@@ -151,11 +171,11 @@ class _Probes:
                 progress.advance(len(cases))
         return [self.rows[key]["accuracy"] == ACCURATE and self.rows[key]["status"] == OK for key in wanted]
 
-    def _scheme(self, case):
+    def _scheme(self, case: int) -> str:
         cases = self.study.cases
         return cases.runs[cases.run_rows[case]].scheme
 
-    def _run(self, scheme, steps, cases):
+    def _run(self, scheme: str, steps: int, cases: np.ndarray) -> None:
         """Run the grid ``cases`` (all of ``scheme``) at ``steps`` steps over the duration."""
         study = self.study
         dt = study.duration / steps
@@ -189,7 +209,7 @@ class _Probes:
                 **{name: values[name][k].item() for name in _PROBE_VARIABLES},
             }
 
-    def _probes(self):
+    def _probes(self) -> xr.Dataset:
         keys = sorted(self.rows)
         columns = {
             name: ("probe", np.array([self.rows[key][name] for key in keys])) for name in _PROBE_COLUMNS
@@ -208,7 +228,7 @@ class _Probes:
         )
         return probes
 
-    def dataset(self, search=None):
+    def dataset(self, search: Search | None = None) -> xr.Dataset:
         """The probes as a dataset along ``probe`` (in the order of their keys), with the
         groups' answers of a finished ``search``."""
         written = self._probes()
@@ -224,14 +244,14 @@ class _Probes:
             names = sorted(search.common)
             written = written.assign(
                 study_scheme=("scheme_searched", np.array(names, dtype=object)),
-                study_dt=("scheme_searched", np.array([search.common[n][0] for n in names], dtype=float)),
+                study_dt=("scheme_searched", np.array([search.common[n].dt for n in names], dtype=float)),
                 study_seconds=(
                     "scheme_searched",
-                    np.array([search.common[n][1] for n in names], dtype=float),
+                    np.array([search.common[n].seconds for n in names], dtype=float),
                 ),
                 study_uncertainty=(
                     "scheme_searched",
-                    np.array([search.common[n][2] for n in names], dtype=float),
+                    np.array([search.common[n].uncertainty for n in names], dtype=float),
                 ),
             )
             written.attrs["tolerance"] = search.tolerance
@@ -239,21 +259,21 @@ class _Probes:
             written.attrs["other_axes"] = " ".join(
                 sorted({name for labels in search.labels for name in labels})
             )
-        for name in written.data_vars:
+        for name in map(str, written.data_vars):
             written[name].attrs.update(_attrs(name))
         return written
 
-    def write(self):
+    def write(self) -> None:
         """The probes so far to the working file, which a rerun resumes from."""
         self.folder.write_search(self.dataset())
 
-    def seal(self, search):
+    def seal(self, search: Search) -> None:
         """The finished ``search`` into the archive, sealed with it, and the working file
         removed (`rbstudy.archive.folder.StudyFolder.seal_search`)."""
         self.folder.seal_search(self.dataset(search))
 
 
-def _kept_rows(folder, identity, working):
+def _kept_rows(folder: StudyFolder, identity: str, working: bool) -> dict[tuple[int, int], dict[str, Any]]:
     """The probes kept by a search of ``identity`` in the archive of the `StudyFolder`
     ``folder`` or, ``working``, in its working file, keyed by (case, steps); none from a
     file of another search, or one that is damaged (truncated, emptied, overwritten: run
@@ -271,12 +291,12 @@ def _kept_rows(folder, identity, working):
     return {(row["case"], row["steps"]): row for row in rows}
 
 
-def _divides(study, steps):
+def _divides(study: StudyConfig, steps: int) -> bool:
     """Whether a step of ``steps`` over the duration divides the output interval."""
     return steps % (output_count(study.duration, study.output_interval) - 1) == 0
 
 
-def _attrs(name):
+def _attrs(name: str) -> dict[str, Any]:
     """The CF attributes of the search's variable ``name``: the archive's own for what a probe
     shares with a case (its scheme and step, `_PROBE_VARIABLES`), else the table's (`SEARCH_VARIABLES`)."""
     if name in _PROBE_VARIABLES:
@@ -284,7 +304,7 @@ def _attrs(name):
     return cf_attrs(*(COORDINATES[name] if name in COORDINATES else SEARCH_VARIABLES[name]))
 
 
-def _next_steps(lo, hi, tolerance):
+def _next_steps(lo: int, hi: int, tolerance: float) -> int:
     """The step count to probe next in a group whose largest accurate step takes ``lo``
     steps and whose smallest failing one ``hi`` (0: none yet); 0 when the search is done."""
     if not hi:
@@ -294,7 +314,14 @@ def _next_steps(lo, hi, tolerance):
     return min(max(round(math.sqrt(lo * hi)), hi + 1), lo - 1)
 
 
-def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False, progress=None):
+def search_steps(
+    study: StudyConfig,
+    dataset: xr.Dataset,
+    folder: str | os.PathLike[str],
+    tolerance: float = SEARCH_TOLERANCE,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> Search:
     """The `Search` of ``study`` from its archive's ``dataset`` (``accuracy``, ``status``),
     its probes kept in the study folder ``folder`` (`SEARCH_FILE`), under the study's lock;
     ``force``: the kept probes are run again. Adaptive schemes choose their own steps and
@@ -315,20 +342,20 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
         progress.phase(
             f"{study.name}: searching the largest step meeting the bound", unit="probes", eta=False
         )
-    folder = StudyFolder(folder, study)
-    with folder.lock():
-        probes = _Probes(study, folder, _identity(study), force)
+    study_folder = StudyFolder(folder, study)
+    with study_folder.lock():
+        probes = _Probes(study, study_folder, _identity(study), force)
         while True:
             wanted = {int(g): _next_steps(lo[g], hi[g], tolerance) for g in np.flatnonzero(searched)}
             wanted = {g: steps for g, steps in wanted.items() if steps}
             if not wanted:
                 break
             keys = [(int(cases[g, 0]), steps) for g, steps in wanted.items()]
-            for (g, steps), good in zip(wanted.items(), probes.verdicts(keys, progress), strict=True):
+            for (group, steps), good in zip(wanted.items(), probes.verdicts(keys, progress), strict=True):
                 if good:
-                    lo[g] = steps
+                    lo[group] = steps
                 else:
-                    hi[g] = steps
+                    hi[group] = steps
         common = _common_steps(study, schemes, cases, lo, searched, probes, progress)
         result = Search(
             **_answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common),
@@ -341,7 +368,18 @@ def search_steps(study, dataset, folder, tolerance=SEARCH_TOLERANCE, force=False
     return result
 
 
-def _answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, searched, common):
+def _answers(
+    study: StudyConfig,
+    dataset: xr.Dataset,
+    group_dims: list[str],
+    schemes: np.ndarray,
+    cases: np.ndarray,
+    grid_dt: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    searched: np.ndarray,
+    common: dict[str, tuple[int, np.ndarray]],
+) -> dict[str, Any]:
     """The `Search` fields of the groups' final brackets (step counts ``lo`` met, ``hi``
     failed, 0: none) and the schemes' ``common`` steps (`_common_steps`)."""
     found = np.where(searched, study.duration / np.maximum(lo, 1), math.nan)
@@ -361,7 +399,15 @@ def _answers(study, dataset, group_dims, schemes, cases, grid_dt, lo, hi, search
     )
 
 
-def _common_steps(study, schemes, cases, lo, searched, probes, progress):
+def _common_steps(
+    study: StudyConfig,
+    schemes: np.ndarray,
+    cases: np.ndarray,
+    lo: np.ndarray,
+    searched: np.ndarray,
+    probes: _Probes,
+    progress: Progress | None,
+) -> dict[str, tuple[int, np.ndarray]]:
     """Per scheme searched at every value of the other axes: the step count of its least
     found step, and its groups, once every group of it has met the bound at that step
     (probed where its own found step is larger); name -> (steps, groups)."""
@@ -377,37 +423,41 @@ def _common_steps(study, schemes, cases, lo, searched, probes, progress):
     return common
 
 
-def _common_cost(study, cases, steps, members):
-    """(dt, mean calibrated kernel seconds a case, their relative uncertainty) of ``steps``
-    steps at the groups ``members``: the cost the findings rank the grid's answers by."""
+def _common_cost(study: StudyConfig, cases: np.ndarray, steps: int, members: np.ndarray) -> CommonStep:
+    """The `CommonStep` of ``steps`` steps at the groups ``members``: the cost the findings
+    rank the grid's answers by."""
     costs = [
         step_cost(get_scheme(_run(study, cases[g, 0]).scheme), _run(study, cases[g, 0]).options)
         for g in members
     ]
-    return (
-        study.duration / steps,
-        steps * float(np.mean([cost.seconds for cost in costs])),
-        max(cost.uncertainty for cost in costs),
+    return CommonStep(
+        dt=study.duration / steps,
+        seconds=steps * float(np.mean([cost.seconds for cost in costs])),
+        uncertainty=max(cost.uncertainty for cost in costs),
     )
 
 
-def _run(study, case):
+def _run(study: StudyConfig, case: int) -> Run:
     """The `Run` (scheme, options, dt) of the grid case ``case``."""
     return study.cases.runs[study.cases.run_rows[case]]
 
 
-def _step_seconds(study, case):
+def _step_seconds(study: StudyConfig, case: int) -> float:
     """The calibrated seconds of a body-step of the grid case ``case``'s scheme and options."""
     run = _run(study, case)
     return step_cost(get_scheme(run.scheme), run.options).seconds
 
 
-def _group_labels(dataset, group_dims):
+def _group_labels(dataset: xr.Dataset, group_dims: list[str]) -> list[dict[str, Any]]:
     """The values of the other swept axes (not ``scheme``) of each group, coordinate ->
     value, in C order of ``group_dims``."""
     shape = [dataset.sizes[d] for d in group_dims]
     named = {
-        d: [name for name, coord in dataset.coords.items() if coord.dims == (d,) and name != d or name == d]
+        d: [
+            str(name)
+            for name, coord in dataset.coords.items()
+            if coord.dims == (d,) and name != d or name == d
+        ]
         for d in group_dims
         if d != "scheme"
     }
