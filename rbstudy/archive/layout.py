@@ -9,20 +9,26 @@ every attribute comes from `rbstudy.archive.variables`. A step search is stored 
 group `SEARCH_GROUP`.
 """
 
+from __future__ import annotations
+
 import decimal
 import math
+from collections.abc import Container, Mapping
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from rbstudy.archive.coordinates import COORDINATES, SCHEME_COORDINATES, cf_attrs
 from rbstudy.archive.ids import study_identity
-from rbstudy.archive.variables import COORDINATES, SCHEME_COORDINATES, VARIABLES, cf_attrs, variable_attrs
+from rbstudy.archive.variables import VARIABLES, variable_attrs
 from rbstudy.physics.time_grid import output_times
 
 __all__ = [
     "CHUNK_BYTES",
     "COMPRESSION",
     "FORMATS",
+    "ArchiveVariable",
     "Layout",
     "SEARCH_GROUP",
     "archive_dims",
@@ -47,7 +53,7 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 # Compression of the consolidated archive's data variables: zlib (readable by every netCDF-4
 # reader) after byte shuffling, which groups the slowly varying high bytes of neighbouring
 # floats; level 4 gives nearly all of level 9's size at a fraction of its time.
-COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
+COMPRESSION: dict[str, Any] = {"zlib": True, "shuffle": True, "complevel": 4}
 
 
 # Target size of an archive chunk (uncompressed): `case_chunks`.
@@ -78,7 +84,8 @@ class Layout:
     identity: tuple  # `study_identity`
 
     @classmethod
-    def of(cls, study):
+    def of(cls, study: Any) -> Layout:
+        """The layout of a `rbstudy.pipeline.study.Study`."""
         return cls(
             study=study.name,
             variables=study.variables,
@@ -89,21 +96,23 @@ class Layout:
         )
 
 
-def decimal_grid(n_times, interval):
+def decimal_grid(n_times: int, interval: float) -> np.ndarray:
     """The output times (`rbstudy.physics.simulate.output_times`) as the archive labels them:
     each the double nearest its decimal value, ``0.35``, not ``35 * 0.01 =
     0.35000000000000003``, so that ``ds.sel(time=0.35)`` finds it. An interval with more
     than 15 decimals is left as the plain products."""
     times = output_times(n_times, interval)
-    places = -decimal.Decimal(repr(float(interval))).as_tuple().exponent
+    places = -int(decimal.Decimal(repr(float(interval))).as_tuple().exponent)  # finite: an int
     if places > _MAX_DECIMALS or times[-1] * 10.0**places >= 2.0**52:
         return times
     return np.round(times, places)  # exact: k * interval * 10^places is a whole number
 
 
-def fixed_coords(layout):
+def fixed_coords(layout: Layout) -> dict[str, tuple[np.ndarray, dict[str, Any]]]:
     """time, axis, component and node coordinates as (values, attrs)."""
-    coords = {"time": (decimal_grid(layout.n_times, layout.output_interval), {})}
+    coords: dict[str, tuple[np.ndarray, dict[str, Any]]] = {
+        "time": (decimal_grid(layout.n_times, layout.output_interval), {})
+    }
     coords.update({name: (np.array(labels), {}) for name, labels in _LABELS.items()})
     if layout.node_names:
         coords["node"] = (np.array(layout.node_names), {})
@@ -122,7 +131,7 @@ def _coordinate_values(axis):
     return np.array([float(v) for v in axis.values])
 
 
-def grid_coordinates(study):
+def grid_coordinates(study: Any) -> dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]]:
     """The coordinates of the swept dimensions: name -> (dims, values, attrs).
 
     A product dimension's coordinate is its axis; a zipped dimension gets an index coordinate
@@ -130,7 +139,7 @@ def grid_coordinates(study):
     coordinates, so that every dataset names both. Each scheme's nominal order and claimed
     invariants (`SCHEME_COORDINATES`) are auxiliary coordinates along ``scheme``.
     """
-    coords = {}
+    coords: dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]] = {}
     swept = {axis.target for dim in study.dimensions for axis in dim.axes}
     for name in ("scheme", "dt"):
         if name not in swept:  # then every run has the first run's
@@ -164,7 +173,7 @@ def _scheme_claims(study, dims):
         else [study.cases.runs[0].scheme]
     )
     swept_order = study.order_dimension
-    coords = {}
+    coords: dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]] = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
         values = [study.schemes[scheme][name] for scheme in schemes]
         along = dims
@@ -179,16 +188,16 @@ def _scheme_claims(study, dims):
     return coords
 
 
-def case_chunks(grid_shape, own_shape, itemsize):
+def case_chunks(grid_shape: tuple[int, ...], own_shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
     """Chunk shape of an archive variable: whole along its own dimensions (time, node,
     axis, ...), and along the grid's dimensions, from the last, as many cases as keep a
     chunk near `CHUNK_BYTES`. The archive is written part by part, and a part holds whole
     cases: chunks of whole cases are filled by one part, each compressed once. netCDF's
     default chunks cut across cases, so that every part decompressed and compressed again
-    the chunks it shared with the others (10,000 cases: 35 s of 50 in consolidation)."""
+    the chunks it shared with the others, which took most of the consolidation's time."""
     chunk = [max(1, size) for size in own_shape]  # netCDF refuses a chunk of length 0
     room = max(1, CHUNK_BYTES // max(1, itemsize * math.prod(own_shape)))
-    grid_chunk = []
+    grid_chunk: list[int] = []
     for size in reversed(grid_shape):
         take = max(1, min(size, room))
         grid_chunk.insert(0, take)
@@ -196,7 +205,15 @@ def case_chunks(grid_shape, own_shape, itemsize):
     return tuple(grid_chunk + chunk)
 
 
-def create_variable(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
+def create_variable(
+    nc: Any,
+    name: str,
+    dims: tuple[str, ...],
+    values: np.ndarray | None = None,
+    attrs: Mapping[str, Any] | None = None,
+    dtype: Any = None,
+    grid_rank: int = 0,
+) -> Any:
     """A netCDF variable; coordinates get ``values``, data variables a NaN fill (floats) and
     compression (zlib with byte shuffling: `COMPRESSION`) in chunks of whole cases
     (`case_chunks`) along their first ``grid_rank`` dimensions."""
@@ -220,11 +237,21 @@ def create_variable(nc, name, dims, values=None, attrs=None, dtype=None, grid_ra
     return variable
 
 
-def data_variables(study, grid):
-    """The archive's output variables: name -> (its dimensions, `archive_dims`; its
-    attributes, from `rbstudy.archive.variables`, with the auxiliary coordinates of ``grid``
-    (`grid_coordinates`) that CF readers attach to it; how many of its dimensions are the
-    grid's), whatever format stores them."""
+class ArchiveVariable(NamedTuple):
+    """How an output variable lies in the archive, whatever format stores it: its dimensions
+    (`archive_dims`), its attributes, and how many of its dimensions are the grid's."""
+
+    dims: tuple[str, ...]
+    attrs: dict[str, Any]
+    grid_rank: int
+
+
+def data_variables(
+    study: Any, grid: Mapping[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]]
+) -> dict[str, ArchiveVariable]:
+    """The archive's output variables: name -> its `ArchiveVariable`, the attributes from
+    `rbstudy.archive.variables` with the auxiliary coordinates of ``grid``
+    (`grid_coordinates`) that CF readers attach to it."""
     found = {}
     for name in study.variables:
         along = archive_dims(study, name)
@@ -238,18 +265,20 @@ def data_variables(study, grid):
         ]
         if auxiliary:
             attrs["coordinates"] = " ".join(auxiliary)
-        found[name] = (along, attrs, len(along) - len(VARIABLES[name].dims))
+        found[name] = ArchiveVariable(
+            dims=along, attrs=attrs, grid_rank=len(along) - len(VARIABLES[name].dims)
+        )
     return found
 
 
-def archive_dims(study, name):
+def archive_dims(study: Any, name: str) -> tuple[str, ...]:
     """The dimensions of variable ``name`` in ``study``'s archive: the swept ones (a
     variable of the scene alone: those along which the scene changes), then its own."""
     grid = study.scene_dims if VARIABLES[name].per_scene else tuple(d.name for d in study.dimensions)
     return grid + VARIABLES[name].dims
 
 
-def is_part(attributes, dimensions):
+def is_part(attributes: Container[str], dimensions: Container[str]) -> bool:
     """Whether a netCDF file with these global ``attributes`` and ``dimensions`` (names) is
     one batch's part file rather than a study's archive."""
     return "batch" in attributes and "case" in dimensions

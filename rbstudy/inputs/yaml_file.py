@@ -13,7 +13,9 @@ the memory). What is written is bounded too, before it is composed (PyYAML compo
 at most `MAX_WRITTEN` values.
 """
 
+import os
 import re
+from typing import Any
 
 import yaml
 
@@ -205,7 +207,7 @@ def _check_written(text, path):
         parser.dispose()
 
 
-def read_yaml_file(path):
+def read_yaml_file(path: str | os.PathLike[str]) -> tuple[str, Any]:
     """The text of the YAML file at ``path`` and its values; a `ConfigError` names what is
     wrong with the file (unreadable, no regular file, larger than
     `rbstudy.inputs.reader.MAX_INPUT_BYTES`, not UTF-8, malformed YAML, too deep or too large)."""
@@ -222,7 +224,7 @@ def read_yaml_file(path):
     return text, parse_yaml(text, path)
 
 
-def parse_yaml(text, path):
+def parse_yaml(text: str, path: str | os.PathLike[str]) -> Any:
     """The values of the YAML ``text`` (a file's, or a value given on the command line for
     the file at ``path``), read as `read_yaml_file` reads a file; a `ConfigError` at ``path``
     names what is wrong."""

@@ -151,7 +151,7 @@ class SceneTable:
     node_names: tuple
     duration: float
     warnings: tuple = ()
-    regularised: np.ndarray = None
+    regularised: np.ndarray | None = None
     tables: tuple = ()
 
     def __len__(self):

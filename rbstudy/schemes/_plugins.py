@@ -77,7 +77,9 @@ def _own_entries():
     metadata. An editable install's metadata is written by ``pip install -e .`` and keeps the
     entry points of that moment: the project file is what the code beside it declares now."""
     try:
-        import tomllib  # Python 3.11 on; on 3.10 a source tree reads the metadata as well
+        # Python 3.11 on; on 3.10 a source tree reads the metadata as well (mypy checks for
+        # 3.10, whose standard library has no tomllib: the ImportError below is that case)
+        import tomllib  # type: ignore[import-not-found, unused-ignore]
 
         project = tomllib.loads(_PYPROJECT.read_text())["project"]
         if project["name"] == DISTRIBUTION:
