@@ -1,8 +1,8 @@
 """The archive's chunks compressed on every core and written whole (HDF5's direct chunk write).
 
 HDF5 runs a chunk through its filters (here byte shuffling, then zlib) inside the write, one
-chunk at a time under its one lock: a million-case archive (1.5 GB) took ~55 s of one core
-to compress, which no number of cores shortened. Here each chunk of an archive variable is
+chunk at a time under its one lock: a million-case archive (1.5 GB) spent most of its writing
+compressing on one core, which no number of cores shortened. Here each chunk of an archive variable is
 filled in memory from the parts as they arrive; once its last value has come, it is shuffled
 and compressed by a pool of threads (zlib lets the GIL go) and written as it is with h5py's
 direct chunk write. The bytes are those HDF5's own filters would produce, so any netCDF-4

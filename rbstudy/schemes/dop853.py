@@ -34,7 +34,7 @@ from rbstudy.schemes.rk4 import rates
 # Tight enough that the reference error (~1e-12) sits below every compiled scheme's error at
 # the time steps studied; scipy itself floors rtol near 100 eps = 2.2e-14.
 RTOL = 1e-13  # and atol
-# Accepted steps one body may take as a scheme: about 25 minutes of one core (150 us a step),
+# Accepted steps one body may take as a scheme: long past any forecast run of one core,
 # |w0| T up to ~1.5e6 rad at the ~6.5 steps per radian it takes. A study forecast past the
 # --max-body-steps budget is refused before it runs; this bounds a run the forecast could
 # not see (a load that spins the body up, a budget raised past any sense): such a body
