@@ -29,6 +29,7 @@ __all__ = [
     "COMPRESSION",
     "FORMATS",
     "ArchiveVariable",
+    "Coordinate",
     "Layout",
     "SEARCH_GROUP",
     "archive_dims",
@@ -131,20 +132,20 @@ def _coordinate_values(axis):
     return np.array([float(v) for v in axis.values])
 
 
-def grid_coordinates(study: Any) -> dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]]:
-    """The coordinates of the swept dimensions: name -> (dims, values, attrs).
+def grid_coordinates(study: Any) -> dict[str, Coordinate]:
+    """The coordinates of the swept dimensions: name -> its `Coordinate`.
 
     A product dimension's coordinate is its axis; a zipped dimension gets an index coordinate
     and one auxiliary coordinate per axis. ``scheme`` and ``dt``, when not swept, are scalar
     coordinates, so that every dataset names both. Each scheme's nominal order and claimed
     invariants (`SCHEME_COORDINATES`) are auxiliary coordinates along ``scheme``.
     """
-    coords: dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]] = {}
+    coords: dict[str, Coordinate] = {}
     swept = {axis.target for dim in study.dimensions for axis in dim.axes}
     for name in ("scheme", "dt"):
         if name not in swept:  # then every run has the first run's
             value = getattr(study.cases.runs[0], name)
-            coords[name] = (
+            coords[name] = Coordinate(
                 (),
                 np.array(value, dtype=object if name == "scheme" else float),
                 cf_attrs(*COORDINATES[name]),
@@ -152,7 +153,7 @@ def grid_coordinates(study: Any) -> dict[str, tuple[tuple[str, ...], np.ndarray,
     coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
-            coords[dim.name] = (
+            coords[dim.name] = Coordinate(
                 (dim.name,),
                 np.arange(dim.size),
                 {"long_name": "index along the zipped axes " + ", ".join(a.coordinate for a in dim.axes)},
@@ -160,7 +161,7 @@ def grid_coordinates(study: Any) -> dict[str, tuple[tuple[str, ...], np.ndarray,
         for axis in dim.axes:
             attrs = cf_attrs(axis.units, axis.long_name)
             attrs["sweep_path"] = axis.target
-            coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
+            coords[axis.coordinate] = Coordinate((dim.name,), _coordinate_values(axis), attrs)
     return coords
 
 
@@ -173,7 +174,7 @@ def _scheme_claims(study, dims):
         else [study.cases.runs[0].scheme]
     )
     swept_order = study.order_dimension
-    coords: dict[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]] = {}
+    coords: dict[str, Coordinate] = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
         values = [study.schemes[scheme][name] for scheme in schemes]
         along = dims
@@ -184,7 +185,7 @@ def _scheme_claims(study, dims):
         if name == "nominal_order" and swept_order is not None:
             along = dims + (swept_order.dimension,)  # the orders of a swept composition
         shape = (len(values),) * bool(dims) + np.shape(values)[1:]
-        coords[name] = (along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
+        coords[name] = Coordinate(along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
     return coords
 
 
@@ -237,6 +238,15 @@ def create_variable(
     return variable
 
 
+class Coordinate(NamedTuple):
+    """A coordinate of the swept dimensions (`grid_coordinates`): its dimensions, its values
+    and its attributes, in the order xarray takes a variable as a tuple."""
+
+    dims: tuple[str, ...]
+    values: np.ndarray
+    attrs: dict[str, Any]
+
+
 class ArchiveVariable(NamedTuple):
     """How an output variable lies in the archive, whatever format stores it: its dimensions
     (`archive_dims`), its attributes, and how many of its dimensions are the grid's."""
@@ -246,9 +256,7 @@ class ArchiveVariable(NamedTuple):
     grid_rank: int
 
 
-def data_variables(
-    study: Any, grid: Mapping[str, tuple[tuple[str, ...], np.ndarray, dict[str, Any]]]
-) -> dict[str, ArchiveVariable]:
+def data_variables(study: Any, grid: Mapping[str, Coordinate]) -> dict[str, ArchiveVariable]:
     """The archive's output variables: name -> its `ArchiveVariable`, the attributes from
     `rbstudy.archive.variables` with the auxiliary coordinates of ``grid``
     (`grid_coordinates`) that CF readers attach to it."""
@@ -260,8 +268,8 @@ def data_variables(
         # claims): those along its dimensions
         auxiliary = [
             coordinate
-            for coordinate, (dims, _, _) in grid.items()
-            if dims != (coordinate,) and set(dims) <= set(along)
+            for coordinate, held in grid.items()
+            if held.dims != (coordinate,) and set(held.dims) <= set(along)
         ]
         if auxiliary:
             attrs["coordinates"] = " ".join(auxiliary)

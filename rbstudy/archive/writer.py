@@ -259,8 +259,8 @@ def _define_archive(nc: Any, study: Any, attrs: Mapping[str, Any]) -> dict[str, 
     fixed = fixed_coords(Layout.of(study))
     for name, (values, _) in fixed.items():
         nc.createDimension(name, len(values))
-    for name, (dims, values, coord_attrs) in grid.items():
-        create_variable(nc, name, dims, values, coord_attrs)
+    for name, coordinate in grid.items():
+        create_variable(nc, name, coordinate.dims, coordinate.values, coordinate.attrs)
     for name, (values, coord_attrs) in fixed.items():
         create_variable(
             nc,

@@ -35,6 +35,7 @@ from rbstudy.archive.chunks import OPEN_BYTES
 from rbstudy.archive.files import temporary_folder_beside, write_text_atomic
 from rbstudy.archive.layout import (
     FORMATS,
+    Coordinate,
     Layout,
     case_chunks,
     data_variables,
@@ -260,24 +261,29 @@ def define_store(folder: str | os.PathLike[str], study: Any, attrs: dict[str, An
     grid = grid_coordinates(study)
     coordinates = dict(grid)
     coordinates.update(
-        {name: ((name,), values, attrs_) for name, (values, attrs_) in fixed_coords(Layout.of(study)).items()}
+        {
+            name: Coordinate((name,), values, attrs_)
+            for name, (values, attrs_) in fixed_coords(Layout.of(study)).items()
+        }
     )
-    for name, (dims, values, attrs_) in coordinates.items():
-        values = np.asarray(values)
+    for name, coordinate in coordinates.items():
+        values = np.asarray(coordinate.values)
         text = values.dtype.kind in "OU"
         array = group.create_array(
             name,
             shape=values.shape,
             dtype=str if text else values.dtype,
-            dimension_names=dims,
-            attributes={key: _json(value) for key, value in attrs_.items()},
+            dimension_names=coordinate.dims,
+            attributes={key: _json(value) for key, value in coordinate.attrs.items()},
             compressors=None,
         )
         array[...] = values.astype(object) if text else values
     batch_cases = max((len(batch.cases) for batch in study.batches), default=1)
     arrays = {}
     sizes = {dim.name: dim.size for dim in study.dimensions} | {
-        name: len(values) for name, (_, values, _) in coordinates.items() if len(np.shape(values)) == 1
+        name: len(coordinate.values)
+        for name, coordinate in coordinates.items()
+        if len(np.shape(coordinate.values)) == 1
     }
     for name, (dims, attrs_, grid_rank) in data_variables(study, grid).items():
         dtype = np.dtype(VARIABLES[name].dtype)

@@ -37,6 +37,25 @@ __all__ = ["scene_table", "scene_from_mapping"]
 _ORIENTATION_FORMS = ("euler_zxz_deg", "quaternion", "rotation_vector", "momentum_axis")
 
 
+@dataclass(frozen=True)
+class _MassModel:
+    """What ``scene.body`` and ``scene.nodes``, or ``scene.assembly``, give of a column of
+    ``size`` bodies: mass (n,), principal inertias (n, 3), principal axes (n, 3, 3) or None
+    when principal inertias were given, whether an unphysical body is allowed, the node names
+    (N,) and offsets (n, N, 3) in the input body frame, the warnings, and for an assembled
+    body its `Assembly` and `Secondaries` (else None)."""
+
+    mass: np.ndarray
+    inertia: np.ndarray
+    axes: np.ndarray | None
+    allow_unphysical: bool
+    names: tuple[str, ...]
+    offsets: np.ndarray
+    warnings: tuple[str, ...]
+    assembled: Assembly | None = None
+    secondaries: Secondaries | None = None
+
+
 def _principal(reader, tensor, key):
     """Principal inertias (n, 3), ascending, and right-handed principal axes (n, 3, 3) as
     columns, of inertia tensors (n, 3, 3)."""
@@ -96,8 +115,8 @@ _DERIVED = {
 }
 
 
-def _read_assembled(reader, spec, path, size):
-    """The body of ``scene.assembly`` (`rbstudy.inputs.assembly`): its `Assembly`, its
+def _read_assembled(reader: Reader, spec: dict[str, Any], path: str, size: int) -> _MassModel:
+    """The `_MassModel` of ``scene.assembly`` (`rbstudy.inputs.assembly`): its `Assembly` and
     `Secondaries`, principal inertias (n, 3) and axes (n, 3, 3), and the warnings."""
     for given, why in _DERIVED.items():
         parent, _, leaf = given.rpartition(".")
@@ -119,7 +138,17 @@ def _read_assembled(reader, spec, path, size):
             f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
             "masses has that: check the nodal inertias)"
         )
-    return body, nodes, inertia, axes, tuple(warnings)
+    return _MassModel(
+        mass=body.mass,
+        inertia=inertia,
+        axes=axes,
+        allow_unphysical=True,  # Radioss warns of a lopsided body rather than refusing it
+        names=nodes.names,
+        offsets=body.offsets,
+        warnings=tuple(warnings),
+        assembled=body,
+        secondaries=nodes,
+    )
 
 
 def _read_orientation(reader, spec, path, body_momentum, size):
@@ -210,40 +239,10 @@ def _read_nodes(reader, spec, path, size):
     return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
-@dataclass(frozen=True)
-class _MassModel:
-    """What ``scene.body`` and ``scene.nodes``, or ``scene.assembly``, give of a column of
-    ``size`` bodies: mass (n,), principal inertias (n, 3), principal axes (n, 3, 3) or None
-    when principal inertias were given, whether an unphysical body is allowed, the node names
-    (N,) and offsets (n, N, 3) in the input body frame, the warnings, and for an assembled
-    body its `Assembly` and `Secondaries` (else None)."""
-
-    mass: np.ndarray
-    inertia: np.ndarray
-    axes: np.ndarray | None
-    allow_unphysical: bool
-    names: tuple[str, ...]
-    offsets: np.ndarray
-    warnings: tuple[str, ...]
-    assembled: Assembly | None = None
-    secondaries: Secondaries | None = None
-
-
 def _read_mass_model(reader: Reader, spec: dict[str, Any], path: str, size: int) -> _MassModel:
     """The `_MassModel` of the scene mapping ``spec``, assembled or given."""
     if "assembly" in spec:
-        assembled, secondaries, inertia, axes, warnings = _read_assembled(reader, spec, path, size)
-        return _MassModel(
-            mass=assembled.mass,
-            inertia=inertia,
-            axes=axes,
-            allow_unphysical=True,  # Radioss warns of a lopsided body rather than refusing it
-            names=secondaries.names,
-            offsets=assembled.offsets,
-            warnings=warnings,
-            assembled=assembled,
-            secondaries=secondaries,
-        )
+        return _read_assembled(reader, spec, path, size)
     mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
     names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
     return _MassModel(
