@@ -1,8 +1,8 @@
 """The archive's chunks compressed on every core and written whole (HDF5's direct chunk write).
 
 HDF5 runs a chunk through its filters (here byte shuffling, then zlib) inside the write, one
-chunk at a time under its one lock: a million-case archive (1.5 GB) took ~55 s of one core
-to compress, which no number of cores shortened. Here each chunk of an archive variable is
+chunk at a time under its one lock: a million-case archive (1.5 GB) spent most of its writing
+compressing on one core, which no number of cores shortened. Here each chunk of an archive variable is
 filled in memory from the parts as they arrive; once its last value has come, it is shuffled
 and compressed by a pool of threads (zlib lets the GIL go) and written as it is with h5py's
 direct chunk write. The bytes are those HDF5's own filters would produce, so any netCDF-4
@@ -13,11 +13,15 @@ A chunk whose values arrive out of order stays in memory until it is whole; past
 value) and read back when the rest arrives, as HDF5's chunk cache does.
 """
 
+from __future__ import annotations
+
 import collections
 import concurrent.futures
 import itertools
 import os
 import zlib
+from collections.abc import Iterable
+from typing import Any
 
 import h5py
 import numpy as np
@@ -36,14 +40,14 @@ IN_FLIGHT_PER_THREAD = 16
 _FILTERS = (h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE)
 
 
-def shuffled(values):
+def shuffled(values: np.ndarray) -> bytes:
     """The bytes of ``values`` (C order) as HDF5's shuffle filter lays them out: the first
     byte of every element, then the second, and so on (a no-op for one-byte elements)."""
     flat = np.ascontiguousarray(values).reshape(-1)
     return np.ascontiguousarray(flat.view(np.uint8).reshape(flat.size, flat.itemsize).T).tobytes()
 
 
-def unshuffled(data, dtype, shape):
+def unshuffled(data: bytes, dtype: Any, shape: tuple[int, ...]) -> np.ndarray:
     """The array of ``dtype`` and ``shape`` whose `shuffled` bytes are ``data``."""
     dtype = np.dtype(dtype)
     planes = np.frombuffer(data, dtype=np.uint8).reshape(dtype.itemsize, -1)
@@ -186,22 +190,29 @@ class ChunkedArchive:
     values)``; ``finish()`` writes what is left (a chunk never written reads as the fill
     value, as HDF5 leaves it)."""
 
-    def __init__(self, h5file, threads=None):
+    def __init__(self, h5file: h5py.File, threads: int | None = None) -> None:
         self.file = h5file
         threads = threads or len(os.sched_getaffinity(0))
         self.pool = concurrent.futures.ThreadPoolExecutor(threads, thread_name_prefix="compress")
-        self.in_flight = collections.deque()
+        self.in_flight: collections.deque[tuple[Any, tuple[int, ...], concurrent.futures.Future[bytes]]] = (
+            collections.deque()
+        )
         self.max_in_flight = IN_FLIGHT_PER_THREAD * threads
-        self.open_chunks = collections.OrderedDict()  # (variable, number) -> bytes, oldest first
+        self.open_chunks: collections.OrderedDict[tuple[_ChunkedVariable, tuple[int, ...]], int] = (
+            collections.OrderedDict()
+        )  # (variable, number) -> bytes, oldest first
         self.open_bytes = 0
 
-    def variable(self, name, grid_rank):
+    def variable(self, name: str, grid_rank: int) -> _WholeVariable | _ChunkedVariable:
+        """The writer of variable ``name``, chunked along its first ``grid_rank`` dimensions."""
         dataset = self.file[name]
         if dataset.chunks is None:  # a variable without dimensions: stored whole, uncompressed
             return _WholeVariable(dataset)
         return _ChunkedVariable(self, dataset, grid_rank)
 
-    def opened(self, variable, number, size):
+    def opened(self, variable: _ChunkedVariable, number: tuple[int, ...], size: int) -> None:
+        """Chunk ``number`` of ``variable`` holds ``size`` bytes in memory: past `OPEN_BYTES`
+        the oldest other chunk is written as it stands."""
         self.open_chunks[(variable, number)] = size
         self.open_bytes += size
         while self.open_bytes > OPEN_BYTES and len(self.open_chunks) > 1:
@@ -211,10 +222,13 @@ class ChunkedArchive:
                 continue
             oldest[0]._flush(oldest[1])
 
-    def closed(self, variable, number):
+    def closed(self, variable: _ChunkedVariable, number: tuple[int, ...]) -> None:
+        """Chunk ``number`` of ``variable`` is written: no longer held."""
         self.open_bytes -= self.open_chunks.pop((variable, number))
 
-    def compress(self, dataset, offset, values, level):
+    def compress(self, dataset: Any, offset: tuple[int, ...], values: np.ndarray, level: int) -> None:
+        """Compress ``values``, the chunk at ``offset`` of ``dataset``, on a thread, and write
+        the oldest compressed chunks while too many are in flight."""
         self.in_flight.append((dataset, offset, self.pool.submit(_compressed, values, level)))
         while len(self.in_flight) > self.max_in_flight:
             self._write_oldest()
@@ -223,16 +237,17 @@ class ChunkedArchive:
         dataset, offset, compressed = self.in_flight.popleft()
         dataset.id.write_direct_chunk(offset, compressed.result())
 
-    def write_all(self):
+    def write_all(self) -> None:
+        """Write every compressed chunk in flight."""
         while self.in_flight:
             self._write_oldest()
 
-    def finish(self, variables):
+    def finish(self, variables: Iterable[Any]) -> None:
         """Write every chunk of ``variables`` still open, then wait for every write."""
         for variable in variables:
             variable.flush_all()
         self.write_all()
 
-    def close(self):
+    def close(self) -> None:
         """Stop the threads (what they still hold is dropped: the archive failed)."""
         self.pool.shutdown(wait=True, cancel_futures=True)

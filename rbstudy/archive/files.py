@@ -8,18 +8,24 @@ disk, is one line (`UnwritableFolder`, `unwritable`), checked before a sweep sta
 a sweep made; `inside` is the last guard of every file written or deleted under a folder.
 """
 
+from __future__ import annotations
+
 import errno
-import itertools
 import os
 import pathlib
 import shutil
 import signal
 import tempfile
 import threading
+from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 from rbstudy.archive.hdf5 import HDF5_LOCK, nearly_full
 from rbstudy.errors import InputError, RbstudyError, one_line
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 __all__ = [
     "UnwritableFolder",
@@ -51,7 +57,7 @@ _CHECK_ATTEMPTS = 10
 
 
 @contextmanager
-def temporary_beside(path):
+def temporary_beside(path: str | os.PathLike[str]) -> Iterator[str]:
     """A temporary path in ``path``'s folder, renamed to ``path`` on success, removed on failure."""
     path = pathlib.Path(path)
     try:
@@ -75,7 +81,7 @@ def temporary_beside(path):
 
 
 @contextmanager
-def temporary_folder_beside(path):
+def temporary_folder_beside(path: str | os.PathLike[str]) -> Iterator[str]:
     """A temporary folder in ``path``'s folder, to fill (its files synced by the caller),
     then put in ``path``'s place on success (`replace_folder`), removed on failure."""
     path = pathlib.Path(path)
@@ -95,7 +101,7 @@ def temporary_folder_beside(path):
             shutil.rmtree(temporary)
 
 
-def replace_folder(source, path):
+def replace_folder(source: str | os.PathLike[str], path: str | os.PathLike[str]) -> None:
     """Put the folder ``source`` (its files synced) in ``path``'s place, in the same file
     system. A folder cannot be renamed over one that holds files: the old one is first renamed
     aside and removed after, so a reader finds the old folder, the new one or, for an instant,
@@ -128,7 +134,7 @@ class UnwritableFolder(RbstudyError):
     under a file, a system file system such as /proc)."""
 
 
-def unwritable(folder, error, label=""):
+def unwritable(folder: str | os.PathLike[str], error: OSError, label: str = "") -> UnwritableFolder:
     """The one-line error of ``folder`` refusing a write with the `OSError` ``error``:
     "no space left" (raised here) when its file system is (nearly) full, else an
     `UnwritableFolder` with the system's reason, to raise. ``label`` goes before the
@@ -146,7 +152,7 @@ def unwritable(folder, error, label=""):
     )
 
 
-def check_output_folder(folder, label="--out "):
+def check_output_folder(folder: str | os.PathLike[str], label: str = "--out ") -> None:
     """Refuse ``folder``, in one line, when rbstudy could not write there: a path that is, or
     lies under, a file, or a folder whose file system refuses a new file (read-only,
     immutable, /proc) or one of its missing names (too long). Called before a command prints
@@ -186,13 +192,15 @@ def _probe_under(place, missing):
         shutil.rmtree(private, ignore_errors=True)
 
 
-def make_folders(folder):
+def make_folders(folder: str | os.PathLike[str]) -> list[pathlib.Path]:
     """Make ``folder`` and its missing parents; the folders this process made, outermost
     first (one that another process makes at the same instant is found, not made; one that a failed
     sweep that made it removes under it is made again). On a
     failure the folders it made are removed again."""
-    made = []
-    for attempt in itertools.count(1):
+    made: list[pathlib.Path] = []
+    attempt = 0
+    while True:
+        attempt += 1
         missing, place = [], pathlib.Path(folder)
         while not place.exists():
             missing.append(place)
@@ -211,7 +219,7 @@ def make_folders(folder):
                 raise
 
 
-def remove_folders(made):
+def remove_folders(made: list[pathlib.Path]) -> None:
     """Remove the folders `make_folders` made, innermost first, as long as they are empty:
     another command may be writing in them."""
     for path in reversed(made):
@@ -237,7 +245,7 @@ def _raise_if_full(folder, error=None):
     ) from None
 
 
-def fsync_path(path):
+def fsync_path(path: str | os.PathLike[str]) -> None:
     """fsync a file or a folder: a machine crash after a rename must not leave the new name
     on an empty or partial file (the rename can reach the disk before the data)."""
     handle = os.open(path, os.O_RDONLY)
@@ -247,7 +255,7 @@ def fsync_path(path):
         os.close(handle)
 
 
-def inside(folder, name):
+def inside(folder: str | os.PathLike[str], name: str) -> pathlib.Path:
     """``folder / name``, refused unless it resolves inside ``folder``: the last guard of
     every file a command names after what it read (a figure is named after the archive's
     study), whatever let such a name through."""
@@ -262,12 +270,13 @@ def inside(folder, name):
     return path
 
 
-def write_text_atomic(text, path):
+def write_text_atomic(text: str, path: str | os.PathLike[str]) -> None:
+    """Write ``text`` to ``path`` through a temporary beside it (`temporary_beside`)."""
     with temporary_beside(path) as temporary:
         pathlib.Path(temporary).write_text(text)
 
 
-def write_dataset_atomic(dataset, path):
+def write_dataset_atomic(dataset: xr.Dataset, path: str | os.PathLike[str]) -> None:
     """Write an xarray ``dataset`` to the netCDF file ``path`` through a temporary beside it:
     a reader never sees half a file (the conformance scorecard, the step search's probes)."""
     with ctrl_c_held(), temporary_beside(path) as temporary, HDF5_LOCK:
@@ -275,7 +284,7 @@ def write_dataset_atomic(dataset, path):
 
 
 @contextmanager
-def ctrl_c_held():
+def ctrl_c_held() -> Iterator[None]:
     """Hold a Ctrl-C until the block ends, then raise it: xarray's ``to_netcdf``,
     interrupted between taking its netCDF lock and releasing it, waits for that lock
     forever as it closes the file (a sweep --find-step, interrupted, hung so). Only the

@@ -16,11 +16,16 @@ The study object is read, not imported: a `rbstudy.pipeline.config.StudyConfig` 
 has is decided here, once: the sweep asks the folder for its ``archive`` and its ``writer``.
 """
 
+from __future__ import annotations
+
 import contextlib
 import functools
+import os
 import pathlib
 import shutil
-from typing import Any, NamedTuple
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import AbstractContextManager
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import netCDF4
 
@@ -57,6 +62,10 @@ from rbstudy.archive.zarr_regions import (
 from rbstudy.archive.zarr_store import consolidate_store, refresh_store_description, store_attribute
 from rbstudy.errors import RbstudyError, one_line
 
+if TYPE_CHECKING:
+    import xarray as xr
+    from filelock import AcquireReturnProxy
+
 __all__ = ["ArchiveState", "SEARCH_FILE", "StudyFolder"]
 
 # The step search's working file, in the study folder, until the archive holds the search.
@@ -69,10 +78,10 @@ class ArchiveState(NamedTuple):
     its checksum, `rbstudy.archive.checksums`) or "current" (a rerun has nothing to do)."""
 
     kind: str
-    problems: tuple = ()
+    problems: tuple[str, ...] = ()
 
     @property
-    def current(self):
+    def current(self) -> bool:
         return self.kind == "current"
 
 
@@ -81,15 +90,26 @@ class StudyFolder:
     (``name``: the study's; `archive`), parts or marks and the working store, lock, owner
     record, config and step search. Making the object touches nothing on disk."""
 
-    def __init__(self, path, study: Any, name=None, unit_lock=None):
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        study: Any,
+        name: str | None = None,
+        unit_lock: Callable[[str], AbstractContextManager[Any]] | None = None,
+    ) -> None:
         self.study, self.path = study, pathlib.Path(path)
         self.name = study.name if name is None else name
         self.unit_lock = unit_lock
-        self.made = []  # the folders `make` made, outermost first
-        self.generation = None  # of the working store the workers write (`writer`), once open
+        self.made: list[pathlib.Path] = []  # the folders `make` made, outermost first
+        self.generation: str | None = None  # of the working store the workers write (`writer`), once open
 
     @classmethod
-    def of(cls, root, study, unit_lock=None):
+    def of(
+        cls,
+        root: str | os.PathLike[str],
+        study: Any,
+        unit_lock: Callable[[str], AbstractContextManager[Any]] | None = None,
+    ) -> StudyFolder:
         """The folder of ``study`` under the results folder ``root``: ``<root>/<study.name>``;
         ``unit_lock``: where the batches run on a cluster's workers (``--workers``,
         ``--cluster``, ``--scheduler``), which write a zarr store's regions themselves, the
@@ -97,65 +117,65 @@ class StudyFolder:
         return cls(pathlib.Path(root) / study.name, study, unit_lock=unit_lock)
 
     @functools.cached_property
-    def layout(self):
+    def layout(self) -> Layout:
         """The netCDF `Layout` of the study's parts and archive."""
         return Layout.of(self.study)
 
     @property
-    def archive(self):
+    def archive(self) -> pathlib.Path:
         return self.path / f"{self.name}{FORMATS[self.format]}"
 
     @property
-    def format(self):
+    def format(self) -> str:
         """The archive's format, a key of `FORMATS` (the study's; read when it is asked: the
         step search's folder of its working file alone has no study)."""
         return self.study.output_format
 
     @property
-    def zarr(self):
+    def zarr(self) -> bool:
         return self.format == "zarr"
 
     @property
-    def regions(self):
+    def regions(self) -> bool:
         """Whether the workers that compute the batches write a zarr store, each its region
         (`rbstudy.archive.zarr_regions`), a unit at a time under ``unit_lock``: no part passes
         through one writer."""
         return self.unit_lock is not None and self.zarr
 
     @property
-    def parts(self):
+    def parts(self) -> pathlib.Path:
         return self.path / "parts"
 
     @property
-    def job_logs(self):
+    def job_logs(self) -> pathlib.Path:
         """Where a cluster's batch jobs write their output (else SLURM writes slurm-<id>.out
         where the sweep was started): among the parts, kept with them when a run fails and
         removed with them when it succeeds."""
         return self.parts / "jobs"
 
     @property
-    def search_file(self):
+    def search_file(self) -> pathlib.Path:
         return self.path / SEARCH_FILE
 
-    def part_path(self, batch_id):
+    def part_path(self, batch_id: str) -> pathlib.Path:
         """Where a batch's part is, or its mark where the workers write the store's regions."""
         return self.parts / f"{batch_id}{MARK_SUFFIX if self.regions else PART_SUFFIX}"
 
     @property
-    def working_store(self):
+    def working_store(self) -> pathlib.Path:
         """The zarr store the workers write their regions to, until it is sealed."""
         return self.parts / f"{self.name}{FORMATS['zarr']}"
 
     # the folder's life ------------------------------------------------------------------
 
-    def make(self):
+    def make(self) -> None:
         """Make the folder with its parents (`make_folders`); a refusal is one line."""
         try:
             self.made = make_folders(self.path)
         except OSError as error:
             raise unwritable(self.path, error) from None
 
-    def remove_made(self):
+    def remove_made(self) -> None:
         """After a failed run, remove the folders `make` made when the run left nothing worth
         keeping: the study's folder whole (under its lock, or where none could be taken), its
         parents only while empty (another study's sweep may write there)."""
@@ -172,7 +192,7 @@ class StudyFolder:
         remove_folders([path for path in self.made if path != self.path])
 
     @contextlib.contextmanager
-    def refusals(self):
+    def refusals(self) -> Iterator[None]:
         """Under the study's lock: a write the folder refuses (an `OSError` naming a path in
         it: an immutable folder under --force) becomes its one-line error, and a failed run
         removes what it made (`remove_made`) before another sweep may take the lock."""
@@ -191,19 +211,19 @@ class StudyFolder:
             self.remove_made()
             raise
 
-    def lock(self):
+    def lock(self) -> AcquireReturnProxy:
         """The study's lock, taken (`rbstudy.archive.lock.study_lock`): a context manager."""
         return study_lock(self.path)
 
-    def check_claim(self, force=False):
+    def check_claim(self, force: bool = False) -> str | None:
         """Whether the folder may take the study's results (`folder_claim`); reads only."""
         return folder_claim(self.path.parent, self.study, force)
 
-    def claim(self):
+    def claim(self) -> None:
         """Record the study's config as the folder's (`claim_folder`)."""
         claim_folder(self.path, self.study)
 
-    def clear_stale(self):
+    def clear_stale(self) -> None:
         """Remove the temporaries and probe files a killed sweep left (the lock is ours)."""
         for stale in [*self.parts.glob(".*.tmp"), *self.path.glob(".*.tmp"), *self.parts.glob(".probe-*")]:
             if stale.is_dir() and not stale.is_symlink():  # a zarr store's temporary
@@ -211,13 +231,13 @@ class StudyFolder:
             else:
                 stale.unlink()
 
-    def write_config(self, text):
+    def write_config(self, text: str) -> None:
         """``study.yaml``: the resolved config ``text``, written whole."""
         write_text_atomic(text, self.path / "study.yaml")
 
     # the archive ------------------------------------------------------------------------
 
-    def state(self):
+    def state(self) -> ArchiveState:
         """The `ArchiveState` of the folder's archive for its study."""
         if not self.archive.exists():
             return ArchiveState("absent")
@@ -240,16 +260,16 @@ class StudyFolder:
                 problems = verify_archive(self.archive).problems
         return ArchiveState("damaged", tuple(problems)) if problems else ArchiveState("current")
 
-    def described_by(self):
+    def described_by(self) -> str | None:
         """The config text the archive was written from."""
         return open_results(self.archive, ()).attrs.get("config")
 
-    def answers_unchanged(self):
+    def answers_unchanged(self) -> bool:
         """Whether a rerun has nothing to write: the archive current and intact, and
         described by the study's very text."""
         return self.state().current and self.described_by() == self.study.archived_text
 
-    def redescribe(self, started, config_text):
+    def redescribe(self, started: str | None, config_text: str) -> None:
         """The same cases and code from another text (a title, a comment): the archive's
         global attributes (`provenance.global_attrs`, a run ``started`` then) and
         ``study.yaml`` (``config_text``) replaced, the data untouched."""
@@ -258,13 +278,13 @@ class StudyFolder:
             refresh(self.archive, global_attrs(self.study, started=started))
             self.write_config(config_text)
 
-    def writer(self, digests, started):
+    def writer(self, digests: Mapping[str, str | None], started: str | None) -> ArchiveWriter:
         """The `ArchiveWriter` of the archive from the parts, those of ``digests`` (batch id
         -> digest, None: still to come) already stored, of a run ``started`` then (its global
         attributes, `provenance.global_attrs`)."""
         parts = {batch.id: self.part_path(batch.id) for batch in self.study.batches}
         attrs = global_attrs(self.study, started=started)
-        write = None
+        write: Callable[..., None] | None = None
         if self.regions:  # defined before any batch runs: the workers write into it
             self.generation = open_working(self.working_store, self.study, attrs)
             write = functools.partial(finish_regions, working=self.working_store)
@@ -274,15 +294,18 @@ class StudyFolder:
 
     # the parts --------------------------------------------------------------------------
 
-    def make_parts(self):
+    def make_parts(self) -> None:
+        """Make ``parts/``, where the batches' parts or marks go."""
         self.parts.mkdir(exist_ok=True)
 
-    def part(self, batch):
+    def part(self, batch: Any) -> PartTarget | RegionTarget:
         """The `PartTarget` a task writes ``batch``'s part to, or where the workers write the
         store, its `RegionTarget` (the working store must exist: `writer`)."""
         path = str(self.part_path(batch.id))
         if not self.regions:
             return PartTarget(layout=self.layout, batch=batch, path=path)
+        if self.generation is None:
+            raise RuntimeError("a batch's region is written once writer() has defined the working store")
         dims = tuple(dimension.name for dimension in self.study.dimensions)
         return RegionTarget(
             self.layout,
@@ -300,14 +323,14 @@ class StudyFolder:
         batches, else None."""
         return working_generation(self.working_store, batches_digest(self.study.batches))
 
-    def stored(self, batches):
+    def stored(self, batches: Iterable[Any]) -> list[Any]:
         """Those of ``batches`` whose part file, or mark, is on disk (a mark counts only
         while its working store was defined for this study's batches)."""
         if self.regions and self._found_generation() is None:
             return []
         return [batch for batch in batches if self.part_path(batch.id).exists()]
 
-    def checked(self, batches):
+    def checked(self, batches: Iterable[Any]) -> Iterator[tuple[Any, str | None]]:
         """(batch, digest) of each of ``batches``, one at a time: the digest of its intact
         part (`part_complete`) or mark (`region_complete`: of the working store on disk),
         else None."""
@@ -320,7 +343,7 @@ class StudyFolder:
                 digest = part_complete(path, batch)
             yield batch, digest
 
-    def damaged(self, batches):
+    def damaged(self, batches: Iterable[Any]) -> int:
         """How many of ``batches`` have a part with its digest beside it: a part that failed
         its check then is damaged, not unfinished (stopped between its rename and its digest);
         a mark only when it names the working store's generation (one of another store is
@@ -332,7 +355,7 @@ class StudyFolder:
         return sum(sealed(self.part_path(batch.id)) for batch in stored)
 
     @contextlib.contextmanager
-    def probe(self, token):
+    def probe(self, token: str) -> Iterator[tuple[str, str]]:
         """A file in ``parts/`` holding ``token``, for the duration: a worker that reads it
         sees the folder (`rbstudy.archive.parts.sees_folder`); yields (path, token)."""
         path = self.parts / f".probe-{token}"
@@ -342,7 +365,7 @@ class StudyFolder:
         finally:
             path.unlink()
 
-    def remove_parts(self):
+    def remove_parts(self) -> int:
         """Remove the parts of the study's batches and their digests, the marks and the
         working store, left beside its current archive by a sweep killed before it removed
         them (by workers or not); how many parts or marks."""
@@ -357,7 +380,7 @@ class StudyFolder:
             self.parts.rmdir()  # unless something else is there (job logs, another config's parts)
         return removed
 
-    def finish_parts(self, keep):
+    def finish_parts(self, keep: bool) -> None:
         """Once the archive holds them: ``parts/`` removed, or with ``keep`` only the parts
         of earlier versions of the config removed."""
         if not keep:
@@ -379,7 +402,7 @@ class StudyFolder:
 
     # the step search --------------------------------------------------------------------
 
-    def read_search(self, working=False):
+    def read_search(self, working: bool = False) -> xr.Dataset | None:
         """The step search the archive holds (its group `SEARCH_GROUP`), or with ``working``
         the one under way (`SEARCH_FILE`); None where the archive has no search. Raises what
         reading a missing or damaged file raises."""
@@ -390,7 +413,7 @@ class StudyFolder:
                 return xr.load_dataset(self.search_file)
         return read_group(self.archive, SEARCH_GROUP)
 
-    def write_search(self, dataset):
+    def write_search(self, dataset: xr.Dataset) -> None:
         """The probes so far to the working file, which a rerun resumes from."""
         path = self.search_file
         try:
@@ -405,7 +428,7 @@ class StudyFolder:
                 "remove what is in its place, or sweep into another --out"
             ) from None
 
-    def seal_search(self, dataset):
+    def seal_search(self, dataset: xr.Dataset) -> None:
         """The finished search ``dataset`` into the archive (its group `SEARCH_GROUP`, sealed
         with it), then the working file removed, as the parts are once the archive holds
         them; an archive that holds this very search already (but for when it was run, its
@@ -421,7 +444,8 @@ class StudyFolder:
             return False
         return kept is not None and kept.assign_attrs(history=dataset.attrs["history"]).identical(dataset)
 
-    def drop_working_search(self):
+    def drop_working_search(self) -> None:
+        """Remove the step search's working file, and its folder when nothing else is there."""
         with contextlib.suppress(OSError):  # what is left is read with the archive's, no harm
             self.search_file.unlink(missing_ok=True)
             self.search_file.parent.rmdir()  # unless something else is there

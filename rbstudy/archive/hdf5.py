@@ -13,6 +13,8 @@ import os
 import pathlib
 import shutil
 import threading
+from collections.abc import Iterator
+from typing import Any, Literal
 
 import h5py
 import netCDF4
@@ -33,7 +35,7 @@ _CLOSE_ATTEMPTS = 3
 
 
 # The files a full disk kept open even then (`_close_or_truncate`), closed at the next write.
-_UNCLOSED = []
+_UNCLOSED: list[Any] = []
 
 
 # Free bytes below which a failed write is put down to a full disk: HDF5 reports one as "HDF
@@ -43,7 +45,9 @@ _FULL_BYTES = 2**20
 
 
 @contextlib.contextmanager
-def netcdf_writer(temporary, mode="w"):
+def netcdf_writer(
+    temporary: str | os.PathLike[str], mode: Literal["w", "a"] = "w"
+) -> Iterator[netCDF4.Dataset]:
     """``netCDF4.Dataset(temporary, mode)`` (NETCDF4) of a temporary file, closed on the way
     out even when a full disk fails its close (`_closed_on_exit`). Opening and closing take
     `HDF5_LOCK`; what the caller does in between takes it as it needs."""
@@ -55,7 +59,7 @@ def netcdf_writer(temporary, mode="w"):
 
 
 @contextlib.contextmanager
-def hdf5_writer(temporary):
+def hdf5_writer(temporary: str | os.PathLike[str]) -> Iterator[h5py.File]:
     """``h5py.File(temporary, "r+")``, closed on the way out as `netcdf_writer` closes. h5py
     carries its own HDF5 library and lock: `HDF5_LOCK`, netCDF4's, is not taken."""
     _close_unclosed()
@@ -64,7 +68,7 @@ def hdf5_writer(temporary):
         yield handle
 
 
-def nearly_full(path):
+def nearly_full(path: str | os.PathLike[str]) -> bool:
     """Whether the file system of ``path`` (or of its nearest existing ancestor) has less
     than `_FULL_BYTES` free; one of no blocks at all (/proc, /sys) never is, nor one that
     cannot tell (it is asked while a write's error is handled: that error stays the one

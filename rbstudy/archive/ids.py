@@ -10,6 +10,8 @@ so a bump renews them all (see its comment for what that costs). A study's ident
 import hashlib
 import json
 import pathlib
+from collections.abc import Iterable
+from typing import Any
 
 __all__ = [
     "IDENTITY",
@@ -47,7 +49,7 @@ def _normalised(value):
         return repr(value)
 
 
-def canonical_id(payload):
+def canonical_id(payload: Any) -> str:
     """A short stable hash of ``payload``: canonical JSON (sorted keys, numbers as floats) plus
     `SCHEMA_VERSION`."""
     text = json.dumps(
@@ -56,12 +58,12 @@ def canonical_id(payload):
     return hashlib.sha256(text.encode()).hexdigest()[:ID_LENGTH]
 
 
-def batches_digest(batches):
+def batches_digest(batches: Iterable[Any]) -> str:
     """One id for a whole study's batches: an archive built from exactly these is current."""
     return ids_digest([batch.id for batch in batches])
 
 
-def ids_digest(ids):
+def ids_digest(ids: Iterable[str]) -> str:
     """`batches_digest` of the batches of ids ``ids``, in order."""
     return canonical_id(list(ids))
 
@@ -72,7 +74,7 @@ def ids_digest(ids):
 IDENTITY = "config_identity"
 
 
-def study_identity(study):
+def study_identity(study: Any) -> tuple[str, str]:
     """Who ``study`` is to its folder (`rbstudy.archive.owner.OWNER`, `IDENTITY`): its config
     file's resolved path and the SHA-256 of the config's text. Two identities are one study
     when either matches: the same file edited, or the same text moved to another file."""

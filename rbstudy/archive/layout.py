@@ -9,20 +9,27 @@ every attribute comes from `rbstudy.archive.variables`. A step search is stored 
 group `SEARCH_GROUP`.
 """
 
+from __future__ import annotations
+
 import decimal
 import math
+from collections.abc import Container, Mapping
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from rbstudy.archive.coordinates import COORDINATES, SCHEME_COORDINATES, cf_attrs
 from rbstudy.archive.ids import study_identity
-from rbstudy.archive.variables import COORDINATES, SCHEME_COORDINATES, VARIABLES, cf_attrs, variable_attrs
+from rbstudy.archive.variables import VARIABLES, variable_attrs
 from rbstudy.physics.time_grid import output_times
 
 __all__ = [
     "CHUNK_BYTES",
     "COMPRESSION",
     "FORMATS",
+    "ArchiveVariable",
+    "Coordinate",
     "Layout",
     "SEARCH_GROUP",
     "archive_dims",
@@ -47,7 +54,7 @@ _LABELS = {"axis": ["x", "y", "z"], "component": ["x", "y", "z", "w"]}
 # Compression of the consolidated archive's data variables: zlib (readable by every netCDF-4
 # reader) after byte shuffling, which groups the slowly varying high bytes of neighbouring
 # floats; level 4 gives nearly all of level 9's size at a fraction of its time.
-COMPRESSION = {"zlib": True, "shuffle": True, "complevel": 4}
+COMPRESSION: dict[str, Any] = {"zlib": True, "shuffle": True, "complevel": 4}
 
 
 # Target size of an archive chunk (uncompressed): `case_chunks`.
@@ -78,7 +85,8 @@ class Layout:
     identity: tuple  # `study_identity`
 
     @classmethod
-    def of(cls, study):
+    def of(cls, study: Any) -> Layout:
+        """The layout of a `rbstudy.pipeline.study.Study`."""
         return cls(
             study=study.name,
             variables=study.variables,
@@ -89,21 +97,23 @@ class Layout:
         )
 
 
-def decimal_grid(n_times, interval):
+def decimal_grid(n_times: int, interval: float) -> np.ndarray:
     """The output times (`rbstudy.physics.simulate.output_times`) as the archive labels them:
     each the double nearest its decimal value, ``0.35``, not ``35 * 0.01 =
     0.35000000000000003``, so that ``ds.sel(time=0.35)`` finds it. An interval with more
     than 15 decimals is left as the plain products."""
     times = output_times(n_times, interval)
-    places = -decimal.Decimal(repr(float(interval))).as_tuple().exponent
+    places = -int(decimal.Decimal(repr(float(interval))).as_tuple().exponent)  # finite: an int
     if places > _MAX_DECIMALS or times[-1] * 10.0**places >= 2.0**52:
         return times
     return np.round(times, places)  # exact: k * interval * 10^places is a whole number
 
 
-def fixed_coords(layout):
+def fixed_coords(layout: Layout) -> dict[str, tuple[np.ndarray, dict[str, Any]]]:
     """time, axis, component and node coordinates as (values, attrs)."""
-    coords = {"time": (decimal_grid(layout.n_times, layout.output_interval), {})}
+    coords: dict[str, tuple[np.ndarray, dict[str, Any]]] = {
+        "time": (decimal_grid(layout.n_times, layout.output_interval), {})
+    }
     coords.update({name: (np.array(labels), {}) for name, labels in _LABELS.items()})
     if layout.node_names:
         coords["node"] = (np.array(layout.node_names), {})
@@ -122,20 +132,20 @@ def _coordinate_values(axis):
     return np.array([float(v) for v in axis.values])
 
 
-def grid_coordinates(study):
-    """The coordinates of the swept dimensions: name -> (dims, values, attrs).
+def grid_coordinates(study: Any) -> dict[str, Coordinate]:
+    """The coordinates of the swept dimensions: name -> its `Coordinate`.
 
     A product dimension's coordinate is its axis; a zipped dimension gets an index coordinate
     and one auxiliary coordinate per axis. ``scheme`` and ``dt``, when not swept, are scalar
     coordinates, so that every dataset names both. Each scheme's nominal order and claimed
     invariants (`SCHEME_COORDINATES`) are auxiliary coordinates along ``scheme``.
     """
-    coords = {}
+    coords: dict[str, Coordinate] = {}
     swept = {axis.target for dim in study.dimensions for axis in dim.axes}
     for name in ("scheme", "dt"):
         if name not in swept:  # then every run has the first run's
             value = getattr(study.cases.runs[0], name)
-            coords[name] = (
+            coords[name] = Coordinate(
                 (),
                 np.array(value, dtype=object if name == "scheme" else float),
                 cf_attrs(*COORDINATES[name]),
@@ -143,7 +153,7 @@ def grid_coordinates(study):
     coords.update(_scheme_claims(study, () if "scheme" not in swept else ("scheme",)))
     for dim in study.dimensions:
         if len(dim.axes) > 1:
-            coords[dim.name] = (
+            coords[dim.name] = Coordinate(
                 (dim.name,),
                 np.arange(dim.size),
                 {"long_name": "index along the zipped axes " + ", ".join(a.coordinate for a in dim.axes)},
@@ -151,7 +161,7 @@ def grid_coordinates(study):
         for axis in dim.axes:
             attrs = cf_attrs(axis.units, axis.long_name)
             attrs["sweep_path"] = axis.target
-            coords[axis.coordinate] = ((dim.name,), _coordinate_values(axis), attrs)
+            coords[axis.coordinate] = Coordinate((dim.name,), _coordinate_values(axis), attrs)
     return coords
 
 
@@ -164,7 +174,7 @@ def _scheme_claims(study, dims):
         else [study.cases.runs[0].scheme]
     )
     swept_order = study.order_dimension
-    coords = {}
+    coords: dict[str, Coordinate] = {}
     for name, (_, units, long_name) in SCHEME_COORDINATES.items():
         values = [study.schemes[scheme][name] for scheme in schemes]
         along = dims
@@ -175,20 +185,20 @@ def _scheme_claims(study, dims):
         if name == "nominal_order" and swept_order is not None:
             along = dims + (swept_order.dimension,)  # the orders of a swept composition
         shape = (len(values),) * bool(dims) + np.shape(values)[1:]
-        coords[name] = (along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
+        coords[name] = Coordinate(along, np.asarray(values).reshape(shape), cf_attrs(units, long_name))
     return coords
 
 
-def case_chunks(grid_shape, own_shape, itemsize):
+def case_chunks(grid_shape: tuple[int, ...], own_shape: tuple[int, ...], itemsize: int) -> tuple[int, ...]:
     """Chunk shape of an archive variable: whole along its own dimensions (time, node,
     axis, ...), and along the grid's dimensions, from the last, as many cases as keep a
     chunk near `CHUNK_BYTES`. The archive is written part by part, and a part holds whole
     cases: chunks of whole cases are filled by one part, each compressed once. netCDF's
     default chunks cut across cases, so that every part decompressed and compressed again
-    the chunks it shared with the others (10,000 cases: 35 s of 50 in consolidation)."""
+    the chunks it shared with the others, which took most of the consolidation's time."""
     chunk = [max(1, size) for size in own_shape]  # netCDF refuses a chunk of length 0
     room = max(1, CHUNK_BYTES // max(1, itemsize * math.prod(own_shape)))
-    grid_chunk = []
+    grid_chunk: list[int] = []
     for size in reversed(grid_shape):
         take = max(1, min(size, room))
         grid_chunk.insert(0, take)
@@ -196,7 +206,15 @@ def case_chunks(grid_shape, own_shape, itemsize):
     return tuple(grid_chunk + chunk)
 
 
-def create_variable(nc, name, dims, values=None, attrs=None, dtype=None, grid_rank=0):
+def create_variable(
+    nc: Any,
+    name: str,
+    dims: tuple[str, ...],
+    values: np.ndarray | None = None,
+    attrs: Mapping[str, Any] | None = None,
+    dtype: Any = None,
+    grid_rank: int = 0,
+) -> Any:
     """A netCDF variable; coordinates get ``values``, data variables a NaN fill (floats) and
     compression (zlib with byte shuffling: `COMPRESSION`) in chunks of whole cases
     (`case_chunks`) along their first ``grid_rank`` dimensions."""
@@ -220,11 +238,28 @@ def create_variable(nc, name, dims, values=None, attrs=None, dtype=None, grid_ra
     return variable
 
 
-def data_variables(study, grid):
-    """The archive's output variables: name -> (its dimensions, `archive_dims`; its
-    attributes, from `rbstudy.archive.variables`, with the auxiliary coordinates of ``grid``
-    (`grid_coordinates`) that CF readers attach to it; how many of its dimensions are the
-    grid's), whatever format stores them."""
+class Coordinate(NamedTuple):
+    """A coordinate of the swept dimensions (`grid_coordinates`): its dimensions, its values
+    and its attributes, in the order xarray takes a variable as a tuple."""
+
+    dims: tuple[str, ...]
+    values: np.ndarray
+    attrs: dict[str, Any]
+
+
+class ArchiveVariable(NamedTuple):
+    """How an output variable lies in the archive, whatever format stores it: its dimensions
+    (`archive_dims`), its attributes, and how many of its dimensions are the grid's."""
+
+    dims: tuple[str, ...]
+    attrs: dict[str, Any]
+    grid_rank: int
+
+
+def data_variables(study: Any, grid: Mapping[str, Coordinate]) -> dict[str, ArchiveVariable]:
+    """The archive's output variables: name -> its `ArchiveVariable`, the attributes from
+    `rbstudy.archive.variables` with the auxiliary coordinates of ``grid``
+    (`grid_coordinates`) that CF readers attach to it."""
     found = {}
     for name in study.variables:
         along = archive_dims(study, name)
@@ -233,23 +268,25 @@ def data_variables(study, grid):
         # claims): those along its dimensions
         auxiliary = [
             coordinate
-            for coordinate, (dims, _, _) in grid.items()
-            if dims != (coordinate,) and set(dims) <= set(along)
+            for coordinate, held in grid.items()
+            if held.dims != (coordinate,) and set(held.dims) <= set(along)
         ]
         if auxiliary:
             attrs["coordinates"] = " ".join(auxiliary)
-        found[name] = (along, attrs, len(along) - len(VARIABLES[name].dims))
+        found[name] = ArchiveVariable(
+            dims=along, attrs=attrs, grid_rank=len(along) - len(VARIABLES[name].dims)
+        )
     return found
 
 
-def archive_dims(study, name):
+def archive_dims(study: Any, name: str) -> tuple[str, ...]:
     """The dimensions of variable ``name`` in ``study``'s archive: the swept ones (a
     variable of the scene alone: those along which the scene changes), then its own."""
     grid = study.scene_dims if VARIABLES[name].per_scene else tuple(d.name for d in study.dimensions)
     return grid + VARIABLES[name].dims
 
 
-def is_part(attributes, dimensions):
+def is_part(attributes: Container[str], dimensions: Container[str]) -> bool:
     """Whether a netCDF file with these global ``attributes`` and ``dimensions`` (names) is
     one batch's part file rather than a study's archive."""
     return "batch" in attributes and "case" in dimensions

@@ -6,7 +6,12 @@ slab, so a million cases' findings never hold their whole series. `read_group` r
 group stored beside the archive's dataset (the step search's).
 """
 
+from __future__ import annotations
+
 import contextlib
+import os
+from collections.abc import Collection, Mapping
+from typing import TYPE_CHECKING, Any
 
 import netCDF4
 import numpy as np
@@ -15,10 +20,17 @@ from rbstudy.archive.hdf5 import HDF5_LOCK
 from rbstudy.archive.variables import VARIABLES
 from rbstudy.archive.zarr_store import is_store
 
+if TYPE_CHECKING:
+    import xarray as xr
+
 __all__ = ["open_results", "read_group"]
 
 
-def open_results(path, variables=None, reduced=None):
+def open_results(
+    path: str | os.PathLike[str],
+    variables: Collection[str] | None = None,
+    reduced: Mapping[str, str] | None = None,
+) -> xr.Dataset:
     """Load an archive (a netCDF file of results, or a zarr store), ``time`` in seconds from the start of
     the run.
 
@@ -29,13 +41,13 @@ def open_results(path, variables=None, reduced=None):
     (``time`` its scalar coordinate). A million cases' two series of 11 samples took 176 MB
     whole and twice that while read.
     """
-    import xarray as xr  # here: a sweep's workers and its forecast never read a dataset (0.3 s)
+    import xarray as xr  # here: a sweep's workers and its forecast never read a dataset
 
     skip = None if variables is None else [name for name in VARIABLES if name not in variables]
     # a zarr store (`rbstudy.archive.zarr_store`) needs no HDF5 lock, and has no consolidated
     # metadata to look for
     store = is_store(path)
-    how = {"engine": "zarr", "consolidated": False} if store else {}
+    how: dict[str, Any] = {"engine": "zarr", "consolidated": False} if store else {}
     with (
         contextlib.nullcontext() if store else HDF5_LOCK,
         xr.open_dataset(path, decode_times=False, drop_variables=skip, **how) as dataset,
@@ -75,7 +87,7 @@ def _reduced_along_time(variable, how):
     return variable.isel(time=0, drop=True).copy(data=largest)
 
 
-def read_group(path, group):
+def read_group(path: str | os.PathLike[str], group: str) -> xr.Dataset | None:
     """The netCDF group ``group`` of the file at ``path`` as a loaded xarray dataset; None
     where the file has no such group (an archive without a step search) or is a zarr store."""
     import xarray as xr  # here, as in `open_results`

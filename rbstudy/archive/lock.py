@@ -1,8 +1,9 @@
 """The study lock: one sweep at a time writes a study's folder."""
 
 import os
+import pathlib
 
-from filelock import FileLock, Timeout
+from filelock import AcquireReturnProxy, FileLock, Timeout
 
 from rbstudy.archive.files import unwritable
 from rbstudy.errors import RbstudyError
@@ -19,7 +20,7 @@ class StudyBusy(RbstudyError):
     made it an instant before."""
 
 
-def study_lock(folder):
+def study_lock(folder: pathlib.Path) -> AcquireReturnProxy:
     """Take ``folder/.lock`` for the sweep and return it, a context manager whose exit
     releases it; a second sweep of the same study refuses at once, naming the holder's pid,
     and so does a folder that cannot be written (`rbstudy.archive.files.UnwritableFolder`,

@@ -10,6 +10,7 @@ import hashlib
 import os
 import pathlib
 import stat
+from typing import Any
 
 import netCDF4
 
@@ -123,7 +124,7 @@ def _results_owner(folder, study):
     return other
 
 
-def folder_claim(root, study, force=False):
+def folder_claim(root: str | os.PathLike[str], study: Any, force: bool = False) -> str | None:
     """Whether ``<root>/<study.name>`` may take ``study``'s results; reads only.
 
     A study folder belongs to the config that made it (`OWNER`: its file and its text's
@@ -153,7 +154,7 @@ def folder_claim(root, study, force=False):
     )
 
 
-def claim_folder(folder, study):
+def claim_folder(folder: str | os.PathLike[str], study: Any) -> None:
     """Record ``study``'s config as the one whose study ``folder`` holds (`folder_claim`
     must have let it). A rename replaces whatever is in the record's place but a folder,
     which is not rbstudy's to remove: then the archive and the parts name the study alone."""

@@ -4,7 +4,7 @@ A part (``parts/<batch-id>.npz``) is an intermediate that only rbstudy reads: nu
 of arrays, uncompressed, each variable's values case first beside ``case`` (each case's
 position in the study, C order of the grid), and what the part is (`PART_ATTRIBUTES`: its
 study, batch and config) as text. Not netCDF: a part lives until the archive is written, and
-netCDF4 took ten times as long to write one of the default study's 54 parts (a file of 37
+netCDF4 took far longer to write one of the default study's 54 parts (a file of 37
 variables, under the process's one HDF5 lock, which the archive's writer waited on); numpy
 writes one at the disk's pace, needs no lock, and reads it back without pickles
 (``allow_pickle=False``). Its whole byte content is hashed (SHA-256) when it is written, and
@@ -14,12 +14,15 @@ file never is, wherever the damage lies. `PartTarget` is what a task, local or o
 worker, is handed to write its batch.
 """
 
+from __future__ import annotations
+
 import functools
 import hashlib
 import os
 import pathlib
 import re
 import zipfile
+from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -81,7 +84,7 @@ _READ_BYTES = 1 << 20
 _SIDECAR_BYTES = 4096
 
 
-def file_digest(path):
+def file_digest(path: str | os.PathLike[str]) -> str:
     """``sha256:<hex>`` of the bytes of the regular file at ``path`` (`open_regular_file`:
     a FIFO or a device in a part's place is refused, never waited on or read forever)."""
     digest = hashlib.sha256()
@@ -91,25 +94,25 @@ def file_digest(path):
     return f"{ALGORITHM}:{digest.hexdigest()}"
 
 
-def sidecar(path):
+def sidecar(path: str | os.PathLike[str]) -> pathlib.Path:
     """Where the digest of the part at ``path`` is kept."""
     path = pathlib.Path(path)
     return path.with_name(path.name + SIDECAR_SUFFIX)
 
 
-def sidecar_text(digest, path):
+def sidecar_text(digest: str, path: str | os.PathLike[str]) -> str:
     """The digest file's line, as ``sha256sum`` writes it (``sha256sum -c`` does not read the
     ``sha256:`` prefix, but a reader sees which file and algorithm)."""
     return f"{digest}  {pathlib.Path(path).name}\n"
 
 
-def sealed(path):
+def sealed(path: str | os.PathLike[str]) -> bool:
     """True when the part at ``path`` exists with its digest beside it (so that a part which
     fails `part_digest` then is damaged, not unfinished)."""
     return pathlib.Path(path).exists() and sidecar(path).exists()
 
 
-def part_digest(path):
+def part_digest(path: str | os.PathLike[str]) -> str | None:
     """The digest of the part at ``path`` when its bytes match the one stored beside it at
     writing, else None (no part, no digest, no regular file for either, or any byte changed
     since)."""
@@ -131,15 +134,15 @@ class PartTarget(NamedTuple):
     path: str
 
     @property
-    def cases(self):
+    def cases(self) -> int:
         return len(self.batch.cases)
 
-    def write(self, values):
+    def write(self, values: Mapping[str, np.ndarray]) -> str:
         """`write_part` of this batch's ``values``; the part's digest."""
         return write_part(self.layout, self.batch, values, self.path)
 
 
-def part_values(batch, variables, values):
+def part_values(batch: Any, variables: Iterable[str], values: Mapping[str, Any]) -> dict[str, np.ndarray]:
     """What the part of ``batch`` holds, and `read_part` returns, of its computed ``values``:
     ``case`` (each case's position in the study) and each of ``variables`` in its storage
     type, name -> array."""
@@ -195,19 +198,19 @@ class _Part:
         self._file.close()
 
 
-def read_part(path, variables):
+def read_part(path: str | os.PathLike[str], variables: Iterable[str]) -> dict[str, np.ndarray]:
     """The case numbers and ``variables`` of the part file at ``path``, name -> array."""
     with _Part(path) as part:
         return {name: part[name] for name in ("case", *variables)}
 
 
-def part_attributes(path):
+def part_attributes(path: str | os.PathLike[str]) -> dict[str, str]:
     """What the part file at ``path`` says of itself (`PART_ATTRIBUTES`), name -> text."""
     with _Part(path) as part:
         return {name: str(part[key]) for name, key in PART_ATTRIBUTES.items()}
 
 
-def part_complete(path, batch):
+def part_complete(path: str | os.PathLike[str], batch: Any) -> str | None:
     """The digest of ``path`` when it is an intact part of ``batch`` (its bytes match the
     digest stored when it was written, its id and its cases match), else None.
 
@@ -228,7 +231,7 @@ def part_complete(path, batch):
     return digest if same else None
 
 
-def write_part(layout, batch, values, path):
+def write_part(layout: Layout, batch: Any, values: Mapping[str, Any], path: str | os.PathLike[str]) -> str:
     """Write the part of ``batch`` (its variables ``values``, case first) to ``path`` through
     a temporary file and a rename, then its digest beside it; returns the digest."""
     said = {"study": layout.study, "batch": batch.id, "identity": "\n".join(layout.identity)}
@@ -248,7 +251,7 @@ def write_part(layout, batch, values, path):
 
 
 @functools.lru_cache(maxsize=16)
-def sees_folder(probe):
+def sees_folder(probe: tuple[str, str] | None) -> bool:
     """Whether this process reads ``probe`` = (path, token) as the client wrote it
     (`rbstudy.archive.folder.StudyFolder.probe`): a worker that does writes its parts itself.
     None: the client's own process, which sees the folder."""

@@ -12,6 +12,7 @@ import shlex
 import subprocess
 import sys
 from importlib import metadata
+from typing import Any
 
 from rbstudy.archive.ids import IDENTITY, batches_digest, study_identity
 
@@ -46,7 +47,7 @@ def _versions():
     return found
 
 
-def source_text(version):
+def source_text(version: str) -> str:
     """``rbstudy <version>``, with the commit of the checkout the package runs from
     (``rbstudy 0.4.0 (commit abc1234)``, ``..., modified)`` when its tracked files differ
     from it): an editable install's version names no code, its commit does. Just the
@@ -73,11 +74,12 @@ def source_text(version):
     return f"rbstudy {version} (commit {commit}{', modified' if changes else ''})"
 
 
-def utc_now():
+def utc_now() -> str:
+    """Now, in UTC, as ISO 8601 to the second."""
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
-def global_attrs(study, command=None, started=None):
+def global_attrs(study: Any, command: str | None = None, started: str | None = None) -> dict[str, Any]:
     """The global attributes: CF conventions, provenance, the config text (with the ``--set``
     overrides applied) and the overrides, one a line (empty without)."""
     versions = _versions()

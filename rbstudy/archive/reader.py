@@ -14,9 +14,14 @@ failure is one `InputError` naming the file, the attribute or variable, and the 
 netCDF or HDF5 error while reading becomes "damaged", never a traceback.
 """
 
+from __future__ import annotations
+
 import contextlib
 import errno
+import os
 import pathlib
+from collections.abc import Collection, Mapping
+from typing import TYPE_CHECKING, Any
 
 import netCDF4
 import numpy as np
@@ -31,6 +36,9 @@ from rbstudy.archive.zarr_integrity import verify_store
 from rbstudy.archive.zarr_store import is_store, open_header
 from rbstudy.errors import InputError, one_line
 from rbstudy.inputs.reader import FOLDER_NAME_RULE, NotARegularFile, is_folder_name, open_regular_file
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 __all__ = ["open_archive", "check_layout", "verify_file", "NOT_AN_ARCHIVE", "GIVE_AN_ARCHIVE"]
 
@@ -193,7 +201,7 @@ def _in_order(names, grid):
     return all(name in rest for name in names)
 
 
-def check_layout(path):
+def check_layout(path: str | os.PathLike[str]) -> int:
     """Refuse the file at ``path`` unless it is netCDF with an archive's layout: the study
     attribute (a study name), the bookkeeping variables and the ``scheme`` and ``dt``
     coordinates, and every output variable along the swept dimensions (a variable of the
@@ -201,6 +209,7 @@ def check_layout(path):
     output times, an accuracy bound that is a number above 0, and only the codes of each
     flag (`_content_problem`). Reads the file's header and its flags; returns the number of
     cases it holds. A zarr store is checked alike."""
+    failures: tuple[type[Exception], ...]
     if is_store(path):  # zarr raises what a damaged store's JSON or chunks make it raise
         opened, kind, failures = (
             open_header(path),
@@ -213,7 +222,7 @@ def check_layout(path):
     try:
         with opened as header:
             problem = _layout_problem(path, header) or _content_problem(path, header)
-            cases = None if problem else int(header["status"].size)
+            cases = 0 if problem else int(header["status"].size)
     except failures as error:
         raise InputError(
             f"damaged: it cannot be read as {kind} ({one_line(error)})", _REBUILD, str(path)
@@ -249,7 +258,13 @@ def _verified(path, bypass=None):
     raise InputError(f"damaged: {shown}", fix, str(path))
 
 
-def open_archive(path, variables=None, verify=True, reduced=None, progress=None):
+def open_archive(
+    path: str | os.PathLike[str],
+    variables: Collection[str] | None = None,
+    verify: bool = True,
+    reduced: Mapping[str, str] | None = None,
+    progress: Any = None,
+) -> xr.Dataset:
     """The archive at ``path`` as a loaded xarray dataset (`rbstudy.archive.load.open_results`:
     ``variables`` only, when given, and the time series of ``reduced`` reduced along time),
     after `check_layout` and, when ``verify``, after proving every variable intact by its
@@ -269,7 +284,7 @@ def open_archive(path, variables=None, verify=True, reduced=None, progress=None)
         raise InputError(f"damaged: it cannot be read ({one_line(error)})", _REBUILD, str(path)) from None
 
 
-def verify_file(path):
+def verify_file(path: str | os.PathLike[str]) -> str:
     """What ``rbstudy verify`` says of ``path`` when it is intact (an archive, or a part with
     its digest beside it, or a zarr store); an `InputError` naming the first problems when it
     is not."""

@@ -9,12 +9,17 @@ written (`ArchiveWriter.arrived`, from any thread) and waits for the archive at 
 run that stops (Ctrl-C, a failed batch) abandons it, and its temporary is removed.
 """
 
+from __future__ import annotations
+
 import functools
 import itertools
 import math
 import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent import futures
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from types import TracebackType
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 
@@ -26,7 +31,7 @@ from rbstudy.archive.layout import Layout, create_variable, data_variables, fixe
 from rbstudy.archive.parts import part_values, read_part
 from rbstudy.archive.variables import VARIABLES
 
-__all__ = ["ArchiveWriter", "HELD_BYTES", "consolidate", "copy_part"]
+__all__ = ["Arrival", "ArchiveWriter", "CopyTarget", "HELD_BYTES", "SlabWriter", "consolidate", "copy_part"]
 
 
 class _Abandoned(Exception):
@@ -38,9 +43,36 @@ class _Abandoned(Exception):
 HELD_BYTES = 2**28
 
 
+class Arrival(NamedTuple):
+    """A batch's part as the archive's writer gets it: its ``path`` (or the mark of its
+    region), its ``digest``, and its ``values`` (what the part holds, when handed over in
+    memory, else None and the part is read)."""
+
+    path: Any
+    digest: str
+    values: dict[str, np.ndarray] | None
+
+
+class SlabWriter(Protocol):
+    """What `copy_part` writes a variable through: a `ChunkedArchive.variable`, or anything
+    with its ``write(index, values)``."""
+
+    def write(self, index: tuple, values: np.ndarray) -> None:
+        """``values`` into the slab at ``index`` (a slice or list of positions a dimension)."""
+
+
+class CopyTarget(NamedTuple):
+    """Where `copy_part` copies one variable: its ``writer``, whether it lies ``along`` each
+    grid dimension, and the `StreamedChecksum` fed what is written (None: none)."""
+
+    writer: SlabWriter
+    along: tuple[bool, ...]
+    stream: StreamedChecksum | None
+
+
 class _Arrivals:
     """The parts of a study's batches, handed to `consolidate` in the batches' order as
-    they are written (iterate: (path, digest, values) per batch, waiting for each), from any
+    they are written (iterate: an `Arrival` per batch, waiting for each), from any
     thread.
 
     ``digests`` holds those of the parts already stored (None: still to compute); a store
@@ -83,7 +115,7 @@ class _Arrivals:
     def _ready(self, batch_id):
         return self._abandoned or self._digests.get(batch_id) is not None
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Arrival]:
         for batch in self._batches:
             with self._changed:
                 self._changed.wait_for(functools.partial(self._ready, batch.id))
@@ -94,37 +126,45 @@ class _Arrivals:
                 values = self._values.pop(batch.id, None)
                 if values is not None:
                     self._held -= sum(array.nbytes for array in values.values())
-            yield self._parts[batch.id], digest, values
+            yield Arrival(self._parts[batch.id], digest, values)
 
 
 class ArchiveWriter:
     """``target`` written from the parts of ``study.batches`` (``parts``: batch id -> path)
     as they arrive, in the batches' order, by a thread of its own from entering to `wait`'s
-    true, so its compression (one core at ~60 MiB/s) runs beside the batches. ``digests``:
+    true, so its compression (on one core) runs beside the batches. ``digests``:
     those of the parts already stored (None: still to come). Leaving the block on an
     exception abandons the archive (its temporary removed) before the thread is joined.
     ``write``: what writes it, `consolidate` (netCDF) or a function of its arguments
     (`rbstudy.archive.zarr_store.consolidate_store`)."""
 
-    def __init__(self, study, parts, digests, target, attrs, write=None):
+    def __init__(
+        self,
+        study: Any,
+        parts: Mapping[str, Any],
+        digests: Mapping[str, str | None],
+        target: Any,
+        attrs: Mapping[str, Any],
+        write: Callable[..., None] | None = None,
+    ) -> None:
         self._study, self._target, self._attrs = study, target, attrs
         self._write = consolidate if write is None else write
         self._arrivals = _Arrivals(study.batches, parts, digests)
         self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="archive")
-        self._written = None
+        self._written: Future[None] | None = None
 
-    def __enter__(self):
+    def __enter__(self) -> ArchiveWriter:
         arrivals = self._arrivals
         self._written = self._thread.submit(
             self._write, self._study, arrivals, self._target, self._attrs, advance=arrivals.consolidated
         )
         return self
 
-    def arrived(self, batch_id, digest):
+    def arrived(self, batch_id: str, digest: str) -> None:
         """The part of ``batch_id`` is written, with ``digest`` (from any thread)."""
         self._arrivals.arrived(batch_id, digest)
 
-    def computed(self, batch, values):
+    def computed(self, batch: Any, values: Mapping[str, np.ndarray]) -> None:
         """``batch``'s ``values`` (name -> array, case first), computed in this process and
         written to its part: the archive takes them from memory, not from the file (from any
         thread, before `arrived`)."""
@@ -136,29 +176,39 @@ class ArchiveWriter:
         )
 
     @property
-    def copied(self):
+    def copied(self) -> int:
         """How many parts the archive holds so far."""
         return self._arrivals.copied
 
-    def wait(self, timeout):
+    def wait(self, timeout: float | None) -> bool:
         """Whether the archive is written, after waiting at most ``timeout`` s for it; its
         writing's error raised here."""
-        if not futures.wait([self._written], timeout=timeout).done:
+        written = self._written
+        if written is None:
+            raise RuntimeError("the archive is written inside the ArchiveWriter's with block only")
+        if not futures.wait([written], timeout=timeout).done:
             return False
-        self._written.result()
+        written.result()
         return True
 
-    def __exit__(self, kind, error, traceback):
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, traceback: TracebackType | None
+    ) -> Literal[False]:
         if kind is not None:
             self._arrivals.abandon()  # the archive's temporary is removed before the thread ends
         self._thread.shutdown(wait=True)
         return False
 
 
-def consolidate(study, arriving, target, attrs, advance=lambda: None):
-    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields (path, digest,
-    values) of the part of each batch of ``study.batches``, in their order (values: what the
-    part holds, when it was handed over in memory, else None and the part is read), and may
+def consolidate(
+    study: Any,
+    arriving: Iterable[Arrival],
+    target: Any,
+    attrs: Mapping[str, Any],
+    advance: Callable[[], None] = lambda: None,
+) -> None:
+    """Write ``<study>.nc`` from its parts as they arrive: ``arriving`` yields the `Arrival`
+    of the part of each batch of ``study.batches``, in their order, and may
     wait for a part still being computed (the archive is written while later batches run). netCDF4
     defines the archive; its chunks are then filled from the parts and compressed on every
     core (`ChunkedArchive`, through h5py). ``advance()`` after each part; then the archive
@@ -175,7 +225,7 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
             archive = ChunkedArchive(h5file)
             try:
                 targets = {
-                    name: (archive.variable(name, grid_rank), along, stream)
+                    name: CopyTarget(archive.variable(name, grid_rank), along, stream)
                     for name, (grid_rank, along, stream) in defined.items()
                 }
                 part_digests = []
@@ -184,16 +234,24 @@ def consolidate(study, arriving, target, attrs, advance=lambda: None):
                     copy_part(targets, part, shape)
                     part_digests.append([batch.id, digest])
                     advance()
-                archive.finish(variable for variable, _, _ in targets.values())
+                archive.finish(copied.writer for copied in targets.values())
             finally:
                 archive.close()
         seal_archive(temporary, part_digests, {name: stream for name, (_, _, stream) in defined.items()})
 
 
-def _define_archive(nc, study, attrs):
+class _Defined(NamedTuple):
+    """An output variable as `_define_archive` defines it."""
+
+    grid_rank: int
+    along: tuple[bool, ...]
+    stream: StreamedChecksum
+
+
+def _define_archive(nc: Any, study: Any, attrs: Mapping[str, Any]) -> dict[str, _Defined]:
     """Create the archive's dimensions, coordinates and (empty) variables in the open ``nc``;
-    name -> (how many of its dimensions are the grid's, whether it lies along each grid
-    dimension, its `StreamedChecksum`) of the output variables."""
+    name -> `_Defined` (how many of its dimensions are the grid's, whether it lies along each
+    grid dimension, its `StreamedChecksum`) of the output variables."""
     grid = grid_coordinates(study)
     nc.setncatts(attrs)
     for dim in study.dimensions:
@@ -201,8 +259,8 @@ def _define_archive(nc, study, attrs):
     fixed = fixed_coords(Layout.of(study))
     for name, (values, _) in fixed.items():
         nc.createDimension(name, len(values))
-    for name, (dims, values, coord_attrs) in grid.items():
-        create_variable(nc, name, dims, values, coord_attrs)
+    for name, coordinate in grid.items():
+        create_variable(nc, name, coordinate.dims, coordinate.values, coordinate.attrs)
     for name, (values, coord_attrs) in fixed.items():
         create_variable(
             nc,
@@ -212,19 +270,20 @@ def _define_archive(nc, study, attrs):
             coord_attrs,
         )
     targets = {}
-    for name, (along, attrs_, grid_rank) in data_variables(study, grid).items():
+    for name, stored in data_variables(study, grid).items():
+        grid_rank = stored.grid_rank
         variable = create_variable(
-            nc, name, along, attrs=attrs_, dtype=VARIABLES[name].dtype, grid_rank=grid_rank
+            nc, name, stored.dims, attrs=stored.attrs, dtype=VARIABLES[name].dtype, grid_rank=grid_rank
         )
-        targets[name] = (
+        targets[name] = _Defined(
             grid_rank,
-            tuple(d.name in along[:grid_rank] for d in study.dimensions),
+            tuple(d.name in stored.dims[:grid_rank] for d in study.dimensions),
             StreamedChecksum(variable, grid_rank),
         )
     return targets
 
 
-def _block(cases, shape):
+def _block(cases: np.ndarray, shape: tuple[int, ...]) -> tuple[tuple, tuple[int, ...]] | None:
     """Orthogonal indices (one per dimension) when ``cases`` (flat, C order) fill the outer
     product of their coordinates in order, else None. Batches usually do (a fixed scheme
     and dt, every value of the other axes), and one slab write replaces a write per case."""
@@ -240,45 +299,45 @@ def _block(cases, shape):
     )
 
 
-def copy_part(targets, part, shape):
+def copy_part(
+    targets: Mapping[str, CopyTarget], part: Mapping[str, np.ndarray], shape: tuple[int, ...]
+) -> None:
     """Copy one part's cases (`read_part`) into the consolidated variables ``targets``: name
-    -> (its chunk writer, `ChunkedArchive.variable` or anything with its ``write(index,
-    values)``; whether it lies along each grid dimension; its `StreamedChecksum`, fed what is
-    written, or None). A part holds a value per
-    case; a variable of the scene alone takes its cases' values at the first position of the
-    dimensions it does not lie along (the same at every other)."""
+    -> its `CopyTarget`. A part holds a value per case; a variable of the scene alone takes
+    its cases' values at the first position of the dimensions it does not lie along (the same
+    at every other)."""
     cases = part["case"]
     if not shape:  # a one-case study
-        for name, (variable, _, _) in targets.items():
-            variable.write((), part[name][0])
+        for name, copied in targets.items():
+            copied.writer.write((), part[name][0])
         return
-    block = _block(cases, shape)
+    orthogonal = _block(cases, shape)
     # else slabs of consecutive cases: a batch cut from a long grid (one scheme and dt, 510 of
     # 100 x 1,000 spins and tilts) starts and ends inside a row; written case by case, such
-    # a part took 0.5 s (1e5 cases: 100 s of 178)
+    # parts took most of a large study's consolidation
     slabs = (
-        [block]
-        if block is not None
+        [orthogonal]
+        if orthogonal is not None
         else [
             (index, tuple(piece.stop - piece.start for piece in index))
             for run in np.split(cases, np.flatnonzero(np.diff(cases) != 1) + 1)
             for index in _slabs(int(run[0]), int(run[-1]) + 1, shape)
         ]
     )
-    for name, (variable, along, stream) in targets.items():
+    for name, (writer, along, stream) in targets.items():
         values, start = part[name], 0
         for index, sizes in slabs:
             count = math.prod(sizes)
             block = values[start : start + count].reshape(sizes + values.shape[1:])
             kept = tuple(where for where, keep in zip(index, along, strict=True) if keep)
             written = block[tuple(slice(None) if keep else 0 for keep in along)]
-            variable.write(kept, written)
+            writer.write(kept, written)
             if stream is not None:
                 stream.wrote(kept, written)
             start += count
 
 
-def _slabs(first, stop, shape):
+def _slabs(first: int, stop: int, shape: tuple[int, ...]) -> list[tuple[slice, ...]]:
     """The cases ``first`` to ``stop`` - 1 (flat, C order) of a grid of ``shape`` as at most
     2 len(shape) - 1 slabs, in order, each a tuple of slices (one per dimension)."""
     if first == stop:

@@ -61,7 +61,7 @@ def _meaning(root):
     return f"{ALGORITHM}:" + hashlib.sha256(json.dumps(meaning, sort_keys=True).encode()).hexdigest()
 
 
-def store_checksums(path, sync=False):
+def store_checksums(path: str | os.PathLike[str], sync: bool = False) -> dict[str, str]:
     """Store path -> ``sha256:<hex>`` of every file of the store at ``path`` but its root's
     ``zarr.json`` (whose meaning attributes go under `MEANING`) and the `GROUP`'s."""
     root = pathlib.Path(path)
@@ -80,7 +80,7 @@ def store_checksums(path, sync=False):
     return found
 
 
-def seal_store(path, part_digests):
+def seal_store(path: str | os.PathLike[str], part_digests: list[list[str]]) -> None:
     """Seal the store at ``path``: the checksum of every file written (each synced to disk)
     and the parts' digests ``part_digests`` ([batch id, digest] each), in the group `GROUP`."""
     import zarr
@@ -109,7 +109,7 @@ def _named(key):
     return f"the file {key}"
 
 
-def verify_store(path):
+def verify_store(path: str | os.PathLike[str]) -> ArchiveCheck:
     """The `ArchiveCheck` of the zarr store at ``path``: every file against its checksum,
     and its parts against the study's batches."""
     root = pathlib.Path(path)

@@ -29,17 +29,20 @@ The cells are the same whatever order the batches come in, so the store is the o
 
 A scheduler's lock expires when its holder stops renewing it (``distributed.scheduler.locks
 .lease-timeout``, 30 s by default): a worker stalled that long inside one unit's write could
-let another in. One unit's write takes milliseconds to a second.
+let another in. One unit's write is far shorter than that.
 """
+
+from __future__ import annotations
 
 import collections
 import contextlib
 import functools
 import hashlib
 import json
+import os
 import pathlib
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from contextlib import AbstractContextManager
 from typing import Any, NamedTuple
 
@@ -48,7 +51,7 @@ import numpy as np
 from rbstudy.archive.files import replace_folder, temporary_folder_beside, write_text_atomic
 from rbstudy.archive.layout import Layout
 from rbstudy.archive.parts import SIDECAR_SUFFIX, file_digest, part_digest, part_values, sidecar, sidecar_text
-from rbstudy.archive.writer import copy_part
+from rbstudy.archive.writer import Arrival, CopyTarget, copy_part
 from rbstudy.archive.zarr_store import (
     define_store,
     dimensions_of,
@@ -81,7 +84,7 @@ MARK_SUFFIX = ".region"
 GENERATION = "rbstudy_working_generation"
 
 
-def working_generation(path, batches_digest):
+def working_generation(path: str | os.PathLike[str], batches_digest: str) -> str | None:
     """The generation of the working store at ``path`` when it was defined whole for batches
     of ``batches_digest`` (`rbstudy.archive.ids.batches_digest`), else None: the cells its
     marked batches wrote are theirs."""
@@ -92,7 +95,7 @@ def working_generation(path, batches_digest):
     return None
 
 
-def open_working(path, study, attrs):
+def open_working(path: pathlib.Path, study: Any, attrs: dict[str, Any]) -> str:
     """The generation of the working store at ``path`` for ``study`` (global attributes
     ``attrs``): kept when it was defined for these very batches (a resumed run), else defined
     anew, empty, in a temporary folder renamed into place (a sweep killed while it defines the
@@ -107,7 +110,7 @@ def open_working(path, study, attrs):
     return generation
 
 
-def remove_marks(folder):
+def remove_marks(folder: pathlib.Path) -> None:
     """Remove the marks (and their digests) in ``folder``: of a working store gone, or sealed."""
     for mark in [*folder.glob(f"*{MARK_SUFFIX}"), *folder.glob(f"*{MARK_SUFFIX}{SIDECAR_SUFFIX}")]:
         mark.unlink(missing_ok=True)
@@ -131,10 +134,10 @@ class RegionTarget(NamedTuple):
     generation: str
 
     @property
-    def cases(self):
+    def cases(self) -> int:
         return len(self.batch.cases)
 
-    def write(self, values):
+    def write(self, values: Mapping[str, np.ndarray]) -> str:
         """This batch's ``values`` (name -> array, case first) into the store, then its mark;
         the mark's digest."""
         part = part_values(self.batch, self.layout.variables, values)
@@ -156,7 +159,7 @@ def _write_region(target, part):
     targets = {}
     for name, array in arrays.items():
         along = tuple(dim in dimensions_of(array) for dim in target.dims)
-        targets[name] = (_Collected(array, name, writes), along, None)
+        targets[name] = CopyTarget(_Collected(array, name, writes), along, None)
     copy_part(targets, part, target.shape)
     for (name, unit), pieces in writes.items():
         array = arrays[name]
@@ -174,7 +177,7 @@ def _write_region(target, part):
 def _opened(store, generation, names):
     """The arrays ``names`` of the working ``store`` of ``generation``, name -> zarr array,
     opened once in a process for all the batches it writes there (each opening reads and
-    parses the array's metadata: 1.4 s of a 1e5-case study's 8 s in zarr)."""
+    parses the array's metadata, a good share of a large study's time in zarr)."""
     import zarr  # here: a netCDF study's workers never load it
 
     group = zarr.open_group(store, mode="r+", zarr_format=3, use_consolidated=False)
@@ -196,7 +199,7 @@ class _Collected:
     def __init__(self, array, name, writes):
         self.array, self.name, self.writes = array, name, writes
 
-    def write(self, index, values):
+    def write(self, index: tuple, values: np.ndarray) -> None:
         for unit, inside, block in unit_pieces(self.array, index, np.asarray(values)):
             self.writes[(self.name, unit)].append((inside, block))
 
@@ -231,14 +234,16 @@ def _mark(target, part):
     return digest
 
 
-def mark_generation(path):
+def mark_generation(path: str | os.PathLike[str]) -> str | None:
     """The generation the mark at ``path`` names, None where it cannot be read."""
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
         return json.loads(pathlib.Path(path).read_text())["generation"]
     return None
 
 
-def region_complete(path, batch, layout, generation):
+def region_complete(
+    path: str | os.PathLike[str], batch: Any, layout: Layout, generation: str | None
+) -> str | None:
     """The digest of the mark at ``path`` when it is intact and marks ``batch`` of the study
     of ``layout`` in the working store of ``generation`` (None: there is none), else None."""
     digest = part_digest(path)
@@ -257,16 +262,24 @@ def region_complete(path, batch, layout, generation):
     return None
 
 
-def finish_regions(study, arriving, target, attrs, advance=lambda: None, working=None):
+def finish_regions(
+    study: Any,
+    arriving: Iterable[Arrival],
+    target: str | os.PathLike[str],
+    attrs: dict[str, Any],
+    advance: Callable[[], None] = lambda: None,
+    *,
+    working: pathlib.Path,
+) -> None:
     """``<study>.zarr`` from the ``working`` store once every batch is in it: the contract of
-    `rbstudy.archive.writer.consolidate` (``arriving`` yields (mark, digest, values) of each
-    batch in the batches' order, once written; ``advance()`` after each), the working store
+    `rbstudy.archive.writer.consolidate` (``arriving`` yields the `Arrival` of each batch,
+    its mark for its path, in the batches' order, once written; ``advance()`` after each), the working store
     given this run's global attributes ``attrs``, sealed with the marks' digests
     (`finish_store`) and renamed into place, then its generation dropped and the marks
     removed.
 
     The generation stays in the working store until it is in place: a sweep killed while it
-    seals the store (its checksums read every file back, 16 s at 1e6 cases) resumes from every
+    seals the store (its checksums read every file back, long at a million cases) resumes from every
     mark. Killed between the rename and the attributes' rewrite, the archive keeps the
     attribute, which no reader reads and no checksum covers."""
     part_digests = []

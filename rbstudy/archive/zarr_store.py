@@ -14,15 +14,20 @@ written in a temporary folder beside its place, sealed with its checksums
 (`rbstudy.archive.zarr_integrity`) and renamed into place: a reader never sees half a store.
 """
 
+from __future__ import annotations
+
 import collections
 import contextlib
 import itertools
 import json
 import math
+import os
 import pathlib
 import shutil
 import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -30,6 +35,7 @@ from rbstudy.archive.chunks import OPEN_BYTES
 from rbstudy.archive.files import temporary_folder_beside, write_text_atomic
 from rbstudy.archive.layout import (
     FORMATS,
+    Coordinate,
     Layout,
     case_chunks,
     data_variables,
@@ -38,12 +44,13 @@ from rbstudy.archive.layout import (
 )
 from rbstudy.archive.parts import read_part
 from rbstudy.archive.variables import VARIABLES
-from rbstudy.archive.writer import copy_part
+from rbstudy.archive.writer import Arrival, CopyTarget, copy_part
 from rbstudy.archive.zarr_integrity import GROUP, seal_store
 
 __all__ = [
     "SHARD_BYTES",
     "SUFFIX",
+    "UnitPiece",
     "consolidate_store",
     "define_store",
     "dimensions_of",
@@ -68,13 +75,13 @@ SHARD_BYTES = 2**25
 
 
 # Blosc's zstd after byte shuffling: like the netCDF archive's zlib with shuffle, the slowly
-# varying high bytes of neighbouring floats grouped, at a fraction of zlib's time. Level 1,
-# one core: 294 MiB/s for a ratio of 1.87 on the --scale study's arrays (level 4: 89 MiB/s,
-# 1.89), 272 MiB/s for 1.17 on the default study's long series (level 4: 64 MiB/s, 1.35).
+# varying high bytes of neighbouring floats grouped, at a fraction of zlib's time. Level 1:
+# several times level 4's speed for nearly its ratio on the --scale study's arrays, and a
+# somewhat lower ratio on the default study's long series.
 _COMPRESSION_LEVEL = 1
 
 
-def is_store(path):
+def is_store(path: str | os.PathLike[str]) -> bool:
     """Whether ``path`` is a zarr store (a folder with its root ``zarr.json``)."""
     path = pathlib.Path(path)
     return path.is_dir() and (path / "zarr.json").is_file()
@@ -102,7 +109,7 @@ def _shards(shape, chunks, grid_rank, itemsize, batch_cases):
     by the workers (`rbstudy.archive.zarr_regions`), and stays open in memory across k parts
     in the local writer (`_Units`). Shards of 32 MiB spanned the whole of a 1e6-case study's
     per-case variables (245 batches), and writing its store from parts on one machine took
-    over 8 minutes against netCDF's 94 s."""
+    several times as long as the netCDF archive's."""
     if math.prod(math.ceil(size / chunk) for size, chunk in zip(shape, chunks, strict=True)) <= 1:
         return None
     by_bytes = SHARD_BYTES // max(1, math.prod(chunks) * itemsize)
@@ -116,13 +123,13 @@ def _shards(shape, chunks, grid_rank, itemsize, batch_cases):
     return tuple(shard)
 
 
-def dimensions_of(array):
+def dimensions_of(array: Any) -> tuple[str, ...]:
     """The dimension names of zarr ``array``, a tuple (zarr gives None for a scalar's: a
     variable of the scene alone where no scene axis is swept)."""
     return tuple(array.metadata.dimension_names or ())
 
 
-def unit_bounds(array, unit):
+def unit_bounds(array: Any, unit: tuple[int, ...]) -> tuple[slice, ...]:
     """The region of zarr ``array`` (a slice per grid dimension) its unit ``unit`` covers: the
     unit's index in the grid of its shards, or of its chunks where it has none."""
     shape = array.shards or array.chunks
@@ -132,10 +139,18 @@ def unit_bounds(array, unit):
     )
 
 
-def unit_pieces(array, index, values):
+class UnitPiece(NamedTuple):
+    """The part of a write that falls in one unit of a zarr array (`unit_pieces`): the unit's
+    index (`unit_bounds`), the positions inside it as a numpy index, and the values there."""
+
+    unit: tuple[int, ...]
+    inside: Any
+    block: np.ndarray
+
+
+def unit_pieces(array: Any, index: tuple, values: np.ndarray) -> Iterator[UnitPiece]:
     """``values`` at ``index`` (a slice or a list of positions per grid dimension) of zarr
-    ``array``, split by the units they fall in (`unit_bounds`): (unit, the positions inside it
-    as a numpy index, the values there), one per unit."""
+    ``array``, split by the units they fall in (`unit_bounds`): a `UnitPiece` per unit."""
     shape = array.shards or array.chunks
     positions = [
         np.arange(*piece.indices(size)) if isinstance(piece, slice) else np.asarray(piece)
@@ -152,15 +167,15 @@ def unit_pieces(array, index, values):
             for (key, rows), where, size in zip(pieces, positions, shape[: len(positions)], strict=True)
         ]
         block = values[np.ix_(*taken)] if taken else values
-        yield tuple(key for key, _ in pieces), (np.ix_(*inside) if inside else ...), block
+        yield UnitPiece(tuple(key for key, _ in pieces), np.ix_(*inside) if inside else ..., block)
 
 
 class _Units:
     """The store's variables filled in memory a unit at a time (a shard, or a chunk where a
     variable is not sharded) and each unit written whole once all its values are there: a
-    zarr write into part of a unit reads, decodes, merges and encodes it again (~5 ms a write
-    through zarr's event loop; abaqus_top, 54 parts of 32 variables written as they came:
-    7-12 s against netCDF's 1.5 s). Parts in C order fill a unit or two of a variable at a
+    zarr write into part of a unit reads, decodes, merges and encodes it again through zarr's
+    event loop (abaqus_top, 54 parts of 32 variables written as they came, took several times
+    the netCDF archive's time). Parts in C order fill a unit or two of a variable at a
     time; past `OPEN_BYTES` of open units (batches that interleave) the oldest is written as
     it stands, and read back when its other values come, as `rbstudy.archive.chunks` does."""
 
@@ -227,7 +242,7 @@ class _Region:
     def __init__(self, units, name):
         self.units, self.name = units, name
 
-    def write(self, index, values):
+    def write(self, index: tuple, values: np.ndarray) -> None:
         self.units.write(self.name, index, np.asarray(values))
 
 
@@ -236,7 +251,7 @@ class _Region:
 _WRITERS = 8
 
 
-def define_store(folder, study, attrs):
+def define_store(folder: str | os.PathLike[str], study: Any, attrs: dict[str, Any]) -> dict[str, Any]:
     """The store's group, coordinates and (empty) output variables in ``folder``; name -> its
     zarr array, of the output variables."""
     import zarr
@@ -246,24 +261,29 @@ def define_store(folder, study, attrs):
     grid = grid_coordinates(study)
     coordinates = dict(grid)
     coordinates.update(
-        {name: ((name,), values, attrs_) for name, (values, attrs_) in fixed_coords(Layout.of(study)).items()}
+        {
+            name: Coordinate((name,), values, attrs_)
+            for name, (values, attrs_) in fixed_coords(Layout.of(study)).items()
+        }
     )
-    for name, (dims, values, attrs_) in coordinates.items():
-        values = np.asarray(values)
+    for name, coordinate in coordinates.items():
+        values = np.asarray(coordinate.values)
         text = values.dtype.kind in "OU"
         array = group.create_array(
             name,
             shape=values.shape,
             dtype=str if text else values.dtype,
-            dimension_names=dims,
-            attributes={key: _json(value) for key, value in attrs_.items()},
+            dimension_names=coordinate.dims,
+            attributes={key: _json(value) for key, value in coordinate.attrs.items()},
             compressors=None,
         )
         array[...] = values.astype(object) if text else values
     batch_cases = max((len(batch.cases) for batch in study.batches), default=1)
     arrays = {}
     sizes = {dim.name: dim.size for dim in study.dimensions} | {
-        name: len(values) for name, (_, values, _) in coordinates.items() if len(np.shape(values)) == 1
+        name: len(coordinate.values)
+        for name, coordinate in coordinates.items()
+        if len(np.shape(coordinate.values)) == 1
     }
     for name, (dims, attrs_, grid_rank) in data_variables(study, grid).items():
         dtype = np.dtype(VARIABLES[name].dtype)
@@ -288,10 +308,16 @@ def define_store(folder, study, attrs):
     return arrays
 
 
-def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
+def consolidate_store(
+    study: Any,
+    arriving: Iterable[Arrival],
+    target: str | os.PathLike[str],
+    attrs: dict[str, Any],
+    advance: Callable[[], None] = lambda: None,
+) -> None:
     """Write ``<study>.zarr`` from its parts as they arrive: the contract of
-    `rbstudy.archive.writer.consolidate` (``arriving`` yields (path, digest, values or None) of
-    each batch's part in the batches' order; ``advance()`` after each part), the store defined once the
+    `rbstudy.archive.writer.consolidate` (``arriving`` yields the `Arrival` of each batch's
+    part in the batches' order; ``advance()`` after each part), the store defined once the
     first part is there, each part's cases written into their region, then the store sealed
     with its checksums and the parts' digests (`seal_store`) and renamed into place."""
     parts = zip(study.batches, arriving, strict=True)
@@ -300,7 +326,7 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
         arrays = define_store(temporary, study, attrs)
         units = _Units(arrays)
         targets = {
-            name: (
+            name: CopyTarget(
                 units.region(name),
                 tuple(d.name in dimensions_of(array) for d in study.dimensions),
                 None,
@@ -319,7 +345,7 @@ def consolidate_store(study, arriving, target, attrs, advance=lambda: None):
         finish_store(temporary, part_digests)
 
 
-def finish_store(path, part_digests):
+def finish_store(path: str | os.PathLike[str], part_digests: list[list[str]]) -> None:
     """The store at ``path`` made whole: the files of writes killed inside zarr and an earlier
     seal removed, every array's metadata copied into the root's ``zarr.json`` (consolidated:
     xarray.open_zarr reads it in one file, and without a warning, as a cluster's file system
@@ -345,20 +371,20 @@ def _open_group(path, mode="r"):
     return zarr.open_group(str(path), mode=mode, zarr_format=3, use_consolidated=False)
 
 
-def store_attributes(path):
+def store_attributes(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The global attributes of the store at ``path``, read from its root ``zarr.json`` alone
     (opening the group through zarr reads more, and a worker reads them under each unit's
     lock); raises `OSError`, `ValueError` or `KeyError` where the store cannot be read."""
     return json.loads((pathlib.Path(path) / "zarr.json").read_text())["attributes"]
 
 
-def store_attribute(path, name):
+def store_attribute(path: str | os.PathLike[str], name: str) -> Any:
     """The global attribute ``name`` of the store at ``path``; raises `KeyError` without it,
     `OSError` or `ValueError` where the store cannot be read."""
     return store_attributes(path)[name]
 
 
-def refresh_store_description(path, attrs):
+def refresh_store_description(path: str | os.PathLike[str], attrs: Mapping[str, Any]) -> None:
     """Replace the global attributes of the store at ``path`` (its title, config text and
     provenance) without touching its data, as `rbstudy.archive.rewrite.refresh_description`
     does for the netCDF archive: the root's ``zarr.json`` is written anew whole, through a
@@ -411,6 +437,6 @@ class _Header:
 
 
 @contextlib.contextmanager
-def open_header(path):
+def open_header(path: str | os.PathLike[str]) -> Iterator[_Header]:
     """The store at ``path`` opened for `rbstudy.archive.reader`'s checks (`_Header`)."""
     yield _Header(_open_group(path))

@@ -44,7 +44,7 @@ The centre of mass is moved by the adapter, with Bullet's own rule for both kind
 (the velocity by the force over the step, then the position by the new velocity), while
 Bullet's bodies stay parked, each at its own point: Bullet's broadphase, which pybullet
 cannot switch off, tests every pair of bodies whose boxes meet every step, and the bodies of
-a study mostly share one place (1,000 bodies at one point cost 35 ms a step). A free body's
+a study mostly share one place (a thousand bodies at one point made each step far dearer). A free body's
 rotation does not depend on where it is, and the force is applied at the centre of mass.
 
 Conventions (tests/test_engines.py checks them on a body at rest and on constant spins):
@@ -109,7 +109,7 @@ _PRIMING_STEP = 1e-12
 # Where the bodies are parked in Bullet's world, each at its own point of a cubic lattice of
 # this spacing (m) and this many points a side: Bullet's broadphase, which pybullet cannot
 # switch off, tests every pair of bodies whose boxes meet, every step, so bodies at one point
-# cost O(n^2) (35 ms a step for 1,000 bodies; apart: 0.4 us a body).
+# cost O(n^2) a step, where bodies apart cost a little each.
 _SPACING, _SIDE = 10.0, 64
 # Per thread: one DIRECT connection and its world. dask may step batches in several
 # threads; pybullet answers each connection's calls in the caller's thread.
@@ -121,7 +121,8 @@ _ID = 0
 class _World:
     """One thread's Bullet world, holding the bodies of the batch it runs (a body per scene,
     all of one kind: ``maximal``, a btRigidBody, else a btMultiBody) through their run.
-    Bodies are kept from batch to batch (making one costs ~0.15 ms), each at its own point."""
+    Bodies are kept from batch to batch (making one is dear next to stepping it), each at its
+    own point."""
 
     def __init__(self):
         self.client = pybullet.connect(pybullet.DIRECT)
@@ -232,7 +233,9 @@ def _starter(maximal):
     return init
 
 
-def step(y, p, opt, t, h, work):
+def step(
+    y: np.ndarray, p: np.ndarray, opt: np.ndarray, t: float | None, h: float, work: np.ndarray
+) -> tuple[int, int]:
     """One step of every running body: moments applied, one ``stepSimulation``, rotations
     read back, and the centre of mass moved by Bullet's rule (module docstring)."""
     world = _world()

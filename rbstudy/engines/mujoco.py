@@ -52,10 +52,11 @@ body and a loaded body; tests/test_engines.py):
 
 The time measured for a batch (`rbstudy.numerics.driver.run_batch`) is the CPU time of the
 whole per-step work above, Python included, in the calling thread (the rollout runs there:
-threads of its own would escape the clock). Per body-step in a batch of 10,000: 2.8 us
-(Euler) to 5.7 us (RK4); a batch of one body pays ~90 us a step, the fixed cost of numpy,
-the loads and the call (docs/performance.md). Stepping the bodies one ``mj_step`` at a time
-from Python cost ~15 us a body-step: the rollout is what makes MuJoCo's cost its own.
+threads of its own would escape the clock). A large batch pays little per body-step (Euler
+the least, RK4 the most); a batch of one body pays each step the fixed cost of numpy, the
+loads and the call (docs/performance.md). Stepping the bodies one ``mj_step`` at a time from
+Python cost several times a rollout's body-step: the rollout is what makes MuJoCo's cost its
+own.
 """
 
 import copy
@@ -143,7 +144,7 @@ def _model(integrator, h, mass, inertia):
         if len(models) >= _MAX_MODELS:
             models.clear()
         template, data = local["template"]
-        model = copy.copy(template)  # a deep copy: ~0.15 ms, against ~0.9 ms to compile
+        model = copy.copy(template)  # a deep copy: several times cheaper than compiling it
         model.opt.integrator, model.opt.timestep = integrator, h
         model.body_mass[1], model.body_inertia[1] = mass, inertia
         mujoco.mj_setConst(model, data)

@@ -7,12 +7,14 @@ through the scene's reader, naming the node. Every function takes columns of n s
 """
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rbstudy.inputs.columns import file_bindings, read_files, refuse, rows, symmetric_tensor
 from rbstudy.inputs.node_table import RESERVED, read_node_table
-from rbstudy.physics.assembly import CENTRES, DEGENERATE, assemble
+from rbstudy.inputs.reader import Reader
+from rbstudy.physics.assembly import CENTRES, DEGENERATE, Assembly, assemble
 
 __all__ = ["Secondaries", "read_assembly"]
 
@@ -132,7 +134,7 @@ def _read_centre(reader, value, key):
     return value
 
 
-def read_assembly(reader, spec, path, size):
+def read_assembly(reader: Reader, spec: Any, path: str, size: int) -> tuple[Assembly, Secondaries]:
     """The `Assembly` of the ``scene.assembly`` block ``spec`` (columns of ``size``) and its
     `Secondaries`; every bad value fails through ``reader``, naming the node."""
     spec = reader.mapping(spec, path, _KEYS)

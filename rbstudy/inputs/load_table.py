@@ -14,8 +14,12 @@ Every bad row fails as a `SceneError` where it is: at its line of the file, or a
 under the config key.
 """
 
+from __future__ import annotations
+
+import os
 from array import array
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +43,7 @@ class LoadTable:
     values: np.ndarray
     digest: str | None = None
 
-    def at(self, times):
+    def at(self, times: np.ndarray) -> np.ndarray:
         """The load (T, 3) at ``times`` (T,): linear between rows, held outside them."""
         return np.stack([np.interp(times, self.times, column) for column in self.values.T], axis=-1)
 
@@ -65,7 +69,7 @@ def _checked(reader, rows, where, whole, digest=None):
     return LoadTable(table[:, 0].copy(), table[:, 1:].copy(), digest)
 
 
-def read_load_file(path):
+def read_load_file(path: str | os.PathLike[str]) -> LoadTable:
     """The `LoadTable` of the file ``path``; a `SceneError` at the first bad line."""
     reader = Reader(str(path), SceneError)
     digest, records = table_lines(
@@ -80,20 +84,20 @@ def read_load_file(path):
             continue
         if len(fields) != 4:
             reader.fail(where, f"expected 4 columns (t x y z), got {len(fields)}", _FIX)
-        values = [finite(field) for field in fields]
-        for column, field, value in zip(COLUMNS, fields, values, strict=True):
+        for column, field in zip(COLUMNS, fields, strict=True):
+            value = finite(field)
             if value is None:
                 reader.fail(
                     where,
                     f"{column} = {field!r:.40} is not a finite number",
                     f"{_FIX}; a first line may name the columns t x y z or time x y z",
                 )
-        rows.extend(values)
+            rows.append(value)
         lines.append(number)
     return _checked(reader, rows, lambda k: f"line {lines[k]}", "table", digest)
 
 
-def inline_load_table(reader, value, key):
+def inline_load_table(reader: Reader, value: Any, key: str) -> LoadTable:
     """The `LoadTable` of rows given in the config at ``key`` (a list of [t, x, y, z])."""
     if not isinstance(value, list):
         reader.fail(key, f"expected rows [t, x, y, z] or a table file, got {value!r:.80}", _FIX)

@@ -10,11 +10,14 @@ body. Tabulated loads are evaluated at the union of all their tables' times (the
 aggregated there alike (the sum is linear, so it is exact between knots too).
 """
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from rbstudy.inputs.columns import (
+    FileBinding,
     file_bindings,
     in_principal,
     one_row_if_alike,
@@ -23,6 +26,7 @@ from rbstudy.inputs.columns import (
     rows,
 )
 from rbstudy.inputs.load_table import inline_load_table, read_load_file
+from rbstudy.inputs.reader import Reader
 from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import KIND, LOAD_KINDS
 from rbstudy.physics.loads import GIVEN, TABULATED, record_slice
@@ -178,7 +182,20 @@ def _add_nodal_loads(nodal, loads, points, axes):
                 loads.add("moment_body", np.cross(_along(offset, given), given))
 
 
-def read_loads(reader, spec, path, points, axes, first_moment, size):
+def _below_zero(given: np.ndarray) -> Callable[[int], str]:
+    """The message of a row of ``given`` (n, ...) that holds a value below 0."""
+    return lambda row: f"got {given[row].tolist()}, below 0"
+
+
+def read_loads(
+    reader: Reader,
+    spec: Any,
+    path: str,
+    points: Mapping[str, np.ndarray],
+    axes: np.ndarray | None,
+    first_moment: np.ndarray | None,
+    size: int,
+) -> tuple[dict[str, np.ndarray], tuple[FileBinding, ...]]:
     """The `rbstudy.physics.scenes.SceneTable.loads` columns of the ``scene.loads`` block
     ``spec`` (at ``path``) of ``size`` scenes, and the load table files read
     (`rbstudy.inputs.columns.file_bindings`).
@@ -200,7 +217,7 @@ def read_loads(reader, spec, path, points, axes, first_moment, size):
                     reader,
                     np.any(given.reshape(len(given), -1) < 0.0, axis=-1),
                     key,
-                    lambda row, given=given: f"got {given[row].tolist()}, below 0",
+                    _below_zero(given),
                     f"give values >= 0 ({KIND[name].units}): it only takes energy out",
                 )
             loads.add(name, in_principal(one_row_if_alike(axes), given) if name in _IN_BODY_AXES else given)

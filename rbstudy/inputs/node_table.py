@@ -10,6 +10,7 @@ Every bad line fails as a `SceneError` placed in the table file at its line, nam
 so that the config that refers to the table need not be searched.
 """
 
+import os
 from collections import Counter
 from dataclasses import dataclass
 
@@ -42,7 +43,7 @@ class NodeTable:
     digest: str
 
 
-def read_node_table(path):
+def read_node_table(path: str | os.PathLike[str]) -> NodeTable:
     """The `NodeTable` of the file ``path``; a `SceneError` at the first bad line."""
     reader = Reader(str(path), SceneError)
     digest, records = table_lines(

@@ -13,10 +13,14 @@ The files themselves (a study config, a cluster file, a node or load table) are 
 a huge file fails in one line instead of hanging or exhausting the memory.
 """
 
+from __future__ import annotations
+
 import errno
 import math
 import os
 import stat
+from collections.abc import Callable, Iterable, Sequence
+from typing import IO, Any, NoReturn
 
 import numpy as np
 
@@ -54,7 +58,7 @@ class NotARegularFile(OSError):
     (named pipe)"); its ``strerror`` says so as a reason ("it is a folder, not a regular
     file")."""
 
-    def __init__(self, kind, path):
+    def __init__(self, kind: str, path: str | os.PathLike[str]) -> None:
         super().__init__(None, f"it is {kind}, not a regular file", str(path))
         self.kind = kind
 
@@ -64,7 +68,7 @@ def _check_kind(info, path):
         raise NotARegularFile(_KINDS.get(stat.S_IFMT(info.st_mode), "not a file"), path)
 
 
-def open_regular_file(path):
+def open_regular_file(path: str | os.PathLike[str]) -> IO[bytes]:
     """The regular file ``path`` (a link is followed) opened for reading bytes; anything else
     (a folder, a FIFO, a device) is a `NotARegularFile`, and a path that cannot be opened the
     system's `OSError`. Every command that reads a file a user names opens it here.
@@ -95,7 +99,7 @@ def _too_large(size, path, what):
     )
 
 
-def read_input_file(path, what, fix):
+def read_input_file(path: str | os.PathLike[str], what: str, fix: str | None) -> bytes:
     """The bytes of the regular file ``path`` (`open_regular_file`), at most
     `MAX_INPUT_BYTES`; anything else is an `InputError` at ``path`` (no key: the caller
     places it) saying "cannot read ``what``" ("the node table") and why, with ``fix``. The
@@ -131,7 +135,7 @@ FOLDER_NAME_RULE = f"letters, digits, '-' and '_' only, at most {MAX_NAME_BYTES}
 MAX_TITLE_CHARACTERS = 200
 
 
-def is_folder_name(value):
+def is_folder_name(value: Any) -> bool:
     """Whether ``value`` is a string that keeps `FOLDER_NAME_RULE`."""
     return (
         isinstance(value, str)
@@ -143,19 +147,19 @@ def is_folder_name(value):
 class Reader:
     """Reads values from the file ``source``; every failure is a ``kind`` error there."""
 
-    def __init__(self, source, kind=InputError):
+    def __init__(self, source: str, kind: type[InputError] = InputError) -> None:
         self.source, self.kind = source, kind
 
-    def fail(self, key, message, fix=None, row=None):
+    def fail(self, key: str | None, message: str, fix: str | None = None, row: int | None = None) -> NoReturn:
         """Raise the error ``<source>: <key>: <message>; <fix>`` (of the table row ``row``)."""
         raise self.kind(message, fix, self.source, key or "(top level)", row)
 
-    def locate(self, error, key=None):
+    def locate(self, error: InputError, key: str | None = None) -> InputError:
         """``error`` (an `InputError` raised where the file and key were unknown) placed
         here, under ``key``, as this reader's kind."""
         return error.located(self.source, key, self.kind)
 
-    def _first_failure(self, column, rows, check):
+    def _first_failure(self, column: np.ndarray, rows: Iterable[int], check: Callable[[Any], object]) -> None:
         """Run ``check`` on the entries ``rows`` of ``column``, one at a time: the first that
         fails raises its error, marked with its row."""
         entries = column.tolist()
@@ -166,7 +170,7 @@ class Reader:
                 error.row = int(row)
                 raise
 
-    def mapping(self, value, key, allowed):
+    def mapping(self, value: Any, key: str, allowed: Sequence[str]) -> dict[Any, Any]:
         """``value`` as a mapping whose keys are all in ``allowed`` (None reads as empty)."""
         if isinstance(value, np.ndarray):  # a swept number where a mapping belongs
             self._first_failure(value, range(len(value)), lambda entry: self.mapping(entry, key, allowed))
@@ -182,7 +186,7 @@ class Reader:
                 )
         return value
 
-    def number(self, value, key, positive=False):
+    def number(self, value: Any, key: str, positive: bool = False) -> float | np.ndarray:
         """``value`` as a finite float (and > 0 when ``positive``); a column as a float array."""
         if isinstance(value, np.ndarray):
             return self._numbers(value, key, positive)
@@ -212,7 +216,7 @@ class Reader:
         self._first_failure(column, rows, lambda entry: self.number(entry, key, positive))
         return column.astype(float)  # numbers only, held as objects
 
-    def count(self, value, key, maximum=None, minimum=1):
+    def count(self, value: Any, key: str, maximum: int | None = None, minimum: int = 1) -> int:
         """``value`` as a whole number >= ``minimum`` (and at most ``maximum``), as an int;
         a whole float is one (``count: 1e3``: YAML reads an exponent as a float)."""
         whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
@@ -226,7 +230,7 @@ class Reader:
             )
         return int(value)
 
-    def vector(self, value, key, length=3):
+    def vector(self, value: Any, key: str, length: int = 3) -> tuple[Any, ...]:
         """``value`` as a tuple of ``length`` finite floats (a swept entry: a float array)."""
         if isinstance(value, np.ndarray):  # a swept number where a list belongs
             self._first_failure(value, range(len(value)), lambda entry: self.vector(entry, key, length))
@@ -234,7 +238,7 @@ class Reader:
             self.fail(key, f"expected a list of {length} numbers, got {value!r}")
         return tuple(self.number(v, f"{key}[{i}]") for i, v in enumerate(value))
 
-    def flag(self, value, key):
+    def flag(self, value: Any, key: str) -> bool | np.ndarray:
         """``value`` as true or false (a column: a bool array)."""
         if isinstance(value, np.ndarray):  # a swept flag: a column of true and false
             if value.dtype != bool:
@@ -244,7 +248,7 @@ class Reader:
             self.fail(key, f"expected true or false, got {value!r}")
         return value
 
-    def folder_name(self, value, key):
+    def folder_name(self, value: Any, key: str) -> str:
         """``value`` as a name that keeps `FOLDER_NAME_RULE`."""
         if isinstance(value, str) and len(value.encode()) > MAX_NAME_BYTES:
             self.fail(
@@ -258,7 +262,7 @@ class Reader:
             self.fail(key, f"use {FOLDER_NAME_RULE} (it names a folder), got {value!r}")
         return value
 
-    def line(self, value, key):
+    def line(self, value: Any, key: str) -> str:
         """``value`` as one line of text."""
         if not isinstance(value, str) or "\n" in value.strip():
             self.fail(key, f"expected one line of text, got {value!r}")

@@ -14,23 +14,46 @@ scene turns them into the principal frame, and the orientation it stores is the 
 frame's (``R_principal = R_input V`` with ``V`` the principal axes as columns, det +1).
 """
 
+from __future__ import annotations
+
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rbstudy.errors import SceneError
-from rbstudy.inputs.assembly import read_assembly
+from rbstudy.inputs.assembly import Secondaries, read_assembly
 from rbstudy.inputs.columns import in_principal, one_row_if_alike, refuse, rows, symmetric_tensor
 from rbstudy.inputs.loads import read_loads
 from rbstudy.inputs.node_table import RESERVED
 from rbstudy.inputs.reader import Reader
-from rbstudy.physics.assembly import REGULARISATION
-from rbstudy.physics.scenes import SceneTable, triangle_ok
+from rbstudy.physics.assembly import REGULARISATION, Assembly
+from rbstudy.physics.scenes import Scene, SceneTable, triangle_ok
 
 __all__ = ["scene_table", "scene_from_mapping"]
 
 _ORIENTATION_FORMS = ("euler_zxz_deg", "quaternion", "rotation_vector", "momentum_axis")
+
+
+@dataclass(frozen=True)
+class _MassModel:
+    """What ``scene.body`` and ``scene.nodes``, or ``scene.assembly``, give of a column of
+    ``size`` bodies: mass (n,), principal inertias (n, 3), principal axes (n, 3, 3) or None
+    when principal inertias were given, whether an unphysical body is allowed, the node names
+    (N,) and offsets (n, N, 3) in the input body frame, the warnings, and for an assembled
+    body its `Assembly` and `Secondaries` (else None)."""
+
+    mass: np.ndarray
+    inertia: np.ndarray
+    axes: np.ndarray | None
+    allow_unphysical: bool
+    names: tuple[str, ...]
+    offsets: np.ndarray
+    warnings: tuple[str, ...]
+    assembled: Assembly | None = None
+    secondaries: Secondaries | None = None
 
 
 def _principal(reader, tensor, key):
@@ -92,8 +115,8 @@ _DERIVED = {
 }
 
 
-def _read_assembled(reader, spec, path, size):
-    """The body of ``scene.assembly`` (`rbstudy.inputs.assembly`): its `Assembly`, its
+def _read_assembled(reader: Reader, spec: dict[str, Any], path: str, size: int) -> _MassModel:
+    """The `_MassModel` of ``scene.assembly`` (`rbstudy.inputs.assembly`): its `Assembly` and
     `Secondaries`, principal inertias (n, 3) and axes (n, 3, 3), and the warnings."""
     for given, why in _DERIVED.items():
         parent, _, leaf = given.rpartition(".")
@@ -115,7 +138,17 @@ def _read_assembled(reader, spec, path, size):
             f"{int(body.lopsided.sum())} of {size} scenes (no rigid body of point "
             "masses has that: check the nodal inertias)"
         )
-    return body, nodes, inertia, axes, tuple(warnings)
+    return _MassModel(
+        mass=body.mass,
+        inertia=inertia,
+        axes=axes,
+        allow_unphysical=True,  # Radioss warns of a lopsided body rather than refusing it
+        names=nodes.names,
+        offsets=body.offsets,
+        warnings=tuple(warnings),
+        assembled=body,
+        secondaries=nodes,
+    )
 
 
 def _read_orientation(reader, spec, path, body_momentum, size):
@@ -206,7 +239,71 @@ def _read_nodes(reader, spec, path, size):
     return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
-def scene_table(spec, source="<scene>", path="scene", size=1):
+def _read_mass_model(reader: Reader, spec: dict[str, Any], path: str, size: int) -> _MassModel:
+    """The `_MassModel` of the scene mapping ``spec``, assembled or given."""
+    if "assembly" in spec:
+        return _read_assembled(reader, spec, path, size)
+    mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
+    names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
+    return _MassModel(
+        mass=mass,
+        inertia=inertia,
+        axes=axes,
+        allow_unphysical=allow,
+        names=names,
+        offsets=offsets,
+        warnings=(),
+    )
+
+
+def _read_angular_velocity(
+    reader: Reader, initial: dict[str, Any], path: str, inertia: np.ndarray, size: int
+) -> dict[str, np.ndarray]:
+    """The initial angular velocity (n, 3) by the frame it is given in (``body`` or ``space``,
+    at most one), refused where the body's energy would overflow a float."""
+    omega = reader.mapping(initial.get("angular_velocity"), path, ("body", "space"))
+    if len(omega) > 1:
+        reader.fail(path, "give the angular velocity in body or in space axes, not both")
+    given = {frame: rows(reader.vector(omega[frame], f"{path}.{frame}"), size) for frame in omega}
+    for frame, vector in given.items():
+        with np.errstate(over="ignore"):  # |w|^2 max(I) bounds twice the energy
+            energy = np.einsum("ni,ni->n", vector, vector) * inertia.max(axis=-1)
+        refuse(
+            reader,
+            ~np.isfinite(energy),
+            f"{path}.{frame}",
+            lambda row: "so large that the body's energy overflows a float",
+            "give a smaller angular velocity",
+        )
+    return given
+
+
+def _read_attitude(
+    reader: Reader, initial: dict[str, Any], path: str, body: _MassModel, size: int
+) -> tuple[Rotation, np.ndarray]:
+    """The initial orientation of the principal frame (a `Rotation` of ``size``) and angular
+    velocity in principal axes (n, 3), from the mapping ``initial`` at ``path``."""
+    given = _read_angular_velocity(reader, initial, f"{path}.angular_velocity", body.inertia, size)
+    axes = body.axes
+    omega_principal = in_principal(axes, given["body"]) if "body" in given else np.zeros((size, 3))
+    # m = I w in the input body frame, for a momentum-aligned orientation
+    momentum_input = (
+        None
+        if "body" not in given
+        else omega_principal * body.inertia
+        if axes is None
+        else np.einsum("nij,nj->ni", axes, omega_principal * body.inertia)
+    )
+    input_rotation = _read_orientation(
+        reader, initial.get("orientation"), f"{path}.orientation", momentum_input, size
+    )
+    principal_rotation = input_rotation if axes is None else input_rotation * Rotation.from_matrix(axes)
+    if "space" in given:
+        omega_principal = principal_rotation.inv().apply(given["space"])
+    return principal_rotation, omega_principal
+
+
+def scene_table(spec: Any, source: str = "<scene>", path: str = "scene", size: int = 1) -> SceneTable:
     """Build a `SceneTable` of ``size`` scenes from one mapping such as the ``scene:`` block
     of a study YAML, whose swept leaves are columns of ``size`` (module docstring).
 
@@ -216,53 +313,17 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     """
     reader = Reader(source, SceneError)
     spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads", "duration"))
-    assembled = None
-    if "assembly" in spec:
-        assembled, secondaries, inertia, axes, warnings = _read_assembled(reader, spec, path, size)
-        mass, names, offsets = assembled.mass, secondaries.names, assembled.offsets
-        allow = True  # Radioss warns of a lopsided body rather than refusing it
-    else:
-        mass, inertia, axes, allow = _read_body(reader, spec.get("body"), f"{path}.body", size)
-        names, offsets = _read_nodes(reader, spec.get("nodes"), f"{path}.nodes", size)
-        warnings = ()
-    nodes = in_principal(axes, offsets)
+    body = _read_mass_model(reader, spec, path, size)
+    assembled, axes = body.assembled, body.axes
+    nodes = in_principal(axes, body.offsets)
 
     initial_path = f"{path}.initial"
     initial = reader.mapping(
         spec.get("initial"), initial_path, ("angular_velocity", "orientation", "position", "velocity")
     )
-    omega_path = f"{initial_path}.angular_velocity"
-    omega = reader.mapping(initial.get("angular_velocity"), omega_path, ("body", "space"))
-    if len(omega) > 1:
-        reader.fail(omega_path, "give the angular velocity in body or in space axes, not both")
-    given = {frame: rows(reader.vector(omega[frame], f"{omega_path}.{frame}"), size) for frame in omega}
-    for frame, vector in given.items():
-        with np.errstate(over="ignore"):  # |w|^2 max(I) bounds twice the energy
-            energy = np.einsum("ni,ni->n", vector, vector) * inertia.max(axis=-1)
-        refuse(
-            reader,
-            ~np.isfinite(energy),
-            f"{omega_path}.{frame}",
-            lambda row: "so large that the body's energy overflows a float",
-            "give a smaller angular velocity",
-        )
-    omega_principal = in_principal(axes, given["body"]) if "body" in given else np.zeros((size, 3))
-    # m = I w in the input body frame, for a momentum-aligned orientation
-    momentum_input = (
-        None
-        if "body" not in given
-        else omega_principal * inertia
-        if axes is None
-        else np.einsum("nij,nj->ni", axes, omega_principal * inertia)
-    )
-    input_rotation = _read_orientation(
-        reader, initial.get("orientation"), f"{initial_path}.orientation", momentum_input, size
-    )
-    principal_rotation = input_rotation if axes is None else input_rotation * Rotation.from_matrix(axes)
-    if "space" in given:
-        omega_principal = principal_rotation.inv().apply(given["space"])
+    principal_rotation, omega_principal = _read_attitude(reader, initial, initial_path, body, size)
 
-    points = dict(zip(names, np.moveaxis(nodes, 1, 0), strict=True))
+    points = dict(zip(body.names, np.moveaxis(nodes, 1, 0), strict=True))
     first_moment = None
     if assembled is not None:
         points[RESERVED] = in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
@@ -270,11 +331,11 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
     loads, load_files = read_loads(
         reader, spec.get("loads"), f"{path}.loads", points, axes, first_moment, size
     )
-    tables = (() if assembled is None else secondaries.tables) + load_files
+    tables = (() if body.secondaries is None else body.secondaries.tables) + load_files
     return SceneTable(
-        mass=_shared(mass),
-        inertia=_shared(inertia),
-        allow_unphysical=allow,
+        mass=_shared(body.mass),
+        inertia=_shared(body.inertia),
+        allow_unphysical=body.allow_unphysical,
         quaternion=principal_rotation.as_quat().reshape(size, 4),
         omega_body=omega_principal,
         position=_shared(
@@ -287,9 +348,10 @@ def scene_table(spec, source="<scene>", path="scene", size=1):
         ),
         loads={name: _shared(column) for name, column in loads.items()},
         nodes=_shared(nodes),
-        node_names=names,
-        duration=reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True),
-        warnings=warnings,
+        node_names=body.names,
+        # not sweepable (`rbstudy.pipeline.grid`): one number, never a column
+        duration=float(reader.number(spec.get("duration", 1.0), f"{path}.duration", positive=True)),
+        warnings=body.warnings,
         regularised=None if assembled is None else assembled.regularised,
         tables=tables,
     )
@@ -303,7 +365,7 @@ def _shared(column):
     return column if row is column else np.broadcast_to(row.copy(), column.shape)  # not a view
 
 
-def scene_from_mapping(spec, source="<scene>", path="scene"):
+def scene_from_mapping(spec: Any, source: str = "<scene>", path: str = "scene") -> Scene:
     """Build one `Scene` from a mapping such as the ``scene:`` block of a study YAML (see
     `scene_table`: a table of one)."""
     return scene_table(spec, source, path).scene(0)

@@ -11,14 +11,16 @@ table (`rbstudy.inputs.node_table`, `rbstudy.inputs.load_table`).
 import csv
 import hashlib
 import math
+import os
+from collections.abc import Iterator
 
 from rbstudy.errors import InputError
-from rbstudy.inputs.reader import read_input_file
+from rbstudy.inputs.reader import Reader, read_input_file
 
 __all__ = ["fields", "table_lines", "finite"]
 
 
-def fields(line):
+def fields(line: str) -> list[str]:
     """The fields of a line, split by `csv`: by commas (one trailing comma allowed), or by
     white space where no comma outside quotes separates any; each without its quotes and
     surrounding spaces. A line `csv` cannot split raises `csv.Error`."""
@@ -31,7 +33,9 @@ def fields(line):
     return [part.strip() for part in parts]
 
 
-def table_lines(path, reader, what, fix):
+def table_lines(
+    path: str | os.PathLike[str], reader: Reader, what: str, fix: str
+) -> tuple[str, Iterator[tuple[int, list[str]]]]:
     """The sha256 digest of the file ``path`` (batch ids change when a table does) and its
     records, ``(line number, fields)``, one at a time; a file that cannot be read fails through ``reader``
     at the key "table", as ``what`` ("the node table"), with ``fix`` (a FIFO, a device or a
@@ -71,7 +75,7 @@ def _lines(text):
         start = end + 1
 
 
-def finite(field):
+def finite(field: str) -> float | None:
     """The field as a finite float, or None (text, NaN or infinity)."""
     try:
         value = float(field)

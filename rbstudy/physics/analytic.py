@@ -22,9 +22,14 @@ difference is the reference's uncertainty (DOP853 is the reference where the com
 cannot be had).
 """
 
+from __future__ import annotations
+
 import math
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from rbstudy.numerics import algebra
 from rbstudy.numerics.loads import KIND
@@ -76,7 +81,7 @@ _CLOSED_FORM_LOADS = ("force_space", "gravity", "moment_body")
 SYMMETRY_RTOL = 1e-12
 
 
-def symmetry_axes(inertia):
+def symmetry_axes(inertia: npt.ArrayLike) -> np.ndarray:
     """The symmetry axis (0, 1, 2) of bodies with principal inertias ``inertia`` (..., 3):
     the axis whose moment differs when the other two are equal within `SYMMETRY_RTOL`; -1 for
     an asymmetric body, 2 for a spherical one. The one answer every part of rbstudy uses."""
@@ -87,8 +92,7 @@ def symmetry_axes(inertia):
 
 def _symmetry_rule(i1, i2, i3, tolerance, where):
     """The rule of `symmetry_axes`, written once for arrays (``where`` = `np.where`) and for
-    three floats (`_pick`, 50 times faster than numpy on three numbers: every `Body` asks
-    it)."""
+    three floats (`_pick`, far faster than numpy on three numbers: every `Body` asks it)."""
     return where(
         abs(i1 - i2) <= tolerance,
         2,
@@ -100,14 +104,14 @@ def _pick(condition, chosen, otherwise):
     return chosen if condition else otherwise
 
 
-def symmetry_axis(inertia):
+def symmetry_axis(inertia: Sequence[float] | np.ndarray) -> int | None:
     """`symmetry_axes` of one body (3,): an index, or None for an asymmetric body."""
     i1, i2, i3 = (float(v) for v in inertia)
     axis = _symmetry_rule(i1, i2, i3, SYMMETRY_RTOL * max(i1, i2, i3), _pick)
     return None if axis < 0 else axis
 
 
-def symmetrised(inertia):
+def symmetrised(inertia: npt.ArrayLike) -> np.ndarray:
     """The principal inertias (..., 3) with the two transverse moments of each symmetric body
     set to their mean, so that equality is exact wherever it is used; an asymmetric body as it
     is. Returns a new float array."""
@@ -121,7 +125,9 @@ def symmetrised(inertia):
     return inertia
 
 
-def symmetric_top(inertia, quaternion0, omega0, times):
+def symmetric_top(
+    inertia: npt.ArrayLike, quaternion0: npt.ArrayLike, omega0: npt.ArrayLike, times: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form free motion of symmetric bodies (two equal principal inertias each).
 
     With ``s`` the symmetry axis, ``I_t`` the transverse and ``I_s`` the axial inertia,
@@ -156,7 +162,7 @@ def symmetric_top(inertia, quaternion0, omega0, times):
     momentum = np.einsum("...ij,...j->...i", quat_to_matrix(quaternion0), inertia * omega0)
     spin = rate[..., None] * np.eye(3)[axis]  # (..., 3): W e_s
     # component-first, each component (..., T) (`rbstudy.numerics.algebra`'s formulas): laid
-    # out (..., T, 4) the same arithmetic took 2.4 times as long (a batch's references)
+    # out (..., T, 4) the same arithmetic took far longer (a batch's references)
     t = np.asarray(times, dtype=float)
     precession = rotvec_quaternion([(momentum[..., k] / transverse)[..., None] * t for k in range(3)])
     spin_back = rotvec_quaternion([-spin[..., k, None] * t for k in range(3)])
@@ -171,7 +177,13 @@ def symmetric_top(inertia, quaternion0, omega0, times):
     return np.stack(quaternion, axis=-1), np.stack(omega, axis=-1)
 
 
-def axial_moment(inertia, quaternion0, omega0, moment_body, times):
+def axial_moment(
+    inertia: np.ndarray,
+    quaternion0: np.ndarray,
+    omega0: np.ndarray,
+    moment_body: np.ndarray,
+    times: npt.ArrayLike,
+) -> tuple[np.ndarray, np.ndarray]:
     """Spin about principal axis ``k`` under a constant body moment along it (closed form).
 
     Requires ``omega0`` and ``moment_body`` (3,) to have non-zero entries only at the same
@@ -183,7 +195,7 @@ def axial_moment(inertia, quaternion0, omega0, moment_body, times):
     times = np.asarray(times, dtype=float)
     rate = moment_body[k] / inertia[k]
     angle = omega0[k] * times + 0.5 * rate * times**2
-    from scipy.spatial.transform import Rotation  # here: the figures import this module (0.2 s)
+    from scipy.spatial.transform import Rotation  # here: the figures import this module
 
     turn = np.zeros((times.size, 3))
     turn[:, k] = angle
@@ -199,7 +211,12 @@ def _axial_indices(omega0, moment_body):
     return np.where(support.sum(axis=-1) == 1, support.argmax(axis=-1), -1)
 
 
-def reference_kinds(inertia, omega_body, loads, timed=False):
+def reference_kinds(
+    inertia: npt.ArrayLike,
+    omega_body: npt.ArrayLike,
+    loads: Mapping[str, np.ndarray],
+    timed: npt.ArrayLike = False,
+) -> np.ndarray:
     """The reference of each of n scenes, names of `REFERENCE_KINDS` (n,), an object array:
     the exact solution that applies to its rotation and centre of mass, else `INTEGRATED`.
     Arguments are the
@@ -224,7 +241,7 @@ def reference_kinds(inertia, omega_body, loads, timed=False):
     return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2), np.where(axial, 3, 0)))]
 
 
-def precession_frequencies(inertia, omega_body):
+def precession_frequencies(inertia: npt.ArrayLike, omega_body: npt.ArrayLike) -> np.ndarray:
     """Body-frame precession frequencies ``W = w_s (I_s - I_t) / I_t`` (rad/s) of free
     symmetric bodies about their symmetry axes ``s`` (``I_t`` the transverse inertia).
 
@@ -249,22 +266,23 @@ def precession_frequencies(inertia, omega_body):
     return np.where(axis[:, 0] >= 0, spin * (axial - transverse) / transverse, np.nan)
 
 
-def precession_frequency_exact(scene):
-    """`precession_frequencies` of one ``scene``: a float, or None unless the body is free
-    and symmetric."""
+def precession_frequency_exact(scene: Any) -> float | None:
+    """`precession_frequencies` of one ``scene`` (a `rbstudy.physics.scenes.Scene`, which
+    imports this module): a float, or None unless the body is free and symmetric."""
     if scene.body.symmetry_axis is None or not scene.loads.moment_free:
         return None
     return float(precession_frequencies([scene.body.inertia], [scene.omega_body])[0])
 
 
-def flip_interval_exact(scene):
-    """`flip_interval` of one ``scene``: None for symmetric or loaded bodies."""
+def flip_interval_exact(scene: Any) -> float | None:
+    """`flip_interval` of one ``scene`` (a `rbstudy.physics.scenes.Scene`): None for
+    symmetric or loaded bodies."""
     if not scene.loads.moment_free or scene.body.symmetry_axis is not None:
         return None
     return flip_interval(scene.body.inertia, scene.omega_body)
 
 
-def flip_interval(inertia, omega_body):
+def flip_interval(inertia: Sequence[float] | np.ndarray, omega_body: Sequence[float] | np.ndarray) -> float:
     """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s,
     of principal ``inertia`` (3,) and initial ``omega_body`` (3,).
 
@@ -288,12 +306,14 @@ def flip_interval(inertia, omega_body):
     complement = (i3 - i1) * excess[mid] / ((i3 - i2) * excess[first])
     if complement <= 0.0:
         return float("inf")  # on the separatrix: one flip, never the next
-    from scipy.special import ellipkm1  # here: the figures import this module (0.25 s)
+    from scipy.special import ellipkm1  # here: the figures import this module
 
     return 2.0 * float(ellipkm1(complement)) / math.sqrt(rate2)
 
 
-def parabola(position, velocity, acceleration, times):
+def parabola(
+    position: npt.ArrayLike, velocity: npt.ArrayLike, acceleration: npt.ArrayLike, times: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """Centre-of-mass positions and velocities on the parabola ``x0 + v0 t + a t^2 / 2``
     (exact under constant space forces and gravity, whatever the rotation does).
 

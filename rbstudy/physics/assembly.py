@@ -68,8 +68,15 @@ def _point_inertia(mass, offset):
 
 
 def assemble(
-    master_position, master_mass, master_inertia, positions, masses, inertias, centre="all", spherical=False
-):
+    master_position: np.ndarray,
+    master_mass: np.ndarray,
+    master_inertia: np.ndarray,
+    positions: np.ndarray,
+    masses: np.ndarray,
+    inertias: np.ndarray,
+    centre: str | np.ndarray = "all",
+    spherical: bool | np.ndarray = False,
+) -> Assembly:
     """The `Assembly` of a master node and K secondary nodes.
 
     Parameters

@@ -7,6 +7,8 @@ columns alike: a bool, or (n,).
 """
 
 import dataclasses
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -14,6 +16,7 @@ from rbstudy.numerics import state as S
 from rbstudy.numerics.loads import FIRST_SLOT, KIND, LOAD_KINDS
 
 __all__ = [
+    "Flags",
     "Loads",
     "TABLES",
     "GIVEN",
@@ -41,8 +44,11 @@ BLOCKLESS = tuple(kind.name for kind in LOAD_KINDS if not kind.in_blocks)
 # The `Loads` fields of the loads tabulated in time.
 TABLES = ("knots", "tabulated")
 
+# Whether a load acts: one answer (a bool, or numpy's) for one scene, an array (n,) for a table.
+Flags = bool | np.bool_ | np.ndarray
 
-def record_slice(name):
+
+def record_slice(name: str) -> slice:
     """Where the kind ``name`` sits in a knot's record of tabulated loads."""
     start = KIND[name].offset - FIRST_SLOT
     return slice(start, start + KIND[name].width)
@@ -66,35 +72,35 @@ def _tabulated_acting(record, names):
     return np.any(np.concatenate(chosen, axis=-1) != 0.0, axis=(-2, -1))
 
 
-def constant_acting(loads, names):
+def constant_acting(loads: Mapping[str, Any], names: Iterable[str]) -> Flags:
     """Whether a constant load of the kinds ``names`` acts (``loads``: kind name -> values)."""
-    found = False
+    found: Flags = False
     for name in names:
         found = found | _nonzero(loads[name])
     return found
 
 
-def acting(loads, names):
+def acting(loads: Mapping[str, Any], names: Iterable[str]) -> Flags:
     """Whether a load of the kinds ``names`` acts, constant or tabulated in time."""
     return constant_acting(loads, names) | _tabulated_acting(loads["tabulated"], names)
 
 
-def turning(loads):
+def turning(loads: Mapping[str, Any]) -> Flags:
     """Whether a moment acts (a kind that turns the body), constant or tabulated."""
     return acting(loads, TURNING)
 
 
-def moving(velocity, loads):
+def moving(velocity: Any, loads: Mapping[str, Any]) -> Flags:
     """Whether the centre of mass moves: an initial ``velocity``, or a force."""
     return _nonzero(velocity) | acting(loads, MOVING)
 
 
-def timed(loads):
+def timed(loads: Mapping[str, Any]) -> Flags:
     """Whether some load varies in time."""
     return _tabulated_acting(loads["tabulated"], TABULATED)
 
 
-def needs_time(loads):
+def needs_time(loads: Mapping[str, Any]) -> bool:
     """Whether some scene of ``loads`` (a `SceneTable`'s columns) needs the kernels compiled
     with the time (`rbstudy.numerics.loads.needs_time`, on parameter rows): a load table, or
     a kind of load only those kernels carry. One bool."""
@@ -127,12 +133,12 @@ class Loads:
     )
 
     @property
-    def moment_free(self):
+    def moment_free(self) -> bool:
         """True when no load turns the body."""
         return not turning(vars(self))
 
     @property
-    def timed(self):
+    def timed(self) -> bool:
         """True when a load varies in time."""
         return bool(timed(vars(self)))
 

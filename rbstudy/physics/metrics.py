@@ -7,6 +7,7 @@ Array arguments carry the time axis ``T`` second to last for vectors: ``(..., T,
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from rbstudy.numerics.algebra import rotational_energy
 from rbstudy.physics.quaternions import quat_mul, quat_to_matrix
@@ -51,7 +52,7 @@ MAX_SLOPE_DRIFT = 0.3
 ROUND_OFF_MARGIN = 100.0
 
 
-def orientation_error(q, q_ref):
+def orientation_error(q: npt.ArrayLike, q_ref: npt.ArrayLike) -> np.ndarray:
     """Geodesic angle (rad) between orientations: ``2 atan2(|v|, |s|)`` of ``q_ref^-1 q``.
 
     q, q_ref : (..., 4) scalar-last. Returns (...). Accurate at small angles (no acos).
@@ -61,12 +62,12 @@ def orientation_error(q, q_ref):
     return 2.0 * np.arctan2(np.linalg.norm(rel[..., :3], axis=-1), np.abs(rel[..., 3]))
 
 
-def omega_error(w, w_ref):
+def omega_error(w: npt.ArrayLike, w_ref: np.ndarray) -> np.ndarray:
     """``|w - w_ref| / |w_ref|`` for (..., 3) angular velocities; returns (...)."""
     return np.linalg.norm(np.asarray(w) - w_ref, axis=-1) / np.linalg.norm(w_ref, axis=-1)
 
 
-def node_positions(q, position, offsets):
+def node_positions(q: npt.ArrayLike, position: npt.ArrayLike, offsets: np.ndarray) -> np.ndarray:
     """Space positions (..., T, N, 3) of nodes with body offsets ``offsets``.
 
     q : (..., T, 4); position : (..., T, 3) centre of mass; offsets : (N, 3) or (..., N, 3),
@@ -76,12 +77,12 @@ def node_positions(q, position, offsets):
     return rotated + np.asarray(position)[..., None, :]
 
 
-def node_error(x, x_ref):
+def node_error(x: npt.ArrayLike, x_ref: np.ndarray) -> np.ndarray:
     """``|x - x_ref|`` (m) for node positions (..., 3); returns (...)."""
     return np.linalg.norm(np.asarray(x) - x_ref, axis=-1)
 
 
-def energy_error(w, inertia):
+def energy_error(w: npt.ArrayLike, inertia: npt.ArrayLike) -> np.ndarray:
     """Signed relative rotational energy error ``(T(t) - T(0)) / T(0)``.
 
     w (..., T, 3); inertia (3,) or broadcastable (..., 1, 3). Returns (..., T). The energy is
@@ -91,7 +92,7 @@ def energy_error(w, inertia):
     return energy / energy[..., :1] - 1.0
 
 
-def momentum_error(q, w, inertia):
+def momentum_error(q: npt.ArrayLike, w: np.ndarray, inertia: npt.ArrayLike) -> np.ndarray:
     """``|L(t) - L(0)| / |L(0)|`` of the space angular momentum ``L = R I w``.
 
     q (..., T, 4), w (..., T, 3), inertia (3,) or broadcastable (..., 1, 3); returns (..., T).
@@ -100,7 +101,7 @@ def momentum_error(q, w, inertia):
     return np.linalg.norm(space - space[..., :1, :], axis=-1) / np.linalg.norm(space[..., :1, :], axis=-1)
 
 
-def phase_rate(a, b, time):
+def phase_rate(a: npt.ArrayLike, b: npt.ArrayLike, time: npt.ArrayLike) -> np.ndarray:
     """Least-squares slope (rad/s) of the unwrapped phase of ``a + i b`` against ``time``.
 
     a, b : (..., T); time : (T,). The precession frequency of a symmetric top is
@@ -114,7 +115,7 @@ def phase_rate(a, b, time):
     return np.where(np.all(np.isfinite(phase), axis=-1), slope, np.nan)
 
 
-def sign_change_interval(values, time):
+def sign_change_interval(values: npt.ArrayLike, time: npt.ArrayLike) -> float:
     """Mean time between sign changes of ``values`` (T,) sampled at ``time`` (T,), s.
 
     Each crossing is placed by linear interpolation between its two samples. NaN with fewer
@@ -142,7 +143,13 @@ class OrderFit(NamedTuple):
     finest_slope: float
 
 
-def asymptotic_order(dts, errors, floor=1e-13, ceiling=1e-1, spread=ORDER_SPREAD):
+def asymptotic_order(
+    dts: npt.ArrayLike,
+    errors: npt.ArrayLike,
+    floor: npt.ArrayLike = 1e-13,
+    ceiling: float = 1e-1,
+    spread: float = ORDER_SPREAD,
+) -> OrderFit:
     """Observed convergence order: the least-squares slope of log(error) against log(dt) over
     the asymptotic range only, as an `OrderFit`.
 

@@ -5,27 +5,30 @@ Scalar-last ``(x, y, z, w)`` like `scipy.spatial.transform.Rotation`. The numba 
 batches. The Hamilton product is the kernels' own formula (`rbstudy.numerics.algebra`).
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from rbstudy.numerics.algebra import hamilton_product, rotation_columns
 
 __all__ = ["quat_mul", "quat_to_matrix", "rotvec_quaternion"]
 
 
-def quat_mul(a, b):
+def quat_mul(a: npt.ArrayLike, b: npt.ArrayLike) -> np.ndarray:
     """Hamilton products ``a * b`` of (..., 4) arrays (broadcast), by the kernels' formula."""
     return np.stack(
         hamilton_product(np.moveaxis(np.asarray(a), -1, 0), np.moveaxis(np.asarray(b), -1, 0)), axis=-1
     )
 
 
-def quat_to_matrix(q):
+def quat_to_matrix(q: npt.ArrayLike) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
     columns = rotation_columns(np.moveaxis(np.asarray(q), -1, 0))
     return np.stack([np.stack(column, axis=-1) for column in columns], axis=-1)
 
 
-def rotvec_quaternion(v):
+def rotvec_quaternion(v: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unit quaternions of rotation vectors: ``(sin(a/2) v/a, cos(a/2))``, component-first.
 
     ``v`` is a sequence of 3 arrays of one shape, the components (as the formulas of

@@ -14,11 +14,15 @@ respect. This module sits above the schemes because it integrates; the closed fo
 `rbstudy.numerics.free_flow`.
 """
 
+from __future__ import annotations
+
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import HALT_FLAG, Halted
@@ -37,7 +41,7 @@ from rbstudy.physics.analytic import (
 )
 from rbstudy.physics.loads import TURNING, record_slice
 from rbstudy.physics.metrics import UNCERTAIN_MEASURES
-from rbstudy.physics.scenes import SceneTable
+from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
 from rbstudy.schemes import dop853
@@ -62,8 +66,8 @@ __all__ = [
     "dop853_reference",
 ]
 
-# Accepted DOP853 steps one reference may take: about two minutes (110-180 us a step measured on
-# the 2-core machine, `rbstudy.pipeline.calibration.reference_cost`). A free
+# Accepted DOP853 steps one reference may take: a few minutes of one core at the cost of a step
+# as measured (`rbstudy.pipeline.calibration.reference_cost`). A free
 # asymmetric body takes ~6.5 steps per radian of |w| T at rtol 1e-13 (measured for I = 1, 2, 3
 # at |w| T = 18 to 1800), so the budget covers |w| T up to ~1.5e5 rad. A scene past it has no
 # reference ("none") rather than a run that never ends; `validate` tells beforehand.
@@ -127,7 +131,7 @@ class References:
     uncertainty: np.ndarray
 
     @classmethod
-    def empty(cls, count, n_times):
+    def empty(cls, count: int, n_times: int) -> References:
         """``count`` references on ``n_times`` times, all "none" (NaN) until filled in."""
         return cls(
             code=np.full(count, _NONE, dtype=np.int8),
@@ -140,10 +144,11 @@ class References:
             uncertainty=np.full((count, len(UNCERTAIN_MEASURES)), np.nan),
         )
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.code)
 
-    def __getitem__(self, k):
+    def __getitem__(self, k: int) -> Reference:
+        """The k-th reference, a `Reference`."""
         uncertainty = self.uncertainty[k]
         checked = not np.all(np.isnan(uncertainty))
         return Reference(
@@ -152,7 +157,7 @@ class References:
             uncertainty=dict(zip(UNCERTAIN_MEASURES, uncertainty.tolist(), strict=True)) if checked else {},
         )
 
-    def put(self, k, reference):
+    def put(self, k: int, reference: Reference) -> None:
         """Store ``reference`` (a `Reference`) as the k-th, in place."""
         self.code[k] = REFERENCE_KINDS.index(reference.name)
         for name in _FIELDS:
@@ -160,12 +165,12 @@ class References:
         self.uncertainty[k] = [reference.uncertainty.get(m, np.nan) for m in UNCERTAIN_MEASURES]
 
     @property
-    def names(self):
+    def names(self) -> np.ndarray:
         """(m,) object array: each one's kind by name."""
         return np.array(REFERENCE_KINDS, dtype=object)[self.code]
 
     @classmethod
-    def gather(cls, chunks, places):
+    def gather(cls, chunks: Sequence[References], places: np.ndarray) -> References:
         """The references at ``places`` (n, 2) (chunk, position) of ``chunks``, in order."""
         starts = np.cumsum([0] + [len(chunk) for chunk in chunks])
         flat = starts[places[:, 0]] + places[:, 1]
@@ -267,7 +272,7 @@ def _axial_moments(group, members, times, found):
     _centres(group, members, times, found)
 
 
-def dop853_reference(scene, times):
+def dop853_reference(scene: Scene, times: np.ndarray) -> Reference | None:
     """DOP853 at ``times``, or None past `REFERENCE_MAX_STEPS` steps (or when DOP853 itself
     fails): no reference rather than a hang."""
     run = dop853.integrate(
@@ -277,7 +282,8 @@ def dop853_reference(scene, times):
         raise Halted("the DOP853 references were halted")
     if not run.finished:
         return None
-    return Reference("dop853", **{name: run.samples[:, place] for name, place in S.STATE_FIELDS.items()})
+    fields: dict[str, Any] = {name: run.samples[:, place] for name, place in S.STATE_FIELDS.items()}
+    return Reference("dop853", **fields)
 
 
 # The loads that may speed the body's spin up (every kind that turns it, but those that only
@@ -285,7 +291,7 @@ def dop853_reference(scene, times):
 _DRIVING = tuple(name for name in TURNING if not KIND[name].dissipates)
 
 
-def moment_bound(loads):
+def moment_bound(loads: Mapping[str, Any]) -> np.ndarray | float:
     """An upper bound (N m) of the moment's magnitude at any time, (...,): every constant
     and tabulated moment that may drive the body, and the lever of off-centre forces, added
     up. ``loads`` maps the
@@ -303,7 +309,9 @@ def moment_bound(loads):
     return bound
 
 
-def planned_steps(omega_body, inertia, loads, interval):
+def planned_steps(
+    omega_body: np.ndarray, inertia: np.ndarray, loads: Mapping[str, Any], interval: float
+) -> np.ndarray:
     """(n,) steps per output ``interval`` that turn each body by at most
     `COMPOSED_STEP_ANGLE` at the rate ``|w0| + sqrt(M / I_min)`` (M: `moment_bound`; the
     second term is the rate a moment of that size swings the body at, as a pendulum's), for
@@ -312,7 +320,7 @@ def planned_steps(omega_body, inertia, loads, interval):
     return np.maximum(1, np.ceil(interval * rate / COMPOSED_STEP_ANGLE)).astype(np.int64)
 
 
-def load_spin(inertia, loads, duration):
+def load_spin(inertia: np.ndarray, loads: Mapping[str, Any], duration: float) -> np.ndarray:
     """(n,) the most a load can add to each body's spin (rad/s) by ``duration`` (s): ``M T /
     I_min`` (M: `moment_bound`), for (n, 3) inertias and their ``loads`` columns. A moment M
     changes the energy E at ``w . M <= |w| M`` and ``|w| <= sqrt(2 E / I_min)``, so
@@ -322,7 +330,7 @@ def load_spin(inertia, loads, duration):
     return moment_bound(loads) * duration / np.min(inertia, axis=-1)
 
 
-def knot_steps(knots, duration, interval, least):
+def knot_steps(knots: npt.ArrayLike, duration: float, interval: float, least: int) -> int | None:
     """The first step count per output ``interval`` from ``least`` that puts every knot
     (K,) inside (0, ``duration``) on a step boundary, or None within `_KNOT_SEARCH` counts
     (a load's kink inside a step costs the composition its order; DOP853 restarts there
@@ -341,7 +349,7 @@ def knot_steps(knots, duration, interval, least):
     return int(counts[fits.argmax()])
 
 
-def composed_steps(scene, interval, least=None):
+def composed_steps(scene: Scene, interval: float, least: int | None = None) -> int | None:
     """The steps per output ``interval`` of ``scene``'s composed reference: at least
     ``least`` (default `planned_steps`), with every knot on a step boundary (`knot_steps`);
     None when no such count is found."""
@@ -461,7 +469,7 @@ def table_references(table: SceneTable, rows: np.ndarray, times: np.ndarray) -> 
     return _references(_table_group(table, rows), table.reference_kinds[rows], times)
 
 
-def reference_solutions(scenes, times):
+def reference_solutions(scenes: Sequence[Scene], times: np.ndarray) -> list[Reference]:
     """The best available reference of each of ``scenes`` at ``times`` (T,), `Reference`s
     (the same numbers as `table_references` gives a table of them)."""
     group = _scene_group(scenes)
@@ -472,6 +480,6 @@ def reference_solutions(scenes, times):
     return [found[k] for k in range(len(scenes))]
 
 
-def reference_solution(scene, times):
+def reference_solution(scene: Scene, times: np.ndarray) -> Reference:
     """The best available reference for one ``scene`` (see `reference_solutions`)."""
     return reference_solutions([scene], times)[0]

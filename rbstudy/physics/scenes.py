@@ -10,9 +10,12 @@ This is the data model only: `rbstudy.inputs.scenes` reads a ``scene:`` block of
 (docs/config.md) into a checked `SceneTable`.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -51,18 +54,18 @@ class Body:
     regularised: bool = False
 
     @property
-    def physical(self):
+    def physical(self) -> bool:
         """True when the principal inertias meet the triangle inequalities."""
         return bool(triangle_ok(np.array(self.inertia)))
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         # symmetry is decided once (`rbstudy.physics.analytic.symmetry_axis`); a symmetric
         # body's two transverse moments are made exactly equal here, so that the integrated
         # body and its closed form are the same body
         object.__setattr__(self, "inertia", tuple(symmetrised(self.inertia).tolist()))
 
     @cached_property
-    def symmetry_axis(self):
+    def symmetry_axis(self) -> int | None:
         """Index (0, 1, 2) of the symmetry axis of a symmetric body, or None (decided once per
         body: the outputs ask it of every case several times).
 
@@ -101,21 +104,21 @@ class Scene:
     duration: float = 1.0
 
     @property
-    def translates(self):
+    def translates(self) -> bool:
         """True when the centre of mass moves (initial velocity or a force)."""
         return bool(moving(self.velocity, vars(self.loads)))
 
-    def state_row(self):
+    def state_row(self) -> np.ndarray:
         """The initial state as a (N_STATE,) row (see `rbstudy.numerics.state`)."""
         return _state_rows({name: np.atleast_2d(getattr(self, name)) for name in S.STATE_FIELDS})[0]
 
-    def param_row(self):
+    def param_row(self) -> np.ndarray:
         """The parameters as a row of `rbstudy.numerics.state.row_width` (N_PARAM when no
         load is tabulated in time; see `rbstudy.numerics.state`)."""
         loads = {name: np.asarray(value)[None] for name, value in vars(self.loads).items()}
         return _param_rows(np.array([self.body.mass]), np.array([self.body.inertia]), loads)[0]
 
-    def with_changes(self, **changes):
+    def with_changes(self, **changes: Any) -> Scene:
         """A copy with some fields replaced (used by sweeps and tests)."""
         return replace(self, **changes)
 
@@ -151,14 +154,19 @@ class SceneTable:
     node_names: tuple
     duration: float
     warnings: tuple = ()
-    regularised: np.ndarray = None
+    regularised: np.ndarray | None = None
     tables: tuple = ()
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.mass)
 
-    def scene(self, i):
+    def scene(self, i: int) -> Scene:
         """The scene of row ``i``."""
+        # a `Loads` field per kind, as tuples; the tables in time as arrays
+        loads: dict[str, Any] = {
+            name: column[i] if name in TABLES else tuple(column[i].tolist())
+            for name, column in self.loads.items()
+        }
         return Scene(
             body=Body(
                 mass=float(self.mass[i]),
@@ -172,16 +180,11 @@ class SceneTable:
             velocity=tuple(self.velocity[i].tolist()),
             nodes=np.array(self.nodes[i]),
             node_names=self.node_names,
-            loads=Loads(
-                **{
-                    name: column[i] if name in TABLES else tuple(column[i].tolist())
-                    for name, column in self.loads.items()
-                }
-            ),
+            loads=Loads(**loads),
             duration=self.duration,
         )
 
-    def batch_rows(self, rows):
+    def batch_rows(self, rows: np.ndarray | Sequence[int]) -> BatchRows:
         """The `BatchRows` of the scenes ``rows`` (m,), taken from the columns: the rows each
         `Scene` packs (`Scene.state_row`, `Scene.param_row`: the inertias symmetrised as its
         `Body` does), with K the table's knots."""
@@ -193,33 +196,34 @@ class SceneTable:
         )
 
     @cached_property
-    def timed(self):
+    def timed(self) -> np.ndarray:
         """(n,) True where some load varies in time."""
-        return timed(self.loads)
+        # of columns, the load tests give arrays already: asarray returns them as they are
+        return np.asarray(timed(self.loads))
 
     @cached_property
-    def symmetry_axes(self):
+    def symmetry_axes(self) -> np.ndarray:
         """(n,) the symmetry axis of each body, -1 for an asymmetric one
         (`rbstudy.physics.analytic.symmetry_axes`)."""
         return symmetry_axes(symmetrised(self.inertia))  # as each Body decides it
 
     @cached_property
-    def reference_kinds(self):
+    def reference_kinds(self) -> np.ndarray:
         """(n,) the reference of each scene (`rbstudy.physics.analytic.reference_kinds`)."""
         return reference_kinds(self.inertia, self.omega_body, self.loads, self.timed)
 
     @cached_property
-    def moment_free(self):
+    def moment_free(self) -> np.ndarray:
         """(n,) True where no moment acts."""
-        return ~turning(self.loads)
+        return ~np.asarray(turning(self.loads))
 
     @cached_property
-    def translates(self):
+    def translates(self) -> np.ndarray:
         """(n,) True where the centre of mass moves (initial velocity or a force)."""
-        return moving(self.velocity, self.loads)
+        return np.asarray(moving(self.velocity, self.loads))
 
 
-def batch_rows(scenes):
+def batch_rows(scenes: Sequence[Scene]) -> BatchRows:
     """The `BatchRows` of ``scenes`` (m,), all of one duration: each scene's
     `Scene.state_row`, and their `param_rows`."""
     durations = {scene.duration for scene in scenes}
@@ -257,7 +261,7 @@ def _param_rows(mass, inertia, loads):
     return table
 
 
-def param_rows(scenes):
+def param_rows(scenes: Iterable[Scene]) -> np.ndarray:
     """The parameter rows of ``scenes``, (n, W) with W the widest row's width: each row is
     zero past its own width (`rbstudy.numerics.state.row_width`)."""
     rows_ = [scene.param_row() for scene in scenes]
@@ -267,7 +271,7 @@ def param_rows(scenes):
     return table
 
 
-def triangle_ok(inertia):
+def triangle_ok(inertia: np.ndarray) -> np.ndarray | np.bool_:
     """Whether principal inertias (..., 3) meet the triangle inequalities: a bool, or (...,)."""
     i1, i2, i3 = np.moveaxis(inertia, -1, 0)
     slack = TRIANGLE_RTOL * (i1 + i2 + i3)

@@ -36,7 +36,7 @@ class Simulation:
     time: np.ndarray
     output: BatchOutput
 
-    def field(self, name):
+    def field(self, name: str) -> np.ndarray:
         """The samples of the state field ``name`` (`rbstudy.numerics.state.STATE_FIELDS`)."""
         return self.output.samples[:, :, S.STATE_FIELDS[name]]
 
@@ -46,12 +46,13 @@ class Simulation:
     velocity = property(lambda self: self.field("velocity"))
 
     @property
-    def results(self):
+    def results(self) -> dict[str, np.ndarray]:
         """Per-body results by name (`rbstudy.numerics.state.RESULT_FIELDS`), (B,) each."""
         return self.output.results
 
     @property
-    def status_names(self):
+    def status_names(self) -> list[str]:
+        """The name of each body's status (`rbstudy.numerics.state.STATUS_NAMES`)."""
         return [STATUS_NAMES[code] for code in self.results["status"]]
 
 

@@ -20,7 +20,7 @@ STEP_RTOL = 1e-9
 MAX_STEPS_PER_INTERVAL = 1e12
 
 
-def steps_per(interval, step, step_name="dt", interval_name="interval"):
+def steps_per(interval: float, step: float, step_name: str = "dt", interval_name: str = "interval") -> int:
     """The whole number of ``step``s in ``interval``; an unplaced `InputError` if there is
     none (the caller knows the file and key)."""
     ratio = interval / step

@@ -15,7 +15,7 @@ stopped by, another package's code.
 import importlib
 import pkgutil
 import threading
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 from rbstudy.errors import SchemeError, did_you_mean
 from rbstudy.schemes._composition import ORDERS as COMPOSITION_ORDERS
@@ -126,7 +126,7 @@ BUILTIN = _discover()
 SCHEMES = _Registry(BUILTIN)
 
 
-def unavailable_schemes():
+def unavailable_schemes() -> dict[str, Unavailable]:
     """name -> `Unavailable`: the registered schemes that cannot run here."""
     return SCHEMES.unavailable()
 
@@ -145,7 +145,7 @@ def get_scheme(name: str) -> Scheme:
     raise SchemeError(f"unknown scheme {name!r}{did_you_mean(name, SCHEMES)}", f"valid schemes: {valid}")
 
 
-def scheme_styles(names):
+def scheme_styles(names: Iterable[str]) -> dict[str, Style]:
     """name -> `Style` of each of the schemes ``names`` that is registered here with a style
     (the figures give the others, and the schemes not installed here, one of their own)."""
     found = {name: SCHEMES.find(name) for name in names}
@@ -166,7 +166,7 @@ def _engine_of(name):
     return ENGINES[name].partition(":")[0].rpartition(".")[2]
 
 
-def scheme_groups():
+def scheme_groups() -> dict[str, list[str]]:
     """group name -> the registered scheme names it stands for (available or not): one group
     per engine of `ENGINES`, ``engines`` for them all, ``builtin`` for rbstudy's own
     fixed-step schemes."""
@@ -179,7 +179,7 @@ def scheme_groups():
     return groups
 
 
-def expand_groups(names, option="--schemes"):
+def expand_groups(names: Iterable[str], option: str = "--schemes") -> list[str]:
     """``names`` (scheme or group names) with each group replaced by its available schemes,
     each scheme once, in the order given. A group none of whose schemes is available here
     raises `SchemeError` with why and the install command; ``engines`` takes whichever

@@ -9,14 +9,18 @@ plain step keeps its speed. The carry sits in the scheme's work array from the o
 scheme passes (`CARRY_WIDTH` floats).
 """
 
+from collections.abc import Callable, Mapping
+from typing import Any
+
 from rbstudy.numerics.compensated import CARRY_WIDTH
 from rbstudy.schemes._registry import Option
 
 __all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 
 
-# What a compensated step costs, in plain steps: measured 1.15 (rkmk4) to 1.75 (splitting)
-# (docs/performance.md); `rbstudy validate` forecasts with this, within 30% of each.
+# What a compensated step costs, in plain steps: between what the schemes that offer it were
+# measured at, rkmk4 the least and splitting the most (docs/performance.md); `rbstudy
+# validate` forecasts with this.
 COST = 1.5
 
 
@@ -40,7 +44,9 @@ COMPENSATED = Option(
 )
 
 
-def switch(step, init, slots):
+def switch(
+    step: Callable[..., Any], init: Callable[..., Any], slots: Mapping[str, int]
+) -> tuple[int, Callable[..., Any], Callable[..., Any]]:
     """The ``switch`` of `rbstudy.numerics.entry.make_entry` that runs the bodies whose
     option ``compensated`` is set with the compensated kernels ``step`` and ``init``; ``slots``
     is the scheme's layout of its option row (`rbstudy.schemes.option_slots`)."""

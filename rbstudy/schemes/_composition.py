@@ -23,10 +23,13 @@ so it is of order 2 only under loads tabulated in time (study validation warns);
 of the other two stay inside the step.
 """
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.entry import make_entry
+from rbstudy.numerics.entry import CachedEntry, make_entry
 from rbstudy.numerics.jit import inline_jit
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._registry import Option
@@ -68,13 +71,13 @@ _OUTER_TO_CENTRE = {
 ORDERS = tuple(_OUTER_TO_CENTRE)
 
 
-def stage_weights(order):
+def stage_weights(order: int) -> tuple[float, ...]:
     """The weights ``g_1 .. g_s`` of the composition of ``order`` (a tuple of floats)."""
     half = _OUTER_TO_CENTRE[order]
     return half + half[-2::-1]
 
 
-def stage_reach(order):
+def stage_reach(order: int) -> tuple[float, float]:
     """``(earliest, latest)`` time of any stage of the composition of ``order``, as fractions
     of the step from its start: the triple jump reaches (-0.35, 1.35), outside its step; the
     Kahan-Li compositions stay inside it."""
@@ -124,8 +127,7 @@ COMPOSITION = Option(
 # Inlined into each scheme's step (`composed_entry`): called, it would receive ``step`` as a
 # value, a "dynamic global" that keeps numba from caching the step (numba 0.68). Each scheme inlines
 # its symmetric step as well (`inline_jit`): called from the two sites below, LLVM kept it a
-# call, which cost the plain step 8-12% of its speed (rbstudy bench: splitting 5.7e6 ->
-# 5.2e6 body-steps/s, midpoint 6.9e6 -> 6.0e6).
+# call, which cost the plain step a share of its speed (rbstudy bench, splitting and midpoint).
 @inline_jit
 def composed_step(step, slot, y, p, opt, t, h, work):
     """Advance state row ``y`` (N_STATE,) by ``h`` with the composition of ``step`` (a compiled
@@ -163,7 +165,14 @@ def composed_block_step(step, slot, block, opt, h):
         step(block, opt, _STAGES[order, i] * h)
 
 
-def composed_entry(symmetric_step, init, n_work, slot, switch=None, block=None):
+def composed_entry(
+    symmetric_step: Callable[..., Any],
+    init: Callable[..., Any],
+    n_work: int,
+    slot: int,
+    switch: tuple[int, Callable[..., Any], Callable[..., Any]] | None = None,
+    block: Callable[..., Any] | None = None,
+) -> CachedEntry:
     """The entry point (`rbstudy.numerics.entry.make_entry`) of a scheme whose step is its
     ``symmetric_step`` composed as option ``composition``, at ``slot`` of the scheme's option
     row (`rbstudy.schemes.option_slots`), asks (`composed_step`); a ``switch``'s step is

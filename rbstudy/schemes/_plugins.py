@@ -41,7 +41,9 @@ import select
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -77,7 +79,9 @@ def _own_entries():
     metadata. An editable install's metadata is written by ``pip install -e .`` and keeps the
     entry points of that moment: the project file is what the code beside it declares now."""
     try:
-        import tomllib  # Python 3.11 on; on 3.10 a source tree reads the metadata as well
+        # Python 3.11 on; on 3.10 a source tree reads the metadata as well (mypy checks for
+        # 3.10, whose standard library has no tomllib: the ImportError below is that case)
+        import tomllib  # type: ignore[import-not-found, unused-ignore]
 
         project = tomllib.loads(_PYPROJECT.read_text())["project"]
         if project["name"] == DISTRIBUTION:
@@ -94,7 +98,7 @@ def _own_entries():
 ENGINES = _own_entries()
 # A plug-in module whose import takes longer is taken for hung and listed unavailable.
 # Importing a heavy dependency (an engine's bindings, a numerical framework) from a cold disk
-# takes seconds; rbstudy's own import with numba, 0.7 s.
+# takes seconds; rbstudy's own import with numba, far less.
 IMPORT_SECONDS = 30.0
 # After this long, the plug-in being imported is named on stderr: a slow import is seen as
 # such, not taken for a frozen command.
@@ -112,7 +116,7 @@ class SchemeUnavailable(ImportError):  # noqa: N818 (read as "raise SchemeUnavai
     """Raised by a plug-in's module when its scheme cannot run here: ``reason`` says why,
     ``fix`` what to run (``pip install "mujoco>=4.0"``)."""
 
-    def __init__(self, reason, fix):
+    def __init__(self, reason: str, fix: str) -> None:
         super().__init__(reason)
         self.reason, self.fix = reason, fix
 
@@ -134,30 +138,30 @@ class Guarded:
     rbstudy's codes, becomes one `RbstudyError` naming the scheme and its package. Its other
     attributes (`is_cached`, `whole_batch`, numba's `signatures`) are the entry point's."""
 
-    def __init__(self, entry, name, origin):
+    def __init__(self, entry: Callable[..., Any], name: str, origin: str) -> None:
         self._entry, self._name, self._origin = entry, name, origin
 
-    def __getattr__(self, attribute):
+    def __getattr__(self, attribute: str) -> Any:
         if attribute.startswith("_"):  # its own (copy and pickle ask before they exist)
             raise AttributeError(attribute)
         return getattr(self._entry, attribute)
 
     def __call__(
         self,
-        start,
-        stop,
-        state0,
-        params,
-        options,
-        h,
-        n_steps,
-        every,
-        drift_bound,
-        samples,
-        results,
-        halt,
-        clock=None,
-    ):
+        start: int,
+        stop: int,
+        state0: np.ndarray,
+        params: np.ndarray,
+        options: np.ndarray,
+        h: float,
+        n_steps: int,
+        every: int,
+        drift_bound: float,
+        samples: np.ndarray,
+        results: np.ndarray,
+        halt: np.ndarray,
+        clock: float | None = None,
+    ) -> None:
         try:
             self._entry(
                 start,
@@ -174,7 +178,7 @@ class Guarded:
                 halt,
                 clock,
             )
-            codes = results[start:stop, Result.status]
+            codes = results[start:stop, Result["status"]]
             check_statuses(codes[~np.isnan(codes)])  # NaN: a body a halt left unfinished
         except StatusError as error:
             raise self._failure(f"its step {error}") from error
@@ -275,7 +279,7 @@ def _load_all(entry_points, taken, refused):
     return found, unavailable
 
 
-def load_engines(builtin):
+def load_engines(builtin: Iterable[str]) -> tuple[dict[str, Scheme], dict[str, Unavailable]]:
     """rbstudy's adapters of other engines (`ENGINES`): (name -> `Scheme`, name ->
     `Unavailable`), imported here (rbstudy's own code, whose engine may be absent).
     ``builtin``: rbstudy's own schemes."""
@@ -286,7 +290,7 @@ def load_engines(builtin):
     )
 
 
-def load_plugins(builtin):
+def load_plugins(builtin: Iterable[str]) -> tuple[dict[str, Scheme], dict[str, Unavailable]]:
     """The plug-ins' schemes of this environment: (name -> `Scheme`, name -> `Unavailable`).
     ``builtin`` are rbstudy's own schemes, whose names, and those of `ENGINES`, a plug-in may
     not take. Each module is imported in a child process first (`_probe`)."""
@@ -364,8 +368,8 @@ def _start(modules):
     it writes to, its pid). Nothing it prints reaches this process's output."""
     read_end, write_end = os.pipe()
     try:
-        # a fork copies this process in milliseconds, but not the other threads, which may
-        # hold locks the child would wait for: with threads, a fresh interpreter (~1 s)
+        # a fork copies this process at once, but not the other threads, which may hold
+        # locks the child would wait for: with threads, a fresh interpreter (slower to start)
         if hasattr(os, "fork") and threading.active_count() == 1:
             pid = os.fork()
             if pid == 0:

@@ -1,9 +1,9 @@
 """Getting schemes ready before a sweep: compiled once per machine, in parallel the first time.
 
 A scheme's entry point is compiled once per machine and loaded from numba's cache after
-that (`rbstudy.numerics.entry`), in milliseconds. The first run after an install, or after
-a change of rbstudy's sources, finds the cache empty and compiles every scheme the study
-needs, 1-3 s each and 16 s for all ten, on one core: numba compiles under the GIL. Those
+that (`rbstudy.numerics.entry`), at once. The first run after an install, or after a change
+of rbstudy's sources, finds the cache empty and compiles every scheme the study needs, one
+after the other on one core: numba compiles under the GIL. Those
 compilations are independent, so `get_ready` hands them to child processes, one per core;
 each child writes what it compiled into the cache, and this process then loads it.
 
@@ -21,9 +21,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Collection
 from typing import NamedTuple
 
 import numba
+
+from rbstudy.schemes._registry import Scheme
 
 __all__ = ["get_ready", "Compiling"]
 
@@ -69,7 +72,11 @@ class Compiling(NamedTuple):
     took: tuple = ()  # (name, seconds) of each compiled so far
 
 
-def get_ready(variants, processes=1, watch=None):
+def get_ready(
+    variants: Collection[tuple[Scheme, bool]],
+    processes: int = 1,
+    watch: Callable[[Compiling], object] | None = None,
+) -> int:
     """Compile (or load from numba's cache) the schemes of ``variants``, pairs (`Scheme`,
     timed): ``timed`` asks for the variant that takes the time (loads tabulated in time,
     `rbstudy.numerics.clock`). When the cache lacks more than one scheme, up to
@@ -84,14 +91,15 @@ def get_ready(variants, processes=1, watch=None):
     did not put into the cache, this process compiles itself. Ctrl-C ends the children.
     """
     schemes = {scheme.name: scheme for scheme, _ in variants}
-    variants = sorted({(scheme.name, timed) for scheme, timed in variants})
-    cold = {}
-    for name, timed in variants:
+    wanted = sorted({(scheme.name, timed) for scheme, timed in variants})
+    cold: dict[str, list[bool]] = {}
+    for name, timed in wanted:
         if not schemes[name].is_cached(timed):
             cold.setdefault(name, []).append(timed)
     processes = max(1, min(processes, len(cold)))
     tell = watch or (lambda compiling: None)
-    cache = numba.config.CACHE_DIR
+    # numba.config sets its options from the environment at import: its stubs name none
+    cache = numba.config.CACHE_DIR  # type: ignore[attr-defined]
     names = tuple(cold)
     if cold:
         tell(Compiling(len(cold), 0, (), processes, cache, names))
@@ -132,7 +140,7 @@ def get_ready(variants, processes=1, watch=None):
         for timed in cold[name]:
             schemes[name].ensure_compiled(timed=timed)
         took[name] = time.perf_counter() - started
-    for name, timed in variants:  # loaded from the cache, in milliseconds
+    for name, timed in wanted:  # loaded from the cache, in milliseconds
         schemes[name].ensure_compiled(timed=timed)
     if cold:
         tell(Compiling(len(cold), len(cold), (), processes, cache, names, tuple(took.items())))

@@ -3,7 +3,7 @@ how its lines are drawn."""
 
 import math
 import numbers
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, NamedTuple
@@ -60,7 +60,7 @@ class Option:
     units: str | None = None
     width: int = 1
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.parse is None:
             raise TypeError(f"option {self.name!r}: give parse(value) -> tuple of floats")
 
@@ -133,7 +133,7 @@ class Scheme:
     kind: str | None = None
     slots: Mapping = field(init=False, repr=False, compare=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         unknown = set(self.keeps) - set(INVARIANTS)
         if unknown:
             raise ValueError(f"scheme {self.name!r}: unknown invariants {sorted(unknown)}")
@@ -249,7 +249,7 @@ class Scheme:
         )
 
 
-def option_slots(options, scheme="this scheme"):
+def option_slots(options: Sequence[Option], scheme: str = "this scheme") -> Mapping[str, int]:
     """Lay out a scheme's option row: the first slot of each of its ``options``.
 
     An option that pins its ``slot`` keeps it; the others, in the order given, take the first
@@ -279,8 +279,8 @@ def option_slots(options, scheme="this scheme"):
         outside it or claimed twice (each option would read the other's value), or a default
         that packs more or fewer floats than the option's width.
     """
-    holders = [None] * S.N_OPTION
-    slots = {}
+    holders: list[str | None] = [None] * S.N_OPTION
+    slots: dict[str, int] = {}
 
     def claim(option, start):
         for k in range(start, start + option.width):
@@ -293,20 +293,24 @@ def option_slots(options, scheme="this scheme"):
         slots[option.name] = start
 
     for option in options:
+        assert option.parse is not None  # Option.__post_init__ refuses an option without one
         packed = len(option.parse(option.default))
         if packed != option.width:
             raise ValueError(
                 f"scheme {scheme!r}: option {option.name!r} packs {packed} "
                 f"values into a width of {option.width}; declare width={packed}"
             )
-    for option in (option for option in options if option.slot is not None):
-        if not 0 <= option.slot <= S.N_OPTION - option.width:
+    for option in options:
+        pinned = option.slot
+        if pinned is None:
+            continue
+        if not 0 <= pinned <= S.N_OPTION - option.width:
             raise ValueError(
                 f"scheme {scheme!r}: option {option.name!r} takes slots "
-                f"{option.slot}-{option.slot + option.width - 1} of a row of {S.N_OPTION}; "
+                f"{pinned}-{pinned + option.width - 1} of a row of {S.N_OPTION}; "
                 "leave out the slot and the registry lays out the row"
             )
-        claim(option, option.slot)
+        claim(option, pinned)
     for option in (option for option in options if option.slot is None):
         free = (
             start
@@ -324,7 +328,7 @@ def option_slots(options, scheme="this scheme"):
     return MappingProxyType(slots)
 
 
-def scratch_rows(scheme, **widths):
+def scratch_rows(scheme: str, **widths: int) -> tuple[int, ...]:
     """Lay out a block step's scratch rows (`rbstudy.numerics.block`: ``N_TEMP`` rows from
     ``TEMP``): each of ``widths`` (name=rows, in the order given) takes the next free rows.
     As `option_slots` does for the option row, the layout depends on the widths alone, so a
@@ -350,7 +354,8 @@ def scratch_rows(scheme, **widths):
         In one line: a width below 1, or fields that need more than the ``N_TEMP`` rows of a
         block (a field would overwrite the carried rows that follow them).
     """
-    starts, at = [], TEMP
+    starts: list[int] = []
+    at = TEMP
     for name, width in widths.items():
         if not isinstance(width, numbers.Integral) or width < 1:
             raise ValueError(

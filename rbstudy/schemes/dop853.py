@@ -34,7 +34,7 @@ from rbstudy.schemes.rk4 import rates
 # Tight enough that the reference error (~1e-12) sits below every compiled scheme's error at
 # the time steps studied; scipy itself floors rtol near 100 eps = 2.2e-14.
 RTOL = 1e-13  # and atol
-# Accepted steps one body may take as a scheme: about 25 minutes of one core (150 us a step),
+# Accepted steps one body may take as a scheme: long past any forecast run of one core,
 # |w0| T up to ~1.5e6 rad at the ~6.5 steps per radian it takes. A study forecast past the
 # --max-body-steps budget is refused before it runs; this bounds a run the forecast could
 # not see (a load that spins the body up, a budget raised past any sense): such a body
@@ -90,7 +90,14 @@ def _segment_ends(p, end):
     return [*knots[(knots > 0.0) & (knots < end)].tolist(), float(end)]
 
 
-def integrate(y0, p, times, max_steps=None, halt=None, tolerance=RTOL):
+def integrate(
+    y0: np.ndarray,
+    p: np.ndarray,
+    times: np.ndarray,
+    max_steps: int | None = None,
+    halt: np.ndarray | None = None,
+    tolerance: float = RTOL,
+) -> Trajectory:
     """Integrate state row ``y0`` (N_STATE,) with parameters ``p`` (a parameter row) over
     ``times`` (T,), 0 first, step by step, sampling the dense output of each step that covers
     a sample time (so memory stays (T, N_STATE) however many steps a fast spin takes). The
@@ -101,8 +108,8 @@ def integrate(y0, p, times, max_steps=None, halt=None, tolerance=RTOL):
     `rbstudy.numerics.driver.request_halt`) is read every step. ``tolerance``: rtol and
     atol (the scheme's `RTOL`; a benchmark asks for less).
     """
-    # here, not at the top: scipy.integrate costs every command that loads the schemes
-    # 0.1-0.25 s, and a first run's notice should come at once (issue 30)
+    # here, not at the top: scipy.integrate would cost every command that loads the schemes
+    # its import, and a first run's notice should come at once (issue 30)
     from scipy.integrate import DOP853
 
     samples = np.full((len(times), S.N_STATE), np.nan)
@@ -141,8 +148,20 @@ def integrate(y0, p, times, max_steps=None, halt=None, tolerance=RTOL):
 
 
 def run_bodies_inplace(
-    start, stop, state0, params, options, h, n_steps, every, drift_bound, samples, results, halt, clock=None
-):
+    start: int,
+    stop: int,
+    state0: np.ndarray,
+    params: np.ndarray,
+    options: np.ndarray,
+    h: float,
+    n_steps: int,
+    every: int,
+    drift_bound: float,
+    samples: np.ndarray,
+    results: np.ndarray,
+    halt: np.ndarray,
+    clock: float | None = None,
+) -> None:
     """Same contract as the compiled entry points (see `rbstudy.numerics.driver`), one case at
     a time (``clock`` unused: the right-hand side always takes the time); a sample whose
     energy or |L| drift passes ``drift_bound`` (a moment-free body) counts as the failure.
@@ -186,18 +205,20 @@ def run_bodies_inplace(
 
 def _is_cached(timed=False):
     """(`rbstudy.schemes.Scheme.is_cached`) Whether numba's cache holds the right-hand side,
-    this scheme's one compiled kernel, which takes the time either way: 6 s to compile."""
+    this scheme's one compiled kernel, which takes the time either way (and the time to compile)."""
     return cache_holds(derivative)
 
 
-run_bodies_inplace.is_cached = _is_cached
+# the registry asks the entry point for `is_cached` (as numba's dispatchers of the compiled
+# schemes carry one); mypy knows no such attribute on a plain function
+run_bodies_inplace.is_cached = _is_cached  # type: ignore[attr-defined]
 
 SCHEME = Scheme(
     name="dop853",
     summary="scipy DOP853 at rtol = atol = 1e-13, case by case: the reference peer",
     # what a step costs as the references take it, sampled every many steps (the forecast's
-    # figure until `rbstudy.pipeline.calibration.reference_cost` has measured it here): 108 us
-    # calibrated, 125 us over 1e6 steps alone and ~180 us within a sweep on the 2-core machine
+    # figure until `rbstudy.pipeline.calibration.reference_cost` has measured it here): between
+    # the calibrated cost and what a step takes within a sweep on the 2-core machine
     step_seconds=1.5e-04,
     order=8,
     implicit=False,

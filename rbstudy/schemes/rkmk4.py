@@ -59,9 +59,9 @@ _OPTIONS = (COMPENSATED,)
 _SLOTS = option_slots(_OPTIONS)
 
 
-# inlined by numba: left to LLVM, the single-body loop ran 15-20% slower with lanes_math's sine
-# in the four exponentials than with libm's (~5.0e6 against ~6.0e6 body-steps/s for one body),
-# and as fast once inlined, though the two sines alone cost the same
+# inlined by numba: left to LLVM, the single-body loop ran slower with lanes_math's sine in the
+# four exponentials than with libm's, and as fast once inlined, though the two sines alone cost
+# the same
 @inline_jit
 def rates(q_start, v, u, m, p, t):
     """``(dx, dv, du, dm)`` at the stage ``R = R_n exp([u]x)``, velocity ``v``, momentum ``m``,
