@@ -12,16 +12,25 @@ The last two, the relabelling of a free body's axes (docs/theory.md s3), branch 
 three floats: the exact flow compiles them (`free_flow`) and the numba-free flip interval
 (`rbstudy.physics.analytic`) calls them as Python.
 
-This module imports nothing but the standard library's `typing`: importing it compiles
+This module imports nothing outside the standard library: importing it compiles
 nothing. A component (`Component`) is a float in a kernel, an array over bodies and times
 elsewhere.
 """
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, Protocol
 
 # A float inside a kernel, a numpy array of any shape in the numpy code.
 Component = Any
+
+
+class Components(Protocol):
+    """Components read by index: a tuple in a kernel, a component-first array elsewhere."""
+
+    def __getitem__(self, index: int, /) -> Any: ...
+
+    def __iter__(self) -> Iterator[Any]: ...
+
 
 __all__ = [
     "hamilton_product",
@@ -34,9 +43,7 @@ __all__ = [
 ]
 
 
-def hamilton_product(
-    a: Sequence[Component], b: Sequence[Component]
-) -> tuple[Component, Component, Component, Component]:
+def hamilton_product(a: Components, b: Components) -> tuple[Component, Component, Component, Component]:
     """Hamilton product ``a * b`` of scalar-last quaternions.
 
     Parameters
@@ -59,7 +66,7 @@ def hamilton_product(
     )
 
 
-def rotation_columns(q: Sequence[Component]) -> tuple[tuple[Component, ...], ...]:
+def rotation_columns(q: Components) -> tuple[tuple[Component, ...], ...]:
     """The columns ``R e_1, R e_2, R e_3`` of the rotation of a unit quaternion.
 
     Parameters
@@ -80,7 +87,7 @@ def rotation_columns(q: Sequence[Component]) -> tuple[tuple[Component, ...], ...
     )
 
 
-def rotational_energy(w: Sequence[Component], inertia: Sequence[Component]) -> Component:
+def rotational_energy(w: Components, inertia: Components) -> Component:
     """Kinetic energy of rotation ``1/2 w . (I w)`` for principal inertias.
 
     Parameters
@@ -98,7 +105,7 @@ def rotational_energy(w: Sequence[Component], inertia: Sequence[Component]) -> C
     return 0.5 * (inertia[0] * w[0] * w[0] + inertia[1] * w[1] * w[1] + inertia[2] * w[2] * w[2])
 
 
-def momentum_squared(w: Sequence[Component], inertia: Sequence[Component]) -> Component:
+def momentum_squared(w: Components, inertia: Components) -> Component:
     """``|I w|^2``, equal to ``|L|^2`` in space (a rotation keeps lengths).
 
     Parameters
@@ -137,7 +144,7 @@ def relative_drift(value: Component, initial: Component) -> Component:
     return abs(value - initial)
 
 
-def momentum_excess(inertia: Sequence[float], m: Sequence[float], j: int) -> float:
+def momentum_excess(inertia: Components, m: Components, j: int) -> float:
     """``G^2 - 2 E I_j`` of a body, summed term by term (``sum_{n != j} m_n^2 (I_n - I_j) /
     I_n``): free of the cancellation of ``|m|^2 - I_j m . w`` when two moments nearly agree.
 
@@ -162,7 +169,7 @@ def momentum_excess(inertia: Sequence[float], m: Sequence[float], j: int) -> flo
     return total
 
 
-def circulation_axes(inertia: Sequence[float], excess: Sequence[float]) -> tuple[int, int, int, float]:
+def circulation_axes(inertia: Components, excess: Components) -> tuple[int, int, int, float]:
     """The relabelling of a free body's principal axes (docs/theory.md s3).
 
     Parameters

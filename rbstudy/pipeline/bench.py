@@ -77,7 +77,7 @@ def _rate(
     params = np.repeat(scene.param_row()[None, :], n_bodies, axis=0)
     option_rows = np.repeat(scheme.option_row(options)[None, :], n_bodies, axis=0)
     out = run_batch(
-        scheme,  # type: ignore[arg-type]  # numerics.driver.BatchKernel declares settable members; a Scheme is frozen
+        scheme,
         state0,
         params,
         option_rows,

@@ -436,7 +436,7 @@ def reference_cost() -> StepCost:
     scheme = get_scheme("dop853")
     key = f"{_scheme_key(scheme)} reference"
     cached_cost = _figure(key)
-    if not _stale(key, cached_cost):
+    if cached_cost is not None and not _stale(key, cached_cost):
         return cached_cost
     if not scheme.is_cached():  # compiling it here would cost the forecast seconds
         return cached_cost or StepCost(scheme.step_seconds, math.nan)

@@ -540,4 +540,4 @@ def physical_body(batch: BatchData) -> np.ndarray:
     ndarray, shape (B,)
         int8
     """
-    return triangle_ok(batch.principal_inertia).astype(np.int8)
+    return np.asarray(triangle_ok(batch.principal_inertia), dtype=np.int8)
