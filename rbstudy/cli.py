@@ -396,8 +396,9 @@ def _with_search(document, path, dataset):
 def _summary_text(dataset, wide=False, table_only=False):
     """The findings (unless ``table_only``), then the per-scheme table (every column when
     ``wide``)."""
-    from rbstudy.analysis.findings import finding_lines, findings
+    from rbstudy.analysis.findings import findings
     from rbstudy.analysis.summary import format_table, scheme_rows
+    from rbstudy.analysis.summary_forms import finding_lines
 
     rows = scheme_rows(dataset)
     table = format_table(rows, wide=wide)
@@ -409,13 +410,8 @@ def _summary(args):
     import io
     import json
 
-    from rbstudy.analysis.findings import (
-        FINDINGS_REDUCED,
-        FINDINGS_VARIABLES,
-        csv_rows,
-        markdown_summary,
-        summary_document,
-    )
+    from rbstudy.analysis.findings import FINDINGS_REDUCED, FINDINGS_VARIABLES
+    from rbstudy.analysis.summary_forms import csv_rows, markdown_summary, summary_document
     from rbstudy.archive.reader import open_archive
     from rbstudy.numerics.machine import return_free_memory
     from rbstudy.pipeline.progress import Progress, live_wanted
