@@ -330,6 +330,8 @@ def _failures(ds: xr.Dataset) -> list[Finding]:
 
 def _coincidences(ds: xr.Dataset) -> list[Finding]:
     error = error_measure(ds, "orientation")
+    if error is None:  # nothing to compare
+        return []
     result = []
     for first, second in coinciding_pairs(ds, error):
         a, b = per_scheme(error, first).values, per_scheme(error, second).values
