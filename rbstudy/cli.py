@@ -27,8 +27,8 @@ import sys
 import tempfile
 import threading
 import traceback
-from collections.abc import Sequence
-from typing import NoReturn
+from collections.abc import Iterator, Sequence
+from typing import Any, NoReturn, TextIO
 
 from rbstudy.commands import arguments, results, schemes, study
 from rbstudy.commands.common import EXIT_BUG, EXIT_OK, EXIT_PIPE, EXIT_USAGE, EXIT_USER_ERROR, version
@@ -93,7 +93,7 @@ class _Parser(argparse.ArgumentParser):
         return parsed
 
 
-def _meant(parser, message):
+def _meant(parser: argparse.ArgumentParser, message: str) -> str:
     """`did_you_mean` for the first unknown verb or option that argparse's ``message`` names."""
     choice = re.match(r"argument \S+: invalid choice: '([^']*)' \(choose from (.*)\)", message)
     if choice:
@@ -122,7 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(args)
 
 
-def _run(args):
+def _run(args: argparse.Namespace) -> int:
     """The verb of ``args``, run; its exit code."""
     try:
         code = args.run(args)
@@ -150,7 +150,7 @@ def _run(args):
         return EXIT_BUG
 
 
-def _quiet_stdout():
+def _quiet_stdout() -> None:
     """Point stdout at /dev/null: its reader is gone, and Python's own flush at exit would
     otherwise report the broken pipe once more."""
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -165,7 +165,7 @@ class _FirstLine:
     in CI or with --quiet (as `rbstudy.pipeline.progress.live_wanted` decides, which would
     import rich first)."""
 
-    def __init__(self, args, stream):
+    def __init__(self, args: argparse.Namespace, stream: TextIO) -> None:
         self.stream = stream
         self.shown = False
         self._lock = threading.Lock()
@@ -176,7 +176,7 @@ class _FirstLine:
             stream.flush()
             self.shown = True
 
-    def erase(self):
+    def erase(self) -> None:
         if self.shown:  # checked again under the lock: rich's drawing thread writes too
             with self._lock:
                 if self.shown:
@@ -189,19 +189,19 @@ class _Stream:
     """A text stream whose writes first erase the `_FirstLine`, each made `printable`
     when ``printable``; all else is the stream's."""
 
-    def __init__(self, stream, first_line, printable):
+    def __init__(self, stream: TextIO, first_line: _FirstLine, printable: bool) -> None:
         self.stream, self.first_line, self.printable = stream, first_line, printable
 
-    def write(self, text):
+    def write(self, text: str) -> int:
         self.first_line.erase()
         return self.stream.write(printable(text) if self.printable else text)
 
-    def __getattr__(self, name):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self.stream, name)
 
 
 @contextlib.contextmanager
-def _streams(args):
+def _streams(args: argparse.Namespace) -> Iterator[None]:
     """stdout and stderr for the verb's run, after its `_FirstLine`. stdout shows the
     control characters of the text it prints (a scheme's name, an archive's attribute, a
     path) rather than letting a terminal obey them: no printing code has to remember it.
@@ -218,7 +218,7 @@ def _streams(args):
         first_line.erase()  # a verb that printed nothing (verify -q of intact files)
 
 
-def _scratch_folder():
+def _scratch_folder() -> str:
     """The folder for every temporary file made while the command runs, its child
     processes' too (the forkserver and workers of ``--workers``): multiprocessing's own
     (``pymp-*``), which holds the forkserver's socket, so that the socket's path (of about

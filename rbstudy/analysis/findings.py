@@ -75,8 +75,8 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.numerics.state import INVARIANTS, OK, STATUS_NAMES
 
-# The recommendation's numbers (`rbstudy.analysis.recommend`) are read through this module
-# by the report, the figures and the search's words, as they were before they moved there.
+# The recommendation's numbers (`rbstudy.analysis.recommend`) are named here too: the report,
+# the figures and the search's words read them with the findings.
 __all__ = [
     "Finding",
     "Recommendation",

@@ -18,6 +18,7 @@ import xarray as xr
 
 __all__ = [
     "SWEPT_BY_SUMMARY",
+    "SHOWN_VALUES",
     "significant",
     "plain",
     "other_dims",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 
 __all__ = [
     "add_bench",
@@ -295,7 +296,7 @@ def add_conformance(commands: Verbs) -> argparse.ArgumentParser:
     return conformance
 
 
-def _step_tolerance(text):
+def _step_tolerance(text: str) -> float:
     """A share between 0 and 1 (``0.05``: 5%)."""
     try:
         share = float(text)
@@ -306,7 +307,7 @@ def _step_tolerance(text):
     return share
 
 
-def _whole_number(text):
+def _whole_number(text: str) -> int:
     """A whole number written as digits or as ``1e7``, as the help gives it."""
     try:
         number = float(text) if "e" in text.lower() or "." in text else int(text)
@@ -317,12 +318,18 @@ def _whole_number(text):
     return int(number)
 
 
-def _list_argument(parser, option, metavar, help, choices=None):
+def _list_argument(
+    parser: argparse.ArgumentParser,
+    option: str,
+    metavar: str,
+    help: str,
+    choices: Sequence[str] | None = None,
+) -> None:
     """``option`` taking one value or a comma list per use, the uses added up (``--format
     png,svg`` or ``--format png --format svg``): never a following positional, as nargs="+"
     took ``plot --format svg X.nc``'s file for a format."""
 
-    def names(text):
+    def names(text: str) -> list[str]:
         listed = [name.strip() for name in text.split(",")]
         for name in listed:
             if not name:
@@ -342,7 +349,7 @@ def _list_argument(parser, option, metavar, help, choices=None):
     )
 
 
-def _no_verify_argument(parser):
+def _no_verify_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-verify",
         action="store_true",
@@ -351,7 +358,7 @@ def _no_verify_argument(parser):
     )
 
 
-def _set_argument(parser):
+def _set_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--set",
         action="append",
@@ -363,7 +370,7 @@ def _set_argument(parser):
     )
 
 
-def _limit_arguments(parser):
+def _limit_arguments(parser: argparse.ArgumentParser) -> None:
     # defaults named here so that parsing loads nothing heavy (rbstudy.pipeline.estimate)
     parser.add_argument(
         "--max-body-steps",
