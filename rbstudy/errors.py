@@ -14,8 +14,13 @@ set the window's title): `printable` shows them as escapes, and every error prin
 every layer above: "1 schemes" was an s appended to a count.
 """
 
+from __future__ import annotations
+
 import difflib
+import os
 import re
+from collections.abc import Iterable
+from typing import Any
 
 __all__ = [
     "RbstudyError",
@@ -40,25 +45,25 @@ SIMILAR_NAME = 0.75
 _CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 
 
-def printable(text):
+def printable(text: str) -> str:
     """``text`` with each control character a terminal would act on shown as Python
     writes it in a string's repr (``\\x1b``, ``\\x9b``, ``\\r``)."""
     return _CONTROL.sub(lambda match: repr(match[0])[1:-1], text)
 
 
-def counted(number, noun, plural=None):
+def counted(number: int | str, noun: str, plural: str | None = None) -> str:
     """``1 scheme``, ``2 schemes``, ``0 batches`` (``plural``: the noun's plural where it is
     not the noun and an s); ``number`` as given (an int, or a text such as ``1,000``)."""
     return f"{number} {noun if str(number) == '1' else plural or noun + 's'}"
 
 
-def did_you_mean(name, valid):
+def did_you_mean(name: object, valid: Iterable[object]) -> str:
     """`` (did you mean 'hht'?)`` when ``name`` is a slip of one of ``valid``, else ''."""
     close = difflib.get_close_matches(str(name), [str(v) for v in valid], n=1, cutoff=SIMILAR_NAME)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def _as_line(text):
+def _as_line(text: str) -> str:
     """``text`` as one printable line: its newlines shown as ``\\n`` (a path or a key may
     hold one), its other controls as `printable` shows them."""
     return printable(text.replace("\n", "\\n"))
@@ -67,7 +72,7 @@ def _as_line(text):
 class RbstudyError(Exception):
     """Base class of all expected, user-caused failures; its text is one `printable` line."""
 
-    def __str__(self):
+    def __str__(self) -> str:
         return _as_line(super().__str__())
 
 
@@ -79,19 +84,31 @@ class InputError(RbstudyError):
     name the case; None for a single value.
     """
 
-    def __init__(self, message, fix=None, source=None, key=None, row=None):
+    def __init__(
+        self,
+        message: str,
+        fix: str | None = None,
+        source: str | os.PathLike[str] | None = None,
+        key: str | None = None,
+        row: Any = None,
+    ) -> None:
         self.message, self.fix, self.source, self.key = message, fix, source, key
         self.row = row
         super().__init__(str(self))
 
-    def __str__(self):
+    def __str__(self) -> str:
         """One line, of bounded length: a key may hold a newline, a value may be huge."""
         text = self.message if not self.fix else f"{self.message}; {self.fix}"
         line = ": ".join(str(part) for part in (self.source, self.key, text) if part)
         line = _as_line(line)
         return line if len(line) <= MAX_LENGTH else f"{line[: MAX_LENGTH - 30]} ... (cut)"
 
-    def located(self, source=None, key=None, kind=None):
+    def located(
+        self,
+        source: str | os.PathLike[str] | None = None,
+        key: str | None = None,
+        kind: type[InputError] | None = None,
+    ) -> InputError:
         """The same error placed in ``source`` under ``key``, as a ``kind`` (default: its own
         class). An outer key path is prefixed to the error's own (``sweep (dt[1] = 0.003):
         scene.body.mass``); a source the error already names is kept (it is the more specific
@@ -113,7 +130,7 @@ class SchemeError(InputError):
     """An unknown scheme, an unknown scheme option, or an option value out of range."""
 
 
-def one_line(error):
+def one_line(error: BaseException) -> str:
     """A foreign exception's message whole, its lines joined into one, or its class name
     when it has none: what a one-line error quotes of it. Not its first line alone: a
     library's first line may end in "see:" or "for example:", the rest on the next."""

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from helpers import abaqus_mapping, write_study
 
-from rbstudy.analysis.findings import summary_document
+from rbstudy.analysis.summary_forms import summary_document
 from rbstudy.archive import layout
 from rbstudy.archive.layout import grid_coordinates
 from rbstudy.archive.provenance import source_text

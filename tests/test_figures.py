@@ -149,7 +149,7 @@ def test_plot_refuses_a_file_that_is_not_results(tmp_path, capsys):
 @pytest.mark.slow
 def test_plot_select_narrows_the_cases(tmp_path, capsys):
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
-    from rbstudy.cli import _select
+    from rbstudy.commands.results import select_cases as _select
 
     narrowed = _select(open_results(done.path), ["scheme=hht", "inertia_ratio=2"], "x")
     assert (narrowed.sizes["scheme"], narrowed.sizes["inertia_ratio"]) == (1, 1)
@@ -320,7 +320,7 @@ def test_the_drawn_lines_wear_their_scheme_styles_and_legends_sit_outside(tmp_pa
 
     from rbstudy.analysis.figure_marks import EXACT_ZERO_LABEL
     from rbstudy.analysis.plots import ZERO_LABEL
-    from rbstudy.cli import _styles_of
+    from rbstudy.commands.common import styles_of as _styles_of
 
     done = run_study(load_study(shrunk_config("abaqus_top.yaml", tmp_path)), tmp_path / "out", quiet=True)
     ds = open_results(done.path)
@@ -628,7 +628,7 @@ def test_every_scheme_keeps_a_line_where_an_axis_is_too_long_for_panels(
     from rbstudy.analysis import figure_lines
 
     monkeypatch.setattr(figure_lines, "MAX_FACETS", 1)  # the three ratios become one reduced axis
-    from rbstudy.cli import _styles_of
+    from rbstudy.commands.common import styles_of as _styles_of
 
     ds = _with_a_failed_value(top_with_twins, "hht")
     figures = all_figures(ds, tmp_path, styles=_styles_of(ds))

@@ -487,7 +487,7 @@ def _recovered(text, values):
 def test_a_list_of_values_is_told_without_losing_one():
     """Every subset of an axis of 17 values (all of them, all but a few, a few, runs with
     gaps), as `_where` tells it, names exactly its values."""
-    from rbstudy.analysis.findings import _axis_text
+    from rbstudy.analysis.places import axis_text as _axis_text
 
     ratios = list(np.logspace(-4, 4, 17))
     axis = {"inertia_ratio": ratios}

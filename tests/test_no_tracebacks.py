@@ -17,6 +17,7 @@ from test_cluster import _parts, _slow_study
 
 from rbstudy import cli
 from rbstudy.cli import main
+from rbstudy.commands import schemes as scheme_verbs
 from rbstudy.errors import one_line
 from rbstudy.pipeline.config import load_study
 from rbstudy.pipeline.execute import run_study
@@ -100,7 +101,7 @@ def test_a_bug_s_traceback_shows_the_text_it_quotes_as_escapes(monkeypatch, caps
     def bug(args):
         raise ValueError(f"a library read {HOSTILE}")
 
-    monkeypatch.setattr(cli, "_schemes", bug)
+    monkeypatch.setattr(scheme_verbs, "list_schemes", bug)
     assert main(["schemes"]) == cli.EXIT_BUG
     error = capsys.readouterr().err
     assert f"ValueError: a library read {HOSTILE_SHOWN}\n" in error

@@ -119,7 +119,7 @@ def test_statuses_and_verdicts_are_read_by_name_above_the_kernels():
     package = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
     found = {
         str(path.relative_to(package)): hits
-        for layer in ("physics", "inputs", "archive", "pipeline", "analysis")
+        for layer in ("physics", "inputs", "archive", "pipeline", "analysis", "commands")
         for path in sorted((package / layer).rglob("*.py"))
         if (hits := _coded_literals(path.read_text()))
     }

@@ -85,7 +85,7 @@ class Layout(NamedTuple):
     reduced: list[str]
 
 
-def case_dims(ds: xr.Dataset) -> list[str]:
+def case_dims(ds: xr.Dataset | xr.DataArray) -> list[str]:
     """The dimensions of ``ds`` that tell its cases apart (not time, nodes or axes)."""
     return [str(d) for d in ds["status"].dims if d not in _CASE_DIMS_EXCLUDED]
 

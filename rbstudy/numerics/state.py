@@ -38,7 +38,7 @@ the layers above read this layout and the status codes without compiling anythin
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING, NamedTuple, overload
+from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:  # the module imports no numpy: its arrays come from the caller
     import numpy as np
@@ -106,14 +106,6 @@ N_PARAM = KNOTS + 1
 # Values of one knot's record of tabulated loads: the tabulated kinds' slots, as in the row
 # from FIRST_SLOT on.
 LOAD_RECORD = RECORD_WIDTH
-
-
-@overload
-def row_width(knots: int) -> int: ...
-
-
-@overload
-def row_width(knots: np.ndarray) -> np.ndarray: ...
 
 
 def row_width(knots: int | np.ndarray) -> int | np.ndarray:

@@ -369,6 +369,7 @@ def _start(spec: ClusterFile, logs: str | os.PathLike[str] | None = None) -> Any
         )
         if isinstance(scheduler, dict):
             options = {**options, "scheduler_options": {"dashboard_address": ":0", **scheduler}}
+    refused: str | None
     try:
         cluster = make(**options)
     except (TypeError, ValueError, RuntimeError) as error:

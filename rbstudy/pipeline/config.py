@@ -141,7 +141,9 @@ class StudyConfig:
         """Bytes a case holds while its batch runs: sampled states, outputs, and its
         parameter row (long with long load tables)."""
         knots = self.cases.scenes.loads["knots"].shape[-1]
-        return self.bytes_per_case() + np.dtype("f8").itemsize * (N_STATE * self.n_times + row_width(knots))
+        return self.bytes_per_case() + np.dtype("f8").itemsize * (
+            N_STATE * self.n_times + int(row_width(knots))
+        )
 
     @property
     def notes(self) -> tuple[str, ...]:
