@@ -86,7 +86,8 @@ class Layout:
 
     @classmethod
     def of(cls, study: Any) -> Layout:
-        """The layout of a `rbstudy.pipeline.study.Study`."""
+        """The layout of a study (a `rbstudy.pipeline.config.StudyConfig`, which this layer
+        does not import)."""
         return cls(
             study=study.name,
             variables=study.variables,

@@ -28,7 +28,7 @@ __all__ = ["read_yaml_file", "parse_yaml", "MAX_DEPTH", "MAX_VALUES", "MAX_ENTRI
 # .body is five): these bounds leave ample room.
 MAX_DEPTH = 32
 MAX_VALUES = 100_000
-# A swept axis has at most a million values (`rbstudy.pipeline.grid.MAX_CASES`), and a zip
+# A swept axis has at most a million values (`rbstudy.pipeline.axes.MAX_CASES`), and a zip
 # of a few such axes a few million: what may be written, beyond which composing the text
 # would take minutes and gigabytes (PyYAML's nodes, ~500 bytes a value).
 MAX_ENTRIES = 1_000_000

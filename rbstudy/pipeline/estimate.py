@@ -96,7 +96,7 @@ _GIB = 2**30
 # at once serves better than one file every value passes through.
 ZARR_ADVISED_BYTES = 4 * _GIB
 # Each load evaluation of a scene with tables in time bisects the study's K knots
-# (`rbstudy.numerics.dynamics.knot_segment`): a step costs about this share more per level,
+# (`rbstudy.numerics.space_loads.knot_segment`): a step costs about this share more per level,
 # log2(K). Measured on 2e5 steps of a loaded asymmetric body, leapfrog, euler and rk4 alike,
 # from K = 100 to 1e5 knots against 2 (docs/performance.md).
 KNOT_LEVEL_SHARE = 0.025
@@ -206,7 +206,7 @@ def _knot_factor(scenes: SceneTable) -> float:
 
 def _block_shares(scenes: SceneTable) -> np.ndarray | None:
     """(scenes,) True where a scene's body can step in a block of bodies
-    (`rbstudy.numerics.block.plain_loads`: no load of a kind the blocks do not carry), or
+    (`rbstudy.numerics.block_run.plain_loads`: no load of a kind the blocks do not carry), or
     None when no scene can: loads tabulated in time compile kernels of their own, without
     blocks."""
     if needs_time(scenes.loads):

@@ -209,7 +209,7 @@ def _show_compiling(progress: Progress, name: str, compiling: Compiling) -> None
 
 
 def _compile_left(compiling: Compiling, figures: Mapping[str, float]) -> float | None:
-    """Seconds left of a `rbstudy.schemes.Compiling` by ``figures`` (name -> the seconds
+    """Seconds left of a `rbstudy.schemes._ready.Compiling` by ``figures`` (name -> the seconds
     each took the last time; a scheme without one is taken at their mean): the schemes not
     done shared by its processes, or the longest of them, which no process shares. None
     without a figure or the schemes' names."""
