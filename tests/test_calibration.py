@@ -74,12 +74,30 @@ def test_a_figure_measured_under_load_is_measured_again_by_the_next_process_only
         return {scheme.name: (StepCost(1e-7, C.LOADED_UNCERTAINTY, True), 0.1) for scheme in schemes}
 
     monkeypatch.setattr(C, "measure", measure)
-    assert C.calibrate({"rk4"})["rk4"].loaded
+
+    class Said:
+        lines: list = []
+
+        def phase(self, what):
+            pass
+
+        def say(self, text):
+            self.lines.append(text)
+
+    said = Said()
+    assert C.calibrate({"rk4"}, said)["rk4"].loaded
+    (line,) = said.lines
+    assert " ".join(line.split()) == (
+        "other programs kept this machine busy while the costs of rk4 were measured: they are "
+        "uncertain to 50%, and the next sweep measures them again"
+    )
+    assert max(len(part) for part in line.splitlines()) <= 100  # a terminal 100 columns wide
     with open(tmp_path / "calibration.json", encoding="utf-8") as file:
         stored = json.load(file)[C.machine_key()]
     assert [figure["loaded"] for figure in stored.values()] == [True]
-    C.calibrate({"rk4"})  # the forecast, then the sweep, of one process: measured once
+    C.calibrate({"rk4"}, said)  # the forecast, then the sweep, of one process: measured once
     assert measured == [["rk4"]]
+    assert len(said.lines) == 2, "said again by the sweep, which the forecast did not measure for"
     monkeypatch.setattr(C, "_measured_here", set())  # the next process
     C.calibrate({"rk4"})
     assert measured == [["rk4"], ["rk4"]]

@@ -73,6 +73,7 @@ from rbstudy.analysis.summary import (
     status_text,
     verdicts,
 )
+from rbstudy.archive.variables import BUSY_UNCERTAINTY
 from rbstudy.numerics.state import INVARIANTS, OK, STATUS_NAMES
 
 # The recommendation's numbers (`rbstudy.analysis.recommend`) are named here too: the report,
@@ -247,7 +248,23 @@ def _study_wide_finding(ds: xr.Dataset, uniform: Choice, bound: float) -> Findin
         kind="recommendation",
         cases=({"scheme": uniform.scheme, "dt": uniform.dt},),
         numbers=_recommendation_numbers(ds, uniform, bound),
-        text=text + ("" if calibrated(ds) else _UNCALIBRATED),
+        text=text + ("" if calibrated(ds) else _UNCALIBRATED) + _busy_text(ds, uniform),
+    )
+
+
+def _busy_text(ds: xr.Dataset, choice: Choice) -> str:
+    """What the answer adds where the costs of its schemes were measured while other
+    programs kept the machine busy (`BUSY_UNCERTAINTY`): why so many are of equal cost."""
+    if "step_seconds_uncertainty" not in ds:
+        return ""
+    uncertainty = ds["step_seconds_uncertainty"]
+    if "scheme" in uncertainty.dims:
+        uncertainty = uncertainty.sel(scheme=[choice.scheme, *(tied.scheme for tied in choice.tied)])
+    if not bool((uncertainty >= BUSY_UNCERTAINTY).any()):
+        return ""
+    return (
+        f"; their costs were measured while other programs kept the machine busy, uncertain to "
+        f"{BUSY_UNCERTAINTY:.0%} (sweep again on a quiet machine to tell them apart)"
     )
 
 

@@ -110,19 +110,37 @@ def _cost_uncertainty(ds):
     return ds["step_seconds_uncertainty"].broadcast_like(ds["status"]).fillna(0.0)
 
 
-def _choose(seconds, uncertainty, error):
+def _choose(seconds, uncertainty, error, scheme):
     """Per row of candidates (n, m): the cheapest, and those whose cost is within the
     calibration's uncertainty of it (their ranges overlap), a tie; the one of them with the
     smallest ``error`` (then the earliest) represents them. ``seconds`` is inf where a
-    candidate does not meet the bound. Returns (pick (n,), tied (n, m))."""
+    candidate does not meet the bound; ``scheme`` (m,) each candidate's scheme. The
+    uncertainty is of a scheme's cost per step, which all its candidates share: they compare
+    exactly among themselves, so a scheme's dearer candidates are never in a tie (a wide
+    uncertainty, a calibration on a busy machine's, made a step and its half one answer).
+    Returns (pick (n,), tied (n, m))."""
     rows = np.arange(seconds.shape[0])
     cheapest = np.argmin(seconds, axis=1)
     least, spread = seconds[rows, cheapest][:, None], uncertainty[rows, cheapest][:, None]
+    own_least = np.empty_like(seconds)
+    for each in np.unique(scheme):
+        own = scheme == each
+        own_least[:, own] = seconds[:, own].min(axis=1, keepdims=True)
     with np.errstate(invalid="ignore"):
-        tied = np.isfinite(seconds) & (seconds * (1.0 - uncertainty) <= least * (1.0 + spread))
+        overlap = seconds * (1.0 - uncertainty) <= least * (1.0 + spread)
+        tied = np.isfinite(seconds) & overlap & (seconds == own_least)
     ranked = np.where(tied, np.nan_to_num(error, nan=np.inf), np.inf)
     pick = np.where(tied.any(axis=1), np.argmin(ranked, axis=1), cheapest)
     return pick, tied
+
+
+def _candidate_schemes(ds: xr.Dataset, order: list[str]) -> np.ndarray:
+    """The scheme's position of each (scheme, dt) candidate in C order along ``order``
+    (`swept_order`): (m,), 0 where the scheme is not swept."""
+    shape = [ds.sizes[d] for d in order]
+    if "scheme" not in order:
+        return np.zeros(math.prod(shape), dtype=int)
+    return np.unravel_index(np.arange(math.prod(shape)), shape)[order.index("scheme")]
 
 
 def swept_order(ds: xr.Dataset) -> list[str]:
@@ -165,7 +183,7 @@ def picks_of(ds: xr.Dataset) -> Picks:
     seconds = np.where(good, flat(case_seconds(ds)), np.inf)
     error = error_measure(ds, "orientation")
     errors = flat(error) if error is not None else np.full(seconds.shape, math.nan)
-    cheapest, tied = _choose(seconds, flat(_cost_uncertainty(ds)), errors)
+    cheapest, tied = _choose(seconds, flat(_cost_uncertainty(ds)), errors, _candidate_schemes(ds, order))
     shape = [ds.sizes[d] for d in order]
     position = dict(zip(order, np.unravel_index(cheapest, shape), strict=True)) if order else {}
     everywhere = np.arange(len(cheapest))
@@ -241,7 +259,7 @@ def study_wide(ds: xr.Dataset) -> Choice | None:
         if error is not None
         else np.full(seconds.shape, math.nan)
     )
-    pick, tied = _choose(seconds, spread, worst)
+    pick, tied = _choose(seconds, spread, worst, _candidate_schemes(ds, order))
     flat = int(pick[0])
     chosen = candidate(ds, flat, order)
     return Choice(

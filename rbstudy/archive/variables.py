@@ -348,8 +348,9 @@ VARIABLES = {
             dims=(),
             units="1",
             long_name="relative uncertainty of step_seconds",
-            description="half the spread of the calibration's runs relative to their median, at least the "
-            "spread between calibrations; costs within it of each other are a tie",
+            description="half the spread of the calibration's quiet runs relative to their least, at least "
+            "the spread between calibrations; BUSY_UNCERTAINTY where the machine stayed busy; costs "
+            "within it of each other are a tie",
         ),
         _result(
             name="max_energy_error",
@@ -543,6 +544,10 @@ BOOKKEEPING = (
 # The cost model (`rbstudy.pipeline.calibration`), kept whatever `output.variables` says; not
 # required of an archive (those before it have none: the findings then cost by run_time).
 COST_MODEL = ("step_seconds", "step_seconds_uncertainty")
+# The relative uncertainty of a cost measured while other programs kept the machine busy
+# (`rbstudy.pipeline.calibration`): other programs changed a scheme's cost by up to half. An
+# archive whose costs carry it says so where it recommends.
+BUSY_UNCERTAINTY = 0.5
 # The reference's uncertainties (the variables of integrated references), kept whatever
 # `output.variables` says wherever a study defines them: the order fits read them.
 UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items() if "integrated" in variable.needs)

@@ -45,6 +45,7 @@ import math
 import os
 import platform
 import tempfile
+import textwrap
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -52,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from rbstudy.archive.variables import BUSY_UNCERTAINTY
 from rbstudy.numerics.driver import run_batch
 from rbstudy.numerics.jit import cache_dir
 from rbstudy.pipeline.bench import abaqus_top_scene
@@ -100,7 +102,7 @@ BUSY_PAUSE = 0.2
 LOAD_WINDOW = 0.2
 # The relative uncertainty of a figure measured while the machine stayed busy: other programs
 # changed a scheme's cost by up to half (rk4, the other core busy).
-LOADED_UNCERTAINTY = 0.5
+LOADED_UNCERTAINTY = BUSY_UNCERTAINTY
 # Output samples every this many steps, as a study at dt = interval / 8 samples.
 SAMPLE_EVERY = 8
 # The scene `reference_cost` integrates: the Abaqus top under this space moment (N m), so
@@ -386,17 +388,13 @@ def calibrate(names: Iterable[str], progress: Progress | None = None) -> dict[st
         get_scheme(name) for name, cost in costs.items() if _stale(_scheme_key(get_scheme(name)), cost)
     ]
     if not missing:
+        _say_busy(costs, progress)
         return costs
     if progress is not None:
         progress.phase(f"calibrating the cost of a step of {len(missing)} schemes (once per machine)")
     measured = measure(missing)
     _measured_here.update(_scheme_key(scheme) for scheme in missing)
-    busy = sorted(name for name, (cost, _) in measured.items() if cost.loaded)
-    if busy and progress is not None:
-        progress.say(
-            f"other programs kept this machine busy while {', '.join(busy)} were measured: their costs "
-            f"are uncertain to {LOADED_UNCERTAINTY:.0%}, and the next sweep measures them again"
-        )
+    _say_busy(costs | {name: cost for name, (cost, _) in measured.items()}, progress)
     _write(
         {
             _scheme_key(scheme): _stored(*measured[scheme.name])
@@ -405,6 +403,18 @@ def calibrate(names: Iterable[str], progress: Progress | None = None) -> dict[st
         }
     )
     return costs | {name: cost for name, (cost, _) in measured.items()}
+
+
+def _say_busy(costs: Mapping[str, StepCost | None], progress: Progress | None) -> None:
+    """Say on ``progress`` which of ``costs`` were measured while the machine was busy."""
+    busy = sorted(name for name, cost in costs.items() if cost is not None and cost.loaded)
+    if busy and progress is not None:
+        said = (
+            f"other programs kept this machine busy while the costs of {', '.join(busy)} were "
+            f"measured: they are uncertain to {LOADED_UNCERTAINTY:.0%}, and the next sweep "
+            "measures them again"
+        )
+        progress.say(textwrap.fill(said, width=100, subsequent_indent="  ", break_on_hyphens=False))
 
 
 def step_cost(scheme: Scheme, options: Mapping[str, Any] | None = None) -> StepCost:
