@@ -63,6 +63,18 @@ def abaqus_mapping(**body):
 
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
+
+
+def in_every_module(check):
+    """What ``check(path, label)`` finds in each module of rbstudy (a list per module), one
+    list; ``label`` the module's path in the package."""
+    return [
+        entry
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for entry in check(path, str(path.relative_to(PACKAGE)))
+    ]
+
 
 # Text a hostile file may hold: ESC sequences that set the window's title (ended by BEL)
 # and clear the screen, a C1 CSI, a carriage return and DEL; and how rbstudy shows it.

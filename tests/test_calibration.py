@@ -55,28 +55,30 @@ def test_a_figure_is_the_least_of_the_quiet_rounds_and_a_busy_round_does_not_cou
 def test_a_machine_busy_throughout_gives_figures_said_to_be_measured_under_load(monkeypatch):
     busy = [({"a": 1.0 + 0.1 * k, "b": 2.0}, False) for k in range(C.MAX_ROUNDS)]
     costs = _rounds(monkeypatch, busy)
-    assert costs["a"] == StepCost(1.0, C.LOADED_UNCERTAINTY, True)
+    assert costs["a"] == StepCost(1.0, C.BUSY_UNCERTAINTY, True)
     # quiet rounds between busy ones count, as many as are needed
     every_other = [({"a": 1.0, "b": 2.0}, k % 2 == 0) for k in range(2 * C.REPEATS)]
     assert _rounds(monkeypatch, every_other)["a"] == StepCost(1.0, C.BETWEEN_CALIBRATIONS, False)
     # too few quiet rounds is a busy machine: every round counts, none is passed as quiet
     few = [({"a": 1.0, "b": 2.0}, k < C.REPEATS - 1) for k in range(C.MAX_ROUNDS)]
-    assert _rounds(monkeypatch, few)["a"] == StepCost(1.0, C.LOADED_UNCERTAINTY, True)
+    assert _rounds(monkeypatch, few)["a"] == StepCost(1.0, C.BUSY_UNCERTAINTY, True)
 
 
 def test_a_figure_measured_under_load_is_measured_again_by_the_next_process_only(tmp_path, monkeypatch):
     monkeypatch.setattr(C, "calibration_path", lambda: str(tmp_path / "calibration.json"))
     monkeypatch.setattr(C, "_measured_here", set())
+    monkeypatch.setattr(C, "_said_busy", set())
     measured = []
 
     def measure(schemes):
         measured.append([scheme.name for scheme in schemes])
-        return {scheme.name: (StepCost(1e-7, C.LOADED_UNCERTAINTY, True), 0.1) for scheme in schemes}
+        return {scheme.name: (StepCost(1e-7, C.BUSY_UNCERTAINTY, True), 0.1) for scheme in schemes}
 
     monkeypatch.setattr(C, "measure", measure)
 
     class Said:
-        lines: list = []
+        def __init__(self):
+            self.lines = []
 
         def phase(self, what):
             pass
@@ -85,7 +87,8 @@ def test_a_figure_measured_under_load_is_measured_again_by_the_next_process_only
             self.lines.append(text)
 
     said = Said()
-    assert C.calibrate({"rk4"}, said)["rk4"].loaded
+    assert C.calibrate({"rk4"})["rk4"].loaded  # the forecast: measured, nothing to say it on
+    C.calibrate({"rk4"}, said)  # the sweep says what the forecast measured
     (line,) = said.lines
     assert " ".join(line.split()) == (
         "other programs kept this machine busy while the costs of rk4 were measured: they are "
@@ -95,9 +98,9 @@ def test_a_figure_measured_under_load_is_measured_again_by_the_next_process_only
     with open(tmp_path / "calibration.json", encoding="utf-8") as file:
         stored = json.load(file)[C.machine_key()]
     assert [figure["loaded"] for figure in stored.values()] == [True]
-    C.calibrate({"rk4"}, said)  # the forecast, then the sweep, of one process: measured once
+    C.calibrate({"rk4"}, said)  # the step search, then the sweep, of one command: said once
     assert measured == [["rk4"]]
-    assert len(said.lines) == 2, "said again by the sweep, which the forecast did not measure for"
+    assert len(said.lines) == 1
     monkeypatch.setattr(C, "_measured_here", set())  # the next process
     C.calibrate({"rk4"})
     assert measured == [["rk4"], ["rk4"]]
@@ -129,5 +132,5 @@ def test_a_calibration_on_a_machine_kept_busy_says_so(tmp_path, monkeypatch):
         for program in programs:
             program.kill()
     for cost, _ in costs.values():
-        assert cost.loaded and cost.uncertainty == C.LOADED_UNCERTAINTY
+        assert cost.loaded and cost.uncertainty == C.BUSY_UNCERTAINTY
         assert 0 < cost.seconds < 1e-5

@@ -10,9 +10,9 @@ A function's lines run from its ``def`` to its last line, its docstring included
 """
 
 import ast
-import pathlib
 
-PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
+from helpers import in_every_module
+
 MODULE_LINES = 600
 FUNCTION_LINES = 80
 MARK = "# longer than the limit:"
@@ -58,11 +58,7 @@ def oversized(path, label=None):
 
 
 def test_no_module_or_function_is_longer_than_the_limit_without_saying_why():
-    found = [
-        entry
-        for path in sorted(PACKAGE.rglob("*.py"))
-        for entry in oversized(path, str(path.relative_to(PACKAGE)))
-    ]
+    found = in_every_module(oversized)
     assert not found, "past the size limits, with no reason given:\n" + "\n".join(found)
 
 

@@ -9,9 +9,9 @@ the object is built and used). The compiled kernels (``@jit``, ``@inline_jit`` a
 """
 
 import ast
-import pathlib
 
-PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
+from helpers import in_every_module
+
 KERNEL_DECORATORS = {"jit", "inline_jit", "overload"}
 
 
@@ -56,11 +56,7 @@ def untyped(path, label=None):
 
 
 def test_every_public_function_outside_the_kernels_is_annotated():
-    found = [
-        entry
-        for path in sorted(PACKAGE.rglob("*.py"))
-        for entry in untyped(path, str(path.relative_to(PACKAGE)))
-    ]
+    found = in_every_module(untyped)
     assert not found, f"{len(found)} public functions without their types:\n" + "\n".join(found)
 
 

@@ -14,25 +14,16 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import xarray as xr
 
 from rbstudy.analysis.findings import study_wide
-from rbstudy.archive.layout import SEARCH_GROUP
+from rbstudy.archive.layout import SEARCH_GROUP, CommonStep
 from rbstudy.archive.load import read_group
 
-__all__ = ["SearchRecord", "CommonStep", "read_search", "search_lines", "search_document"]
-
-
-class CommonStep(NamedTuple):
-    """A scheme's step met at every value of the other axes: ``dt`` (s), the mean
-    ``seconds`` a case at it, and their relative ``uncertainty``."""
-
-    dt: float
-    seconds: float
-    uncertainty: float
+__all__ = ["SearchRecord", "read_search", "search_lines", "search_document"]
 
 
 @dataclass(frozen=True)

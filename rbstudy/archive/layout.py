@@ -29,6 +29,7 @@ __all__ = [
     "COMPRESSION",
     "FORMATS",
     "ArchiveVariable",
+    "CommonStep",
     "Coordinate",
     "Layout",
     "SEARCH_GROUP",
@@ -65,6 +66,17 @@ CHUNK_BYTES = 2**18
 # netCDF group, sealed with it (`put_group`), once the search is done; until then the working
 # file of the study folder, which an interrupted search resumes from.
 SEARCH_GROUP = "search"
+
+
+class CommonStep(NamedTuple):
+    """A scheme's study-wide answer of a step search, as the group keeps it: its least found
+    step ``dt`` (s), met at every value of the other axes, the mean calibrated kernel
+    ``seconds`` a case takes at it, and their relative ``uncertainty``. The search writes it
+    (`rbstudy.pipeline.step_search`), the findings read it (`rbstudy.analysis.searched`)."""
+
+    dt: float
+    seconds: float
+    uncertainty: float
 
 
 # An output interval with more decimals than this is no short decimal (0.1 / 3): its grid

@@ -22,8 +22,8 @@ count: the rounds go on, a short pause between them, until `REPEATS` quiet ones,
 `MAX_ROUNDS`. A scheme's figure is the least of its quiet runs (noise only adds time), its
 uncertainty half their spread relative to it, at least `BETWEEN_CALIBRATIONS`. Where the
 machine stayed busy, the figure is the least of every run, its uncertainty
-`LOADED_UNCERTAINTY`, so that the findings count as ties the costs a busy machine cannot
-tell apart; it is cached as measured under load, and the next process that calibrates
+`rbstudy.archive.variables.BUSY_UNCERTAINTY`, so that the findings count as ties the costs a
+busy machine cannot tell apart; it is cached as measured under load, and the next process that calibrates
 measures it again.
 
 The figures are cached in ``calibration.json`` in numba's cache folder
@@ -100,9 +100,6 @@ BUSY_PAUSE = 0.2
 # ticks of 1-10 ms per core, so a window of a few ticks could not tell a busy core from an
 # idle one. A shorter round is followed by a wait that fills the window.
 LOAD_WINDOW = 0.2
-# The relative uncertainty of a figure measured while the machine stayed busy: other programs
-# changed a scheme's cost by up to half (rk4, the other core busy).
-LOADED_UNCERTAINTY = BUSY_UNCERTAINTY
 # Output samples every this many steps, as a study at dt = interval / 8 samples.
 SAMPLE_EVERY = 8
 # The scene `reference_cost` integrates: the Abaqus top under this space moment (N m), so
@@ -283,7 +280,7 @@ def _rates_in_rounds(runs: Mapping[str, Callable[[], tuple[float, int]]]) -> dic
         least = min(figures)
         spread = (max(figures) - least) / 2 / least
         costs[name] = StepCost(
-            least, LOADED_UNCERTAINTY if loaded else max(spread, BETWEEN_CALIBRATIONS), loaded
+            least, BUSY_UNCERTAINTY if loaded else max(spread, BETWEEN_CALIBRATIONS), loaded
         )
     return costs
 
@@ -406,15 +403,22 @@ def calibrate(names: Iterable[str], progress: Progress | None = None) -> dict[st
 
 
 def _say_busy(costs: Mapping[str, StepCost | None], progress: Progress | None) -> None:
-    """Say on ``progress`` which of ``costs`` were measured while the machine was busy."""
+    """Say on ``progress``, once a process, which of ``costs`` were measured while the machine
+    was busy (the step search and the sweep of one command both calibrate)."""
     busy = sorted(name for name, cost in costs.items() if cost is not None and cost.loaded)
-    if busy and progress is not None:
-        said = (
-            f"other programs kept this machine busy while the costs of {', '.join(busy)} were "
-            f"measured: they are uncertain to {LOADED_UNCERTAINTY:.0%}, and the next sweep "
-            "measures them again"
-        )
-        progress.say(textwrap.fill(said, width=100, subsequent_indent="  ", break_on_hyphens=False))
+    if progress is None or not set(busy) - _said_busy:
+        return
+    _said_busy.update(busy)
+    said = (
+        f"other programs kept this machine busy while the costs of {', '.join(busy)} were "
+        f"measured: they are uncertain to {BUSY_UNCERTAINTY:.0%}, and the next sweep "
+        "measures them again"
+    )
+    progress.say(textwrap.fill(said, width=100, subsequent_indent="  ", break_on_hyphens=False))
+
+
+# The schemes whose busy costs this process has said (`_say_busy`).
+_said_busy: set[str] = set()
 
 
 def step_cost(scheme: Scheme, options: Mapping[str, Any] | None = None) -> StepCost:

@@ -39,13 +39,14 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import xarray as xr
 
 from rbstudy.archive.folder import StudyFolder
 from rbstudy.archive.ids import batches_digest, canonical_id
+from rbstudy.archive.layout import CommonStep
 from rbstudy.archive.provenance import utc_now
 from rbstudy.archive.variables import ACCURATE, COORDINATES, SEARCH_VARIABLES, cf_attrs, variable_attrs
 from rbstudy.numerics.machine import default_threads
@@ -60,7 +61,7 @@ if TYPE_CHECKING:  # the types alone
     from rbstudy.pipeline.grid import Run
     from rbstudy.pipeline.progress import Progress
 
-__all__ = ["SEARCH_TOLERANCE", "Search", "CommonStep", "search_steps"]
+__all__ = ["SEARCH_TOLERANCE", "Search", "search_steps"]
 
 # Default relative width of the final bracket: the answer and a step at most 5% larger that
 # fails, so that 1.1 times the answer fails too where the error grows with the step.
@@ -69,16 +70,6 @@ SEARCH_TOLERANCE = 0.05
 _PROBE_VARIABLES = ("status", "accuracy", "n_steps", "step_seconds")
 # What the probes file keeps of each probe, along ``probe``.
 _PROBE_COLUMNS = ("case", "steps", "scheme", "dt", "output_interval", *_PROBE_VARIABLES)
-
-
-class CommonStep(NamedTuple):
-    """A scheme's study-wide answer: its least found step ``dt`` (s), met at every value of
-    the other axes, the mean calibrated kernel ``seconds`` a case takes at it, and their
-    relative ``uncertainty``."""
-
-    dt: float
-    seconds: float
-    uncertainty: float
 
 
 @dataclass(frozen=True)
