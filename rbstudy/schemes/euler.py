@@ -15,17 +15,7 @@ Reference: Hairer, Lubich & Wanner, Geometric Numerical Integration (2006), ch. 
 """
 
 from rbstudy.numerics import state as S
-from rbstudy.numerics.block import (
-    BLOCK,
-    PARAM,
-    STATE,
-    TURN_ROWS,
-    column3,
-    column4,
-    loads_at,
-    set_column3,
-    turn_columns,
-)
+from rbstudy.numerics.block import TURN_ROWS
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import (
@@ -38,22 +28,12 @@ from rbstudy.numerics.dynamics import (
     to_omega,
 )
 from rbstudy.numerics.entry import make_entry
-from rbstudy.numerics.jit import jit
-from rbstudy.numerics.lanes_math import quat_exp_poly
-from rbstudy.numerics.rotation import (
-    axpy,
-    quat_exp_minus_one,
-    quat_mul,
-    quat_normalize,
-    read3,
-    read4,
-    scale,
-    write3,
-    write4,
-)
+from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.rotation import axpy, quat_exp_minus_one, read3, read4, scale
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
+from rbstudy.schemes._turning import turning_block_step, turning_step
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -77,20 +57,19 @@ def compensated_step_inplace(y, p, opt, t, h, work):
     return OK, 0
 
 
+@inline_jit
+def advance(x, v, w, inertia_, moment, mass, force, h):
+    """The step of one body (module docstring; `rbstudy.schemes._turning` runs it): its
+    position, velocity and spin after the step and the rotation vector ``h w`` of its frame."""
+    m = to_momentum(w, inertia_)
+    m_next = axpy(h, momentum_rates(m, w, moment), m)
+    acceleration = scale(1.0 / mass, force)
+    return axpy(h, v, x), axpy(h, acceleration, v), to_omega(m_next, inertia_), scale(h, w)
+
+
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    q = read4(y, S.QUATERNION)
-    w = read3(y, S.OMEGA)
-    v = read3(y, S.VELOCITY)
-    inertia_ = inertia(p)
-    m = to_momentum(w, inertia_)
-    m_next = axpy(h, momentum_rates(m, w, body_moment(q, w, p, t)), m)
-    acceleration = scale(1.0 / p[S.MASS], space_force(q, p, t))
-    write3(y, S.POSITION, axpy(h, v, read3(y, S.POSITION)))
-    write3(y, S.VELOCITY, axpy(h, acceleration, v))
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(scale(h, w)))))
-    write3(y, S.OMEGA, to_omega(m_next, inertia_))
-    return OK, 0
+    return turning_step(advance, y, p, t, h)
 
 
 # block scratch: the rotation vector h w, then its quaternion (`turn_columns`)
@@ -100,21 +79,8 @@ def step_inplace(y, p, opt, t, h, work):
 @jit
 def block_step(block, opt, h):
     """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
-    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out. Each body's bits
-    are those of `step_inplace`."""
-    for lane in range(BLOCK):
-        q, w = column4(block, STATE + S.QUATERNION, lane), column3(block, STATE + S.OMEGA, lane)
-        v, x = column3(block, STATE + S.VELOCITY, lane), column3(block, STATE + S.POSITION, lane)
-        inertia_ = column3(block, PARAM + S.INERTIA, lane)
-        moment, mass, force = loads_at(block, q, w, lane)
-        m = to_momentum(w, inertia_)
-        m_next = axpy(h, momentum_rates(m, w, moment), m)
-        acceleration = scale(1.0 / mass, force)
-        set_column3(block, STATE + S.POSITION, lane, axpy(h, v, x))
-        set_column3(block, STATE + S.VELOCITY, lane, axpy(h, acceleration, v))
-        set_column3(block, _TURN, lane, scale(h, w))
-        set_column3(block, STATE + S.OMEGA, lane, to_omega(m_next, inertia_))
-    turn_columns(block, _TURN)
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out."""
+    turning_block_step(advance, block, h, _TURN)
 
 
 SCHEME = Scheme(

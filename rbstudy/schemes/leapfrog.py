@@ -21,37 +21,17 @@ Reference: Altair OpenRadioss Theory Manual, "Rigid Body" (time integration).
 """
 
 from rbstudy.numerics import state as S
-from rbstudy.numerics.block import (
-    BLOCK,
-    PARAM,
-    STATE,
-    TURN_ROWS,
-    column3,
-    column4,
-    loads_at,
-    set_column3,
-    turn_columns,
-)
+from rbstudy.numerics.block import TURN_ROWS
 from rbstudy.numerics.compensated import add3_inplace, turn_inplace
 from rbstudy.numerics.driver import init_nothing
 from rbstudy.numerics.dynamics import body_moment, euler_rates, inertia, space_force
 from rbstudy.numerics.entry import make_entry
-from rbstudy.numerics.jit import jit
-from rbstudy.numerics.lanes_math import quat_exp_poly
-from rbstudy.numerics.rotation import (
-    axpy,
-    quat_exp_minus_one,
-    quat_mul,
-    quat_normalize,
-    read3,
-    read4,
-    scale,
-    write3,
-    write4,
-)
+from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.rotation import axpy, quat_exp_minus_one, read3, read4, scale
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
+from rbstudy.schemes._turning import turning_block_step, turning_step
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -73,16 +53,19 @@ def compensated_step_inplace(y, p, opt, t, h, work):
     return OK, 0
 
 
+@inline_jit
+def advance(x, v, w, inertia_, moment, mass, force, h):
+    """The step of one body (module docstring; `rbstudy.schemes._turning` runs it): its
+    position, its half-step velocity and spin, and the rotation vector ``h w(n+1/2)`` of its
+    frame."""
+    w_half = axpy(h, euler_rates(w, inertia_, moment), w)
+    v_half = axpy(h / mass, force, v)
+    return axpy(h, v_half, x), v_half, w_half, scale(h, w_half)
+
+
 @jit
 def step_inplace(y, p, opt, t, h, work):
-    q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
-    w_half = axpy(h, euler_rates(w, inertia(p), body_moment(q, w, p, t)), w)
-    v_half = axpy(h / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY))
-    write3(y, S.OMEGA, w_half)
-    write3(y, S.VELOCITY, v_half)
-    write3(y, S.POSITION, axpy(h, v_half, read3(y, S.POSITION)))
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(scale(h, w_half)))))
-    return OK, 0
+    return turning_step(advance, y, p, t, h)
 
 
 # block scratch: the rotation vector h w(n+1/2), then its quaternion (`turn_columns`)
@@ -92,19 +75,8 @@ def step_inplace(y, p, opt, t, h, work):
 @jit
 def block_step(block, opt, h):
     """`step_inplace` of a block of bodies without a lever, a body-fixed force or loads in
-    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out. Each body's bits
-    are those of `step_inplace`."""
-    for lane in range(BLOCK):
-        q, w = column4(block, STATE + S.QUATERNION, lane), column3(block, STATE + S.OMEGA, lane)
-        moment, mass, force = loads_at(block, q, w, lane)
-        w_half = axpy(h, euler_rates(w, column3(block, PARAM + S.INERTIA, lane), moment), w)
-        v_half = axpy(h / mass, force, column3(block, STATE + S.VELOCITY, lane))
-        set_column3(block, STATE + S.OMEGA, lane, w_half)
-        set_column3(block, STATE + S.VELOCITY, lane, v_half)
-        x = column3(block, STATE + S.POSITION, lane)
-        set_column3(block, STATE + S.POSITION, lane, axpy(h, v_half, x))
-        set_column3(block, _TURN, lane, scale(h, w_half))
-    turn_columns(block, _TURN)
+    time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out."""
+    turning_block_step(advance, block, h, _TURN)
 
 
 SCHEME = Scheme(
