@@ -1,4 +1,5 @@
-"""Half kicks shared by the symmetric splitting schemes (midpoint, splitting).
+"""Half kicks shared by the symmetric splitting schemes (midpoint, splitting, exact_split;
+no_squish takes their drift and velocity kick).
 
 Loads enter these schemes by Strang splitting: a kick of length d applies the loads at the
 current orientation, ``m += d M_b``, ``v += d F / mass``; the free flow in between moves the
@@ -8,15 +9,39 @@ the time of each kick, the start and the end of the step (time is a coordinate t
 free flow advances and the kicks hold), which keeps the composition symmetric.
 The ``compensated_`` twins add the same increments with compensated summation
 (`rbstudy.numerics.compensated`), the spin's as ``I^-1 dm``; `kick_block` and `drift_block`
-step every lane of a block of bodies (`rbstudy.numerics.block`).
+step every lane of a block of bodies (`rbstudy.numerics.block`). A kick's and a drift's
+formulas are written once, over values (`kicked`, `drifted`), for the single body and the
+block alike: each path reads its operands, evaluates the loads its own way and writes back.
 """
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.block import BLOCK, PARAM, STATE, column3, column4, loads_at, set_column3
 from rbstudy.numerics.compensated import add3_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.rotation import add, axpy, read3, read4, scale, write3
+
+
+@inline_jit
+def kicked_velocity(v, d, mass, force):
+    """``v + d F / mass``: the velocity after a kick of the space force ``force`` for a time
+    ``d`` (`kicked`'s, and `rbstudy.schemes.no_squish`'s)."""
+    return axpy(d / mass, force, v)
+
+
+@inline_jit
+def kicked(w, v, inertia_, impulse, d, mass, force):
+    """The spin and the velocity after a kick of length ``d``: the momentum ``I w`` plus the
+    ``impulse`` (`kick_inplace` passes `rbstudy.numerics.dynamics.kick_momentum`, `kick_block`
+    ``d M``), the velocity by `kicked_velocity`."""
+    m = add(to_momentum(w, inertia_), impulse)
+    return to_omega(m, inertia_), kicked_velocity(v, d, mass, force)
+
+
+@inline_jit
+def drifted(x, v, d):
+    """``x + d v``: the centre of mass after a drift of length ``d``."""
+    return axpy(d, v, x)
 
 
 @jit
@@ -24,10 +49,10 @@ def kick_inplace(y, p, t, d):
     """Apply the loads at time ``t`` for a time ``d`` to the velocities of state row ``y``
     (N_STATE,); the spin changes by `rbstudy.numerics.dynamics.kick_momentum`."""
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
-    inertia_ = inertia(p)
-    m = add(to_momentum(w, inertia_), kick_momentum(q, w, p, t, d))
-    write3(y, S.OMEGA, to_omega(m, inertia_))
-    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
+    impulse = kick_momentum(q, w, p, t, d)
+    w, v = kicked(w, read3(y, S.VELOCITY), inertia(p), impulse, d, p[S.MASS], space_force(q, p, t))
+    write3(y, S.OMEGA, w)
+    write3(y, S.VELOCITY, v)
 
 
 @jit
@@ -37,11 +62,10 @@ def kick_block(block, d):
     time is ``d M``)."""
     for lane in range(BLOCK):
         q, w = column4(block, STATE + S.QUATERNION, lane), column3(block, STATE + S.OMEGA, lane)
-        inertia_ = column3(block, PARAM + S.INERTIA, lane)
         moment, mass, force = loads_at(block, q, w, lane)
-        m = add(to_momentum(w, inertia_), scale(d, moment))
-        set_column3(block, STATE + S.OMEGA, lane, to_omega(m, inertia_))
-        v = axpy(d / mass, force, column3(block, STATE + S.VELOCITY, lane))
+        v = column3(block, STATE + S.VELOCITY, lane)
+        w, v = kicked(w, v, column3(block, PARAM + S.INERTIA, lane), scale(d, moment), d, mass, force)
+        set_column3(block, STATE + S.OMEGA, lane, w)
         set_column3(block, STATE + S.VELOCITY, lane, v)
 
 
@@ -49,14 +73,14 @@ def kick_block(block, d):
 def drift_block(block, d):
     """`drift_inplace` of every lane of a block's rows ``block`` (N_ROWS * BLOCK,)."""
     for lane in range(BLOCK):
-        x = column3(block, STATE + S.POSITION, lane)
-        set_column3(block, STATE + S.POSITION, lane, axpy(d, column3(block, STATE + S.VELOCITY, lane), x))
+        x = drifted(column3(block, STATE + S.POSITION, lane), column3(block, STATE + S.VELOCITY, lane), d)
+        set_column3(block, STATE + S.POSITION, lane, x)
 
 
 @jit
 def drift_inplace(y, d):
     """Move the centre of mass for a time ``d`` at its current velocity."""
-    write3(y, S.POSITION, axpy(d, read3(y, S.VELOCITY), read3(y, S.POSITION)))
+    write3(y, S.POSITION, drifted(read3(y, S.POSITION), read3(y, S.VELOCITY), d))
 
 
 @jit
@@ -65,7 +89,15 @@ def compensated_kick_inplace(y, p, t, d, work, carry):
     the body's ``work``."""
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     add3_inplace(y, S.OMEGA, to_omega(kick_momentum(q, w, p, t, d), inertia(p)), work, carry)
-    add3_inplace(y, S.VELOCITY, scale(d / p[S.MASS], space_force(q, p, t)), work, carry)
+    compensated_velocity_kick_inplace(y, p, t, d, work, carry)
+
+
+@jit
+def compensated_velocity_kick_inplace(y, p, t, d, work, carry):
+    """The velocity's part of `compensated_kick_inplace`, ``v += d F / mass`` (also
+    `rbstudy.schemes.no_squish`'s)."""
+    force = space_force(read4(y, S.QUATERNION), p, t)
+    add3_inplace(y, S.VELOCITY, scale(d / p[S.MASS], force), work, carry)
 
 
 @jit

@@ -31,12 +31,11 @@ import math
 from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
-from rbstudy.numerics.compensated import add3_inplace, add4_inplace
+from rbstudy.numerics.compensated import add4_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
 from rbstudy.numerics.lanes_math import sin_cos
 from rbstudy.numerics.rotation import (
-    axpy,
     axpy4,
     cos_minus_one,
     dot4,
@@ -51,7 +50,13 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._composition import COMPOSITION, composed_block_step, composed_entry
-from rbstudy.schemes._kicks import compensated_drift_inplace, drift_block, drift_inplace
+from rbstudy.schemes._kicks import (
+    compensated_drift_inplace,
+    compensated_velocity_kick_inplace,
+    drift_block,
+    drift_inplace,
+    kicked_velocity,
+)
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 from rbstudy.schemes._splitting import AXIS_ORDER, flow_sequence, on_axis
 
@@ -91,12 +96,38 @@ def plane_rotation(x, k, c, s):
     return axpy4(s, quat_times_axis(x, k), (c * x[0], c * x[1], c * x[2], c * x[3]))
 
 
+@inline_jit
+def spin(q, momentum, inertia_):
+    """The body's spin ``w = I^-1 m`` from ``(q, P)`` (`body_momentum`)."""
+    return to_omega(body_momentum(q, momentum), inertia_)
+
+
+@inline_jit
+def flow_angle(q, momentum, inertia_k, k, d):
+    """The angle ``zeta d`` of the flow of ``T_k`` for a time ``d``, ``zeta = P . P_k q /
+    (4 I_k)``, for ``inertia_k`` the inertia ``I_k``."""
+    zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_k)
+    return zeta * d
+
+
+@inline_jit
+def rotated(q, momentum, k, c, s):
+    """``(q, P)`` after the flow of ``T_k`` whose angle has the cosine ``c`` and sine ``s``."""
+    return plane_rotation(q, k, c, s), plane_rotation(momentum, k, c, s)
+
+
 @jit
 def axis_flow(q, momentum, inertia_, k, d):
     """Exact flow of ``T_k`` for time ``d`` on ``(q, P)``."""
-    zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
-    s, c = sin_cos(zeta * d)
-    return plane_rotation(q, k, c, s), plane_rotation(momentum, k, c, s)
+    s, c = sin_cos(flow_angle(q, momentum, inertia_[k], k, d))
+    return rotated(q, momentum, k, c, s)
+
+
+@inline_jit
+def kicked_conjugate(q, momentum, v, impulse, d, mass, force):
+    """``P`` and ``v`` after a kick of length ``d``: ``P + 2 q * (dm, 0)`` for ``dm`` the body
+    momentum's ``impulse``, the velocity by `rbstudy.schemes._kicks.kicked_velocity`."""
+    return axpy4(1.0, conjugate_momentum(q, impulse), momentum), kicked_velocity(v, d, mass, force)
 
 
 @jit
@@ -104,25 +135,28 @@ def kick_inplace(y, p, momentum, t, d):
     """Loads at time ``t`` for a time ``d``: ``P += 2 q * (dm, 0)`` with ``dm`` the body
     momentum's change (`rbstudy.numerics.dynamics.kick_momentum`: ``d M_b``),
     ``v += d F / mass``; returns P."""
-    q = read4(y, S.QUATERNION)
-    write3(y, S.VELOCITY, axpy(d / p[S.MASS], space_force(q, p, t), read3(y, S.VELOCITY)))
-    return axpy4(1.0, momentum_kick(y, p, momentum, t, d), momentum)
+    q, v = read4(y, S.QUATERNION), read3(y, S.VELOCITY)
+    impulse = kick_impulse(q, momentum, p, t, d)
+    momentum, v = kicked_conjugate(q, momentum, v, impulse, d, p[S.MASS], space_force(q, p, t))
+    write3(y, S.VELOCITY, v)
+    return momentum
 
 
 @inline_jit
-def momentum_kick(y, p, momentum, t, d):
-    """The change ``2 q * (dm, 0)`` of ``P`` in a kick of the loads at time ``t`` for ``d``."""
-    q = read4(y, S.QUATERNION)
-    w = to_omega(body_momentum(q, momentum), inertia(p))  # the spin now: y's is the step's start
-    return conjugate_momentum(q, kick_momentum(q, w, p, t, d))
+def kick_impulse(q, momentum, p, t, d):
+    """The body momentum's change ``dm`` in a kick of the loads at time ``t`` for ``d``
+    (`rbstudy.numerics.dynamics.kick_momentum`), at the spin of ``(q, P)``."""
+    w = spin(q, momentum, inertia(p))  # the spin now: y's is the step's start
+    return kick_momentum(q, w, p, t, d)
 
 
 @jit
 def compensated_kick_inplace(y, p, t, d, work):
     """`kick_inplace` on ``P`` in ``work``, the increments added with compensation."""
-    q = read4(y, S.QUATERNION)
-    add3_inplace(y, S.VELOCITY, scale(d / p[S.MASS], space_force(q, p, t)), work, _CARRY)
-    add4_inplace(work, _MOMENTUM, momentum_kick(y, p, read4(work, _MOMENTUM), t, d), work, _MOMENTUM_CARRY)
+    compensated_velocity_kick_inplace(y, p, t, d, work, _CARRY)
+    q, momentum = read4(y, S.QUATERNION), read4(work, _MOMENTUM)
+    dp = conjugate_momentum(q, kick_impulse(q, momentum, p, t, d))
+    add4_inplace(work, _MOMENTUM, dp, work, _MOMENTUM_CARRY)
 
 
 @jit
@@ -133,15 +167,14 @@ def compensated_step(y, p, opt, t, h, work):
     compensated_kick_inplace(y, p, t, 0.5 * h, work)
     for k, fraction in flow_sequence(opt, _AXES):
         q, momentum = read4(y, S.QUATERNION), read4(work, _MOMENTUM)
-        zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * inertia_[k])
-        d = fraction * h
-        c, s = math.cos(zeta * d), math.sin(zeta * d)
+        angle = flow_angle(q, momentum, inertia_[k], k, fraction * h)
+        c, s = math.cos(angle), math.sin(angle)
         add4_inplace(y, S.QUATERNION, plane_rotation(q, k, cos_minus_one(s, c), s), work, _CARRY)
         dp = plane_rotation(momentum, k, cos_minus_one(s, c), s)
         add4_inplace(work, _MOMENTUM, dp, work, _MOMENTUM_CARRY)
     compensated_drift_inplace(y, h, work, _CARRY)
     compensated_kick_inplace(y, p, later(t, h), 0.5 * h, work)
-    write3(y, S.OMEGA, to_omega(body_momentum(read4(y, S.QUATERNION), read4(work, _MOMENTUM)), inertia_))
+    write3(y, S.OMEGA, spin(read4(y, S.QUATERNION), read4(work, _MOMENTUM), inertia_))
     return OK, 0
 
 
@@ -154,7 +187,8 @@ def init_inplace(y, p, opt, t, h, work):
 
 @inline_jit
 def symmetric_step(y, p, opt, t, h, work):
-    """One second-order symmetric step (module docstring)."""
+    """One second-order symmetric step (module docstring), in the phases of
+    `symmetric_block_step`."""
     inertia_ = inertia(p)
     momentum = kick_inplace(y, p, read4(work, 0), t, 0.5 * h)
     q = read4(y, S.QUATERNION)
@@ -164,7 +198,7 @@ def symmetric_step(y, p, opt, t, h, work):
     drift_inplace(y, h)
     momentum = kick_inplace(y, p, momentum, later(t, h), 0.5 * h)
     write4(work, 0, momentum)
-    write3(y, S.OMEGA, to_omega(body_momentum(q, momentum), inertia_))
+    write3(y, S.OMEGA, spin(q, momentum, inertia_))
     return OK, 0
 
 
@@ -181,11 +215,12 @@ def _block_kick(block, d):
     """`kick_inplace` of every lane for a time ``d``, its P in rows `_P`."""
     for lane in range(B.BLOCK):
         q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
-        w = to_omega(body_momentum(q, momentum), B.column3(block, B.PARAM + S.INERTIA, lane))
+        w = spin(q, momentum, B.column3(block, B.PARAM + S.INERTIA, lane))
         moment, mass, force = B.loads_at(block, q, w, lane)
-        v = axpy(d / mass, force, B.column3(block, B.STATE + S.VELOCITY, lane))
+        v = B.column3(block, B.STATE + S.VELOCITY, lane)
+        momentum, v = kicked_conjugate(q, momentum, v, scale(d, moment), d, mass, force)
         B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
-        B.set_column4(block, _P, lane, axpy4(1.0, conjugate_momentum(q, scale(d, moment)), momentum))
+        B.set_column4(block, _P, lane, momentum)
 
 
 @inline_jit
@@ -194,14 +229,15 @@ def _axis_flow_loops(block, k, d):
     (`rbstudy.numerics.block.sin_cos_columns`), then the rotations."""
     for lane in range(B.BLOCK):
         q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
-        zeta = dot4(momentum, quat_times_axis(q, k)) / (4.0 * B.at(block, B.PARAM + S.INERTIA + k, lane))
-        block[_ANGLE * B.BLOCK + lane] = zeta * d
+        angle = flow_angle(q, momentum, B.at(block, B.PARAM + S.INERTIA + k, lane), k, d)
+        block[_ANGLE * B.BLOCK + lane] = angle
     B.sin_cos_columns(block, _ANGLE)
     for lane in range(B.BLOCK):
         s, c = B.at(block, _ANGLE + 1, lane), B.at(block, _ANGLE + 2, lane)
         q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
-        B.set_column4(block, B.STATE + S.QUATERNION, lane, plane_rotation(q, k, c, s))
-        B.set_column4(block, _P, lane, plane_rotation(momentum, k, c, s))
+        q, momentum = rotated(q, momentum, k, c, s)
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
+        B.set_column4(block, _P, lane, momentum)
 
 
 @jit
@@ -215,7 +251,7 @@ def _block_spin(block):
     """Every lane's spin from its P and orientation, as `symmetric_step` ends."""
     for lane in range(B.BLOCK):
         q, momentum = B.column4(block, B.STATE + S.QUATERNION, lane), B.column4(block, _P, lane)
-        w = to_omega(body_momentum(q, momentum), B.column3(block, B.PARAM + S.INERTIA, lane))
+        w = spin(q, momentum, B.column3(block, B.PARAM + S.INERTIA, lane))
         B.set_column3(block, B.STATE + S.OMEGA, lane, w)
 
 

@@ -80,6 +80,13 @@ def turned_momentum(m, k, c, s, along):
     return (c * m[0] + s * m[1], c * m[1] - s * m[0], along * m[2])
 
 
+@inline_jit
+def half_angle(m_k, inertia_k, d):
+    """Half the angle ``theta = d m_k / I_k`` of the flow of ``T_k`` for a time ``d``, from
+    the momentum ``m_k`` and the inertia ``I_k`` about axis ``k``."""
+    return 0.5 * d * m_k / inertia_k
+
+
 @jit
 def axis_flow(q, m, inertia_, k, d):
     """Exact flow of ``T_k`` for time ``d``: rotate the frame about body axis ``k``.
@@ -87,8 +94,7 @@ def axis_flow(q, m, inertia_, k, d):
     One sine-cosine pair per flow: the momentum's rotation by ``theta`` takes its cosine and
     sine from the quaternion's half angle by the double-angle formulas.
     """
-    half = 0.5 * d * m[k] / inertia_[k]
-    sh, ch = sin_cos(half)
+    sh, ch = sin_cos(half_angle(m[k], inertia_[k], d))
     return turned(q, m, k, sh, ch)
 
 
@@ -105,7 +111,7 @@ def compensated_axis_flow_inplace(y, inertia_, k, d, work):
     """`axis_flow` on the state row ``y`` (N_STATE,), its increments added with compensation
     (``cos - 1`` of both angles taken without cancellation)."""
     m = to_momentum(read3(y, S.OMEGA), inertia_)
-    half = 0.5 * d * m[k] / inertia_[k]
+    half = half_angle(m[k], inertia_[k], d)
     sh, ch = math.sin(half), math.cos(half)
     dm = turned_momentum(m, k, -2.0 * sh * sh, 2.0 * sh * ch, 0.0)
     dq = quat_mul_axis_rotation(read4(y, S.QUATERNION), k, sh, cos_minus_one(sh, ch))
@@ -127,16 +133,24 @@ def compensated_step(y, p, opt, t, h, work):
 
 
 @inline_jit
+def settled(q, m, inertia_):
+    """The frame renormalised and the spin from the momentum, as the sub-flows end."""
+    return quat_normalize(q), to_omega(m, inertia_)
+
+
+@inline_jit
 def symmetric_step(y, p, opt, t, h, work):
-    """One second-order symmetric step (module docstring)."""
+    """One second-order symmetric step (module docstring), in the phases of
+    `symmetric_block_step`."""
     kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
     q = read4(y, S.QUATERNION)
     m = to_momentum(read3(y, S.OMEGA), inertia_)
     for k, fraction in flow_sequence(opt, _AXES):
         q, m = axis_flow(q, m, inertia_, k, fraction * h)
-    write4(y, S.QUATERNION, quat_normalize(q))
-    write3(y, S.OMEGA, to_omega(m, inertia_))
+    q, w = settled(q, m, inertia_)
+    write4(y, S.QUATERNION, q)
+    write3(y, S.OMEGA, w)
     drift_inplace(y, h)
     kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, 0
@@ -163,7 +177,7 @@ def _axis_flow_loops(block, k, d):
     """`axis_flow` of every lane about axis ``k`` for a time ``d``: the half angles, their
     sines (`rbstudy.numerics.block.sin_cos_columns`), then the turn."""
     for lane in range(B.BLOCK):
-        half = 0.5 * d * B.at(block, _MOMENTUM + k, lane) / B.at(block, B.PARAM + S.INERTIA + k, lane)
+        half = half_angle(B.at(block, _MOMENTUM + k, lane), B.at(block, B.PARAM + S.INERTIA + k, lane), d)
         block[_HALF * B.BLOCK + lane] = half
     B.sin_cos_columns(block, _HALF)
     for lane in range(B.BLOCK):
@@ -191,8 +205,8 @@ def _block_end(block, h):
     """The end of `symmetric_step` for every lane: the frame renormalised, the spin from the
     momentum, the drift and the last kick, for a step ``h``."""
     for lane in range(B.BLOCK):
-        q = quat_normalize(B.column4(block, B.STATE + S.QUATERNION, lane))
-        w = to_omega(B.column3(block, _MOMENTUM, lane), B.column3(block, B.PARAM + S.INERTIA, lane))
+        q, m = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, _MOMENTUM, lane)
+        q, w = settled(q, m, B.column3(block, B.PARAM + S.INERTIA, lane))
         B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
         B.set_column3(block, B.STATE + S.OMEGA, lane, w)
     drift_block(block, h)
