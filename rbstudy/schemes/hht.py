@@ -36,8 +36,6 @@ iterate; the rotation's sine is `rbstudy.numerics.lanes_math`'s on both paths, s
 body takes the iterations, and gets the bits, of its solo run.
 """
 
-import math
-
 from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
@@ -72,7 +70,12 @@ from rbstudy.numerics.rotation import (
 )
 from rbstudy.numerics.state import NOT_CONVERGED, OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
-from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RESIDUAL_RTOL
+from rbstudy.schemes._newton import (
+    NEWTON_MAX_ITERATIONS,
+    NEWTON_RESIDUAL_RTOL,
+    book_newton_pass,
+    newton_test,
+)
 from rbstudy.schemes._registry import Option, Scheme, Style, option_slots, scratch_rows
 
 # work: body angular acceleration A_n (3), translational acceleration a_n (3), then the carry
@@ -142,6 +145,81 @@ def init_inplace(y, p, opt, t, h, work):
     return OK
 
 
+# The step's formulas, each written once for the single body (`advance`) and the block
+# (`block_step`), which call them in the same order: `newton_start`, then per Newton pass
+# `rotation`, the frame's exponential, `equilibrium`, `newton_test` and `newton_update`, then
+# `step_end` (compensated: `translation` and `newmark_velocity` as increments).
+
+
+@inline_jit
+def newmark_velocity(v, a_old, a_new, h, gamma, increment):
+    """Newmark's ``v + h ((1 - gamma) a_old + gamma a_new)``, or with ``increment`` (a
+    constant where it is inlined) its increment."""
+    start = scale(h * (1.0 - gamma), a_old) if increment else axpy(h * (1.0 - gamma), a_old, v)
+    return axpy(h * gamma, a_new, start)
+
+
+@inline_jit
+def newmark_displacement(start, a_old, a_new, h, beta):
+    """Newmark's ``start + h^2 ((1/2 - beta) a_old + beta a_new)``, ``start`` the
+    displacement's ``x + h v`` or the increment's ``h v``."""
+    return axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, start))
+
+
+@inline_jit
+def newton_start(w, inertia_, a_old, moment_old):
+    """``(r_n, residual scale, first iterate of A_n+1)`` of a body at spin ``w``, ``A_n`` =
+    ``a_old``, body moment ``moment_old``."""
+    r_old = residual(a_old, w, inertia_, moment_old)
+    scale_ = (
+        norm(to_momentum(w, inertia_)) * norm(w)
+        + norm(to_momentum(a_old, inertia_))
+        + norm(moment_old)
+        + 1e-300
+    )
+    return r_old, scale_, a_old
+
+
+@inline_jit
+def rotation(w, a_old, a_new, h, gamma, beta):
+    """``(W_n+1, Theta)`` at the iterate ``A_n+1`` = ``a_new`` (module docstring)."""
+    w_new = newmark_velocity(w, a_old, a_new, h, gamma, False)
+    return w_new, newmark_displacement(scale(h, w), a_old, a_new, h, beta)
+
+
+@inline_jit
+def equilibrium(a_new, w_new, inertia_, moment_new, r_old, alpha):
+    """Newton's residual ``(1 + alpha) r_n+1 - alpha r_n`` at the iterate ``a_new``."""
+    return sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)), scale(alpha, r_old))
+
+
+@inline_jit
+def newton_update(a_new, w_new, inertia_, damping, alpha, d, g):
+    """The next iterate from ``a_new`` and its residual ``g``, ``d = h gamma``, ``damping``
+    the coefficients ``C`` of a damping moment. The Jacobian leaves out how a moment that
+    turns with the body (a space moment, a space force at a node) changes with ``q_n+1``: a
+    quasi-Newton step, converging all the same at the steps where the scheme is accurate."""
+    return sub(a_new, solve3(jacobian(w_new, inertia_, damping, alpha, d), g))
+
+
+@inline_jit
+def translation(x, v, lin_old, f_old, f_new, mass, alpha, h, gamma, beta, increment):
+    """``(x_n+1, v_n+1, a_n+1)``: the rotation's Newmark weights, and HHT's ``a_n+1 = F/m +
+    alpha/(1+alpha) (a_n - F_n/m)``; with ``increment`` (a constant where it is inlined) the
+    increments of ``x`` and ``v``."""
+    f_old, f_new = scale(1.0 / mass, f_old), scale(1.0 / mass, f_new)
+    lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old), f_new)
+    x_new = newmark_displacement(scale(h, v) if increment else axpy(h, v, x), lin_old, lin_new, h, beta)
+    return x_new, newmark_velocity(v, lin_old, lin_new, h, gamma, increment), lin_new
+
+
+@inline_jit
+def step_end(x, v, q_new, lin_old, f_old, f_new, mass, alpha, h, gamma, beta):
+    """``(x_n+1, v_n+1, a_n+1)`` (`translation`) and the frame ``q_n+1`` renormalised."""
+    x, v, lin_new = translation(x, v, lin_old, f_old, f_new, mass, alpha, h, gamma, beta, False)
+    return x, v, lin_new, quat_normalize(q_new)
+
+
 @inline_jit
 def advance(y, p, opt, t, h, work, compensated):
     """One step (module docstring), its updates added as increments with compensation when
@@ -151,55 +229,35 @@ def advance(y, p, opt, t, h, work, compensated):
     inertia_ = inertia(p)
     q, w = read4(y, S.QUATERNION), read3(y, S.OMEGA)
     a_old = read3(work, _ANGULAR)
-    moment_old = body_moment(q, w, p, t)
-    r_old = residual(a_old, w, inertia_, moment_old)
-    scale_ = (
-        norm(to_momentum(w, inertia_)) * norm(w)
-        + norm(to_momentum(a_old, inertia_))
-        + norm(moment_old)
-        + 1e-300
-    )
-    a_new = a_old
-    converged = False
-    iterations = 0
-    while iterations < NEWTON_MAX_ITERATIONS:
-        w_new = axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w))
-        theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
+    r_old, scale_, a_new = newton_start(w, inertia_, a_old, body_moment(q, w, p, t))
+    converged, going_on, iterations = False, True, 0
+    while going_on:
+        w_new, theta = rotation(w, a_old, a_new, h, gamma, beta)
         q_new = quat_mul(q, quat_exp_poly(theta))
-        moment_new = body_moment(q_new, w_new, p, later(t, h))
-        g = sub(scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)), scale(alpha, r_old))
-        size = norm(g)
-        if not math.isfinite(size):
-            break
-        if size <= NEWTON_RESIDUAL_RTOL * scale_:
-            converged = True
-            break
-        # the Jacobian leaves out how a moment that turns with the body (a space moment, a
-        # space force at a node) changes with q_new: a quasi-Newton step, converging all the
-        # same at the steps where the scheme is accurate
-        # -dT/dW of a damping moment (zero without)
-        a_new = sub(a_new, solve3(jacobian(w_new, inertia_, spin_damping(p), alpha, h * gamma), g))
-        iterations += 1
+        g = equilibrium(a_new, w_new, inertia_, body_moment(q_new, w_new, p, later(t, h)), r_old, alpha)
+        bound = NEWTON_RESIDUAL_RTOL * scale_
+        converged, update, going_on = newton_test(True, norm(g), bound, iterations + 1)
+        if update:
+            # -dT/dW of a damping moment (zero without)
+            a_new = newton_update(a_new, w_new, inertia_, spin_damping(p), alpha, h * gamma, g)
+            iterations += 1
     if not converged:
         return NOT_CONVERGED, iterations
 
-    # translation: the same Newmark weights; HHT gives a_n+1 = F/m + alpha/(1+alpha) (a_n - F_n/m)
     v, x = read3(y, S.VELOCITY), read3(y, S.POSITION)
     lin_old = read3(work, _LINEAR)
-    f_old = scale(1.0 / p[S.MASS], space_force(q, p, t))
-    lin_new = axpy(
-        alpha / (1.0 + alpha), sub(lin_old, f_old), scale(1.0 / p[S.MASS], space_force(q_new, p, later(t, h)))
-    )
+    f_old, f_new, mass = space_force(q, p, t), space_force(q_new, p, later(t, h)), p[S.MASS]
     if compensated:
-        dx = axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, scale(h, v)))
+        dx, dv, lin_new = translation(x, v, lin_old, f_old, f_new, mass, alpha, h, gamma, beta, True)
         add3_inplace(y, S.POSITION, dx, work, _CARRY)
-        add3_inplace(y, S.VELOCITY, axpy(h * gamma, lin_new, scale(h * (1.0 - gamma), lin_old)), work, _CARRY)
+        add3_inplace(y, S.VELOCITY, dv, work, _CARRY)
         turn_inplace(y, quat_exp_minus_one(theta), work, _CARRY)
-        add3_inplace(y, S.OMEGA, axpy(h * gamma, a_new, scale(h * (1.0 - gamma), a_old)), work, _CARRY)
+        add3_inplace(y, S.OMEGA, newmark_velocity(w, a_old, a_new, h, gamma, True), work, _CARRY)
     else:
-        write3(y, S.POSITION, axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x))))
-        write3(y, S.VELOCITY, axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v)))
-        write4(y, S.QUATERNION, quat_normalize(q_new))
+        x, v, lin_new, q = step_end(x, v, q_new, lin_old, f_old, f_new, mass, alpha, h, gamma, beta)
+        write3(y, S.POSITION, x)
+        write3(y, S.VELOCITY, v)
+        write4(y, S.QUATERNION, q)
         write3(y, S.OMEGA, w_new)
     write3(work, _ANGULAR, a_new)
     write3(work, _LINEAR, lin_new)
@@ -239,32 +297,25 @@ _NO_DAMPING = (0.0, 0.0, 0.0)
 
 @jit
 def _block_start(block, alpha):
-    """Each lane's ``r_n``, residual scale and first iterate; a lane iterates when booked."""
+    """Each lane's `newton_start`; a lane iterates when booked."""
     for lane in range(B.BLOCK):
         q, w = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.OMEGA, lane)
         inertia_, a_old = B.column3(block, B.PARAM + S.INERTIA, lane), B.column3(block, _ANGULAR_ROWS, lane)
-        moment_old = B.loads_at(block, q, w, lane)[0]
-        scale_ = (
-            norm(to_momentum(w, inertia_)) * norm(w)
-            + norm(to_momentum(a_old, inertia_))
-            + norm(moment_old)
-            + 1e-300
-        )
-        B.set_column3(block, _R_OLD, lane, residual(a_old, w, inertia_, moment_old))
+        r_old, scale_, a_new = newton_start(w, inertia_, a_old, B.loads_at(block, q, w, lane)[0])
+        B.set_column3(block, _R_OLD, lane, r_old)
         block[_SCALE * B.BLOCK + lane] = scale_
-        B.set_column3(block, _A_NEW, lane, a_old)
+        B.set_column3(block, _A_NEW, lane, a_new)
     B.start_newton(block, _ACTIVE)
 
 
 @jit
 def _block_rotation(block, h, alpha):
-    """Each lane's ``Theta`` at its iterate ``A_n+1``, and its ``W_n+1``."""
+    """Each lane's `rotation` at its iterate."""
     gamma, beta = newmark(alpha)
     for lane in range(B.BLOCK):
         w, a_old = B.column3(block, B.STATE + S.OMEGA, lane), B.column3(block, _ANGULAR_ROWS, lane)
-        a_new = B.column3(block, _A_NEW, lane)
-        B.set_column3(block, _W_NEW, lane, axpy(h * gamma, a_new, axpy(h * (1.0 - gamma), a_old, w)))
-        theta = axpy(h * h * beta, a_new, axpy(h * h * (0.5 - beta), a_old, scale(h, w)))
+        w_new, theta = rotation(w, a_old, B.column3(block, _A_NEW, lane), h, gamma, beta)
+        B.set_column3(block, _W_NEW, lane, w_new)
         B.set_column3(block, _THETA, lane, theta)
 
 
@@ -280,48 +331,36 @@ def _block_newton(block, h, alpha):
         q_new = quat_mul(q, B.column4(block, _EXP, lane))
         a_new = B.column3(block, _A_NEW, lane)
         moment_new = B.loads_at(block, q_new, w_new, lane)[0]
-        g = sub(
-            scale(1.0 + alpha, residual(a_new, w_new, inertia_, moment_new)),
-            scale(alpha, B.column3(block, _R_OLD, lane)),
-        )
-        size = norm(g)
+        g = equilibrium(a_new, w_new, inertia_, moment_new, B.column3(block, _R_OLD, lane), alpha)
         iterating = B.at(block, _ACTIVE, lane) != 0.0
-        finite = iterating & math.isfinite(size)
-        converged = finite & (size <= NEWTON_RESIDUAL_RTOL * B.at(block, _SCALE, lane))
         taken = B.at(block, _STEP_ITERATIONS, lane)
-        update = finite & (not converged)
-        a_next = sub(a_new, solve3(jacobian(w_new, inertia_, _NO_DAMPING, alpha, h * gamma), g))
+        bound = NEWTON_RESIDUAL_RTOL * B.at(block, _SCALE, lane)
+        converged, update, going_on = newton_test(iterating, norm(g), bound, taken + 1.0)
+        a_next = newton_update(a_new, w_new, inertia_, _NO_DAMPING, alpha, h * gamma, g)
         B.set_column3(block, _A_NEW, lane, a_next if update else a_new)
         B.set_column4(block, _Q_NEW, lane, q_new if iterating else B.column4(block, _Q_NEW, lane))
-        block[_STEP_ITERATIONS * B.BLOCK + lane] = taken + 1.0 if update else taken
-        block[_CONVERGED * B.BLOCK + lane] = 1.0 if converged else B.at(block, _CONVERGED, lane)
-        going_on = update & (taken + 1.0 < NEWTON_MAX_ITERATIONS)
-        block[_ACTIVE * B.BLOCK + lane] = 1.0 if going_on else 0.0
-        active += 1 if going_on else 0
+        taken = taken + 1.0 if update else taken
+        active += book_newton_pass(block, _ACTIVE, lane, converged, going_on, taken)
     return active
 
 
 @jit
 def _block_end(block, h, alpha):
-    """The end of `advance` for every lane (a lane that did not converge is no longer booked):
-    the translation, the frame, the spin, the carried accelerations, its verdict and
-    iterations."""
+    """`step_end` of every lane (a lane that did not converge is no longer booked), its spin,
+    the carried accelerations, its verdict and iterations."""
     gamma, beta = newmark(alpha)
     for lane in range(B.BLOCK):
         q, w = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.OMEGA, lane)
-        q_new = B.column4(block, _Q_NEW, lane)
+        q_new, w_new = B.column4(block, _Q_NEW, lane), B.column3(block, _W_NEW, lane)
         _, mass, f_old = B.loads_at(block, q, w, lane)
-        _, _, f_new = B.loads_at(block, q_new, B.column3(block, _W_NEW, lane), lane)
-        lin_old = B.column3(block, _LINEAR_ROWS, lane)
-        f_old, f_new = scale(1.0 / mass, f_old), scale(1.0 / mass, f_new)
-        lin_new = axpy(alpha / (1.0 + alpha), sub(lin_old, f_old), f_new)
+        _, _, f_new = B.loads_at(block, q_new, w_new, lane)
         v, x = B.column3(block, B.STATE + S.VELOCITY, lane), B.column3(block, B.STATE + S.POSITION, lane)
-        x = axpy(h * h * beta, lin_new, axpy(h * h * (0.5 - beta), lin_old, axpy(h, v, x)))
+        lin_old = B.column3(block, _LINEAR_ROWS, lane)
+        x, v, lin_new, q = step_end(x, v, q_new, lin_old, f_old, f_new, mass, alpha, h, gamma, beta)
         B.set_column3(block, B.STATE + S.POSITION, lane, x)
-        v = axpy(h * gamma, lin_new, axpy(h * (1.0 - gamma), lin_old, v))
         B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
-        B.set_column4(block, B.STATE + S.QUATERNION, lane, quat_normalize(q_new))
-        B.set_column3(block, B.STATE + S.OMEGA, lane, B.column3(block, _W_NEW, lane))
+        B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
+        B.set_column3(block, B.STATE + S.OMEGA, lane, w_new)
         B.set_column3(block, _ANGULAR_ROWS, lane, B.column3(block, _A_NEW, lane))
         B.set_column3(block, _LINEAR_ROWS, lane, lin_new)
     B.end_newton(block, _ACTIVE)

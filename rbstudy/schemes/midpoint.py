@@ -23,8 +23,6 @@ of a block at once, as long as any lane still iterates; a lane that has converge
 keeps its solution, so that each body takes the iterations, and gets the bits, of its solo run.
 """
 
-import math
-
 from rbstudy.numerics import block as B
 from rbstudy.numerics import state as S
 from rbstudy.numerics.clock import later
@@ -60,7 +58,7 @@ from rbstudy.schemes._kicks import (
     kick_block,
     kick_inplace,
 )
-from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL
+from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL, book_newton_pass, newton_test
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 
 # work: the carry of the compensated sums
@@ -85,13 +83,33 @@ def newton_matrix(z, w, inverse, h):
     )
 
 
+# The step's formulas, each written once for the single body (`symmetric_step`,
+# `compensated_step`) and the block (`symmetric_block_step`), which call them in the same
+# order: `newton_start`, `newton_update` and `newton_test` per iteration, then `frame_and_spin`.
+
+
+@inline_jit
+def momentum_at_midpoint(m, u, increment):
+    """``mbar`` from Newton's unknown ``u``: ``u`` itself, or ``m + u`` with ``increment``."""
+    return add(m, u) if increment else u
+
+
+@inline_jit
+def newton_start(w, inertia_, h, increment):
+    """``(m, first iterate)`` at spin ``w``: the explicit predictor ``m + h/2 m x w`` of
+    ``mbar``, or with ``increment`` its half increment ``h/2 m x w``."""
+    m = to_momentum(w, inertia_)
+    d = scale(0.5 * h, cross(m, to_omega(m, inertia_)))
+    return m, (d if increment else add(d, m))
+
+
 @inline_jit
 def newton_update(m, u, inertia_, h, increment):
     """One Newton iteration of `solve_midpoint` from ``u``: ``(u, size of the correction)``.
     Inlined, so that ``increment`` is a constant of each copy: called, it kept the loop over a
     block's lanes from vectorising."""
     inverse = (1.0 / inertia_[0], 1.0 / inertia_[1], 1.0 / inertia_[2])
-    z = add(m, u) if increment else u
+    z = momentum_at_midpoint(m, u, increment)
     w = to_omega(z, inertia_)
     half_step = u if increment else sub(z, m)
     residual = sub(scale(2.0, half_step), scale(h, cross(z, w)))
@@ -100,25 +118,29 @@ def newton_update(m, u, inertia_, h, increment):
 
 
 @jit
-def predicted(m, inertia_, h):
-    """The explicit predictor ``m + h/2 m x w`` of `solve_midpoint`'s ``mbar``."""
-    return add(scale(0.5 * h, cross(m, to_omega(m, inertia_))), m)
-
-
-@jit
-def solve_midpoint(m, inertia_, h, increment):
-    """Newton solve of the free midpoint equation; returns ``(u, iterations, converged)``
-    with ``u = mbar``, or with ``increment`` the half increment ``d = mbar - m``, solved for
-    as the root of ``2 d - h (m + d) x I^-1 (m + d)`` so that it comes to its own relative
-    accuracy (``mbar - m`` would carry the rounding of ``mbar``, an ulp of ``m``)."""
-    u = scale(0.5 * h, cross(m, to_omega(m, inertia_))) if increment else predicted(m, inertia_, h)
-    for iteration in range(1, NEWTON_MAX_ITERATIONS + 1):
+def solve_midpoint(m, u, inertia_, h, increment):
+    """Newton solve of the free midpoint equation from `newton_start`'s ``(m, u)``; returns
+    ``(u, iterations, converged)`` with ``u = mbar``, or with ``increment`` the half increment
+    ``d = mbar - m``, solved for as the root of ``2 d - h (m + d) x I^-1 (m + d)`` so that it
+    comes to its own relative accuracy (``mbar - m`` would carry the rounding of ``mbar``, an
+    ulp of ``m``)."""
+    converged, going_on, iterations = False, True, 0
+    while going_on:
+        iterations += 1
         u, size = newton_update(m, u, inertia_, h, increment)
-        if not math.isfinite(size):
-            return u, iteration, False
-        if size <= NEWTON_RTOL * norm(u):
-            return u, iteration, True
-    return u, NEWTON_MAX_ITERATIONS, False
+        converged, _, going_on = newton_test(True, size, NEWTON_RTOL * norm(u), iterations)
+    return u, iterations, converged
+
+
+@inline_jit
+def frame_and_spin(q, m, u, inertia_, h, increment):
+    """The end of the free step from Newton's solution ``u``: the frame ``q cay(h wbar)``
+    renormalised and the spin ``I^-1 (2 mbar - m)``, or with ``increment`` (a constant where it
+    is inlined) their increments ``cay(h wbar) - 1`` (to turn ``q`` by) and ``I^-1 2 d``."""
+    turn = scale(h, to_omega(momentum_at_midpoint(m, u, increment), inertia_))
+    if increment:
+        return quat_cayley_minus_one(turn), to_omega(scale(2.0, u), inertia_)
+    return quat_normalize(quat_mul(q, quat_cayley(turn))), to_omega(sub(scale(2.0, u), m), inertia_)
 
 
 @jit
@@ -127,12 +149,13 @@ def compensated_step(y, p, opt, t, h, work):
     ``2 d``, the frame's ``q (cay(h wbar) - 1)``."""
     compensated_kick_inplace(y, p, t, 0.5 * h, work, _CARRY)
     inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
-    d, iterations, converged = solve_midpoint(m, inertia_, h, True)
+    m, d = newton_start(read3(y, S.OMEGA), inertia_, h, True)
+    d, iterations, converged = solve_midpoint(m, d, inertia_, h, True)
     if not converged:
         return NOT_CONVERGED, iterations
-    turn_inplace(y, quat_cayley_minus_one(scale(h, to_omega(add(m, d), inertia_))), work, _CARRY)
-    add3_inplace(y, S.OMEGA, to_omega(scale(2.0, d), inertia_), work, _CARRY)
+    turn, dw = frame_and_spin(read4(y, S.QUATERNION), m, d, inertia_, h, True)
+    turn_inplace(y, turn, work, _CARRY)
+    add3_inplace(y, S.OMEGA, dw, work, _CARRY)
     compensated_drift_inplace(y, h, work, _CARRY)
     compensated_kick_inplace(y, p, later(t, h), 0.5 * h, work, _CARRY)
     return OK, iterations
@@ -143,13 +166,13 @@ def symmetric_step(y, p, opt, t, h, work):
     """One second-order symmetric step (module docstring)."""
     kick_inplace(y, p, t, 0.5 * h)
     inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
-    mbar, iterations, converged = solve_midpoint(m, inertia_, h, False)
+    m, u = newton_start(read3(y, S.OMEGA), inertia_, h, False)
+    mbar, iterations, converged = solve_midpoint(m, u, inertia_, h, False)
     if not converged:
         return NOT_CONVERGED, iterations
-    q = read4(y, S.QUATERNION)
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_))))))
-    write3(y, S.OMEGA, to_omega(sub(scale(2.0, mbar), m), inertia_))
+    q, w = frame_and_spin(read4(y, S.QUATERNION), m, mbar, inertia_, h, False)
+    write4(y, S.QUATERNION, q)
+    write3(y, S.OMEGA, w)
     drift_inplace(y, h)
     kick_inplace(y, p, later(t, h), 0.5 * h)
     return OK, iterations
@@ -165,14 +188,14 @@ _MOMENTUM, _ITERATE, _ACTIVE, _CONVERGED, _STAGE_ITERATIONS, _NEXT, _SIZE = scra
 
 @jit
 def _block_start(block, h):
-    """The first kick of every lane and its Newton start; a lane iterates when it is booked
+    """The first kick of every lane and its `newton_start`; a lane iterates when it is booked
     and has not failed in an earlier stage."""
     kick_block(block, 0.5 * h)
     for lane in range(B.BLOCK):
-        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
-        m = to_momentum(B.column3(block, B.STATE + S.OMEGA, lane), inertia_)
+        w = B.column3(block, B.STATE + S.OMEGA, lane)
+        m, u = newton_start(w, B.column3(block, B.PARAM + S.INERTIA, lane), h, False)
         B.set_column3(block, _MOMENTUM, lane, m)
-        B.set_column3(block, _ITERATE, lane, predicted(m, inertia_, h))
+        B.set_column3(block, _ITERATE, lane, u)
     B.start_newton(block, _ACTIVE)
 
 
@@ -190,30 +213,23 @@ def _block_newton(block, h, iteration):
     for lane in range(B.BLOCK):
         u_next, size = B.column3(block, _NEXT, lane), B.at(block, _SIZE, lane)
         iterating = B.at(block, _ACTIVE, lane) != 0.0
-        finite = iterating & math.isfinite(size)
-        converged = finite & (size <= NEWTON_RTOL * norm(u_next))
-        going_on = finite & (not converged)
+        converged, _, going_on = newton_test(iterating, size, NEWTON_RTOL * norm(u_next), iteration)
         B.set_column3(block, _ITERATE, lane, u_next if iterating else B.column3(block, _ITERATE, lane))
-        taken = B.at(block, _STAGE_ITERATIONS, lane)
-        block[_STAGE_ITERATIONS * B.BLOCK + lane] = iteration if iterating else taken
-        block[_CONVERGED * B.BLOCK + lane] = 1.0 if converged else B.at(block, _CONVERGED, lane)
-        block[_ACTIVE * B.BLOCK + lane] = 1.0 if going_on else 0.0
-        active += 1 if going_on else 0
+        taken = iteration if iterating else B.at(block, _STAGE_ITERATIONS, lane)
+        active += book_newton_pass(block, _ACTIVE, lane, converged, going_on, taken)
     return active
 
 
 @jit
 def _block_end(block, h):
-    """The end of `symmetric_step` for every lane: the Cayley turn, the spin, the drift and
-    the last kick (in every lane: a lane that did not converge is no longer booked), and each
-    lane's verdict and iterations."""
+    """`frame_and_spin` of every lane, the drift and the last kick (in every lane: a lane that
+    did not converge is no longer booked), and each lane's verdict and iterations."""
     for lane in range(B.BLOCK):
-        inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
         m, mbar = B.column3(block, _MOMENTUM, lane), B.column3(block, _ITERATE, lane)
         q = B.column4(block, B.STATE + S.QUATERNION, lane)
-        q = quat_normalize(quat_mul(q, quat_cayley(scale(h, to_omega(mbar, inertia_)))))
+        q, w = frame_and_spin(q, m, mbar, B.column3(block, B.PARAM + S.INERTIA, lane), h, False)
         B.set_column4(block, B.STATE + S.QUATERNION, lane, q)
-        B.set_column3(block, B.STATE + S.OMEGA, lane, to_omega(sub(scale(2.0, mbar), m), inertia_))
+        B.set_column3(block, B.STATE + S.OMEGA, lane, w)
     drift_block(block, h)
     kick_block(block, 0.5 * h)
     B.end_newton(block, _ACTIVE)
