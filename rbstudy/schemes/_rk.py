@@ -1,22 +1,32 @@
-"""The classical fourth-order Runge-Kutta weights, shared by `rk4` and `rkmk4`."""
+"""The classical fourth-order Runge-Kutta tableau, shared by `rk4` and `rkmk4`: where each
+stage takes its rates, with what weight they join the sum ``k1 + 2 k2 + 2 k3 + k4``, and the
+step's end from that sum. Both schemes' single-body and block steps read it from here."""
 
-from rbstudy.numerics.jit import jit
+from rbstudy.numerics.jit import inline_jit, jit
+from rbstudy.numerics.rotation import axpy, axpy4
+
+# stage i's point is ``y + (NODES[i] h) k``, k the rates of stage i - 1 (the first's is y),
+# its time ``t + NODES[i] h``; its rates join the sum with WEIGHTS[i]
+_NODES = (0.0, 0.5, 0.5, 1.0)
+_WEIGHTS = (1.0, 2.0, 2.0, 1.0)
+
+
+# inlined by numba: called with ``i`` a literal, a kernel of its own would be compiled once per stage
+@inline_jit
+def rk4_stage(h, i):
+    """Stage ``i`` (0 .. 3) of a step ``h``: ``(a, weight)``, its point ``y + a k`` from the
+    last stage's rates ``k`` (its time ``t + a``), and its rates' weight in the sum."""
+    return _NODES[i] * h, _WEIGHTS[i]
 
 
 @jit
-def rk4_sum3(h, y, k1, k2, k3, k4):
-    """``y + h/6 (k1 + 2 k2 + 2 k3 + k4)`` for 3-tuples."""
-    c = h / 6.0
-    return (
-        y[0] + c * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-        y[1] + c * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
-        y[2] + c * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]),
-    )
+def rk4_end3(h, y, s):
+    """``y + h/6 s`` for 3-tuples, ``s`` the weighted sum of the stages' rates, accumulated
+    stage by stage with `rbstudy.numerics.rotation.axpy`: ``((k1 + 2 k2) + 2 k3) + k4``."""
+    return axpy(h / 6.0, s, y)
 
 
 @jit
-def rk4_sum4(h, y, k1, k2, k3, k4):
-    """``y + h/6 (k1 + 2 k2 + 2 k3 + k4)`` for 4-tuples."""
-    head = rk4_sum3(h, y, k1, k2, k3, k4)
-    c = h / 6.0
-    return (head[0], head[1], head[2], y[3] + c * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]))
+def rk4_end4(h, y, s):
+    """`rk4_end3` for 4-tuples (a quaternion)."""
+    return axpy4(h / 6.0, s, y)

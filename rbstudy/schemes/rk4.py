@@ -43,7 +43,7 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
-from rbstudy.schemes._rk import rk4_sum3, rk4_sum4
+from rbstudy.schemes._rk import rk4_end3, rk4_end4, rk4_stage
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -72,31 +72,71 @@ def rates_under(q, v, w, inertia_, mass, moment, force):
 
 
 @inline_jit
+def stage_point(q, v, w, k, a):
+    """``(q, v, w) + a k``, where a stage after the first takes its rates, ``k`` the last
+    stage's rates ``(dx, dq, dv, dw)``."""
+    return axpy4(a, k[1], q), axpy(a, k[2], v), axpy(a, k[3], w)
+
+
+@inline_jit
+def accumulate(sums, k, weight):
+    """``sums + weight k``: a stage's rates ``k`` added to the weighted sum of those before,
+    each ``(dx, dq, dv, dw)``."""
+    return (
+        axpy(weight, k[0], sums[0]),
+        axpy4(weight, k[1], sums[1]),
+        axpy(weight, k[2], sums[2]),
+        axpy(weight, k[3], sums[3]),
+    )
+
+
+@inline_jit
+def ends(x, q, v, w, sums, h):
+    """``(x, q, v, w) + h/6 sums``, ``sums`` the weighted sum of the stages' rates: the step's
+    end before the quaternion's projection (from zeros, the increments)."""
+    return rk4_end3(h, x, sums[0]), rk4_end4(h, q, sums[1]), rk4_end3(h, v, sums[2]), rk4_end3(h, w, sums[3])
+
+
+@inline_jit
+def update(x, q, v, w, sums, h):
+    """The state after the step: `ends`, the quaternion renormalised."""
+    x, q, v, w = ends(x, q, v, w, sums, h)
+    return x, quat_normalize(q), v, w
+
+
+@inline_jit
+def _stage(q, v, w, p, t, h, i, k, sums):
+    """Stage ``i`` (1 .. 3) of one body's step: its rates, and ``sums`` with them added, ``k``
+    the last stage's rates."""
+    a, weight = rk4_stage(h, i)
+    qa, va, wa = stage_point(q, v, w, k, a)
+    k = rates(qa, va, wa, p, later(t, a))
+    return k, accumulate(sums, k, weight)
+
+
+@inline_jit
 def stages(q, v, w, p, t, h):
-    """The four stages' rates ``k1 .. k4``, each ``(dx, dq, dv, dw)``, of a step of ``h``
-    from ``(q, v, w)`` at time ``t``."""
-    k1 = rates(q, v, w, p, t)
-    k2 = rates(
-        axpy4(0.5 * h, k1[1], q), axpy(0.5 * h, k1[2], v), axpy(0.5 * h, k1[3], w), p, later(t, 0.5 * h)
-    )
-    k3 = rates(
-        axpy4(0.5 * h, k2[1], q), axpy(0.5 * h, k2[2], v), axpy(0.5 * h, k2[3], w), p, later(t, 0.5 * h)
-    )
-    k4 = rates(axpy4(h, k3[1], q), axpy(h, k3[2], v), axpy(h, k3[3], w), p, later(t, h))
-    return k1, k2, k3, k4
+    """The weighted sum ``k1 + 2 k2 + 2 k3 + k4`` of the four stages' rates, each ``(dx, dq,
+    dv, dw)``, of a step of ``h`` from ``(q, v, w)`` at time ``t``, added stage by stage."""
+    k = rates(q, v, w, p, t)
+    k, sums = _stage(q, v, w, p, t, h, 1, k, k)
+    k, sums = _stage(q, v, w, p, t, h, 2, k, sums)
+    _, sums = _stage(q, v, w, p, t, h, 3, k, sums)
+    return sums
 
 
 @jit
 def compensated_step_inplace(y, p, opt, t, h, work):
     """`step_inplace` with the weighted sum of the stages added as an increment, with
     compensation, and the quaternion renormalised as one (`rbstudy.numerics.compensated`)."""
-    k1, k2, k3, k4 = stages(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p, t, h)
+    sums = stages(read4(y, S.QUATERNION), read3(y, S.VELOCITY), read3(y, S.OMEGA), p, t, h)
     zero = (0.0, 0.0, 0.0)
-    add3_inplace(y, S.POSITION, rk4_sum3(h, zero, k1[0], k2[0], k3[0], k4[0]), work, _CARRY)
-    add4_inplace(y, S.QUATERNION, rk4_sum4(h, zero + (0.0,), k1[1], k2[1], k3[1], k4[1]), work, _CARRY)
+    dx, dq, dv, dw = ends(zero, zero + (0.0,), zero, zero, sums, h)
+    add3_inplace(y, S.POSITION, dx, work, _CARRY)
+    add4_inplace(y, S.QUATERNION, dq, work, _CARRY)
     normalize_inplace(y, work, _CARRY)
-    add3_inplace(y, S.VELOCITY, rk4_sum3(h, zero, k1[2], k2[2], k3[2], k4[2]), work, _CARRY)
-    add3_inplace(y, S.OMEGA, rk4_sum3(h, zero, k1[3], k2[3], k3[3], k4[3]), work, _CARRY)
+    add3_inplace(y, S.VELOCITY, dv, work, _CARRY)
+    add3_inplace(y, S.OMEGA, dw, work, _CARRY)
     return OK, 0
 
 
@@ -104,11 +144,11 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 def step_inplace(y, p, opt, t, h, work):
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v, w = read3(y, S.VELOCITY), read3(y, S.OMEGA)
-    k1, k2, k3, k4 = stages(q, v, w, p, t, h)
-    write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
-    write4(y, S.QUATERNION, quat_normalize(rk4_sum4(h, q, k1[1], k2[1], k3[1], k4[1])))
-    write3(y, S.VELOCITY, rk4_sum3(h, v, k1[2], k2[2], k3[2], k4[2]))
-    write3(y, S.OMEGA, rk4_sum3(h, w, k1[3], k2[3], k3[3], k4[3]))
+    x, q, v, w = update(x, q, v, w, stages(q, v, w, p, t, h), h)
+    write3(y, S.POSITION, x)
+    write4(y, S.QUATERNION, q)
+    write3(y, S.VELOCITY, v)
+    write3(y, S.OMEGA, w)
     return OK, 0
 
 
@@ -139,51 +179,34 @@ def _set_columns(block, row, lane, x, q, v, w):
 
 @jit
 def _block_stage(block, first, a, weight):
-    """One stage of `stages` for every lane of a block: the rates at ``(q, v, w) + a k``,
-    ``k`` the last stage's rates (at ``(q, v, w)`` for the ``first``), stored over those, and
-    added with ``weight`` to the weighted sum (which they start for the ``first``): the sums
-    of `rbstudy.schemes._rk.rk4_sum3` in their order. A function of its own per loop: inlined
+    """A stage of `stages` for every lane of a block: the rates at `stage_point` with ``a``,
+    ``k`` the last stage's rates (at ``(q, v, w)`` for the ``first``, a literal: numba compiles
+    that stage apart), stored over those, and added with ``weight`` to the weighted sum
+    (`accumulate`; they start it for the ``first``). A function of its own per loop: inlined
     into one step, the helpers of the later stages were called instead of inlined by LLVM, and
     numba's inlining reference-counts the block on every call: either keeps the loop from
     vectorising."""
     for lane in range(BLOCK):
         _, q, v, w = _columns(block, STATE, lane)
         if not first:
-            _, kq, kv, kw = _columns(block, _RATES, lane)
-            q, v, w = axpy4(a, kq, q), axpy(a, kv, v), axpy(a, kw, w)
+            q, v, w = stage_point(q, v, w, _columns(block, _RATES, lane), a)
         moment, mass, force = loads_at(block, q, w, lane)
         k = rates_under(q, v, w, column3(block, PARAM + S.INERTIA, lane), mass, moment, force)
         _set_columns(block, _RATES, lane, k[0], k[1], k[2], k[3])
         if first:
             _set_columns(block, _SUM, lane, k[0], k[1], k[2], k[3])
         else:
-            sx, sq, sv, sw = _columns(block, _SUM, lane)
-            sums = (
-                axpy(weight, k[0], sx),
-                axpy4(weight, k[1], sq),
-                axpy(weight, k[2], sv),
-                axpy(weight, k[3], sw),
-            )
+            sums = accumulate(_columns(block, _SUM, lane), k, weight)
             _set_columns(block, _SUM, lane, sums[0], sums[1], sums[2], sums[3])
 
 
 @jit
 def _block_update(block, h):
-    """``y + h/6 (k1 + 2 k2 + 2 k3 + k4)`` of `step_inplace`, quaternion renormalised, for
-    every lane, from the weighted sum of the stages."""
-    c = h / 6.0
+    """`update` of every lane, from the weighted sum of the stages."""
     for lane in range(BLOCK):
         x, q, v, w = _columns(block, STATE, lane)
-        sx, sq, sv, sw = _columns(block, _SUM, lane)
-        _set_columns(
-            block,
-            STATE,
-            lane,
-            axpy(c, sx, x),
-            quat_normalize(axpy4(c, sq, q)),
-            axpy(c, sv, v),
-            axpy(c, sw, w),
-        )
+        x, q, v, w = update(x, q, v, w, _columns(block, _SUM, lane), h)
+        _set_columns(block, STATE, lane, x, q, v, w)
 
 
 @jit
@@ -192,10 +215,11 @@ def block_step(block, opt, h):
     time: ``block`` (N_ROWS * BLOCK,) as `rbstudy.numerics.block` lays it out, a loop over the
     lanes per stage (one loop for the whole step did not vectorise). Each body's bits are
     those of `step_inplace`."""
-    _block_stage(block, True, 0.0, 1.0)
-    _block_stage(block, False, 0.5 * h, 2.0)
-    _block_stage(block, False, 0.5 * h, 2.0)
-    _block_stage(block, False, h, 1.0)
+    _block_stage(block, True, 0.0, 1.0)  # at the state, weight 1
+    for i in range(1, 4):
+        # unpacked: passed as ``*rk4_stage(h, i)``, they took ``first``'s literal type with them
+        a, weight = rk4_stage(h, i)
+        _block_stage(block, False, a, weight)
     _block_update(block, h)
 
 

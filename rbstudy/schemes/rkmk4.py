@@ -48,7 +48,7 @@ from rbstudy.numerics.rotation import (
 from rbstudy.numerics.state import OK
 from rbstudy.schemes._compensated import CARRY_WIDTH, COMPENSATED, switch
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
-from rbstudy.schemes._rk import rk4_sum3
+from rbstudy.schemes._rk import rk4_end3, rk4_stage
 
 # work: the carry of the compensated sums
 _CARRY = 0
@@ -59,28 +59,17 @@ _OPTIONS = (COMPENSATED,)
 _SLOTS = option_slots(_OPTIONS)
 
 
-# inlined by numba: left to LLVM, the single-body loop ran slower with lanes_math's sine in the
-# four exponentials than with libm's, and as fast once inlined, though the two sines alone cost
-# the same
-@inline_jit
-def rates(q_start, v, u, m, p, t):
-    """``(dx, dv, du, dm)`` at the stage ``R = R_n exp([u]x)``, velocity ``v``, momentum ``m``,
-    time ``t``; the exponential's sine and cosine are `rbstudy.numerics.lanes_math`'s, as the
-    block step's (`block_step`)."""
-    return rates_at(quat_mul(q_start, quat_exp_poly(u)), v, u, m, p, t)
-
-
 @jit
-def rates_at(q, v, u, m, p, t):
-    """`rates` with the stage's frame ``R`` given as the quaternion ``q``."""
-    w = to_omega(m, inertia(p))
+def rates_at(q, v, u, m, w, p, t):
+    """The rates ``(dx, dv, du, dm)`` of one body at the stage ``R = R_n exp([u]x)``, given as
+    the quaternion ``q``, velocity ``v``, momentum ``m``, spin ``w = I^-1 m``, time ``t``."""
     return rates_under(v, u, m, w, p[S.MASS], body_moment(q, w, p, t), space_force(q, p, t))
 
 
 @jit
 def rates_under(v, u, m, w, mass, moment, force):
-    """`rates` at spin ``w = I^-1 m`` under the body-frame ``moment`` and the space ``force``,
-    for a body of ``mass``."""
+    """`rates_at` under the body-frame ``moment`` and the space ``force``, for a body of
+    ``mass``."""
     du = add(add(w, scale(0.5, cross(u, w))), scale(1.0 / 12.0, cross(u, cross(u, w))))
     dm = momentum_rates(m, w, moment)
     dv = scale(1.0 / mass, force)
@@ -88,33 +77,99 @@ def rates_under(v, u, m, w, mass, moment, force):
 
 
 @inline_jit
-def stages(q, v, m, p, t, h):
-    """The four stages' rates ``k1 .. k4``, each ``(dx, dv, du, dm)``, of a step of ``h``
-    from ``(q, v, m)`` at time ``t``."""
-    k1 = rates_at(q, v, (0.0, 0.0, 0.0), m, p, t)  # u = 0: the frame R_n itself
-    k2 = rates(
-        q, axpy(0.5 * h, k1[1], v), scale(0.5 * h, k1[2]), axpy(0.5 * h, k1[3], m), p, later(t, 0.5 * h)
+def start(omega, inertia_):
+    """``(m, w)`` at the step's start, where the first stage takes its rates (``u = 0``: the
+    frame ``R_n``): the momentum ``m = I omega`` and the spin ``I^-1 m`` from it, as at the
+    later stages."""
+    m = to_momentum(omega, inertia_)
+    return m, to_omega(m, inertia_)
+
+
+@inline_jit
+def stage_turn(du, a):
+    """``u = a du``, the rotation vector of the frame ``R_n exp([u]x)`` where a stage after the
+    first takes its rates, ``du`` the last stage's."""
+    return scale(a, du)
+
+
+@inline_jit
+def stage_point(q, turn, v, m, dv, dm, a, inertia_):
+    """Where a stage after the first takes its rates: the frame ``q turn`` (``turn = exp(u)``,
+    `stage_turn`), ``v + a dv``, ``m + a dm`` and the spin ``I^-1 m`` there; ``(dv, dm)`` the
+    last stage's rates, ``(q, v, m)`` the step's start."""
+    m = axpy(a, dm, m)
+    return quat_mul(q, turn), axpy(a, dv, v), m, to_omega(m, inertia_)
+
+
+@inline_jit
+def accumulate(sums, k, weight):
+    """``sums + weight k``: a stage's rates ``k`` added to the weighted sum of those before,
+    each ``(dx, dv, du, dm)``."""
+    return (
+        axpy(weight, k[0], sums[0]),
+        axpy(weight, k[1], sums[1]),
+        axpy(weight, k[2], sums[2]),
+        axpy(weight, k[3], sums[3]),
     )
-    k3 = rates(
-        q, axpy(0.5 * h, k2[1], v), scale(0.5 * h, k2[2]), axpy(0.5 * h, k2[3], m), p, later(t, 0.5 * h)
-    )
-    k4 = rates(q, axpy(h, k3[1], v), scale(h, k3[2]), axpy(h, k3[3], m), p, later(t, h))
-    return k1, k2, k3, k4
+
+
+@inline_jit
+def ends(x, v, m, sums, h):
+    """``(x, v, 0, m) + h/6 sums``, ``sums`` the weighted sum of the stages' rates: position,
+    velocity, the rotation vector ``u_n+1`` and the momentum at the step's end (from zeros,
+    the increments)."""
+    turn = rk4_end3(h, (0.0, 0.0, 0.0), sums[2])  # u_n = 0
+    return rk4_end3(h, x, sums[0]), rk4_end3(h, v, sums[1]), turn, rk4_end3(h, m, sums[3])
+
+
+@inline_jit
+def update(x, v, m, sums, h, inertia_):
+    """Position, velocity and spin after the step from ``(x, v, m)``, and the rotation vector
+    ``u_n+1`` that turns the frame (each path turns it: the single body at once, a block in
+    one loop over its lanes, `rbstudy.numerics.block.turn_columns`)."""
+    x, v, turn, m = ends(x, v, m, sums, h)
+    return x, v, to_omega(m, inertia_), turn
+
+
+# inlined by numba: left to LLVM, the single-body loop ran slower with lanes_math's sine in the
+# four exponentials than with libm's, and as fast once inlined, though the two sines alone cost
+# the same
+@inline_jit
+def _stage(q, v, m, p, t, h, i, k, sums):
+    """Stage ``i`` (1 .. 3) of one body's step: its rates, and ``sums`` with them added, ``k``
+    the last stage's rates; the exponential's sine and cosine are
+    `rbstudy.numerics.lanes_math`'s, as the block step's (`block_step`)."""
+    a, weight = rk4_stage(h, i)
+    u = stage_turn(k[2], a)
+    qa, va, ma, wa = stage_point(q, quat_exp_poly(u), v, m, k[1], k[3], a, inertia(p))
+    k = rates_at(qa, va, u, ma, wa, p, later(t, a))
+    return k, accumulate(sums, k, weight)
+
+
+@inline_jit
+def stages(q, v, m, w, p, t, h):
+    """The weighted sum ``k1 + 2 k2 + 2 k3 + k4`` of the four stages' rates, each ``(dx, dv,
+    du, dm)``, of a step of ``h`` from ``(q, v, m)`` (``w = I^-1 m``, `start`) at time ``t``,
+    added stage by stage."""
+    k = rates_at(q, v, (0.0, 0.0, 0.0), m, w, p, t)
+    k, sums = _stage(q, v, m, p, t, h, 1, k, k)
+    k, sums = _stage(q, v, m, p, t, h, 2, k, sums)
+    _, sums = _stage(q, v, m, p, t, h, 3, k, sums)
+    return sums
 
 
 @jit
 def compensated_step_inplace(y, p, opt, t, h, work):
     """`step_inplace` with its increments (``u_n+1`` for the frame, ``I^-1 dm`` for the spin)
     added with compensation (`rbstudy.numerics.compensated`)."""
-    inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
-    k1, k2, k3, k4 = stages(read4(y, S.QUATERNION), read3(y, S.VELOCITY), m, p, t, h)
+    m, w = start(read3(y, S.OMEGA), inertia(p))
+    sums = stages(read4(y, S.QUATERNION), read3(y, S.VELOCITY), m, w, p, t, h)
     zero = (0.0, 0.0, 0.0)
-    add3_inplace(y, S.POSITION, rk4_sum3(h, zero, k1[0], k2[0], k3[0], k4[0]), work, _CARRY)
-    add3_inplace(y, S.VELOCITY, rk4_sum3(h, zero, k1[1], k2[1], k3[1], k4[1]), work, _CARRY)
-    turn_inplace(y, quat_exp_minus_one(rk4_sum3(h, zero, k1[2], k2[2], k3[2], k4[2])), work, _CARRY)
-    dm = rk4_sum3(h, zero, k1[3], k2[3], k3[3], k4[3])
-    add3_inplace(y, S.OMEGA, to_omega(dm, inertia_), work, _CARRY)
+    dx, dv, u, dm = ends(zero, zero, zero, sums, h)
+    add3_inplace(y, S.POSITION, dx, work, _CARRY)
+    add3_inplace(y, S.VELOCITY, dv, work, _CARRY)
+    turn_inplace(y, quat_exp_minus_one(u), work, _CARRY)
+    add3_inplace(y, S.OMEGA, to_omega(dm, inertia(p)), work, _CARRY)
     return OK, 0
 
 
@@ -122,15 +177,12 @@ def compensated_step_inplace(y, p, opt, t, h, work):
 def step_inplace(y, p, opt, t, h, work):
     x, q = read3(y, S.POSITION), read4(y, S.QUATERNION)
     v = read3(y, S.VELOCITY)
-    inertia_ = inertia(p)
-    m = to_momentum(read3(y, S.OMEGA), inertia_)
-    u = (0.0, 0.0, 0.0)
-    k1, k2, k3, k4 = stages(q, v, m, p, t, h)
-    write3(y, S.POSITION, rk4_sum3(h, x, k1[0], k2[0], k3[0], k4[0]))
-    write3(y, S.VELOCITY, rk4_sum3(h, v, k1[1], k2[1], k3[1], k4[1]))
-    u_next = rk4_sum3(h, u, k1[2], k2[2], k3[2], k4[2])
-    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(u_next))))
-    write3(y, S.OMEGA, to_omega(rk4_sum3(h, m, k1[3], k2[3], k3[3], k4[3]), inertia_))
+    m, w = start(read3(y, S.OMEGA), inertia(p))
+    x, v, w, turn = update(x, v, m, stages(q, v, m, w, p, t, h), h, inertia(p))
+    write3(y, S.POSITION, x)
+    write3(y, S.VELOCITY, v)
+    write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(turn))))
+    write3(y, S.OMEGA, w)
     return OK, 0
 
 
@@ -162,65 +214,55 @@ def _set_sum_columns(block, lane, sums):
 
 @jit
 def _block_frame(block, a):
-    """``u = a du`` of the last stage, over its ``du`` rows, and ``exp(u)`` for every lane, as
-    `stages` gives them to `rates`."""
+    """`stage_turn` of every lane, over the last stage's ``du`` rows, and ``exp(u)``, as
+    `_stage` gives them to `stage_point`."""
     for lane in range(B.BLOCK):
-        B.set_column3(block, _DU, lane, scale(a, B.column3(block, _DU, lane)))
+        B.set_column3(block, _DU, lane, stage_turn(B.column3(block, _DU, lane), a))
     B.quat_exp_columns(block, _DU, _EXP)
 
 
 @jit
 def _block_stage(block, first, a, weight):
-    """One stage of `stages` for every lane of a block: the rates at ``R_n exp([u]x)``, ``v +
-    a dv``, ``m + a dm`` (``u``, ``exp(u)`` from `_block_frame`; ``u = 0``, ``v``, ``m`` for the
-    ``first``), stored over the last stage's, and added with ``weight`` to the weighted sum
-    (which they start for the ``first``) in the order of `rbstudy.schemes._rk.rk4_sum3`. A
-    function of its own per loop, as rk4's (`rbstudy.schemes.rk4._block_stage`)."""
+    """A stage of `stages` for every lane of a block: the rates at `stage_point` with ``a``
+    (``u``, ``exp(u)`` from `_block_frame`; at `start` for the ``first``, a literal:
+    numba compiles that stage apart), stored over the last stage's, and added with ``weight``
+    to the weighted sum (`accumulate`; they start it for the ``first``). A function of its own
+    per loop, as rk4's (`rbstudy.schemes.rk4._block_stage`)."""
     for lane in range(B.BLOCK):
         q, v = B.column4(block, B.STATE + S.QUATERNION, lane), B.column3(block, B.STATE + S.VELOCITY, lane)
+        omega = B.column3(block, B.STATE + S.OMEGA, lane)
         inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
-        m = to_momentum(B.column3(block, B.STATE + S.OMEGA, lane), inertia_)
+        m, w = start(omega, inertia_)
         u = (0.0, 0.0, 0.0)
         if not first:
-            u, q = B.column3(block, _DU, lane), quat_mul(q, B.column4(block, _EXP, lane))
-            v, m = axpy(a, B.column3(block, _DV, lane), v), axpy(a, B.column3(block, _DM, lane), m)
-        w = to_omega(m, inertia_)
+            u, turn = B.column3(block, _DU, lane), B.column4(block, _EXP, lane)
+            dv, dm = B.column3(block, _DV, lane), B.column3(block, _DM, lane)
+            q, v, m, w = stage_point(q, turn, v, m, dv, dm, a, inertia_)
         moment, mass, force = B.loads_at(block, q, w, lane)
         k = rates_under(v, u, m, w, mass, moment, force)
         B.set_column3(block, _DV, lane, k[1])
         B.set_column3(block, _DU, lane, k[2])
         B.set_column3(block, _DM, lane, k[3])
-        # the sums spelt out: a loop over the four rates with a select between ``k[i]`` and the
-        # sum left the stage's loop scalar (no packed instruction in its code)
-        if first:
-            sums = k
-        else:
-            s = _sum_columns(block, lane)
-            sums = (
-                axpy(weight, k[0], s[0]),
-                axpy(weight, k[1], s[1]),
-                axpy(weight, k[2], s[2]),
-                axpy(weight, k[3], s[3]),
-            )
+        # the sums spelt out (`accumulate`): a loop over the four rates with a select between
+        # ``k[i]`` and the sum left the stage's loop scalar (no packed instruction in its code)
+        sums = k if first else accumulate(_sum_columns(block, lane), k, weight)
         _set_sum_columns(block, lane, sums)
 
 
 @jit
 def _block_update(block, h):
-    """``x``, ``v`` and ``w`` of `step_inplace` for every lane, from the weighted sum of the
-    stages, and ``u_n+1`` into rows `_TURN`."""
-    c = h / 6.0
-    zero = (0.0, 0.0, 0.0)
+    """`update` of every lane, from the weighted sum of the stages, ``u_n+1`` into rows
+    `_TURN`."""
     for lane in range(B.BLOCK):
         x, v = B.column3(block, B.STATE + S.POSITION, lane), B.column3(block, B.STATE + S.VELOCITY, lane)
+        omega = B.column3(block, B.STATE + S.OMEGA, lane)
         inertia_ = B.column3(block, B.PARAM + S.INERTIA, lane)
-        m = to_momentum(B.column3(block, B.STATE + S.OMEGA, lane), inertia_)
-        B.set_column3(block, B.STATE + S.POSITION, lane, axpy(c, B.column3(block, _SUM, lane), x))
-        B.set_column3(block, B.STATE + S.VELOCITY, lane, axpy(c, B.column3(block, _SUM + 3, lane), v))
-        B.set_column3(block, _TURN, lane, axpy(c, B.column3(block, _SUM + 6, lane), zero))
-        B.set_column3(
-            block, B.STATE + S.OMEGA, lane, to_omega(axpy(c, B.column3(block, _SUM + 9, lane), m), inertia_)
-        )
+        m, _ = start(omega, inertia_)
+        x, v, w, turn = update(x, v, m, _sum_columns(block, lane), h, inertia_)
+        B.set_column3(block, B.STATE + S.POSITION, lane, x)
+        B.set_column3(block, B.STATE + S.VELOCITY, lane, v)
+        B.set_column3(block, _TURN, lane, turn)
+        B.set_column3(block, B.STATE + S.OMEGA, lane, w)
 
 
 @jit
@@ -230,13 +272,11 @@ def block_step(block, opt, h):
     lanes per stage and per stage's exponential (the lanes' sines in a loop of their own,
     `rbstudy.numerics.block.quat_exp_columns`). Each body's bits are those of
     `step_inplace`."""
-    _block_stage(block, True, 0.0, 1.0)
-    _block_frame(block, 0.5 * h)
-    _block_stage(block, False, 0.5 * h, 2.0)
-    _block_frame(block, 0.5 * h)
-    _block_stage(block, False, 0.5 * h, 2.0)
-    _block_frame(block, h)
-    _block_stage(block, False, h, 1.0)
+    _block_stage(block, True, 0.0, 1.0)  # at the state, weight 1
+    for i in range(1, 4):
+        a, weight = rk4_stage(h, i)  # unpacked, as in `rbstudy.schemes.rk4.block_step`
+        _block_frame(block, a)
+        _block_stage(block, False, a, weight)
     _block_update(block, h)
     B.turn_columns(block, _TURN)
 
