@@ -210,6 +210,23 @@ def test_version_and_a_quick_bench(capsys):
     assert len(row) == 8 and all(float(rate) > 0 for rate in row[2:])
 
 
+def test_bench_repeat_takes_the_best_of_its_runs(capsys, monkeypatch):
+    """`bench --repeat N`: each figure is the fastest of N runs (a busy machine only slows a
+    run), said in the table's first line; N outside 1..100 is one error line."""
+    from rbstudy.pipeline import bench
+
+    rates = iter([1e6, 3e6, 2e6] * 6)  # each figure's three runs, the second the fastest
+    monkeypatch.setattr(bench, "_rate", lambda *args: (next(rates), None))
+    assert main(["bench", "euler", "--body-steps", "2000", "--repeat", "3", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "per figure, the best of 3 runs," in out and max(map(len, out.splitlines())) <= 100
+    row = next(line.split() for line in out.splitlines() if line.startswith("euler"))
+    assert [float(rate) for rate in row[2:]] == [3e6] * 6
+    for bad in ("0", "101"):
+        assert main(["bench", "euler", "--repeat", bad, "--quiet"]) == 1
+        assert capsys.readouterr().err == f"rbstudy: error: --repeat: need 1 to 100, got {bad}\n"
+
+
 def test_schemes_name_the_invariants_they_keep(capsys):
     assert main(["schemes"]) == 0
     listing = capsys.readouterr().out

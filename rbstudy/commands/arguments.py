@@ -255,6 +255,13 @@ def add_bench(commands: Verbs) -> argparse.ArgumentParser:
         help="body-steps per figure (default 1e7, at most 1e9; fewer for a quick look)",
     )
     bench.add_argument(
+        "--repeat",
+        type=_whole_number,
+        metavar="N",
+        help="each figure the best of N runs (default 1; a busy machine only slows a run, so "
+        "the best of 10 compares two versions to a few percent)",
+    )
+    bench.add_argument(
         "--option",
         action="append",
         metavar="NAME=VALUE",

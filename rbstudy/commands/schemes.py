@@ -81,15 +81,18 @@ def list_schemes(args: argparse.Namespace) -> int:
 
 def bench(args: argparse.Namespace) -> int:
     """``rbstudy bench``: the body-steps per second of each chosen scheme."""
-    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, option_settings, run_bench
+    from rbstudy.pipeline.bench import BODY_STEPS, MAX_BODY_STEPS, MAX_REPEAT, option_settings, run_bench
     from rbstudy.schemes import expand_groups
 
     if args.body_steps is not None and not 1 <= args.body_steps <= MAX_BODY_STEPS:
         raise RbstudyError(f"--body-steps: need 1 to {MAX_BODY_STEPS:.0e}, got {args.body_steps:.3g}")
+    if args.repeat is not None and not 1 <= args.repeat <= MAX_REPEAT:
+        raise RbstudyError(f"--repeat: need 1 to {MAX_REPEAT}, got {args.repeat}")
     # groups as conformance takes them: `bench builtin`, `bench --schemes mujoco,rk4`
     run_bench(
         schemes=expand_groups([*args.scheme_names, *(args.schemes or ())]) or None,
         body_steps=args.body_steps or BODY_STEPS,
+        repeat=args.repeat or 1,
         progress=not args.quiet,
         options=option_settings(args.option or ()),
     )

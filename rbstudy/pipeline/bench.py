@@ -6,7 +6,10 @@ layer, which reads archives and never loads numba.
 For each scheme: the first-call compilation time, then body-steps per second at batch sizes
 1, 100 and 10,000, on one thread and on all cores. Each measurement runs about
 ``BODY_STEPS`` body-steps (steps x bodies) and times the compiled batch call only; the rate is
-the number of steps actually taken divided by that time. For the adaptive `dop853` the
+the number of steps actually taken divided by that time; with ``repeat``, the best of that many
+runs (other programs only ever slow a run, so the best is the figure of the code itself, and
+two versions compare to a few percent on a shared machine where single runs differ by a
+quarter). For the adaptive `dop853` the
 "steps" are those of the output grid at ``BENCH_DT`` (its own steps are fewer and longer), so
 its figure is simulated time / BENCH_DT per second, comparable with the fixed-step schemes.
 The time step is small so that the explicit first-order schemes, whose energy grows every step, stay
@@ -17,7 +20,7 @@ below the blow-up bound over the long single-body run; output is sampled every
 import math
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -37,6 +40,7 @@ __all__ = [
     "abaqus_top_scene",
     "BODY_STEPS",
     "MAX_BODY_STEPS",
+    "MAX_REPEAT",
 ]
 
 BATCH_SIZES = (1, 100, 10_000)
@@ -45,6 +49,8 @@ BODY_STEPS = 10_000_000
 # the fastest scheme (six figures a scheme), and its single body keeps 1e6 samples (~100 MiB);
 # 1e18 asked for 92 PiB of samples.
 MAX_BODY_STEPS = 1_000_000_000
+# The most runs a figure may be the best of: 100 runs of the default figure are minutes a scheme.
+MAX_REPEAT = 100
 BENCH_DT = 1e-4
 SAMPLE_EVERY = 1_000
 # dop853 is per case in Python: a short run says enough about its cost.
@@ -131,16 +137,28 @@ def _label(scheme: Scheme, options: Mapping[str, Any]) -> str:
     return f"{scheme.name}*" if options else scheme.name
 
 
+class _Sizes(NamedTuple):
+    """What a row measures: the ``batch_sizes``, the ``body_steps`` of a figure, the ``cores``
+    of the second column, and how many runs a figure is the best of (``repeat``)."""
+
+    batch_sizes: Sequence[int]
+    body_steps: int
+    cores: int
+    repeat: int
+
+
 def run_bench(
     schemes: Iterable[str] | None = None,
     batch_sizes: Sequence[int] = BATCH_SIZES,
     body_steps: int = BODY_STEPS,
     progress: bool = True,
     options: Mapping[str, Any] | None = None,
+    repeat: int = 1,
 ) -> list[dict[str, Any]]:
     """Measure the figures and print them as a table on stdout, each scheme's compilation
     and measurements shown meanwhile (`rbstudy.pipeline.progress.Progress`) unless
-    ``progress`` is False; returns them as a list of dicts. ``options`` (name -> value) go to
+    ``progress`` is False; returns them as a list of dicts. Each figure is the best of
+    ``repeat`` runs. ``options`` (name -> value) go to
     each scheme that offers them (`scheme_options`), whose rows a footnote marks."""
     chosen = scheme_options([get_scheme(name) for name in schemes or SCHEMES], options or {})
     scene = abaqus_top_scene()
@@ -150,6 +168,7 @@ def run_bench(
         # two lines, each within 100 columns for any --body-steps and number of cores
         shown.echo(
             f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per figure,"
+            + (f" the best of {repeat} runs," if repeat > 1 else "")
         )
         shown.echo(
             f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {counted(cores, 'core')}"
@@ -165,8 +184,9 @@ def run_bench(
             f"{'scheme':{width}s} {'s':>9s}"
             + f" {'1 core':>{_RATE}s} {counted(cores, 'core'):>{_RATE}s}" * len(batch_sizes)
         )
+        sizes = _Sizes(batch_sizes, body_steps, cores, repeat)
         for scheme, own in chosen:
-            rows.append(_measure(scheme, own, scene, batch_sizes, body_steps, cores, width, shown))
+            rows.append(_measure(scheme, own, scene, sizes, width, shown))
         if options:
             settings = ", ".join(f"{name}={value}" for name, value in options.items())
             shown.echo(f"* with {settings}; the others have no such option")
@@ -177,9 +197,7 @@ def _measure(
     scheme: Scheme,
     options: dict[str, Any],
     scene: Scene,
-    batch_sizes: Sequence[int],
-    body_steps: int,
-    cores: int,
+    sizes: _Sizes,
     width: int,
     progress: Progress,
 ) -> dict[str, Any]:
@@ -194,18 +212,18 @@ def _measure(
     compile_seconds = time.perf_counter() - start
     line = f"{name:{width}s} {compile_seconds:9.2f}"
     row = {"scheme": scheme.name, "options": options, "compile_seconds": compile_seconds}
-    sizes = batch_sizes[:1] if scheme.adaptive else batch_sizes
-    progress.phase(f"bench: measuring {name}", 2 * len(sizes), "figures")
-    for size in batch_sizes:
-        steps = max(1, body_steps // size)
+    measured = sizes.batch_sizes[:1] if scheme.adaptive else sizes.batch_sizes
+    progress.phase(f"bench: measuring {name}", 2 * len(measured), "figures")
+    for size in sizes.batch_sizes:
+        steps = max(1, sizes.body_steps // size)
         if scheme.adaptive:
             if size > 1:
                 line += f" {'-':>{_RATE}s} {'-':>{_RATE}s}"
                 continue
             steps = REFERENCE_STEPS
-        for threads in (1, cores):
+        for threads in (1, sizes.cores):
             progress.update(f"bench: {name}, B={size} on {counted(threads, 'thread')}")
-            rate, _ = _rate(scheme, scene, size, steps, threads, options)
+            rate = max(_rate(scheme, scene, size, steps, threads, options)[0] for _ in range(sizes.repeat))
             row[f"B{size}_threads{threads}"] = rate
             line += f" {rate:{_RATE}.3e}"
             progress.advance()

@@ -1,6 +1,6 @@
 """What the Newton solvers of the implicit schemes (midpoint, hht) share: their settings, the
 test after each pass (`newton_test`, both paths) and a block lane's record of it
-(`book_newton_pass`)."""
+(`book_newton_pass`: hht's; midpoint's loop, which vectorises, books its own lanes)."""
 
 import math
 

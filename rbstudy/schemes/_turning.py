@@ -44,8 +44,8 @@ def turning_step(advance, y, p, t, h):
     )
     write3(y, S.POSITION, x)
     write3(y, S.VELOCITY, v)
-    write3(y, S.OMEGA, w)
     write4(y, S.QUATERNION, quat_normalize(quat_mul(q, quat_exp_poly(turn))))
+    write3(y, S.OMEGA, w)
     return OK, 0
 
 

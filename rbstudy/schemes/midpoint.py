@@ -58,7 +58,7 @@ from rbstudy.schemes._kicks import (
     kick_block,
     kick_inplace,
 )
-from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL, book_newton_pass, newton_test
+from rbstudy.schemes._newton import NEWTON_MAX_ITERATIONS, NEWTON_RTOL, newton_test
 from rbstudy.schemes._registry import Scheme, Style, option_slots, scratch_rows
 
 # work: the carry of the compensated sums
@@ -215,8 +215,13 @@ def _block_newton(block, h, iteration):
         iterating = B.at(block, _ACTIVE, lane) != 0.0
         converged, _, going_on = newton_test(iterating, size, NEWTON_RTOL * norm(u_next), iteration)
         B.set_column3(block, _ITERATE, lane, u_next if iterating else B.column3(block, _ITERATE, lane))
-        taken = iteration if iterating else B.at(block, _STAGE_ITERATIONS, lane)
-        active += book_newton_pass(block, _ACTIVE, lane, converged, going_on, taken)
+        # booked here, not by `_newton.book_newton_pass` as hht's lanes are: this loop
+        # vectorises, and through that helper it ran slower (`rbstudy bench`, B = 1e4)
+        taken = B.at(block, _STAGE_ITERATIONS, lane)
+        block[_STAGE_ITERATIONS * B.BLOCK + lane] = iteration if iterating else taken
+        block[_CONVERGED * B.BLOCK + lane] = 1.0 if converged else B.at(block, _CONVERGED, lane)
+        block[_ACTIVE * B.BLOCK + lane] = 1.0 if going_on else 0.0
+        active += 1 if going_on else 0
     return active
 
 
