@@ -211,15 +211,15 @@ def test_version_and_a_quick_bench(capsys):
 
 
 def test_bench_repeat_takes_the_best_of_its_runs(capsys, monkeypatch):
-    """`bench --repeat N`: each figure is the fastest of N runs (a busy machine only slows a
-    run), said in the table's first line; N outside 1..100 is one error line."""
+    """`bench --repeat N`: each figure is the fastest of N rounds of the table (a busy machine
+    only slows a run), said in the table's first line; N outside 1..100 is one error line."""
     from rbstudy.pipeline import bench
 
-    rates = iter([1e6, 3e6, 2e6] * 6)  # each figure's three runs, the second the fastest
+    rates = iter([1e6] * 6 + [3e6] * 6 + [2e6] * 6)  # three rounds of six figures, the second fastest
     monkeypatch.setattr(bench, "_rate", lambda *args: (next(rates), None))
     assert main(["bench", "euler", "--body-steps", "2000", "--repeat", "3", "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "per figure, the best of 3 runs," in out and max(map(len, out.splitlines())) <= 100
+    assert "per figure, the best of 3 rounds," in out and max(map(len, out.splitlines())) <= 100
     row = next(line.split() for line in out.splitlines() if line.startswith("euler"))
     assert [float(rate) for rate in row[2:]] == [3e6] * 6
     for bad in ("0", "101"):

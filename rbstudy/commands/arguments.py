@@ -258,8 +258,8 @@ def add_bench(commands: Verbs) -> argparse.ArgumentParser:
         "--repeat",
         type=_whole_number,
         metavar="N",
-        help="each figure the best of N runs (default 1; a busy machine only slows a run, so "
-        "the best of 10 compares two versions to a few percent)",
+        help="each figure the best of N rounds of the whole table (default 1; other programs only "
+        "slow a run, so the best of many is nearest the code's own figure)",
     )
     bench.add_argument(
         "--option",

@@ -7,9 +7,8 @@ For each scheme: the first-call compilation time, then body-steps per second at 
 1, 100 and 10,000, on one thread and on all cores. Each measurement runs about
 ``BODY_STEPS`` body-steps (steps x bodies) and times the compiled batch call only; the rate is
 the number of steps actually taken divided by that time; with ``repeat``, the best of that many
-runs (other programs only ever slow a run, so the best is the figure of the code itself, and
-two versions compare to a few percent on a shared machine where single runs differ by a
-quarter). For the adaptive `dop853` the
+rounds of the whole table (other programs only ever slow a run, so the best is nearest the
+figure of the code itself). For the adaptive `dop853` the
 "steps" are those of the output grid at ``BENCH_DT`` (its own steps are fewer and longer), so
 its figure is simulated time / BENCH_DT per second, comparable with the fixed-step schemes.
 The time step is small so that the explicit first-order schemes, whose energy grows every step, stay
@@ -158,7 +157,7 @@ def run_bench(
     """Measure the figures and print them as a table on stdout, each scheme's compilation
     and measurements shown meanwhile (`rbstudy.pipeline.progress.Progress`) unless
     ``progress`` is False; returns them as a list of dicts. Each figure is the best of
-    ``repeat`` runs. ``options`` (name -> value) go to
+    ``repeat`` rounds. ``options`` (name -> value) go to
     each scheme that offers them (`scheme_options`), whose rows a footnote marks."""
     chosen = scheme_options([get_scheme(name) for name in schemes or SCHEMES], options or {})
     scene = abaqus_top_scene()
@@ -168,7 +167,7 @@ def run_bench(
         # two lines, each within 100 columns for any --body-steps and number of cores
         shown.echo(
             f"rbstudy bench: Abaqus top, dt = {BENCH_DT:g} s, ~{body_steps:.0e} body-steps per figure,"
-            + (f" the best of {repeat} runs," if repeat > 1 else "")
+            + (f" the best of {repeat} rounds," if repeat > 1 else "")
         )
         shown.echo(
             f"  at least one step per body (dop853: {REFERENCE_STEPS} steps), {counted(cores, 'core')}"
@@ -185,12 +184,34 @@ def run_bench(
             + f" {'1 core':>{_RATE}s} {counted(cores, 'core'):>{_RATE}s}" * len(batch_sizes)
         )
         sizes = _Sizes(batch_sizes, body_steps, cores, repeat)
-        for scheme, own in chosen:
-            rows.append(_measure(scheme, own, scene, sizes, width, shown))
+        rows = [_compiled(scheme, own, shown) for scheme, own in chosen]
+        # round after round of the whole table, not one figure's runs in a row: a busy spell
+        # of the machine then slows a few runs of each figure, not every run of some
+        for round_ in range(repeat):
+            for (scheme, own), row in zip(chosen, rows, strict=True):
+                _measure(scheme, own, scene, sizes, row, shown)
+                if round_ == repeat - 1:
+                    shown.echo(_line(row, sizes, width))
         if options:
             settings = ", ".join(f"{name}={value}" for name, value in options.items())
             shown.echo(f"* with {settings}; the others have no such option")
     return rows
+
+
+def _compiled(scheme: Scheme, options: dict[str, Any], progress: Progress) -> dict[str, Any]:
+    """A scheme's row, its kernels compiled (or loaded from the cache) and their time taken:
+    the compile column counts the scheme's plain kernels; options that pick kernels of their
+    own (``compensated``) compile them before the first figure's clock starts
+    (`rbstudy.numerics.entry.CachedEntry.prepare`), so no rate counts a compilation."""
+    progress.phase(f"bench: compiling {_label(scheme, options)}")
+    start = time.perf_counter()
+    scheme.ensure_compiled()
+    return {
+        "scheme": scheme.name,
+        "options": options,
+        "compile_seconds": time.perf_counter() - start,
+        "label": _label(scheme, options),
+    }
 
 
 def _measure(
@@ -198,34 +219,29 @@ def _measure(
     options: dict[str, Any],
     scene: Scene,
     sizes: _Sizes,
-    width: int,
+    row: dict[str, Any],
     progress: Progress,
-) -> dict[str, Any]:
-    """One scheme's row of figures with its ``options``, printed as a line of the table by
-    ``progress``. The compile column counts the scheme's plain kernels; options that pick
-    kernels of their own (``compensated``) compile them before the first figure's clock
-    starts (`rbstudy.numerics.entry.CachedEntry.prepare`), so no rate counts a compilation."""
-    name = _label(scheme, options)
-    progress.phase(f"bench: compiling {name}")
-    start = time.perf_counter()
-    scheme.ensure_compiled()
-    compile_seconds = time.perf_counter() - start
-    line = f"{name:{width}s} {compile_seconds:9.2f}"
-    row = {"scheme": scheme.name, "options": options, "compile_seconds": compile_seconds}
+) -> None:
+    """One run of each of a scheme's figures with its ``options``, each kept in ``row`` where
+    it is the best so far (`_compiled`'s row)."""
+    name = row["label"]
     measured = sizes.batch_sizes[:1] if scheme.adaptive else sizes.batch_sizes
     progress.phase(f"bench: measuring {name}", 2 * len(measured), "figures")
-    for size in sizes.batch_sizes:
-        steps = max(1, sizes.body_steps // size)
-        if scheme.adaptive:
-            if size > 1:
-                line += f" {'-':>{_RATE}s} {'-':>{_RATE}s}"
-                continue
-            steps = REFERENCE_STEPS
+    for size in measured:
+        steps = REFERENCE_STEPS if scheme.adaptive else max(1, sizes.body_steps // size)
         for threads in (1, sizes.cores):
             progress.update(f"bench: {name}, B={size} on {counted(threads, 'thread')}")
-            rate = max(_rate(scheme, scene, size, steps, threads, options)[0] for _ in range(sizes.repeat))
-            row[f"B{size}_threads{threads}"] = rate
-            line += f" {rate:{_RATE}.3e}"
+            key = f"B{size}_threads{threads}"
+            row[key] = max(row.get(key, 0.0), _rate(scheme, scene, size, steps, threads, options)[0])
             progress.advance()
-    progress.echo(line)
-    return row
+
+
+def _line(row: dict[str, Any], sizes: _Sizes, width: int) -> str:
+    """A scheme's line of the table: its name, compile time and best rates (``-`` for the
+    batch sizes an adaptive scheme is not measured at)."""
+    line = f"{row['label']:{width}s} {row['compile_seconds']:9.2f}"
+    for size in sizes.batch_sizes:
+        for threads in (1, sizes.cores):
+            rate = row.get(f"B{size}_threads{threads}")
+            line += f" {'-':>{_RATE}s}" if rate is None else f" {rate:{_RATE}.3e}"
+    return line

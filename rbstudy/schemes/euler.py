@@ -87,8 +87,7 @@ SCHEME = Scheme(
     name="euler",
     summary="explicit Euler on (m, R); energy and |L| grow every step",
     step_seconds=5.6e-08,
-    # in blocks of bodies, 3.1x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=1.8e-08,
     order=1,
     implicit=False,

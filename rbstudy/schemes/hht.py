@@ -386,8 +386,7 @@ SCHEME = Scheme(
     name="hht",
     summary="Newmark/HHT-alpha on SO(3), material form (Abaqus implicit dynamics)",
     step_seconds=1.59e-07,
-    # in blocks of bodies, 3.2x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=5.0e-08,
     order=2,
     implicit=True,

@@ -83,8 +83,7 @@ SCHEME = Scheme(
     name="leapfrog",
     summary="OpenRadioss central difference: lagged gyroscopic term, Rodrigues frame update",
     step_seconds=7.5e-08,
-    # in blocks of bodies, 3.4x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=2.2e-08,
     order=1,
     implicit=False,

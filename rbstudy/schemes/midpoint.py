@@ -263,8 +263,7 @@ SCHEME = Scheme(
     name="midpoint",
     summary="implicit midpoint on m with Cayley frame update; energy and L kept exactly",
     step_seconds=1.53e-07,
-    # in blocks of bodies, 4.35x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=3.5e-08,
     order=2,
     implicit=True,

@@ -278,8 +278,7 @@ SCHEME = Scheme(
     name="no_squish",
     summary="NO_SQUISH: DLM splitting on quaternion + conjugate momentum (LAMMPS form)",
     step_seconds=2.32e-07,
-    # in blocks of bodies, 5.85x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=4.0e-08,
     order=2,
     implicit=False,

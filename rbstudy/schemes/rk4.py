@@ -227,8 +227,7 @@ SCHEME = Scheme(
     name="rk4",
     summary="classical Runge-Kutta 4 on (q, w), quaternion renormalised each step",
     step_seconds=1.28e-07,
-    # in blocks of bodies, 4.45x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=2.9e-08,
     order=4,
     implicit=False,

@@ -285,8 +285,7 @@ SCHEME = Scheme(
     name="rkmk4",
     summary="Runge-Kutta-Munthe-Kaas 4: RK4 in the Lie algebra, frame exactly on SO(3)",
     step_seconds=2.67e-07,
-    # in blocks of bodies, 4.4x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block step: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=6.1e-08,
     order=4,
     implicit=False,

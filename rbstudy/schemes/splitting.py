@@ -234,8 +234,7 @@ SCHEME = Scheme(
     name="splitting",
     summary="DLM symplectic splitting into exact axis rotations; |L| and L kept exactly",
     step_seconds=1.74e-07,
-    # in blocks of bodies, 5.1x the rate of one body after another (`rbstudy bench`,
-    # one core, 1e4 bodies, before and after the block steps: docs/performance.md)
+    # a body-step in blocks of bodies (`rbstudy bench`, B = 1e4 on one core)
     block_step_seconds=3.4e-08,
     order=2,
     implicit=False,
