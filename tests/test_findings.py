@@ -107,7 +107,7 @@ def _spread_like_status(ds, name):
 def _expected_picks(ds):
     """The cheapest accurate (scheme, dt, seconds) per value of the other axes, numpy only;
     of the candidates whose cost ranges (step_seconds_uncertainty) overlap the cheapest's,
-    the one of least final orientation error."""
+    each scheme's cheapest only, the one of least final orientation error."""
     status, accuracy = ds["status"], ds["accuracy"]
     order = _first_axes(ds) + _others(ds)
     good = (accuracy.values == 0) & (status.values == 0)
@@ -128,7 +128,13 @@ def _expected_picks(ds):
             picks.append(None)
             continue
         least = np.unravel_index(np.argmin(seconds), seconds.shape)
-        tied = seconds * (1 - spread[here]) <= seconds[least] * (1 + spread[here][least])
+        # a scheme's own steps compare exactly (they share its cost per step's uncertainty):
+        # only its cheapest may tie
+        first = _first_axes(ds)
+        steps = tuple(k for k, d in enumerate(first) if d != "scheme")
+        own_least = seconds.min(axis=steps, keepdims=True)
+        overlap = seconds * (1 - spread[here]) <= seconds[least] * (1 + spread[here][least])
+        tied = overlap & (seconds == own_least)
         best = np.unravel_index(np.argmin(np.where(tied, error[here], np.inf)), seconds.shape)
         at = dict(zip(_first_axes(ds), best, strict=True))
         picks.append((str(schemes[at.get("scheme", 0)]), float(dts[at.get("dt", 0)]), float(seconds[best])))
@@ -162,7 +168,8 @@ def test_the_recommendation_is_the_cheapest_accurate_case(archives, name):
     if ok.any():
         costs = np.where(ok, mean, np.inf)
         least = np.unravel_index(np.argmin(costs), ok.shape)
-        tied = costs * (1 - spread) <= costs[least] * (1 + spread[least])
+        own_least = costs.min(axis=tuple(k for k, d in enumerate(axes) if d != "scheme"), keepdims=True)
+        tied = (costs * (1 - spread) <= costs[least] * (1 + spread[least])) & (costs == own_least)
         at = np.unravel_index(np.argmin(np.where(tied, np.nan_to_num(worst, nan=np.inf), np.inf)), ok.shape)
         pick = dict(zip(axes, at, strict=True))
         scheme = str(np.atleast_1d(ds["scheme"].values)[pick.get("scheme", 0)])

@@ -128,7 +128,7 @@ def _uncertainty_limit(uncertainty, facet, value, reduced, like):
 
 def _fitted_lines(dts, key, line_dim, worst, failed, limits, floors):
     """The `FittedLine` of each line of a panel: its ``worst`` errors, whether a case
-    ``failed``, its ``limits`` and round-off ``floors``, and the order fitted through them."""
+    ``failed``, its ``limits`` and the measure's ``floors``, and the order fitted through them."""
     return [
         FittedLine(
             line.label,
@@ -138,6 +138,7 @@ def _fitted_lines(dts, key, line_dim, worst, failed, limits, floors):
             bool(failure.data.values.any()),
             limit.data.values,
             floor.data.values,
+            ERROR_MEASURES[key].floor_kind,
         )
         for line, failure, limit, floor in zip(
             lines_of(worst, line_dim),
@@ -310,9 +311,9 @@ def _legend_label(panels: _Panels, group: list[int], name: str) -> str:
     orders over the panels, or value by value where axes are reduced."""
     first = group[0]
     if panels.reduced:
-        return values_label(name, [lines[first] for lines in panels.value_fits], panels.reduced) + aside(
-            missing_text(panels.bands, panels.line_dim, first, panels.behind), "; {}"
-        )
+        fits, kind = [lines[first] for lines in panels.value_fits], ERROR_MEASURES[panels.key].floor_kind
+        missing = missing_text(panels.bands, panels.line_dim, first, panels.behind)
+        return values_label(name, fits, panels.reduced, kind) + aside(missing, "; {}")
     return fit_label(
         name,
         [fit_text(lines[first]) for lines in panels.fits],
@@ -354,14 +355,16 @@ def _draw(
 ) -> pathlib.Path:
     """Draw and write the figure of ``panels`` (``measure``, the errors of every case);
     returns its first file."""
-    floor = ERROR_MEASURES[panels.key].floor
+    spec = ERROR_MEASURES[panels.key]
+    floor_name = "round-off" if spec.floor_kind == "round-off" else f"the {spec.floor_kind} floor"
     # the lines are the same in every panel: those that coincide in every case (as
     # `coinciding_lines` tells the caption, below the measure's constant floor) are drawn on
     # top of each other in turn and named together
     rows = [line.data.values.ravel() for line in lines_of(measure, panels.line_dim)]
-    groups = coincident(rows, floor)
+    groups = coincident(rows, spec.floor)
+    line_names = [line.label for line in panels.fits[0]]
     names = {
-        group[0]: together([panels.fits[0][j].label for j in group], [rows[j] for j in group], floor)
+        group[0]: together([line_names[j] for j in group], [rows[j] for j in group], spec.floor, floor_name)
         for group in groups
     }
     drawn = group_styles(groups, [line.key for line in panels.fits[0]], schemes)

@@ -20,8 +20,9 @@ __all__ = ["FittedLine", "fit_text", "fit_label", "value_fits", "values_label"]
 class FittedLine(NamedTuple):
     """A line of a convergence panel: its `rbstudy.analysis.figure_lines.Line` label and
     style key, its ``errors`` (one per dt), the order ``fit`` through them (`fitted_order`),
-    whether a case ``failed`` on it, and per dt the reference's uncertainty (``limits``) and
-    the round-off floor (``floors``)."""
+    whether a case ``failed`` on it, per dt the reference's uncertainty (``limits``) and the
+    measure's floor (``floors``), and what sets that floor (``floor_kind``,
+    `rbstudy.analysis.measures.ErrorMeasure`)."""
 
     label: str
     key: str | int
@@ -30,6 +31,7 @@ class FittedLine(NamedTuple):
     failed: bool
     limits: np.ndarray
     floors: np.ndarray
+    floor_kind: str = "round-off"
 
 
 def fit_text(line: FittedLine) -> str:
@@ -47,7 +49,7 @@ def fit_text(line: FittedLine) -> str:
         text = "exact at every dt"
     elif why := at_floor(errors, line.floors, line.limits / UNCERTAINTY_FACTOR):  # in a legend's ( )
         text = (
-            "at the round-off floor"
+            f"at the {line.floor_kind} floor"
             if why == "round-off"
             else f"within {UNCERTAINTY_FACTOR:g}x the reference's uncertainty"
         )
@@ -110,11 +112,17 @@ def value_fits(
     return result
 
 
-def values_label(name: str, fits: list[list[tuple[OrderFit, str | None]]], reduced: list[str]) -> str:
+def values_label(
+    name: str,
+    fits: list[list[tuple[OrderFit, str | None]]],
+    reduced: list[str],
+    floor_kind: str = "round-off",
+) -> str:
     """The legend entry of a line that stands for the values of ``reduced`` axes: its orders
     fitted value by value (``fits``: per panel, a (fit, floor) pair per value, `value_fits`),
     ``rk4 (order 3.98-4.02, finest 3.9-4.1, at 12 of 17 values of inertia_ratio)``; a line
-    whose every value lies at a floor says which (exact_split's round-off)."""
+    whose every value lies at a floor says which (exact_split's round-off; ``floor_kind``, the
+    measure's)."""
     every = [pair for panel in fits for pair in panel]
     fitted = [fit for fit, _ in every if np.isfinite(fit.order)]
     axes = ", ".join(reduced)
@@ -122,7 +130,7 @@ def values_label(name: str, fits: list[list[tuple[OrderFit, str | None]]], reduc
     if not fitted:
         floors = {floor for _, floor in every}
         if floors == {"round-off"}:
-            return f"{name} (at the round-off floor at all {len(every)} values of {axes})"
+            return f"{name} (at the {floor_kind} floor at all {len(every)} values of {axes})"
         return f"{name} (no asymptotic range at any of {len(every)} values of {axes})"
     orders = f"order {span([f.order for f in fitted])}, finest {span([f.finest_slope for f in fitted])}"
     return f"{name} ({orders}, {where})"

@@ -8,9 +8,12 @@
    study, then one per distinct answer where the values of the other swept axes disagree, or
    a statement that no case meets the bound (the numbers: `rbstudy.analysis.recommend`);
    then, where cases failed, one per status: the cases, what it means and what to try
-   (`rbstudy.numerics.state.STATUSES`, as the scorecard says it);
+   (`rbstudy.numerics.state.STATUSES`, as the scorecard says it); where the body flips about
+   its intermediate axis, the exact flip interval and which schemes lost or added flips
+   (`rbstudy.analysis.flips`);
 2. coincidences: schemes whose final orientation errors agree to 3 digits in every case;
-3. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`;
+3. each scheme's verdict in one line, from `rbstudy.analysis.summary.scheme_rows`, then
+   where the body flips each scheme's flip-interval error, its order and its flips;
 4. the study's own question, for every swept axis other than scheme and ``dt`` (a scheme
    option, a body parameter): the order and energy change per value where ``dt`` is swept,
    the accuracy verdicts per value where it is not. A scheme along which nothing changes is
@@ -23,14 +26,15 @@ other forms of the summary (JSON, Markdown, CSV) are `rbstudy.analysis.summary_f
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
+from rbstudy.analysis.finding import Finding
+from rbstudy.analysis.flips import FLIP_VARIABLES, flip_findings
 from rbstudy.analysis.places import (
     SHOWN_VALUES,
     CaseLabels,
@@ -96,7 +100,7 @@ __all__ = [
 # What `findings` reads: the table's per-case scalars (the calibrated step cost among them),
 # the energy series whose last value says whether a scheme gains or loses energy, and the
 # cost's uncertainty, within which two costs are a tie.
-FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertainty")
+FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertainty", *FLIP_VARIABLES)
 # Of those, the time series the findings reduce along time, and how; read so
 # (`rbstudy.archive.load.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
@@ -109,22 +113,6 @@ EDGE_SHARE = 0.01
 MAX_LINE = 100
 # What an older archive's recommendation adds: its costs move with its run's timer.
 _UNCALIBRATED = "; costed by run_time, which moves between runs (sweep again to store calibrated step costs)"
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class Finding:
-    """One statement about a study.
-
-    kind: ``recommendation``, ``no_recommendation``, ``failure``, ``coincidence``,
-    ``question`` or ``verdict``; text: the statement, one line; numbers: the values it states, by name (units
-    in the names); cases: the cases it rests on, each a mapping of coordinate names to values
-    (a coordinate not named: every value of it).
-    """
-
-    kind: str
-    text: str
-    numbers: dict[str, Any]
-    cases: Sequence[Mapping[str, Any]]
 
 
 def _choice_text(choice: Choice) -> str:
@@ -558,10 +546,13 @@ def findings(ds: xr.Dataset, rows: list[dict[str, Any]] | None = None) -> list[F
     ``rows``: its `scheme_rows`, where the caller has them already."""
     rates = energy_rates(ds)
     rows = scheme_rows(ds) if rows is None else rows
+    flips, scheme_flips = flip_findings(ds)
     return (
         _recommendation_findings(ds)
         + _failures(ds)
+        + flips
         + _coincidences(ds)
         + [_verdict(ds, row, rates) for row in rows]
+        + scheme_flips
         + _questions(ds, rates)
     )

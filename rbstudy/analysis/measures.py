@@ -36,7 +36,9 @@ class ErrorMeasure(NamedTuple):
     an error is round-off, above the ceiling it is not asymptotic (or the run failed).
     variable : the archive's variable. uncertainty : the variable of the uncertainty of its
     reference, or None (a closed form, or a measure not against a reference). turns : whether
-    its round-off grows with the angle the body turns (`round_off_of`).
+    its round-off grows with the angle the body turns (`round_off_of`). floor_kind : what sets
+    its floor, in the words the figures say it with (``"round-off"``, or ``"sampling"`` for a
+    time read between samples).
     """
 
     label: str
@@ -46,6 +48,7 @@ class ErrorMeasure(NamedTuple):
     variable: str
     uncertainty: str | None = None
     turns: bool = False
+    floor_kind: str = "round-off"
 
 
 # The floor is a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
@@ -106,9 +109,15 @@ ERROR_MEASURES = {
         ceiling=1e-1,
         variable="precession_frequency_error",
     ),
-    # zero crossings of samples placed by linear interpolation: ~1e-6 s at best
+    # zero crossings of samples placed by linear interpolation: ~1e-6 s at best, the floor of
+    # the sampling, far above the float64 round-off of the motion
     "flip": ErrorMeasure(
-        label="|flip interval error|", units="s", floor=1e-5, ceiling=1.0, variable="flip_interval_error"
+        label="|flip interval error|",
+        units="s",
+        floor=1e-5,
+        ceiling=1.0,
+        variable="flip_interval_error",
+        floor_kind="sampling",
     ),
 }
 # An error within this factor of its reference's uncertainty says as much about the reference

@@ -41,12 +41,15 @@ __all__ = ["NEAR_POINTS", "coincident", "together", "coinciding_lines", "panel_o
 NEAR_POINTS = 2.0
 
 
-def together(names: Sequence[str], rows: Sequence[Any] | None = None, floor: float = 0.0) -> str:
+def together(
+    names: Sequence[str], rows: Sequence[Any] | None = None, floor: float = 0.0, floor_name: str = "round-off"
+) -> str:
     """The name of lines drawn on top of each other (`coincident` of their ``rows`` of
     values with the round-off ``floor``): ``euler = leapfrog to 3 digits``, ``... to 3
     digits above round-off (1e-13)`` where they agree only once values at the floor count as
     one, ``... (at round-off: at most 1e-12)`` where every value is there, ``... (exactly 0
-    throughout)`` where every value is 0; or a line's own name."""
+    throughout)`` where every value is 0; or a line's own name. ``floor_name`` names the
+    floor (``the sampling floor`` of a flip interval)."""
     joined = " = ".join(names)
     if len(names) == 1 or rows is None:
         return joined if len(names) == 1 else f"{joined} to {COINCIDENT_DIGITS} digits"
@@ -55,9 +58,9 @@ def together(names: Sequence[str], rows: Sequence[Any] | None = None, floor: flo
         return f"{joined} (exactly 0 throughout)"
     if floor > 0:
         if finite.size and np.all(np.abs(finite) <= floor):
-            return f"{joined} (at round-off: at most {floor:g})"
+            return f"{joined} (at {floor_name}: at most {floor:g})"
         if not all(agree(rows[0], row) for row in rows[1:]):
-            return f"{joined} to {COINCIDENT_DIGITS} digits above round-off ({floor:g})"
+            return f"{joined} to {COINCIDENT_DIGITS} digits above {floor_name} ({floor:g})"
     return f"{joined} to {COINCIDENT_DIGITS} digits"
 
 

@@ -301,6 +301,22 @@ VARIABLES = {
             description="flip_interval minus flip_interval_exact",
             needs=("asymmetric",),
         ),
+        _v(
+            name="flip_count",
+            dims=(),
+            units="1",
+            long_name="flips in the run",
+            description="sign changes of the intermediate-axis rate between samples",
+            needs=("asymmetric",),
+        ),
+        _v(
+            name="flip_count_exact",
+            dims=(),
+            units="1",
+            long_name="flips of the exact solution",
+            description="sign changes of the exact intermediate-axis rate between the same samples",
+            needs=("asymmetric",),
+        ),
         _result(
             name="status",
             units="1",

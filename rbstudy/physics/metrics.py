@@ -21,6 +21,7 @@ __all__ = [
     "momentum_error",
     "phase_rate",
     "sign_change_interval",
+    "sign_changes",
     "asymptotic_order",
     "OrderFit",
     "ORDER_SPREAD",
@@ -131,6 +132,15 @@ def sign_change_interval(values: npt.ArrayLike, time: npt.ArrayLike) -> float:
         return float("nan")
     crossings = time[k] - values[k] * (time[k + 1] - time[k]) / (values[k + 1] - values[k])
     return float(np.diff(crossings).mean())
+
+
+def sign_changes(values: npt.ArrayLike) -> np.ndarray:
+    """How many times ``values`` (..., T) change sign between neighbouring samples, along the
+    last axis (a free asymmetric body's flips, from its intermediate-axis rate): a float
+    array of the leading shape, NaN where any sample is not finite."""
+    values = np.asarray(values, dtype=float)
+    counts = np.count_nonzero(np.signbit(values[..., 1:]) != np.signbit(values[..., :-1]), axis=-1)
+    return np.where(np.all(np.isfinite(values), axis=-1), counts.astype(float), np.nan)
 
 
 class OrderFit(NamedTuple):

@@ -139,13 +139,27 @@ class BatchData:
         return np.where(self.free, exact, np.nan)
 
     @cached_property
+    def middle_rates(self) -> np.ndarray:
+        """(B, T) rad/s: each body's rate about its intermediate principal axis."""
+        middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
+        return np.take_along_axis(self.run.omega_body, middle[:, None, None], axis=2)[..., 0]
+
+    @cached_property
     def measured_flip(self) -> np.ndarray:
         """(B,) s: mean time between sign changes of each body's intermediate-axis rate."""
+        time = self.run.time
+        return np.array([metrics.sign_change_interval(rates, time) for rates in self.middle_rates])
+
+    @cached_property
+    def flip_counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(B,) each, the sign changes of each body's intermediate-axis rate at the samples:
+        the run's, and its exact solution's at the same samples (NaN where the body is not
+        free and asymmetric, or its run failed)."""
         middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
-        omega, time = self.run.omega_body, self.run.time
-        return np.array(
-            [metrics.sign_change_interval(omega[b, :, axis], time) for b, axis in enumerate(middle)]
-        )
+        exact = np.take_along_axis(self.reference("omega_body"), middle[:, None, None], axis=2)[..., 0]
+        chosen = np.isfinite(self.exact_flip)
+        run = np.where(chosen, metrics.sign_changes(self.middle_rates), np.nan)
+        return run, np.where(chosen, metrics.sign_changes(exact), np.nan)
 
     @cached_property
     def exact_flip(self) -> np.ndarray:

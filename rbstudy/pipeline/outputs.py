@@ -312,6 +312,36 @@ def flip_interval_error(batch: BatchData) -> np.ndarray:
     return batch.measured_flip - batch.exact_flip
 
 
+def flip_count(batch: BatchData) -> np.ndarray:
+    """Sign changes of the intermediate-axis rate at the samples: the run's flips.
+
+    Parameters
+    ----------
+    batch : BatchData
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        1 (a count; NaN where the run failed)
+    """
+    return batch.flip_counts[0]
+
+
+def flip_count_exact(batch: BatchData) -> np.ndarray:
+    """Sign changes of the exact solution's intermediate-axis rate at the same samples.
+
+    Parameters
+    ----------
+    batch : BatchData
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        1 (a count)
+    """
+    return batch.flip_counts[1]
+
+
 def run_time(batch: BatchData) -> np.ndarray:
     """Kernel time of each case.
 
