@@ -139,10 +139,14 @@ class BatchData:
         return np.where(self.free, exact, np.nan)
 
     @cached_property
+    def middle_axes(self) -> np.ndarray:
+        """(B,) each body's intermediate principal axis (0, 1 or 2)."""
+        return np.argsort(self.principal_inertia, axis=1)[:, 1]
+
+    @cached_property
     def middle_rates(self) -> np.ndarray:
         """(B, T) rad/s: each body's rate about its intermediate principal axis."""
-        middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
-        return np.take_along_axis(self.run.omega_body, middle[:, None, None], axis=2)[..., 0]
+        return np.take_along_axis(self.run.omega_body, self.middle_axes[:, None, None], axis=2)[..., 0]
 
     @cached_property
     def measured_flip(self) -> np.ndarray:
@@ -155,8 +159,8 @@ class BatchData:
         """(B,) each, the sign changes of each body's intermediate-axis rate at the samples:
         the run's, and its exact solution's at the same samples (NaN where the body is not
         free and asymmetric, or its run failed)."""
-        middle = np.argsort(self.principal_inertia, axis=1)[:, 1]
-        exact = np.take_along_axis(self.reference("omega_body"), middle[:, None, None], axis=2)[..., 0]
+        axes = self.middle_axes[:, None, None]
+        exact = np.take_along_axis(self.reference("omega_body"), axes, axis=2)[..., 0]
         chosen = np.isfinite(self.exact_flip)
         run = np.where(chosen, metrics.sign_changes(self.middle_rates), np.nan)
         return run, np.where(chosen, metrics.sign_changes(exact), np.nan)
