@@ -155,7 +155,7 @@ def test_an_empty_mapping_and_a_name_yaml_reads_as_a_number_take_overrides(tmp_p
             ["--set", "scene.duraton=1"],
             "{config}: --set scene.duraton: unknown key (did you mean "
             "'duration'?); valid keys here: body, assembly, initial, "
-            "nodes, loads, duration",
+            "nodes, pivot, loads, duration",
         ),
         (
             ["--set", "scene.laods.moment_body=[0, 0, 1]"],

@@ -147,6 +147,15 @@ class _LoadSets:
         loads = self.constant if value.ndim == 2 else self.tabulated
         loads[name] = loads[name] + value
 
+    def hold(self):
+        """Take out every force's push on the centre (the kinds that move it): a body held at
+        a fixed point, whose reaction cancels it there; their moments stay."""
+        for kind in LOAD_KINDS:
+            if kind.moves_centre:
+                self.constant[kind.name] = np.zeros_like(self.constant[kind.name])
+                if kind.tabulated:
+                    self.tabulated[kind.name] = np.zeros_like(self.tabulated[kind.name])
+
     def columns(self):
         """The `SceneTable.loads` columns: the constant loads, the knots and the records
         (read-only views, of one row when every scene has the same)."""
@@ -176,10 +185,18 @@ def _add_nodal_loads(nodal, loads, points, axes):
             if load in _IN_BODY_AXES:
                 given = in_principal(axes, given)
             loads.add(load, given)
-            if load == "force_space":
-                loads.add("lever", _lever(offset, given))
-            elif load == "force_body":
-                loads.add("moment_body", np.cross(_along(offset, given), given))
+            _add_moment(loads, load, given, offset)
+
+
+def _add_moment(loads, load, given, offset):
+    """Add to ``loads`` the moment of a force ``given`` of kind ``load`` (another kind: none)
+    at principal ``offset`` (n, 3) from the point the body turns about: a body-axis force a
+    body moment, a space-axis force one that turns with the body (the lever, evaluated every
+    step by the kernels)."""
+    if load == "force_space":
+        loads.add("lever", _lever(offset, given))
+    elif load == "force_body":
+        loads.add("moment_body", np.cross(_along(offset, given), given))
 
 
 def _below_zero(given: np.ndarray) -> Callable[[int], str]:
@@ -195,6 +212,7 @@ def read_loads(
     axes: np.ndarray | None,
     first_moment: np.ndarray | None,
     size: int,
+    held: np.ndarray | None = None,
 ) -> tuple[dict[str, np.ndarray], tuple[FileBinding, ...]]:
     """The `rbstudy.physics.scenes.SceneTable.loads` columns of the ``scene.loads`` block
     ``spec`` (at ``path``) of ``size`` scenes, and the load table files read
@@ -203,7 +221,11 @@ def read_loads(
     ``points``: node name -> offsets (n, 3) in principal axes, the nodes a load may act at;
     ``axes`` (n, 3, 3): the principal axes in the input body frame as columns, None for the
     identity; ``first_moment`` (n, 3) kg m in principal axes: an assembled body's
-    ``sum m_j d_j`` about its centre of mass, the lever of gravity (None: zero).
+    ``sum m_j d_j`` about its centre of mass, the lever of gravity (None: zero); ``held``
+    (n, 3) m in principal axes: for a body turning about a fixed point (``scene.pivot``),
+    its centre of mass from that point, where the forces of ``scene.loads`` act (their
+    moments about the point are added, and no force moves the body: the point's reaction
+    cancels it); None for a free body.
     """
     spec = reader.mapping(spec, path, GIVEN + ("nodes",))
     nodal = _loaded_nodes(reader, spec["nodes"], f"{path}.nodes", points) if "nodes" in spec else []
@@ -220,7 +242,10 @@ def read_loads(
                     _below_zero(given),
                     f"give values >= 0 ({KIND[name].units}): it only takes energy out",
                 )
-            loads.add(name, in_principal(one_row_if_alike(axes), given) if name in _IN_BODY_AXES else given)
+            given = in_principal(one_row_if_alike(axes), given) if name in _IN_BODY_AXES else given
+            loads.add(name, given)
+            if held is not None:
+                _add_moment(loads, name, given, one_row_if_alike(held))
     if first_moment is not None:
         # gravity pulls every mass point: about a centre that is not the centre of mass, its
         # moment is (sum m_j d_j) x g
@@ -228,4 +253,6 @@ def read_loads(
         for gravity in (loads.constant["gravity"], loads.tabulated["gravity"]):
             loads.add("lever", _lever(first_moment, gravity))
     _add_nodal_loads(nodal, loads, points, one_row_if_alike(axes))
+    if held is not None:
+        loads.hold()
     return loads.columns(), tuple(binding for load in loads.timed.values() for binding in load.files)

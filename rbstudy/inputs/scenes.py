@@ -6,7 +6,8 @@ entry per scene): `scene_table` reads and checks them all at once, and one scene
 one (`scene_from_mapping`): there is one reader. Non-physical input is rejected with a
 `SceneError` naming the source, the key path, the value and the fix, on the first bad row of a
 column. The body comes from ``scene.body`` or is assembled from nodes (`rbstudy.inputs.assembly`);
-the loads are read by `rbstudy.inputs.loads`.
+the loads are read by `rbstudy.inputs.loads`. A body on a pivot (``scene.pivot``) is the body
+about that point: its inertia taken there, its nodes and loads seen from it (`_about_pivot`).
 
 Frames: when the inertia is given as a full 3x3 tensor, the body vectors of the input
 (angular velocity in body axes, node offsets, body loads) are in that tensor's frame; the
@@ -17,7 +18,7 @@ frame's (``R_principal = R_input V`` with ``V`` the principal axes as columns, d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -239,6 +240,36 @@ def _read_nodes(reader, spec, path, size):
     return names, np.stack(offsets, axis=1) if offsets else np.zeros((size, 0, 3))
 
 
+def _about_pivot(
+    reader: Reader, body: _MassModel, value: Any, key: str, size: int
+) -> tuple[_MassModel, np.ndarray]:
+    """The body of ``scene.pivot`` (``value`` at ``key``: the fixed point as an offset from the
+    centre of mass in body axes, m, or a node's name) as it turns about that point: its
+    inertia taken there (``J_c + m (|p|^2 1 - p p^T)``, principal axes anew) and the nodes'
+    offsets from it; and the pivot ``p`` (n, 3) in the input body frame."""
+    if body.assembled is not None:
+        reader.fail(key, "an assembled body has no pivot here", "give scene.body with a pivot")
+    if isinstance(value, str):
+        if value not in body.names:
+            reader.fail(
+                key, f"no node {value!r} in scene.nodes", "name a node of scene.nodes, or give [x, y, z]"
+            )
+        pivot = np.array(body.offsets[:, body.names.index(value)])
+    else:
+        pivot = rows(reader.vector(value, key), size)
+    tensor = (
+        body.inertia[:, :, None] * np.eye(3)
+        if body.axes is None
+        else np.einsum("nij,nj,nkj->nik", body.axes, body.inertia, body.axes)
+    )
+    square = np.einsum("ni,ni->n", pivot, pivot)
+    tensor = tensor + body.mass[:, None, None] * (
+        square[:, None, None] * np.eye(3) - pivot[:, :, None] * pivot[:, None, :]
+    )
+    inertia, axes = _principal(reader, tensor, key)
+    return replace(body, inertia=inertia, axes=axes, offsets=body.offsets - pivot[:, None, :]), pivot
+
+
 def _read_mass_model(reader: Reader, spec: dict[str, Any], path: str, size: int) -> _MassModel:
     """The `_MassModel` of the scene mapping ``spec``, assembled or given."""
     if "assembly" in spec:
@@ -312,8 +343,11 @@ def scene_table(spec: Any, source: str = "<scene>", path: str = "scene", size: i
     ``body.allow_unphysical`` is true), on the first bad row of a column (its ``row``).
     """
     reader = Reader(source, SceneError)
-    spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "loads", "duration"))
+    spec = reader.mapping(spec, path, ("body", "assembly", "initial", "nodes", "pivot", "loads", "duration"))
     body = _read_mass_model(reader, spec, path, size)
+    pivot = None
+    if "pivot" in spec:
+        body, pivot = _about_pivot(reader, body, spec["pivot"], f"{path}.pivot", size)
     assembled, axes = body.assembled, body.axes
     nodes = in_principal(axes, body.offsets)
 
@@ -322,14 +356,21 @@ def scene_table(spec: Any, source: str = "<scene>", path: str = "scene", size: i
         spec.get("initial"), initial_path, ("angular_velocity", "orientation", "position", "velocity")
     )
     principal_rotation, omega_principal = _read_attitude(reader, initial, initial_path, body, size)
+    if pivot is not None and "velocity" in initial:
+        reader.fail(
+            f"{initial_path}.velocity", "a body on a pivot does not translate", f"remove it (or {path}.pivot)"
+        )
 
     points = dict(zip(body.names, np.moveaxis(nodes, 1, 0), strict=True))
-    first_moment = None
+    first_moment = held = None
     if assembled is not None:
         points[RESERVED] = in_principal(axes, assembled.master_offset[:, None, :])[:, 0]
         first_moment = in_principal(axes, assembled.first_moment[:, None, :])[:, 0]
+    if pivot is not None:  # the centre of mass, seen from the pivot, carries the weight
+        held = in_principal(axes, -pivot[:, None, :])[:, 0]
+        first_moment = body.mass[:, None] * held
     loads, load_files = read_loads(
-        reader, spec.get("loads"), f"{path}.loads", points, axes, first_moment, size
+        reader, spec.get("loads"), f"{path}.loads", points, axes, first_moment, size, held
     )
     tables = (() if body.secondaries is None else body.secondaries.tables) + load_files
     return SceneTable(

@@ -34,6 +34,10 @@ __all__ = [
     "complete_third",
     "jacobi",
     "third_kind",
+    "third_kind_steep",
+    "complete_third_steep",
+    "third_kind_close",
+    "complete_third_close",
     "first_kind",
 ]
 
@@ -200,6 +204,15 @@ def first_kind(s, c, d):
 
 
 @jit
+def _reflected(reduced, cn, u, complete):
+    """``Pi(n; am u)`` from the integral ``reduced`` up to the angle ``asin(sn u)``: itself
+    where ``cn >= 0``, else ``Pi(n; pi - phi) = 2 Pi(n) - Pi(n; phi)`` (signed as ``u``)."""
+    if cn >= 0.0:
+        return reduced
+    return math.copysign(2.0 * complete, u) - reduced
+
+
+@jit
 def third_kind(n, sn, cn, dn, u, complete):
     """Legendre's ``Pi(n; am u | m) = int_0^u dv / (1 - n sn^2 v)`` for ``|u| <= 2K``, from ``sn
     u, cn u, dn u`` (DLMF 19.25.14 on the angle ``asin(sn)``, and ``Pi(n; pi - phi) = 2 Pi(n) -
@@ -225,9 +238,118 @@ def third_kind(n, sn, cn, dn, u, complete):
     reduced = sn * carlson_rf(cn * cn, dn * dn, 1.0) + n / 3.0 * sn * s2 * carlson_rj(
         cn * cn, dn * dn, 1.0, 1.0 - n * s2
     )
-    if cn >= 0.0:
-        return reduced
-    return math.copysign(2.0 * complete, u) - reduced
+    return _reflected(reduced, cn, u, complete)
+
+
+@jit
+def _steep_reduced(n, m, s, c, d):
+    """``Pi(n; phi | m)`` for ``n < 0``, ``|phi| <= pi/2`` (``s, c, d = sin phi, cos phi >= 0,
+    sqrt(1 - m s^2)``), by Carlson's change of R_J's last argument (DLMF 19.21.12, with his x
+    the 1 of DLMF 19.25.14): ``Pi = s R_C(c^2 d^2, p q) - m s^3 / (3 n) R_J(c^2, d^2, 1, q)``,
+    ``p = 1 - n s^2``, ``q = 1 - m s^2 / n``, and ``s R_C = atan2(|s| g, c d) / g`` with
+    ``g^2 = (1 - n)(1 - m / n)``. Both terms have the sign of ``s``: nothing cancels, where
+    DLMF 19.25.14 takes the difference of ``F`` and a third-kind term as large when ``-n`` is
+    (a top that passes its pole at 1e-13 has ``n = -4e12``, and lost 6 digits so)."""
+    g = math.sqrt((1.0 - n) * (1.0 - m / n))
+    circular = math.copysign(math.atan2(abs(s) * g, c * d) / g, s)
+    return circular - m * s * s * s / (3.0 * n) * carlson_rj(c * c, d * d, 1.0, 1.0 - m * s * s / n)
+
+
+@jit
+def complete_third_steep(n, m, m1):
+    """``Pi(n | m)`` for ``n < 0`` without the cancellation of `complete_third` as ``n -> -inf``
+    (`_steep_reduced` at ``phi = pi/2``).
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 0.
+    m, m1 : float
+        The parameter and its complement ``1 - m``, computed without cancellation.
+
+    Returns
+    -------
+    float
+    """
+    return _steep_reduced(n, m, 1.0, 0.0, math.sqrt(m1))
+
+
+@jit
+def third_kind_steep(n, sn, cn, dn, u, m, complete):
+    """`third_kind` for ``n < 0``, free of its cancellation as ``n -> -inf``
+    (`_steep_reduced`).
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 0.
+    sn, cn, dn : float
+        Jacobi's functions of ``u`` (`jacobi`).
+    u : float
+        The argument, ``|u| <= 2K``.
+    m : float
+        The parameter.
+    complete : float
+        ``Pi(n | m)`` (`complete_third_steep`); unused where ``cn >= 0``.
+
+    Returns
+    -------
+    float
+    """
+    reduced = _steep_reduced(n, m, sn, abs(cn), dn)
+    return _reflected(reduced, cn, u, complete)
+
+
+@jit
+def complete_third_close(n, n1, m1, quarter):
+    """`complete_third` given ``n1 = 1 - n`` computed without cancellation (``n`` next to 1).
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 1.
+    n1 : float
+        ``1 - n``, > 0.
+    m1 : float
+        The complementary parameter ``1 - m``, > 0.
+    quarter : float
+        ``K(m)`` (`complete_first`).
+
+    Returns
+    -------
+    float
+    """
+    return quarter + n / 3.0 * carlson_rj(0.0, m1, 1.0, n1)
+
+
+@jit
+def third_kind_close(n, n1, sn, cn, dn, u, complete):
+    """`third_kind` given ``n1 = 1 - n`` computed without cancellation: as ``n -> 1`` the
+    last argument ``1 - n sn^2 = n1 + n cn^2`` of R_J is small, and formed as ``1 - n sn^2``
+    it kept none of its digits.
+
+    Parameters
+    ----------
+    n : float
+        The characteristic, < 1.
+    n1 : float
+        ``1 - n``, > 0.
+    sn, cn, dn : float
+        Jacobi's functions of ``u`` (`jacobi`).
+    u : float
+        The argument, ``|u| <= 2K``.
+    complete : float
+        ``Pi(n | m)`` (`complete_third_close`); unused where ``cn >= 0``.
+
+    Returns
+    -------
+    float
+    """
+    s2 = sn * sn
+    reduced = sn * carlson_rf(cn * cn, dn * dn, 1.0) + n / 3.0 * sn * s2 * carlson_rj(
+        cn * cn, dn * dn, 1.0, n1 + n * cn * cn
+    )
+    return _reflected(reduced, cn, u, complete)
 
 
 @jit

@@ -60,11 +60,11 @@ from rbstudy.numerics.jit import jit
 from rbstudy.numerics.rotation import (
     cross,
     quat_conj,
-    quat_exp,
     quat_mul,
     quat_mul_axis_rotation,
     read3,
     read4,
+    spun_steadily,
     write3,
     write4,
 )
@@ -255,8 +255,7 @@ def free_motion(body, q, t):
         The body angular velocity after ``t`` (rad/s).
     """
     if body.steady:
-        omega = body.omega0
-        return quat_mul(q, quat_exp((omega[0] * t, omega[1] * t, omega[2] * t))), omega
+        return spun_steadily(q, body.omega0, t), body.omega0
     if body.k2c > 0.0:
         periods = math.floor(t / body.period + 0.5)
         tau = t - periods * body.period

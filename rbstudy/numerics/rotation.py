@@ -33,6 +33,7 @@ __all__ = [
     "quat_rotate",
     "quat_rotate_inverse",
     "quat_exp",
+    "spun_steadily",
     "quat_exp_of",
     "quat_exp_minus_one",
     "quat_cayley",
@@ -392,6 +393,27 @@ def quat_exp(v):
         return quat_exp_of(v, angle, 0.0, 1.0)
     half = 0.5 * angle
     return quat_exp_of(v, angle, math.sin(half), math.cos(half))
+
+
+@jit
+def spun_steadily(q, omega, t):
+    """``q exp(omega t)``: a body turning at the constant body angular velocity ``omega`` for
+    a time ``t`` from ``q`` (a permanent rotation; the sleeping top).
+
+    Parameters
+    ----------
+    q : tuple of 4 floats
+        Orientation, scalar last.
+    omega : tuple of 3 floats
+        Body angular velocity (rad/s).
+    t : float
+        s.
+
+    Returns
+    -------
+    tuple of 4 floats
+    """
+    return quat_mul(q, quat_exp((omega[0] * t, omega[1] * t, omega[2] * t)))
 
 
 @jit

@@ -59,7 +59,9 @@ __all__ = [
 # integrated references both passed their step budgets (or failed): its errors against a
 # reference are NaN. ``exact_asymmetric`` (appended after 0.3) is the exact free motion of any
 # body, used where the body is not symmetric; ``exact_split_composition`` (appended after
-# 0.3) is the tight reference of a loaded body, which until then was DOP853.
+# 0.3) is the tight reference of a loaded body, which until then was DOP853; ``lagrange_top``
+# (appended after 0.4) is the exact motion of a symmetric body under a constant space force
+# on its axis (`rbstudy.numerics.heavy_top`).
 REFERENCE_KINDS = (
     "symmetric_top",
     "axial_moment",
@@ -67,12 +69,15 @@ REFERENCE_KINDS = (
     "none",
     "exact_asymmetric",
     "exact_split_composition",
+    "lagrange_top",
 )
 # The reference planned for a scene no closed form covers (the integrations may end with
 # ``dop853`` or ``none`` instead).
 INTEGRATED = "exact_split_composition"
-# The kinds of load (`rbstudy.numerics.loads`) the closed forms here take (`reference_kinds`).
+# The kinds of load (`rbstudy.numerics.loads`) the closed forms here take (`reference_kinds`),
+# and those of the Lagrange top.
 _CLOSED_FORM_LOADS = ("force_space", "gravity", "moment_body")
+_LAGRANGE_LOADS = ("force_space", "gravity", "lever")
 
 # Two principal inertias closer than this, relative to the largest, are equal: the body is
 # symmetric. The eigenvalues of a rotated or assembled inertia tensor carry a few ulps of
@@ -234,11 +239,27 @@ def reference_kinds(
     moment_body = np.asarray(loads["moment_body"])
     moment_free = ~constant_acting(loads, TURNING)
     axial = _axial_indices(omega_body, moment_body) >= 0
-    symmetric = symmetry_axes(inertia) >= 0
+    axis = symmetry_axes(inertia)
+    symmetric = axis >= 0
+    # a Lagrange top: symmetric, turned by space forces whose lever lies along the symmetry
+    # axis only (rows k_b = d[b] F of `rbstudy.numerics.loads`, zero but the axis's), and by
+    # nothing else
+    rows = np.asarray(loads["lever"]).reshape(np.shape(loads["lever"])[:-1] + (3, 3))
+    along = np.arange(3) == np.maximum(axis, 0)[..., None]  # (n, 3)
+    lagrange = (
+        symmetric
+        & ~constant_acting(loads, [name for name in KIND if name not in _LAGRANGE_LOADS])
+        & ~np.asarray(timed, dtype=bool)
+        & np.all((rows == 0.0) | along[..., None], axis=(-2, -1))
+        & np.any((rows != 0.0) & along[..., None], axis=(-2, -1))
+    )
     # an object array of the few names, each shared by its scenes: as fixed-width text, a
     # million scenes' kinds took 88 MiB
-    names = np.array((INTEGRATED, "symmetric_top", "exact_asymmetric", "axial_moment"), dtype=object)
-    return names[np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2), np.where(axial, 3, 0)))]
+    names = np.array(
+        (INTEGRATED, "symmetric_top", "exact_asymmetric", "axial_moment", "lagrange_top"), dtype=object
+    )
+    chosen = np.where(pushed, 0, np.where(moment_free, np.where(symmetric, 1, 2), np.where(axial, 3, 0)))
+    return names[np.where(lagrange, 4, chosen)]
 
 
 def precession_frequencies(inertia: npt.ArrayLike, omega_body: npt.ArrayLike) -> np.ndarray:

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import HALT_FLAG, Halted
 from rbstudy.numerics.free_flow import free_flow_batch
+from rbstudy.numerics.heavy_top import lagrange_top_batch
 from rbstudy.numerics.loads import KIND
 from rbstudy.numerics.state import OK
 from rbstudy.physics import metrics
@@ -38,6 +39,7 @@ from rbstudy.physics.analytic import (
     reference_kinds,
     symmetric_top,
     symmetrised,
+    symmetry_axes,
 )
 from rbstudy.physics.loads import TURNING, record_slice
 from rbstudy.physics.metrics import UNCERTAIN_MEASURES
@@ -264,6 +266,32 @@ def _free_bodies(group, members, times, found):
     _centres(group, members, times, found)
 
 
+def _lagrange_tops(group, members, times, found):
+    """The Lagrange tops, every top and time in one compiled call; a top the closed form
+    refuses (`rbstudy.numerics.heavy_top.REFUSALS`) is integrated instead."""
+    inertia = np.ascontiguousarray(group.inertia[members])
+    axes = symmetry_axes(inertia)
+    levers = group.loads["lever"][members].reshape(-1, 3, 3)
+    quaternion = np.empty((members.size, times.size, 4))
+    omega = np.empty((members.size, times.size, 3))
+    refused = np.zeros(members.size, dtype=np.int64)
+    lagrange_top_batch(
+        inertia,
+        axes,
+        np.ascontiguousarray(group.quaternion[members]),
+        np.ascontiguousarray(group.omega_body[members]),
+        np.ascontiguousarray(levers[np.arange(members.size), axes]),
+        times,
+        quaternion,
+        omega,
+        refused,
+    )
+    taken = refused == 0
+    found.quaternion[members[taken]], found.omega_body[members[taken]] = quaternion[taken], omega[taken]
+    _centres(group, members[taken], times, found)
+    _integrated(group, members[~taken], times, found)
+
+
 def _axial_moments(group, members, times, found):
     for k in members:
         found.quaternion[k], found.omega_body[k] = axial_moment(
@@ -442,6 +470,7 @@ COMPUTE = {
     "symmetric_top": _symmetric_tops,
     "axial_moment": _axial_moments,
     "exact_asymmetric": _free_bodies,
+    "lagrange_top": _lagrange_tops,
     INTEGRATED: _integrated,
 }
 
