@@ -135,4 +135,23 @@ def test_flips_lost_or_added_are_counted_and_said(flip_study):
     assert "lost flips in 1 of all 4 cases (up to 2 a case); added flips in 1 of all 4 cases" in said.text
     assert (said.numbers["lost_cases"], said.numbers["added_cases"]) == (1, 1)
     headline = next(f for f in findings(planted) if f.kind == "flip")
-    assert headline.text.endswith("; midpoint lost or added flips (below)")
+    assert "; midpoint lost or added flips (below)" in headline.text
+
+
+def test_conditioning_near_the_separatrix_is_said_and_recomputed(flip_study):
+    """The body of w0 = (1e-3, 1, 1e-3) lies near the separatrix: the headline gives its k'^2,
+    recomputed here from the inertia and spin, and its float64 floor as ulps of the angle it
+    turns, recomputed from the archive."""
+    ds, _ = flip_study
+    headline = next(f for f in findings(ds) if f.kind == "flip")
+    inertia, omega = np.array([1.0, 2.0, 3.0]), np.array([1e-3, 1.0, 1e-3])
+    m = inertia * omega
+    energy2, momentum2 = float(m @ omega), float(m @ m)
+    # k'^2 = (I3 - I1) d2 / ((I3 - I2) d1), d_j = G^2 - 2 E I_j
+    expected = (3.0 - 1.0) * (momentum2 - energy2 * 2.0) / ((3.0 - 2.0) * (momentum2 - energy2 * 1.0))
+    assert headline.numbers["separatrix_distance"] == pytest.approx(expected, rel=1e-6)
+    floor = float(ds["float64_floor"].max())
+    turned = float(ds["initial_spin"].max()) * headline.numbers["duration_s"]
+    ulps = floor / (np.finfo(float).eps * turned)
+    assert f"near the separatrix (k'^2 = {expected:.1g})" in headline.text
+    assert f"by {floor:.2g} rad ({ulps:.2g} ulps of the" in headline.text

@@ -62,6 +62,7 @@ from rbstudy.analysis.overlaps import coincident, panel_overlaps, together
 from rbstudy.analysis.slope_guides import guide_orders, reference_slopes
 from rbstudy.analysis.summary import (
     ERROR_MEASURES,
+    FLOOR_FACTOR,
     UNCERTAINTY_FACTOR,
     error_measure,
     fitted_order,
@@ -96,7 +97,8 @@ class _Panels:
     """What a convergence figure of the measure ``key`` shows, per panel shown (at the
     ``values`` of the axis ``facet``): the worst error of each point (``worst``), its `Band`
     over the ``reduced`` axes (``bands``), `UNCERTAINTY_FACTOR` times the reference's
-    uncertainty (``limits``), the lines with their orders (``fits``) and, where axes are
+    uncertainty (``limits``), `FLOOR_FACTOR` times the largest float64 floor of its cases
+    (``float64``, NaN where none), the lines with their orders (``fits``) and, where axes are
     reduced, the orders fitted value by value (``value_fits``); ``behind``: the cases behind
     each point; ``unreferenced``: the facet's values not shown, none of whose cases has a
     reference."""
@@ -110,6 +112,7 @@ class _Panels:
     unreferenced: list[Any]
     worst: list[xr.DataArray]
     limits: list[xr.DataArray]
+    float64: list[float]
     bands: list[Band]
     fits: list[list[FittedLine]]
     value_fits: list[list[list[tuple[OrderFit, str | None]]]]
@@ -124,6 +127,15 @@ def _uncertainty_limit(uncertainty, facet, value, reduced, like):
         return like.copy(data=np.full(like.shape, np.nan))
     picked = _at(uncertainty, facet, value)
     return UNCERTAINTY_FACTOR * (picked.max(reduced, skipna=True) if reduced else picked)
+
+
+def _float64_floor(ds, key, measure, facet, value):
+    """`FLOOR_FACTOR` times the largest float64 floor of a panel's cases (at ``value`` of
+    ``facet``), for a measure it bounds (`ErrorMeasure.conditioned`); NaN where none."""
+    if not ERROR_MEASURES[key].conditioned or "float64_floor" not in ds:
+        return np.nan
+    floors = _at(ds["float64_floor"].broadcast_like(measure), facet, value).values
+    return FLOOR_FACTOR * float(np.nanmax(floors)) if np.isfinite(floors).any() else np.nan
 
 
 def _fitted_lines(dts, key, line_dim, worst, failed, limits, floors):
@@ -176,6 +188,7 @@ def _panels(ds: xr.Dataset, key: str, measure: xr.DataArray) -> _Panels:
     values, bands = [values[k] for k in shown], [bands[k] for k in shown]
     worst, failures = [worst[k] for k in shown], [failures[k] for k in shown]
     limits, round_offs = [limits[k] for k in shown], [round_offs[k] for k in shown]
+    float64 = [_float64_floor(ds, key, measure, facet, value) for value in values]
     return _Panels(
         key=key,
         dts=dts,
@@ -186,6 +199,7 @@ def _panels(ds: xr.Dataset, key: str, measure: xr.DataArray) -> _Panels:
         unreferenced=left_out,
         worst=worst,
         limits=limits,
+        float64=float64,
         bands=bands,
         fits=[
             _fitted_lines(dts, key, line_dim, *panel)
@@ -270,6 +284,7 @@ def _draw_panel(
         ax, dts, np.array([line.errors for line in lines]), guide_orders(ds, panels.facet, value)
     )
     _mark_uncertainty(ax, panels.limits[k].values)
+    _mark_float64(ax, panels.float64[k], np.array([line.errors for line in lines]))
     mark_floor(ax, floor)
     ax.set_xlabel("time step dt (s)")
     ax.set_ylabel(f"{spec.label} ({spec.units})")
@@ -287,16 +302,31 @@ def _draw_panel(
     return floor, labels
 
 
+def _mark_float64(ax, level, errors):
+    """A dotted line at ``level`` (`FLOOR_FACTOR` times the float64 floor), below which no
+    order is fitted, where some of the panel's ``errors`` come within ten times of it (a
+    floor far below them would only stretch the axis)."""
+    finite = errors[np.isfinite(errors) & (errors > 0.0)]
+    if np.isfinite(level) and finite.size and finite.min() <= 10.0 * level:
+        _level_line(ax, level, ":", f"{FLOOR_FACTOR:g} x float64 floor: not fitted below")
+
+
 def _mark_uncertainty(ax, limits):
     """A dashed line at the largest of a panel's ``limits``, below which no order is fitted
     (nothing when no reference of the panel is uncertain)."""
     finite = limits[np.isfinite(limits)]
-    if not finite.size:
-        return
-    ax.axhline(finite.max(), color="0.35", linewidth=0.8, linestyle="--", zorder=1)
+    if finite.size:
+        _level_line(
+            ax, finite.max(), "--", f"{UNCERTAINTY_FACTOR:g} x reference uncertainty: not fitted below"
+        )
+
+
+def _level_line(ax, level, linestyle, text):
+    """A grey horizontal line at ``level``, ``text`` on it at the right."""
+    ax.axhline(level, color="0.35", linewidth=0.8, linestyle=linestyle, zorder=1)
     ax.annotate(
-        f"{UNCERTAINTY_FACTOR:g} x reference uncertainty: not fitted below",
-        (0.99, finite.max()),
+        text,
+        (0.99, level),
         xycoords=("axes fraction", "data"),
         xytext=(0, 3),
         textcoords="offset points",

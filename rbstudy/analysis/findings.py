@@ -34,7 +34,7 @@ import numpy as np
 import xarray as xr
 
 from rbstudy.analysis.finding import Finding
-from rbstudy.analysis.flips import FLIP_VARIABLES, flip_findings
+from rbstudy.analysis.flips import CONDITIONING_VARIABLES, FLIP_VARIABLES, flip_findings
 from rbstudy.analysis.places import (
     SHOWN_VALUES,
     CaseLabels,
@@ -100,7 +100,13 @@ __all__ = [
 # What `findings` reads: the table's per-case scalars (the calibrated step cost among them),
 # the energy series whose last value says whether a scheme gains or loses energy, and the
 # cost's uncertainty, within which two costs are a tie.
-FINDINGS_VARIABLES = (*SUMMARY_VARIABLES, "energy_error", "step_seconds_uncertainty", *FLIP_VARIABLES)
+FINDINGS_VARIABLES = (
+    *SUMMARY_VARIABLES,
+    "energy_error",
+    "step_seconds_uncertainty",
+    *FLIP_VARIABLES,
+    *CONDITIONING_VARIABLES,
+)
 # Of those, the time series the findings reduce along time, and how; read so
 # (`rbstudy.archive.load.open_results`), a million cases' findings hold 16 MB of them, not 176 MB.
 FINDINGS_REDUCED = {"momentum_error": "max", "energy_error": "last"}
@@ -394,7 +400,14 @@ def _verdict(ds: xr.Dataset, row: dict[str, Any], rates: xr.DataArray | None) ->
     floor = ERROR_MEASURES["orientation"].floor
     largest = row.get("error")
     reason = floor_reason(row)
-    if reason is not None:  # no order through errors at the floor (exact_split's "0.60")
+    at_float64 = row.get("float64_floor")
+    if at_float64 is not None:
+        numbers["float64_floor_rad"], numbers["float64_floor_dt"] = at_float64
+    if reason == "round-off" and at_float64 is not None:  # every error within it
+        parts = [f"at the float64 floor ({significant(at_float64[0], 2)} rad)"]
+        if largest is not None:
+            numbers["error_rad"] = largest
+    elif reason is not None:  # no order through errors at the floor (exact_split's "0.60")
         parts = [FLOOR_WORDS[reason]]
         if largest is not None:
             numbers["error_rad"] = largest
@@ -409,6 +422,10 @@ def _verdict(ds: xr.Dataset, row: dict[str, Any], rates: xr.DataArray | None) ->
         ]
     else:
         parts = ["no order fitted"]
+    if at_float64 is not None and reason != "round-off":  # the finest errors, left out of the fit
+        parts.append(
+            f"at the float64 floor ({significant(at_float64[0], 2)} rad) from dt = {at_float64[1]:g} s"
+        )
     if row["nominal"] is not None:
         numbers["nominal_order"] = row["nominal"]
     if np.isfinite(row["accurate_hw"]):

@@ -22,10 +22,16 @@ from rbstudy.analysis.places import significant
 from rbstudy.analysis.summary import per_scheme, schemes_of
 from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS
 
-__all__ = ["FLIP_VARIABLES", "flip_findings"]
+__all__ = ["FLIP_VARIABLES", "CONDITIONING_VARIABLES", "NEAR_SEPARATRIX", "flip_findings"]
 
-# What the flip findings read, beside the study's coordinates.
+# What the flip findings read, beside the study's coordinates (and, where the archive has
+# them, the separatrix distance and the float64 floor: `NEAR_SEPARATRIX`).
 FLIP_VARIABLES = ("flip_interval_exact", "flip_interval_error", "flip_count", "flip_count_exact")
+CONDITIONING_VARIABLES = ("separatrix_distance", "float64_floor", "initial_spin")
+# A body whose k'^2 lies below this is said to be near the separatrix, its conditioning in
+# words (`_conditioning`): k'^2 is there a small difference of the spin's squares, and the
+# flip interval grows as ln(4 / k').
+NEAR_SEPARATRIX = 1e-2
 
 
 def flip_findings(ds: xr.Dataset) -> tuple[list[Finding], list[Finding]]:
@@ -69,16 +75,42 @@ def _study_flips(ds: xr.Dataset, schemes: list[Finding]) -> Finding:
             if wrong
             else "; every scheme kept every flip in every case that ran to the end"
         )
-    return Finding(
-        kind="flip",
-        text=text,
-        numbers={
-            "flip_interval_exact_s": [float(np.nanmin(exact)), float(np.nanmax(exact))],
-            "flips_exact": [float(np.min(flips)), float(np.max(flips))] if flips.size else [],
-            "duration_s": duration,
-        },
-        cases=({},),
+    numbers = {
+        "flip_interval_exact_s": [float(np.nanmin(exact)), float(np.nanmax(exact))],
+        "flips_exact": [float(np.min(flips)), float(np.max(flips))] if flips.size else [],
+        "duration_s": duration,
+    }
+    conditioning = _conditioning(ds, duration)
+    if conditioning is not None:
+        words, numbers["separatrix_distance"], numbers["float64_floor_rad"] = conditioning
+        text += words
+    return Finding(kind="flip", text=text, numbers=numbers, cases=({},))
+
+
+def _conditioning(ds: xr.Dataset, duration: float) -> tuple[str, float, float] | None:
+    """How ill-conditioned the study's body nearest the separatrix is, in words, with its
+    ``k'^2`` and the largest float64 floor: that floor as ulps of the angle the body turns
+    (``|w0| T``), which one ulp is for a well-conditioned motion. None where no body lies
+    within `NEAR_SEPARATRIX` (or the archive has not the distance)."""
+    if "separatrix_distance" not in ds:
+        return None
+    distance = ds["separatrix_distance"].values
+    if not np.isfinite(distance).any() or np.nanmin(distance) >= NEAR_SEPARATRIX:
+        return None
+    nearest = float(np.nanmin(distance))
+    floor = float(np.nanmax(ds["float64_floor"].values)) if "float64_floor" in ds else float("nan")
+    words = (
+        f"; near the separatrix (k'^2 = {significant(nearest, 2)}), where the flip interval grows as ln(4/k')"
     )
+    if np.isfinite(floor) and "initial_spin" in ds:
+        turned = float(np.nanmax(ds["initial_spin"].values)) * duration
+        ulps = floor / (np.finfo(float).eps * turned)
+        words += (
+            f": one ulp of the initial state moves the orientation at {significant(duration)} s by "
+            f"{significant(floor, 2)} rad ({significant(ulps, 2)} ulps of the "
+            f"{significant(turned, 3)} rad turned)"
+        )
+    return words, nearest, floor
 
 
 def _interval_errors(ds: xr.Dataset, scheme: str) -> tuple[np.ndarray, np.ndarray]:

@@ -18,6 +18,7 @@ from rbstudy.physics.metrics import MIN_ASYMPTOTIC_POINTS, OrderFit, asymptotic_
 __all__ = [
     "ERROR_MEASURES",
     "ErrorMeasure",
+    "FLOOR_FACTOR",
     "KEPT_TOLERANCE",
     "ROUND_OFF_ULPS",
     "UNCERTAINTY_FACTOR",
@@ -38,7 +39,9 @@ class ErrorMeasure(NamedTuple):
     reference, or None (a closed form, or a measure not against a reference). turns : whether
     its round-off grows with the angle the body turns (`round_off_of`). floor_kind : what sets
     its floor, in the words the figures say it with (``"round-off"``, or ``"sampling"`` for a
-    time read between samples).
+    time read between samples). conditioned : its floor is also `FLOOR_FACTOR` times the
+    archive's ``float64_floor`` (an orientation angle at the last time: one ulp of the initial
+    state carried by the exact motion).
     """
 
     label: str
@@ -49,6 +52,7 @@ class ErrorMeasure(NamedTuple):
     uncertainty: str | None = None
     turns: bool = False
     floor_kind: str = "round-off"
+    conditioned: bool = False
 
 
 # The floor is a few hundred ulps of the quantity (rounding summed over 1e3-1e4 steps, relative
@@ -65,6 +69,7 @@ ERROR_MEASURES = {
         variable="final_orientation_error",
         uncertainty="reference_uncertainty",
         turns=True,
+        conditioned=True,
     ),
     "omega": ErrorMeasure(
         label="max relative angular velocity error",
@@ -120,6 +125,10 @@ ERROR_MEASURES = {
         floor_kind="sampling",
     ),
 }
+# An error within this factor of the float64 floor (`float64_floor`: one ulp of the initial
+# state, carried to the last time by the exact motion) is at the floor: rounding the initial
+# state alone moves the result that far, and each step rounds it again.
+FLOOR_FACTOR = 3.0
 # An error within this factor of its reference's uncertainty says as much about the reference
 # as about the scheme: no order is fitted through it.
 UNCERTAINTY_FACTOR = 10.0
@@ -131,6 +140,11 @@ UNCERTAINTY_FACTOR = 10.0
 # and rbstudy's rk4 for round-off on Drake's floating body, whose errors at 3,200 steps
 # (2.4e-12 rad) still fall by 16 a halving: a floor must sit under the errors a scheme makes.
 ROUND_OFF_ULPS = 2.0
+# A run one of whose steps turned the body by more than this (rad) has gone wild: a loaded
+# body's leapfrog on the heavy top reached 1e123 rad a step, finite, and its bookkeeping
+# watches no invariant under a load. Its error has no round-off to speak of: its floor stays
+# the measure's constant one (it raised it to 1 rad, which the figure called round-off).
+WILD_STEP = 1.0
 # An invariant counts as kept when its largest relative drift over every step of every
 # stable case stays below this: round-off over 1e4-1e5 steps, far below any truncation error.
 KEPT_TOLERANCE = 1e-10
@@ -162,9 +176,15 @@ def round_off_of(ds: xr.Dataset, key: str, like: xr.DataArray) -> xr.DataArray:
     from the body, can outrun ``|w|``. A relative measure that does not turn (units 1: the
     energy, ``|L|`` and ``L`` drifts) is raised to `ROUND_OFF_ULPS` ulps of its steps alone:
     the schemes that keep them end 1e-15 to 1e-13 off after hundreds of steps, no order to
-    fit. A failed case (no finite angle) keeps the constant floor: its error is NaN."""
+    fit. A failed case (no finite angle), or one whose step turned the body by more than
+    `WILD_STEP`, keeps the constant floor: its error is NaN or meaningless. A
+    ``conditioned`` measure's floor is at least `FLOOR_FACTOR` times the archive's
+    ``float64_floor`` where it has one (a closed-form reference)."""
     spec = ERROR_MEASURES[key]
     floor = like.copy(data=np.full(like.shape, spec.floor))
+    if spec.conditioned and "float64_floor" in ds.variables:
+        conditioning = (FLOOR_FACTOR * ds["float64_floor"]).broadcast_like(like).transpose(*like.dims)
+        floor = np.fmax(floor, conditioning)
     if not spec.turns:
         if spec.units != "1" or "n_steps" not in ds.variables:
             return floor
@@ -175,8 +195,8 @@ def round_off_of(ds: xr.Dataset, key: str, like: xr.DataArray) -> xr.DataArray:
     inertia = ds["inertia"]
     steps = ds["n_steps"]
     swept = steps + ds["max_step_angle"] * steps * inertia.max("axis") / inertia.min("axis")
-    scaled = (ROUND_OFF_ULPS * np.finfo(float).eps * swept).broadcast_like(like).transpose(*like.dims)
-    return np.fmax(floor, scaled.where(np.isfinite(scaled)))
+    scaled = (ROUND_OFF_ULPS * np.finfo(float).eps * swept).where(ds["max_step_angle"] <= WILD_STEP)
+    return np.fmax(floor, scaled.broadcast_like(like).transpose(*like.dims))
 
 
 def fitted_order(

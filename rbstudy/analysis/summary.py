@@ -23,6 +23,7 @@ import xarray as xr
 
 from rbstudy.analysis.measures import (
     ERROR_MEASURES,
+    FLOOR_FACTOR,
     KEPT_TOLERANCE,
     ROUND_OFF_ULPS,
     UNCERTAINTY_FACTOR,
@@ -71,6 +72,7 @@ __all__ = [
     "round_off_of",
     "at_floor",
     "UNCERTAINTY_FACTOR",
+    "FLOOR_FACTOR",
     "ROUND_OFF_ULPS",
     "Verdicts",
     "verdicts",
@@ -112,6 +114,7 @@ SUMMARY_VARIABLES = (
     "physical_body",
     "radioss_dt_limit",
     "reference_uncertainty",
+    "float64_floor",
     "max_step_angle",
     "inertia",
 )
@@ -228,11 +231,13 @@ def _orders(dts: np.ndarray, columns: list[tuple[OrderFit | None, str | None]]) 
 
 class _OrderInputs(NamedTuple):
     """What the orders are fitted to: every case's ``orientation`` error, its reference's
-    ``uncertainty`` (or None) and its ``round_off`` floor."""
+    ``uncertainty`` (or None) and its ``round_off`` floor (`round_off_of`, which holds the
+    float64 floor), and its reference's ``float64`` floor alone (or None)."""
 
     orientation: xr.DataArray
     uncertainty: xr.DataArray | None
     round_off: xr.DataArray
+    float64: xr.DataArray | None
 
 
 def _order_inputs(ds: xr.Dataset) -> _OrderInputs | None:
@@ -241,7 +246,8 @@ def _order_inputs(ds: xr.Dataset) -> _OrderInputs | None:
     if orientation is None:
         return None
     uncertainty = uncertainty_of(ds, _ORDER_MEASURE, orientation)
-    return _OrderInputs(orientation, uncertainty, round_off_of(ds, _ORDER_MEASURE, orientation))
+    float64 = ds["float64_floor"].broadcast_like(orientation) if "float64_floor" in ds else None
+    return _OrderInputs(orientation, uncertainty, round_off_of(ds, _ORDER_MEASURE, orientation), float64)
 
 
 def _scheme_fits(inputs: _OrderInputs, scheme: str) -> _Fits:
@@ -398,6 +404,7 @@ def _scheme_rows(ds: xr.Dataset) -> list[Row]:
             **_no_order(),
             "error": None,
             "error_small": None,
+            "float64_floor": None,
             "radioss": int((per_scheme(ds["radioss_dt_limit"], scheme) == 1).sum()),
             "ns_per_step": _ns_per_step(ds, scheme),
             **_step_load_fields(
@@ -456,7 +463,23 @@ def _error_fields(inputs: _OrderInputs, scheme: str, status: xr.DataArray) -> di
     for key, pick in (("", errors["dt"].max()), ("_small", errors["dt"].min())):
         fields[f"error{key}_dt"] = float(pick)
         fields[f"error{key}"] = _worst(errors.sel(dt=pick), status.sel(dt=pick))
+    fields["float64_floor"] = _at_float64_floor(errors, inputs.float64, scheme)
     return fields
+
+
+def _at_float64_floor(
+    errors: xr.DataArray, float64: xr.DataArray | None, scheme: str
+) -> tuple[float, float] | None:
+    """Where ``scheme``'s ``errors`` lie at the float64 floor (within `FLOOR_FACTOR` of
+    ``float64``, its reference's): the largest such floor (rad) and the largest dt (s) at
+    it; None where none does."""
+    if float64 is None:
+        return None
+    floor = per_scheme(float64, scheme)
+    at = np.isfinite(errors) & (errors <= FLOOR_FACTOR * floor)
+    if not bool(at.any()):
+        return None
+    return float(floor.where(at).max()), float(errors["dt"].broadcast_like(errors).where(at).max())
 
 
 def _worst(errors: xr.DataArray, status: xr.DataArray) -> float | None:

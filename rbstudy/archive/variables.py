@@ -86,6 +86,10 @@ FEATURES: dict[str, tuple[Callable[[SceneTable], np.ndarray], str]] = {
         lambda scenes: np.full(len(scenes), bool(np.any(scenes.reference_kinds == INTEGRATED))),
         "some scene has no closed-form reference: it is integrated twice, and the two are compared",
     ),
+    "closed_form": (
+        lambda scenes: np.full(len(scenes), bool(np.any(scenes.reference_kinds != INTEGRATED))),
+        "some scene has a closed-form reference, whose sensitivity to its initial data sets a float64 floor",
+    ),
     "moment_free": (
         lambda scenes: scenes.moment_free,
         "no moment acts: energy and angular momentum are conserved, so their drift is an error",
@@ -293,6 +297,15 @@ VARIABLES = {
             description="exact time between sign changes of the intermediate-axis rate, 2 K(k^2) / |lambda|",
             needs=("asymmetric",),
         ),
+        _scene(
+            name="separatrix_distance",
+            dims=(),
+            units="1",
+            long_name="distance from the separatrix, k'^2",
+            description="1 - k^2 of the exact free motion, 0 on the separatrix; near 0 the case is "
+            "ill-conditioned (the flip interval grows as ln(4/k'))",
+            needs=("asymmetric",),
+        ),
         _v(
             name="flip_interval_error",
             dims=(),
@@ -440,6 +453,16 @@ VARIABLES = {
             needs=("integrated",),
         ),
         _scene(
+            name="float64_floor",
+            dims=(),
+            units="rad",
+            long_name="float64 floor of the orientation",
+            description="largest orientation angle at the last output time between the closed form and "
+            "itself from initial data one ulp off: what rounding the initial state costs any scheme; "
+            "no order is fitted below 3x it (docs/theory.md s6). NaN where the reference is integrated",
+            needs=("closed_form",),
+        ),
+        _scene(
             name="reference_omega_uncertainty",
             dims=(),
             units="1",
@@ -564,9 +587,12 @@ COST_MODEL = ("step_seconds", "step_seconds_uncertainty")
 # (`rbstudy.pipeline.calibration`): other programs changed a scheme's cost by up to half. An
 # archive whose costs carry it says so where it recommends.
 BUSY_UNCERTAINTY = 0.5
-# The reference's uncertainties (the variables of integrated references), kept whatever
-# `output.variables` says wherever a study defines them: the order fits read them.
-UNCERTAINTIES = tuple(name for name, variable in VARIABLES.items() if "integrated" in variable.needs)
+# What a reference can show: the uncertainties of integrated references and the float64
+# floor of closed forms, kept whatever `output.variables` says wherever a study defines them:
+# the order fits read them.
+UNCERTAINTIES = tuple(
+    name for name, variable in VARIABLES.items() if variable.needs & {"integrated", "closed_form"}
+)
 
 
 def selected(features: Iterable[str]) -> list[str]:

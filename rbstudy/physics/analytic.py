@@ -51,6 +51,7 @@ __all__ = [
     "precession_frequency_exact",
     "flip_interval",
     "flip_interval_exact",
+    "separatrix_distance",
 ]
 
 # Every reference an archive can name, in the order of their codes in the archive's
@@ -303,6 +304,20 @@ def flip_interval_exact(scene: Any) -> float | None:
     return flip_interval(scene.body.inertia, scene.omega_body)
 
 
+def _modulus(inertia, omega_body):
+    """``(lambda^2, k'^2)`` of a free asymmetric body (`flip_interval`), or None where it
+    turns about a principal axis."""
+    inertia = tuple(float(v) for v in inertia)
+    m = tuple(i * float(w) for i, w in zip(inertia, omega_body, strict=True))
+    excess = tuple(algebra.momentum_excess(inertia, m, j) for j in range(3))
+    first, mid, third, _ = algebra.circulation_axes(inertia, excess)
+    if excess[first] == 0.0 or excess[third] == 0.0:
+        return None  # a steady spin about a principal axis: no sign change
+    i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
+    rate2 = (i3 - i2) * excess[first] / (i1 * i2 * i3)
+    return rate2, (i3 - i1) * excess[mid] / ((i3 - i2) * excess[first])
+
+
 def flip_interval(inertia: Sequence[float] | np.ndarray, omega_body: Sequence[float] | np.ndarray) -> float:
     """Time between sign changes of the intermediate-axis rate of a free asymmetric body, s,
     of principal ``inertia`` (3,) and initial ``omega_body`` (3,).
@@ -316,20 +331,26 @@ def flip_interval(inertia: Sequence[float] | np.ndarray, omega_body: Sequence[fl
     (``ellipkm1``: accurate as ``k' -> 0``). NaN when the body turns about a principal axis
     (no sign change), inf on the separatrix.
     """
-    inertia = tuple(float(v) for v in inertia)
-    m = tuple(i * float(w) for i, w in zip(inertia, omega_body, strict=True))
-    excess = tuple(algebra.momentum_excess(inertia, m, j) for j in range(3))
-    first, mid, third, _ = algebra.circulation_axes(inertia, excess)
-    if excess[first] == 0.0 or excess[third] == 0.0:
-        return float("nan")  # a steady spin about a principal axis: no sign change
-    i1, i2, i3 = inertia[first], inertia[mid], inertia[third]
-    rate2 = (i3 - i2) * excess[first] / (i1 * i2 * i3)
-    complement = (i3 - i1) * excess[mid] / ((i3 - i2) * excess[first])
+    modulus = _modulus(inertia, omega_body)
+    if modulus is None:
+        return float("nan")
+    rate2, complement = modulus
     if complement <= 0.0:
         return float("inf")  # on the separatrix: one flip, never the next
     from scipy.special import ellipkm1  # here: the figures import this module
 
     return 2.0 * float(ellipkm1(complement)) / math.sqrt(rate2)
+
+
+def separatrix_distance(
+    inertia: Sequence[float] | np.ndarray, omega_body: Sequence[float] | np.ndarray
+) -> float:
+    """``k'^2 = 1 - k^2`` of a free asymmetric body (`flip_interval`): how far its motion lies
+    from the separatrix, 0 on it; NaN for a spin about a principal axis. Near 0 the case is
+    ill-conditioned: ``k'^2`` is a small difference of the spin's squares (``d2``), and the
+    flip interval ``2 K / |lambda|`` grows as ``K ~ ln(4 / k')``."""
+    modulus = _modulus(inertia, omega_body)
+    return float("nan") if modulus is None else max(modulus[1], 0.0)
 
 
 def parabola(

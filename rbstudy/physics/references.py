@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -42,7 +42,8 @@ from rbstudy.physics.analytic import (
     symmetry_axes,
 )
 from rbstudy.physics.loads import TURNING, record_slice
-from rbstudy.physics.metrics import UNCERTAIN_MEASURES
+from rbstudy.physics.quaternions import quat_mul
+from rbstudy.physics.reference_data import NONE_CODE, Reference, References
 from rbstudy.physics.scenes import Scene, SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import STEP_RTOL
@@ -66,6 +67,8 @@ __all__ = [
     "load_spin",
     "knot_steps",
     "dop853_reference",
+    "table_floors",
+    "ULP",
 ]
 
 # Accepted DOP853 steps one reference may take: a few minutes of one core at the cost of a step
@@ -91,97 +94,6 @@ COMPOSED_STEP_ANGLE = 0.15
 _KNOT_SEARCH = 1000
 # Knots the search checks at once: arrays of at most this many by `_KNOT_SEARCH` floats (8 MB).
 _KNOT_CHUNK = 1000
-
-
-_FIELDS = tuple(S.STATE_FIELDS)  # quaternion, omega_body, position, velocity
-_NONE = REFERENCE_KINDS.index("none")  # the code of a case without a reference
-
-
-@dataclass(frozen=True)
-class Reference:
-    """A reference trajectory on T output times: quaternion (T, 4), omega_body (T, 3) rad/s,
-    position and velocity (T, 3); ``name`` (one of the reference kinds of
-    `rbstudy.physics.analytic`) says where it comes from. ``uncertainty``: for an integrated
-    reference that a second, independent integration checked, how far that one lies from it
-    per error measure (orientation rad, omega relative, nodes m; `_differences`), else
-    empty."""
-
-    name: str
-    quaternion: np.ndarray
-    omega_body: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    uncertainty: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class References:
-    """The references of m scenes on T output times, as columns.
-
-    code : (m,) int8, each one's kind as its index in
-    `rbstudy.physics.analytic.REFERENCE_KINDS`. quaternion : (m, T, 4); omega_body,
-    position, velocity : (m, T, 3), as in `Reference`. uncertainty : (m, 3) per
-    `UNCERTAIN_MEASURES`, NaN where nothing checked the reference. ``references[k]`` is the
-    k-th as a `Reference`.
-    """
-
-    code: np.ndarray
-    quaternion: np.ndarray
-    omega_body: np.ndarray
-    position: np.ndarray
-    velocity: np.ndarray
-    uncertainty: np.ndarray
-
-    @classmethod
-    def empty(cls, count: int, n_times: int) -> References:
-        """``count`` references on ``n_times`` times, all "none" (NaN) until filled in."""
-        return cls(
-            code=np.full(count, _NONE, dtype=np.int8),
-            **{
-                name: np.full(
-                    (count, n_times, S.STATE_FIELDS[name].stop - S.STATE_FIELDS[name].start), np.nan
-                )
-                for name in _FIELDS
-            },
-            uncertainty=np.full((count, len(UNCERTAIN_MEASURES)), np.nan),
-        )
-
-    def __len__(self) -> int:
-        return len(self.code)
-
-    def __getitem__(self, k: int) -> Reference:
-        """The k-th reference, a `Reference`."""
-        uncertainty = self.uncertainty[k]
-        checked = not np.all(np.isnan(uncertainty))
-        return Reference(
-            name=REFERENCE_KINDS[self.code[k]],
-            **{name: getattr(self, name)[k] for name in _FIELDS},
-            uncertainty=dict(zip(UNCERTAIN_MEASURES, uncertainty.tolist(), strict=True)) if checked else {},
-        )
-
-    def put(self, k: int, reference: Reference) -> None:
-        """Store ``reference`` (a `Reference`) as the k-th, in place."""
-        self.code[k] = REFERENCE_KINDS.index(reference.name)
-        for name in _FIELDS:
-            getattr(self, name)[k] = getattr(reference, name)
-        self.uncertainty[k] = [reference.uncertainty.get(m, np.nan) for m in UNCERTAIN_MEASURES]
-
-    @property
-    def names(self) -> np.ndarray:
-        """(m,) object array: each one's kind by name."""
-        return np.array(REFERENCE_KINDS, dtype=object)[self.code]
-
-    @classmethod
-    def gather(cls, chunks: Sequence[References], places: np.ndarray) -> References:
-        """The references at ``places`` (n, 2) (chunk, position) of ``chunks``, in order."""
-        starts = np.cumsum([0] + [len(chunk) for chunk in chunks])
-        flat = starts[places[:, 0]] + places[:, 1]
-        return cls(
-            **{
-                name: np.concatenate([getattr(chunk, name) for chunk in chunks])[flat]
-                for name in ("code", *_FIELDS, "uncertainty")
-            }
-        )
 
 
 class _Group(NamedTuple):
@@ -269,6 +181,12 @@ def _free_bodies(group, members, times, found):
 def _lagrange_tops(group, members, times, found):
     """The Lagrange tops, every top and time in one compiled call; a top the closed form
     refuses (`rbstudy.numerics.heavy_top.REFUSALS`) is integrated instead."""
+    taken = _lagrange_closed(group, members, times, found)
+    _integrated(group, members[~taken], times, found)
+
+
+def _lagrange_closed(group, members, times, found):
+    """The Lagrange tops that the closed form takes, into ``found``: which it took, (m,)."""
     inertia = np.ascontiguousarray(group.inertia[members])
     axes = symmetry_axes(inertia)
     levers = group.loads["lever"][members].reshape(-1, 3, 3)
@@ -289,7 +207,7 @@ def _lagrange_tops(group, members, times, found):
     taken = refused == 0
     found.quaternion[members[taken]], found.omega_body[members[taken]] = quaternion[taken], omega[taken]
     _centres(group, members[taken], times, found)
-    _integrated(group, members[~taken], times, found)
+    return taken
 
 
 def _axial_moments(group, members, times, found):
@@ -459,7 +377,7 @@ def _integrated(group, members, times, found):
             composed = replace(composed, uncertainty=_differences(scene, composed, peer))
         best = composed or peer
         if best is None:
-            found.code[k] = _NONE  # its NaNs stay
+            found.code[k] = NONE_CODE  # its NaNs stay
         else:
             found.put(k, best)
 
@@ -475,8 +393,70 @@ COMPUTE = {
 }
 
 
+# The closed forms as `_floors` evaluates them: never integrating (a Lagrange top the closed
+# form refuses keeps NaN).
+_CLOSED = {
+    "symmetric_top": _symmetric_tops,
+    "axial_moment": _axial_moments,
+    "exact_asymmetric": _free_bodies,
+    "lagrange_top": _lagrange_closed,
+}
+# The relative size of the perturbations of `_floors`: one ulp.
+ULP = float(np.finfo(float).eps)
+
+
+def _perturbed(group, members, kind):
+    """``members`` of ``group``, each perturbed by one ulp of its initial state in every way
+    `_floors` tries: the angular velocity scaled by ``1 + ULP``, and (where the closed form
+    allows it, all but the axial moment) each of its components moved by ``ULP |w0|``; the
+    orientation turned by ``ULP`` about each body axis. A `_Group` of p m scenes, perturbation
+    by perturbation, and p."""
+    omega = group.omega_body[members]
+    quaternion = group.quaternion[members]
+    omegas = [omega * (1.0 + ULP)]
+    if kind != "axial_moment":
+        size = np.linalg.norm(omega, axis=-1, keepdims=True)
+        omegas += [omega + ULP * size * np.eye(3)[k] for k in range(3)]
+    turns = [quat_mul(quaternion, np.r_[0.5 * ULP * np.eye(3)[k], 1.0]) for k in range(3)]
+    count = len(omegas) + len(turns)
+    index = np.tile(members, count)
+    return (
+        group._replace(
+            inertia=group.inertia[index],
+            quaternion=np.concatenate([quaternion] * len(omegas) + turns),
+            omega_body=np.concatenate(omegas + [omega] * len(turns)),
+            position=group.position[index],
+            velocity=group.velocity[index],
+            mass=group.mass[index],
+            loads={name: np.asarray(column)[index] for name, column in group.loads.items()},
+        ),
+        count,
+    )
+
+
+def _floors(group, members, kind, times, found):
+    """The float64 floor of the closed-form references ``members`` of ``kind``, into
+    ``found.floor``: the largest orientation angle at the last time ``times[-1]`` between the
+    reference and the same closed form from initial data perturbed by one ulp (`_perturbed`).
+    No scheme can be asked to do better: rounding its initial state to float64 costs as much,
+    and every step rounds it again. A top the closed form refuses keeps NaN."""
+    if times[-1] <= 0.0:
+        return
+    perturbed, count = _perturbed(group, members, kind)
+    trial = References.empty(count * members.size, 2)
+    taken = _CLOSED[kind](perturbed, np.arange(count * members.size), np.array([0.0, times[-1]]), trial)
+    angles = metrics.orientation_error(
+        trial.quaternion[:, -1].reshape(count, members.size, 4), found.quaternion[members, -1]
+    )
+    if taken is not None:  # the refused ones' quaternions were left NaN
+        angles = np.where(taken.reshape(count, members.size), angles, np.nan)
+    closed = found.code[members] == REFERENCE_KINDS.index(kind)
+    found.floor[members] = np.where(closed, angles.max(axis=0), np.nan)
+
+
 def _references(group, kinds, times):
-    """The `References` of a `_Group` whose scenes have the reference ``kinds`` (m,)."""
+    """The `References` of a `_Group` whose scenes have the reference ``kinds`` (m,), with
+    the float64 floors of the closed forms."""
     times = np.asarray(times, dtype=float)
     found = References.empty(len(kinds), times.size)
     for kind, compute in COMPUTE.items():
@@ -484,7 +464,28 @@ def _references(group, kinds, times):
         if members.size:
             found.code[members] = REFERENCE_KINDS.index(kind)
             compute(group, members, times, found)
+            if kind in _CLOSED:
+                _floors(group, members, kind, times, found)
     return found
+
+
+def table_floors(table: SceneTable, rows: np.ndarray, duration: float) -> np.ndarray:
+    """(m,) the float64 floor (rad, `_floors`) at ``duration`` of the scenes ``rows`` (m,) of
+    ``table`` whose reference is a closed form, NaN for the others: the closed forms alone are
+    evaluated (at 0 and ``duration``), nothing is integrated."""
+    group = _table_group(table, rows)
+    kinds = table.reference_kinds[rows]
+    times = np.array([0.0, float(duration)])
+    found = References.empty(len(kinds), times.size)
+    for kind, closed in _CLOSED.items():
+        members = np.flatnonzero(kinds == kind)
+        if members.size:
+            found.code[members] = REFERENCE_KINDS.index(kind)
+            taken = closed(group, members, times, found)
+            if taken is not None:  # a refused top: integrated in a sweep, no floor here
+                found.code[members[~taken]] = REFERENCE_KINDS.index(INTEGRATED)
+            _floors(group, members, kind, times, found)
+    return found.floor
 
 
 def table_references(table: SceneTable, rows: np.ndarray, times: np.ndarray) -> References:

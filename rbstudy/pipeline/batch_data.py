@@ -19,7 +19,7 @@ import numpy as np
 from rbstudy.physics import analytic, metrics
 
 if TYPE_CHECKING:  # the types alone: importing them loads numba
-    from rbstudy.physics.references import References
+    from rbstudy.physics.reference_data import References
     from rbstudy.physics.scenes import SceneTable
     from rbstudy.physics.simulate import Simulation
 
@@ -164,6 +164,19 @@ class BatchData:
         chosen = np.isfinite(self.exact_flip)
         run = np.where(chosen, metrics.sign_changes(self.middle_rates), np.nan)
         return run, np.where(chosen, metrics.sign_changes(exact), np.nan)
+
+    @cached_property
+    def separatrix(self) -> np.ndarray:
+        """(B,) ``k'^2`` of each free asymmetric body (`analytic.separatrix_distance`), NaN
+        for the others."""
+        free = self.free & (self.table.symmetry_axes[self.rows] < 0)
+        omega = self.table.omega_body[self.rows]
+        return np.array(
+            [
+                analytic.separatrix_distance(inertia, spin) if chosen else np.nan
+                for inertia, spin, chosen in zip(self.principal_inertia, omega, free, strict=True)
+            ]
+        )
 
     @cached_property
     def exact_flip(self) -> np.ndarray:

@@ -39,7 +39,8 @@ from rbstudy.errors import RbstudyError, counted
 from rbstudy.numerics.driver import clear_halt, request_halt
 from rbstudy.numerics.machine import default_threads
 from rbstudy.physics.loads import needs_time
-from rbstudy.physics.references import References, table_references
+from rbstudy.physics.reference_data import References
+from rbstudy.physics.references import table_references
 from rbstudy.physics.scenes import SceneTable
 from rbstudy.physics.simulate import simulate
 from rbstudy.physics.time_grid import output_times

@@ -327,6 +327,21 @@ def flip_count(batch: BatchData) -> np.ndarray:
     return batch.flip_counts[0]
 
 
+def separatrix_distance(batch: BatchData) -> np.ndarray:
+    """``k'^2``: how far a free asymmetric body's motion lies from the separatrix.
+
+    Parameters
+    ----------
+    batch : BatchData
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        1 (0 on the separatrix)
+    """
+    return batch.separatrix
+
+
 def flip_count_exact(batch: BatchData) -> np.ndarray:
     """Sign changes of the exact solution's intermediate-axis rate at the same samples.
 
@@ -428,71 +443,6 @@ def accuracy(batch: BatchData) -> np.ndarray:
     unreferenced = batch.references.code == analytic.REFERENCE_KINDS.index("none")
     verdict = np.where(accurate, ACCURATE, np.where(unreferenced & ~drifted, UNJUDGED, INACCURATE))
     return np.where(results["status"] == OK, verdict, FAILED).astype(np.int8)
-
-
-def reference(batch: BatchData) -> np.ndarray:
-    """The code of each case's reference in `rbstudy.physics.analytic.REFERENCE_KINDS`.
-
-    Parameters
-    ----------
-    batch : BatchData
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        int8
-    """
-    return batch.references.code.astype(np.int8)
-
-
-def _uncertainty(batch: BatchData, measure: str) -> np.ndarray:
-    """(B,) the reference's uncertainty in ``measure``: NaN where nothing checked it."""
-    return batch.references.uncertainty[:, metrics.UNCERTAIN_MEASURES.index(measure)]
-
-
-def reference_uncertainty(batch: BatchData) -> np.ndarray:
-    """The reference's uncertainty in orientation.
-
-    Parameters
-    ----------
-    batch : BatchData
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        rad; NaN where nothing checked it.
-    """
-    return _uncertainty(batch, "orientation")
-
-
-def reference_omega_uncertainty(batch: BatchData) -> np.ndarray:
-    """The reference's relative uncertainty in body angular velocity.
-
-    Parameters
-    ----------
-    batch : BatchData
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        NaN where nothing checked it.
-    """
-    return _uncertainty(batch, "omega")
-
-
-def reference_node_uncertainty(batch: BatchData) -> np.ndarray:
-    """The reference's uncertainty in node positions.
-
-    Parameters
-    ----------
-    batch : BatchData
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        m; NaN where nothing checked it.
-    """
-    return _uncertainty(batch, "nodes")
 
 
 def inertia(batch: BatchData) -> np.ndarray:
