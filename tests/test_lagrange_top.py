@@ -108,6 +108,7 @@ def angle(q1, q2):
     return (Rotation.from_quat(q1).inv() * Rotation.from_quat(q2)).magnitude()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(TOPS))
 def test_closed_form_agrees_with_dop853(name):
     top = TOPS[name]
@@ -121,6 +122,7 @@ def test_closed_form_agrees_with_dop853(name):
     assert np.abs(omega - w_ref).max() < 2e-12 * np.abs(w_ref).max()
 
 
+@pytest.mark.slow
 def test_integration_converges_onto_the_closed_form():
     """DOP853's distance from the closed form falls with its tolerance, down to ~1e-12 rad:
     on Bruls's top, whose axis passes within 1e-6 rad of hanging straight down, the closed
