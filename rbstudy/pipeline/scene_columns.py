@@ -29,6 +29,22 @@ __all__ = ["set_path", "distinct_scenes"]
 _SHORT_ORDER = ("scheme", "dt", "inertia_ratio", "tilt", "spin")
 
 
+def _check_replaced(dotted: str, old: Any) -> None:
+    """Refuse a value of the study that a sweep of ``dotted`` replaces but that no sweep
+    value could stand for (a list, a number past a float): replaced, it would pass unread."""
+    try:
+        readable = isinstance(old, str | bool) or (isinstance(old, int | float) and math.isfinite(float(old)))
+    except OverflowError:
+        readable = False
+    if not readable:
+        shown = repr(old) if len(repr(old)) <= 40 else repr(old)[:37] + "..."
+        raise InputError(
+            f"holds {shown}, which the sweep of it replaces but no sweep value stands for",
+            "give a number, a name or true/false there",
+            key=dotted,
+        )
+
+
 def set_path(spec: Any, dotted: str, value: Any) -> None:
     """Write ``value`` at a dotted path (list entries by index) into nested ``spec``."""
     *parents, leaf = dotted.split(".")
@@ -51,8 +67,12 @@ def set_path(spec: Any, dotted: str, value: Any) -> None:
                 key=dotted,
             )
     if isinstance(node, list):
-        node[_list_index(dotted, node, leaf)] = value
+        index = _list_index(dotted, node, leaf)
+        _check_replaced(dotted, node[index])
+        node[index] = value
     elif isinstance(node, dict):
+        if leaf in node:
+            _check_replaced(dotted, node[leaf])
         node[leaf] = value
     else:
         raise InputError(
