@@ -402,8 +402,8 @@ def _verdict(ds: xr.Dataset, row: dict[str, Any], rates: xr.DataArray | None) ->
     reason = floor_reason(row)
     at_float64 = row.get("float64_floor")
     if at_float64 is not None:
-        numbers["float64_floor_rad"], numbers["float64_floor_dt"] = at_float64
-    if reason == "round-off" and at_float64 is not None:  # every error within it
+        numbers["float64_floor_rad"], numbers["float64_floor_dt"], _ = at_float64
+    if reason == "round-off" and at_float64 is not None and at_float64[2]:  # every error within it
         parts = [f"at the float64 floor ({significant(at_float64[0], 2)} rad)"]
         if largest is not None:
             numbers["error_rad"] = largest
@@ -422,7 +422,7 @@ def _verdict(ds: xr.Dataset, row: dict[str, Any], rates: xr.DataArray | None) ->
         ]
     else:
         parts = ["no order fitted"]
-    if at_float64 is not None and reason != "round-off":  # the finest errors, left out of the fit
+    if at_float64 is not None and reason is None:  # the finest errors, left out of the fit
         parts.append(
             f"at the float64 floor ({significant(at_float64[0], 2)} rad) from dt = {at_float64[1]:g} s"
         )

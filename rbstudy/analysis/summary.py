@@ -469,17 +469,19 @@ def _error_fields(inputs: _OrderInputs, scheme: str, status: xr.DataArray) -> di
 
 def _at_float64_floor(
     errors: xr.DataArray, float64: xr.DataArray | None, scheme: str
-) -> tuple[float, float] | None:
+) -> tuple[float, float, bool] | None:
     """Where ``scheme``'s ``errors`` lie at the float64 floor (within `FLOOR_FACTOR` of
-    ``float64``, its reference's): the largest such floor (rad) and the largest dt (s) at
-    it; None where none does."""
+    ``float64``, its reference's): the largest such floor (rad), the largest dt (s) at it,
+    and whether every finite error does; None where none does."""
     if float64 is None:
         return None
     floor = per_scheme(float64, scheme)
-    at = np.isfinite(errors) & (errors <= FLOOR_FACTOR * floor)
+    finite = np.isfinite(errors)
+    at = finite & (errors <= FLOOR_FACTOR * floor)
     if not bool(at.any()):
         return None
-    return float(floor.where(at).max()), float(errors["dt"].broadcast_like(errors).where(at).max())
+    every = bool(at.sum() == finite.sum())
+    return float(floor.where(at).max()), float(errors["dt"].broadcast_like(errors).where(at).max()), every
 
 
 def _worst(errors: xr.DataArray, status: xr.DataArray) -> float | None:
