@@ -66,6 +66,26 @@ CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 
 
+# How many times `parsed` tries: CPython 3.11 before 3.11.8 counts the AST constructor's
+# depth in state shared by every thread, and raises a spurious SystemError ("AST
+# constructor recursion depth mismatch", CPython issue gh-106905) when another thread (a
+# dask worker an earlier test left running) builds an AST at the same moment.
+PARSE_TRIES = 3
+
+
+def parsed(source):
+    """``ast.parse(source)``, tried again where CPython's spurious depth mismatch struck."""
+    import ast
+
+    for attempt in range(PARSE_TRIES):
+        try:
+            return ast.parse(source)
+        except SystemError as error:
+            if "recursion depth mismatch" not in str(error) or attempt == PARSE_TRIES - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
 def in_every_module(check):
     """What ``check(path, label)`` finds in each module of rbstudy (a list per module), one
     list; ``label`` the module's path in the package."""

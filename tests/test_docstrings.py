@@ -10,6 +10,7 @@ import pathlib
 import re
 
 import pytest
+from helpers import parsed
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 DOCUMENTED = sorted(PACKAGE.glob("numerics/*.py")) + [
@@ -106,7 +107,7 @@ def problems(function):
 
 @pytest.mark.parametrize("path", DOCUMENTED, ids=lambda path: path.name)
 def test_public_numerical_functions_document_parameters_returns_and_shapes(path):
-    tree = ast.parse(path.read_text())
+    tree = parsed(path.read_text())
     missing = {name: lacking for name, function in public_functions(tree) if (lacking := problems(function))}
     assert not missing, f"{path.relative_to(PACKAGE.parent)}: numpydoc lacks {missing}"
 
@@ -135,6 +136,6 @@ def g(a):
     """Nothing said."""
     return a
 '''
-    functions = dict(public_functions(ast.parse(source)))
+    functions = dict(public_functions(parsed(source)))
     assert problems(functions["f"]) == ["parameter b", "the shape of the returned array"]
     assert problems(functions["g"]) == ["parameter a", "a Returns section"]

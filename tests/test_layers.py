@@ -24,6 +24,7 @@ import sys
 
 import pytest
 import tomllib
+from helpers import parsed
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "rbstudy"
 PYPROJECT = PACKAGE.parent / "pyproject.toml"
@@ -95,7 +96,7 @@ def _called(node):
 @functools.cache
 def _tree(path):
     """The parsed source of ``path``, once a session: every check here walks the same files."""
-    return ast.parse(path.read_text())
+    return parsed(path.read_text())
 
 
 def imports(path):

@@ -11,7 +11,7 @@ A function's lines run from its ``def`` to its last line, its docstring included
 
 import ast
 
-from helpers import in_every_module
+from helpers import in_every_module, parsed
 
 MODULE_LINES = 600
 FUNCTION_LINES = 80
@@ -47,7 +47,7 @@ def oversized(path, label=None):
     found = []
     if len(lines) > MODULE_LINES and not any(_says_why(line) for line in lines[:MODULE_HEAD_LINES]):
         found.append(f"{label}: {len(lines)} lines")
-    for node in ast.walk(ast.parse(text)):
+    for node in ast.walk(parsed(text)):
         if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
             continue
         length = node.end_lineno - node.lineno + 1

@@ -6,6 +6,7 @@ import html
 
 import pytest
 import yaml
+from helpers import parsed
 
 from rbstudy.analysis.conformance import status_lines, tally_statuses
 from rbstudy.analysis.findings import findings
@@ -102,7 +103,7 @@ def _coded_literals(source):
         return bool((names | keys) & CODED)
 
     found = []
-    for node in ast.walk(ast.parse(source)):
+    for node in ast.walk(parsed(source)):
         if isinstance(node, ast.Compare):
             sides = [node.left, *node.comparators]
             numbers = [s for s in sides if isinstance(s, ast.Constant) and type(s.value) is int]

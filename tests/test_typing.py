@@ -10,7 +10,7 @@ the object is built and used). The compiled kernels (``@jit``, ``@inline_jit`` a
 
 import ast
 
-from helpers import in_every_module
+from helpers import in_every_module, parsed
 
 KERNEL_DECORATORS = {"jit", "inline_jit", "overload"}
 
@@ -42,7 +42,7 @@ def untyped(path, label=None):
     """The public functions of one file whose types are not all said: a list of strings."""
     label = label or path.name
     found = []
-    tree = ast.parse(path.read_text())
+    tree = parsed(path.read_text())
     functions = [(node, "") for node in tree.body if isinstance(node, ast.FunctionDef)]
     for node in tree.body:
         if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
