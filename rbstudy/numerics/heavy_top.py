@@ -197,13 +197,21 @@ def _pole_distance(estimate, c3, c2, c1, c0):
 
 
 @jit
-def _third(n, n1, k2, k2c, quarter, whole, tau):
-    """``Pi(n; am tau | k^2)`` for any ``tau`` (``n1 = 1 - n``): reduced by whole half periods
-    ``2K``; for ``n < 0`` the form that keeps its digits as ``n -> -inf``, else the one that
-    keeps them as ``n -> 1`` (a turning point next to either pole)."""
+def _reduced(tau, k2, k2c, quarter):
+    """``tau`` reduced by whole half periods ``2K`` to ``|r| <= K``: ``(turns, r, sn, cn,
+    dn)``, Jacobi's functions of ``r``, which both branches and ``u`` read."""
     turns = math.floor(tau / (2.0 * quarter) + 0.5)
     r = tau - 2.0 * quarter * turns
     sn, cn, dn = jacobi(r, k2, k2c, quarter)
+    return turns, r, sn, cn, dn
+
+
+@jit
+def _third(n, n1, k2, whole, at):
+    """``Pi(n; am tau | k^2)`` for any ``tau`` (``n1 = 1 - n``; ``at``: `_reduced` of
+    ``tau``); for ``n < 0`` the form that keeps its digits as ``n -> -inf``, else the one that
+    keeps them as ``n -> 1`` (a turning point next to either pole)."""
+    turns, r, sn, cn, dn = at
     if n < 0.0:
         reduced = third_kind_steep(n, sn, cn, dn, r, k2, whole)
     else:
@@ -252,7 +260,7 @@ def _without_nutation(refused, steady, omega):
 def _branch(n, n1, k2, k2c, quarter, tau0, offset):
     """A branch of `_integral`: ``(n, 1 - n, Pi(n), Pi(n; am tau0), offset)``."""
     whole = complete_third_steep(n, k2, k2c) if n < 0.0 else complete_third_close(n, n1, k2c, quarter)
-    return n, n1, whole, _third(n, n1, k2, k2c, quarter, whole, tau0), offset
+    return n, n1, whole, _third(n, n1, k2, whole, _reduced(tau0, k2, k2c, quarter)), offset
 
 
 # longer than the limit: one top's constants, twenty fields built in one call
@@ -344,11 +352,11 @@ def lagrange_body(inertia, axis, q, omega, arm_force):
 
 
 @jit
-def _integral(top, branch, tau):
-    """``int_0^t dt / (1 -+ u)`` of one ``branch`` ``(n, Pi(n), Pi(n; am tau0), 1 -+ u1)``
-    at ``tau = rate t + tau0``."""
+def _integral(top, branch, at):
+    """``int_0^t dt / (1 -+ u)`` of one ``branch`` ``(n, 1 - n, Pi(n), Pi(n; am tau0), 1 -+
+    u1)`` at ``tau = rate t + tau0`` (``at``: `_reduced` of ``tau``)."""
     n, n1, whole, start, offset = branch
-    return (_third(n, n1, top.k2, top.k2c, top.quarter, whole, tau) - start) / (top.rate * offset)
+    return (_third(n, n1, top.k2, whole, at) - start) / (top.rate * offset)
 
 
 @jit
@@ -374,14 +382,13 @@ def lagrange_motion(top, q, t):
     """
     if top.steady:
         return spun_steadily(q, top.omega0, t), top.omega0
-    tau = top.rate * t + top.tau0
-    turns = math.floor(tau / (2.0 * top.quarter) + 0.5)
-    sn, cn, dn = jacobi(tau - 2.0 * top.quarter * turns, top.k2, top.k2c, top.quarter)
+    at = _reduced(top.rate * t + top.tau0, top.k2, top.k2c, top.quarter)  # once for u and both branches
+    sn, cn, dn = at[2], at[3], at[4]
     above = top.bottom + top.spread * sn * sn  # 1 + u
     below = top.top + top.spread * cn * cn  # 1 - u
     across = math.sqrt(below * above)  # sin theta
-    minus = _integral(top, top.minus, tau)
-    plus = _integral(top, top.plus, tau)
+    minus = _integral(top, top.minus, at)
+    plus = _integral(top, top.plus, at)
     precession = 0.5 * (top.a_minus_b * minus + top.a_plus_b * plus)
     psi = top.psi0 + (top.spin - top.b) * t + 0.5 * (top.a_plus_b * plus - top.a_minus_b * minus)
     tilt = _tilt(across, 0.5 * (above - below), psi)
