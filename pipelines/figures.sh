@@ -31,7 +31,7 @@ shown=(
     hht_damping:convergence_orientation spin_tilt:stability_map
     radioss_body:convergence_orientation radioss_spin_limit:stability_map
     high_order:convergence_orientation high_order:work_precision
-    heavy_top:convergence_orientation
+    heavy_top:convergence_orientation published_steps:work_precision
 )
 mkdir -p docs/figures
 for pair in "${shown[@]}"; do

@@ -109,6 +109,8 @@ def listed_schemes(listing):
     joined into one."""
     rows, name = {}, None
     for line in listing.splitlines()[1:]:
+        if not line:  # the groups follow the schemes
+            break
         if line.startswith(" "):  # a summary wrapped under its column
             rows[name] += " " + line.strip()
         else:

@@ -144,7 +144,7 @@ def test_a_study_past_the_memory_or_the_free_disk_is_refused(tmp_path, capsys, m
     [
         (
             "name: x\nscene: {body: {inertia: [1, 1, 1]}}\nrun: {scheme: leapfrg, dt: 0.1}\n",
-            "bad.yaml: run.scheme: unknown scheme 'leapfrg' (did you mean 'leapfrog'?); valid schemes: "
+            "bad.yaml: run.scheme: unknown scheme 'leapfrg' (did you mean 'leapfrog'?); valid schemes: buss, "
             "dop853, euler",
         ),
         (

@@ -33,7 +33,7 @@ def fitted(dts, errors, floor=1e-11):
 
 
 def test_the_symmetric_schemes_and_exact_split_compose():
-    assert COMPOSABLE == ["exact_split", "midpoint", "no_squish", "splitting"]
+    assert COMPOSABLE == ["exact_split", "lgvi", "midpoint", "no_squish", "simo_wong", "splitting"]
     assert COMPOSITION_ORDERS == (2, 4, 6, 8)
 
 

@@ -200,6 +200,11 @@ def test_gravity_on_a_body_centred_elsewhere_pulls_at_the_mass():
     assert np.max(orientation_error(run.quaternion[0], turns.as_quat())) < 1e-9
 
 
+# The discrete Moser-Veselov step has no solution past h |w| = 1 about a principal axis (it
+# turns a steady spin by asin(h w) a step; tests/test_published_steps.py).
+NO_STEP_PAST_ONE = ("lgvi",)
+
+
 def test_the_radioss_step_limit_is_a_flag_of_its_own():
     """A symmetric top spinning at |w| = 10 rad/s about its axis: dt |w| = 0.5 is within
     the OpenRadioss limit, dt |w| = 2 past it; the flag says so for every scheme, and the
@@ -216,6 +221,9 @@ def test_the_radioss_step_limit_is_a_flag_of_its_own():
     for name in BUILTIN:
         within, past = (simulate([scene], name, dt, 0.2) for dt in (0.05, 0.2))
         assert within.results["radioss_dt_limit"][0] == 0, name
+        if name in NO_STEP_PAST_ONE:
+            assert past.status_names == ["not_converged"], name
+            continue
         if SCHEMES[name].adaptive:
             assert 0.0 < past.results["max_step_angle"][0] < 0.5, name
             assert past.results["radioss_dt_limit"][0] == 0, name
@@ -241,6 +249,9 @@ def test_the_radioss_flag_follows_the_largest_spin_not_the_first():
     )
     for name in FIXED_STEP:
         run = simulate([scene], name, 0.1, 0.2)
+        if name in NO_STEP_PAST_ONE:  # spun past h |w| = 1
+            assert run.status_names == ["not_converged"], name
+            continue
         assert math.isclose(run.results["max_step_angle"][0], 1.5, rel_tol=1e-12), name
         assert run.results["radioss_dt_limit"][0] == 1, name
 

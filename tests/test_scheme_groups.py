@@ -19,7 +19,10 @@ def test_each_engine_of_the_registry_is_a_group_of_its_adapters():
             name for name, value in ENGINES.items() if value.startswith(f"rbstudy.engines.{engine}:")
         ]
     assert groups["engines"] == list(ENGINES)
-    assert groups["builtin"] == [name for name, scheme in BUILTIN.items() if not scheme.adaptive]
+    assert groups["builtin"] + groups["published"] == [
+        name for name, scheme in BUILTIN.items() if not scheme.adaptive and scheme.group == "builtin"
+    ] + [name for name, scheme in BUILTIN.items() if scheme.group == "published"]
+    assert groups["published"] == ["buss", "jolt", "lgvi", "simo_wong"]
     assert "dop853" not in groups["builtin"] and "rk4" in groups["builtin"]
 
 

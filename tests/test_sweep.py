@@ -38,8 +38,9 @@ def test_value_forms_expand_as_documented(tmp_path):
 
 def test_all_means_every_fixed_step_scheme(tmp_path):
     study = load_study(write_study(tmp_path, sweep={"scheme": "all"}))
-    assert study.dimensions[0].axes[0].values == tuple(name for name, s in BUILTIN.items() if not s.adaptive)
-    assert "dop853" not in study.dimensions[0].axes[0].values
+    own = tuple(name for name, s in BUILTIN.items() if not s.adaptive and s.group == "builtin")
+    assert study.dimensions[0].axes[0].values == own
+    assert "dop853" not in own and "lgvi" not in own  # the published steps: scheme: published
 
 
 def test_a_list_of_schemes_takes_groups(tmp_path):
@@ -49,8 +50,12 @@ def test_a_list_of_schemes_takes_groups(tmp_path):
     from rbstudy.schemes import unavailable_schemes
     from rbstudy.schemes._plugins import ENGINES
 
-    own = tuple(name for name, s in BUILTIN.items() if not s.adaptive)
-    cases = [(["rk4", "all"], ("rk4", *(name for name in own if name != "rk4")))]
+    own = tuple(name for name, s in BUILTIN.items() if not s.adaptive and s.group == "builtin")
+    published = ("buss", "jolt", "lgvi", "simo_wong")
+    cases = [
+        (["rk4", "all"], ("rk4", *(name for name in own if name != "rk4"))),
+        (["published", "midpoint"], (*published, "midpoint")),
+    ]
     if not set(ENGINES) & set(unavailable_schemes()):  # CI installs the engines
         mujoco = tuple(name for name in ENGINES if name.startswith("mujoco_"))
         cases += [
@@ -162,7 +167,9 @@ def test_a_missing_name_says_how_to_give_one(tmp_path):
 
 def test_a_group_alone_sweeps_its_schemes(tmp_path):
     study = load_study(write_study(tmp_path, sweep={"scheme": "builtin"}))
-    assert [c.scheme for c in study.cases] == [name for name, s in BUILTIN.items() if not s.adaptive]
+    assert [c.scheme for c in study.cases] == [
+        name for name, s in BUILTIN.items() if not s.adaptive and s.group == "builtin"
+    ]
 
 
 def test_batches_group_scheme_and_dt_and_ids_are_stable(tmp_path):
@@ -334,7 +341,7 @@ def test_a_bad_value_inside_a_column_names_its_own_case(tmp_path, sweep, scene, 
         ),
         (
             {"scheme": ["rk4", "rk5"]},
-            "sweep.scheme[1]: unknown scheme 'rk5'; valid schemes: dop853, euler",
+            "sweep.scheme[1]: unknown scheme 'rk5'; valid schemes: buss, dop853, euler",
         ),
         (
             {"zip": {"pair": {"spin": [1.0], "tilt": [1.0, 2.0]}}},

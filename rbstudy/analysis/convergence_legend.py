@@ -120,12 +120,14 @@ def values_label(
 ) -> str:
     """The legend entry of a line that stands for the values of ``reduced`` axes: its orders
     fitted value by value (``fits``: per panel, a (fit, floor) pair per value, `value_fits`),
-    ``rk4 (order 3.98-4.02, finest 3.9-4.1, at 12 of 17 values of inertia_ratio)``; a line
+    ``rk4 (order 3.98-4.02, finest 3.9-4.1, at 12 of 17 values of inertia_ratio)``, ``... of
+    body over 2 panels`` where the figure has several; a line
     whose every value lies at a floor says which (exact_split's round-off; ``floor_kind``, the
     measure's)."""
     every = [pair for panel in fits for pair in panel]
     fitted = [fit for fit, _ in every if np.isfinite(fit.order)]
-    axes = ", ".join(reduced)
+    # the legend serves every panel: their values are counted together, and said to be
+    axes = ", ".join(reduced) + (f" over {len(fits)} panels" if len(fits) > 1 else "")
     where = f"at {len(fitted)} of {len(every)} values of {axes}"
     if not fitted:
         floors = {floor for _, floor in every}

@@ -35,6 +35,9 @@ __all__ = [
 SWEPT_BY_SUMMARY = ("scheme", "dt")
 # A list of values is named whole up to this many; a longer one as a range that loses none
 # ("0.0001 to 10000, 17 values, every value swept", "all 17 values but 3.16": `axis_text`).
+# A zipped axis is named by its coordinates joined ("spin/tilt 1/0") up to this many, and by
+# its own name and position beyond ("body 1").
+MAX_JOINED = 2
 SHOWN_VALUES = 6
 
 
@@ -112,14 +115,20 @@ def _held(positions: list[tuple[int, ...]], axes: list[tuple[str, dict[str, list
 
 def _axis_names(dim: str, axis: Mapping[str, list[Any]]) -> list[str]:
     """The coordinates that name the values along ``dim`` (`label_values` ``axis``): a zipped
-    axis's own, its index (the dimension's name) left out."""
-    return [name for name in axis if name != dim] or [dim]
+    axis's own, its index (the dimension's name) left out; a zip of more than `MAX_JOINED`
+    coordinates is named by the dimension alone, its values by their positions (``body 1``):
+    five coordinates joined ran past a line."""
+    names = [name for name in axis if name != dim] or [dim]
+    return names if len(names) <= MAX_JOINED else [dim]
 
 
 def value_texts(dim: str, axis: Mapping[str, list[Any]]) -> list[str]:
-    """Every value along ``dim`` as text, a zipped axis's coordinates joined by "/"."""
+    """Every value along ``dim`` as text, a zipped axis's coordinates joined by "/" (its
+    positions where `_axis_names` names it by the dimension)."""
     names = _axis_names(dim, axis)
-    return ["/".join(_text(axis[name][k]) for name in names) for k in range(len(axis[names[0]]))]
+    count = len(next(iter(axis.values())))
+    columns = [axis.get(name, range(count)) for name in names]
+    return ["/".join(_text(column[k]) for column in columns) for k in range(count)]
 
 
 def axis_text(dim: str, axis: Mapping[str, list[Any]], held: Sequence[int]) -> str:

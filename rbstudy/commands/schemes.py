@@ -27,10 +27,10 @@ MAX_GOLDEN_STEPS = 8
 
 def list_schemes(args: argparse.Namespace) -> int:
     """``rbstudy schemes``: the registered schemes, each with its order, kind, invariants
-    kept, options and summary, then those unavailable here and why; the names alone with
-    ``--quiet``."""
+    kept, options and summary, then those unavailable here and why, then the groups a config
+    may name; the names alone with ``--quiet``."""
     from rbstudy.analysis.summary import TERMINAL_WIDTH
-    from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, unavailable_schemes
+    from rbstudy.schemes import COMPOSITION_ORDERS, INVARIANTS, SCHEMES, scheme_groups, unavailable_schemes
 
     if args.quiet:  # for scripts, as `docker ps -q` lists ids: `rbstudy bench $(...)`
         print("\n".join(SCHEMES))
@@ -74,6 +74,17 @@ def list_schemes(args: argparse.Namespace) -> int:
             text(
                 f"{why.reason}; fix: {why.fix} ({why.origin})",
                 initial_indent=f"{name:{width}s} {'-':>7s} {'unavailable':{kinds + 17}s} ",
+            )
+        )
+    groups = scheme_groups()
+    print("\ngroups (scheme: <group> in a config; all = builtin):")
+    for group, members in groups.items():
+        print(
+            textwrap.fill(
+                ", ".join(members),
+                width=TERMINAL_WIDTH,
+                initial_indent=f"  {group}: ",
+                subsequent_indent=" " * (len(group) + 4),
             )
         )
     return 0

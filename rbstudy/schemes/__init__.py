@@ -28,11 +28,12 @@ from rbstudy.schemes._plugins import (
     load_plugins,
 )
 from rbstudy.schemes._ready import get_ready
-from rbstudy.schemes._registry import INVARIANTS, KINDS, Option, Scheme, Style, option_slots
+from rbstudy.schemes._registry import GROUPS, INVARIANTS, KINDS, Option, Scheme, Style, option_slots
 
 __all__ = [
     "SCHEMES",
     "BUILTIN",
+    "GROUPS",
     "INVARIANTS",
     "KINDS",
     "COMPOSITION_ORDERS",
@@ -156,8 +157,9 @@ def scheme_styles(names: Iterable[str]) -> dict[str, Style]:
     }
 
 
-# The group of rbstudy's own fixed-step schemes, and that of every available engine scheme;
-# each engine's group is the name of its adapter module (`ENGINES`: "rbstudy.engines.mujoco").
+# The groups of rbstudy's own fixed-step schemes (`GROUPS`: ``builtin``, ``published``), and
+# that of every available engine scheme; each engine's group is the name of its adapter module
+# (`ENGINES`: "rbstudy.engines.mujoco").
 BUILTIN_GROUP = "builtin"
 ENGINES_GROUP = "engines"
 
@@ -168,12 +170,13 @@ def _engine_of(name):
 
 def scheme_groups() -> dict[str, list[str]]:
     """group name -> the registered scheme names it stands for (available or not): one group
-    per engine of `ENGINES`, ``engines`` for them all, ``builtin`` for rbstudy's own
-    fixed-step schemes."""
+    per engine of `ENGINES`, ``engines`` for them all, and for rbstudy's own fixed-step
+    schemes one per `GROUPS` (``builtin``, ``published``)."""
     groups = {
-        BUILTIN_GROUP: [name for name, scheme in BUILTIN.items() if not scheme.adaptive],
-        ENGINES_GROUP: list(ENGINES),
+        group: [name for name, scheme in BUILTIN.items() if not scheme.adaptive and scheme.group == group]
+        for group in GROUPS
     }
+    groups[ENGINES_GROUP] = list(ENGINES)
     for name in ENGINES:
         groups.setdefault(_engine_of(name), []).append(name)
     return groups

@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from rbstudy.numerics.compensated import CARRY_WIDTH
-from rbstudy.schemes._registry import Option
+from rbstudy.schemes._registry import Option, flag_parser
 
 __all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 
@@ -24,12 +24,6 @@ __all__ = ["COMPENSATED", "CARRY_WIDTH", "switch"]
 COST = 1.5
 
 
-def _parse_compensated(value):
-    if value not in (0, 1):  # True and False compare equal to 1 and 0
-        raise ValueError("expected 0 or 1 (false or true): whether to compensate the sums")
-    return (float(value),)
-
-
 COMPENSATED = Option(
     name="compensated",
     default=0,
@@ -37,7 +31,7 @@ COMPENSATED = Option(
         "1: add each step's increments with compensated summation (Kahan), so that a long run "
         "rounds like its increments, dt times finer; 0: plain sums"
     ),
-    parse=_parse_compensated,
+    parse=flag_parser("compensate the sums"),
     cost=lambda value: COST if value else 1.0,
     long_name="compensated summation of the state updates",
     units="1",

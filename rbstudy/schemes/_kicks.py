@@ -1,5 +1,6 @@
-"""Half kicks shared by the symmetric splitting schemes (midpoint, splitting, exact_split;
-no_squish takes their drift and velocity kick).
+"""Half kicks shared by the symmetric splitting schemes (midpoint, splitting, exact_split, and
+the published steps buss, lgvi and simo_wong through `split_step`; no_squish takes their drift
+and velocity kick).
 
 Loads enter these schemes by Strang splitting: a kick of length d applies the loads at the
 current orientation, ``m += d M_b``, ``v += d F / mass``; the free flow in between moves the
@@ -16,10 +17,23 @@ block alike: each path reads its operands, evaluates the loads its own way and w
 
 from rbstudy.numerics import state as S
 from rbstudy.numerics.block import BLOCK, PARAM, STATE, column3, column4, loads_at, set_column3
+from rbstudy.numerics.clock import later
 from rbstudy.numerics.compensated import add3_inplace
 from rbstudy.numerics.dynamics import inertia, kick_momentum, space_force, to_momentum, to_omega
 from rbstudy.numerics.jit import inline_jit, jit
-from rbstudy.numerics.rotation import add, axpy, read3, read4, scale, write3
+from rbstudy.numerics.rotation import (
+    add,
+    axpy,
+    quat_mul,
+    quat_normalize,
+    quat_rotate_inverse,
+    read3,
+    read4,
+    scale,
+    write3,
+    write4,
+)
+from rbstudy.numerics.state import OK
 
 
 @inline_jit
@@ -104,3 +118,32 @@ def compensated_velocity_kick_inplace(y, p, t, d, work, carry):
 def compensated_drift_inplace(y, d, work, carry):
     """`drift_inplace` with compensation."""
     add3_inplace(y, S.POSITION, scale(d, read3(y, S.VELOCITY)), work, carry)
+
+
+@inline_jit
+def turned_frame(q, m, turn, inertia_):
+    """The end of a free step that turns the frame by the unit quaternion ``turn`` (body
+    axes) and keeps the space momentum ``L = R m``: ``(q turn`` renormalised, the spin
+    ``I^-1 turn^-1 m)``."""
+    return quat_normalize(quat_mul(q, turn)), to_omega(quat_rotate_inverse(turn, m), inertia_)
+
+
+@inline_jit
+def split_step(free, y, p, opt, t, h):
+    """One step of a scheme whose free step is ``free``, under loads by Strang splitting:
+    kick(h/2), ``free`` for ``h``, drift(h), kick(h/2) on the state row ``y`` (N_STATE,) with
+    parameters ``p`` (N_PARAM,) and option row ``opt``.
+
+    ``free(q, w, inertia, opt, h) -> (status, iterations, q+, w+)`` turns the frame and the
+    spin of a body free of loads (body axes; ``q`` scalar last). Inlined with ``free`` passed
+    as a value (as `rbstudy.schemes._turning` passes ``advance``), so each scheme's kernel is
+    its own. Returns ``(status, iterations)``; a free step that fails leaves ``y`` kicked."""
+    kick_inplace(y, p, t, 0.5 * h)
+    status, iterations, q, w = free(read4(y, S.QUATERNION), read3(y, S.OMEGA), inertia(p), opt, h)
+    if status != OK:
+        return status, iterations
+    write4(y, S.QUATERNION, q)
+    write3(y, S.OMEGA, w)
+    drift_inplace(y, h)
+    kick_inplace(y, p, later(t, h), 0.5 * h)
+    return OK, iterations

@@ -15,7 +15,17 @@ from rbstudy.errors import SchemeError, one_line
 from rbstudy.numerics import state as S
 from rbstudy.numerics.block import N_TEMP, TEMP
 
-__all__ = ["Option", "Scheme", "Style", "INVARIANTS", "KINDS", "option_slots", "scratch_rows"]
+__all__ = [
+    "Option",
+    "Scheme",
+    "Style",
+    "GROUPS",
+    "INVARIANTS",
+    "KINDS",
+    "flag_parser",
+    "option_slots",
+    "scratch_rows",
+]
 
 INVARIANTS = S.INVARIANTS
 # What a scheme's step solves, as `rbstudy schemes` lists it: kind -> what it means.
@@ -27,6 +37,13 @@ KINDS = {
     "(no Newton iterations)",
     "implicit": "a nonlinear system solved each step by Newton iterations",
     "adaptive": "chooses its own steps",
+}
+# The group a scheme of rbstudy's own belongs to, as `scheme: <group>` names it: ``builtin``
+# (which ``all`` stands for) or ``published``.
+GROUPS = {
+    "builtin": "rbstudy's own fixed-step schemes (what `scheme: all` sweeps)",
+    "published": "rotation steps that game engines and papers publish, each written from its "
+    "source (docs/theory.md s5)",
 }
 
 
@@ -111,6 +128,10 @@ class Scheme:
         bodies across SIMD lanes (`rbstudy.numerics.block`: batches of 16 bodies or more),
         measured as `step_seconds` is; None: it has no block step. The forecast takes it
         for such batches (`block_seconds_per_step`).
+    group : the group of `GROUPS` a scheme of rbstudy's own belongs to (``builtin``: what
+        ``scheme: all`` sweeps; ``published``: a step written from an engine's or a paper's
+        publication). An engine's or a plug-in's scheme keeps the default; its group is its
+        engine's or none.
     slots : where its kernels read each option: name -> first slot of the (N_OPTION,) row,
         as `option_slots` lays it out from ``options`` (set on registering).
     """
@@ -131,6 +152,7 @@ class Scheme:
     loads_held: bool = False
     block_step_seconds: float | None = None
     kind: str | None = None
+    group: str = "builtin"
     slots: Mapping = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -153,6 +175,8 @@ class Scheme:
             object.__setattr__(self, "kind", derived)
         if self.kind not in KINDS:
             raise ValueError(f"scheme {self.name!r}: kind {self.kind!r}; give one of {', '.join(KINDS)}")
+        if self.group not in GROUPS:
+            raise ValueError(f"scheme {self.name!r}: group {self.group!r}; give one of {', '.join(GROUPS)}")
         # frozen: set once, here, from the options (the same layout the scheme's file computes)
         object.__setattr__(self, "slots", option_slots(self.options, self.name))
 
@@ -247,6 +271,18 @@ class Scheme:
             np.zeros(1, dtype=np.int64),
             0.0 if timed else None,
         )
+
+
+def flag_parser(meaning: str) -> Callable[[Any], tuple]:
+    """The ``parse`` of an `Option` that is 0 or 1 (``false`` or ``true``), ``meaning`` what
+    1 asks for (the error's words)."""
+
+    def parse(value):
+        if value not in (0, 1):  # True and False compare equal to 1 and 0
+            raise ValueError(f"expected 0 or 1 (false or true): whether to {meaning}")
+        return (float(value),)
+
+    return parse
 
 
 def option_slots(options: Sequence[Option], scheme: str = "this scheme") -> Mapping[str, int]:
