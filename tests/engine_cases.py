@@ -10,7 +10,6 @@ import numpy as np
 from helpers import LOADED, abaqus_mapping, write_study
 
 from rbstudy.inputs.scenes import scene_from_mapping
-from rbstudy.numerics import state as S
 from rbstudy.numerics.driver import run_batch
 from rbstudy.physics.scenes import param_rows
 from rbstudy.physics.simulate import simulate
@@ -33,14 +32,14 @@ def compared_scenes():
 
 
 def run(scheme, scenes, dt, n_steps):
-    """Every step of ``scenes`` under ``scheme`` (a name or a `Scheme`): samples
-    (B, n_steps + 1, N_STATE)."""
+    """Every step of ``scenes`` under ``scheme`` (a name or a `Scheme`) with its options'
+    defaults: samples (B, n_steps + 1, N_STATE)."""
     chosen = get_scheme(scheme) if isinstance(scheme, str) else scheme
     return run_batch(
         chosen,
         np.array([body.state_row() for body in scenes]),
         param_rows(scenes),
-        np.zeros((len(scenes), S.N_OPTION)),
+        np.tile(chosen.option_row(), (len(scenes), 1)),
         dt,
         n_steps,
         1,

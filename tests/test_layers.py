@@ -38,7 +38,14 @@ RANK = {layer: rank for rank, layer in enumerate(LAYERS)}
 OUTSIDE = {
     "numerics": {"numpy", "numba"},
     "schemes": {"numpy", "numba"},
-    "engines": {"numpy", "mujoco", "pybullet", "exudyn", "pydrake"},  # each adapter its engine's own bindings
+    "engines": {
+        "numpy",
+        "mujoco",
+        "pybullet",
+        "exudyn",
+        "pydrake",
+        "rapier3d",
+    },  # each adapter its engine's own bindings
     "physics": {"numpy", "scipy"},
     "inputs": {"numpy", "scipy", "yaml"},
     "archive": {"numpy", "xarray", "netCDF4", "h5py", "filelock", "zarr"},

@@ -93,7 +93,7 @@ def test_rbstudy_s_engine_schemes_are_its_own_entry_points():
     """Read from the source tree's pyproject.toml, which the test layer checks too, in the
     order of their names, as an installed rbstudy's metadata lists them."""
     assert plugins.ENGINES["mujoco_euler"] == "rbstudy.engines.mujoco:EULER"
-    assert len(plugins.ENGINES) == 13 and list(plugins.ENGINES) == sorted(plugins.ENGINES)
+    assert len(plugins.ENGINES) == 14 and list(plugins.ENGINES) == sorted(plugins.ENGINES)
     assert all(value.startswith("rbstudy.engines.") for value in plugins.ENGINES.values())
 
 

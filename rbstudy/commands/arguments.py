@@ -281,8 +281,9 @@ def add_conformance(commands: Verbs) -> argparse.ArgumentParser:
         conformance,
         "--schemes",
         metavar="SCHEME",
-        help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), "
-        "engines, or one engine (mujoco, drake, ...); default: builtin,engines",
+        help="schemes to judge, or groups: builtin (rbstudy's fixed-step schemes), published "
+        "(rotation steps engines and papers publish), engines, or one engine (mujoco, drake, "
+        "...); default: builtin,published,engines",
     )
     _list_argument(conformance, "--cases", metavar="CASE", help="golden cases to run (default: all)")
     conformance.add_argument(

@@ -168,7 +168,7 @@ def _golden_choice(args: argparse.Namespace) -> tuple[list[str], list[GoldenCase
         twice = [name for name in given or () if given.count(name) > 1]
         if twice:
             raise RbstudyError(f"{option}: {twice[0]} is given twice; name it once")
-    schemes = expand_groups(args.schemes or ["builtin", "engines"])
+    schemes = expand_groups(args.schemes or ["builtin", "published", "engines"])
     for name in schemes:
         if get_scheme(name).adaptive:  # unknown and unavailable names fail here too
             raise RbstudyError(

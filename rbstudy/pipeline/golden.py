@@ -414,9 +414,14 @@ def _study(case: GoldenCase, schemes: Sequence[str], count: int) -> dict[str, An
 
 def baseline(schemes: Iterable[str]) -> list[str]:
     """The schemes that the failure rule compares ``schemes`` (names) with: rbstudy's own
-    fixed-step schemes of their nominal orders, in the registry's order."""
+    fixed-step schemes of their nominal orders (group ``builtin``: the published steps are
+    judged, not the yardstick), in the registry's order."""
     orders = {get_scheme(name).order for name in schemes}
-    return [name for name, scheme in BUILTIN.items() if not scheme.adaptive and scheme.order in orders]
+    return [
+        name
+        for name, scheme in BUILTIN.items()
+        if not scheme.adaptive and scheme.group == "builtin" and scheme.order in orders
+    ]
 
 
 def write_golden(
