@@ -1,14 +1,20 @@
 """`rbstudy conformance` on a shrunk golden set: the rules judge real runs, the scorecard is
 printed, archived and drawn as a page."""
 
+import base64
+import html
 import importlib
 import importlib.metadata
 import pathlib
+import re
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
 import xarray as xr
 
+from rbstudy.analysis.card_page import TROUBLE
 from rbstudy.analysis.conformance import RULES
 from rbstudy.cli import main
 from rbstudy.pipeline.golden import GOLDEN
@@ -311,3 +317,84 @@ def test_an_unwritable_out_is_a_one_line_error(tmp_path, capsys):
     )
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "choose another folder with --out" in error
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory):
+    """euler and jolt (a published step: not rbstudy's builtin) on the Abaqus top and the
+    T-handle, three steps: the card's page, its archive, and its folder."""
+    out = tmp_path_factory.mktemp("card_page")
+    argv = ["conformance", "--cases", "abaqus_top,t_handle", "--schemes", "euler,jolt"]
+    assert main([*argv, "--steps", "3", "--out", str(out), "--quiet"]) == 0
+    with xr.open_dataset(out / "conformance.nc") as ds:
+        return out, (out / "conformance.html").read_text(), ds.load()
+
+
+@pytest.mark.slow
+def test_the_page_says_each_cases_answer_and_what_goes_wrong_as_the_archives_do(page):
+    """The findings in words, recomputed: each case's answer is its golden study's own
+    recommendation (read again from its archive), and the line of jolt, the one scheme that
+    is not rbstudy's own, names each rule it failed with exactly the cases the scorecard's
+    archive marks failed."""
+    from rbstudy.analysis.findings import BUSY_CLAUSE, findings
+    from rbstudy.archive.reader import open_archive
+
+    out, text, ds = page
+    text = html.unescape(text)  # jinja escapes the apostrophes of the words
+    for case in ds["case"].values:
+        study = open_archive(out / f"conformance_{case}" / f"conformance_{case}.nc")
+        answer = next(f.text for f in findings(study) if "recommendation" in f.kind)
+        assert answer.partition(BUSY_CLAUSE)[0] in text, case
+    troubles = re.findall(r"<li>(jolt \(.*?)</li>", text)
+    failed = ds["rule_passed"].sel(scheme="jolt") == 0
+    passed = int(ds["passed"].sel(scheme="jolt").sum())
+    if not failed.any():
+        assert troubles == []
+        return
+    assert len(troubles) == 1 and troubles[0].startswith(f"jolt ({passed}/{ds.sizes['case']}): ")
+    for rule in ds["rule"].values:
+        cases = [str(c) for c in ds["case"].values if bool(failed.sel(case=c, rule=rule))]
+        phrase = re.search(rf"{re.escape(TROUBLE[str(rule)])} in ([a-z_, ]+)", troubles[0])
+        assert (phrase.group(1).split(", ") if phrase else []) == cases, (rule, troubles[0])
+    assert "<li>euler" not in text  # rbstudy's own: the yardstick, not a finding
+
+
+@pytest.mark.slow
+def test_the_page_stands_alone_every_figure_embedded_and_every_link_landing(page):
+    """One work-precision figure per case, each a PNG inside the page; every link within the
+    page lands on an element of the page; a cell links to its case's figure."""
+    _, text, ds = page
+    images = re.findall(r'<img class="figure" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
+    assert len(images) == ds.sizes["case"]
+    for encoded in images:
+        assert base64.b64decode(encoded).startswith(b"\x89PNG\r\n\x1a\n")
+    ids = set(re.findall(r'id="([^"]+)"', text))
+    targets = re.findall(r'href="#([^"]+)"', text)
+    assert targets and set(targets) <= ids
+    for case in ds["case"].values:
+        assert f'href="#figure-{case}"' in text and f'id="figure-{case}"' in text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="no chromium on this machine")
+def test_the_page_opens_in_headless_chromium_with_every_figure_drawn(page):
+    """Loaded by headless Chromium, every figure decodes (the page marks each image it drew)
+    and the card's table is there."""
+    out, _, ds = page
+    dom = subprocess.run(
+        [
+            "chromium",
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+            (out / "conformance.html").as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+    assert dom.count('data-drawn="1"') == ds.sizes["case"] and 'data-drawn="0"' not in dom
+    assert '<table id="card">' in dom

@@ -37,7 +37,8 @@ A cell passes when every rule of its case passes; its number is the observed ord
 for a scheme exact on the body). Every golden case sweeps ``dt`` alone, so a scheme's
 cases in it are its time steps. `score_case` returns the cells;
 `format_scorecard` prints them; `scorecard_dataset` is the archive of the scorecard
-(``passed`` and ``value`` per scheme and case, and per rule); `scorecard_html` the page.
+(``passed`` and ``value`` per scheme and case, and per rule); the page is
+`rbstudy.analysis.card_page`'s.
 """
 
 from __future__ import annotations
@@ -49,7 +50,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tabulate import tabulate
 
-from rbstudy.analysis.pages import render
 from rbstudy.analysis.summary import (
     ERROR_MEASURES,
     KEPT_TOLERANCE,
@@ -64,6 +64,7 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS, OK
+from rbstudy.schemes import BUILTIN_GROUP, scheme_groups
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -85,7 +86,7 @@ __all__ = [
     "score_case",
     "format_scorecard",
     "scorecard_dataset",
-    "scorecard_html",
+    "held_note",
     "tally_statuses",
     "status_lines",
 ]
@@ -118,7 +119,7 @@ RULES = {
     "invariants": f"every claimed invariant kept below {KEPT_TOLERANCE:g} (finished cases)",
     "energy": f"energy never above its start by more than {ENERGY_GAIN:g} (relative)",
     "flip": "flip interval within one time step of the exact one",
-    "failure": "no failure where an rbstudy scheme of the same nominal order finished",
+    "failure": "no failure where one of rbstudy's builtin schemes of the same nominal order finished",
 }
 
 
@@ -249,10 +250,14 @@ def _failure(ds, scheme, row):
     if not failed.any():
         return Verdict(True, 0.0, "no case failed")
     nominal = row["nominal"]
+    # the yardstick is rbstudy's own builtin schemes: never an engine's, a plug-in's, nor a
+    # published step's, which are judged by it (so a cell is the same whoever runs beside)
+    builtin = set(scheme_groups()[BUILTIN_GROUP])
     peers = [
         other
         for other in schemes_of(ds)
         if other != scheme
+        and other in builtin
         and str(per_scheme(ds["scheme_origin"], other).values) == ORIGIN_RBSTUDY
         and int(per_scheme(ds["nominal_order"], other)) == nominal
     ]
@@ -426,13 +431,14 @@ def format_scorecard(cells: Mapping[str, Mapping[str, Cell]], cases: Sequence[st
             )
             for block in blocks
         ]
-        + (["\n".join(wrap_clauses(HELD_LOAD_NOTE, indent="  "))] if _held(cells, cases) else [])
+        + (["\n".join(wrap_clauses(HELD_LOAD_NOTE, indent="  "))] if held_note(cells, cases) else [])
     )
 
 
-def _held(cells, cases):
-    """Whether a cell of ``cases`` judges an adapter's held load (`Cell.load_held`)."""
-    return any(cell.load_held for case in cases for cell in cells[case].values())
+def held_note(cells: Mapping[str, Mapping[str, Cell]], cases: Sequence[str]) -> str | None:
+    """`HELD_LOAD_NOTE` where a cell of ``cases`` judges an adapter's held load
+    (`Cell.load_held`), else None."""
+    return HELD_LOAD_NOTE if any(cell.load_held for case in cases for cell in cells[case].values()) else None
 
 
 @dataclass(frozen=True)
@@ -546,31 +552,4 @@ def scorecard_dataset(
             "rule_meaning": ("rule", np.array([RULES[r] for r in rules], dtype=object)),
         },
         attrs=attrs,
-    )
-
-
-def scorecard_html(
-    cells: Mapping[str, Mapping[str, Cell]],
-    cases: Sequence[str],
-    titles: Mapping[str, str],
-    header: Sequence[str],
-    figures: Mapping[str, Figure] | None = None,
-) -> str:
-    """The scorecard as one HTML page (`rbstudy.analysis.pages`, the report's base page): a
-    cell per scheme and case, green or red, with every rule's measurement in it and the
-    figure's check; ``titles`` (case -> title), ``header`` (lines said above the table) and
-    ``figures`` (case -> `rbstudy.pipeline.golden.Figure`, for the cases whose source asserts
-    one)."""
-    schemes = list(dict.fromkeys(s for case in cases for s in cells[case]))
-    rows = [(s, [cells[c].get(s) for c in cases]) for s in schemes]
-    return render(
-        "conformance.html.j2",
-        title="rbstudy conformance scorecard",
-        header=header,
-        rules=RULES,
-        cases=cases,
-        titles=titles,
-        rows=rows,
-        figures=figures or {},
-        held_load_note=HELD_LOAD_NOTE if _held(cells, cases) else None,
     )

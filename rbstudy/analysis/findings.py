@@ -246,6 +246,11 @@ def _study_wide_finding(ds: xr.Dataset, uniform: Choice, bound: float) -> Findin
     )
 
 
+# How an answer says that its costs were measured on a busy machine (`_busy_text`): the page
+# of the conformance card says it once for every case (`rbstudy.analysis.card_page`).
+BUSY_CLAUSE = "; their costs were measured while other programs kept the machine busy"
+
+
 def _busy_text(ds: xr.Dataset, choice: Choice) -> str:
     """What the answer adds where the costs of its schemes were measured while other
     programs kept the machine busy (`BUSY_UNCERTAINTY`): why so many are of equal cost."""
@@ -257,8 +262,8 @@ def _busy_text(ds: xr.Dataset, choice: Choice) -> str:
     if not bool((uncertainty >= BUSY_UNCERTAINTY).any()):
         return ""
     return (
-        f"; their costs were measured while other programs kept the machine busy, uncertain to "
-        f"{BUSY_UNCERTAINTY:.0%} (sweep again on a quiet machine to tell them apart)"
+        f"{BUSY_CLAUSE}, uncertain to {BUSY_UNCERTAINTY:.0%} (sweep again on a quiet machine to tell "
+        "them apart)"
     )
 
 

@@ -5,12 +5,13 @@ The templates are package data: a wheel carries them (pyproject's package-data),
 read from beside this module, so an installed rbstudy finds them as a checkout does.
 """
 
+import base64
 import pathlib
 from typing import Any
 
 import jinja2
 
-__all__ = ["render", "TEMPLATES"]
+__all__ = ["data_uri", "render", "TEMPLATES"]
 
 TEMPLATES = pathlib.Path(__file__).resolve().parent / "templates"
 
@@ -26,3 +27,8 @@ _ENVIRONMENT = jinja2.Environment(
 def render(template: str, **context: Any) -> str:
     """The page of ``template`` (a file name in `TEMPLATES`) filled from ``context``."""
     return _ENVIRONMENT.get_template(template).render(**context)
+
+
+def data_uri(png: pathlib.Path) -> str:
+    """The PNG file ``png`` as a data URI: a page that embeds its figures stands alone."""
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")

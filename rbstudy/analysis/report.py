@@ -15,7 +15,6 @@ another study's report there is refused. The page is the template ``report.html.
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import importlib.metadata
 import os
@@ -32,7 +31,7 @@ from rbstudy.analysis.figure_frame import FORMATS
 from rbstudy.analysis.figure_lines import figure_layout
 from rbstudy.analysis.findings import calibrated, findings
 from rbstudy.analysis.overlaps import coinciding_lines
-from rbstudy.analysis.pages import render
+from rbstudy.analysis.pages import data_uri, render
 from rbstudy.analysis.plots import CAPTIONS, all_figures
 from rbstudy.analysis.summary import (
     COINCIDENT_DIGITS,
@@ -302,10 +301,6 @@ def captions(
     return result
 
 
-def _data_uri(png):
-    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
-
-
 def _page_title(ds, study):
     """The archive's title as the page heads it (its ``<title>`` and ``<h1>``): white space
     one space, at most `MAX_TITLE_CHARACTERS` (a config's bound; an archive made elsewhere
@@ -376,7 +371,7 @@ def write_report(
         {
             "name": name,
             "anchor": f"figure-{name}",
-            "source": _data_uri(png),
+            "source": data_uri(png),
             "caption": texts[name][0],
             "reading": texts[name][1],
             "svg": png.with_suffix(".svg").relative_to(out).as_posix() if svg else None,

@@ -15,6 +15,7 @@ from rbstudy.commands.common import check_out, say, version
 from rbstudy.errors import RbstudyError, counted, did_you_mean
 
 if TYPE_CHECKING:  # for the hints alone: running a verb imports what it needs then
+    from rbstudy.analysis.card_page import CaseView
     from rbstudy.analysis.conformance import Cell
     from rbstudy.pipeline.golden import Figure, GoldenCase
 
@@ -115,7 +116,8 @@ def conformance(args: argparse.Namespace) -> int:
     against each case's rules; the scorecard printed and written as netCDF and HTML."""
     import time
 
-    from rbstudy.analysis.conformance import format_scorecard, scorecard_dataset, scorecard_html
+    from rbstudy.analysis.card_page import scorecard_html
+    from rbstudy.analysis.conformance import format_scorecard, scorecard_dataset
     from rbstudy.archive.files import write_dataset_atomic, write_text_atomic
     from rbstudy.archive.provenance import source_text
 
@@ -123,7 +125,7 @@ def conformance(args: argparse.Namespace) -> int:
     check_out(args.out)
     schemes, cases = _golden_choice(args)
     out = pathlib.Path(args.out)
-    cells, failed = _scored(args, out, schemes, cases)
+    cells, failed, views = _scored(args, out, schemes, cases)
     names = [case.name for case in cases]
     seconds = time.perf_counter() - started
     figures = {case.name: case.figure for case in cases if case.figure is not None}
@@ -138,7 +140,9 @@ def conformance(args: argparse.Namespace) -> int:
     }
     write_dataset_atomic(scorecard_dataset(cells, names, attrs), out / "conformance.nc")
     write_text_atomic(
-        scorecard_html(cells, names, {case.name: case.title for case in cases}, header, figures),
+        scorecard_html(
+            cells, names, {case.name: case.title for case in cases}, header, figures, views, schemes
+        ),
         out / "conformance.html",
     )
     say(f"scorecard: {out / 'conformance.nc'} and {out / 'conformance.html'}")
@@ -179,19 +183,23 @@ def _golden_choice(args: argparse.Namespace) -> tuple[list[str], list[GoldenCase
 
 def _scored(
     args: argparse.Namespace, out: pathlib.Path, schemes: list[str], cases: list[GoldenCase]
-) -> tuple[dict[str, dict[str, Cell]], dict[int, dict[str, int]]]:
+) -> tuple[dict[str, dict[str, Cell]], dict[int, dict[str, int]], dict[str, CaseView]]:
     """The golden studies of ``cases`` written under ``out`` and run (a rerun reuses the
-    archives it finds), then each scored: the scorecard's cells per case, and the failed
-    cases per status and scheme (`rbstudy.analysis.conformance.tally_statuses`)."""
+    archives it finds), then each scored: the scorecard's cells per case, the failed cases
+    per status and scheme (`rbstudy.analysis.conformance.tally_statuses`), and each case's
+    answer and work-precision figure (`rbstudy.analysis.card_page.case_view`, into
+    ``out/figures``)."""
+    from rbstudy.analysis.card_page import case_view
     from rbstudy.analysis.conformance import score_case, tally_statuses
     from rbstudy.archive.reader import open_archive
     from rbstudy.pipeline.golden import run_golden, write_golden
     from rbstudy.pipeline.progress import Progress
-    from rbstudy.schemes import get_scheme
+    from rbstudy.schemes import get_scheme, scheme_styles
 
     paths = write_golden(out / "golden", schemes, cases, args.steps)
     cells: dict[str, dict[str, Cell]] = {}
     failed: dict[int, dict[str, int]] = {}
+    views: dict[str, CaseView] = {}
     with Progress(
         "conformance",
         f"{counted(len(schemes), 'scheme')} x {counted(len(cases), 'golden case')}",
@@ -204,8 +212,10 @@ def _scored(
             held = () if case.moment_free else [s for s in schemes if get_scheme(s).loads_held]
             cells[case.name] = score_case(dataset, case.rules, schemes, case.figure, held)
             tally_statuses(failed, dataset, schemes)
+            drawn = dataset["scheme"].values.tolist()
+            views[case.name] = case_view(dataset, out / "figures", scheme_styles(drawn))
             progress.advance()
-    return cells, failed
+    return cells, failed, views
 
 
 def _scorecard_header(
