@@ -64,7 +64,6 @@ from rbstudy.analysis.summary import (
 )
 from rbstudy.errors import counted
 from rbstudy.numerics.state import INVARIANTS, OK
-from rbstudy.schemes import BUILTIN_GROUP, scheme_groups
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -251,7 +250,10 @@ def _failure(ds, scheme, row):
         return Verdict(True, 0.0, "no case failed")
     nominal = row["nominal"]
     # the yardstick is rbstudy's own builtin schemes: never an engine's, a plug-in's, nor a
-    # published step's, which are judged by it (so a cell is the same whoever runs beside)
+    # published step's, which are judged by it (so a cell is the same whoever runs beside);
+    # the registry imported here, when scoring, so that reading archives never loads numba
+    from rbstudy.schemes import BUILTIN_GROUP, scheme_groups
+
     builtin = set(scheme_groups()[BUILTIN_GROUP])
     peers = [
         other
